@@ -1,0 +1,146 @@
+"""Cooperative scheduler: one thread, tasks that take `now` and return their next wake time.
+
+As in Klipper's reactor, a periodic task is just a task that returns `now + period`;
+there is no special case for it. Returning ``None`` retires the task. Execution time
+is measured with a separate stopwatch (real CPU time by default, injectable so a
+lock-step run can stay byte-for-byte deterministic), and lateness against the
+requested wake time is counted as an overrun when it exceeds the task's tolerance.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+from timebase import Clock, RealClock
+
+TaskFn = Callable[[float], Optional[float]]
+
+_HIST_BUCKETS = 32  # log2 buckets of microseconds: bucket b holds [2**(b-1), 2**b) us
+
+
+@dataclass
+class TaskStats:
+    """Timing of one task: runs, execution time (max, p99) and lateness."""
+
+    runs: int = 0
+    exec_total_s: float = 0.0
+    exec_max_s: float = 0.0
+    late_max_s: float = 0.0
+    overruns: int = 0
+    _hist: list[int] = field(default_factory=lambda: [0] * _HIST_BUCKETS, repr=False)
+
+    def record(self, exec_s: float, late_s: float, overrun: bool) -> None:
+        self.runs += 1
+        self.exec_total_s += exec_s
+        if exec_s > self.exec_max_s:
+            self.exec_max_s = exec_s
+        if late_s > self.late_max_s:
+            self.late_max_s = late_s
+        if overrun:
+            self.overruns += 1
+        bucket = min(int(exec_s * 1e6).bit_length(), _HIST_BUCKETS - 1)
+        self._hist[bucket] += 1
+
+    @property
+    def exec_p99_s(self) -> float:
+        """Upper bound of the bucket holding the 99th percentile (within a factor of 2)."""
+        if not self.runs:
+            return 0.0
+        threshold = 0.99 * self.runs
+        seen = 0
+        for bucket, count in enumerate(self._hist):
+            seen += count
+            if seen >= threshold:
+                return (1 << bucket) * 1e-6
+        return self.exec_max_s
+
+
+class Task:
+    """A scheduled callable with its own statistics."""
+
+    def __init__(self, name: str, fn: TaskFn, tolerance_s: float) -> None:
+        self.name = name
+        self.fn = fn
+        self.tolerance_s = tolerance_s
+        self.stats = TaskStats()
+        self.wake_s: Optional[float] = None
+
+
+class Scheduler:
+    """Runs tasks in wake-time order on an injected clock."""
+
+    def __init__(self, clock: Clock, stopwatch: Callable[[], float] = RealClock.precise_now) -> None:
+        self.clock = clock
+        self._stopwatch = stopwatch
+        self._heap: list[tuple[float, int, Task]] = []
+        self._order = itertools.count()
+        self.tasks: dict[str, Task] = {}
+
+    def add(self, name: str, fn: TaskFn, first_wake_s: Optional[float] = None,
+            tolerance_s: float = 0.002) -> Task:
+        """Schedule `fn` to run first at `first_wake_s` (default: now)."""
+        if name in self.tasks:
+            raise ValueError(f"a task named {name!r} is already scheduled")
+        task = Task(name, fn, tolerance_s)
+        self.tasks[name] = task
+        self._push(task, self.clock.now() if first_wake_s is None else first_wake_s)
+        return task
+
+    def wake(self, name: str, at_s: Optional[float] = None) -> None:
+        """Bring a task's next run forward to `at_s` (default: now)."""
+        task = self.tasks[name]
+        at_s = self.clock.now() if at_s is None else at_s
+        if task.wake_s is None or at_s < task.wake_s:
+            self._push(task, at_s)
+
+    def _push(self, task: Task, wake_s: float) -> None:
+        task.wake_s = wake_s
+        heapq.heappush(self._heap, (wake_s, next(self._order), task))
+
+    def next_wake_s(self) -> Optional[float]:
+        while self._heap and self._heap[0][0] != self._heap[0][2].wake_s:
+            heapq.heappop(self._heap)  # superseded by a later push
+        return self._heap[0][0] if self._heap else None
+
+    def run_due(self) -> int:
+        """Run every task whose wake time has come; return how many ran."""
+        ran = 0
+        now = self.clock.now()
+        while True:
+            wake = self.next_wake_s()
+            if wake is None or wake > now:
+                return ran
+            _, _, task = heapq.heappop(self._heap)
+            task.wake_s = None
+            start = self._stopwatch()
+            next_wake = task.fn(now)
+            exec_s = self._stopwatch() - start
+            late_s = now - wake
+            task.stats.record(exec_s, late_s, overrun=late_s > task.tolerance_s)
+            ran += 1
+            if next_wake is None:
+                del self.tasks[task.name]
+            elif task.wake_s is None or next_wake < task.wake_s:
+                self._push(task, next_wake)
+            now = self.clock.now()
+
+    def run_until(self, end_s: float) -> None:
+        """Run tasks until the clock reaches `end_s` (jumps ahead on a SimClock)."""
+        while True:
+            self.run_due()
+            wake = self.next_wake_s()
+            if wake is None or wake > end_s:
+                self.clock.sleep_until(end_s)
+                self.run_due()
+                return
+            self.clock.sleep_until(wake)
+
+    def run_forever(self, should_stop: Callable[[], bool] = lambda: False) -> None:
+        while not should_stop():
+            self.run_due()
+            wake = self.next_wake_s()
+            if wake is None:
+                return
+            self.clock.sleep_until(wake)

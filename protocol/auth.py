@@ -1,0 +1,109 @@
+"""Keys: the pre-shared key file, and the keys derived from it for each direction.
+
+Every frame is signed with HMAC-SHA256 truncated to 16 bytes and carries a 48-bit
+counter that must strictly increase in its direction; a receiver checks both before
+any state changes and commits the counter only after the tag verifies (as CCSDS SDLS
+does), so a forged frame with a huge counter cannot block genuine traffic.
+
+Replays across restarts are defeated by session keys: HELLO carries a fresh host
+nonce, HelloReply a fresh controller nonce, and every later frame is signed with
+``HMAC(psk, "aspod/v1/session/<direction>" | host_nonce | controller_nonce)``. A frame
+recorded in an earlier session does not verify in this one, whichever end restarted.
+Keys differ per direction, so a frame reflected back to its sender does not verify.
+The handshake frames themselves use a per-direction handshake key; a replayed HELLO
+only opens a *pending* session that the controller adopts when a frame signed with
+its key arrives, which an attacker without the PSK cannot make.
+"""
+from __future__ import annotations
+
+import hmac
+import os
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+
+from protocol.errors import KeyFileError
+
+KEY_BYTES = 32
+MIN_KEY_BYTES = 16
+NONCE_BYTES = 16
+TO_CONTROLLER = b"h2c"
+TO_HOST = b"c2h"
+
+
+def _derive(psk: bytes, label: bytes) -> bytes:
+    return hmac.digest(psk, b"aspod/v1/" + label, "sha256")
+
+
+@dataclass(frozen=True)
+class DirectionKeys:
+    """The pair of keys one end uses: one to sign what it sends, one to verify what it receives."""
+
+    tx: bytes
+    rx: bytes
+
+
+def handshake_keys(psk: bytes, is_controller: bool) -> DirectionKeys:
+    h2c = _derive(psk, b"handshake/" + TO_CONTROLLER)
+    c2h = _derive(psk, b"handshake/" + TO_HOST)
+    return DirectionKeys(tx=c2h, rx=h2c) if is_controller else DirectionKeys(tx=h2c, rx=c2h)
+
+
+def session_keys(psk: bytes, host_nonce: bytes, controller_nonce: bytes, is_controller: bool) -> DirectionKeys:
+    nonces = host_nonce + controller_nonce
+    h2c = _derive(psk, b"session/" + TO_CONTROLLER + nonces)
+    c2h = _derive(psk, b"session/" + TO_HOST + nonces)
+    return DirectionKeys(tx=c2h, rx=h2c) if is_controller else DirectionKeys(tx=h2c, rx=c2h)
+
+
+def new_nonce() -> bytes:
+    return secrets.token_bytes(NONCE_BYTES)
+
+
+def default_key_path() -> Path:
+    """The per-user development key: $XDG_CONFIG_HOME/aspod/dev.key (default ~/.config)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "aspod" / "dev.key"
+
+
+def parse_key(text: str, source: str) -> bytes:
+    """A key written as hex (whitespace and `#` comment lines ignored)."""
+    lines = [line.split("#", 1)[0] for line in text.splitlines()]
+    digits = "".join("".join(lines).split())
+    try:
+        key = bytes.fromhex(digits)
+    except ValueError:
+        raise KeyFileError(f"{source}: not a hex key (expected {2 * KEY_BYTES} hex digits)") from None
+    if len(key) < MIN_KEY_BYTES:
+        raise KeyFileError(f"{source}: key of {len(key)} bytes is too short (at least {MIN_KEY_BYTES})")
+    return key
+
+
+def load_key(path: Path | str) -> bytes:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="ascii")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise KeyFileError(f"{path}: cannot read key file: {exc}") from None
+    return parse_key(text, str(path))
+
+
+def write_key(path: Path | str, key: bytes) -> None:
+    """Write `key` atomically, readable by its owner only."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="ascii") as out:
+        out.write("# ASPOD link pre-shared key (HMAC-SHA256), hex\n" + key.hex() + "\n")
+        out.flush()
+        os.fsync(out.fileno())
+    os.replace(tmp, path)
+
+
+def load_or_create_dev_key(path: Path | str | None = None) -> tuple[bytes, Path]:
+    """The development key at `path` (default `default_key_path()`), created if missing."""
+    path = Path(path) if path is not None else default_key_path()
+    if not path.exists():
+        write_key(path, secrets.token_bytes(KEY_BYTES))
+    return load_key(path), path

@@ -1,0 +1,286 @@
+"""The host's end of the link: handshake, commands with exactly one outcome each, events in.
+
+`submit(msg, now)` returns a `CommandHandle` that ends in exactly one terminal
+outcome: SUCCEEDED (answered OK), REJECTED (answered with a reason code) or FAILED
+(never answered: the retry limit suspended the link, or the session was replaced;
+the command may or may not have run, and the handle says so). Nothing is dropped
+silently.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+from protocol import auth
+from protocol.errors import ParseError
+from protocol.framing import Frame
+from protocol.link import (HELLO_REPLY_ID, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint, LinkState,
+                           Session)
+from protocol.messages import PROTOCOL_VERSION, SCHEMA
+from protocol.reasons import Reason
+from protocol.reliable import Outcome, Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
+from protocol.schema import Message, MsgClass, Schema
+
+
+@dataclass(eq=False)
+class CommandHandle:
+    """One command from submission to its single terminal outcome."""
+
+    msg: Message
+    submitted_s: float
+    outcome: Outcome = Outcome.PENDING
+    reason: Reason = Reason.OK
+    reply: Optional[Message] = None
+    done_s: Optional[float] = None
+    tries: int = 0
+    detail: str = ""
+
+    @property
+    def done(self) -> bool:
+        return self.outcome is not Outcome.PENDING
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome is Outcome.SUCCEEDED
+
+    @property
+    def latency_s(self) -> Optional[float]:
+        return None if self.done_s is None else self.done_s - self.submitted_s
+
+    def _finish(self, outcome: Outcome, reason: Reason, now: float, reply: Optional[Message] = None,
+                detail: str = "") -> None:
+        if self.done:   # exactly one terminal outcome
+            return
+        self.outcome, self.reason, self.reply, self.done_s, self.detail = outcome, reason, reply, now, detail
+
+    def describe(self) -> str:
+        if self.outcome is Outcome.SUCCEEDED:
+            return f"{self.msg.spec.name}: ok"
+        why = self.reason.describe() if isinstance(self.reason, Reason) else str(self.reason)
+        return f"{self.msg.spec.name}: {self.outcome.value}: {why}{' (' + self.detail + ')' if self.detail else ''}"
+
+
+@dataclass
+class Refusal:
+    reason: Reason
+    detail: str
+
+
+class HostLink(LinkEndpoint):
+    is_controller = False
+
+    def __init__(self, psk: bytes, config: Optional[LinkConfig] = None, schema: Schema = SCHEMA,
+                 nonce_source: Callable[[], bytes] = auth.new_nonce,
+                 on_telemetry: Callable[[Message, float], None] = lambda msg, now: None,
+                 on_event: Callable[[Message, float], None] = lambda msg, now: None) -> None:
+        super().__init__(psk, config, schema, nonce_source)
+        self.on_telemetry = on_telemetry
+        self.on_event = on_event
+        self.refusal: Optional[Refusal] = None
+        self.controller_info: Optional[Message] = None
+        self.last_telemetry: Optional[Message] = None
+        self.sessions_started = 0
+        self._hello_nonce: Optional[bytes] = None
+        self._hello_due_s: Optional[float] = None
+        self._hello_tries = 0
+        self._telemetry_expected: Optional[int] = None
+        self._retransmits_before = 0
+        self._new_channels()
+
+    def _new_channels(self) -> None:
+        cfg = self.config
+        self._commands = ReliableSender(window=cfg.window, retry_limit=cfg.retry_limit,
+                                        rtt=RttEstimator(cfg.initial_rto_s, cfg.min_rto_s, cfg.max_rto_s))
+        self._urgent = ReliableSender(window=cfg.window, retry_limit=cfg.retry_limit, in_order=False,
+                                      rtt=self._commands.rtt)
+        self._events = ReliableReceiver()
+
+    # ---- handshake ----
+    def connect(self, now: float) -> None:
+        """Start (or restart) a session. Commands still outstanding fail with SESSION_RESET."""
+        self._fail_all(Reason.SESSION_RESET, now, "a new session was started")
+        self._retransmits_before += self._commands.retransmits + self._urgent.retransmits
+        self._new_channels()
+        self.session = None
+        self.refusal = None
+        self.state = LinkState.CONNECTING
+        self._hello_nonce = self._nonce()
+        self._hello_tries = 0
+        self._hello_due_s = now
+
+    def _send_hello(self, now: float) -> None:
+        self._hello_tries += 1
+        self._hello_due_s = now + self.config.initial_rto_s
+        hello = SCHEMA["Hello"].type(PROTOCOL_VERSION, self.schema.hash, self._hello_nonce)
+        self._queue(PRIO_URGENT, MsgClass.LINK, 0, SCHEMA["Hello"].id, SCHEMA["Hello"].encode(hello),
+                    handshake=True)
+
+    def _handle_handshake(self, frame: Frame, now: float) -> None:
+        if frame.msg_id != HELLO_REPLY_ID:
+            return
+        try:
+            reply = self.schema.decode(frame.msg_id, frame.payload)
+        except ParseError:
+            self.stats.rejected += 1
+            return
+        if self.state is not LinkState.CONNECTING or reply.host_nonce != self._hello_nonce:
+            self.stats.replays += 1   # an answer to some other Hello: stale or replayed
+            return
+        self.controller_info = reply
+        self._hello_due_s = None
+        if reply.result != Reason.OK:
+            reason = Reason(reply.result) if reply.result in Reason._value2member_map_ else Reason.NO_SESSION
+            detail = (f"host schema {self.schema.hash:016x}, controller schema {reply.schema_hash:016x}; "
+                      f"host protocol v{PROTOCOL_VERSION}, controller v{reply.protocol_version}")
+            self.refusal = Refusal(reason, detail)
+            self.state = LinkState.REFUSED
+            return
+        self.session = Session(auth.session_keys(self._psk, reply.host_nonce, reply.controller_nonce, False),
+                               reply.host_nonce, reply.controller_nonce)
+        self.state = LinkState.UP
+        self.sessions_started += 1
+        self._next_heartbeat_s = None   # a heartbeat at once makes the controller adopt the session
+
+    def _handle_handshake_nak(self, frame: Frame, now: float) -> None:
+        """A NAK signed with the handshake key: the controller has no session of ours (it restarted)."""
+        super()._handle_handshake_nak(frame, now)
+        if self.state is LinkState.UP:
+            self.connect(now)
+
+    # ---- commands ----
+    def submit(self, msg: Message, now: float) -> CommandHandle:
+        """Send a command or urgent request; its handle ends in exactly one outcome."""
+        handle = CommandHandle(msg, now)
+        spec = msg.spec
+        if spec.cls not in (MsgClass.COMMAND, MsgClass.URGENT) or spec.reply is None:
+            handle._finish(Outcome.REJECTED, Reason.WRONG_DIRECTION, now, detail=f"{spec.name} is not a command")
+            return handle
+        if self.state is not LinkState.UP:
+            reason = Reason.LINK_SUSPENDED if self.state is LinkState.SUSPENDED else (
+                self.refusal.reason if self.refusal else Reason.NO_SESSION)
+            handle._finish(Outcome.FAILED, reason, now, detail=f"link is {self.state.value}")
+            return handle
+        sender = self._commands if spec.cls == MsgClass.COMMAND else self._urgent
+        sender.submit(spec.id, spec.encode(msg), handle)
+        self._pump(now)
+        return handle
+
+    @property
+    def outstanding(self) -> int:
+        return self._commands.outstanding + self._urgent.outstanding
+
+    def _pump(self, now: float) -> None:
+        for sender, cls, prio in ((self._urgent, MsgClass.URGENT, PRIO_URGENT),
+                                  (self._commands, MsgClass.COMMAND, PRIO_RELIABLE)):
+            for item in sender.due(now):
+                item.context.tries = item.tries
+                self._queue(prio, cls, item.seq, item.msg_id, item.payload)
+            if sender.suspended:
+                self.state = LinkState.SUSPENDED
+                self._fail_all(Reason.LINK_SUSPENDED, now, f"no answer after {self.config.retry_limit} sends")
+                return
+
+    def _fail_all(self, reason: Reason, now: float, detail: str) -> None:
+        for sender in (self._urgent, self._commands):
+            for item in sender.take_failed():
+                item.context._finish(Outcome.FAILED, reason, now, detail=detail)
+
+    def _complete(self, item: Optional[Pending], frame: Frame, now: float) -> None:
+        if item is None:
+            return   # an answer to a retransmission that was already answered
+        handle: CommandHandle = item.context
+        try:
+            reply = self.schema.decode(frame.msg_id, frame.payload)
+        except ParseError as exc:
+            handle._finish(Outcome.REJECTED, exc.reason, now, detail=f"unreadable reply: {exc.detail}")
+            return
+        result = reply[0] if reply.spec.fields and reply.spec.fields[0].name == "result" else Reason.OK
+        if result == Reason.OK:
+            handle._finish(Outcome.SUCCEEDED, Reason.OK, now, reply)
+        else:
+            reason = Reason(result) if result in Reason._value2member_map_ else Reason.UNKNOWN_MESSAGE
+            handle._finish(Outcome.REJECTED, reason, now, reply)
+
+    # ---- session frames ----
+    def _handle(self, frame: Frame, spec, now: float) -> None:
+        cls = frame.cls
+        if cls == MsgClass.COMMAND:
+            self._complete(self._commands.answered(frame.seq, now), frame, now)
+        elif cls == MsgClass.URGENT:
+            self._complete(self._urgent.answered(frame.seq, now), frame, now)
+        elif cls == MsgClass.TELEMETRY:
+            self._telemetry(frame, spec, now)
+        elif cls == MsgClass.EVENT:
+            self._event(frame, spec, now)
+        else:
+            self._link(frame, spec, now)
+
+    def _link(self, frame: Frame, spec, now: float) -> None:
+        if spec.name not in ("Heartbeat", "Nak"):
+            return
+        try:
+            msg = spec.decode(frame.payload)
+        except ParseError:
+            self.stats.rejected += 1
+            return
+        if spec.name == "Heartbeat":
+            self.peer_stats = msg
+            return
+        self.stats.naks_rx += 1
+        if msg.reason == Reason.SEQUENCE_GAP:
+            sender = self._commands if msg.refused_class == MsgClass.COMMAND else None
+            if sender is not None:
+                sender.go_back(msg.expected_seq, now)
+
+    def _telemetry(self, frame: Frame, spec, now: float) -> None:
+        if self._telemetry_expected is not None:
+            lost = (frame.seq - self._telemetry_expected) & 0xFFFF
+            if lost < 0x8000:
+                self.stats.telemetry_lost += lost
+        self._telemetry_expected = (frame.seq + 1) & 0xFFFF
+        try:
+            msg = spec.decode(frame.payload)
+        except ParseError:
+            self.stats.rejected += 1
+            return
+        self.last_telemetry = msg
+        self.on_telemetry(msg, now)
+
+    def _event(self, frame: Frame, spec, now: float) -> None:
+        verdict = self._events.classify(frame.seq)
+        if verdict is Verdict.GAP:
+            if self._events.should_nak_gap():
+                self._refuse(frame, Reason.SEQUENCE_GAP, now, expected=self._events.expected)
+            return
+        if verdict is Verdict.NEW:
+            self._events.accept(frame.seq, None)
+            try:
+                msg = spec.decode(frame.payload)
+            except ParseError:
+                self.stats.rejected += 1
+            else:
+                self.on_event(msg, now)
+        self.send_message(SCHEMA["Ack"].type(), PRIO_RELIABLE)
+
+    def _ack_value(self) -> int:
+        return self._events.last_in_order
+
+    # ---- timers ----
+    def poll(self, now: float) -> None:
+        super().poll(now)
+        if self.state is LinkState.CONNECTING and self._hello_due_s is not None and now >= self._hello_due_s:
+            if self._hello_tries >= self.config.hello_tries:
+                self.state = LinkState.SUSPENDED
+                self.refusal = Refusal(Reason.LINK_SUSPENDED, f"no answer to {self._hello_tries} Hello frames")
+                self._hello_due_s = None
+            else:
+                self._send_hello(now)
+        if self.state is LinkState.UP:
+            self._pump(now)
+        self.stats.retransmits = self._retransmits_before + self._commands.retransmits + self._urgent.retransmits
+        if self._commands.rtt.srtt_s is not None:
+            self.stats.srtt_us = int(self._commands.rtt.srtt_s * 1e6)
+
+    @property
+    def srtt_s(self) -> Optional[float]:
+        return self._commands.rtt.srtt_s

@@ -1,0 +1,105 @@
+"""Reason codes: why a frame, command or state change was refused, with the remedy.
+
+One table, used by the controller's answers, the host's errors, the generated
+docs/protocol.md and teleop's messages. A code is one byte on the wire.
+"""
+from __future__ import annotations
+
+import enum
+
+
+class Reason(enum.IntEnum):
+    OK = 0
+    BAD_CRC = 1
+    BAD_FRAME = 2
+    UNSUPPORTED_VERSION = 3
+    UNSUPPORTED_FLAGS = 4
+    UNAUTHENTICATED = 5
+    BAD_MAC = 6
+    REPLAY = 7
+    NO_SESSION = 8
+    SCHEMA_MISMATCH = 9
+    UNKNOWN_MESSAGE = 10
+    WRONG_DIRECTION = 11
+    BAD_LENGTH = 12
+    OUT_OF_RANGE = 13
+    SEQUENCE_GAP = 14
+    NOT_ALLOWED_IN_STATE = 15
+    LINK_SUSPENDED = 16
+    LINK_TIMEOUT = 17
+    ESTOP = 18
+    FAULT_LATCHED = 19
+    SESSION_RESET = 20
+    HAL_STALE = 21
+    SUPPLY_LOW = 22
+    OVER_TEMPERATURE = 23
+    HOST_REQUEST = 24
+
+    @property
+    def doc(self) -> str:
+        return _TABLE[self][0]
+
+    @property
+    def remedy(self) -> str:
+        return _TABLE[self][1]
+
+    def describe(self) -> str:
+        """`NAME (n): meaning. Remedy: ...`, for error messages."""
+        return f"{self.name} ({int(self)}): {self.doc}. Remedy: {self.remedy}"
+
+
+def reason_name(code: int) -> str:
+    """Name of a code received from the wire, also for codes this build does not know."""
+    try:
+        return Reason(code).name
+    except ValueError:
+        return f"UNKNOWN_REASON_{code}"
+
+
+_TABLE: dict[Reason, tuple[str, str]] = {
+    Reason.OK: ("accepted and done", "none"),
+    Reason.BAD_CRC: ("the frame's CRC-32 does not match its contents (line noise)",
+                     "none needed for occasional noise; check cabling, baud rate and grounding if it climbs"),
+    Reason.BAD_FRAME: ("the bytes between two delimiters are not a valid COBS frame or are shorter than a header",
+                       "check that both ends speak protocol v1 framing (COBS between 0x00 delimiters)"),
+    Reason.UNSUPPORTED_VERSION: ("the header's protocol version is not one this end speaks",
+                                 "upgrade the older end; both must speak the same major version"),
+    Reason.UNSUPPORTED_FLAGS: ("a must-understand flag (bits 4-7) is set that this end does not know",
+                               "clear the flag or upgrade this end"),
+    Reason.UNAUTHENTICATED: ("the frame carries no MAC but this link requires one",
+                             "configure the same pre-shared key on both ends (--key-file)"),
+    Reason.BAD_MAC: ("the frame's HMAC-SHA256 tag does not verify under the session or handshake key",
+                     "use the controller's key (--key-file) and handshake again; a forged frame is ignored"),
+    Reason.REPLAY: ("the frame's 48-bit counter is not above the last one accepted (replayed or duplicated frame)",
+                    "none: a genuine sender never reuses a counter; handshake again after a restart"),
+    Reason.NO_SESSION: ("no session is established: HELLO must come first",
+                        "send HELLO (teleop does this on connect) and retry"),
+    Reason.SCHEMA_MISMATCH: ("the host's message schema hash differs from the controller's",
+                             "run host tools built from the same protocol declaration as the controller"),
+    Reason.UNKNOWN_MESSAGE: ("the message id is not declared in this protocol version", "check the schema hash; upgrade"),
+    Reason.WRONG_DIRECTION: ("the message is declared for the other direction or another class",
+                             "send only host-to-controller messages in their declared class"),
+    Reason.BAD_LENGTH: ("the payload length does not match the message's declared fields", "check the schema hash"),
+    Reason.OUT_OF_RANGE: ("a field is outside its declared range or is not a finite number",
+                          "see the message's field table in docs/protocol.md for the range"),
+    Reason.SEQUENCE_GAP: ("a command's sequence number skips ahead of the next expected one",
+                          "none: the host retransmits from the expected sequence (go-back-N)"),
+    Reason.NOT_ALLOWED_IN_STATE: ("the command is not allowed in the controller's present state",
+                                  "check `status`; e.g. reset after a fault or e-stop before enabling"),
+    Reason.LINK_SUSPENDED: ("the host gave up after its retry limit; the command's outcome is unknown",
+                            "check the link, then reconnect (handshake) and query status before retrying"),
+    Reason.LINK_TIMEOUT: ("no valid frame arrived within the link timeout; the controller went to its safe state",
+                          "restore the link, then send reset"),
+    Reason.ESTOP: ("an emergency stop is latched", "clear the cause, then send reset"),
+    Reason.FAULT_LATCHED: ("a fault is latched and the controller is in its safe state",
+                           "read `status` for the fault bits, clear the cause, then send reset"),
+    Reason.SESSION_RESET: ("the session was replaced before the command was answered; its outcome is unknown",
+                           "query status before retrying"),
+    Reason.HAL_STALE: ("the hardware bus (HAL) inputs stopped arriving", "check the plant or CAN bus, then reset"),
+    Reason.SUPPLY_LOW: ("the supply voltage fell below its limit", "restore the supply, then reset"),
+    Reason.OVER_TEMPERATURE: ("the controller temperature left its allowed range",
+                              "let the controller cool (or warm) into range, then reset"),
+    Reason.HOST_REQUEST: ("the host asked for it", "none"),
+}
+
+assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

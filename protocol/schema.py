@@ -1,0 +1,233 @@
+"""The machinery for declaring messages once (see protocol/messages.py for the list).
+
+A `MessageSpec` names a message, its id, class, direction, reply, teleop name and
+typed fields (with units, ranges and docs). From it come: a NamedTuple-like class
+per message, a precompiled `struct` codec, range checks on decode, the tables of
+docs/protocol.md, teleop's commands and completion, and the schema hash exchanged
+in HELLO (so a mismatch is refused by name rather than read as noise).
+"""
+from __future__ import annotations
+
+import enum
+import hashlib
+import math
+import struct
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Optional
+
+from protocol.errors import EncodeError, ParseError
+from protocol.reasons import Reason
+
+
+class MsgClass(enum.IntEnum):
+    """The header's class byte: how a frame is delivered."""
+
+    LINK = 0        # handshake, heartbeat, ack/nak: per-frame, never queued behind commands
+    COMMAND = 1     # host->controller, reliable, in order, exactly once; replies come back in this class
+    URGENT = 2      # host->controller stop/e-stop: bypasses ordering, still exactly once
+    TELEMETRY = 3   # controller->host, unreliable, sequence-numbered for loss counting
+    EVENT = 4       # controller->host, reliable and in order (faults, completions)
+
+
+class Direction(enum.Enum):
+    TO_CONTROLLER = "host -> controller"
+    TO_HOST = "controller -> host"
+    BOTH = "both"
+
+
+# Field types: struct code, size, natural range.
+_TYPES: dict[str, tuple[str, tuple[float, float] | None]] = {
+    "u8": ("B", (0, 0xFF)),
+    "u16": ("H", (0, 0xFFFF)),
+    "u32": ("I", (0, 0xFFFFFFFF)),
+    "u64": ("Q", (0, 0xFFFFFFFFFFFFFFFF)),
+    "i8": ("b", (-0x80, 0x7F)),
+    "i16": ("h", (-0x8000, 0x7FFF)),
+    "i32": ("i", (-0x80000000, 0x7FFFFFFF)),
+    "f32": ("f", None),
+    "bool": ("?", None),
+}
+
+
+@dataclass(frozen=True)
+class Field:
+    """One typed field. `type` is a key of the table above or `bytesN` (fixed length)."""
+
+    name: str
+    type: str
+    doc: str
+    unit: str = ""
+    range: Optional[tuple[float, float]] = None
+    enum: Optional[type[enum.IntEnum]] = None
+
+    @property
+    def struct_code(self) -> str:
+        if self.type.startswith("bytes"):
+            return f"{int(self.type[5:])}s"
+        return _TYPES[self.type][0]
+
+    @property
+    def limits(self) -> Optional[tuple[float, float]]:
+        """The range checked on decode (declared, else the type's own for integers)."""
+        if self.range is not None:
+            return self.range
+        if self.type.startswith("bytes") or self.type in ("bool", "f32"):
+            return None
+        return _TYPES[self.type][1]
+
+    def check(self, value: Any) -> Optional[str]:
+        """None if `value` is valid, else why not."""
+        if self.type == "f32":
+            if not math.isfinite(value):
+                return f"{self.name} is not a finite number ({value})"
+        if self.range is not None:
+            lo, hi = self.range
+            if not lo <= value <= hi:
+                return f"{self.name}={value} is outside [{lo}, {hi}]{' ' + self.unit if self.unit else ''}"
+        if self.enum is not None:
+            try:
+                self.enum(value)
+            except ValueError:
+                return f"{self.name}={value} is not one of {', '.join(m.name for m in self.enum)}"
+        return None
+
+
+class Message(tuple):
+    """Base of the generated message classes: a tuple of field values with names.
+
+    Two messages are equal only if they are of the same type and values.
+    """
+
+    __slots__ = ()
+    spec: "MessageSpec"
+
+    def __eq__(self, other: object) -> bool:
+        return type(self) is type(other) and tuple.__eq__(self, other)
+
+    def __ne__(self, other: object) -> bool:
+        return not self.__eq__(other)
+
+    __hash__ = tuple.__hash__
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{f.name}={v!r}" for f, v in zip(self.spec.fields, self))
+        return f"{self.spec.name}({inner})"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {f.name: v for f, v in zip(self.spec.fields, self)}
+
+
+@dataclass
+class MessageSpec:
+    """A message as declared: the single source for codec, docs and teleop."""
+
+    name: str
+    id: int
+    cls: MsgClass
+    direction: Direction
+    doc: str
+    fields: tuple[Field, ...] = ()
+    reply: Optional[str] = None          # name of the reply message (commands and urgent)
+    teleop: Optional[str] = None         # teleop command word, when a person may send it
+    type: type[Message] = field(init=False, repr=False)
+    _struct: struct.Struct = field(init=False, repr=False)
+    _checked: tuple[tuple[int, Field], ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._struct = struct.Struct("<" + "".join(f.struct_code for f in self.fields))
+        self._checked = tuple((i, f) for i, f in enumerate(self.fields)
+                              if f.type == "f32" or f.range is not None or f.enum is not None)
+        names = [f.name for f in self.fields]
+        spec = self
+
+        def new(cls, *args: Any, **kwargs: Any) -> Message:
+            if kwargs:
+                values = list(args) + [None] * (len(names) - len(args))
+                for key, value in kwargs.items():
+                    try:
+                        values[names.index(key)] = value
+                    except ValueError:
+                        raise TypeError(f"{spec.name} has no field {key!r}") from None
+                args = tuple(values)
+            if len(args) != len(names) or any(v is None for v in args):
+                raise TypeError(f"{spec.name} takes fields {', '.join(names) or '(none)'}")
+            return tuple.__new__(cls, args)
+
+        attrs: dict[str, Any] = {"__slots__": (), "spec": self, "__new__": new, "__doc__": self.doc}
+        for index, name in enumerate(names):
+            attrs[name] = property(lambda s, i=index: tuple.__getitem__(s, i))
+        self.type = type(self.name, (Message,), attrs)
+
+    @property
+    def size(self) -> int:
+        return self._struct.size
+
+    def encode(self, msg: Message) -> bytes:
+        """Payload bytes of `msg`; raises `EncodeError` for a value out of range."""
+        for index, fld in self._checked:
+            problem = fld.check(msg[index])
+            if problem:
+                raise EncodeError(f"{self.name}: {problem}")
+        try:
+            return self._struct.pack(*msg)
+        except struct.error as exc:
+            raise EncodeError(f"{self.name}: {exc}") from exc
+
+    def decode(self, payload: bytes) -> Message:
+        """The message in `payload`; raises `ParseError` (BAD_LENGTH / OUT_OF_RANGE)."""
+        if len(payload) != self._struct.size:
+            raise ParseError(Reason.BAD_LENGTH,
+                             f"{self.name} takes {self._struct.size} payload bytes, got {len(payload)}")
+        values = self._struct.unpack(payload)
+        for index, fld in self._checked:
+            problem = fld.check(values[index])
+            if problem:
+                raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {problem}")
+        return tuple.__new__(self.type, values)
+
+    def canonical(self) -> str:
+        """Text that the schema hash covers: everything that changes the wire."""
+        fields = ",".join(f"{f.name}:{f.type}:{f.range}" for f in self.fields)
+        return f"{self.id}|{self.name}|{self.cls.name}|{self.direction.name}|{self.reply}|{fields}"
+
+
+class Schema:
+    """A set of message specs with lookup by id and name, and its hash."""
+
+    def __init__(self, version: int, specs: Iterable[MessageSpec]) -> None:
+        self.version = version
+        self.by_id: dict[int, MessageSpec] = {}
+        self.by_name: dict[str, MessageSpec] = {}
+        for spec in specs:
+            if spec.id in self.by_id or spec.name in self.by_name:
+                raise ValueError(f"message {spec.name} (id {spec.id:#x}) is declared twice")
+            self.by_id[spec.id] = spec
+            self.by_name[spec.name] = spec
+        for spec in self.by_id.values():
+            if spec.reply is not None and spec.reply not in self.by_name:
+                raise ValueError(f"{spec.name} replies with undeclared {spec.reply}")
+        self.reply_ids = frozenset(self.by_name[s.reply].id for s in self.by_id.values() if s.reply)
+        text = f"v{version}\n" + "\n".join(s.canonical() for s in sorted(self.by_id.values(), key=lambda s: s.id))
+        self.hash = int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "little")
+
+    def __getitem__(self, name: str) -> MessageSpec:
+        return self.by_name[name]
+
+    def class_allowed(self, spec: MessageSpec, cls: int) -> bool:
+        """Replies travel in their request's class (command or urgent); others in their own."""
+        if spec.id in self.reply_ids:
+            return cls in (MsgClass.COMMAND, MsgClass.URGENT)
+        return spec.cls == cls
+
+    def teleop_commands(self) -> dict[str, MessageSpec]:
+        return {s.teleop: s for s in self.by_id.values() if s.teleop}
+
+    def encode(self, msg: Message) -> tuple[int, bytes]:
+        spec = msg.spec
+        return spec.id, spec.encode(msg)
+
+    def decode(self, msg_id: int, payload: bytes) -> Message:
+        spec = self.by_id.get(msg_id)
+        if spec is None:
+            raise ParseError(Reason.UNKNOWN_MESSAGE, f"message id {msg_id:#06x} is not declared")
+        return spec.decode(payload)
