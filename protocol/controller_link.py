@@ -160,6 +160,10 @@ class ControllerLink(LinkEndpoint):
     def _ack_value(self) -> int:
         return self._commands.last_in_order
 
+    @property
+    def quiet(self) -> bool:
+        return self.link_lost   # nobody is listening: do not fill the line with heartbeats
+
     # ---- events and timers ----
     def send_event(self, msg: Message) -> None:
         """Queue an event for reliable delivery (kept across sessions until delivered)."""

@@ -311,10 +311,15 @@ class LinkEndpoint:
     def poll(self, now: float) -> None:
         if self.started_s is None:
             self.started_s = now
-        if self.session is not None and self.state is LinkState.UP:
+        if self.session is not None and self.state is LinkState.UP and not self.quiet:
             if self._next_heartbeat_s is None or now >= self._next_heartbeat_s:
                 self._next_heartbeat_s = now + self.config.heartbeat_s
                 self.send_message(self.heartbeat(now), PRIO_HEARTBEAT)
+
+    @property
+    def quiet(self) -> bool:
+        """True while periodic frames (heartbeats, telemetry) should not be sent."""
+        return False
 
     def uptime_ms(self, now: float) -> int:
         return int((now - (self.started_s if self.started_s is not None else now)) * 1000) & 0xFFFFFFFF

@@ -64,7 +64,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("expected_seq", "u16", "next sequence number the sender of the NAK expects"))),
     # ---- commands (reliable, in order, exactly once) ----
     MessageSpec("Ping", 0x10, MsgClass.COMMAND, H, "Round-trip check through the command channel.",
-                (Field("token", "u32", "any value; echoed back"),), reply="Pong", teleop="ping"),
+                (Field("token", "u32", "any value; echoed back", default=0),), reply="Pong", teleop="ping"),
     MessageSpec("GetStatus", 0x11, MsgClass.COMMAND, H, "Reads the controller's state, faults and sensors.",
                 reply="Status", teleop="status"),
     MessageSpec("Reset", 0x12, MsgClass.COMMAND, H,

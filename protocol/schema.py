@@ -59,6 +59,7 @@ class Field:
     unit: str = ""
     range: Optional[tuple[float, float]] = None
     enum: Optional[type[enum.IntEnum]] = None
+    default: Any = None      # what teleop fills in when the argument is left out
 
     @property
     def struct_code(self) -> str:

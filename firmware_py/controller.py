@@ -1,0 +1,232 @@
+"""The controller: supervisor, link, HAL and their tasks on one cooperative scheduler.
+
+`Controller.attach(scheduler)` adds its tasks; whoever builds the world (host_tools)
+owns the scheduler, the clock, the serial port and the HAL bus, and passes them in.
+Commands are handled by methods declared with `@handles("MessageName")`; at start-up
+every command the protocol declares for the controller must have one.
+
+Tasks (period):
+  comms       1 ms      UART <-> link (firmware_py/comms.py)
+  hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
+  health      10 ms     boot check, HAL staleness, supply and temperature limits
+  telemetry   1/rate    TelemetryStatus frames
+The motor loops of the next issue plug in as further tasks and safe-state hooks.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+from protocol import auth
+from protocol.controller_link import ControllerLink
+from protocol.link import LinkConfig
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.schema import Direction, Message, MsgClass
+from protocol.states import ControllerState, Fault
+
+from firmware_py.comms import CommsTask
+from firmware_py.hal import ControllerHal
+from firmware_py.scheduler import Scheduler
+from firmware_py.supervisor import Supervisor
+from firmware_py.uart import PacedUart
+
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+_HANDLERS: dict[str, Callable] = {}
+
+
+def handles(name: str) -> Callable:
+    """Declare a method as the handler of command `name`, next to its code (as Klipper's DECL_COMMAND)."""
+    if name not in SCHEMA.by_name:
+        raise ValueError(f"no message {name!r} is declared in protocol/messages.py")
+
+    def register(fn: Callable) -> Callable:
+        _HANDLERS[name] = fn
+        return fn
+    return register
+
+
+@dataclass
+class ControllerConfig:
+    """The controller's settings, checked when built."""
+
+    link: LinkConfig = field(default_factory=LinkConfig)
+    comms_period_s: float = 0.001
+    hal_period_s: float = 0.001
+    health_period_s: float = 0.01
+    telemetry_hz: int = 10
+    hal_stale_s: float = 0.1          # HAL inputs older than this are a fault
+    boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
+    supply_min_v: float = 22.0        # nominal 28 V; see hil_sim/plant.py
+    temp_min_c: float = -10.0         # the report keeps the control box within -10..45 C
+    temp_max_c: float = 45.0
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.telemetry_hz <= 200:
+            raise ValueError("telemetry_hz must be within 0..200")
+        if not self.temp_min_c < self.temp_max_c:
+            raise ValueError("temp_min_c must be below temp_max_c")
+        for name in ("comms_period_s", "hal_period_s", "health_period_s", "hal_stale_s", "boot_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0")
+
+
+class Controller:
+    def __init__(self, psk: bytes, uart: PacedUart, hal: ControllerHal,
+                 config: Optional[ControllerConfig] = None,
+                 nonce_source: Callable[[], bytes] = auth.new_nonce) -> None:
+        self.config = config or ControllerConfig()
+        self.uart = uart
+        self.hal = hal
+        self.telemetry_hz = self.config.telemetry_hz
+        self.scheduler: Optional[Scheduler] = None
+        self.started_s: Optional[float] = None
+        self.supervisor = Supervisor(on_change=self._state_changed)
+        self.link = ControllerLink(psk, self._execute, self.config.link, nonce_source=nonce_source,
+                                   on_link_lost=self._link_lost)
+        self.comms = CommsTask(self.link, uart, self.config.comms_period_s)
+        self._outputs_period_s = hal.codec.cycle_time_s("CTRL_OUTPUTS") or 0.01
+        self._outputs_sent = False
+        self._outputs_due_s = 0.0
+        self.supervisor.add_safe_hook("outputs off, brakes on", self._outputs_safe)
+        self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: self.hal.is_stale(self._now(), self.config.hal_stale_s))
+        self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
+        self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
+        missing = [s.name for s in SCHEMA.by_id.values()
+                   if s.direction is Direction.TO_CONTROLLER and s.cls in (MsgClass.COMMAND, MsgClass.URGENT)
+                   and s.name not in _HANDLERS]
+        if missing:
+            raise RuntimeError(f"commands declared without a handler: {', '.join(missing)}")
+
+    def _now(self) -> float:
+        return self.scheduler.clock.now() if self.scheduler else 0.0
+
+    def attach(self, scheduler: Scheduler) -> None:
+        self.scheduler = scheduler
+        now = scheduler.clock.now()
+        self.started_s = now
+        self.link.started_s = now
+        scheduler.add("comms", self.comms.step, now)
+        scheduler.add("hal", self._hal_step, now)
+        scheduler.add("health", self._health_step, now + self.config.health_period_s, tolerance_s=0.005)
+        scheduler.add("telemetry", self._telemetry_step, now + 0.1, tolerance_s=0.01)
+
+    def uptime_ms(self, now: float) -> int:
+        return int((now - (self.started_s or 0.0)) * 1000) & 0xFFFFFFFF
+
+    # ---- safe state ----
+    def _outputs_safe(self) -> None:
+        self.hal.send_outputs(enabled=False, brake=True)
+        self._outputs_sent = False
+
+    def _link_lost(self, now: float) -> None:
+        self.supervisor.enter_safe_state(Fault.LINK_LOST, now)
+
+    def _state_changed(self, new: ControllerState, old: ControllerState, reason: Reason, now: float) -> None:
+        self.link.send_event(M["StateChanged"](int(new), int(old), int(reason), int(self.supervisor.faults),
+                                               self.uptime_ms(now)))
+
+    def _supply_low(self) -> bool:
+        v = self.hal.inputs.supply_v
+        return not math.isnan(v) and v < self.config.supply_min_v
+
+    def _temp_out_of_range(self) -> bool:
+        t = self.hal.inputs.temp_c
+        return not math.isnan(t) and not self.config.temp_min_c <= t <= self.config.temp_max_c
+
+    # ---- tasks ----
+    def _hal_step(self, now: float) -> float:
+        """Inputs every period; outputs at the DBC's declared cycle, and at once when they change."""
+        self.hal.poll(now)
+        enabled = self.supervisor.outputs_allowed
+        if enabled != self._outputs_sent or now >= self._outputs_due_s:
+            self.hal.send_outputs(enabled=enabled, brake=not enabled)
+            self._outputs_sent = enabled
+            self._outputs_due_s = now + self._outputs_period_s
+        return now + self.config.hal_period_s
+
+    def _health_step(self, now: float) -> float:
+        sup, cfg = self.supervisor, self.config
+        if sup.state is ControllerState.BOOT:
+            if not self.hal.is_stale(now, cfg.hal_stale_s):
+                sup.boot_complete(now)
+            elif now - (self.started_s or 0.0) > cfg.boot_timeout_s:
+                sup.enter_safe_state(Fault.HAL_STALE, now)
+            return now + cfg.health_period_s
+        if self.hal.is_stale(now, cfg.hal_stale_s):
+            sup.enter_safe_state(Fault.HAL_STALE, now)
+        if self._supply_low():
+            sup.enter_safe_state(Fault.SUPPLY_LOW, now)
+        if self._temp_out_of_range():
+            sup.enter_safe_state(Fault.OVER_TEMPERATURE, now)
+        return now + cfg.health_period_s
+
+    def _telemetry_step(self, now: float) -> float:
+        if self.telemetry_hz == 0:
+            return now + 0.1
+        if not self.link.quiet:
+            self.link.send_telemetry(self.telemetry(now))
+        return now + 1.0 / self.telemetry_hz
+
+    def telemetry(self, now: float) -> Message:
+        stats = self.link.stats
+        tasks = self.scheduler.tasks.values() if self.scheduler else ()
+        return M["TelemetryStatus"](
+            uptime_ms=self.uptime_ms(now), state=int(self.supervisor.state),
+            safe_reason=int(self.supervisor.safe_reason), faults=int(self.supervisor.faults),
+            supply_v=_finite(self.hal.inputs.supply_v), temp_c=_finite(self.hal.inputs.temp_c),
+            commands_executed=self.link.commands_executed & 0xFFFFFFFF,
+            frames_rx=stats.frames_rx & 0xFFFFFFFF, frames_tx=stats.frames_tx & 0xFFFFFFFF,
+            link_errors=(stats.crc_errors + stats.auth_errors) & 0xFFFFFFFF,
+            loop_max_us=min(0xFFFFFFFF, int(max((t.stats.exec_max_s for t in tasks), default=0) * 1e6)),
+            loop_p99_us=min(0xFFFFFFFF, int(max((t.stats.exec_p99_s for t in tasks), default=0) * 1e6)),
+            overruns=sum(t.stats.overruns for t in tasks) & 0xFFFFFFFF,
+            tx_backlog_bytes=min(0xFFFF, self.uart.backlog_bytes))
+
+    # ---- commands ----
+    def _execute(self, msg: Message, urgent: bool, now: float) -> Message:
+        return _HANDLERS[msg.spec.name](self, msg, now)
+
+    @handles("Ping")
+    def _ping(self, msg: Message, now: float) -> Message:
+        return M["Pong"](int(Reason.OK), msg.token, self.uptime_ms(now))
+
+    @handles("GetStatus")
+    def _status(self, msg: Message, now: float) -> Message:
+        sup = self.supervisor
+        return M["Status"](int(Reason.OK), int(sup.state), int(sup.faults), int(sup.safe_reason),
+                           self.uptime_ms(now), _finite(self.hal.inputs.supply_v), _finite(self.hal.inputs.temp_c),
+                           self.link.commands_executed & 0xFFFFFFFF, self.telemetry_hz)
+
+    @handles("Reset")
+    def _reset(self, msg: Message, now: float) -> Message:
+        return M["Result"](int(self.supervisor.reset(now)))
+
+    @handles("Enable")
+    def _enable(self, msg: Message, now: float) -> Message:
+        return M["Result"](int(self.supervisor.enable(now)))
+
+    @handles("Disable")
+    def _disable(self, msg: Message, now: float) -> Message:
+        return M["Result"](int(self.supervisor.disable(now)))
+
+    @handles("SetTelemetryRate")
+    def _set_telemetry(self, msg: Message, now: float) -> Message:
+        self.telemetry_hz = msg.rate_hz
+        if self.scheduler is not None:
+            self.scheduler.wake("telemetry", now)
+        return M["Result"](int(Reason.OK))
+
+    @handles("EStop")
+    def _estop(self, msg: Message, now: float) -> Message:
+        return M["Result"](int(self.supervisor.estop(now)))
+
+    @handles("Stop")
+    def _stop(self, msg: Message, now: float) -> Message:
+        # No motion exists yet (the motor loops come next); stopping is accepted in any state.
+        return M["Result"](int(Reason.OK))
+
+
+def _finite(value: float) -> float:
+    return value if math.isfinite(value) else 0.0

@@ -1,0 +1,120 @@
+"""The controller's end of the HAL bus: inputs from the plant, outputs to it.
+
+`ControllerHal` never blocks and never raises on what arrives: `poll(now)` drains
+whatever frames are waiting, keeps the latest value of each input together with
+the `now` at which it arrived (so the supervisor can tell a live input from a
+stale one), and counts what it could not use. `send_outputs` sends the global
+enable/brake command with a rolling `alive` counter; the plant expires that
+command if it stops arriving, so a controller that stalls ends in the safe state
+without having to do anything.
+
+This module knows the bus only through `protocol.hal` (the DBC) and python-can's
+`BusABC`: it runs unchanged on a virtual bus, socketcan, or any other interface.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import can
+
+from protocol.hal import HalCodec, HalDecodeError, SignalValues
+
+
+@dataclass
+class HalInputs:
+    """Latest inputs seen on the bus. Values are NaN until their first frame arrives."""
+
+    tick: int = 0                    # last PLANT_SYNC tick
+    supply_v: float = math.nan       # ANALOG_IN supply_v [V]
+    temp_c: float = math.nan         # ANALOG_IN controller_temp_c [degC]
+    updated_s: Optional[float] = None  # `now` of the last ANALOG_IN
+    tick_s: Optional[float] = None     # `now` of the last PLANT_SYNC
+
+
+class ControllerHal:
+    """Controller-side HAL: `poll(now)` for inputs, `send_outputs(...)` for outputs."""
+
+    def __init__(self, bus: can.BusABC, codec: Optional[HalCodec] = None,
+                 max_frames_per_poll: int = 256) -> None:
+        self.bus = bus
+        self.codec = codec if codec is not None else HalCodec()
+        # Bound on one poll so a flooded bus cannot starve the cooperative scheduler;
+        # what is left is read on the next poll.
+        self.max_frames_per_poll = max_frames_per_poll
+        self.inputs = HalInputs()
+        self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
+        self.frames_received = 0
+        self.frames_sent = 0
+        self.bad_frames = 0      # undeclared IDs and frames that break their declaration
+        self.bus_errors = 0      # can.CanError from recv or send
+        self.last_bus_error: Optional[can.CanError] = None
+        self._handlers = {"PLANT_SYNC": self._on_sync, "ANALOG_IN": self._on_analog}
+
+    def poll(self, now: float) -> int:
+        """Drain waiting frames and update `inputs`; return how many frames were read.
+
+        The count includes frames that were then counted as bad. Frames declared
+        for the other direction (CTRL_OUTPUTS from another controller, say) are
+        read and ignored.
+        """
+        count = 0
+        while count < self.max_frames_per_poll:
+            try:
+                msg = self.bus.recv(timeout=0)
+            except can.CanError as exc:
+                self._bus_error(exc)
+                break
+            if msg is None:
+                break
+            count += 1
+            try:
+                decoded = self.codec.decode(msg)
+            except HalDecodeError:
+                self.bad_frames += 1
+                continue
+            if decoded is None:
+                self.bad_frames += 1
+                continue
+            name, values = decoded
+            handler = self._handlers.get(name)
+            if handler is not None:
+                handler(values, now)
+        self.frames_received += count
+        return count
+
+    def _on_sync(self, values: SignalValues, now: float) -> None:
+        self.inputs.tick = int(values["tick"])
+        self.inputs.tick_s = now
+
+    def _on_analog(self, values: SignalValues, now: float) -> None:
+        self.inputs.supply_v = float(values["supply_v"])
+        self.inputs.temp_c = float(values["controller_temp_c"])
+        self.inputs.updated_s = now
+
+    def is_stale(self, now: float, max_age_s: float) -> bool:
+        """True if no ANALOG_IN has arrived, or the last one is older than `max_age_s`."""
+        updated_s = self.inputs.updated_s
+        return updated_s is None or now - updated_s > max_age_s
+
+    def send_outputs(self, enabled: bool, brake: bool) -> None:
+        """Send CTRL_OUTPUTS; `alive` advances on every attempt.
+
+        A failed send (`can.CanError`, e.g. a full transmit queue) is counted in
+        `bus_errors`, not raised: the plant will expire the last command, which is
+        the safe outcome, and the supervisor can watch the counter.
+        """
+        msg = self.codec.encode("CTRL_OUTPUTS", outputs_enabled=int(bool(enabled)),
+                                brake_all=int(bool(brake)), alive=self.alive)
+        self.alive = (self.alive + 1) & 0xFF
+        try:
+            self.bus.send(msg, timeout=0)
+        except can.CanError as exc:
+            self._bus_error(exc)
+            return
+        self.frames_sent += 1
+
+    def _bus_error(self, exc: can.CanError) -> None:
+        self.bus_errors += 1
+        self.last_bus_error = exc

@@ -1,0 +1,243 @@
+"""The controller's serial port: where its bytes meet a pty, a TCP client or a device.
+
+Ports are non-blocking byte pipes (`read(max_bytes)`, `write(data) -> int`). The host
+side always goes through pyserial (`serial_for_url`); the controller side owns the
+other end, which pyserial cannot serve: the master of a pty pair, a listening TCP
+socket, or a real device (that one through pyserial).
+
+`PacedUart` emulates the wire time of an 8N1 line (10 bits a byte) at the configured
+baud in both directions: bytes a host writes in a burst reach the protocol no faster
+than the line would carry them, and a frame the controller sends reaches the host
+when its last bit would have. A pty ignores the baud rate entirely, so without this
+a host would see no line timing at all.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import socket
+import termios
+import tty
+from typing import Optional, Protocol
+
+BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
+BITS_PER_BYTE = 10            # 8N1: start + 8 data + stop
+MAX_PENDING_OUT = 64 * 1024   # bytes held for a host that is not reading before they are dropped
+
+
+class Port(Protocol):
+    url: str
+
+    def read(self, max_bytes: int) -> bytes: ...
+    def write(self, data: bytes) -> int: ...
+    def close(self) -> None: ...
+
+
+class PtyPort:
+    """The controller holds the master of a new pty pair; a host opens `url` (the slave)."""
+
+    def __init__(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave, termios.TCSANOW)   # binary frames: no echo, no line discipline
+        os.set_blocking(self._master, False)
+        self.url = os.ttyname(self._slave)
+
+    def read(self, max_bytes: int) -> bytes:
+        try:
+            return os.read(self._master, max_bytes)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:   # no reader on the slave side right now
+                return b""
+            raise
+
+    def write(self, data: bytes) -> int:
+        try:
+            return os.write(self._master, data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return len(data)   # nobody is listening: the bytes are gone, as on a real line
+            raise
+
+    def close(self) -> None:
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class TcpServerPort:
+    """Listens on 127.0.0.1:`port`; the latest client to connect is the line's other end."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1") -> None:
+        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._listener.bind((host, port))
+        self._listener.listen(1)
+        self._listener.setblocking(False)
+        self._client: Optional[socket.socket] = None
+        self.port = self._listener.getsockname()[1]
+        self.url = f"socket://{host}:{self.port}"
+        self.connections = 0
+
+    def _accept(self) -> None:
+        try:
+            client, _addr = self._listener.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        client.setblocking(False)
+        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if self._client is not None:
+            self._client.close()
+        self._client = client
+        self.connections += 1
+
+    def read(self, max_bytes: int) -> bytes:
+        self._accept()
+        if self._client is None:
+            return b""
+        try:
+            data = self._client.recv(max_bytes)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            data = b""
+        if not data:
+            self._client.close()
+            self._client = None
+        return data
+
+    def write(self, data: bytes) -> int:
+        if self._client is None:
+            return len(data)   # no host: the bytes are gone
+        try:
+            return self._client.send(data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError:
+            self._client.close()
+            self._client = None
+            return len(data)
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+        self._listener.close()
+
+
+class DevicePort:
+    """A real serial device (or any pyserial URL) opened non-blocking."""
+
+    def __init__(self, url: str, baud: int) -> None:
+        import serial   # only this port needs pyserial on the controller side
+        self._serial = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        self.url = url
+
+    def read(self, max_bytes: int) -> bytes:
+        return self._serial.read(max_bytes)
+
+    def write(self, data: bytes) -> int:
+        import serial
+        try:
+            return self._serial.write(data) or 0
+        except serial.SerialTimeoutException:
+            return 0
+
+    def close(self) -> None:
+        self._serial.close()
+
+
+class BufferPort:
+    """An in-memory port for lock-step worlds: the other side fills `inbox`, drains `outbox`."""
+
+    def __init__(self, url: str = "memory://") -> None:
+        self.url = url
+        self.inbox = bytearray()
+        self.outbox = bytearray()
+
+    def read(self, max_bytes: int) -> bytes:
+        data = bytes(self.inbox[:max_bytes])
+        del self.inbox[:max_bytes]
+        return data
+
+    def write(self, data: bytes) -> int:
+        self.outbox += data
+        return len(data)
+
+    def close(self) -> None:
+        pass
+
+
+class PacedUart:
+    """8N1 wire-time emulation over a `Port`, driven by `now`."""
+
+    def __init__(self, port: Port, baud: int = 115200, paced: bool = True) -> None:
+        if baud not in BAUD_RATES:
+            raise ValueError(f"baud {baud} is not one of {', '.join(map(str, BAUD_RATES))}")
+        self.port = port
+        self.baud = baud
+        self.paced = paced
+        self.byte_time_s = BITS_PER_BYTE / baud
+        self._rx_wire_s: Optional[float] = None     # when the line is next free to deliver a byte
+        self._tx_wire_s = 0.0                       # when the transmitter is next idle
+        self._in_flight: list[tuple[float, bytes]] = []   # frames on the wire: (done time, bytes)
+        self._pending_out = bytearray()             # done on the wire, not yet taken by the OS
+        self.dropped_out_bytes = 0
+
+    def wire_time_s(self, nbytes: int) -> float:
+        return nbytes * self.byte_time_s
+
+    # ---- receive ----
+    def receive(self, now: float, max_bytes: int = 4096) -> bytes:
+        """Bytes the line has delivered by `now`."""
+        if not self.paced:
+            return self.port.read(max_bytes)
+        if self._rx_wire_s is None:
+            # the line was idle: whatever is waiting started arriving about now
+            self._rx_wire_s = now - self.byte_time_s
+        budget = min(max_bytes, int((now - self._rx_wire_s) / self.byte_time_s))
+        if budget <= 0:
+            return b""
+        data = self.port.read(budget)
+        self._rx_wire_s += len(data) * self.byte_time_s
+        if len(data) < budget:
+            self._rx_wire_s = None   # drained: the line is idle until more bytes come
+        return data
+
+    # ---- transmit ----
+    def tx_idle(self, now: float) -> bool:
+        return not self.paced or self._tx_wire_s <= now
+
+    def transmit(self, frame: bytes, now: float) -> None:
+        """Put `frame` on the wire; it reaches the port when its last byte would have."""
+        if not self.paced:
+            self._pending_out += frame
+        else:
+            start = max(now, self._tx_wire_s)
+            self._tx_wire_s = start + len(frame) * self.byte_time_s
+            self._in_flight.append((self._tx_wire_s, frame))
+        self.flush(now)
+
+    def flush(self, now: float) -> None:
+        while self._in_flight and self._in_flight[0][0] <= now:
+            self._pending_out += self._in_flight.pop(0)[1]
+        if self._pending_out:
+            written = self.port.write(bytes(self._pending_out))
+            del self._pending_out[:written]
+            if len(self._pending_out) > MAX_PENDING_OUT:
+                self.dropped_out_bytes += len(self._pending_out)
+                self._pending_out.clear()
+
+    @property
+    def backlog_bytes(self) -> int:
+        return len(self._pending_out) + sum(len(f) for _, f in self._in_flight)
+
+    def next_deadline(self) -> Optional[float]:
+        return self._in_flight[0][0] if self._in_flight else None
+
+    def close(self) -> None:
+        self.port.close()

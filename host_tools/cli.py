@@ -1,0 +1,119 @@
+"""`aspod`: one command line, thin subcommands on shared argument helpers.
+
+    aspod sim [--pty | --tcp PORT | --port DEVICE] [--baud N] [--key-file PATH] ...
+    aspod teleop URL [--script FILE] [--key-file PATH] ...
+    aspod demo
+
+Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused or unreachable.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Optional, Sequence
+
+from firmware_py.uart import BAUD_RATES
+from protocol import auth
+from protocol.errors import KeyFileError, LinkError
+from protocol.link import LinkConfig
+
+from host_tools.teleop import EXIT_LINK, EXIT_USAGE
+
+
+def _baud(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value not in BAUD_RATES:
+        raise argparse.ArgumentTypeError(f"{value} is not one of {', '.join(map(str, BAUD_RATES))}")
+    return value
+
+
+def _bounded(kind, lo: float, hi: float):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a {kind.__name__}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}")
+        return value
+    return parse
+
+
+def add_link_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--key-file", type=Path, default=None,
+                        help=f"pre-shared key file (hex); default: the development key {auth.default_key_path()}")
+    parser.add_argument("--baud", type=_baud, default=115200,
+                        help="line rate in baud, 8N1 (default 115200; one of " + ", ".join(map(str, BAUD_RATES)) + ")")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    sim = sub.add_parser("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
+    where = sim.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true", help="serve a new pseudo-terminal (the default)")
+    where.add_argument("--tcp", type=_bounded(int, 0, 65535), metavar="PORT",
+                       help="serve TCP on 127.0.0.1:PORT (0 picks a free port)")
+    where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
+    add_link_args(sim)
+    sim.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
+    sim.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=3.0, metavar="S",
+                     help="safe state after this long without a valid frame (default 3 s)")
+    sim.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=10, metavar="HZ",
+                     help="telemetry rate at start (default 10)")
+    sim.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
+
+    teleop = sub.add_parser("teleop", help="console to a controller: interactive, or a script")
+    teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")
+    add_link_args(teleop)
+    teleop.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE and exit")
+    teleop.add_argument("--keep-going", action="store_true", help="in a script, go on after a failed command")
+    teleop.add_argument("--connect-timeout", type=_bounded(float, 0.1, 600), default=10.0, metavar="S")
+    teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
+
+    demo = sub.add_parser("demo", help="start a simulator on a pty and run a scripted teleop session against it")
+    demo.add_argument("--baud", type=_baud, default=115200)
+    return parser
+
+
+def host_key(path: Optional[Path]) -> bytes:
+    """The key a host tool uses: --key-file, else the development key that `aspod sim` made."""
+    if path is not None:
+        return auth.load_key(path)
+    default = auth.default_key_path()
+    if not default.exists():
+        raise KeyFileError(f"no key file given and no development key at {default}: "
+                           "start `aspod sim` once (it creates it) or pass --key-file")
+    return auth.load_key(default)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "sim":
+            from host_tools.sim import run_sim
+            return run_sim(args)
+        if args.command == "teleop":
+            from host_tools.teleop_cli import run_teleop
+            return run_teleop(args, host_key(args.key_file))
+        if args.command == "demo":
+            from host_tools.demo import run_demo
+            return run_demo(args)
+    except KeyFileError as exc:
+        print(f"aspod: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except LinkError as exc:
+        print(f"aspod: link: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    except KeyboardInterrupt:
+        return 130
+    return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

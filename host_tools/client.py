@@ -1,0 +1,121 @@
+"""A live host: `HostLink` over any pyserial URL, pumped by a background thread.
+
+The pump reads with a size and a short timeout (pyserial's `socket://` reports
+`in_waiting` only as 0 or 1, so `read(in_waiting)` would starve), feeds the link,
+runs its timers and writes what it queued. Callers `call()` a command and wait for
+its single outcome; telemetry and events are kept and handed to listeners.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable, Optional
+
+import serial
+
+from protocol.errors import LinkError
+from protocol.host_link import CommandHandle, HostLink
+from protocol.link import LinkConfig, LinkState
+from protocol.reasons import Reason
+from protocol.schema import Message
+from timebase import Clock, RealClock
+
+READ_SIZE = 4096
+READ_TIMEOUT_S = 0.001
+
+
+class HostClient:
+    def __init__(self, url: str, psk: bytes, *, baud: int = 115200, config: Optional[LinkConfig] = None,
+                 clock: Optional[Clock] = None) -> None:
+        self.clock = clock or RealClock()
+        self.url = url
+        try:
+            self.serial = serial.serial_for_url(url, baudrate=baud, timeout=READ_TIMEOUT_S, write_timeout=2.0)
+        except (serial.SerialException, ValueError) as exc:
+            raise LinkError(Reason.NO_SESSION, f"cannot open {url}: {exc}") from exc
+        self.event_listeners: list[Callable[[Message, float], None]] = []
+        self.telemetry_listeners: list[Callable[[Message, float], None]] = []
+        self.events: list[Message] = []
+        self.link = HostLink(psk, config, on_telemetry=self._telemetry, on_event=self._event)
+        self.io_error: Optional[str] = None
+        self._cond = threading.Condition()
+        self._stop = False
+        self._thread = threading.Thread(target=self._pump, name="aspod-link", daemon=True)
+        self._thread.start()
+
+    # ---- pump thread ----
+    def _pump(self) -> None:
+        while not self._stop:
+            try:
+                data = self.serial.read(READ_SIZE)
+            except (serial.SerialException, OSError) as exc:
+                with self._cond:
+                    self.io_error = str(exc)
+                    self._cond.notify_all()
+                return
+            with self._cond:
+                now = self.clock.now()
+                if data:
+                    self.link.feed(data, now)
+                self.link.poll(now)
+                out = self.link.take_all(now)
+                self._cond.notify_all()
+            if out:
+                try:
+                    self.serial.write(out)
+                except (serial.SerialException, OSError) as exc:
+                    with self._cond:
+                        self.io_error = str(exc)
+                        self._cond.notify_all()
+                    return
+
+    def _telemetry(self, msg: Message, now: float) -> None:
+        for listener in self.telemetry_listeners:
+            listener(msg, now)
+
+    def _event(self, msg: Message, now: float) -> None:
+        self.events.append(msg)
+        for listener in self.event_listeners:
+            listener(msg, now)
+
+    # ---- caller side ----
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Wait (on the pump's notifications) until `predicate()` holds under the lock."""
+        deadline = self.clock.now() + timeout_s
+        with self._cond:
+            while not predicate():
+                left = deadline - self.clock.now()
+                if left <= 0 or self.io_error is not None:
+                    return predicate()
+                self._cond.wait(min(left, 0.05))
+            return True
+
+    def connect(self, timeout_s: float = 10.0) -> None:
+        """Handshake; raises `LinkError` with the reason if refused or unanswered."""
+        with self._cond:
+            self.link.connect(self.clock.now())
+        settled = (LinkState.UP, LinkState.REFUSED, LinkState.SUSPENDED)
+        self.wait_for(lambda: self.link.state in settled, timeout_s)
+        with self._cond:
+            if self.link.state is LinkState.UP:
+                return
+            if self.link.refusal is not None and self.link.refusal.reason is not Reason.LINK_SUSPENDED:
+                raise LinkError(self.link.refusal.reason, self.link.refusal.detail)
+            if self.link.stats.auth_errors:
+                raise LinkError(Reason.BAD_MAC, f"{self.url} answers, but none of its {self.link.stats.auth_errors} "
+                                "frame(s) verify under this key: the two ends have different keys (--key-file)")
+            raise LinkError(Reason.LINK_SUSPENDED, self.io_error or f"no answer from {self.url} in {timeout_s} s")
+
+    def submit(self, msg: Message) -> CommandHandle:
+        with self._cond:
+            return self.link.submit(msg, self.clock.now())
+
+    def call(self, msg: Message, timeout_s: float = 30.0) -> CommandHandle:
+        """Send `msg` and wait for its outcome (the link's retry limit ends it well before `timeout_s`)."""
+        handle = self.submit(msg)
+        self.wait_for(lambda: handle.done, timeout_s)
+        return handle
+
+    def close(self) -> None:
+        self._stop = True
+        self._thread.join(timeout=2.0)
+        self.serial.close()

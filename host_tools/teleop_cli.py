@@ -1,0 +1,42 @@
+"""The `aspod teleop` command: connect, then a script or an interactive console."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from host_tools.client import HostClient
+from host_tools.teleop import EXIT_USAGE, check_script, interactive, run_script
+
+
+def run_teleop(args: argparse.Namespace, psk: bytes) -> int:
+    lines = None
+    if args.script is not None:
+        try:
+            lines = args.script.read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            print(f"aspod teleop: cannot read script {args.script}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+    elif not sys.stdin.isatty():
+        lines = sys.stdin.read().splitlines()
+    if lines is not None:
+        _steps, problems = check_script(lines)
+        if problems:
+            for problem in problems:
+                print(f"aspod teleop: error: {problem}", file=sys.stderr)
+            print("aspod teleop: script not run: nothing was sent", file=sys.stderr)
+            return EXIT_USAGE
+    client = HostClient(args.url, psk, baud=args.baud)
+    try:
+        client.connect(args.connect_timeout)
+        info = client.link.controller_info
+        print(f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
+              f"controller link timeout {info.link_timeout_ms} ms", flush=True)
+        if lines is not None:
+            status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going)
+        else:
+            status, session = interactive(client)
+        if args.summary or lines is None:
+            print(session.summary(), flush=True)
+        return status
+    finally:
+        client.close()

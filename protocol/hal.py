@@ -1,0 +1,141 @@
+"""The HAL bus codec: the frames declared once in `hal.dbc`, as python-can messages.
+
+The DBC file is the single declaration of the bus between the controller
+(`firmware_py`) and the plant (`hil_sim`, or real hardware). This module parses it
+once with cantools and pre-resolves every message by name and by frame ID, so a
+per-tick encode or decode is one dict lookup plus cantools' own work (a few
+microseconds).
+
+Decoding is deliberately lenient about *what* arrives and strict about *how*:
+a frame whose ID is not declared (or that is an error, remote or 29-bit frame) is
+simply not ours and decodes to ``None``; a frame with a declared ID whose length
+or values break the declaration raises `HalDecodeError`.
+"""
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import can
+import cantools
+from cantools.database.can import Database, Message as DbcMessage
+
+DBC_PATH = Path(__file__).with_name("hal.dbc")
+
+SignalValues = dict[str, Union[int, float]]
+
+
+class HalEncodeError(ValueError):
+    """A message that cannot be built: unknown name, missing/unknown signal, value out of range."""
+
+
+class HalDecodeError(ValueError):
+    """A frame with a declared ID whose data does not match its declaration."""
+
+
+@functools.lru_cache(maxsize=1)
+def _default_database() -> Database:
+    # Parsed once per process and never mutated; every HalCodec() without a path shares it.
+    return cantools.database.load_file(DBC_PATH, database_format="dbc", strict=True)
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """One declared message, resolved once."""
+
+    name: str
+    frame_id: int
+    length: int
+    message: DbcMessage
+    # (signal, lowest, highest) accepted on decode: the declared range widened by half a count,
+    # so that a value saturated at a limit survives the integer round trip.
+    checks: tuple[tuple[str, float, float], ...]
+
+
+class HalCodec:
+    """Encode and decode HAL bus frames as declared in one DBC file (default: `hal.dbc`)."""
+
+    def __init__(self, dbc_path: Optional[Union[str, os.PathLike]] = None) -> None:
+        if dbc_path is None:
+            self.database = _default_database()
+        else:
+            self.database = cantools.database.load_file(dbc_path, database_format="dbc", strict=True)
+        self._by_name: dict[str, _Spec] = {}
+        self._by_id: dict[int, _Spec] = {}
+        for message in self.database.messages:
+            if message.is_extended_frame or message.is_fd or message.length != 8:
+                raise ValueError(f"{message.name}: the HAL bus uses classic 8-byte frames "
+                                 "with standard 11-bit IDs")
+            checks = tuple(
+                (s.name, s.minimum - abs(s.scale) / 2, s.maximum + abs(s.scale) / 2)
+                for s in message.signals
+                if s.minimum is not None and s.maximum is not None
+            )
+            spec = _Spec(message.name, message.frame_id, message.length, message, checks)
+            self._by_name[spec.name] = spec
+            self._by_id[spec.frame_id] = spec
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Declared message names, in frame-ID (priority) order."""
+        return tuple(s.name for s in sorted(self._by_name.values(), key=lambda s: s.frame_id))
+
+    def frame_id(self, name: str) -> int:
+        return self._spec(name).frame_id
+
+    def limits(self, name: str, signal: str) -> tuple[float, float]:
+        """Declared (minimum, maximum) of a signal, in its physical unit."""
+        sig = self._spec(name).message.get_signal_by_name(signal)
+        return float(sig.minimum), float(sig.maximum)
+
+    def cycle_time_s(self, name: str) -> Optional[float]:
+        """Declared send period (DBC attribute GenMsgCycleTime), or None if not declared."""
+        cycle_ms = self._spec(name).message.cycle_time
+        return cycle_ms / 1000.0 if cycle_ms else None
+
+    def _spec(self, name: str) -> _Spec:
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise HalEncodeError(
+                f"no HAL message named {name!r}; declared: {', '.join(self.names)}") from None
+
+    def encode(self, name: str, **signals: Union[int, float]) -> can.Message:
+        """Build the frame `name` from physical signal values (every signal is required)."""
+        spec = self._spec(name)
+        try:
+            data = spec.message.encode(signals, scaling=True, padding=False, strict=True)
+        except (cantools.database.EncodeError, TypeError, ValueError, OverflowError) as exc:
+            raise HalEncodeError(f"cannot encode {name}: {exc}") from exc
+        return can.Message(arbitration_id=spec.frame_id, data=data, dlc=spec.length,
+                           is_extended_id=False)
+
+    def decode(self, msg: can.Message) -> Optional[tuple[str, SignalValues]]:
+        """Return (message name, physical signal values), or None if the frame is not declared.
+
+        Raises `HalDecodeError` for a declared ID with the wrong length or a value outside
+        its declared range. Never raises for an undeclared ID.
+        """
+        if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+            return None
+        spec = self._by_id.get(msg.arbitration_id)
+        if spec is None:
+            return None
+        data = msg.data
+        if len(data) != spec.length:
+            raise HalDecodeError(
+                f"{spec.name} (0x{spec.frame_id:03X}): {len(data)} data bytes, declared {spec.length}")
+        try:
+            values = spec.message.decode(bytes(data), decode_choices=False, scaling=True,
+                                         allow_truncated=False, allow_excess=False)
+        except cantools.database.DecodeError as exc:
+            raise HalDecodeError(f"{spec.name} (0x{spec.frame_id:03X}): {exc}") from exc
+        for signal, lowest, highest in spec.checks:
+            value = values[signal]
+            if not lowest <= value <= highest:
+                raise HalDecodeError(
+                    f"{spec.name} (0x{spec.frame_id:03X}): {signal}={value} outside its declared range")
+        return spec.name, values  # type: ignore[return-value]
