@@ -126,6 +126,7 @@ class ControllerLink(LinkEndpoint):
         if verdict is Verdict.DUPLICATE:
             cached = receiver.cached_reply(frame.seq)
             if cached is None:
+                self.stats.stale_duplicates += 1
                 self._refuse(frame, Reason.REPLAY, now, expected=receiver.expected)
             else:
                 self._queue(prio, cls, frame.seq, *cached)

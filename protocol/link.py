@@ -86,6 +86,7 @@ class LinkStats:
     retransmits: int = 0
     srtt_us: int = 0
     replays: int = 0
+    stale_duplicates: int = 0   # a duplicate older than the reply cache (a sender outside its window)
     telemetry_dropped: int = 0  # queued telemetry dropped because the wire was busy
     telemetry_lost: int = 0     # host: gaps in the telemetry sequence
     reasons: dict = field(default_factory=dict)  # Reason -> count of every refusal

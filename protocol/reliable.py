@@ -72,7 +72,7 @@ class Pending:
 class ReliableSender:
     """Sends in order with a window; answers arrive through `answered` or `acked_through`."""
 
-    window: int = 8
+    window: int = 8                     # must not exceed the receiver's reply cache
     retry_limit: int = 8
     rtt: RttEstimator = field(default_factory=RttEstimator)
     in_order: bool = True               # False for the urgent class: no go-back on a gap
@@ -110,7 +110,11 @@ class ReliableSender:
             for p in self._inflight.values():
                 if p in expired or (first is not None and seq_delta(p.seq, first) >= 0):
                     out.append(p)
-        while self._waiting and len(self._inflight) < self.window:
+        # the window bounds the span of sequence numbers in flight, not their count: a
+        # command whose reply was lost stays in flight while later ones complete, and the
+        # receiver's reply cache must still hold its answer when it is sent again
+        while self._waiting and (not self._inflight
+                                 or seq_delta(self.next_seq, next(iter(self._inflight))) < self.window):
             item = self._waiting.popleft()
             item.seq = self.next_seq
             self.next_seq = (self.next_seq + 1) % SEQ_MOD
