@@ -15,8 +15,9 @@ Both sides carry a 48-byte payload:
   fed the same 4 KiB chunks. Signed frames use MAVLink 2 signing (SHA-256 of key and
   frame, 6 bytes kept, 48-bit timestamp checked per stream).
 
-Each figure is the best of several repeats (frames / seconds, `time.perf_counter`,
-garbage collector paused while timing, as `timeit` does). Every repeat's output is
+Each figure is the best of several rounds (frames / seconds, `time.perf_counter`,
+garbage collector paused while timing, as `timeit` does); within a round the
+contenders take turns, so load from elsewhere on the machine hits them alike. Every repeat's output is
 checked afterwards: encoders must give the reference bytes, decoders must give back
 every original message, equal field for field, so no side can win by skipping work.
 """
@@ -30,9 +31,9 @@ from typing import Any, Callable, Optional
 
 from protocol.framing import FrameReceiver, encode_frame
 from protocol.messages import SCHEMA
+from protocol.reasons import Reason
 from protocol.schema import MsgClass
 from protocol.states import ControllerState, Fault
-from protocol.reasons import Reason
 
 CHUNK_BYTES = 4096
 KEY = bytes(range(1, 33))                   # 32-byte key, both sides
@@ -44,14 +45,37 @@ class BenchError(AssertionError):
     """A benchmark's output did not check out: its figures would be meaningless."""
 
 
+Prepare = Callable[[], Callable[[], Any]]   # untimed set-up returning the timed run
+Check = Callable[[Any], None]                # checks a run's output; raises BenchError
+
+
 @dataclass
 class Row:
+    """One contender: its measures (column -> set-up and check) and, once run, its rates."""
+
     name: str
     wire_bytes: int
-    encode_fps: Optional[float] = None
-    decode_fps: Optional[float] = None
-    both_fps: Optional[float] = None
+    measures: dict[str, tuple[Prepare, Check]] = field(default_factory=dict, repr=False)
+    best_s: dict[str, float] = field(default_factory=dict)
+    frames: int = 0
+    optional: bool = False      # a failure is reported in `note` instead of stopping the benchmark
     note: str = ""
+
+    def fps(self, column: str) -> Optional[float]:
+        best = self.best_s.get(column)
+        return None if best is None else self.frames / best
+
+    @property
+    def encode_fps(self) -> Optional[float]:
+        return self.fps("encode")
+
+    @property
+    def decode_fps(self) -> Optional[float]:
+        return self.fps("decode")
+
+    @property
+    def both_fps(self) -> Optional[float]:
+        return self.fps("both")
 
 
 @dataclass
@@ -64,23 +88,46 @@ class CodecResult:
 
 # ---------------------------------------------------------------- timing
 
-def _best_rate(prepare: Callable[[], Callable[[], Any]], check: Callable[[Any], None],
-               frames: int, repeats: int) -> float:
-    """Frames per second of the fastest of `repeats` runs; each run's output is checked."""
-    best = float("inf")
+COLUMNS = ("encode", "decode", "both")
+
+
+def _time_once(prepare: Prepare, check: Check) -> float:
+    """Seconds of one run (set-up untimed, collector paused); its output is checked afterwards."""
+    run = prepare()                     # fresh receivers and encoders, untimed
+    gc.collect()
+    gc.disable()
+    try:
+        t0 = time.perf_counter()
+        out = run()
+        elapsed = time.perf_counter() - t0
+    finally:
+        gc.enable()
+    check(out)
+    return elapsed
+
+
+def measure(rows: list[Row], repeats: int) -> None:
+    """Best time of each measure over `repeats` rounds, contenders interleaved within a round.
+
+    Interleaving means a burst of load from elsewhere on the machine hits every
+    contender alike instead of one whole row, which keeps the ratios honest.
+    A contender that fails mid-way keeps its reason in `note` and loses its figures.
+    """
     for _ in range(repeats):
-        run = prepare()                     # fresh receivers and encoders, untimed
-        gc.collect()
-        gc.disable()
-        try:
-            t0 = time.perf_counter()
-            out = run()
-            elapsed = time.perf_counter() - t0
-        finally:
-            gc.enable()
-        check(out)
-        best = min(best, elapsed)
-    return frames / best
+        for column in COLUMNS:
+            for row in rows:
+                if column not in row.measures:
+                    continue
+                try:
+                    elapsed = _time_once(*row.measures[column])
+                except Exception as exc:   # an optional contender's failure is reported, not hidden
+                    if not row.optional:
+                        raise
+                    row.note = f"not measured: {type(exc).__name__}: {exc}"
+                    row.measures.clear()
+                    row.best_s.clear()
+                    continue
+                row.best_s[column] = min(elapsed, row.best_s.get(column, float("inf")))
 
 
 def _chunks(stream: bytes) -> list[bytes]:
@@ -107,7 +154,7 @@ def _our_messages(n: int) -> list:
             for i in range(n)]
 
 
-def _ours(n: int, repeats: int, authenticated: bool) -> Row:
+def _ours(n: int, authenticated: bool) -> Row:
     spec = SCHEMA["TelemetryStatus"]
     if spec.size != 48:
         raise BenchError(f"TelemetryStatus payload is {spec.size} bytes, the comparison assumes 48")
@@ -153,10 +200,12 @@ def _ours(n: int, repeats: int, authenticated: bool) -> Row:
         if out != msgs:
             raise BenchError(f"{what}: decoded messages differ from the originals")
 
-    row = Row(f"ours, {'authenticated' if authenticated else 'unauthenticated'}", len(reference[0]))
-    row.encode_fps = _best_rate(lambda: encode_all, _check_equal_bytes(reference, what), n, repeats)
-    row.decode_fps = _best_rate(lambda: lambda: decode_all(chunks), check_decoded, n, repeats)
-    row.both_fps = _best_rate(lambda: lambda: decode_all(_chunks(b"".join(encode_all()))), check_decoded, n, repeats)
+    row = Row(f"ours, {'authenticated' if authenticated else 'unauthenticated'}", len(reference[0]), frames=n)
+    row.measures = {
+        "encode": (lambda: encode_all, _check_equal_bytes(reference, what)),
+        "decode": (lambda: lambda: decode_all(chunks), check_decoded),
+        "both": (lambda: lambda: decode_all(_chunks(b"".join(encode_all()))), check_decoded),
+    }
     row.note = (f"{len(reference[0])} wire bytes: 10 header"
                 + (" + 6 counter" if authenticated else "") + " + 48 payload"
                 + (" + 16 HMAC-SHA256 tag" if authenticated else "") + " + 4 CRC-32 + COBS 1 + 2 delimiters")
@@ -173,6 +222,7 @@ def _load_pymavlink():
 
 def pymavlink_crc_report(common) -> list[str]:
     """Which CRC-16/MCRF4XX implementation pymavlink's generated dialect and generator use."""
+    import inspect
     from importlib import metadata
 
     from pymavlink.generator import mavcrc
@@ -189,8 +239,9 @@ def pymavlink_crc_report(common) -> list[str]:
             version = "?"
         sample = bytes(range(256)) * 3
         agrees = common._x25crc_slow(sample).crc == impl(sample).crc
+        kind = "compiled extension function" if inspect.isbuiltin(fn) else "Python function"
         lines.append(f"pymavlink CRC: dialects.v20.common.x25crc = {impl.__name__} -> {where} "
-                     f"(fastcrc {version}, Rust); agrees with the pure-Python x25crc_slow: {agrees}")
+                     f"(fastcrc {version}, {kind}); agrees with the pure-Python _x25crc_slow: {agrees}")
     else:
         lines.append(f"pymavlink CRC: dialects.v20.common.x25crc = {impl.__name__} "
                      "(pure Python, byte by byte: fastcrc is NOT in use)")
@@ -207,13 +258,13 @@ def _mav_messages(common, n: int) -> list:
                 [0.5, 0.25, -0.125, 1.0 + (i % 4) * 0.5]) for i in range(n)]
 
 
-def _mav_values(common, m) -> tuple:
+def _mav_values(m) -> tuple:
     return tuple(tuple(v) if isinstance(v, list) else v for v in (getattr(m, f) for f in m.fieldnames))
 
 
-def _pymavlink(common, n: int, repeats: int, signed: bool) -> Row:
+def _pymavlink(common, n: int, signed: bool) -> Row:
     msgs = _mav_messages(common, n)
-    expected = [_mav_values(common, m) for m in msgs]
+    expected = [_mav_values(m) for m in msgs]
     size = getattr(common, f"MAVLink_{MAV_MESSAGE.lower()}_message").unpacker.size
 
     def new_mav():
@@ -252,7 +303,7 @@ def _pymavlink(common, n: int, repeats: int, signed: bool) -> Row:
         if len(out) != n:
             raise BenchError(f"{what}: decoded {len(out)} of {n} frames")
         for m, want in zip(out, expected):
-            if m.get_type() != MAV_MESSAGE or _mav_values(common, m) != want:
+            if m.get_type() != MAV_MESSAGE or _mav_values(m) != want:
                 raise BenchError(f"{what}: decoded {m} differs from the original")
             if signed and not m.get_signed():
                 raise BenchError(f"{what}: a frame was accepted without a verified signature")
@@ -262,48 +313,52 @@ def _pymavlink(common, n: int, repeats: int, signed: bool) -> Row:
     if plen != size:
         raise BenchError(f"{what}: payload truncated on the wire to {plen} of {size} bytes")
     chunks = _chunks(b"".join(reference))
-    row = Row(f"pymavlink{', signed' if signed else ''}", len(reference[0]))
-    row.encode_fps = _best_rate(encoder, _check_equal_bytes(reference, what), n, repeats)
+    row = Row(f"pymavlink{', signed' if signed else ''}", len(reference[0]), frames=n, optional=signed)
 
     def prepare_decode():
         mav = new_mav()
         return lambda: decode_all(mav, chunks)
-    row.decode_fps = _best_rate(prepare_decode, check_decoded, n, repeats)
 
     def prepare_both():
         enc, rx = encoder(), new_mav()
         return lambda: decode_all(rx, _chunks(b"".join(enc())))
-    row.both_fps = _best_rate(prepare_both, check_decoded, n, repeats)
+
+    row.measures = {
+        "encode": (encoder, _check_equal_bytes(reference, what)),
+        "decode": (prepare_decode, check_decoded),
+        "both": (prepare_both, check_decoded),
+    }
     row.note = (f"{len(reference[0])} wire bytes: 10 header + {plen} payload + 2 CRC-16"
                 + (" + 13 signature (link id, 48-bit timestamp, 6-byte SHA-256)" if signed else ""))
     return row
 
 
-def _pymavlink_guarded(common, n: int, repeats: int, signed: bool) -> Row:
+def _pymavlink_guarded(common, n: int, signed: bool) -> Row:
     """Signed pymavlink is reported if it works; if not, the row says why instead of a figure."""
     if not signed:
-        return _pymavlink(common, n, repeats, signed)
+        return _pymavlink(common, n, signed)
     try:
-        return _pymavlink(common, n, repeats, signed)
+        return _pymavlink(common, n, signed)
     except Exception as exc:   # report, not hide: the reason is printed in the table
-        return Row("pymavlink, signed", 0, note=f"not measured: {type(exc).__name__}: {exc}")
+        return Row("pymavlink, signed", 0, optional=True, note=f"not measured: {type(exc).__name__}: {exc}")
 
 
 # ---------------------------------------------------------------- run and print
 
 def run(quick: bool = False) -> CodecResult:
-    n, repeats = (2_000, 3) if quick else (20_000, 5)
+    n, repeats = (2_000, 3) if quick else (20_000, 7)
     result = CodecResult(n, repeats)
-    result.rows.append(_ours(n, repeats, authenticated=False))
-    result.rows.append(_ours(n, repeats, authenticated=True))
+    result.rows.append(_ours(n, authenticated=False))
+    result.rows.append(_ours(n, authenticated=True))
     try:
         common = _load_pymavlink()
     except ImportError as exc:
         result.notes.append(f"pymavlink not importable ({exc}): install the bench extra, pip install -e '.[bench]'")
-        return result
-    result.notes.extend(pymavlink_crc_report(common))
-    result.rows.append(_pymavlink_guarded(common, n, repeats, signed=False))
-    result.rows.append(_pymavlink_guarded(common, n, repeats, signed=True))
+    else:
+        result.notes.extend(pymavlink_crc_report(common))
+        result.rows.append(_pymavlink_guarded(common, n, signed=False))
+        result.rows.append(_pymavlink_guarded(common, n, signed=True))
+    measure(result.rows, repeats)
     return result
 
 
@@ -317,7 +372,7 @@ def _ratio(a: Optional[float], b: Optional[float]) -> str:
 
 def report(result: CodecResult) -> str:
     lines = [f"Codec throughput, 48-byte payloads: {result.frames:,} frames per run, best of {result.repeats} "
-             f"(frames/s, higher is better; decode fed {CHUNK_BYTES}-byte chunks)",
+             f"rounds, contenders interleaved (frames/s, higher is better; decode fed {CHUNK_BYTES}-byte chunks)",
              f"  ours: TelemetryStatus (id {SCHEMA['TelemetryStatus'].id:#04x}, 48 B); "
              f"pymavlink: {MAV_MESSAGE} (id 31, common dialect, MAVLink 2 payload exactly 48 B, "
              "all fields non-zero so nothing is truncated)",

@@ -5,6 +5,7 @@ there is no special case for it. Returning ``None`` retires the task. Execution 
 is measured with a separate stopwatch (real CPU time by default, injectable so a
 lock-step run can stay byte-for-byte deterministic), and lateness against the
 requested wake time is counted as an overrun when it exceeds the task's tolerance.
+Tasks due at the same time run in the order their wake-ups were scheduled.
 """
 from __future__ import annotations
 
@@ -95,6 +96,11 @@ class Scheduler:
         if task.wake_s is None or at_s < task.wake_s:
             self._push(task, at_s)
 
+    def remove(self, name: str) -> None:
+        """Retire a task; its queued wake-ups are discarded lazily."""
+        task = self.tasks.pop(name)
+        task.wake_s = None
+
     def _push(self, task: Task, wake_s: float) -> None:
         task.wake_s = wake_s
         heapq.heappush(self._heap, (wake_s, next(self._order), task))
@@ -105,12 +111,16 @@ class Scheduler:
         return self._heap[0][0] if self._heap else None
 
     def run_due(self) -> int:
-        """Run every task whose wake time has come; return how many ran."""
+        """Run every task whose wake time had come when called; return how many ran.
+
+        A task that keeps overrunning is due again at once, so only what was due at
+        entry runs here: the caller's loop gets control back whatever the tasks do.
+        """
         ran = 0
-        now = self.clock.now()
+        horizon = now = self.clock.now()
         while True:
             wake = self.next_wake_s()
-            if wake is None or wake > now:
+            if wake is None or wake > horizon:
                 return ran
             _, _, task = heapq.heappop(self._heap)
             task.wake_s = None
@@ -120,7 +130,9 @@ class Scheduler:
             late_s = now - wake
             task.stats.record(exec_s, late_s, overrun=late_s > task.tolerance_s)
             ran += 1
-            if next_wake is None:
+            if self.tasks.get(task.name) is not task:
+                pass   # removed while it ran
+            elif next_wake is None:
                 del self.tasks[task.name]
             elif task.wake_s is None or next_wake < task.wake_s:
                 self._push(task, next_wake)

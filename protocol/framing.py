@@ -123,6 +123,8 @@ def decode_frame(segment: bytes) -> Frame:
     if _crc32(memoryview(raw)[:-CRC_SIZE]) != _CRC.unpack_from(raw, size - CRC_SIZE)[0]:
         raise ParseError(Reason.BAD_CRC, "CRC-32 mismatch")
     version, flags, cls, seq, ack, msg_id, length = HEADER.unpack_from(raw)
+    if length > MAX_PAYLOAD:
+        raise ParseError(Reason.BAD_LENGTH, f"length field {length} exceeds the {MAX_PAYLOAD}-byte maximum")
     if version != VERSION:
         raise ParseError(Reason.UNSUPPORTED_VERSION, f"version {version}, this end speaks {VERSION}")
     if flags & MUST_UNDERSTAND_MASK & ~KNOWN_FLAGS:
@@ -180,13 +182,17 @@ class FrameReceiver:
             self._skipping = False
             if buf[0] != 0:
                 segments = segments[1:]
-        if len(rest) > MAX_ENCODED:
+        if self._skipping:
+            rest = b""            # still inside an over-long segment already counted
+        elif len(rest) > MAX_ENCODED:
             self.overflows += 1
             rest = b""
             self._skipping = True
         self._pending = rest
         out: list[Frame | ParseError] = []
         for segment in segments:
+            if len(segment) > MAX_ENCODED:   # counted the same however the bytes were chunked
+                self.overflows += 1
             try:
                 out.append(decode_frame(segment))
             except ParseError as exc:

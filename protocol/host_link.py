@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 from protocol import auth
-from protocol.errors import ParseError
+from protocol.errors import EncodeError, ParseError
 from protocol.framing import Frame
 from protocol.link import (HELLO_REPLY_ID, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint, LinkState,
                            Session)
@@ -160,8 +160,13 @@ class HostLink(LinkEndpoint):
                 self.refusal.reason if self.refusal else Reason.NO_SESSION)
             handle._finish(Outcome.FAILED, reason, now, detail=f"link is {self.state.value}")
             return handle
+        try:
+            payload = spec.encode(msg)
+        except EncodeError as exc:
+            handle._finish(Outcome.REJECTED, Reason.OUT_OF_RANGE, now, detail=str(exc))
+            return handle
         sender = self._commands if spec.cls == MsgClass.COMMAND else self._urgent
-        sender.submit(spec.id, spec.encode(msg), handle)
+        sender.submit(spec.id, payload, handle)
         self._pump(now)
         return handle
 

@@ -13,7 +13,7 @@ import hashlib
 import math
 import struct
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Optional
+from typing import Any, Callable, Iterable, Optional
 
 from protocol.errors import EncodeError, ParseError
 from protocol.reasons import Reason
@@ -45,8 +45,14 @@ _TYPES: dict[str, tuple[str, tuple[float, float] | None]] = {
     "i16": ("h", (-0x8000, 0x7FFF)),
     "i32": ("i", (-0x80000000, 0x7FFFFFFF)),
     "f32": ("f", None),
-    "bool": ("?", None),
+    "bool": ("B", (0, 1)),     # one byte, 0 or 1 (a struct "?" would read any non-zero byte as True)
 }
+_F32 = struct.Struct("<f")
+
+
+def _round_f32(value: float) -> float:
+    """The float32 that goes on the wire for `value` (raises OverflowError if none does)."""
+    return _F32.unpack(_F32.pack(value))[0]
 
 
 @dataclass(frozen=True)
@@ -72,12 +78,39 @@ class Field:
         """The range checked on decode (declared, else the type's own for integers)."""
         if self.range is not None:
             return self.range
-        if self.type.startswith("bytes") or self.type in ("bool", "f32"):
+        if self.type.startswith("bytes") or self.type == "f32":
             return None
         return _TYPES[self.type][1]
 
+    def fast_check(self) -> Optional[Callable[[Any], bool]]:
+        """A quick test of a decoded value (None if every value of the type is valid).
+
+        `check` gives the reason; this only says yes or no, cheaply, on the hot path.
+        """
+        lo, hi = self.range if self.range is not None else (None, None)
+        if self.enum is not None:
+            allowed = frozenset(int(m) for m in self.enum)
+            return allowed.__contains__
+        if self.type == "f32":
+            isfinite = math.isfinite
+            if lo is None:
+                return isfinite
+            return lambda v: isfinite(v) and lo <= v <= hi
+        if lo is None and self.type == "bool":
+            lo, hi = 0, 1
+        if lo is None:
+            return None
+        return lambda v: lo <= v <= hi
+
     def check(self, value: Any) -> Optional[str]:
         """None if `value` is valid, else why not."""
+        if self.type.startswith("bytes"):
+            size = int(self.type[5:])
+            if not isinstance(value, (bytes, bytearray)) or len(value) != size:
+                return f"{self.name} must be exactly {size} bytes"
+            return None
+        if self.type == "bool" and value not in (0, 1):
+            return f"{self.name}={value} is not 0 or 1"
         if self.type == "f32":
             if not math.isfinite(value):
                 return f"{self.name} is not a finite number ({value})"
@@ -91,6 +124,10 @@ class Field:
             except ValueError:
                 return f"{self.name}={value} is not one of {', '.join(m.name for m in self.enum)}"
         return None
+
+
+def _enum_text(values: Optional[type[enum.IntEnum]]) -> str:
+    return "" if values is None else "|".join(f"{m.name}={int(m)}" for m in values)
 
 
 class Message(tuple):
@@ -132,12 +169,24 @@ class MessageSpec:
     teleop: Optional[str] = None         # teleop command word, when a person may send it
     type: type[Message] = field(init=False, repr=False)
     _struct: struct.Struct = field(init=False, repr=False)
-    _checked: tuple[tuple[int, Field], ...] = field(init=False, repr=False)
+    _decode_checks: tuple = field(init=False, repr=False)
+    _encode_checks: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._struct = struct.Struct("<" + "".join(f.struct_code for f in self.fields))
-        self._checked = tuple((i, f) for i, f in enumerate(self.fields)
-                              if f.type == "f32" or f.range is not None or f.enum is not None)
+        # (index, field, quick test): the quick test runs on every value, `Field.check` only on failure
+        self._decode_checks = tuple((i, f, ok) for i, f in enumerate(self.fields) if (ok := f.fast_check()))
+        encode_checks = []
+        for i, f in enumerate(self.fields):
+            if f.type == "f32" and f.range is not None:
+                # check the value that goes on the wire, so what encode accepts decode accepts
+                encode_checks.append((i, f, lambda v, ok=f.fast_check(): ok(_round_f32(v))))
+            elif f.type.startswith("bytes"):
+                size = int(f.type[5:])
+                encode_checks.append((i, f, lambda v, n=size: isinstance(v, (bytes, bytearray)) and len(v) == n))
+            elif f.fast_check() is not None:
+                encode_checks.append((i, f, f.fast_check()))
+        self._encode_checks = tuple(encode_checks)
         names = [f.name for f in self.fields]
         spec = self
 
@@ -165,13 +214,12 @@ class MessageSpec:
 
     def encode(self, msg: Message) -> bytes:
         """Payload bytes of `msg`; raises `EncodeError` for a value out of range."""
-        for index, fld in self._checked:
-            problem = fld.check(msg[index])
-            if problem:
-                raise EncodeError(f"{self.name}: {problem}")
         try:
+            for index, fld, ok in self._encode_checks:
+                if not ok(msg[index]):
+                    raise EncodeError(f"{self.name}: {fld.check(msg[index]) or 'not representable as ' + fld.type}")
             return self._struct.pack(*msg)
-        except struct.error as exc:
+        except (struct.error, OverflowError, TypeError) as exc:
             raise EncodeError(f"{self.name}: {exc}") from exc
 
     def decode(self, payload: bytes) -> Message:
@@ -180,15 +228,14 @@ class MessageSpec:
             raise ParseError(Reason.BAD_LENGTH,
                              f"{self.name} takes {self._struct.size} payload bytes, got {len(payload)}")
         values = self._struct.unpack(payload)
-        for index, fld in self._checked:
-            problem = fld.check(values[index])
-            if problem:
-                raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {problem}")
+        for index, fld, ok in self._decode_checks:
+            if not ok(values[index]):
+                raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {fld.check(values[index])}")
         return tuple.__new__(self.type, values)
 
     def canonical(self) -> str:
         """Text that the schema hash covers: everything that changes the wire."""
-        fields = ",".join(f"{f.name}:{f.type}:{f.range}" for f in self.fields)
+        fields = ",".join(f"{f.name}:{f.type}:{f.range}:{_enum_text(f.enum)}" for f in self.fields)
         return f"{self.id}|{self.name}|{self.cls.name}|{self.direction.name}|{self.reply}|{fields}"
 
 

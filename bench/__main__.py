@@ -1,0 +1,44 @@
+"""`python -m bench` (`make bench`): the codec benchmark, then the round-trip benchmark.
+
+    python -m bench [--quick] [--only codec|rtt]
+
+These print figures and ratios beside a peer measured in the same run; they are not
+pass/fail tests. The exit status is 0 when every benchmark produced its figures
+(whether or not a goal was met), 1 when one could not run.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Optional, Sequence
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer frames and pings: a smoke run of a few seconds")
+    parser.add_argument("--only", choices=("codec", "rtt"), help="run one benchmark only")
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    status = 0
+    if args.only in (None, "codec"):
+        from bench import bench_codec
+        try:
+            bench_codec.main(quick=args.quick)
+        except bench_codec.BenchError as exc:
+            print(f"bench codec: {exc}", file=sys.stderr)
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "rtt"):
+        from bench import bench_rtt
+        results = bench_rtt.main(quick=args.quick)
+        if any(r.error for r in results):
+            status = 1
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

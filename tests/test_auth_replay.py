@@ -1,0 +1,209 @@
+"""Authentication: replays, forgeries, reflections and wrong keys never execute anything."""
+from __future__ import annotations
+
+import random
+
+from protocol.controller_link import ControllerLink
+from protocol.framing import COUNTER_MAX, encode_frame
+from protocol.host_link import HostLink
+from protocol.link import LinkState
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.reliable import Outcome
+from protocol.schema import MsgClass
+
+Ping, Pong, EStop, Result = (SCHEMA[n].type for n in ("Ping", "Pong", "EStop", "Result"))
+KEY = bytes(range(32))
+OTHER_KEY = bytes(range(1, 33))
+
+
+class Wire:
+    """Host and controller joined directly; every byte each way is recorded."""
+
+    def __init__(self, host_key: bytes = KEY, controller_key: bytes = KEY, seed: int = 0,
+                 controller: ControllerLink | None = None) -> None:
+        rng = random.Random(seed)
+        self.executed: list = []
+        self.controller = controller or self.new_controller(controller_key, rng)
+        self.host = HostLink(host_key, nonce_source=lambda: rng.randbytes(16))
+        self.to_controller: list[bytes] = []
+        self.to_host: list[bytes] = []
+        self.now = 0.0
+
+    def new_controller(self, key: bytes, rng: random.Random) -> ControllerLink:
+        return ControllerLink(key, self._execute, nonce_source=lambda: rng.randbytes(16))
+
+    def _execute(self, msg, urgent, now):
+        self.executed.append(msg)
+        return Pong(0, msg.token, 0) if msg.spec.name == "Ping" else Result(0)
+
+    def step(self, n: int = 1) -> None:
+        for _ in range(n):
+            self.now += 0.001
+            self.host.poll(self.now)
+            self.controller.poll(self.now)
+            data = self.host.take_all(self.now)
+            if data:
+                self.to_controller.append(data)
+                self.controller.feed(data, self.now)
+            data = self.controller.take_all(self.now)
+            if data:
+                self.to_host.append(data)
+                self.host.feed(data, self.now)
+
+    def connect(self) -> None:
+        self.host.connect(self.now)
+        for _ in range(200):
+            self.step()
+            if self.host.state is LinkState.UP and self.controller.session is not None:
+                return
+        raise AssertionError(f"no session: host {self.host.state}")
+
+    def call(self, msg):
+        handle = self.host.submit(msg, self.now)
+        for _ in range(5000):
+            if handle.done:
+                break
+            self.step()
+        return handle
+
+    def inject(self, data: bytes) -> None:
+        self.controller.feed(data, self.now)
+        self.step(5)
+
+
+def session_with_commands(seed: int = 0) -> Wire:
+    wire = Wire(seed=seed)
+    wire.connect()
+    for token in range(5):
+        assert wire.call(Ping(token)).ok
+    assert wire.call(EStop()).ok
+    return wire
+
+
+def test_replayed_frames_in_the_same_session_never_execute_again():
+    wire = session_with_commands()
+    executed = len(wire.executed)
+    replays_before = wire.controller.stats.replays
+    for data in list(wire.to_controller):
+        wire.inject(data)
+    assert len(wire.executed) == executed
+    assert wire.controller.stats.replays > replays_before
+    assert wire.call(Ping(77)).ok            # and the genuine host goes on
+    assert wire.executed[-1] == Ping(77)
+
+
+def test_replay_to_a_restarted_controller_executes_nothing():
+    old = session_with_commands()
+    rng = random.Random(99)
+    restarted = Wire(controller=old.new_controller(KEY, rng))
+    restarted.executed = old.executed = []
+    restarted.controller._handler = old._execute
+    for data in old.to_controller:          # the whole old session, Hello included
+        restarted.inject(data)
+    restarted.step(3000)                    # and let any pending session time out
+    assert old.executed == []
+    assert restarted.controller.commands_executed == 0
+    assert restarted.controller.session is None   # a replayed Hello only opened a pending session
+
+
+def test_replay_after_the_host_restarts_executes_nothing():
+    wire = session_with_commands()
+    recorded = list(wire.to_controller)
+    wire.host = HostLink(KEY, nonce_source=lambda: b"\x42" * 16)   # the host restarts: a new session
+    wire.connect()
+    executed = len(wire.executed)
+    for data in recorded:
+        wire.inject(data)
+    assert len(wire.executed) == executed
+    assert wire.call(Ping(5)).ok and wire.executed[-1] == Ping(5)
+
+
+def test_a_replayed_hello_does_not_displace_the_live_session():
+    wire = session_with_commands()
+    hello = wire.to_controller[0]
+    session = wire.controller.session
+    wire.inject(hello)
+    assert wire.controller.session is session
+    assert wire.call(Ping(8)).ok
+
+
+def test_frames_with_a_wrong_mac_never_execute_and_are_counted():
+    wire = Wire()
+    wire.connect()
+    before = wire.controller.stats.auth_errors
+    forged = encode_frame(MsgClass.URGENT, 0, 0, SCHEMA["EStop"].id, b"", key=OTHER_KEY, counter=10)
+    tampered = bytearray(encode_frame(MsgClass.COMMAND, 0, 0, SCHEMA["Ping"].id, b"\x01\x00\x00\x00",
+                                      key=OTHER_KEY, counter=11))
+    for data in (forged, bytes(tampered)):
+        wire.inject(data)
+    assert wire.executed == []
+    assert wire.controller.stats.auth_errors == before + 2
+
+
+def test_unauthenticated_frames_are_refused_with_a_reason():
+    wire = Wire()
+    wire.connect()
+    wire.inject(encode_frame(MsgClass.URGENT, 0, 0, SCHEMA["EStop"].id, b""))
+    assert wire.executed == []
+    assert wire.controller.stats.reasons[Reason.UNAUTHENTICATED] == 1
+    assert wire.controller.stats.naks_tx >= 1
+
+
+def test_a_forged_frame_with_a_huge_counter_does_not_block_genuine_traffic():
+    wire = Wire()
+    wire.connect()
+    forged = encode_frame(MsgClass.COMMAND, 0, 0, SCHEMA["Ping"].id, b"\x00" * 4, key=OTHER_KEY, counter=COUNTER_MAX)
+    wire.inject(forged)
+    handle = wire.call(Ping(3))
+    assert handle.ok and wire.executed == [Ping(3)]
+
+
+def test_a_frame_reflected_back_to_its_sender_does_not_verify():
+    wire = Wire()
+    wire.connect()
+    wire.step(1500)   # heartbeats flow both ways
+    valid_before = wire.controller.stats.frames_rx
+    for data in list(wire.to_host):
+        wire.controller.feed(data, wire.now)   # the controller's own frames, sent back to it
+    assert wire.controller.stats.frames_rx == valid_before
+    assert wire.executed == []
+
+
+def test_a_host_with_another_key_executes_nothing_and_learns_why():
+    wire = Wire(host_key=OTHER_KEY)
+    wire.host.connect(wire.now)
+    wire.step(10_000)
+    assert wire.host.state is LinkState.SUSPENDED
+    assert wire.host.stats.auth_errors > 0           # the controller answered, but not in this key
+    assert wire.controller.stats.reasons.get(Reason.BAD_MAC, 0) > 0
+    assert wire.host.submit(EStop(), wire.now).outcome is Outcome.FAILED
+    assert wire.executed == [] and wire.controller.session is None
+
+
+def test_a_schema_mismatch_is_refused_by_name():
+    import dataclasses
+    from protocol.schema import Schema
+    # a host built from a declaration where one message has another id
+    other = Schema(1, [dataclasses.replace(s, id=0x2F) if s.name == "Stop" else s for s in SCHEMA.by_id.values()])
+    assert other.hash != SCHEMA.hash
+    wire = Wire()
+    wire.host = HostLink(KEY, schema=other)
+    wire.host.connect(wire.now)
+    wire.step(100)
+    assert wire.host.state is LinkState.REFUSED
+    assert wire.host.refusal.reason is Reason.SCHEMA_MISMATCH
+    assert f"{SCHEMA.hash:016x}" in wire.host.refusal.detail
+    assert wire.host.submit(Ping(1), wire.now).outcome is Outcome.FAILED
+    assert wire.executed == []
+
+
+def test_a_restarted_controller_makes_the_host_start_a_new_session():
+    wire = session_with_commands()
+    rng = random.Random(5)
+    wire.controller = wire.new_controller(KEY, rng)   # power cycle: no session any more
+    handle = wire.host.submit(Ping(1), wire.now)
+    wire.step(3000)
+    assert handle.outcome is Outcome.FAILED and handle.reason is Reason.SESSION_RESET
+    assert wire.host.state is LinkState.UP and wire.host.sessions_started == 2
+    assert wire.call(Ping(2)).ok

@@ -1,0 +1,140 @@
+"""The controller skeleton in a lock-step world: supervisor, safe state, faults, telemetry."""
+from __future__ import annotations
+
+from firmware_py.controller import ControllerConfig
+from host_tools.world import LockstepBench
+from protocol.link import LinkConfig
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import ControllerState, Fault
+
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+
+
+def status(bench):
+    handle = bench.call(M["GetStatus"]())
+    assert handle.ok, handle.describe()
+    return handle.reply
+
+
+def test_boots_to_idle_and_enables(bench):
+    assert status(bench).state == ControllerState.IDLE
+    assert bench.call(M["Enable"]()).ok
+    assert status(bench).state == ControllerState.ENABLED
+    assert bench.wait_until(lambda: bench.world.plant.outputs_enabled, 0.1)   # the plant sees it over CAN
+    assert bench.call(M["Disable"]()).ok
+    assert bench.wait_until(lambda: not bench.world.plant.outputs_enabled, 0.1)
+
+
+def test_estop_takes_the_one_path_to_the_safe_state_and_latches_until_reset(bench):
+    assert bench.call(M["Enable"]()).ok
+    assert bench.wait_until(lambda: bench.world.plant.outputs_enabled, 0.1)
+    assert bench.call(M["EStop"]()).ok
+    assert not bench.world.plant.outputs_enabled and bench.world.plant.brake
+    reply = status(bench)
+    assert reply.state == ControllerState.ESTOP and reply.faults & Fault.ESTOP
+    refused = bench.call(M["Enable"]())
+    assert refused.reason is Reason.ESTOP            # refused with a reason, nothing changed
+    bench.run_for(1.0)
+    assert not bench.world.plant.outputs_enabled
+    assert bench.call(M["Reset"]()).ok
+    assert status(bench).state == ControllerState.IDLE
+    names = [ControllerState(e.state).name for e in bench.events]
+    assert names[-2:] == ["ESTOP", "IDLE"]
+
+
+def test_link_loss_reaches_the_safe_state_within_the_timeout():
+    config = ControllerConfig(link=LinkConfig(link_timeout_s=0.5, heartbeat_s=0.1))
+    bench = LockstepBench(seed=2, controller_config=config)
+    try:
+        assert bench.connect()
+        assert bench.call(M["Enable"]()).ok
+        lost_at = bench.clock.now()
+        bench.host_alive = False
+        assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 0.6)
+        elapsed = bench.clock.now() - lost_at
+        assert 0.5 <= elapsed <= 0.55
+        assert bench.controller.supervisor.faults & Fault.LINK_LOST
+        assert bench.wait_until(lambda: not bench.world.plant.outputs_enabled, 0.01)
+        bench.run_for(5.0)                             # stays there: latched, no telemetry into the void
+        assert bench.controller.supervisor.state is ControllerState.FAULT
+        bench.host_alive = True
+        bench.host.connect(bench.clock.now())          # the host comes back, the fault is still latched
+        assert bench.wait_until(lambda: bench.host.state.value == "up", 5.0)
+        assert status(bench).faults & Fault.LINK_LOST
+        assert bench.call(M["Reset"]()).ok
+        assert status(bench).state == ControllerState.IDLE
+        # the fault event of the lost session is delivered in the new one
+        assert any(e.reason == Reason.LINK_TIMEOUT for e in bench.events)
+    finally:
+        bench.close()
+
+
+def test_supply_sag_faults_and_reset_is_refused_while_it_lasts(bench):
+    bench.world.plant.inject("supply_sag")
+    assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 0.1)
+    assert bench.controller.supervisor.faults & Fault.SUPPLY_LOW
+    assert bench.call(M["Reset"]()).reason is Reason.SUPPLY_LOW
+    bench.world.plant.clear("supply_sag")
+    bench.run_for(0.05)
+    assert bench.call(M["Reset"]()).ok
+
+
+def test_over_temperature_reaches_the_safe_state():
+    bench = LockstepBench(seed=4)
+    try:
+        assert bench.connect()
+        bench.call(M["SetTelemetryRate"](1))
+        bench.world.plant.inject("over_temperature")
+        bench.host_alive = True
+        assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 400)
+        assert bench.controller.supervisor.faults & Fault.OVER_TEMPERATURE
+        assert bench.world.plant.temp_c > 44.5
+    finally:
+        bench.close()
+
+
+def test_hal_silence_is_a_fault(bench):
+    bench.world.scheduler.remove("plant")   # the plant stops talking on the bus
+    assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 0.5)
+    assert bench.controller.supervisor.faults & Fault.HAL_STALE
+
+
+def test_telemetry_rate_is_set_over_the_link(bench):
+    assert bench.call(M["SetTelemetryRate"](50)).ok
+    start = len(bench.telemetry)
+    bench.run_for(1.0)
+    assert 45 <= len(bench.telemetry) - start <= 51
+    assert bench.call(M["SetTelemetryRate"](0)).ok
+    start = len(bench.telemetry)
+    bench.run_for(1.0)
+    assert len(bench.telemetry) - start <= 1
+    refused = bench.call(M["SetTelemetryRate"](201))
+    assert refused.reason is Reason.OUT_OF_RANGE and "rate_hz=201" in refused.detail   # refused by the host
+
+
+def test_the_controller_refuses_out_of_range_values_that_reach_the_wire(bench):
+    # a host that skips the range check (here: the sender's raw submit) gets a reason, and nothing changes
+    from protocol.host_link import CommandHandle
+    handle = CommandHandle(M["SetTelemetryRate"](10), bench.clock.now())
+    bench.host._commands.submit(SCHEMA["SetTelemetryRate"].id, (500).to_bytes(2, "little"), handle)
+    bench.wait_until(lambda: handle.done, 1.0)
+    assert handle.reason is Reason.OUT_OF_RANGE
+    assert bench.controller.telemetry_hz == 10
+    assert bench.call(M["Ping"](1)).ok       # and the channel goes on
+
+
+def test_same_seed_same_bytes():
+    def run(seed):
+        b = LockstepBench(seed=seed)
+        captured = bytearray()
+        feed = b.host.feed
+        b.host.feed = lambda data, now: (captured.extend(data), feed(data, now))
+        b.connect()
+        b.call(M["Enable"]())
+        b.world.plant.inject("supply_sag")
+        b.run_for(2.0)
+        b.close()
+        return bytes(captured)
+    assert run(7) == run(7)
+    assert run(7) != run(8)

@@ -1,0 +1,75 @@
+"""The cooperative scheduler and the injected clock."""
+from __future__ import annotations
+
+import pytest
+
+from firmware_py.scheduler import Scheduler
+from timebase import SimClock
+
+
+def make():
+    clock = SimClock()
+    return clock, Scheduler(clock, stopwatch=clock.now)
+
+
+def test_periodic_tasks_run_at_their_wake_times_in_order():
+    clock, sched = make()
+    log = []
+    sched.add("fast", lambda now: (log.append(("fast", round(now, 6))), now + 0.25)[1], 0.0)
+    sched.add("slow", lambda now: (log.append(("slow", round(now, 6))), now + 0.5)[1], 0.0)
+    sched.run_until(1.0)
+    assert clock.now() == 1.0
+    # tasks due at the same time run in the order their wake-ups were scheduled
+    assert log == [("fast", 0.0), ("slow", 0.0), ("fast", 0.25), ("slow", 0.5), ("fast", 0.5),
+                   ("fast", 0.75), ("slow", 1.0), ("fast", 1.0)]
+    assert sched.tasks["fast"].stats.runs == 5
+
+
+def test_returning_none_retires_a_task_and_remove_stops_one():
+    clock, sched = make()
+    runs = []
+    sched.add("once", lambda now: runs.append(now), 0.1)
+    sched.add("tick", lambda now: (runs.append(("tick", now)), now + 0.1)[1], 0.0)
+    sched.run_until(0.15)
+    assert "once" not in sched.tasks
+    sched.remove("tick")
+    sched.run_until(1.0)
+    assert [r for r in runs if isinstance(r, tuple)] == [("tick", 0.0), ("tick", 0.1)]
+
+
+def test_wake_brings_a_task_forward():
+    clock, sched = make()
+    seen = []
+    sched.add("lazy", lambda now: (seen.append(now), now + 10.0)[1], 0.0)
+    sched.run_until(1.0)
+    sched.wake("lazy", 1.5)
+    sched.run_until(2.0)
+    assert seen == [0.0, 1.5]
+
+
+def test_lateness_beyond_tolerance_counts_as_an_overrun():
+    clock, sched = make()
+
+    def hog(now):
+        clock.advance(0.005)          # this task takes 5 ms of (simulated) time
+        return now + 0.001
+    sched.add("hog", hog, 0.0)
+    sched.add("victim", lambda now: now + 0.001, 0.0, tolerance_s=0.002)
+    sched.run_until(0.1)
+    assert sched.tasks["victim"].stats.overruns > 0
+    assert sched.tasks["hog"].stats.exec_max_s == pytest.approx(0.005)
+
+
+def test_duplicate_names_are_refused():
+    _, sched = make()
+    sched.add("a", lambda now: None)
+    with pytest.raises(ValueError, match="already scheduled"):
+        sched.add("a", lambda now: None)
+
+
+def test_sim_clock_never_goes_back():
+    clock = SimClock(5.0)
+    clock.sleep_until(1.0)
+    assert clock.now() == 5.0
+    with pytest.raises(ValueError):
+        clock.advance(-1)
