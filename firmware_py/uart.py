@@ -23,6 +23,7 @@ from typing import Optional, Protocol
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
 BITS_PER_BYTE = 10            # 8N1: start + 8 data + stop
 MAX_PENDING_OUT = 64 * 1024   # bytes held for a host that is not reading before they are dropped
+RX_LOOKAHEAD = 4096           # bytes read ahead from the OS while the line delivers them
 
 
 class Port(Protocol):
@@ -182,7 +183,8 @@ class PacedUart:
         self.baud = baud
         self.paced = paced
         self.byte_time_s = BITS_PER_BYTE / baud
-        self._rx_wire_s: Optional[float] = None     # when the line is next free to deliver a byte
+        self._rx_buf = bytearray()                  # read from the OS, not yet delivered by the line
+        self._rx_head_s = 0.0                       # when the last delivered byte finished arriving
         self._tx_wire_s = 0.0                       # when the transmitter is next idle
         self._in_flight: list[tuple[float, bytes]] = []   # frames on the wire: (done time, bytes)
         self._pending_out = bytearray()             # done on the wire, not yet taken by the OS
@@ -193,20 +195,43 @@ class PacedUart:
 
     # ---- receive ----
     def receive(self, now: float, max_bytes: int = 4096) -> bytes:
-        """Bytes the line has delivered by `now`."""
+        """Bytes the line has delivered by `now`.
+
+        Reads up to `RX_LOOKAHEAD` bytes ahead from the OS (the rest waits there, as
+        it would in the sender's UART) and releases them one byte time apart. Bytes
+        that find the line idle start arriving at `now`, so the emulated line is
+        never faster than the wire.
+        """
         if not self.paced:
             return self.port.read(max_bytes)
-        if self._rx_wire_s is None:
-            # the line was idle: whatever is waiting started arriving about now
-            self._rx_wire_s = now - self.byte_time_s
-        budget = min(max_bytes, int((now - self._rx_wire_s) / self.byte_time_s))
-        if budget <= 0:
+        buf = self._rx_buf
+        if len(buf) < RX_LOOKAHEAD:
+            data = self.port.read(RX_LOOKAHEAD - len(buf))
+            if data:
+                if not buf and self._rx_head_s < now:
+                    self._rx_head_s = now
+                buf += data
+        count = min(len(buf), max_bytes, int((now - self._rx_head_s) / self.byte_time_s + 1e-9))
+        if count <= 0:
             return b""
-        data = self.port.read(budget)
-        self._rx_wire_s += len(data) * self.byte_time_s
-        if len(data) < budget:
-            self._rx_wire_s = None   # drained: the line is idle until more bytes come
-        return data
+        out = bytes(buf[:count])
+        del buf[:count]
+        self._rx_head_s += count * self.byte_time_s
+        return out
+
+    @property
+    def rx_busy(self) -> bool:
+        """A frame is arriving: bytes are on the line that have not all been delivered."""
+        return bool(self._rx_buf)
+
+    def next_rx_deadline(self) -> Optional[float]:
+        """When the next delimiter (a frame boundary) held back will have arrived."""
+        if not self._rx_buf:
+            return None
+        end = self._rx_buf.find(0)
+        if end < 0:
+            end = len(self._rx_buf) - 1
+        return self._rx_head_s + (end + 1) * self.byte_time_s
 
     # ---- transmit ----
     def tx_idle(self, now: float) -> bool:
@@ -236,7 +261,8 @@ class PacedUart:
     def backlog_bytes(self) -> int:
         return len(self._pending_out) + sum(len(f) for _, f in self._in_flight)
 
-    def next_deadline(self) -> Optional[float]:
+    def next_tx_deadline(self) -> Optional[float]:
+        """When the frame now on the wire will have been sent."""
         return self._in_flight[0][0] if self._in_flight else None
 
     def close(self) -> None:

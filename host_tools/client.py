@@ -43,30 +43,43 @@ class HostClient:
         self._thread.start()
 
     # ---- pump thread ----
+    def _read(self) -> bytes:
+        """Up to the first byte waits `READ_TIMEOUT_S`; the rest is whatever is already there.
+
+        pyserial's `read(size)` waits out its whole timeout unless `size` bytes come, so
+        read one byte, then what `in_waiting` reports (for `socket://` that is 0 or 1, so
+        keep going while it says more is there).
+        """
+        data = self.serial.read(1)
+        while data and len(data) < READ_SIZE:
+            waiting = self.serial.in_waiting
+            if not waiting:
+                break
+            data += self.serial.read(min(waiting, READ_SIZE - len(data)))
+        return data
+
     def _pump(self) -> None:
         while not self._stop:
             try:
-                data = self.serial.read(READ_SIZE)
+                data = self._read()
+                with self._cond:
+                    now = self.clock.now()
+                    if data:
+                        self.link.feed(data, now)
+                    self.link.poll(now)
+                    self._flush(now)
+                    self._cond.notify_all()
             except (serial.SerialException, OSError) as exc:
                 with self._cond:
                     self.io_error = str(exc)
                     self._cond.notify_all()
                 return
-            with self._cond:
-                now = self.clock.now()
-                if data:
-                    self.link.feed(data, now)
-                self.link.poll(now)
-                out = self.link.take_all(now)
-                self._cond.notify_all()
-            if out:
-                try:
-                    self.serial.write(out)
-                except (serial.SerialException, OSError) as exc:
-                    with self._cond:
-                        self.io_error = str(exc)
-                        self._cond.notify_all()
-                    return
+
+    def _flush(self, now: float) -> None:
+        """Write what the link queued (called with the lock held)."""
+        out = self.link.take_all(now)
+        if out:
+            self.serial.write(out)
 
     def _telemetry(self, msg: Message, now: float) -> None:
         for listener in self.telemetry_listeners:
@@ -93,6 +106,8 @@ class HostClient:
         """Handshake; raises `LinkError` with the reason if refused or unanswered."""
         with self._cond:
             self.link.connect(self.clock.now())
+            self.link.poll(self.clock.now())
+            self._flush(self.clock.now())
         settled = (LinkState.UP, LinkState.REFUSED, LinkState.SUSPENDED)
         self.wait_for(lambda: self.link.state in settled, timeout_s)
         with self._cond:
@@ -107,7 +122,13 @@ class HostClient:
 
     def submit(self, msg: Message) -> CommandHandle:
         with self._cond:
-            return self.link.submit(msg, self.clock.now())
+            now = self.clock.now()
+            handle = self.link.submit(msg, now)
+            try:
+                self._flush(now)   # on the wire now, not after the pump's next read
+            except (serial.SerialException, OSError) as exc:
+                self.io_error = str(exc)
+            return handle
 
     def call(self, msg: Message, timeout_s: float = 30.0) -> CommandHandle:
         """Send `msg` and wait for its outcome (the link's retry limit ends it well before `timeout_s`)."""

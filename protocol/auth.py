@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from protocol.errors import KeyFileError
+from protocol.framing import MacKey
 
 KEY_BYTES = 32
 MIN_KEY_BYTES = 16
@@ -39,13 +40,14 @@ def _derive(psk: bytes, label: bytes) -> bytes:
 class DirectionKeys:
     """The pair of keys one end uses: one to sign what it sends, one to verify what it receives."""
 
-    tx: bytes
-    rx: bytes
+    tx: MacKey
+    rx: MacKey
 
 
 def handshake_keys(psk: bytes, is_controller: bool) -> DirectionKeys:
     h2c = _derive(psk, b"handshake/" + TO_CONTROLLER)
     c2h = _derive(psk, b"handshake/" + TO_HOST)
+    c2h, h2c = MacKey(c2h), MacKey(h2c)
     return DirectionKeys(tx=c2h, rx=h2c) if is_controller else DirectionKeys(tx=h2c, rx=c2h)
 
 
@@ -53,6 +55,7 @@ def session_keys(psk: bytes, host_nonce: bytes, controller_nonce: bytes, is_cont
     nonces = host_nonce + controller_nonce
     h2c = _derive(psk, b"session/" + TO_CONTROLLER + nonces)
     c2h = _derive(psk, b"session/" + TO_HOST + nonces)
+    c2h, h2c = MacKey(c2h), MacKey(h2c)
     return DirectionKeys(tx=c2h, rx=h2c) if is_controller else DirectionKeys(tx=h2c, rx=c2h)
 
 

@@ -111,7 +111,9 @@ the state of the command stream, and are deduplicated the same way.
 **Events** use the same machinery in the other direction: the host acknowledges them
 with the `ack` field of any frame (an `Ack` frame when it has nothing else to send).
 
-**Heartbeats** go both ways every {LinkConfig.heartbeat_s:.0f} s with the sender's link statistics. The
+**Heartbeats** go both ways with the sender's link statistics, {LinkConfig.heartbeat_s:.0f} s after the sender's
+last frame other than telemetry (any authenticated frame proves the link alive, and on a
+slow line a heartbeat queued between two commands would delay the second). The
 controller goes to its safe state (`LINK_LOST`, latched until `reset`) when a session
 has seen no valid frame for the link timeout (default {LinkConfig.link_timeout_s:.0f} s, `aspod sim
 --link-timeout`), and stops its periodic frames until the host returns.

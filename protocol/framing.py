@@ -28,6 +28,7 @@ frame, and `encode_frame` builds one.
 """
 from __future__ import annotations
 
+import hashlib
 import hmac
 import struct
 import zlib
@@ -60,8 +61,35 @@ _CRC = struct.Struct("<I")
 _cobs_encode = cobs.encode
 _cobs_decode = cobs.decode
 _crc32 = zlib.crc32
-_hmac_digest = hmac.digest
 _compare = hmac.compare_digest
+
+
+class MacKey:
+    """HMAC-SHA256 (RFC 2104) with the key's inner and outer states computed once.
+
+    `hmac.digest(key, ...)` sets the key up again for every frame; copying two
+    prepared SHA-256 states is about three times cheaper and gives the same tag.
+    """
+
+    __slots__ = ("key", "_inner", "_outer")
+
+    def __init__(self, key: bytes) -> None:
+        self.key = bytes(key)
+        block = hashlib.sha256(self.key).digest() if len(self.key) > 64 else self.key
+        block = block.ljust(64, b"\x00")
+        self._inner = hashlib.sha256(bytes(b ^ 0x36 for b in block))
+        self._outer = hashlib.sha256(bytes(b ^ 0x5C for b in block))
+
+    def tag(self, data: bytes) -> bytes:
+        inner = self._inner.copy()
+        inner.update(data)
+        outer = self._outer.copy()
+        outer.update(inner.digest())
+        return outer.digest()[:TAG_SIZE]
+
+
+def mac_key(key: "bytes | MacKey") -> MacKey:
+    return key if isinstance(key, MacKey) else MacKey(key)
 
 
 @dataclass(slots=True)
@@ -81,15 +109,15 @@ class Frame:
     def authenticated(self) -> bool:
         return self.counter is not None
 
-    def verify(self, key: bytes) -> bool:
+    def verify(self, key: "bytes | MacKey") -> bool:
         """True if the frame carries a tag and it is right for `key`."""
         if self.counter is None:
             return False
-        return _compare(_hmac_digest(key, self.signed, "sha256")[:TAG_SIZE], self.tag)
+        return _compare(mac_key(key).tag(self.signed), self.tag)
 
 
 def encode_frame(cls: int, seq: int, ack: int, msg_id: int, payload: bytes,
-                 key: Optional[bytes] = None, counter: int = 0) -> bytes:
+                 key: "bytes | MacKey | None" = None, counter: int = 0) -> bytes:
     """Wire bytes of one frame, delimiters included. With `key`, the frame is signed."""
     n = len(payload)
     if n > MAX_PAYLOAD:
@@ -100,7 +128,7 @@ def encode_frame(cls: int, seq: int, ack: int, msg_id: int, payload: bytes,
         if not 0 <= counter <= COUNTER_MAX:
             raise ValueError(f"counter {counter} does not fit in 48 bits")
         signed = HEADER.pack(VERSION, FLAG_AUTH, cls, seq, ack, msg_id, n) + counter.to_bytes(6, "little") + payload
-        raw = signed + _hmac_digest(key, signed, "sha256")[:TAG_SIZE]
+        raw = signed + mac_key(key).tag(signed)
     raw += _CRC.pack(_crc32(raw))
     return b"\x00" + _cobs_encode(raw) + b"\x00"
 

@@ -283,9 +283,13 @@ class LinkEndpoint:
     def tx_backlog(self) -> int:
         return sum(len(q) for q in self._queues)
 
-    def take_frame(self, now: float) -> Optional[bytes]:
-        """The next frame for the wire, signed now; None when nothing is queued."""
-        for q in self._queues:
+    def take_frame(self, now: float, telemetry: bool = True) -> Optional[bytes]:
+        """The next frame for the wire, signed now; None when nothing is queued.
+
+        With `telemetry=False` telemetry frames stay queued (the caller keeps the
+        line free for a reply that is about to be due).
+        """
+        for q in (self._queues if telemetry else self._queues[:PRIO_TELEMETRY]):
             while q:
                 out = q.popleft()
                 if out.handshake:
@@ -297,6 +301,9 @@ class LinkEndpoint:
                 else:
                     continue  # the session it was meant for is gone
                 wire = encode_frame(out.cls, out.seq, self._ack_value(), out.msg_id, out.payload, key, counter)
+                if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:
+                    # any frame the peer must act on proves the link alive: the heartbeat waits
+                    self._next_heartbeat_s = now + self.config.heartbeat_s
                 self.stats.frames_tx += 1
                 self.stats.bytes_tx += len(wire)
                 return wire

@@ -464,3 +464,12 @@ def test_longest_frame_is_not_oversize():
     receiver = FrameReceiver()
     feed(receiver, [b"\x00" + b"\x11" * (MAX_ENCODED + 1)])
     assert receiver.overflows == 1 and receiver.buffered == 0
+
+
+@pytest.mark.parametrize("key_len", [16, 32, 64, 65, 100])
+def test_prepared_mac_key_gives_the_standard_hmac_sha256_tag(key_len):
+    import hmac as std_hmac
+    import os
+    from protocol.framing import MacKey
+    key, data = os.urandom(key_len), os.urandom(77)
+    assert MacKey(key).tag(data) == std_hmac.digest(key, data, "sha256")[:16]
