@@ -81,6 +81,8 @@ class Controller:
         self.hal = hal
         self.telemetry_hz = self.config.telemetry_hz
         self.scheduler: Optional[Scheduler] = None
+        # called as listener(new, old, reason, now) on every state change (the sim logs them)
+        self.state_listeners: list[Callable[[ControllerState, ControllerState, Reason, float], None]] = []
         self.started_s: Optional[float] = None
         self.supervisor = Supervisor(on_change=self._state_changed)
         self.link = ControllerLink(psk, self._execute, self.config.link, nonce_source=nonce_source,
@@ -124,6 +126,8 @@ class Controller:
         self.supervisor.enter_safe_state(Fault.LINK_LOST, now)
 
     def _state_changed(self, new: ControllerState, old: ControllerState, reason: Reason, now: float) -> None:
+        for listener in self.state_listeners:
+            listener(new, old, reason, now)
         self.link.send_event(M["StateChanged"](int(new), int(old), int(reason), int(self.supervisor.faults),
                                                self.uptime_ms(now)))
 

@@ -16,7 +16,6 @@ from typing import Optional, Sequence
 from firmware_py.uart import BAUD_RATES
 from protocol import auth
 from protocol.errors import KeyFileError, LinkError
-from protocol.link import LinkConfig
 
 from host_tools.teleop import EXIT_LINK, EXIT_USAGE
 
@@ -104,9 +103,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.command == "demo":
             from host_tools.demo import run_demo
             return run_demo(args)
-    except KeyFileError as exc:
+    except (KeyFileError, ValueError) as exc:   # bad key file, or settings out of their bounds
         print(f"aspod: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except OSError as exc:                      # a port that cannot be opened or bound
+        print(f"aspod: {exc}", file=sys.stderr)
+        return EXIT_LINK
     except LinkError as exc:
         print(f"aspod: link: {exc}", file=sys.stderr)
         return EXIT_LINK

@@ -14,6 +14,7 @@ from firmware_py.controller import ControllerConfig
 from firmware_py.uart import DevicePort, PtyPort, TcpServerPort
 from protocol import auth
 from protocol.link import LinkConfig
+from protocol.states import Fault
 from timebase import RealClock
 
 from host_tools.world import World
@@ -30,9 +31,16 @@ def run_sim(args: argparse.Namespace) -> int:
         port = DevicePort(args.port, args.baud)
     else:
         port = PtyPort()
-    config = ControllerConfig(link=LinkConfig(link_timeout_s=args.link_timeout), telemetry_hz=args.telemetry_hz)
+    link = LinkConfig(link_timeout_s=args.link_timeout, heartbeat_s=min(1.0, args.link_timeout / 3))
+    config = ControllerConfig(link=link, telemetry_hz=args.telemetry_hz)
     world = World(RealClock(), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
                   controller_config=config)
+    controller = world.controller
+
+    def log_state(new, old, reason, now) -> None:
+        print(f"aspod sim: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
+              f"faults {Fault(controller.supervisor.faults).name or 'none'}", file=sys.stderr, flush=True)
+    controller.state_listeners.append(log_state)
     print(f"ASPOD-LINK {port.url}", flush=True)
     print(f"ASPOD-KEY {key_path}", flush=True)
     print(f"aspod sim: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "

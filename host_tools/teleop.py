@@ -237,9 +237,9 @@ class Session:
                      f"retransmits {stats.retransmits}, telemetry lost {stats.telemetry_lost}")
         peer = link.peer_stats
         if peer is not None:
-            lines.append(f"controller link: frames {peer.frames_rx} in / {peer.frames_tx} out, bytes in {peer.bytes_rx}, "
-                         f"crc {peer.crc_errors}, auth {peer.auth_errors}, rejected {peer.rejected}, "
-                         f"naks {peer.naks_tx}")
+            lines.append(f"controller link (heartbeat {peer_age(self.client)}): frames {peer.frames_rx} in / "
+                         f"{peer.frames_tx} out, bytes in {peer.bytes_rx}, crc {peer.crc_errors}, "
+                         f"auth {peer.auth_errors}, rejected {peer.rejected}, naks {peer.naks_tx}")
         return "\n".join(lines)
 
 
@@ -270,8 +270,12 @@ def link_report(client) -> str:
              f"auth errors {s.auth_errors} (replays {s.replays}), rejected {s.rejected}, naks {s.naks_tx}/{s.naks_rx}, "
              f"retransmits {s.retransmits}, telemetry lost {s.telemetry_lost}"]
     if link.peer_stats is not None:
-        lines.append("  controller: " + format_message(link.peer_stats))
+        lines.append(f"  controller (its heartbeat {peer_age(client)}): " + format_message(link.peer_stats))
     return "\n".join(lines)
+
+
+def peer_age(client) -> str:
+    return f"{client.clock.now() - client.link.peer_stats_s:.1f} s ago"
 
 
 def telemetry_line(msg: Message) -> str:
@@ -282,11 +286,14 @@ def telemetry_line(msg: Message) -> str:
 
 
 def watch(client, seconds: float, out: TextIO) -> None:
+    """Live telemetry on one refreshed line; on a pipe or file, the last reading once at the end."""
     shown = [None]
+    live = out.isatty()
 
     def show(msg: Message, now: float) -> None:
         shown[0] = msg
-        print("\r" + telemetry_line(msg), end="", file=out, flush=True)
+        if live:
+            print("\r" + telemetry_line(msg), end="", file=out, flush=True)
 
     client.telemetry_listeners.append(show)
     try:
@@ -295,7 +302,10 @@ def watch(client, seconds: float, out: TextIO) -> None:
         pass
     finally:
         client.telemetry_listeners.remove(show)
-        print("" if shown[0] is not None else "(no telemetry: is the rate 0?)", file=out, flush=True)
+        if shown[0] is None:
+            print("(no telemetry: is the rate 0?)", file=out, flush=True)
+        else:
+            print("" if live else telemetry_line(shown[0]), file=out, flush=True)
 
 
 def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:

@@ -79,6 +79,7 @@ class HostLink(LinkEndpoint):
         self.refusal: Optional[Refusal] = None
         self.controller_info: Optional[Message] = None
         self.last_telemetry: Optional[Message] = None
+        self.peer_stats_s: Optional[float] = None          # when the peer's last Heartbeat arrived
         self.sessions_started = 0
         self._hello_nonce: Optional[bytes] = None
         self._hello_due_s: Optional[float] = None
@@ -139,6 +140,8 @@ class HostLink(LinkEndpoint):
                                reply.host_nonce, reply.controller_nonce)
         self.state = LinkState.UP
         self.sessions_started += 1
+        # speak at least three times within the controller's link timeout, whatever ours says
+        self.heartbeat_s = min(self.config.heartbeat_s, max(0.01, reply.link_timeout_ms / 3000))
         self._next_heartbeat_s = None   # a heartbeat at once makes the controller adopt the session
 
     def _handle_handshake_nak(self, frame: Frame, now: float) -> None:
@@ -229,7 +232,7 @@ class HostLink(LinkEndpoint):
             self.stats.rejected += 1
             return
         if spec.name == "Heartbeat":
-            self.peer_stats = msg
+            self.peer_stats, self.peer_stats_s = msg, now
             return
         self.stats.naks_rx += 1
         if msg.reason == Reason.SEQUENCE_GAP:

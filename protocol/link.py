@@ -148,6 +148,7 @@ class LinkEndpoint:
         self._queues: list[deque[_Outgoing]] = [deque() for _ in range(4)]
         self._telemetry_seq = 0
         self._next_heartbeat_s: Optional[float] = None
+        self.heartbeat_s = self.config.heartbeat_s
         self._nak_tokens = self.config.nak_rate_per_s
         self._nak_refill_s: Optional[float] = None
         self.last_valid_rx_s: Optional[float] = None
@@ -303,7 +304,7 @@ class LinkEndpoint:
                 wire = encode_frame(out.cls, out.seq, self._ack_value(), out.msg_id, out.payload, key, counter)
                 if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:
                     # any frame the peer must act on proves the link alive: the heartbeat waits
-                    self._next_heartbeat_s = now + self.config.heartbeat_s
+                    self._next_heartbeat_s = now + self.heartbeat_s
                 self.stats.frames_tx += 1
                 self.stats.bytes_tx += len(wire)
                 return wire
@@ -321,7 +322,7 @@ class LinkEndpoint:
             self.started_s = now
         if self.session is not None and self.state is LinkState.UP and not self.quiet:
             if self._next_heartbeat_s is None or now >= self._next_heartbeat_s:
-                self._next_heartbeat_s = now + self.config.heartbeat_s
+                self._next_heartbeat_s = now + self.heartbeat_s
                 self.send_message(self.heartbeat(now), PRIO_HEARTBEAT)
 
     @property

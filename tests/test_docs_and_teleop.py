@@ -1,0 +1,80 @@
+"""Docs and teleop derive from the one declaration, and stay in step with it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from host_tools import teleop
+from protocol import docgen
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.schema import Direction, MsgClass
+from protocol.states import Fault
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_protocol_doc_is_generated_from_the_declaration():
+    committed = (ROOT / "docs" / "protocol.md").read_text()
+    assert committed == docgen.render(), "docs/protocol.md is stale: run `make docs`"
+
+
+def test_protocol_doc_lists_every_message_reason_and_fault():
+    text = docgen.render()
+    for spec in SCHEMA.by_id.values():
+        assert f"### {spec.name}" in text
+        for fld in spec.fields:
+            assert f"`{fld.name}`" in text
+    for reason in Reason:
+        assert f"`{reason.name}`" in text and reason.remedy in text
+    for fault in Fault:
+        if fault:
+            assert f"`{fault.name}`" in text
+
+
+def test_teleop_words_are_the_declared_commands():
+    declared = {s.teleop for s in SCHEMA.by_id.values() if s.teleop}
+    assert set(teleop.commands()) == declared
+    assert {"ping", "status", "estop", "reset"} <= declared
+    for spec in teleop.commands().values():
+        assert spec.direction is Direction.TO_CONTROLLER and spec.cls in (MsgClass.COMMAND, MsgClass.URGENT)
+    assert set(teleop.all_words()) == declared | set(teleop.LOCAL_COMMANDS)
+
+
+def test_teleop_builds_messages_from_field_declarations():
+    step = teleop.parse_line("telemetry rate_hz=25", 1)
+    assert step.message == SCHEMA["SetTelemetryRate"].type(25)
+    assert teleop.parse_line("telemetry 0x10", 1).message.rate_hz == 16
+    assert teleop.parse_line("ping", 1).message == SCHEMA["Ping"].type(0)     # declared default
+    assert teleop.parse_line("  # a comment", 1) is None
+
+
+@pytest.mark.parametrize("line, words", [
+    ("telemetry 500", ["rate_hz=500", "outside [0, 200]"]),
+    ("telemetry fast", ["rate_hz", "'fast'"]),
+    ("telemetry", ["needs rate_hz"]),
+    ("ping 1 2", ["takes 1 argument"]),
+    ("ping colour=red", ["no argument 'colour'"]),
+    ("warp 9", ["line 7: unknown command 'warp'"]),
+    ("wait forever", ["not a number of seconds"]),
+    ('ping "unclosed', ["line 7"]),
+])
+def test_teleop_refuses_bad_lines_with_a_reason(line, words):
+    with pytest.raises(teleop.TeleopError) as err:
+        teleop.parse_line(line, 7)
+    for word in words:
+        assert word in str(err.value)
+
+
+def test_a_script_is_checked_whole_before_anything_runs():
+    steps, problems = teleop.check_script(["ping", "estop", "fly", "reset", "telemetry 999"])
+    assert len(steps) == 3
+    assert [p.split(":")[0] for p in problems] == ["line 3", "line 5"]
+
+
+def test_help_describes_every_command_with_its_fields():
+    text = teleop.help_text()
+    for word in teleop.all_words():
+        assert word in text
+    assert "0..200" in teleop.help_text("telemetry")

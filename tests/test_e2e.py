@@ -1,0 +1,206 @@
+"""End to end: `aspod sim` and `aspod teleop` as real subprocesses over a real pty or TCP.
+
+These run in real time; they use generous bounds and assert behaviour, not speed.
+"""
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import serial
+
+from host_tools.client import HostClient
+from protocol import auth
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import ControllerState, Fault
+
+pytestmark = pytest.mark.pty
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+ASPOD = [sys.executable, "-m", "host_tools.cli"]
+SESSION = "ping\nstatus\nestop\nreset\nquit\n"
+
+
+def read_line(proc: subprocess.Popen, timeout_s: float = 30.0, stream=None) -> str:
+    """One line from an unbuffered pipe (stdout by default), waiting at most `timeout_s` for each byte."""
+    stream = stream or proc.stdout
+    line = bytearray()
+    with selectors.DefaultSelector() as sel:
+        sel.register(stream, selectors.EVENT_READ)
+        while not line.endswith(b"\n"):
+            if not sel.select(timeout_s):
+                raise AssertionError(f"no output from {proc.args[3]} (so far: {bytes(line)!r})")
+            byte = stream.read(1)
+            if not byte:
+                raise AssertionError(f"{proc.args[3]} exited (so far: {bytes(line)!r})")
+            line += byte
+    return line.decode().rstrip("\n")
+
+
+@pytest.fixture
+def env(tmp_path):
+    """A private per-user config directory, so the development key is the test's own."""
+    return {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
+
+
+class Sim:
+    def __init__(self, env: dict, *args: str) -> None:
+        self.env = env
+        self.proc = subprocess.Popen(ASPOD + ["sim", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     env=env, bufsize=0)   # unbuffered: select() sees every line
+        link, key = read_line(self.proc), read_line(self.proc)
+        assert link.startswith("ASPOD-LINK "), link
+        assert key.startswith("ASPOD-KEY "), key
+        self.url = link.split(" ", 1)[1]
+        self.key_path = Path(key.split(" ", 1)[1])
+
+    def teleop(self, script: str, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
+        return subprocess.run(ASPOD + ["teleop", self.url, *args], input=script.encode(), capture_output=True,
+                              env=self.env, timeout=timeout_s)
+
+    def client(self) -> HostClient:
+        client = HostClient(self.url, auth.load_key(self.key_path))
+        client.connect()
+        return client
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+@pytest.fixture
+def sim_factory(env):
+    sims = []
+
+    def start(*args: str) -> Sim:
+        sims.append(Sim(env, *args))
+        return sims[-1]
+    yield start
+    for sim in sims:
+        sim.stop()
+
+
+def test_sim_prints_link_then_key_and_a_piped_session_exits_zero(sim_factory, env):
+    sim = sim_factory("--pty")
+    assert re.fullmatch(r"/dev/pts/\d+", sim.url)
+    assert sim.key_path == Path(env["XDG_CONFIG_HOME"]) / "aspod" / "dev.key"
+    assert oct(sim.key_path.stat().st_mode & 0o777) == "0o600"
+    done = sim.teleop(SESSION)
+    out = done.stdout.decode()
+    assert done.returncode == 0, done.stderr.decode() + out
+    assert "ok   Pong" in out and "state=ESTOP" not in out
+    assert out.count("\nok ") + out.startswith("ok ") >= 4
+
+
+def test_the_same_session_over_tcp(sim_factory):
+    sim = sim_factory("--tcp", "0")
+    assert re.fullmatch(r"socket://127\.0\.0\.1:\d+", sim.url)
+    done = sim.teleop(SESSION)
+    assert done.returncode == 0, done.stderr.decode()
+    done = sim.teleop("status\nfrobnicate 3\n")
+    assert done.returncode == 2 and "unknown command 'frobnicate'" in done.stderr.decode()
+
+
+def test_a_script_with_an_unknown_command_sends_nothing_and_names_it(sim_factory, tmp_path):
+    sim = sim_factory("--pty")
+    script = tmp_path / "bench.txt"
+    script.write_text("ping\nestop\nlaunch rocket\n")
+    done = sim.teleop("", "--script", str(script))
+    assert done.returncode != 0
+    assert "line 3: unknown command 'launch'" in done.stderr.decode()
+    client = sim.client()
+    try:
+        status = client.call(M["GetStatus"]()).reply
+        assert status.state == ControllerState.IDLE and status.commands_executed == 0   # estop never went
+    finally:
+        client.close()
+
+
+def test_a_failing_command_makes_the_script_exit_non_zero(sim_factory):
+    sim = sim_factory("--pty")
+    done = sim.teleop("estop\nenable\nping\n")
+    assert done.returncode == 1
+    assert "FAIL Enable: rejected: ESTOP" in done.stdout.decode()
+    assert "> ping" not in done.stdout.decode()       # stopped at the failure
+
+
+def test_another_key_is_refused_with_a_reason_and_nothing_it_sent_executes(sim_factory, tmp_path):
+    sim = sim_factory("--pty")
+    other = tmp_path / "other.key"
+    auth.write_key(other, bytes(range(32)))
+    done = sim.teleop("estop\n", "--key-file", str(other), "--connect-timeout", "3")
+    assert done.returncode == 3
+    assert "BAD_MAC" in done.stderr.decode() and "different keys" in done.stderr.decode()
+    client = sim.client()
+    try:
+        status = client.call(M["GetStatus"]()).reply
+        assert status.state == ControllerState.IDLE and status.commands_executed == 0
+        assert client.wait_for(lambda: client.link.peer_stats is not None, 10.0)
+        assert client.link.peer_stats.auth_errors > 0        # the foreign frames were counted
+    finally:
+        client.close()
+
+
+def test_a_megabyte_of_garbage_then_the_same_session_still_succeeds(sim_factory):
+    sim = sim_factory("--pty", "--no-pacing")
+    garbage = random_bytes(1 << 20)
+    with serial.serial_for_url(sim.url, timeout=1, write_timeout=120) as port:
+        port.write(garbage)
+        port.flush()
+    done = sim.teleop(SESSION)
+    assert done.returncode == 0, done.stderr.decode()
+    client = sim.client()
+    try:
+        assert client.wait_for(lambda: client.link.peer_stats is not None, 10.0)
+        peer = client.link.peer_stats
+        assert peer.bytes_rx >= 1 << 20            # the controller counted the garbage ...
+        assert peer.crc_errors > 1000              # ... as frames that failed COBS/CRC
+        assert client.call(M["Ping"](5)).ok        # and still works
+    finally:
+        client.close()
+
+
+def test_killing_the_host_sends_the_controller_to_its_safe_state_within_the_timeout(sim_factory):
+    sim = sim_factory("--pty", "--link-timeout", "1.0")
+    host = subprocess.Popen(ASPOD + ["teleop", sim.url], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, env=sim.env, bufsize=0)
+    host.stdin.write(b"enable\nping\nwait 600\n")
+    host.stdin.close()
+    pong_uptime_ms = None
+    while pong_uptime_ms is None:
+        line = read_line(host)
+        found = re.search(r"Pong token=0 uptime_ms=(\d+)", line)
+        if found:
+            pong_uptime_ms = int(found.group(1))
+    host.kill()                                   # no goodbye, no more frames
+    host.wait(timeout=10)
+    while True:                                   # the simulator logs every state change on stderr
+        line = read_line(sim.proc, 30.0, sim.proc.stderr)
+        found = re.search(r"uptime (\d+) ms: ENABLED -> FAULT \(LINK_TIMEOUT\), faults LINK_LOST", line)
+        if found:
+            break
+    # the host's last frame came at or after the Pong; the fault followed within the timeout (+ slack)
+    assert 1000 <= int(found.group(1)) - pong_uptime_ms <= 1000 + 1500
+    client = sim.client()
+    try:
+        status = client.call(M["GetStatus"]()).reply
+        assert status.state == ControllerState.FAULT and status.faults & Fault.LINK_LOST   # latched
+        assert client.wait_for(lambda: any(e.reason == Reason.LINK_TIMEOUT for e in client.events), 10.0)
+        assert client.call(M["Reset"]()).ok
+    finally:
+        client.close()
+
+
+def random_bytes(n: int) -> bytes:
+    import random
+    return random.Random(1).randbytes(n)
