@@ -19,7 +19,7 @@ from typing import Optional
 
 import can
 
-from protocol.hal import HalCodec, HalDecodeError, SignalValues
+from protocol.hal import HalCodec, HalEndpoint, SignalValues
 
 
 @dataclass
@@ -33,23 +33,14 @@ class HalInputs:
     tick_s: Optional[float] = None     # `now` of the last PLANT_SYNC
 
 
-class ControllerHal:
+class ControllerHal(HalEndpoint):
     """Controller-side HAL: `poll(now)` for inputs, `send_outputs(...)` for outputs."""
 
     def __init__(self, bus: can.BusABC, codec: Optional[HalCodec] = None,
                  max_frames_per_poll: int = 256) -> None:
-        self.bus = bus
-        self.codec = codec if codec is not None else HalCodec()
-        # Bound on one poll so a flooded bus cannot starve the cooperative scheduler;
-        # what is left is read on the next poll.
-        self.max_frames_per_poll = max_frames_per_poll
+        super().__init__(bus, codec, max_frames_per_poll)
         self.inputs = HalInputs()
         self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
-        self.frames_received = 0
-        self.frames_sent = 0
-        self.bad_frames = 0      # undeclared IDs and frames that break their declaration
-        self.bus_errors = 0      # can.CanError from recv or send
-        self.last_bus_error: Optional[can.CanError] = None
         self._handlers = {"PLANT_SYNC": self._on_sync, "ANALOG_IN": self._on_analog}
 
     def poll(self, now: float) -> int:
@@ -59,30 +50,12 @@ class ControllerHal:
         for the other direction (CTRL_OUTPUTS from another controller, say) are
         read and ignored.
         """
-        count = 0
-        while count < self.max_frames_per_poll:
-            try:
-                msg = self.bus.recv(timeout=0)
-            except can.CanError as exc:
-                self._bus_error(exc)
-                break
-            if msg is None:
-                break
-            count += 1
-            try:
-                decoded = self.codec.decode(msg)
-            except HalDecodeError:
-                self.bad_frames += 1
-                continue
-            if decoded is None:
-                self.bad_frames += 1
-                continue
-            name, values = decoded
+        before = self.frames_received
+        for name, values in self.receive():
             handler = self._handlers.get(name)
             if handler is not None:
                 handler(values, now)
-        self.frames_received += count
-        return count
+        return self.frames_received - before
 
     def _on_sync(self, values: SignalValues, now: float) -> None:
         self.inputs.tick = int(values["tick"])
@@ -105,16 +78,5 @@ class ControllerHal:
         `bus_errors`, not raised: the plant will expire the last command, which is
         the safe outcome, and the supervisor can watch the counter.
         """
-        msg = self.codec.encode("CTRL_OUTPUTS", outputs_enabled=int(bool(enabled)),
-                                brake_all=int(bool(brake)), alive=self.alive)
+        self.send("CTRL_OUTPUTS", outputs_enabled=int(bool(enabled)), brake_all=int(bool(brake)), alive=self.alive)
         self.alive = (self.alive + 1) & 0xFF
-        try:
-            self.bus.send(msg, timeout=0)
-        except can.CanError as exc:
-            self._bus_error(exc)
-            return
-        self.frames_sent += 1
-
-    def _bus_error(self, exc: can.CanError) -> None:
-        self.bus_errors += 1
-        self.last_bus_error = exc

@@ -21,10 +21,10 @@ from typing import Optional
 import can
 
 from hil_sim.plant import Plant
-from protocol.hal import HalCodec, HalDecodeError
+from protocol.hal import HalCodec, HalEndpoint
 
 
-class PlantNode:
+class PlantNode(HalEndpoint):
     """Runs a `Plant` on a python-can bus; `step(now)` is a scheduler task."""
 
     def __init__(self, bus: can.BusABC, plant: Plant, period_s: float = 0.001,
@@ -34,24 +34,17 @@ class PlantNode:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         if not max_dt_s >= period_s:
             raise ValueError(f"max_dt_s ({max_dt_s}) must be >= period_s ({period_s})")
-        self.bus = bus
+        super().__init__(bus, codec, max_frames_per_step)
         self.plant = plant
         self.period_s = period_s
-        self.codec = codec if codec is not None else HalCodec()
         if analog_period_s is None:
             analog_period_s = self.codec.cycle_time_s("ANALOG_IN") or period_s
         self.analog_every_n = max(1, round(analog_period_s / period_s))
         self.max_dt_s = max_dt_s
-        self.max_frames_per_step = max_frames_per_step
         self._supply_range_v = self.codec.limits("ANALOG_IN", "supply_v")
         self._temp_range_c = self.codec.limits("ANALOG_IN", "controller_temp_c")
         self.tick = 0            # index of the next step; PLANT_SYNC carries it modulo 2**32
         self._last_now: Optional[float] = None
-        self.frames_sent = 0
-        self.frames_received = 0
-        self.bad_frames = 0      # undeclared IDs and frames that break their declaration
-        self.bus_errors = 0      # can.CanError from recv or send
-        self.last_bus_error: Optional[can.CanError] = None
         self.dt_clamps = 0       # steps whose elapsed time exceeded max_dt_s (stalls)
 
     def step(self, now: float) -> float:
@@ -68,50 +61,19 @@ class PlantNode:
         plant = self.plant
         enabled, brake = plant.commanded.current(now)
         plant.step(dt_s, enabled, brake)
-        self._send(self.codec.encode("PLANT_SYNC", tick=self.tick & 0xFFFF_FFFF))
+        self.send("PLANT_SYNC", tick=self.tick & 0xFFFF_FFFF)
         if self.tick % self.analog_every_n == 0:
-            self._send(self.codec.encode(
-                "ANALOG_IN",
-                supply_v=_saturate(plant.supply_v, self._supply_range_v),
-                controller_temp_c=_saturate(plant.temp_c, self._temp_range_c)))
+            self.send("ANALOG_IN", supply_v=_saturate(plant.supply_v, self._supply_range_v),
+                      controller_temp_c=_saturate(plant.temp_c, self._temp_range_c))
         self.tick += 1
         return now + self.period_s
 
     def _drain(self, now: float) -> None:
-        for _ in range(self.max_frames_per_step):
-            try:
-                msg = self.bus.recv(timeout=0)
-            except can.CanError as exc:
-                self._bus_error(exc)
-                return
-            if msg is None:
-                return
-            self.frames_received += 1
-            try:
-                decoded = self.codec.decode(msg)
-            except HalDecodeError:
-                self.bad_frames += 1
-                continue
-            if decoded is None:
-                self.bad_frames += 1
-            elif decoded[0] == "CTRL_OUTPUTS":
-                values = decoded[1]
-                self.plant.commanded.command(bool(values["outputs_enabled"]),
-                                             bool(values["brake_all"]),
+        for name, values in self.receive():
+            if name == "CTRL_OUTPUTS":
+                self.plant.commanded.command(bool(values["outputs_enabled"]), bool(values["brake_all"]),
                                              int(values["alive"]), now)
             # Other declared frames were sent by a plant (our own echo, say): not for us.
-
-    def _send(self, msg: can.Message) -> None:
-        try:
-            self.bus.send(msg, timeout=0)
-        except can.CanError as exc:
-            self._bus_error(exc)
-            return
-        self.frames_sent += 1
-
-    def _bus_error(self, exc: can.CanError) -> None:
-        self.bus_errors += 1
-        self.last_bus_error = exc
 
 
 def _saturate(value: float, limits: tuple[float, float]) -> float:

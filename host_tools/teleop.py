@@ -9,12 +9,11 @@ sends nothing), then run in order; the exit status is non-zero if any failed.
 """
 from __future__ import annotations
 
-import enum
 import shlex
 import statistics
 import sys
 from dataclasses import dataclass, field
-from typing import Callable, Optional, TextIO
+from typing import Optional, TextIO
 
 from protocol.host_link import CommandHandle
 from protocol.messages import SCHEMA

@@ -17,7 +17,7 @@ import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
+from typing import Iterator, Optional, Union
 
 import can
 import cantools
@@ -139,3 +139,57 @@ class HalCodec:
                 raise HalDecodeError(
                     f"{spec.name} (0x{spec.frame_id:03X}): {signal}={value} outside its declared range")
         return spec.name, values  # type: ignore[return-value]
+
+
+class HalEndpoint:
+    """One node's end of the HAL bus: never blocks, never raises on what arrives, counts everything.
+
+    `receive()` yields the decoded frames waiting (at most `max_frames_per_poll`, so a
+    flooded bus cannot starve a cooperative scheduler; the rest wait for the next call).
+    Undeclared IDs and frames that break their declaration are counted in `bad_frames`;
+    a `can.CanError` from the bus is counted in `bus_errors`, never raised: a node that
+    cannot talk lets the other side's expiry rules take it to the safe state.
+    """
+
+    def __init__(self, bus: can.BusABC, codec: Optional[HalCodec] = None, max_frames_per_poll: int = 256) -> None:
+        self.bus = bus
+        self.codec = codec if codec is not None else HalCodec()
+        self.max_frames_per_poll = max_frames_per_poll
+        self.frames_received = 0
+        self.frames_sent = 0
+        self.bad_frames = 0
+        self.bus_errors = 0
+        self.last_bus_error: Optional[can.CanError] = None
+
+    def receive(self) -> Iterator[tuple[str, SignalValues]]:
+        for _ in range(self.max_frames_per_poll):
+            try:
+                msg = self.bus.recv(timeout=0)
+            except can.CanError as exc:
+                self._bus_error(exc)
+                return
+            if msg is None:
+                return
+            self.frames_received += 1
+            try:
+                decoded = self.codec.decode(msg)
+            except HalDecodeError:
+                decoded = None
+            if decoded is None:
+                self.bad_frames += 1
+                continue
+            yield decoded
+
+    def send(self, name: str, **signals: Union[int, float]) -> bool:
+        """Encode and send one frame; False (and counted) if the bus refused it."""
+        try:
+            self.bus.send(self.codec.encode(name, **signals), timeout=0)
+        except can.CanError as exc:
+            self._bus_error(exc)
+            return False
+        self.frames_sent += 1
+        return True
+
+    def _bus_error(self, exc: can.CanError) -> None:
+        self.bus_errors += 1
+        self.last_bus_error = exc

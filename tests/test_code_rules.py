@@ -1,0 +1,54 @@
+"""The house rules of docs/Code_Overview.md, checked: import borders, one clock, no unused names."""
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ["timebase", "protocol", "firmware_py", "hil_sim", "host_tools"]
+MAY_IMPORT = {
+    "timebase": set(),
+    "protocol": {"timebase"},
+    "firmware_py": {"protocol", "timebase"},
+    "hil_sim": {"protocol", "timebase"},
+    "host_tools": {"protocol", "timebase", "firmware_py", "hil_sim"},
+}
+
+
+def our_imports(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+            [node.module] if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 else [])
+        found |= {n.split(".")[0] for n in names if n.split(".")[0] in PACKAGES}
+    return found
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_packages_import_only_across_allowed_borders(package):
+    for path in (ROOT / package).rglob("*.py"):
+        wrong = our_imports(path) - MAY_IMPORT[package] - {package}
+        assert not wrong, f"{path.relative_to(ROOT)} imports {wrong}"
+
+
+def test_only_the_clock_module_reads_os_time_or_sleeps():
+    offenders = []
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            if path == ROOT / "timebase" / "clock.py":
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "time" \
+                        and node.attr in ("time", "sleep", "monotonic", "perf_counter", "time_ns", "monotonic_ns"):
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} time.{node.attr}")
+    assert offenders == []
+
+
+def test_no_unused_imports_or_undefined_names():
+    done = subprocess.run([sys.executable, "-m", "pyflakes", *PACKAGES, "tests", "bench"], cwd=ROOT,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
