@@ -14,8 +14,10 @@ The motor loops of the next issue plug in as further tasks and safe-state hooks.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Optional
 
 from protocol import auth
@@ -28,6 +30,7 @@ from protocol.states import ControllerState, Fault
 
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
+from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.scheduler import Scheduler
 from firmware_py.supervisor import Supervisor
 from firmware_py.uart import PacedUart
@@ -55,21 +58,26 @@ class ControllerConfig:
     comms_period_s: float = 0.001
     hal_period_s: float = 0.001
     health_period_s: float = 0.01
-    telemetry_hz: int = 10
-    hal_stale_s: float = 0.1          # HAL inputs older than this are a fault
     boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
-    supply_min_v: float = 22.0        # nominal 28 V; see hil_sim/plant.py
-    temp_min_c: float = -10.0         # the report keeps the control box within -10..45 C
-    temp_max_c: float = 45.0
+    params_path: Optional[Path] = None  # where parameters persist; None: defaults only, save refused
 
     def __post_init__(self) -> None:
-        if not 0 <= self.telemetry_hz <= 200:
-            raise ValueError("telemetry_hz must be within 0..200")
-        if not self.temp_min_c < self.temp_max_c:
-            raise ValueError("temp_min_c must be below temp_max_c")
-        for name in ("comms_period_s", "hal_period_s", "health_period_s", "hal_stale_s", "boot_timeout_s"):
+        for name in ("comms_period_s", "hal_period_s", "health_period_s", "boot_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
+
+
+def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
+    """The controller's parameters (the motor loops add gains and limits here)."""
+    return [
+        ParamSpec("link_timeout_s", config.link.link_timeout_s, max(0.05, config.link.heartbeat_s * 1.5), 3600, "s",
+                  "safe state after this long without a valid frame"),
+        ParamSpec("telemetry_hz", 10, 0, 200, "Hz", "telemetry rate at boot (SetTelemetryRate changes it live)"),
+        ParamSpec("hal_stale_s", 0.1, 0.005, 10, "s", "HAL inputs older than this are a fault"),
+        ParamSpec("supply_min_v", 22.0, 0, 60, "V", "supply below this is a fault (nominal 28 V)"),
+        ParamSpec("temp_min_c", -10.0, -40, 125, "degC", "controller colder than this is a fault (report: -10 C)"),
+        ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
+    ]
 
 
 class Controller:
@@ -79,20 +87,23 @@ class Controller:
         self.config = config or ControllerConfig()
         self.uart = uart
         self.hal = hal
-        self.telemetry_hz = self.config.telemetry_hz
+        self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed)
+        self.params.load()
+        self.telemetry_hz = int(self.params["telemetry_hz"])
         self.scheduler: Optional[Scheduler] = None
         # called as listener(new, old, reason, now) on every state change (the sim logs them)
         self.state_listeners: list[Callable[[ControllerState, ControllerState, Reason, float], None]] = []
         self.started_s: Optional[float] = None
         self.supervisor = Supervisor(on_change=self._state_changed)
-        self.link = ControllerLink(psk, self._execute, self.config.link, nonce_source=nonce_source,
+        self.link = ControllerLink(psk, self._execute, dataclasses.replace(self.config.link,
+                                   link_timeout_s=self.params["link_timeout_s"]), nonce_source=nonce_source,
                                    on_link_lost=self._link_lost)
         self.comms = CommsTask(self.link, uart, self.config.comms_period_s)
         self._outputs_period_s = hal.codec.cycle_time_s("CTRL_OUTPUTS") or 0.01
         self._outputs_sent = False
         self._outputs_due_s = 0.0
         self.supervisor.add_safe_hook("outputs off, brakes on", self._outputs_safe)
-        self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: self.hal.is_stale(self._now(), self.config.hal_stale_s))
+        self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: self.hal.is_stale(self._now(), self.params["hal_stale_s"]))
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
         missing = [s.name for s in SCHEMA.by_id.values()
@@ -133,11 +144,11 @@ class Controller:
 
     def _supply_low(self) -> bool:
         v = self.hal.inputs.supply_v
-        return not math.isnan(v) and v < self.config.supply_min_v
+        return not math.isnan(v) and v < self.params["supply_min_v"]
 
     def _temp_out_of_range(self) -> bool:
         t = self.hal.inputs.temp_c
-        return not math.isnan(t) and not self.config.temp_min_c <= t <= self.config.temp_max_c
+        return not math.isnan(t) and not self.params["temp_min_c"] <= t <= self.params["temp_max_c"]
 
     # ---- tasks ----
     def _hal_step(self, now: float) -> float:
@@ -151,14 +162,14 @@ class Controller:
         return now + self.config.hal_period_s
 
     def _health_step(self, now: float) -> float:
-        sup, cfg = self.supervisor, self.config
+        sup, cfg, stale_s = self.supervisor, self.config, self.params["hal_stale_s"]
         if sup.state is ControllerState.BOOT:
-            if not self.hal.is_stale(now, cfg.hal_stale_s):
+            if not self.hal.is_stale(now, stale_s):
                 sup.boot_complete(now)
             elif now - (self.started_s or 0.0) > cfg.boot_timeout_s:
                 sup.enter_safe_state(Fault.HAL_STALE, now)
             return now + cfg.health_period_s
-        if self.hal.is_stale(now, cfg.hal_stale_s):
+        if self.hal.is_stale(now, stale_s):
             sup.enter_safe_state(Fault.HAL_STALE, now)
         if self._supply_low():
             sup.enter_safe_state(Fault.SUPPLY_LOW, now)
@@ -187,6 +198,10 @@ class Controller:
             loop_p99_us=min(0xFFFFFFFF, int(max((t.stats.exec_p99_s for t in tasks), default=0) * 1e6)),
             overruns=sum(t.stats.overruns for t in tasks) & 0xFFFFFFFF,
             tx_backlog_bytes=min(0xFFFF, self.uart.backlog_bytes))
+
+    def _param_changed(self, name: str, value: float) -> None:
+        if name == "link_timeout_s" and hasattr(self, "link"):
+            self.link.config.link_timeout_s = value
 
     # ---- commands ----
     def _execute(self, msg: Message, urgent: bool, now: float) -> Message:
@@ -221,6 +236,34 @@ class Controller:
         if self.scheduler is not None:
             self.scheduler.wake("telemetry", now)
         return M["Result"](int(Reason.OK))
+
+    def _param_value(self, reason: Reason, name: str) -> Message:
+        spec = self.params.specs.get(name)
+        if spec is None:
+            return M["ParamValue"](int(reason), name, 0.0, 0.0, 0.0, 0, len(self.params.order))
+        return M["ParamValue"](int(reason), name, self.params[name], spec.lo, spec.hi,
+                               self.params.order.index(name), len(self.params.order))
+
+    @handles("ParamGet")
+    def _param_get(self, msg: Message, now: float) -> Message:
+        known = msg.name in self.params.specs
+        return self._param_value(Reason.OK if known else Reason.UNKNOWN_PARAM, msg.name)
+
+    @handles("ParamSet")
+    def _param_set(self, msg: Message, now: float) -> Message:
+        reason, _detail = self.params.set(msg.name, msg.value)
+        return self._param_value(reason, msg.name)
+
+    @handles("ParamList")
+    def _param_list(self, msg: Message, now: float) -> Message:
+        if msg.index >= len(self.params.order):
+            return self._param_value(Reason.OUT_OF_RANGE, "")
+        return self._param_value(Reason.OK, self.params.order[msg.index])
+
+    @handles("ParamSave")
+    def _param_save(self, msg: Message, now: float) -> Message:
+        reason, _detail = self.params.save()
+        return M["Result"](int(reason))
 
     @handles("EStop")
     def _estop(self, msg: Message, now: float) -> Message:

@@ -61,10 +61,13 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
     add_link_args(sim)
     sim.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
-    sim.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=3.0, metavar="S",
-                     help="safe state after this long without a valid frame (default 3 s)")
-    sim.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=10, metavar="HZ",
-                     help="telemetry rate at start (default 10)")
+    sim.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=None, metavar="S",
+                     help="safe state after this long without a valid frame (default: saved, else 3 s)")
+    sim.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=None, metavar="HZ",
+                     help="telemetry rate at start (default: saved, else 10)")
+    sim.add_argument("--params", type=Path, default=None, metavar="FILE",
+                     help="parameter file, loaded at boot and written by `save` "
+                          f"(default {auth.default_key_path().with_name('params.json')})")
     sim.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
 
     teleop = sub.add_parser("teleop", help="console to a controller: interactive, or a script")

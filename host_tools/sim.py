@@ -14,6 +14,7 @@ from firmware_py.controller import ControllerConfig
 from firmware_py.uart import DevicePort, PtyPort, TcpServerPort
 from protocol import auth
 from protocol.link import LinkConfig
+from protocol.reasons import Reason
 from protocol.states import Fault
 from timebase import RealClock
 
@@ -31,10 +32,22 @@ def run_sim(args: argparse.Namespace) -> int:
         port = DevicePort(args.port, args.baud)
     else:
         port = PtyPort()
-    link = LinkConfig(link_timeout_s=args.link_timeout, heartbeat_s=min(1.0, args.link_timeout / 3))
-    config = ControllerConfig(link=link, telemetry_hz=args.telemetry_hz)
+    params_path = args.params if args.params is not None else auth.default_key_path().with_name("params.json")
+    timeout_s = args.link_timeout if args.link_timeout is not None else LinkConfig.link_timeout_s
+    link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
+    config = ControllerConfig(link=link, params_path=params_path)
     world = World(RealClock(), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
                   controller_config=config)
+    params = world.controller.params
+    for problem in params.load_problems:
+        print(f"aspod sim: parameters: {problem}", file=sys.stderr, flush=True)
+    # what the command line says wins over the saved set
+    for name, value in (("link_timeout_s", args.link_timeout), ("telemetry_hz", args.telemetry_hz)):
+        if value is not None:
+            reason, detail = params.set(name, value)
+            if reason is not Reason.OK:
+                raise ValueError(f"--{name}: {detail}")
+    world.controller.telemetry_hz = int(params["telemetry_hz"])
     controller = world.controller
 
     def log_state(new, old, reason, now) -> None:
@@ -44,7 +57,8 @@ def run_sim(args: argparse.Namespace) -> int:
     print(f"ASPOD-LINK {port.url}", flush=True)
     print(f"ASPOD-KEY {key_path}", flush=True)
     print(f"aspod sim: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "
-          f"link timeout {args.link_timeout} s; Ctrl-C stops", file=sys.stderr, flush=True)
+          f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops",
+          file=sys.stderr, flush=True)
     stopping = []
 
     def stop(signum, frame):

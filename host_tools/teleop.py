@@ -27,6 +27,7 @@ LOCAL_COMMANDS = {
     "help": "help [command]: list the commands, or describe one",
     "watch": "watch [seconds]: show live telemetry (default 5 s; Ctrl-C ends it early)",
     "link": "link: this end's and the controller's link statistics",
+    "params": "params: every parameter with its value and range (get NAME / set NAME VALUE / save)",
     "wait": "wait SECONDS: pause (for scripts)",
     "connect": "connect: handshake again (a new session)",
     "quit": "quit: leave",
@@ -69,6 +70,10 @@ def parse_value(fld: Field, text: str):
             raise ValueError(text)
         if fld.type.startswith("bytes"):
             return bytes.fromhex(text)
+        if fld.type.startswith("str"):
+            if fld.check(text):
+                raise ValueError(text)
+            return text
         return int(text, 0)
     except (ValueError, KeyError):
         kind = f"one of {', '.join(m.name.lower() for m in fld.enum)}" if fld.enum else fld.type
@@ -213,6 +218,8 @@ class Session:
             print(help_text(args[0] if args else None), file=out)
         elif word == "link":
             print(link_report(self.client), file=out)
+        elif word == "params":
+            return list_params(self.client, out)
         elif word == "wait":
             self.client.clock.sleep(float(args[0]))
         elif word == "connect":
@@ -258,6 +265,21 @@ def help_text(word: Optional[str] = None) -> str:
         rng = f" range {f.range[0]}..{f.range[1]}" if f.range else ""
         lines.append(f"  {f.name}: {f.type}{' [' + f.unit + ']' if f.unit else ''}{rng}: {f.doc}")
     return "\n".join(lines)
+
+
+def list_params(client, out: TextIO) -> bool:
+    """Every parameter, read one by one with ParamList."""
+    index, count = 0, 1
+    while index < count:
+        handle = client.call(SCHEMA["ParamList"].type(index))
+        if not handle.ok:
+            print(format_outcome(handle), file=out)
+            return False
+        reply = handle.reply
+        count = reply.count
+        print(f"  {reply.name:<16} {reply.value:>12.6g}   [{reply.min:g} .. {reply.max:g}]", file=out)
+        index += 1
+    return True
 
 
 def link_report(client) -> str:

@@ -34,6 +34,8 @@ class Reason(enum.IntEnum):
     SUPPLY_LOW = 22
     OVER_TEMPERATURE = 23
     HOST_REQUEST = 24
+    UNKNOWN_PARAM = 25
+    SAVE_FAILED = 26
 
     @property
     def doc(self) -> str:
@@ -100,6 +102,9 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.OVER_TEMPERATURE: ("the controller temperature left its allowed range",
                               "let the controller cool (or warm) into range, then reset"),
     Reason.HOST_REQUEST: ("the host asked for it", "none"),
+    Reason.UNKNOWN_PARAM: ("no parameter has that name", "list them with `param` (teleop) / ParamList"),
+    Reason.SAVE_FAILED: ("the parameters could not be written to their file (the previous file is intact)",
+                         "check the --params path, its directory and free space, then save again"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

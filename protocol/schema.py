@@ -11,6 +11,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import math
+import re
 import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Optional
@@ -48,6 +49,7 @@ _TYPES: dict[str, tuple[str, tuple[float, float] | None]] = {
     "bool": ("B", (0, 1)),     # one byte, 0 or 1 (a struct "?" would read any non-zero byte as True)
 }
 _F32 = struct.Struct("<f")
+_NAME = re.compile(r"[A-Za-z0-9_.\-]*")
 
 
 def _round_f32(value: float) -> float:
@@ -69,16 +71,21 @@ class Field:
 
     @property
     def struct_code(self) -> str:
-        if self.type.startswith("bytes"):
-            return f"{int(self.type[5:])}s"
+        if self.type.startswith(("bytes", "str")):
+            return f"{self.text_size}s"
         return _TYPES[self.type][0]
+
+    @property
+    def text_size(self) -> int:
+        """N of a `bytesN` or `strN` field (a `strN` is a name: up to N of [A-Za-z0-9_.-], zero-padded)."""
+        return int(self.type[5:] if self.type.startswith("bytes") else self.type[3:])
 
     @property
     def limits(self) -> Optional[tuple[float, float]]:
         """The range checked on decode (declared, else the type's own for integers)."""
         if self.range is not None:
             return self.range
-        if self.type.startswith("bytes") or self.type == "f32":
+        if self.type.startswith(("bytes", "str")) or self.type == "f32":
             return None
         return _TYPES[self.type][1]
 
@@ -88,6 +95,9 @@ class Field:
         `check` gives the reason; this only says yes or no, cheaply, on the hot path.
         """
         lo, hi = self.range if self.range is not None else (None, None)
+        if self.type.startswith("str"):
+            size = self.text_size
+            return lambda v: isinstance(v, str) and len(v) <= size and _NAME.fullmatch(v) is not None
         if self.enum is not None:
             allowed = frozenset(int(m) for m in self.enum)
             return allowed.__contains__
@@ -108,6 +118,10 @@ class Field:
             size = int(self.type[5:])
             if not isinstance(value, (bytes, bytearray)) or len(value) != size:
                 return f"{self.name} must be exactly {size} bytes"
+            return None
+        if self.type.startswith("str"):
+            if not isinstance(value, str) or len(value) > self.text_size or not _NAME.fullmatch(value):
+                return f"{self.name}={value!r} is not a name of up to {self.text_size} of A-Z a-z 0-9 _ . -"
             return None
         if self.type == "bool" and value not in (0, 1):
             return f"{self.name}={value} is not 0 or 1"
@@ -187,6 +201,7 @@ class MessageSpec:
             elif f.fast_check() is not None:
                 encode_checks.append((i, f, f.fast_check()))
         self._encode_checks = tuple(encode_checks)
+        self._text = tuple(i for i, f in enumerate(self.fields) if f.type.startswith("str"))
         names = [f.name for f in self.fields]
         spec = self
 
@@ -218,6 +233,8 @@ class MessageSpec:
             for index, fld, ok in self._encode_checks:
                 if not ok(msg[index]):
                     raise EncodeError(f"{self.name}: {fld.check(msg[index]) or 'not representable as ' + fld.type}")
+            if self._text:
+                msg = [v.encode("ascii") if i in self._text else v for i, v in enumerate(msg)]
             return self._struct.pack(*msg)
         except (struct.error, OverflowError, TypeError) as exc:
             raise EncodeError(f"{self.name}: {exc}") from exc
@@ -228,10 +245,23 @@ class MessageSpec:
             raise ParseError(Reason.BAD_LENGTH,
                              f"{self.name} takes {self._struct.size} payload bytes, got {len(payload)}")
         values = self._struct.unpack(payload)
+        if self._text:
+            values = self._text_from_wire(values)
         for index, fld, ok in self._decode_checks:
             if not ok(values[index]):
                 raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {fld.check(values[index])}")
         return tuple.__new__(self.type, values)
+
+    def _text_from_wire(self, values: tuple) -> tuple:
+        """`strN` fields from their zero-padded bytes; anything but one name then zeros is refused."""
+        values = list(values)
+        for index in self._text:
+            raw = values[index]
+            text = raw.rstrip(b"\x00")
+            if b"\x00" in text or not text.isascii():
+                raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {self.fields[index].name} is not a name")
+            values[index] = text.decode("ascii")
+        return tuple(values)
 
     def canonical(self) -> str:
         """Text that the schema hash covers: everything that changes the wire."""

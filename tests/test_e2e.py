@@ -204,3 +204,15 @@ def test_killing_the_host_sends_the_controller_to_its_safe_state_within_the_time
 def random_bytes(n: int) -> bytes:
     import random
     return random.Random(1).randbytes(n)
+
+
+def test_teleop_reads_sets_and_saves_parameters(sim_factory, tmp_path):
+    params = tmp_path / "params.json"
+    sim = sim_factory("--pty", "--params", str(params))
+    done = sim.teleop("get supply_min_v\nset telemetry_hz 5\nparams\nsave\n")
+    out = done.stdout.decode()
+    assert done.returncode == 0, done.stderr.decode() + out
+    assert "name=supply_min_v value=22.00" in out and "telemetry_hz" in out and "[0 .. 200]" in out
+    assert '"telemetry_hz": 5' in params.read_text()
+    done = sim.teleop("set supply_min_v 99\n")
+    assert done.returncode == 1 and "OUT_OF_RANGE" in done.stdout.decode()

@@ -48,9 +48,18 @@ def _bytes_len(fld: Field) -> int | None:
     return int(fld.type[5:]) if fld.type.startswith("bytes") else None
 
 
+def _str_len(fld: Field) -> int | None:
+    return int(fld.type[3:]) if fld.type.startswith("str") else None
+
+
 def _code(fld: Field) -> str:
-    n = _bytes_len(fld)
+    n = _bytes_len(fld) if _bytes_len(fld) is not None else _str_len(fld)
     return f"{n}s" if n is not None else _WIRE[fld.type][0]
+
+
+def wire_values(spec: MessageSpec, msg) -> list:
+    """The values as the payload carries them: names as ASCII bytes."""
+    return [v.encode("ascii") if _str_len(f) is not None else v for f, v in zip(spec.fields, msg)]
 
 
 def wire_struct(spec: MessageSpec) -> struct.Struct:
@@ -96,6 +105,9 @@ def field_strategy(fld: Field) -> st.SearchStrategy[Any]:
     n = _bytes_len(fld)
     if n is not None:
         return st.binary(min_size=n, max_size=n)
+    n = _str_len(fld)
+    if n is not None:
+        return st.from_regex(rf"[A-Za-z0-9_.\-]{{0,{n}}}", fullmatch=True)
     if fld.type not in _WIRE:
         raise AssertionError(f"field {fld.name}: type {fld.type!r} is new; teach tests/test_schema.py about it")
     if fld.type == "bool":
@@ -127,6 +139,9 @@ def bad_value_strategy(fld: Field) -> st.SearchStrategy[Any] | None:
             if hi < FLT_MAX:
                 options.append(st.floats(min_value=_f32_step(_f32_limits(fld)[1], up=True),
                                          width=32, allow_nan=False, allow_infinity=False))
+    elif _str_len(fld) is not None:
+        # ASCII the wire can carry, but not a name
+        options.append(st.from_regex(r"[A-Za-z0-9]{0,6}[ !@#$%^&*()+=,;:~]{1,6}", fullmatch=True))
     elif fld.type in _WIRE and _WIRE[fld.type][1] is not None:
         type_lo, type_hi = _WIRE[fld.type][1]
         lo, hi = _int_limits(fld)
@@ -163,7 +178,7 @@ def test_round_trip_of_every_message(name: str, data):
     msg = data.draw(strategy_for(spec), label="msg")
     payload = spec.encode(msg)
     assert len(payload) == spec.size == wire_struct(spec).size
-    assert payload == wire_struct(spec).pack(*msg), "layout: little-endian, packed, declared order"
+    assert payload == wire_struct(spec).pack(*wire_values(spec, msg)), "layout: little-endian, packed, declared order"
     decoded = spec.decode(payload)
     assert decoded == msg
     assert type(decoded) is spec.type
@@ -191,7 +206,7 @@ def test_out_of_range_value_refused_both_ways(name: str, data):
     values[index] = bad
     with pytest.raises(EncodeError):
         spec.encode(spec.type(*values))
-    payload = wire_struct(spec).pack(*values)
+    payload = wire_struct(spec).pack(*wire_values(spec, values))
     _raises_parse(Reason.OUT_OF_RANGE, spec.decode, payload)
     _raises_parse(Reason.OUT_OF_RANGE, SCHEMA.decode, spec.id, payload)
 
@@ -213,6 +228,10 @@ def test_unrepresentable_value_is_an_encode_error(name: str, data):
                         | st.floats(max_value=-FLT_MAX * 2, allow_infinity=False), label="huge")
     elif fld.type == "bool":
         return
+    elif _str_len(fld) is not None:
+        bad = data.draw(st.text(min_size=_str_len(fld) + 1, max_size=_str_len(fld) + 8)
+                        | st.text(min_size=1).filter(lambda t: any(not (c.isascii() and (c.isalnum() or c in "_.-"))
+                                                                    for c in t)), label="text")
     else:
         type_lo, type_hi = _WIRE[fld.type][1]
         bad = data.draw(st.integers(max_value=type_lo - 1) | st.integers(min_value=type_hi + 1), label="int")
@@ -344,6 +363,8 @@ def _other_type(fld: Field) -> str:
     n = _bytes_len(fld)
     if n is not None:
         return f"bytes{n + 1}"
+    if _str_len(fld) is not None:
+        return f"str{_str_len(fld) + 1}"
     return {"u8": "i8", "i8": "u8", "u16": "i16", "i16": "u16", "u32": "i32", "i32": "u32",
             "u64": "u32", "f32": "u32", "bool": "u8"}[fld.type]
 

@@ -1,0 +1,108 @@
+"""Parameters that persist: declared with ranges, set over the link, saved atomically, loaded at boot.
+
+A save writes the whole set to a temporary file beside the target, flushes and fsyncs
+it, renames it over the target (atomic on POSIX) and fsyncs the directory, so a crash
+at any point leaves either the previous set or the new one, never a mix or nothing.
+A load never crashes the controller: a missing file means defaults; an unreadable or
+malformed file, an unknown name or an out-of-range value is reported and skipped,
+and that parameter keeps its default.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional
+
+from protocol.reasons import Reason
+
+FILE_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    default: float
+    lo: float
+    hi: float
+    unit: str
+    doc: str
+
+    def __post_init__(self) -> None:
+        if not self.lo <= self.default <= self.hi:
+            raise ValueError(f"parameter {self.name}: default {self.default} outside {self.lo}..{self.hi}")
+        if len(self.name) > 16:
+            raise ValueError(f"parameter {self.name}: names are at most 16 characters on the wire")
+
+
+class ParamStore:
+    """Values by name; `on_change(name, value)` applies a value when it is set or loaded."""
+
+    def __init__(self, specs: list[ParamSpec], path: Optional[Path] = None,
+                 on_change: Callable[[str, float], None] = lambda name, value: None) -> None:
+        self.specs = {spec.name: spec for spec in specs}
+        self.order = [spec.name for spec in specs]
+        self.path = Path(path) if path is not None else None
+        self._values = {spec.name: float(spec.default) for spec in specs}
+        self._on_change = on_change
+        self.load_problems: list[str] = []
+
+    def __getitem__(self, name: str) -> float:
+        return self._values[name]
+
+    def set(self, name: str, value: float) -> tuple[Reason, str]:
+        """Set one value; refused (and nothing changes) if unknown, not finite or out of range."""
+        spec = self.specs.get(name)
+        if spec is None:
+            return Reason.UNKNOWN_PARAM, f"no parameter {name!r}"
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or not spec.lo <= value <= spec.hi:
+            return Reason.OUT_OF_RANGE, f"{name}={value} outside {spec.lo}..{spec.hi} {spec.unit}".rstrip()
+        self._values[name] = float(value)
+        self._on_change(name, float(value))
+        return Reason.OK, ""
+
+    def load(self) -> list[str]:
+        """Read the file, if any; returns (and keeps) the problems found. Never raises."""
+        problems: list[str] = []
+        if self.path is None or not self.path.exists():
+            self.load_problems = problems
+            return problems
+        try:
+            data = json.loads(self.path.read_text(encoding="utf-8"))
+            if not isinstance(data, dict) or data.get("version") != FILE_VERSION or not isinstance(
+                    data.get("params"), dict):
+                raise ValueError(f"not a version-{FILE_VERSION} parameter file")
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            problems.append(f"{self.path}: {exc}; all parameters keep their defaults")
+            self.load_problems = problems
+            return problems
+        for name, value in data["params"].items():
+            reason, detail = self.set(name, value) if isinstance(value, (int, float)) and not isinstance(
+                value, bool) else (Reason.OUT_OF_RANGE, f"{name}: {value!r} is not a number")
+            if reason is not Reason.OK:
+                problems.append(f"{self.path}: {detail}; kept the default")
+        self.load_problems = problems
+        return problems
+
+    def save(self) -> tuple[Reason, str]:
+        if self.path is None:
+            return Reason.SAVE_FAILED, "no parameter file configured (aspod sim --params FILE)"
+        text = json.dumps({"version": FILE_VERSION, "params": {n: self._values[n] for n in self.order}}, indent=1)
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(tmp, "w", encoding="utf-8") as out:
+                out.write(text + "\n")
+                out.flush()
+                os.fsync(out.fileno())
+            os.replace(tmp, self.path)
+            directory = os.open(self.path.parent, os.O_RDONLY)
+            try:
+                os.fsync(directory)
+            finally:
+                os.close(directory)
+        except OSError as exc:
+            return Reason.SAVE_FAILED, f"{self.path}: {exc}"
+        return Reason.OK, ""

@@ -1,0 +1,129 @@
+"""Parameters: range-checked, set over the link, saved atomically, loaded at boot."""
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from firmware_py.controller import ControllerConfig
+from firmware_py.params import ParamSpec, ParamStore
+from host_tools.world import LockstepBench
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import ControllerState, Fault
+
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+SPECS = [ParamSpec("gain", 1.0, 0.0, 10.0, "", "a gain"), ParamSpec("limit_v", 22.0, 0.0, 60.0, "V", "a limit")]
+
+
+def test_set_refuses_unknown_and_out_of_range_and_changes_nothing(tmp_path):
+    store = ParamStore(SPECS, tmp_path / "p.json")
+    assert store.set("gain", 11.0)[0] is Reason.OUT_OF_RANGE
+    assert store.set("gain", float("nan"))[0] is Reason.OUT_OF_RANGE
+    assert store.set("nope", 1.0)[0] is Reason.UNKNOWN_PARAM
+    assert store["gain"] == 1.0
+    assert store.set("gain", 2.5) == (Reason.OK, "")
+    assert store["gain"] == 2.5
+
+
+def test_save_then_load_restores_the_set(tmp_path):
+    path = tmp_path / "sub" / "p.json"
+    store = ParamStore(SPECS, path)
+    store.set("gain", 3.0)
+    assert store.save() == (Reason.OK, "")
+    again = ParamStore(SPECS, path)
+    assert again.load() == [] and again["gain"] == 3.0 and again["limit_v"] == 22.0
+
+
+def test_a_crash_in_the_middle_of_a_save_keeps_the_previous_set(tmp_path, monkeypatch):
+    path = tmp_path / "p.json"
+    store = ParamStore(SPECS, path)
+    store.set("gain", 4.0)
+    store.save()
+    before = path.read_bytes()
+    store.set("gain", 9.0)
+
+    def crash(*args):
+        raise OSError("power lost")
+    monkeypatch.setattr(os, "replace", crash)    # dies after writing the temporary file, before the rename
+    reason, detail = store.save()
+    assert reason is Reason.SAVE_FAILED and "power lost" in detail
+    assert path.read_bytes() == before
+    monkeypatch.undo()
+    reloaded = ParamStore(SPECS, path)
+    reloaded.load()
+    assert reloaded["gain"] == 4.0                # the leftover temporary file is ignored
+
+
+@pytest.mark.parametrize("content, problem", [
+    ("{not json", "keep their defaults"),
+    (json.dumps({"version": 99, "params": {}}), "not a version-1"),
+    (json.dumps({"version": 1, "params": {"gain": 50}}), "outside"),
+    (json.dumps({"version": 1, "params": {"gain": "high"}}), "not a number"),
+    (json.dumps({"version": 1, "params": {"ghost": 1}}), "no parameter 'ghost'"),
+])
+def test_a_bad_file_is_reported_and_defaults_stay(tmp_path, content, problem):
+    path = tmp_path / "p.json"
+    path.write_text(content)
+    store = ParamStore(SPECS, path)
+    problems = store.load()
+    assert len(problems) == 1 and problem in problems[0]
+    assert store["gain"] == 1.0
+
+
+def test_save_without_a_file_is_refused_with_a_reason():
+    assert ParamStore(SPECS).save()[0] is Reason.SAVE_FAILED
+
+
+def param(bench, name):
+    handle = bench.call(M["ParamGet"](name))
+    return handle
+
+
+def test_parameters_over_the_link_and_across_a_reboot(tmp_path):
+    path = tmp_path / "params.json"
+    bench = LockstepBench(seed=1, controller_config=ControllerConfig(params_path=path))
+    try:
+        assert bench.connect()
+        got = param(bench, "supply_min_v")
+        assert got.ok and got.reply.value == 22.0 and (got.reply.min, got.reply.max) == (0.0, 60.0)
+        refused = bench.call(M["ParamSet"]("supply_min_v", 75.0))
+        assert refused.reason is Reason.OUT_OF_RANGE and refused.reply.value == 22.0
+        assert param(bench, "warp_factor").reason is Reason.UNKNOWN_PARAM
+        listed = [bench.call(M["ParamList"](i)).reply.name for i in range(bench.call(M["ParamList"](0)).reply.count)]
+        assert "link_timeout_s" in listed and "temp_max_c" in listed
+        assert bench.call(M["ParamList"](len(listed))).reason is Reason.OUT_OF_RANGE
+        # a parameter takes effect: raising the supply limit above the supply faults the controller
+        assert bench.call(M["ParamSet"]("supply_min_v", 30.0)).ok
+        assert bench.wait_until(lambda: bench.controller.supervisor.faults & Fault.SUPPLY_LOW, 0.1)
+        assert bench.call(M["ParamSet"]("supply_min_v", 20.0)).ok
+        assert bench.call(M["Reset"]()).ok
+        assert bench.call(M["ParamSet"]("telemetry_hz", 4)).ok
+        assert bench.call(M["ParamSave"]()).ok
+    finally:
+        bench.close()
+    saved = json.loads(path.read_text())["params"]
+    assert saved["supply_min_v"] == 20.0 and saved["telemetry_hz"] == 4
+    rebooted = LockstepBench(seed=2, controller_config=ControllerConfig(params_path=path))
+    try:
+        assert rebooted.connect()
+        assert param(rebooted, "supply_min_v").reply.value == 20.0
+        assert rebooted.controller.telemetry_hz == 4
+        assert rebooted.controller.supervisor.state is ControllerState.IDLE
+    finally:
+        rebooted.close()
+
+
+def test_link_timeout_parameter_applies_to_the_watchdog(tmp_path):
+    bench = LockstepBench(seed=3, controller_config=ControllerConfig(params_path=tmp_path / "p.json"))
+    try:
+        assert bench.connect()
+        assert bench.call(M["ParamSet"]("link_timeout_s", 10.0)).ok
+        bench.host_alive = False
+        bench.run_for(5.0)
+        assert bench.controller.supervisor.state is ControllerState.IDLE     # 3 s would have tripped
+        bench.run_for(6.0)
+        assert bench.controller.supervisor.faults & Fault.LINK_LOST
+    finally:
+        bench.close()
