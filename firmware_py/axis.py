@@ -1,0 +1,680 @@
+"""One motor axis as a declared pipeline: encoder -> estimator -> controller -> PWM.
+
+`Axis.update(now, count, count_s, i_a, i_s, home_switch)` runs one tick and returns the duty to
+send; it does no bus I/O. Inputs carry the `now` at which they arrived (`count_s`, `i_s`), so the
+axis knows how stale they are (ODrive's MotorControl style): an encoder count that has not
+changed its arrival time is "no new sample" for the estimator, which flags STALE after a few
+ticks; a current reading older than `current_stale_s` while driving is a fault.
+
+Stages, each timed with the injected `stopwatch` (none: not timed):
+  0 estimator   counts -> pos_rad, vel_rad_s (firmware_py/estimator.py), glitch/stale checks
+  1 controller  profile setpoint -> position P -> velocity PI (+ feed-forward) -> requested duty
+  2 output      current limit, saturation to [-1, 1], anti-windup, stall detection
+
+Control law (duty is the output; every gain is in duty units so no motor model is needed here):
+
+  vel_cmd  = vel_sp + kp_pos * (pos_sp - pos),  clamped to +-vel_cmd_limit
+  u        = kv * (vel_cmd - vel) + integ + ff_vel * vel_sp + ff_acc * acc_sp + ff_torque * gravity_nm(pos)
+  duty     = clamp(u, duty_lo, duty_hi)      (the current limit moves duty_lo/duty_hi inside [-1, 1])
+  integ   += dt * (ki * (vel_cmd - vel) + (duty - u) / aw_tracking_s)      (back-calculation)
+
+Back-calculation (Astrom and Hagglund, *Advanced PID Control*, 2006, sec. 3.5) bleeds the
+integrator whenever the output saturates, whether at +-1 or at the current limit, so a long
+saturation does not leave a charge that overshoots when it ends. The current limit acts on the
+measured current: while |i_a| exceeds `i_limit_a` the bound on the side of the excess is pulled
+below the last duty in proportion to the excess; it relaxes back at `i_limit_relax_duty_s`.
+
+Modes: IDLE (duty 0, brake on) -> `enable` -> HOLDING <-> MOVING / JOGGING / HOMING; any fault
+-> FAULT (duty 0, brake on) until `reset_errors`. `safe()` is the supervisor's hook: duty 0,
+brake on, motion cancelled, never raises. Faults are latched bits (`AxisError`, documented in
+`AXIS_ERROR_DOCS`); `on_fault(bits, now)` tells the caller at once so it can take the one path
+to the safe state.
+"""
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Optional
+
+from firmware_py import profiles
+from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
+from firmware_py.profiles import DEFAULT_JOINT_ACC_RAD_S2, REPORT_JOINT_SPEED_RAD_S, Profile
+
+
+class AxisMode(enum.IntEnum):
+    IDLE = 0       # not driven: duty 0, brake on
+    MOVING = 1     # following a move (or stop) profile, then settling
+    JOGGING = 2    # constant velocity until stopped
+    HOMING = 3     # seeking the home switch, then backing off
+    HOLDING = 4    # driven, holding a fixed position
+    FAULT = 5      # a fault bit is latched: duty 0, brake on, until reset_errors
+
+
+class AxisError(enum.IntFlag):
+    NONE = 0
+    ENCODER_STALE = 1 << 0
+    ENCODER_GLITCH = 1 << 1
+    CURRENT_STALE = 1 << 2
+    STALL = 1 << 3
+    FOLLOWING_ERROR = 1 << 4
+    HOMING_FAILED = 1 << 5
+    OVER_CURRENT = 1 << 6      # current stayed above the hard limit despite the duty limit
+    SOFT_LIMIT = 1 << 7        # warning, not a fault: a motion reached a soft limit and was stopped
+    CURRENT_LIMITED = 1 << 8   # status, not latched: the current limit is reducing duty this tick
+
+
+FAULT_MASK = int(AxisError.ENCODER_STALE | AxisError.ENCODER_GLITCH | AxisError.CURRENT_STALE | AxisError.STALL
+                 | AxisError.FOLLOWING_ERROR | AxisError.HOMING_FAILED | AxisError.OVER_CURRENT)
+
+AXIS_ERROR_DOCS: dict[AxisError, tuple[str, str]] = {
+    AxisError.ENCODER_STALE: ("no new encoder count for `stale_ticks` ticks", "check the encoder and the HAL bus"),
+    AxisError.ENCODER_GLITCH: ("an encoder count jumped further than the joint can move in the time",
+                               "check encoder wiring and noise; home again after reset"),
+    AxisError.CURRENT_STALE: ("no current reading for `current_stale_s` while driving", "check the current sense"),
+    AxisError.STALL: ("high duty requested but the joint did not move for `stall_time_s`",
+                      "clear the obstruction or reduce the load, then reset"),
+    AxisError.FOLLOWING_ERROR: ("the joint fell more than `following_error_rad` behind its setpoint",
+                                "reduce speed or acceleration, check the load and the gains"),
+    AxisError.HOMING_FAILED: ("no home switch within `home_max_travel_rad`", "check the switch, then home again"),
+    AxisError.OVER_CURRENT: ("current above `i_trip_a` for `i_trip_s` despite the current limit",
+                             "check for a short or a stuck brake"),
+    AxisError.SOFT_LIMIT: ("a motion reached a soft limit and was stopped there", "move back inside the limits"),
+    AxisError.CURRENT_LIMITED: ("the current limit is reducing the duty", "none (status)"),
+}
+assert set(AXIS_ERROR_DOCS) == {e for e in AxisError if e != AxisError.NONE}
+
+
+class Refusal(enum.IntEnum):
+    """Why a command was refused before anything moved (the lead maps these to protocol reasons)."""
+
+    OK = 0
+    NOT_ENABLED = 1   # the axis is idle: enable first
+    FAULT = 2         # a fault is latched: reset first
+    SOFT_LIMIT = 3    # the target lies beyond a soft limit
+    NOT_HOMED = 4     # absolute moves need a homed axis
+    BAD_VALUE = 5     # not finite, or a speed/acceleration beyond the axis's limits
+    BUSY = 6          # homing is in progress: stop it first
+
+
+class Outcome(enum.IntEnum):
+    """How the last motion command ended (`Axis.outcome`, with `Axis.motion_id`)."""
+
+    NONE = 0
+    RUNNING = 1
+    DONE = 2          # reached the target and settled within `in_position_rad`
+    NOT_SETTLED = 3   # profile ended but the joint did not settle within `settle_timeout_s`
+    STOPPED = 4       # stopped on request
+    SOFT_LIMIT = 5    # stopped at a soft limit
+    FAULT = 6         # cancelled by a fault
+    DISABLED = 7      # cancelled by disable/safe
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """One axis's gains and limits, checked when built. Angles and speeds are joint-side."""
+
+    estimator: EstimatorConfig
+    name: str = "axis"
+    vel_limit_rad_s: float = REPORT_JOINT_SPEED_RAD_S
+    acc_limit_rad_s2: float = DEFAULT_JOINT_ACC_RAD_S2
+    kp_pos_1_s: float = 20.0             # position loop [rad/s per rad]
+    kv_duty_s_rad: float = 0.3           # velocity loop P [duty per rad/s]
+    ki_duty_rad: float = 5.0             # velocity loop I [duty per rad]
+    aw_tracking_s: Optional[float] = None  # back-calculation time constant; None: kv/ki
+    vel_cmd_limit_rad_s: Optional[float] = None  # clamp on the position loop's output; None: 2 * vel_limit
+    ff_vel_duty_s_rad: float = 0.0       # duty per rad/s of setpoint velocity (back-EMF, viscous)
+    ff_acc_duty_s2_rad: float = 0.0      # duty per rad/s^2 of setpoint acceleration (inertia)
+    ff_torque_duty_nm: float = 0.0       # duty per N m of joint torque (for gravity_nm)
+    i_limit_a: float = 5.0               # current limit (duty is reduced above it)
+    i_limit_gain_duty_a: float = 0.02    # duty taken off per A of excess, per tick
+    i_limit_relax_duty_s: float = 2.0    # how fast the duty bound recovers below the limit
+    i_trip_a: float = math.inf           # hard over-current trip ...
+    i_trip_s: float = 0.05               # ... when exceeded this long
+    current_stale_s: float = 0.01
+    soft_min_rad: float = -math.inf
+    soft_max_rad: float = math.inf
+    moves_need_home: bool = True         # absolute moves and soft limits need a homed axis
+    stall_duty: float = 0.9              # |requested duty| at or above this ...
+    stall_vel_rad_s: float = 0.005       # ... with |vel| below this ...
+    stall_time_s: float = 0.5            # ... for this long is a stall
+    following_error_rad: float = 0.2
+    in_position_rad: float = 0.001
+    in_position_vel_rad_s: float = 0.005
+    settle_timeout_s: float = 2.0
+    home_dir: int = -1                   # seek the switch toward negative angles
+    home_vel_rad_s: float = 0.02
+    home_pos_rad: float = 0.0            # the angle at which the switch closes
+    home_backoff_rad: float = 0.02
+    home_max_travel_rad: float = 2 * math.pi
+
+    def __post_init__(self) -> None:
+        positive = ("vel_limit_rad_s", "acc_limit_rad_s2", "i_limit_a", "i_trip_s", "current_stale_s",
+                    "stall_vel_rad_s", "stall_time_s", "following_error_rad", "in_position_rad",
+                    "in_position_vel_rad_s", "settle_timeout_s", "home_vel_rad_s", "home_max_travel_rad", "i_trip_a")
+        for name in positive:
+            value = getattr(self, name)
+            if not value > 0 or math.isnan(value):
+                raise ValueError(f"{self.name}: {name} must be > 0, not {value}")
+        for name in ("kp_pos_1_s", "kv_duty_s_rad", "ki_duty_rad", "ff_vel_duty_s_rad", "ff_acc_duty_s2_rad",
+                     "ff_torque_duty_nm", "i_limit_gain_duty_a", "i_limit_relax_duty_s", "home_backoff_rad"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{self.name}: {name} must be finite and >= 0, not {value}")
+        if not self.soft_min_rad < self.soft_max_rad:
+            raise ValueError(f"{self.name}: soft_min_rad must be below soft_max_rad")
+        if not 0 < self.stall_duty <= 1:
+            raise ValueError(f"{self.name}: stall_duty must be in (0, 1]")
+        if self.home_dir not in (-1, 1):
+            raise ValueError(f"{self.name}: home_dir must be -1 or +1")
+        if self.home_vel_rad_s > self.vel_limit_rad_s:
+            raise ValueError(f"{self.name}: home_vel_rad_s above vel_limit_rad_s")
+        if self.aw_tracking_s is not None and not self.aw_tracking_s > 0:
+            raise ValueError(f"{self.name}: aw_tracking_s must be > 0")
+
+    @property
+    def tracking_s(self) -> float:
+        if self.aw_tracking_s is not None:
+            return self.aw_tracking_s
+        return self.kv_duty_s_rad / self.ki_duty_rad if self.ki_duty_rad > 0 else math.inf
+
+
+def motor_gains(kt_nm_a: float, r_ohm: float, gear_ratio: float, supply_v: float, inertia_kg_m2: float,
+                viscous_nm_s_rad: float = 0.0, vel_bandwidth_rad_s: float = 100.0) -> dict[str, float]:
+    """Feed-forward and loop gains (AxisConfig fields) from a DC motor behind a gear train.
+
+    Quasi-static armature (L/R much shorter than the tick): joint torque
+    tau = kt N (V duty - kt N w) / R, so holding torque tau takes duty tau R / (kt N V),
+    turning at w takes kt N w / V (back-EMF) plus viscous b w R / (kt N V), and
+    accelerating inertia J at a takes J a R / (kt N V). The velocity loop's plant is then
+    w' = b_u duty - a_emf w with b_u = kt N V / (R J); kv puts its closed-loop pole near the
+    requested bandwidth, the integral zero a quarter of it below, the position loop a fifth.
+    """
+    torque_per_duty_nm = kt_nm_a * gear_ratio * supply_v / r_ohm
+    b_u = torque_per_duty_nm / inertia_kg_m2
+    a_emf = (kt_nm_a * gear_ratio) ** 2 / (r_ohm * inertia_kg_m2)
+    kv = max(vel_bandwidth_rad_s - a_emf, 0.25 * vel_bandwidth_rad_s) / b_u
+    return {
+        "ff_torque_duty_nm": 1.0 / torque_per_duty_nm,
+        "ff_vel_duty_s_rad": kt_nm_a * gear_ratio / supply_v + viscous_nm_s_rad / torque_per_duty_nm,
+        "ff_acc_duty_s2_rad": inertia_kg_m2 / torque_per_duty_nm,
+        "kv_duty_s_rad": kv,
+        "ki_duty_rad": kv * vel_bandwidth_rad_s / 4.0,
+        "kp_pos_1_s": vel_bandwidth_rad_s / 5.0,
+    }
+
+
+# module-level aliases: a global lookup is cheaper than an enum attribute in the hot path
+_IDLE, _MOVING, _JOGGING, _HOMING, _HOLDING, _FAULT = (AxisMode.IDLE, AxisMode.MOVING, AxisMode.JOGGING,
+                                                       AxisMode.HOMING, AxisMode.HOLDING, AxisMode.FAULT)
+_DRIVEN = frozenset((_MOVING, _JOGGING, _HOMING, _HOLDING))
+_SOFT_LIMIT = int(AxisError.SOFT_LIMIT)
+_CURRENT_LIMITED = int(AxisError.CURRENT_LIMITED)
+STAGES = ("estimator", "controller", "output")
+
+# homing phases: first tick (is the switch already closed?), leave the switch, seek it, back off
+_START, _CLEAR, _SEEK, _BACKOFF = 0, 1, 2, 3
+
+
+@dataclass
+class StageTimes:
+    """Execution time per pipeline stage: max and total seconds over `ticks` timed ticks."""
+
+    max_s: list[float] = field(default_factory=lambda: [0.0] * len(STAGES))
+    total_s: list[float] = field(default_factory=lambda: [0.0] * len(STAGES))
+    ticks: int = 0
+
+    def as_dict(self) -> dict[str, tuple[float, float]]:
+        """{stage: (max_s, mean_s)}."""
+        n = max(self.ticks, 1)
+        return {name: (self.max_s[k], self.total_s[k] / n) for k, name in enumerate(STAGES)}
+
+
+class Axis:
+    """One axis's state machine and control loop. Commands take `now`; `update` runs a tick."""
+
+    def __init__(self, config: AxisConfig, gravity_nm: Optional[Callable[[float], float]] = None,
+                 stopwatch: Optional[Callable[[], float]] = None,
+                 on_fault: Callable[[AxisError, float], None] = lambda bits, now: None,
+                 estimator: Optional[SteadyStateEstimator] = None) -> None:
+        self.config = config
+        self.estimator = estimator or SteadyStateEstimator(config.estimator)
+        self._gravity_nm = gravity_nm
+        self._stopwatch = stopwatch
+        self._on_fault = on_fault
+        self.times = StageTimes()
+        c = config
+        # hot-path copies of the configuration
+        self._dt = c.estimator.dt_s
+        self._kp, self._kv, self._ki = c.kp_pos_1_s, c.kv_duty_s_rad, c.ki_duty_rad
+        self._aw = 1.0 / c.tracking_s
+        self._vcmd_max = c.vel_cmd_limit_rad_s if c.vel_cmd_limit_rad_s is not None else 2 * c.vel_limit_rad_s
+        self._relax = c.i_limit_relax_duty_s * self._dt
+        self._lo_rad, self._hi_rad = c.soft_min_rad, c.soft_max_rad
+        # state
+        self.mode = AxisMode.IDLE
+        self.duty = 0.0
+        self.brake = True
+        self.homed = not c.moves_need_home
+        self.target_rad = 0.0            # where the present motion ends (or the hold position)
+        self.pos_sp_rad = 0.0            # present setpoint
+        self.vel_sp_rad_s = 0.0
+        self.outcome = Outcome.NONE
+        self.motion_id = 0
+        self.duty_requested = 0.0        # before the current limit and saturation
+        self._err = 0
+        self._profile: Optional[Profile] = None
+        self._profile_t0 = 0.0
+        self._integ = 0.0
+        self._duty_lo, self._duty_hi = -1.0, 1.0
+        self._count_s: Optional[float] = None
+        self._stall_since: Optional[float] = None
+        self._trip_since: Optional[float] = None
+        self._settle_since: Optional[float] = None
+        self._home_phase = _SEEK
+        self._home_start_rad = 0.0
+        self._stopping_for = Outcome.STOPPED
+
+    # ---- queries ----
+    @property
+    def errors(self) -> AxisError:
+        return AxisError(self._err)
+
+    @property
+    def faults(self) -> AxisError:
+        return AxisError(self._err & FAULT_MASK)
+
+    @property
+    def pos_rad(self) -> float:
+        return self.estimator.pos_rad
+
+    @property
+    def vel_rad_s(self) -> float:
+        return self.estimator.vel_rad_s
+
+    # ---- commands (take effect at the next update) ----
+    def enable(self, now: float) -> tuple[Refusal, str]:
+        """IDLE -> HOLDING at the present position, brake off."""
+        if self.mode is _FAULT:
+            return Refusal.FAULT, f"{self.config.name}: fault latched ({self.faults!r}); reset first"
+        if self.mode is _IDLE:
+            self._hold(self.estimator.pos_rad)
+            self._integ = 0.0
+            self._duty_lo, self._duty_hi = -1.0, 1.0
+            self.brake = False
+        return Refusal.OK, ""
+
+    def disable(self, now: float) -> None:
+        """Stop driving at once: duty 0, brake on, IDLE (a latched fault stays)."""
+        self.safe()
+
+    def safe(self) -> None:
+        """The safe-state hook: duty 0, brake on, motion cancelled. Never raises."""
+        self.duty = 0.0
+        self.duty_requested = 0.0
+        self.brake = True
+        self._profile = None
+        self._integ = 0.0
+        self._err &= ~_CURRENT_LIMITED
+        if self.outcome is Outcome.RUNNING:
+            self.outcome = Outcome.FAULT if self._err & FAULT_MASK else Outcome.DISABLED
+        if self.mode is not _FAULT:
+            self.mode = AxisMode.IDLE
+
+    def reset_errors(self, now: float) -> None:
+        """Clear latched bits; FAULT -> IDLE (enable to drive again).
+
+        After an encoder glitch the position is no longer trusted: the estimator takes the next
+        count as the present estimate and, where moves need homing, the axis must be homed again.
+        """
+        if self._err & AxisError.ENCODER_GLITCH:
+            self.estimator.resync(self.estimator.pos_rad)
+            if self.config.moves_need_home:
+                self.homed = False
+        self._err = 0
+        self._stall_since = self._trip_since = None
+        if self.mode is _FAULT:
+            self.mode = AxisMode.IDLE
+
+    def set_zero(self, pos_rad: float = 0.0) -> None:
+        """Declare the present position to be `pos_rad` and the axis homed (for axes without a switch)."""
+        self._rezero(pos_rad)
+        self.homed = True
+
+    def move_to(self, target_rad: float, now: float, vel_rad_s: Optional[float] = None,
+                acc_rad_s2: Optional[float] = None) -> tuple[Refusal, str]:
+        """Absolute move; refused (nothing changes) with a reason if it cannot be done."""
+        refusal = self._check_move(target_rad, vel_rad_s, acc_rad_s2, absolute=True)
+        if refusal[0] is Refusal.OK:
+            self._begin_move(target_rad, now, vel_rad_s, acc_rad_s2)
+        return refusal
+
+    def move_by(self, delta_rad: float, now: float, vel_rad_s: Optional[float] = None,
+                acc_rad_s2: Optional[float] = None) -> tuple[Refusal, str]:
+        """Relative move from the present target (the hold position, or the end of the present move)."""
+        if not math.isfinite(delta_rad):
+            return Refusal.BAD_VALUE, f"{self.config.name}: distance {delta_rad} is not finite"
+        base = self.target_rad if self.mode is _MOVING else self._setpoint(now)[0]
+        refusal = self._check_move(base + delta_rad, vel_rad_s, acc_rad_s2, absolute=False)
+        if refusal[0] is Refusal.OK:
+            self._begin_move(base + delta_rad, now, vel_rad_s, acc_rad_s2)
+        return refusal
+
+    def jog(self, vel_rad_s: float, now: float, acc_rad_s2: Optional[float] = None) -> tuple[Refusal, str]:
+        """Constant velocity until `stop` (or a soft limit, when homed)."""
+        c = self.config
+        refusal = self._check_active()
+        if refusal[0] is not Refusal.OK:
+            return refusal
+        acc = acc_rad_s2 or c.acc_limit_rad_s2
+        if not (math.isfinite(vel_rad_s) and abs(vel_rad_s) <= c.vel_limit_rad_s and 0 < acc <= c.acc_limit_rad_s2):
+            return Refusal.BAD_VALUE, (f"{c.name}: jog speed {vel_rad_s} rad/s or acceleration {acc} rad/s^2 outside "
+                                       f"the limits {c.vel_limit_rad_s} rad/s, {c.acc_limit_rad_s2} rad/s^2")
+        if self._limits_on():
+            pos, margin = self._setpoint(now)[0], c.in_position_rad   # a jog stops within a tick of a limit
+            if (vel_rad_s > 0 and pos >= self._hi_rad - margin) or (vel_rad_s < 0 and pos <= self._lo_rad + margin):
+                return Refusal.SOFT_LIMIT, f"{c.name}: at the soft limit; jog the other way"
+        p, v, _ = self._setpoint(now)
+        self._start(profiles.jog(p, vel_rad_s, acc, v), AxisMode.JOGGING, math.nan, now)
+        return Refusal.OK, ""
+
+    def stop(self, now: float, outcome: Outcome = Outcome.STOPPED) -> None:
+        """Decelerate at the acceleration limit, then hold (accepted in any state)."""
+        if self.mode not in (_MOVING, _JOGGING, _HOMING):
+            return
+        p, v, _ = self._setpoint(now)
+        profile = profiles.stop(p, v, self.config.acc_limit_rad_s2)
+        self._profile, self._profile_t0 = profile, now
+        self.target_rad = profile.end_pos_rad
+        self.mode = AxisMode.MOVING
+        self._stopping_for = outcome
+        self._settle_since = None
+
+    def home(self, now: float) -> tuple[Refusal, str]:
+        """Seek the home switch at `home_vel_rad_s`, set the zero there, back off; then hold."""
+        refusal = self._check_active()
+        if refusal[0] is not Refusal.OK:
+            return refusal
+        if self.config.moves_need_home:
+            self.homed = False
+        self._home_start_rad = self.estimator.pos_rad
+        self._home_phase = _START
+        self._start_seek(now, self.config.home_dir)
+        self.motion_id += 1
+        self.outcome = Outcome.RUNNING
+        self._err &= ~_SOFT_LIMIT
+        return Refusal.OK, ""
+
+    # ---- the tick ----
+    def update(self, now: float, count: Optional[int], count_s: Optional[float], i_a: float,
+               i_s: Optional[float], home_switch: bool = False) -> float:
+        """Run one tick on the latest inputs and their arrival times; return the duty to send."""
+        sw = self._stopwatch
+        if sw is not None:
+            t0 = sw()
+        # -- stage 0: encoder -> estimator
+        est = self.estimator
+        if count_s is not None and count_s != self._count_s:
+            self._count_s = count_s
+            flags = est.update(count)
+        else:
+            flags = est.update(None)
+        pos = est.pos_rad
+        vel = est.vel_rad_s
+        if flags:
+            self._fault((AxisError.ENCODER_STALE if flags & 1 else 0) | (AxisError.ENCODER_GLITCH if flags & 2 else 0),
+                        now)
+        if sw is not None:
+            t1 = sw()
+        mode = self.mode
+        if mode not in _DRIVEN:
+            self.duty = 0.0
+            if sw is not None:
+                self._record(t0, t1, t1, sw())
+            return 0.0
+        # -- stage 1: setpoint and cascaded control
+        profile = self._profile
+        if profile is None:
+            pos_sp, vel_sp, acc_sp = self.pos_sp_rad, 0.0, 0.0
+        else:
+            pos_sp, vel_sp, acc_sp = profile.sample(now - self._profile_t0)
+            if mode is not _HOLDING:
+                pos_sp, vel_sp, acc_sp = self._supervise_motion(now, pos_sp, vel_sp, acc_sp, pos, vel, home_switch)
+                if self.mode not in _DRIVEN:
+                    return 0.0
+                pos = est.pos_rad   # homing may have moved the zero
+        self.pos_sp_rad, self.vel_sp_rad_s = pos_sp, vel_sp
+        pos_err = pos_sp - pos
+        if pos_err > self.config.following_error_rad or -pos_err > self.config.following_error_rad:
+            self._fault(AxisError.FOLLOWING_ERROR, now)
+            return 0.0
+        vel_cmd = vel_sp + self._kp * pos_err
+        vmax = self._vcmd_max
+        if vel_cmd > vmax:
+            vel_cmd = vmax
+        elif vel_cmd < -vmax:
+            vel_cmd = -vmax
+        vel_err = vel_cmd - vel
+        c = self.config
+        u = self._kv * vel_err + self._integ + c.ff_vel_duty_s_rad * vel_sp + c.ff_acc_duty_s2_rad * acc_sp
+        if self._gravity_nm is not None:
+            u += c.ff_torque_duty_nm * self._gravity_nm(pos)
+        if sw is not None:
+            t2 = sw()
+        # -- stage 2: current limit, saturation, anti-windup, stall
+        duty = self._limit(u, i_a, i_s, now)
+        if self.mode is _FAULT:
+            return 0.0
+        self._integ += self._dt * (self._ki * vel_err + (duty - u) * self._aw)
+        # stall: asking for more than it gets (saturated or current-limited) or for high duty, yet not moving
+        if (duty != u or u >= c.stall_duty or u <= -c.stall_duty) and -c.stall_vel_rad_s < vel < c.stall_vel_rad_s:
+            if self._stall_since is None:
+                self._stall_since = now
+            elif now - self._stall_since >= c.stall_time_s:
+                self._fault(AxisError.STALL, now)
+                return 0.0
+        else:
+            self._stall_since = None
+        self.duty_requested = u
+        self.duty = duty
+        if sw is not None:
+            self._record(t0, t1, t2, sw())
+        return duty
+
+    def _limit(self, u: float, i_a: float, i_s: Optional[float], now: float) -> float:
+        """Current limit on the measured current, then saturation to the bounds."""
+        c = self.config
+        if i_s is None or now - i_s > c.current_stale_s or i_a != i_a:
+            self._fault(AxisError.CURRENT_STALE, now)
+            return 0.0
+        lo, hi, last = self._duty_lo, self._duty_hi, self.duty
+        limited = 0
+        over = i_a - c.i_limit_a
+        if over > 0:
+            hi = max(-1.0, min(hi, last) - c.i_limit_gain_duty_a * over)
+            limited = _CURRENT_LIMITED
+        elif hi < 1.0:
+            hi = min(1.0, hi + self._relax)
+        under = -c.i_limit_a - i_a
+        if under > 0:
+            lo = min(1.0, max(lo, last) + c.i_limit_gain_duty_a * under)
+            limited = _CURRENT_LIMITED
+        elif lo > -1.0:
+            lo = max(-1.0, lo - self._relax)
+        self._duty_lo, self._duty_hi = lo, hi
+        self._err = (self._err & ~_CURRENT_LIMITED) | limited
+        if abs(i_a) > c.i_trip_a:
+            if self._trip_since is None:
+                self._trip_since = now
+            elif now - self._trip_since >= c.i_trip_s:
+                self._fault(AxisError.OVER_CURRENT, now)
+                return 0.0
+        else:
+            self._trip_since = None
+        return hi if u > hi else lo if u < lo else u
+
+    def _supervise_motion(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float, vel: float,
+                          home_switch: bool) -> tuple[float, float, float]:
+        """Per-tick checks of a motion: soft limits, homing phases, the end of a move."""
+        mode = self.mode
+        c = self.config
+        if mode is _HOMING:
+            return self._homing_step(now, pos_sp, vel_sp, acc_sp, pos, home_switch)
+        if self._limits_on():
+            lo, hi = self._lo_rad, self._hi_rad
+            if mode is _JOGGING:
+                # stop so as to come to rest at the limit (one tick of travel early)
+                ahead = pos_sp + profiles.stopping_distance(vel_sp, c.acc_limit_rad_s2) + vel_sp * self._dt
+                if (vel_sp > 0 and ahead >= hi) or (vel_sp < 0 and ahead <= lo):
+                    self._err |= _SOFT_LIMIT
+                    self.stop(now, Outcome.SOFT_LIMIT)
+                    return self._profile.sample(0.0)
+            elif (pos > hi + c.in_position_rad and vel > 0) or (pos < lo - c.in_position_rad and vel < 0):
+                self._err |= _SOFT_LIMIT
+                self.stop(now, Outcome.SOFT_LIMIT)
+                return self._profile.sample(0.0)
+        if mode is _MOVING and now - self._profile_t0 >= self._profile.duration_s:
+            if self._settle_since is None:
+                self._settle_since = now
+            settled = abs(self.target_rad - pos) <= c.in_position_rad and abs(vel) <= c.in_position_vel_rad_s
+            if settled or now - self._settle_since >= c.settle_timeout_s:
+                self._hold(self.target_rad)
+                self.outcome = self._stopping_for if self._stopping_for is not Outcome.DONE else (
+                    Outcome.DONE if settled else Outcome.NOT_SETTLED)
+        return pos_sp, vel_sp, acc_sp
+
+    def _homing_step(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float,
+                     home_switch: bool) -> tuple[float, float, float]:
+        c = self.config
+        phase = self._home_phase
+        if phase == _BACKOFF:
+            if now - self._profile_t0 >= self._profile.duration_s:
+                self._hold(self._profile.end_pos_rad)
+                self.outcome = Outcome.DONE
+        elif abs(pos - self._home_start_rad) > c.home_max_travel_rad:
+            self._fault(AxisError.HOMING_FAILED, now)
+        elif phase == _START:
+            self._home_phase = _SEEK
+            if home_switch:   # already on the switch: move off it first, then come back to it
+                self._home_phase = _CLEAR
+                self._start_seek(now, -c.home_dir, pos_sp, vel_sp)
+                return self._profile.sample(0.0)
+        elif phase == _CLEAR:
+            if not home_switch:
+                self._start_seek(now, c.home_dir, pos_sp, vel_sp)
+                self._home_phase = _SEEK
+                return self._profile.sample(0.0)
+        elif home_switch:   # found it: this is home_pos_rad; stop and back off from the switch
+            shift = self._rezero(c.home_pos_rad)
+            self.homed = True
+            back = c.home_pos_rad - c.home_dir * c.home_backoff_rad
+            self._profile = profiles.trapezoid(pos_sp + shift, back, c.vel_limit_rad_s, c.acc_limit_rad_s2, vel_sp)
+            self._profile_t0 = now
+            self.target_rad = back
+            self._home_phase = _BACKOFF
+            return self._profile.sample(0.0)
+        return pos_sp, vel_sp, acc_sp
+
+    # ---- helpers ----
+    def _record(self, t0: float, t1: float, t2: float, t3: float) -> None:
+        times = self.times
+        mx, tot = times.max_s, times.total_s
+        for k, d in enumerate((t1 - t0, t2 - t1, t3 - t2)):
+            tot[k] += d
+            if d > mx[k]:
+                mx[k] = d
+        times.ticks += 1
+
+    def _fault(self, bits: int, now: float) -> None:
+        new = bits & ~self._err
+        self._err |= bits
+        if bits & FAULT_MASK:
+            if self.outcome is Outcome.RUNNING:
+                self.outcome = Outcome.FAULT
+            self.mode = AxisMode.FAULT
+            self.safe()
+            if new:
+                self._on_fault(AxisError(bits & FAULT_MASK), now)
+
+    def _rezero(self, pos_rad: float) -> float:
+        """Shift the position frame so the present estimate reads `pos_rad`; return the shift."""
+        shift = pos_rad - self.estimator.pos_rad
+        self.estimator.set_position(pos_rad)
+        self.pos_sp_rad += shift
+        self.target_rad += shift
+        return shift
+
+    def _hold(self, pos_rad: float) -> None:
+        self.mode = AxisMode.HOLDING
+        self._profile = None
+        self.pos_sp_rad = self.target_rad = pos_rad
+        self.vel_sp_rad_s = 0.0
+        self._settle_since = None
+
+    def _setpoint(self, now: float) -> tuple[float, float, float]:
+        """The present setpoint (where a new profile starts, without a jump)."""
+        if self._profile is None:
+            return self.pos_sp_rad, 0.0, 0.0
+        return self._profile.sample(now - self._profile_t0)
+
+    def _limits_on(self) -> bool:
+        return self.homed or not self.config.moves_need_home
+
+    def _check_active(self) -> tuple[Refusal, str]:
+        name = self.config.name
+        if self.mode is _FAULT:
+            return Refusal.FAULT, f"{name}: fault latched ({self.faults!r}); reset first"
+        if self.mode is _IDLE:
+            return Refusal.NOT_ENABLED, f"{name}: not enabled"
+        if self.mode is _HOMING:
+            return Refusal.BUSY, f"{name}: homing in progress; stop it first"
+        return Refusal.OK, ""
+
+    def _check_move(self, target_rad: float, vel_rad_s: Optional[float], acc_rad_s2: Optional[float],
+                    absolute: bool) -> tuple[Refusal, str]:
+        c = self.config
+        refusal = self._check_active()
+        if refusal[0] is not Refusal.OK:
+            return refusal
+        if not math.isfinite(target_rad):
+            return Refusal.BAD_VALUE, f"{c.name}: target {target_rad} is not finite"
+        for value, limit, what in ((vel_rad_s, c.vel_limit_rad_s, "speed [rad/s]"),
+                                   (acc_rad_s2, c.acc_limit_rad_s2, "acceleration [rad/s^2]")):
+            if value is not None and not (math.isfinite(value) and 0 < value <= limit):
+                return Refusal.BAD_VALUE, f"{c.name}: {what} {value} outside (0, {limit}]"
+        if absolute and not self._limits_on():
+            return Refusal.NOT_HOMED, f"{c.name}: not homed; home first (relative moves and jogs are allowed)"
+        if self._limits_on() and not c.soft_min_rad <= target_rad <= c.soft_max_rad:
+            side = "max" if target_rad > c.soft_max_rad else "min"
+            limit = c.soft_max_rad if side == "max" else c.soft_min_rad
+            return Refusal.SOFT_LIMIT, (f"{c.name}: target {target_rad:.4f} rad is beyond the soft limit "
+                                        f"{side} {limit:.4f} rad")
+        return Refusal.OK, ""
+
+    def _begin_move(self, target_rad: float, now: float, vel_rad_s: Optional[float],
+                    acc_rad_s2: Optional[float]) -> None:
+        """Start a checked move from the present setpoint (blending from its velocity)."""
+        c = self.config
+        p, v, _ = self._setpoint(now)
+        self._start(profiles.trapezoid(p, target_rad, vel_rad_s or c.vel_limit_rad_s,
+                                       acc_rad_s2 or c.acc_limit_rad_s2, v), AxisMode.MOVING, target_rad, now)
+
+    def _start(self, profile: Profile, mode: AxisMode, target_rad: float, now: float) -> None:
+        self._profile, self._profile_t0 = profile, now
+        self.mode = mode
+        self.target_rad = target_rad
+        self._settle_since = None
+        self._stopping_for = Outcome.DONE
+        self._err &= ~_SOFT_LIMIT
+        self.motion_id += 1
+        self.outcome = Outcome.RUNNING
+
+    def _start_seek(self, now: float, direction: int, pos_sp: Optional[float] = None,
+                    vel_sp: float = 0.0) -> None:
+        if pos_sp is None:
+            pos_sp, vel_sp, _ = self._setpoint(now)
+        self._profile = profiles.jog(pos_sp, direction * self.config.home_vel_rad_s, self.config.acc_limit_rad_s2,
+                                     vel_sp)
+        self._profile_t0 = now
+        self.mode = AxisMode.HOMING
+        self.target_rad = math.nan
