@@ -1,0 +1,327 @@
+"""The arm's physical plant: loads on the six motor channels, gripper, encoders, switches.
+
+Geometry (parameters in `hil_sim.arm_params`). The manipulator works in a vertical plane
+that contains the mount's central shaft. In that plane, x is horizontal (away from the
+shaft at J1 = 0), z is up, the origin is J1's axis. Link II (J1 to J2), link III (J2 to
+J3) and the gripper (J3 to the tip) make a planar chain with absolute angles
+a1 = q1, a2 = q1 + q2, a3 = q1 + q2 + q3. Link I stands vertical under J1 on the mobile
+mount's arm, at the track radius from the shaft. J4 rolls the gripper about its own axis
+and moves neither the tip nor the centre of gravity. The mount turns the whole plane
+about the shaft.
+
+Lumped mass model: links II and III are uniform rods; the elbow hardware sits at J2; the
+wrist is split into a part fixed at the J3 axis and a part J3 turns (centre of gravity
+on the gripper axis); a payload is a point at the tip. From it, each step:
+
+* gravity: the static torque each joint must hold, tau_k = g * sum over the masses
+  outboard of joint k of m_i * (x_i - x_k); none on J4 (cg on the roll axis), the
+  gripper's travel, or the mount (level platform). Orbit mode sets g = 0.
+* inertia: the diagonal of the arm's mass matrix, i.e. everything outboard of a joint
+  about that joint with the other joints frozen. The off-diagonal (coupling) and the
+  velocity terms are neglected: every joint sees its rotor through a 300:1 to 1600:1
+  train (J1: 1.5e-5 kg m^2 * 1600^2 = 38 kg m^2 against at most 4 kg m^2 of arm), and
+  the report keeps joints at or below 1/2 RPM. The mount sees the whole arm (and its own
+  mobile arm and guide wheels) about the shaft.
+
+The gripper is the push/pull motor on a lead screw: opening = screw angle * lead. Hard
+stops at closed and at the full stroke; an object of a given width puts a stop at that
+opening, and the torque the stop absorbs gives the grip force.
+"""
+from __future__ import annotations
+
+import math
+from typing import Optional, Sequence
+
+import numpy as np
+
+from hil_sim.arm_params import (ARM_PLANT_PARAMS, CHANNELS, GRAVITY_M_S2, GRIPPER, J1, J2, J3, J4,
+                                MOUNT, ArmGeometry, ArmPlantParams, MountParams)
+from hil_sim.motor import TWO_PI, DcMotorBank
+
+
+# ---- pure functions of the pose --------------------------------------------------------------
+def _pose(q1: float, q2: float, q3: float, a: ArmGeometry):
+    """Arm-plane points (x, z) from J1: elbow, wrist, turned-part cg, tip; and cos a1..a3."""
+    c1, s1 = math.cos(q1), math.sin(q1)
+    a2 = q1 + q2
+    c2, s2 = math.cos(a2), math.sin(a2)
+    c3, s3 = math.cos(a2 + q3), math.sin(a2 + q3)
+    ex, ez = a.link2_m * c1, a.link2_m * s1
+    wx, wz = ex + a.link3_m * c2, ez + a.link3_m * s2
+    rx, rz = wx + a.wrist_turned_cg_m * c3, wz + a.wrist_turned_cg_m * s3
+    tx, tz = wx + a.tip_m * c3, wz + a.tip_m * s3
+    return (ex, ez), (wx, wz), (rx, rz), (tx, tz), (c1, c2, c3)
+
+
+def _static_torques(pose, a: ArmGeometry, g: float, payload_kg: float):
+    c1, c2, c3 = pose[4]
+    t3 = g * (a.wrist_turned_kg * a.wrist_turned_cg_m + payload_kg * a.tip_m) * c3
+    beyond_j3 = a.wrist_fixed_kg + a.wrist_turned_kg + payload_kg
+    t2 = g * (a.link3_kg * a.link3_m / 2.0 + beyond_j3 * a.link3_m) * c2 + t3
+    beyond_j2 = a.elbow_hw_kg + a.link3_kg + beyond_j3
+    t1 = g * (a.link2_kg * a.link2_m / 2.0 + beyond_j2 * a.link2_m) * c1 + t2
+    return t1, t2, t3
+
+
+def _joint_inertias(pose, a: ArmGeometry, payload_kg: float):
+    (ex, ez), (wx, wz), (rx, rz), (tx, tz), _ = pose
+    rod2 = a.link2_kg * a.link2_m ** 2 / 12.0
+    rod3 = a.link3_kg * a.link3_m ** 2 / 12.0
+    turned = a.wrist_turned_inertia_kg_m2
+    i3 = turned + a.wrist_turned_kg * a.wrist_turned_cg_m ** 2 + payload_kg * a.tip_m ** 2
+    # About J2: the same parts, origin moved to the elbow.
+    i2 = (rod3 + a.link3_kg * ((wx - ex) ** 2 + (wz - ez) ** 2) / 4.0
+          + a.wrist_fixed_kg * ((wx - ex) ** 2 + (wz - ez) ** 2)
+          + turned + a.wrist_turned_kg * ((rx - ex) ** 2 + (rz - ez) ** 2)
+          + payload_kg * ((tx - ex) ** 2 + (tz - ez) ** 2))
+    i1 = (rod2 + a.link2_kg * (ex * ex + ez * ez) / 4.0 + a.elbow_hw_kg * (ex * ex + ez * ez)
+          + rod3 + a.link3_kg * ((ex + wx) ** 2 + (ez + wz) ** 2) / 4.0
+          + a.wrist_fixed_kg * (wx * wx + wz * wz)
+          + turned + a.wrist_turned_kg * (rx * rx + rz * rz) + payload_kg * (tx * tx + tz * tz))
+    i4 = a.roll_inertia_kg_m2 + payload_kg * a.payload_gyration_m ** 2
+    return i1, i2, i3, i4
+
+
+def _radial_masses(pose, a: ArmGeometry, m: MountParams, payload_kg: float):
+    """(mass kg, distance from the shaft axis m) of every lumped part of the manipulator."""
+    (ex, _), (wx, _), (rx, _), (tx, _), _ = pose
+    r0, k = m.base_radius_m, m.reach_sign
+    return ((a.link1_kg, r0), (a.shoulder_hw_kg, r0), (a.link2_kg, r0 + k * ex / 2.0),
+            (a.elbow_hw_kg, r0 + k * ex), (a.link3_kg, r0 + k * (ex + wx) / 2.0),
+            (a.wrist_fixed_kg, r0 + k * wx), (a.wrist_turned_kg, r0 + k * rx),
+            (payload_kg, r0 + k * tx))
+
+
+def _mount_inertia(pose, a: ArmGeometry, m: MountParams, payload_kg: float) -> float:
+    c1, c2, c3 = pose[4]
+    total = sum(mass * r * r for mass, r in _radial_masses(pose, a, m, payload_kg))
+    # Rods about a vertical axis through their centre: m (L cos a)^2 / 12.
+    total += (a.link2_kg * (a.link2_m * c1) ** 2 + a.link3_kg * (a.link3_m * c2) ** 2) / 12.0
+    total += a.wrist_turned_inertia_kg_m2 * c3 * c3
+    r0 = m.base_radius_m
+    return total + m.mobile_arm_kg * r0 * r0 / 3.0 + m.guide_wheels_kg * r0 * r0
+
+
+def static_torques_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
+                      g_m_s2: float, payload_kg: float = 0.0) -> tuple[float, float, float]:
+    """Torque J1, J2, J3 must each supply to hold the pose still (positive = raising)."""
+    return _static_torques(_pose(q1_rad, q2_rad, q3_rad, geometry), geometry, g_m_s2, payload_kg)
+
+
+def joint_inertias_kg_m2(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
+                         payload_kg: float = 0.0) -> tuple[float, float, float, float]:
+    """What J1, J2, J3, J4 each turn, about their own axis, the other joints frozen."""
+    return _joint_inertias(_pose(q1_rad, q2_rad, q3_rad, geometry), geometry, payload_kg)
+
+
+def mount_inertia_kg_m2(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
+                        mount: MountParams, payload_kg: float = 0.0) -> float:
+    """The mobile arm, guide wheels and manipulator about the central shaft."""
+    return _mount_inertia(_pose(q1_rad, q2_rad, q3_rad, geometry), geometry, mount, payload_kg)
+
+
+def mount_static_moment_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
+                           mount: MountParams, g_m_s2: float, payload_kg: float = 0.0) -> float:
+    """Bending moment of the manipulator's weight about the shaft (Table 4's "mobile mount").
+
+    It loads the shaft and the mobile arm, not the mount's drive (the platform is level).
+    """
+    pose = _pose(q1_rad, q2_rad, q3_rad, geometry)
+    return g_m_s2 * sum(mass * r for mass, r in _radial_masses(pose, geometry, mount, payload_kg))
+
+
+def gripper_position_m(pos_rad: Sequence[float], geometry: ArmGeometry = ARM_PLANT_PARAMS.geometry,
+                       mount: MountParams = ARM_PLANT_PARAMS.mount) -> np.ndarray:
+    """Gripper tip [x, y, z] in metres from per-channel angles (indexed as `CHANNELS`).
+
+    Frame: origin on the central shaft's axis at the foot of link I, z up, x toward the
+    mount's zero. Uses J1, J2, J3 and the mount; J4 and the gripper do not move the tip.
+    """
+    q1, q2, q3 = float(pos_rad[J1]), float(pos_rad[J2]), float(pos_rad[J3])
+    tx, tz = _pose(q1, q2, q3, geometry)[3]
+    rho = mount.base_radius_m + mount.reach_sign * tx
+    phi = float(pos_rad[MOUNT])
+    return np.array([rho * math.cos(phi), rho * math.sin(phi), geometry.link1_m + tz])
+
+
+# ---- the plant -------------------------------------------------------------------------------
+class ArmPlant:
+    """The six channels J1, J2, J3, J4, gripper, mount with their loads; no bus, no clock.
+
+    `step(dt_s, duty, enable, brake, supply_v)` takes per-channel arrays (order `CHANNELS`)
+    and integrates; read `i_a` (current sense), `encoder_counts`, the switch arrays and
+    the gripper's `grip_force_n` afterwards.
+    """
+
+    def __init__(self, params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
+                 payload_kg: float = 0.0) -> None:
+        self.params = params
+        ch = params.channels
+        self.motors = DcMotorBank([c.drive for c in ch])
+        self._pos0 = np.array([c.start_pos_rad for c in ch])
+        self.motors.set_state(pos_rad=self._pos0)
+        self._counts_per_rad = np.array([c.counts_per_output_rev / TWO_PI for c in ch])
+        self._home_rad = np.array([c.home_rad for c in ch])
+        self._limit_lo_rad = np.array([c.limit_lo_rad for c in ch])
+        self._limit_hi_rad = np.array([c.limit_hi_rad for c in ch])
+        grip = params.gripper
+        self._lead = grip.lead_m_per_rad
+        self._closed_switch_rad = grip.closed_switch_m / grip.lead_m_per_rad
+        self._open_switch_rad = grip.open_switch_m / grip.lead_m_per_rad
+        self._gripper_stops_rad = self.motors.stops_rad(GRIPPER)
+        self.object_width_m: Optional[float] = None
+        self._load_nm = [0.0] * len(ch)
+        self._inertia = [0.0] * len(ch)
+        self._duty = [0.0] * len(ch)
+        self._enable = [False] * len(ch)
+        self.payload_kg = 0.0
+        self.set_gravity(gravity)
+        self.set_payload(payload_kg)
+
+    # -- configuration --
+    def set_gravity(self, mode: str) -> None:
+        """'earth' (9.80665 m/s^2) or 'orbit' (0)."""
+        if mode not in GRAVITY_M_S2:
+            raise ValueError(f"unknown gravity mode {mode!r}; known: {', '.join(GRAVITY_M_S2)}")
+        self.gravity = mode
+        self.g_m_s2 = GRAVITY_M_S2[mode]
+        self._update_loads()
+
+    def set_payload(self, payload_kg: float) -> None:
+        """Mass carried at the gripper tip (0 for none)."""
+        if not (math.isfinite(payload_kg) and payload_kg >= 0):
+            raise ValueError(f"payload_kg must be finite and >= 0, got {payload_kg}")
+        self.payload_kg = float(payload_kg)
+        self._update_loads()
+
+    def set_object(self, width_m: Optional[float]) -> None:
+        """Put an object of `width_m` between the jaws (None: take it away).
+
+        The jaws must be open at least that wide. Closing then stops on it.
+        """
+        if width_m is None:
+            self.object_width_m = None
+            self.motors.set_stops(GRIPPER, *self._gripper_stops_rad)
+            return
+        if not (math.isfinite(width_m) and 0 < width_m <= self.params.gripper.stroke_m):
+            raise ValueError(f"object width must be in (0, stroke], got {width_m}")
+        if self.gripper_opening_m < width_m:
+            raise ValueError(f"jaws open {self.gripper_opening_m:.4f} m, narrower than the object")
+        self.object_width_m = float(width_m)
+        self.motors.set_stops(GRIPPER, width_m / self._lead, self._gripper_stops_rad[1])
+
+    def set_joint_state(self, channel: int, pos_rad: float, vel_rad_s: float = 0.0) -> None:
+        """Move one channel's output shaft by hand (tests, scenarios); its encoder counts the move."""
+        pos = self.motors.pos_rad
+        vel = self.motors.vel_rad_s
+        pos[channel], vel[channel] = pos_rad, vel_rad_s
+        self.motors.set_state(pos_rad=pos, vel_rad_s=vel)
+        self._update_loads()
+
+    # -- integration --
+    def step(self, dt_s: float, duty, enable, brake, supply_v: float) -> None:
+        """Advance `dt_s` seconds (split into substeps of at most `max_substep_s`)."""
+        if not (dt_s >= 0 and math.isfinite(dt_s)):
+            raise ValueError(f"dt_s must be finite and >= 0, got {dt_s}")
+        duty, enable, brake = _as_list(duty), _as_list(enable), _as_list(brake)
+        self._duty, self._enable = duty, enable
+        if dt_s == 0.0:
+            return
+        n = max(1, math.ceil(dt_s / self.params.max_substep_s - 1e-9))
+        h = dt_s / n
+        for _ in range(n):
+            en = self._gripper_switches_cut(duty, enable)
+            self.motors.step(h, duty, supply_v, en, brake, self._load_nm, self._inertia)
+            self._update_loads()
+
+    def _gripper_switches_cut(self, duty: list, enable: list) -> list:
+        """The end switch ahead of the jaws' travel opens the motor circuit (if so fitted)."""
+        if not (enable[GRIPPER] and self.params.gripper.switches_cut_power):
+            return enable
+        pos = self.motors.positions()[GRIPPER]
+        d = duty[GRIPPER]
+        if (d < 0 and pos <= self._closed_switch_rad) or (d > 0 and pos >= self._open_switch_rad):
+            enable = list(enable)
+            enable[GRIPPER] = False
+        return enable
+
+    def _update_loads(self) -> None:
+        q1, q2, q3 = self.motors.positions()[:3]
+        a, p = self.params.geometry, self.payload_kg
+        pose = _pose(q1, q2, q3, a)
+        load, inertia = self._load_nm, self._inertia
+        load[J1], load[J2], load[J3] = _static_torques(pose, a, self.g_m_s2, p)
+        inertia[J1], inertia[J2], inertia[J3], inertia[J4] = _joint_inertias(pose, a, p)
+        inertia[MOUNT] = _mount_inertia(pose, a, self.params.mount, p)
+
+    # -- measured and true values --
+    @property
+    def pos_rad(self) -> np.ndarray:
+        return self.motors.pos_rad
+
+    @property
+    def vel_rad_s(self) -> np.ndarray:
+        return self.motors.vel_rad_s
+
+    @property
+    def i_a(self) -> np.ndarray:
+        """Armature currents (signed): what a current-sense amplifier measures."""
+        return self.motors.i_a
+
+    @property
+    def encoder_counts(self) -> np.ndarray:
+        """Quadrature counts since power-on (x4 decoding, floor quantisation), int64."""
+        return np.floor((self.motors.pos_rad - self._pos0) * self._counts_per_rad).astype(np.int64)
+
+    @property
+    def home_switch(self) -> np.ndarray:
+        return self.motors.pos_rad >= self._home_rad
+
+    @property
+    def limit_lo_switch(self) -> np.ndarray:
+        """Lower limit switches; the gripper's is its closed end switch."""
+        return self.motors.pos_rad <= self._limit_lo_rad
+
+    @property
+    def limit_hi_switch(self) -> np.ndarray:
+        """Upper limit switches; the gripper's is its open end switch."""
+        return self.motors.pos_rad >= self._limit_hi_rad
+
+    @property
+    def gripper_opening_m(self) -> float:
+        return float(self.motors.pos_rad[GRIPPER]) * self._lead
+
+    @property
+    def grip_force_n(self) -> float:
+        """Force the jaws press on an object with; 0 without an object or not closed on it."""
+        if self.object_width_m is None:
+            return 0.0
+        return max(0.0, -float(self.motors.stop_torque_nm[GRIPPER])) / self._lead
+
+    def gripper_position_m(self) -> np.ndarray:
+        return gripper_position_m(self.motors.pos_rad, self.params.geometry, self.params.mount)
+
+    def static_torques_nm(self) -> tuple[float, float, float]:
+        """Gravity holding torques at J1, J2, J3 in the present pose and mode."""
+        return tuple(self._load_nm[:3])
+
+    @property
+    def load_inertia_kg_m2(self) -> np.ndarray:
+        """The pose-dependent inertia each channel sees (its own drive's not included)."""
+        return np.array(self._inertia)
+
+    def kinetic_energy_j(self) -> float:
+        m = self.motors
+        return 0.5 * float(np.dot(m.inertia_kg_m2 + self._inertia, m.vel_rad_s ** 2))
+
+    def supply_current_a(self) -> float:
+        """Current the motor bridges draw from the supply at the last step (A, < 0 regenerates)."""
+        return self.motors.supply_current_a(self._duty, self._enable)
+
+
+def _as_list(values) -> list:
+    return values.tolist() if isinstance(values, np.ndarray) else list(values)
+
+
+__all__ = ["ArmPlant", "CHANNELS", "gripper_position_m", "joint_inertias_kg_m2", "mount_inertia_kg_m2",
+           "mount_static_moment_nm", "static_torques_nm"]
