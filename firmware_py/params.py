@@ -74,7 +74,7 @@ class ParamStore:
             if not isinstance(data, dict) or data.get("version") != FILE_VERSION or not isinstance(
                     data.get("params"), dict):
                 raise ValueError(f"not a version-{FILE_VERSION} parameter file")
-        except (OSError, UnicodeDecodeError, ValueError) as exc:
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
             problems.append(f"{self.path}: {exc}; all parameters keep their defaults")
             self.load_problems = problems
             return problems

@@ -72,6 +72,7 @@ class HostClient:
             except (serial.SerialException, OSError) as exc:
                 with self._cond:
                     self.io_error = str(exc)
+                    self.link.abandon(self.clock.now(), f"{self.url}: {exc}")
                     self._cond.notify_all()
                 return
 

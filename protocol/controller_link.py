@@ -182,9 +182,8 @@ class ControllerLink(LinkEndpoint):
         for item in self._events.due(now):
             self._queue(PRIO_RELIABLE, MsgClass.EVENT, item.seq, item.msg_id, item.payload)
         if self._events.suspended:
-            self._undelivered.extend(self._events.take_failed())
-            self._events = ReliableSender(window=self.config.window, retry_limit=self.config.retry_limit,
-                                          rtt=self._events.rtt)
+            self._events.resume()   # events are never dropped: keep offering them, in order
+            self.stats.event_resumes += 1
         self.stats.retransmits = self._events.retransmits
         if self._events.rtt.srtt_s is not None:
             self.stats.srtt_us = int(self._events.rtt.srtt_s * 1e6)

@@ -56,6 +56,8 @@ class CommandHandle:
     def describe(self) -> str:
         if self.outcome is Outcome.SUCCEEDED:
             return f"{self.msg.spec.name}: ok"
+        if self.outcome is Outcome.PENDING:
+            return f"{self.msg.spec.name}: no outcome yet (still being retried)"
         why = self.reason.describe() if isinstance(self.reason, Reason) else str(self.reason)
         return f"{self.msg.spec.name}: {self.outcome.value}: {why}{' (' + self.detail + ')' if self.detail else ''}"
 
@@ -187,6 +189,11 @@ class HostLink(LinkEndpoint):
                 self.state = LinkState.SUSPENDED
                 self._fail_all(Reason.LINK_SUSPENDED, now, f"no answer after {self.config.retry_limit} sends")
                 return
+
+    def abandon(self, now: float, detail: str) -> None:
+        """The transport is gone: every outstanding command fails, and the link is suspended."""
+        self.state = LinkState.SUSPENDED
+        self._fail_all(Reason.LINK_SUSPENDED, now, detail)
 
     def _fail_all(self, reason: Reason, now: float, detail: str) -> None:
         for sender in (self._urgent, self._commands):

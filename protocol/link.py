@@ -86,6 +86,7 @@ class LinkStats:
     retransmits: int = 0
     srtt_us: int = 0
     replays: int = 0
+    event_resumes: int = 0      # times the event sender hit its retry limit and started over
     stale_duplicates: int = 0   # a duplicate older than the reply cache (a sender outside its window)
     telemetry_dropped: int = 0  # queued telemetry dropped because the wire was busy
     telemetry_lost: int = 0     # host: gaps in the telemetry sequence
@@ -185,13 +186,13 @@ class LinkEndpoint:
             if not frame.verify(self._handshake.rx):
                 self._auth_error(Reason.BAD_MAC, frame, now)
                 return
-            self._accepted(frame, now)
+            self._accepted(frame, now, alive=False)   # no counter check: a replay must not feed the watchdog
             self._handle_handshake(frame, now)
             return
         session = self._session_for(frame)
         if session is None:
             if frame.msg_id == NAK_ID and frame.verify(self._handshake.rx):
-                self._accepted(frame, now)
+                self._accepted(frame, now, alive=False)
                 self._handle_handshake_nak(frame, now)
                 return
             self._auth_error(Reason.NO_SESSION if self.session is None else Reason.BAD_MAC, frame, now)
@@ -213,9 +214,11 @@ class LinkEndpoint:
             return
         self._handle(frame, spec, now)
 
-    def _accepted(self, frame: Frame, now: float) -> None:
+    def _accepted(self, frame: Frame, now: float, alive: bool = True) -> None:
+        """Count a frame that checked out; `alive`: it also proves the peer is there (the watchdog)."""
         self.stats.frames_rx += 1
-        self.last_valid_rx_s = now
+        if alive:
+            self.last_valid_rx_s = now
 
     def _session_for(self, frame: Frame) -> Optional[Session]:
         """The session whose key verifies `frame` (the controller also tries pending ones)."""
@@ -226,7 +229,8 @@ class LinkEndpoint:
     def _auth_error(self, reason: Reason, frame: Frame, now: float) -> None:
         self.stats.auth_errors += 1
         self.stats.count(reason)
-        self._nak_if_allowed(reason, frame.cls, frame.seq, frame.msg_id, now)
+        if frame.msg_id != NAK_ID:   # never answer a NAK with a NAK: two ends would ping-pong
+            self._nak_if_allowed(reason, frame.cls, frame.seq, frame.msg_id, now)
 
     def _refuse(self, frame: Frame, reason: Reason, now: float, expected: int = 0) -> None:
         """An authenticated frame refused: always answered."""

@@ -102,7 +102,7 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.OVER_TEMPERATURE: ("the controller temperature left its allowed range",
                               "let the controller cool (or warm) into range, then reset"),
     Reason.HOST_REQUEST: ("the host asked for it", "none"),
-    Reason.UNKNOWN_PARAM: ("no parameter has that name", "list them with `param` (teleop) / ParamList"),
+    Reason.UNKNOWN_PARAM: ("no parameter has that name", "list them with `params` (teleop) / ParamList"),
     Reason.SAVE_FAILED: ("the parameters could not be written to their file (the previous file is intact)",
                          "check the --params path, its directory and free space, then save again"),
 }

@@ -150,6 +150,21 @@ class ReliableSender:
             if seq_delta(s, expected_seq) >= 0 and p.due_s is not None:
                 p.due_s = min(p.due_s, now)
 
+    def resume(self) -> None:
+        """After a suspension: send everything unanswered again, from the same sequence numbers.
+
+        The receiver still expects the first of them, so nothing is skipped or mistaken
+        for a duplicate; each gets a fresh retry budget.
+        """
+        items = list(self._inflight.values()) + list(self._waiting)
+        if self._inflight:
+            self.next_seq = next(iter(self._inflight))
+        for item in items:
+            item.seq, item.tries, item.due_s = -1, 0, None
+        self._inflight.clear()
+        self._waiting = deque(items)
+        self.suspended = False
+
     def take_failed(self) -> list[Pending]:
         """When suspended: everything not answered, in order; the sender is emptied."""
         failed = list(self._inflight.values()) + list(self._waiting)

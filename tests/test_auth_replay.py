@@ -207,3 +207,29 @@ def test_a_restarted_controller_makes_the_host_start_a_new_session():
     assert handle.outcome is Outcome.FAILED and handle.reason is Reason.SESSION_RESET
     assert wire.host.state is LinkState.UP and wire.host.sessions_started == 2
     assert wire.call(Ping(2)).ok
+
+
+def test_a_replayed_hello_does_not_keep_the_link_watchdog_alive():
+    lost = []
+    wire = Wire()
+    wire.controller._on_link_lost = lambda now: lost.append(now)
+    wire.connect()
+    hello = wire.to_controller[0]
+    silent_from = wire.now
+    for _ in range(6000):                     # 6 s of host silence, a replayed Hello every second
+        wire.now += 0.001
+        if round((wire.now - silent_from) * 1000) % 1000 == 0:
+            wire.controller.feed(hello, wire.now)
+        wire.controller.poll(wire.now)
+        wire.controller.take_all(wire.now)
+    assert lost and lost[0] - silent_from <= wire.controller.config.link_timeout_s + 0.01
+
+
+def test_a_nak_is_never_answered_with_a_nak():
+    wire = Wire()
+    wire.connect()
+    naks_before = wire.controller.stats.naks_tx
+    forged_nak = encode_frame(MsgClass.LINK, 0, 0, SCHEMA["Nak"].id, b"\x06" + bytes(7), key=OTHER_KEY, counter=5)
+    wire.controller.feed(forged_nak, wire.now)
+    assert wire.controller.stats.naks_tx == naks_before
+    assert wire.controller.stats.reasons[Reason.NO_SESSION if wire.controller.session is None else Reason.BAD_MAC]

@@ -56,7 +56,7 @@ class LossyPair:
             self.in_flight.append((self.step_no + self.latency, "h", self.down.transfer(frame)))
 
 
-def run_commands(pair: LossyPair, count: int, window: int = 6, max_steps: int = 5_000_000) -> list:
+def run_commands(pair: LossyPair, count: int, window: int = 6, max_steps: int = 20_000_000) -> list:
     handles = []
     pair.host.connect(pair.now)
     next_token = 0
@@ -103,6 +103,7 @@ def test_ten_thousand_commands_over_a_lossy_fading_line_run_exactly_once_in_orde
     assert pair.host.stats.retransmits > 100
     assert pair.controller.stats.replays > 0          # duplicates were caught by the counter check
     assert pair.controller.stats.stale_duplicates == 0  # every resend was still in the reply cache
+    assert len(handles) == 10_000
     assert outcomes[Outcome.SUCCEEDED] > 9_000
     assert len(pair.executed) >= outcomes[Outcome.SUCCEEDED]
 
@@ -150,3 +151,22 @@ def test_exactly_once_holds_for_other_seeds(seed):
                         fade_start_rate=0.002, fade_end_rate=0.01)
     pair = LossyPair(faults, seed=seed)
     check_exactly_once(pair, run_commands(pair, 500))
+
+
+def test_events_survive_a_fade_longer_than_the_retry_limit():
+    pair = LossyPair(LineFaults(), seed=9)
+    pair.host.connect(pair.now)
+    while pair.host.state is not LinkState.UP or pair.controller.session is None:
+        pair.step()
+    dead = LineFaults(fade_start_rate=1.0, fade_end_rate=0.0)
+    pair.up.faults = pair.down.faults = dead
+    for i in range(5):
+        pair.controller.send_event(StateChanged(1, 1, 0, 0, i))
+    for _ in range(40_000):                     # 40 s: the event sender gives up several times
+        pair.step()
+    assert pair.controller.stats.event_resumes > 0
+    pair.up.faults = pair.down.faults = LineFaults()
+    pair.up.fading = pair.down.fading = False
+    for _ in range(20_000):
+        pair.step()
+    assert [e.uptime_ms for e in pair.events] == list(range(5))
