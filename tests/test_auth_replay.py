@@ -129,16 +129,25 @@ def test_a_replayed_hello_does_not_displace_the_live_session():
 
 
 def test_frames_with_a_wrong_mac_never_execute_and_are_counted():
+    import zlib
+    from cobs import cobs
     wire = Wire()
     wire.connect()
-    before = wire.controller.stats.auth_errors
+    # a genuine command frame, captured on its way to the controller
+    wire.host.submit(Ping(1), wire.now)
+    wire.host.poll(wire.now)
+    genuine = wire.host.take_all(wire.now)
+    raw = bytearray(cobs.decode(genuine.strip(b"\x00")))
+    raw[-4 - 16 - 4] ^= 0x01                       # change the payload (the Ping token) ...
+    raw[-4:] = zlib.crc32(bytes(raw[:-4])).to_bytes(4, "little")   # ... and fix the CRC: only the MAC can tell
+    tampered = b"\x00" + cobs.encode(bytes(raw)) + b"\x00"
     forged = encode_frame(MsgClass.URGENT, 0, 0, SCHEMA["EStop"].id, b"", key=OTHER_KEY, counter=10)
-    tampered = bytearray(encode_frame(MsgClass.COMMAND, 0, 0, SCHEMA["Ping"].id, b"\x01\x00\x00\x00",
-                                      key=OTHER_KEY, counter=11))
-    for data in (forged, bytes(tampered)):
-        wire.inject(data)
+    before = wire.controller.stats.auth_errors
+    for data in (forged, tampered):
+        wire.controller.feed(data, wire.now)
     assert wire.executed == []
     assert wire.controller.stats.auth_errors == before + 2
+    assert wire.controller.stats.reasons[Reason.BAD_MAC] >= 2
 
 
 def test_unauthenticated_frames_are_refused_with_a_reason():

@@ -89,7 +89,6 @@ def test_over_temperature_reaches_the_safe_state():
         assert bench.connect()
         bench.call(M["SetTelemetryRate"](1))
         bench.world.plant.inject("over_temperature")
-        bench.host_alive = True
         assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 400)
         assert bench.controller.supervisor.faults & Fault.OVER_TEMPERATURE
         assert bench.world.plant.temp_c > 44.5
