@@ -27,6 +27,12 @@ DBC_PATH = Path(__file__).with_name("hal.dbc")
 
 SignalValues = dict[str, Union[int, float]]
 
+# Data lengths a CAN FD frame can have (ISO 11898-1:2015, DLC 9..15 -> 12..64 bytes).
+FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
+
+# Arm channels in the order every per-channel HAL frame lists them (signal suffixes).
+ARM_CHANNELS = ("j1", "j2", "j3", "j4", "gripper", "mount")
+
 
 class HalEncodeError(ValueError):
     """A message that cannot be built: unknown name, missing/unknown signal, value out of range."""
@@ -53,6 +59,7 @@ class _Spec:
     # (signal, lowest, highest) accepted on decode: the declared range widened by half a count,
     # so that a value saturated at a limit survives the integer round trip.
     checks: tuple[tuple[str, float, float], ...]
+    is_fd: bool
 
 
 class HalCodec:
@@ -66,15 +73,17 @@ class HalCodec:
         self._by_name: dict[str, _Spec] = {}
         self._by_id: dict[int, _Spec] = {}
         for message in self.database.messages:
-            if message.is_extended_frame or message.is_fd or message.length != 8:
-                raise ValueError(f"{message.name}: the HAL bus uses classic 8-byte frames "
-                                 "with standard 11-bit IDs")
+            if message.is_extended_frame:
+                raise ValueError(f"{message.name}: the HAL bus uses standard 11-bit IDs")
+            if message.length not in (FD_LENGTHS if message.is_fd else (8,)):
+                raise ValueError(f"{message.name}: a classic frame must be 8 bytes, a CAN FD frame one of "
+                                 f"{FD_LENGTHS}; declared {message.length}")
             checks = tuple(
                 (s.name, s.minimum - abs(s.scale) / 2, s.maximum + abs(s.scale) / 2)
                 for s in message.signals
                 if s.minimum is not None and s.maximum is not None
             )
-            spec = _Spec(message.name, message.frame_id, message.length, message, checks)
+            spec = _Spec(message.name, message.frame_id, message.length, message, checks, message.is_fd)
             self._by_name[spec.name] = spec
             self._by_id[spec.frame_id] = spec
 
@@ -82,6 +91,9 @@ class HalCodec:
     def names(self) -> tuple[str, ...]:
         """Declared message names, in frame-ID (priority) order."""
         return tuple(s.name for s in sorted(self._by_name.values(), key=lambda s: s.frame_id))
+
+    def is_fd(self, name: str) -> bool:
+        return self._spec(name).is_fd
 
     def frame_id(self, name: str) -> int:
         return self._spec(name).frame_id
@@ -111,7 +123,7 @@ class HalCodec:
         except (cantools.database.EncodeError, TypeError, ValueError, OverflowError) as exc:
             raise HalEncodeError(f"cannot encode {name}: {exc}") from exc
         return can.Message(arbitration_id=spec.frame_id, data=data, dlc=spec.length,
-                           is_extended_id=False)
+                           is_extended_id=False, is_fd=spec.is_fd)
 
     def decode(self, msg: can.Message) -> Optional[tuple[str, SignalValues]]:
         """Return (message name, physical signal values), or None if the frame is not declared.

@@ -20,7 +20,7 @@ from firmware_py.hal import ControllerHal
 from firmware_py.scheduler import Scheduler
 from hil_sim.hal_node import PlantNode
 from hil_sim.plant import FAULTS, Plant, PlantParams
-from protocol.hal import HalCodec, HalDecodeError, HalEncodeError
+from protocol.hal import ARM_CHANNELS, HalCodec, HalDecodeError, HalEncodeError
 from timebase import SimClock
 
 CODEC = HalCodec()
@@ -114,13 +114,35 @@ def mean_supply(samples) -> float:
 
 # --- codec -----------------------------------------------------------------------------------
 
-def test_dbc_declares_the_minimal_bus():
-    assert CODEC.names == ("PLANT_SYNC", "CTRL_OUTPUTS", "ANALOG_IN")
+def test_dbc_declares_the_bus():
+    assert CODEC.names == ("PLANT_SYNC", "CTRL_OUTPUTS", "MOTOR_CMD", "DIGITAL_IN", "MOTOR_FB", "ANALOG_IN")
     assert (SYNC_ID, OUTPUTS_ID, ANALOG_ID) == (0x010, 0x020, 0x280)
     senders = {m.name: m.senders for m in CODEC.database.messages}
-    assert senders == {"PLANT_SYNC": ["PLANT"], "CTRL_OUTPUTS": ["CONTROLLER"],
-                       "ANALOG_IN": ["PLANT"]}
+    assert senders == {"PLANT_SYNC": ["PLANT"], "CTRL_OUTPUTS": ["CONTROLLER"], "MOTOR_CMD": ["CONTROLLER"],
+                       "DIGITAL_IN": ["PLANT"], "MOTOR_FB": ["PLANT"], "ANALOG_IN": ["PLANT"]}
     assert CODEC.cycle_time_s("ANALOG_IN") == pytest.approx(0.01)
+    # the per-tick motor frames carry every arm channel in one CAN FD frame each way
+    assert CODEC.is_fd("MOTOR_CMD") and CODEC.is_fd("MOTOR_FB") and not CODEC.is_fd("DIGITAL_IN")
+    for name, prefixes in (("MOTOR_CMD", ("duty", "enable", "brake")), ("MOTOR_FB", ("count", "current")),
+                           ("DIGITAL_IN", ("home", "limit_lo", "limit_hi"))):
+        signals = {s.name for s in CODEC.database.get_message_by_name(name).signals}
+        assert {f"{p}_{ch}" for p in prefixes for ch in ARM_CHANNELS} <= signals
+
+
+def test_fd_frames_round_trip_and_are_sent_as_fd():
+    values = {f"duty_{ch}": (k - 2.5) / 3 for k, ch in enumerate(ARM_CHANNELS)}
+    values.update({f"enable_{ch}": k % 2 for k, ch in enumerate(ARM_CHANNELS)})
+    values.update({f"brake_{ch}": 1 - k % 2 for k, ch in enumerate(ARM_CHANNELS)})
+    msg = CODEC.encode("MOTOR_CMD", alive=7, **values)
+    assert msg.is_fd and len(msg.data) == 16
+    name, decoded = CODEC.decode(msg)
+    assert name == "MOTOR_CMD" and decoded["alive"] == 7
+    for key, value in values.items():
+        assert decoded[key] == pytest.approx(value, abs=1e-4)
+    fb = CODEC.encode("MOTOR_FB", tick=3, **{f"count_{ch}": -2**31 + k for k, ch in enumerate(ARM_CHANNELS)},
+                      **{f"current_{ch}": -1.5 * k for k, ch in enumerate(ARM_CHANNELS)})
+    assert fb.is_fd and len(fb.data) == 48
+    assert CODEC.decode(fb)[1]["count_gripper"] == -2**31 + 4
 
 
 def test_docs_list_every_declared_frame():
@@ -129,7 +151,12 @@ def test_docs_list_every_declared_frame():
         row = f"| 0x{message.frame_id:03X} | `{message.name}` | {message.senders[0]} |"
         assert row in doc, f"docs/hal_bus.md has no frame-table row for {message.name}"
         for signal in message.signals:
-            assert f"`{signal.name}`" in doc, f"docs/hal_bus.md does not mention {signal.name}"
+            # per-channel signals are documented once, as `duty_<ch>`
+            name = signal.name
+            for ch in ARM_CHANNELS:
+                if name.endswith("_" + ch):
+                    name = name[: -len(ch)] + "<ch>"
+            assert f"`{name}`" in doc, f"docs/hal_bus.md does not mention {name}"
 
 
 @settings(max_examples=200, deadline=None)
@@ -161,7 +188,7 @@ def test_analog_in_round_trip_within_resolution(supply_v, temp_c):
 
 
 def test_encode_rejects_what_the_dbc_does_not_declare():
-    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_OUTPUTS, ANALOG_IN"):
+    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_OUTPUTS, MOTOR_CMD, DIGITAL_IN, MOTOR_FB, ANALOG_IN"):
         CODEC.encode("MOTOR_CMD_0", duty=0.5)
     with pytest.raises(HalEncodeError, match="controller_temp_c"):
         CODEC.encode("ANALOG_IN", supply_v=28.0)
@@ -185,13 +212,13 @@ def test_decode_ignores_undeclared_frames_and_rejects_bad_data():
 
 
 @settings(max_examples=300, deadline=None)
-@given(frame_id=st.integers(0, 0x7FF), data=st.binary(max_size=8))
-def test_decode_of_any_frame_returns_or_raises_hal_decode_error(frame_id, data):
-    msg = can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
+@given(frame_id=st.integers(0, 0x7FF), data=st.binary(max_size=64), fd=st.booleans())
+def test_decode_of_any_frame_returns_or_raises_hal_decode_error(frame_id, data, fd):
+    msg = can.Message(arbitration_id=frame_id, data=data, is_extended_id=False, is_fd=fd)
     try:
         result = CODEC.decode(msg)
     except HalDecodeError:
-        assert frame_id in (SYNC_ID, OUTPUTS_ID, ANALOG_ID)
+        assert frame_id in {m.frame_id for m in CODEC.database.messages}
     else:
         assert result is None or result[0] in CODEC.names
 
