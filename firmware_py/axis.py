@@ -62,10 +62,12 @@ class AxisError(enum.IntFlag):
     OVER_CURRENT = 1 << 6      # current stayed above the hard limit despite the duty limit
     SOFT_LIMIT = 1 << 7        # warning, not a fault: a motion reached a soft limit and was stopped
     CURRENT_LIMITED = 1 << 8   # status, not latched: the current limit is reducing duty this tick
+    OPEN_CIRCUIT = 1 << 9      # driven, yet no current flows
 
 
 FAULT_MASK = int(AxisError.ENCODER_STALE | AxisError.ENCODER_GLITCH | AxisError.CURRENT_STALE | AxisError.STALL
-                 | AxisError.FOLLOWING_ERROR | AxisError.HOMING_FAILED | AxisError.OVER_CURRENT)
+                 | AxisError.FOLLOWING_ERROR | AxisError.HOMING_FAILED | AxisError.OVER_CURRENT
+                 | AxisError.OPEN_CIRCUIT)
 
 AXIS_ERROR_DOCS: dict[AxisError, tuple[str, str]] = {
     AxisError.ENCODER_STALE: ("no new encoder count for `stale_ticks` ticks", "check the encoder and the HAL bus"),
@@ -81,6 +83,8 @@ AXIS_ERROR_DOCS: dict[AxisError, tuple[str, str]] = {
                              "check for a short or a stuck brake"),
     AxisError.SOFT_LIMIT: ("a motion reached a soft limit and was stopped there", "move back inside the limits"),
     AxisError.CURRENT_LIMITED: ("the current limit is reducing the duty", "none (status)"),
+    AxisError.OPEN_CIRCUIT: ("|duty| at or above `open_circuit_duty` for `open_circuit_s` with |current| below "
+                             "`open_circuit_a`", "check the motor, its connector and fuse"),
 }
 assert set(AXIS_ERROR_DOCS) == {e for e in AxisError if e != AxisError.NONE}
 
@@ -147,11 +151,15 @@ class AxisConfig:
     home_pos_rad: float = 0.0            # the angle at which the switch closes
     home_backoff_rad: float = 0.02
     home_max_travel_rad: float = 2 * math.pi
+    open_circuit_duty: float = 0.1       # |duty| at or above this ...
+    open_circuit_a: float = 0.01         # ... with |current| below this ...
+    open_circuit_s: float = 0.1          # ... for this long is an open circuit
 
     def __post_init__(self) -> None:
         positive = ("vel_limit_rad_s", "acc_limit_rad_s2", "i_limit_a", "i_trip_s", "current_stale_s",
                     "stall_vel_rad_s", "stall_time_s", "following_error_rad", "in_position_rad",
-                    "in_position_vel_rad_s", "settle_timeout_s", "home_vel_rad_s", "home_max_travel_rad", "i_trip_a")
+                    "in_position_vel_rad_s", "settle_timeout_s", "home_vel_rad_s", "home_max_travel_rad", "i_trip_a",
+                    "open_circuit_duty", "open_circuit_a", "open_circuit_s")
         for name in positive:
             value = getattr(self, name)
             if not value > 0 or math.isnan(value):
@@ -243,19 +251,12 @@ class Axis:
         self._stopwatch = stopwatch
         self._on_fault = on_fault
         self.times = StageTimes()
-        c = config
-        # hot-path copies of the configuration
-        self._dt = c.estimator.dt_s
-        self._kp, self._kv, self._ki = c.kp_pos_1_s, c.kv_duty_s_rad, c.ki_duty_rad
-        self._aw = 1.0 / c.tracking_s
-        self._vcmd_max = c.vel_cmd_limit_rad_s if c.vel_cmd_limit_rad_s is not None else 2 * c.vel_limit_rad_s
-        self._relax = c.i_limit_relax_duty_s * self._dt
-        self._lo_rad, self._hi_rad = c.soft_min_rad, c.soft_max_rad
+        self.reconfigure(config)
         # state
         self.mode = AxisMode.IDLE
         self.duty = 0.0
         self.brake = True
-        self.homed = not c.moves_need_home
+        self.homed = not config.moves_need_home
         self.target_rad = 0.0            # where the present motion ends (or the hold position)
         self.pos_sp_rad = 0.0            # present setpoint
         self.vel_sp_rad_s = 0.0
@@ -274,6 +275,18 @@ class Axis:
         self._home_phase = _SEEK
         self._home_start_rad = 0.0
         self._stopping_for = Outcome.STOPPED
+        self._open_since: Optional[float] = None
+
+    def reconfigure(self, config: AxisConfig) -> None:
+        """Take new gains and limits at the next tick (the estimator keeps its own configuration)."""
+        self.config = c = config
+        # hot-path copies of the configuration
+        self._dt = c.estimator.dt_s
+        self._kp, self._kv, self._ki = c.kp_pos_1_s, c.kv_duty_s_rad, c.ki_duty_rad
+        self._aw = 1.0 / c.tracking_s
+        self._vcmd_max = c.vel_cmd_limit_rad_s if c.vel_cmd_limit_rad_s is not None else 2 * c.vel_limit_rad_s
+        self._relax = c.i_limit_relax_duty_s * self._dt
+        self._lo_rad, self._hi_rad = c.soft_min_rad, c.soft_max_rad
 
     # ---- queries ----
     @property
@@ -332,7 +345,7 @@ class Axis:
             if self.config.moves_need_home:
                 self.homed = False
         self._err = 0
-        self._stall_since = self._trip_since = None
+        self._stall_since = self._trip_since = self._open_since = None
         if self.mode is _FAULT:
             self.mode = AxisMode.IDLE
 
@@ -511,7 +524,16 @@ class Axis:
                 return 0.0
         else:
             self._trip_since = None
-        return hi if u > hi else lo if u < lo else u
+        duty = hi if u > hi else lo if u < lo else u
+        if (duty >= c.open_circuit_duty or duty <= -c.open_circuit_duty) and -c.open_circuit_a < i_a < c.open_circuit_a:
+            if self._open_since is None:
+                self._open_since = now
+            elif now - self._open_since >= c.open_circuit_s:
+                self._fault(AxisError.OPEN_CIRCUIT, now)
+                return 0.0
+        else:
+            self._open_since = None
+        return duty
 
     def _supervise_motion(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float, vel: float,
                           home_switch: bool) -> tuple[float, float, float]:

@@ -9,8 +9,8 @@ Tasks (period):
   comms       1 ms      UART <-> link (firmware_py/comms.py)
   hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
   health      10 ms     boot check, HAL staleness, supply and temperature limits
-  telemetry   1/rate    TelemetryStatus frames
-The motor loops of the next issue plug in as further tasks and safe-state hooks.
+  arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py)
+  telemetry   1/rate    TelemetryStatus and TelemetryJoints frames
 """
 from __future__ import annotations
 
@@ -26,8 +26,11 @@ from protocol.link import LinkConfig
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
-from protocol.states import ControllerState, Fault
+from protocol.states import Axis, ControllerState, Fault, GripAction
 
+from firmware_py import arm_config
+from firmware_py.arm import ArmController
+from firmware_py.axis import Outcome
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
@@ -57,18 +60,19 @@ class ControllerConfig:
     link: LinkConfig = field(default_factory=LinkConfig)
     comms_period_s: float = 0.001
     hal_period_s: float = 0.001
+    arm_period_s: float = 0.001       # the motor loops' rate (1 kHz)
     health_period_s: float = 0.01
     boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
     params_path: Optional[Path] = None  # where parameters persist; None: defaults only, save refused
 
     def __post_init__(self) -> None:
-        for name in ("comms_period_s", "hal_period_s", "health_period_s", "boot_timeout_s"):
+        for name in ("comms_period_s", "hal_period_s", "arm_period_s", "health_period_s", "boot_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
 
 
 def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
-    """The controller's parameters (the motor loops add gains and limits here)."""
+    """The controller's parameters: link, health limits, then the arm's (firmware_py/arm_config.py)."""
     return [
         ParamSpec("link_timeout_s", config.link.link_timeout_s, max(0.05, config.link.heartbeat_s * 1.5), 3600, "s",
                   "safe state after this long without a valid frame"),
@@ -77,17 +81,21 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("supply_min_v", 22.0, 0, 60, "V", "supply below this is a fault (nominal 28 V)"),
         ParamSpec("temp_min_c", -10.0, -40, 125, "degC", "controller colder than this is a fault (report: -10 C)"),
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
-    ]
+    ] + arm_config.parameter_table()
 
 
 class Controller:
     def __init__(self, psk: bytes, uart: PacedUart, hal: ControllerHal,
                  config: Optional[ControllerConfig] = None,
-                 nonce_source: Callable[[], bytes] = auth.new_nonce) -> None:
+                 nonce_source: Callable[[], bytes] = auth.new_nonce,
+                 stopwatch: Optional[Callable[[], float]] = None) -> None:
         self.config = config or ControllerConfig()
         self.uart = uart
         self.hal = hal
-        self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed)
+        self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed,
+                                 check=lambda name, value: self.arm.check_param(name, value))
+        self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
+                                 on_motion_done=self._motion_done, stopwatch=stopwatch)
         self.params.load()
         self.telemetry_hz = int(self.params["telemetry_hz"])
         self.scheduler: Optional[Scheduler] = None
@@ -103,6 +111,7 @@ class Controller:
         self._outputs_sent = False
         self._outputs_due_s = 0.0
         self.supervisor.add_safe_hook("outputs off, brakes on", self._outputs_safe)
+        self.supervisor.add_safe_hook("arm: every motor off, brakes on", self.arm.safe)
         self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: self.hal.is_stale(self._now(), self.params["hal_stale_s"]))
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
@@ -122,6 +131,7 @@ class Controller:
         self.link.started_s = now
         scheduler.add("comms", self.comms.step, now)
         scheduler.add("hal", self._hal_step, now)
+        scheduler.add("arm", self.arm.step, now)
         scheduler.add("health", self._health_step, now + self.config.health_period_s, tolerance_s=0.005)
         scheduler.add("telemetry", self._telemetry_step, now + 0.1, tolerance_s=0.01)
 
@@ -141,6 +151,14 @@ class Controller:
             listener(new, old, reason, now)
         self.link.send_event(M["StateChanged"](int(new), int(old), int(reason), int(self.supervisor.faults),
                                                self.uptime_ms(now)))
+
+    def _arm_fault(self, fault: Fault, reason: Reason, now: float) -> None:
+        self.supervisor.enter_safe_state(fault, now, reason)
+
+    def _motion_done(self, axis: int, motion_id: int, outcome: Outcome, reason: Reason, position: float,
+                     now: float) -> None:
+        self.link.send_event(M["MotionDone"](axis, motion_id & 0xFFFFFFFF, int(outcome), int(reason),
+                                             _finite(position), self.uptime_ms(now)))
 
     def _supply_low(self) -> bool:
         v = self.hal.inputs.supply_v
@@ -182,6 +200,7 @@ class Controller:
             return now + 0.1
         if not self.link.quiet:
             self.link.send_telemetry(self.telemetry(now))
+            self.link.send_telemetry(self.joint_telemetry(now))
         return now + 1.0 / self.telemetry_hz
 
     def telemetry(self, now: float) -> Message:
@@ -199,9 +218,26 @@ class Controller:
             overruns=sum(t.stats.overruns for t in tasks) & 0xFFFFFFFF,
             tx_backlog_bytes=min(0xFFFF, self.uart.backlog_bytes))
 
+    def joint_telemetry(self, now: float) -> Message:
+        arm = self.arm
+        values = [self.uptime_ms(now), arm.homed_bits()]
+        for k, channel in enumerate(arm.channels):
+            values += [_finite(arm.position(k)), _finite(arm.velocity(k)), _finite(arm.hal.inputs.currents_a[k]),
+                       int(channel.mode), arm.errors(k) & 0xFFFF]
+        stats = self.scheduler.tasks["arm"].stats if self.scheduler else None
+        if stats is None:
+            values += [0, 0, 0, 0]
+        else:
+            values += [min(0xFFFFFFFF, int(stats.exec_max_s * 1e6)), min(0xFFFFFFFF, int(stats.exec_p99_s * 1e6)),
+                       min(0xFFFFFFFF, int(stats.late_max_s * 1e6)), stats.overruns & 0xFFFFFFFF]
+        values.append(int(round(self.config.arm_period_s * 1e6)))
+        return M["TelemetryJoints"](*values)
+
     def _param_changed(self, name: str, value: float) -> None:
         if name == "link_timeout_s" and hasattr(self, "link"):
             self.link.config.link_timeout_s = value
+        if hasattr(self, "arm"):
+            self.arm.param_changed(name, value)
 
     # ---- commands ----
     def _execute(self, msg: Message, urgent: bool, now: float) -> Message:
@@ -220,11 +256,18 @@ class Controller:
 
     @handles("Reset")
     def _reset(self, msg: Message, now: float) -> Message:
-        return M["Result"](int(self.supervisor.reset(now)))
+        reason = self.supervisor.reset(now)
+        if reason is Reason.OK:
+            self.arm.reset(now)
+        return M["Result"](int(reason))
 
     @handles("Enable")
     def _enable(self, msg: Message, now: float) -> Message:
-        return M["Result"](int(self.supervisor.enable(now)))
+        was_enabled = self.supervisor.outputs_allowed
+        reason = self.supervisor.enable(now)
+        if reason is Reason.OK and not was_enabled:
+            self.arm.enable(now)
+        return M["Result"](int(reason))
 
     @handles("Disable")
     def _disable(self, msg: Message, now: float) -> Message:
@@ -271,8 +314,55 @@ class Controller:
 
     @handles("Stop")
     def _stop(self, msg: Message, now: float) -> Message:
-        # No motion exists yet (the motor loops come next); stopping is accepted in any state.
+        """Every axis decelerates at its limit and holds; accepted in any state."""
+        self.arm.stop_all(now)
         return M["Result"](int(Reason.OK))
+
+    # ---- motion: refused unless ENABLED; MotionDone events report the end ----
+    def _motion_refusal(self) -> Optional[Reason]:
+        state = self.supervisor.state
+        if state is ControllerState.ENABLED:
+            return None
+        return {ControllerState.ESTOP: Reason.ESTOP, ControllerState.FAULT: Reason.FAULT_LATCHED}.get(
+            state, Reason.NOT_ALLOWED_IN_STATE)
+
+    def _accepted(self, axis: int, outcome: tuple[Reason, str, int]) -> Message:
+        reason, _detail, motion_id = outcome
+        return M["MotionAccepted"](int(reason), axis, motion_id & 0xFFFFFFFF)
+
+    def _joint_motion(self, msg: Message, start: Callable[[], tuple[Reason, str, int]]) -> Message:
+        refusal = self._motion_refusal()
+        if refusal is not None or msg.axis == Axis.ALL:
+            return M["MotionAccepted"](int(refusal or Reason.OUT_OF_RANGE), msg.axis, 0)
+        return self._accepted(msg.axis, start())
+
+    @handles("Move")
+    def _move(self, msg: Message, now: float) -> Message:
+        return self._joint_motion(msg, lambda: self.arm.move(msg.axis, msg.target, msg.speed, False, now))
+
+    @handles("MoveBy")
+    def _move_by(self, msg: Message, now: float) -> Message:
+        return self._joint_motion(msg, lambda: self.arm.move(msg.axis, msg.distance, msg.speed, True, now))
+
+    @handles("Jog")
+    def _jog(self, msg: Message, now: float) -> Message:
+        return self._joint_motion(msg, lambda: self.arm.jog(msg.axis, msg.speed, now))
+
+    @handles("Home")
+    def _home(self, msg: Message, now: float) -> Message:
+        refusal = self._motion_refusal()
+        if refusal is not None:
+            return M["MotionAccepted"](int(refusal), msg.axis, 0)
+        if msg.axis == Axis.ALL:
+            return self._accepted(msg.axis, self.arm.home_all(now))
+        return self._accepted(msg.axis, self.arm.home(msg.axis, now))
+
+    @handles("Grip")
+    def _grip(self, msg: Message, now: float) -> Message:
+        refusal = self._motion_refusal()
+        if refusal is not None:
+            return M["MotionAccepted"](int(refusal), int(Axis.GRIPPER), 0)
+        return self._accepted(int(Axis.GRIPPER), self.arm.grip(msg.action == GripAction.CLOSE, now))
 
 
 def _finite(value: float) -> float:

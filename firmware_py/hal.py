@@ -14,12 +14,21 @@ This module knows the bus only through `protocol.hal` (the DBC) and python-can's
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Optional
 
 import can
 
-from protocol.hal import HalCodec, HalEndpoint, SignalValues
+from protocol.hal import ARM_CHANNELS, HalCodec, HalEndpoint, SignalValues
+
+_N = len(ARM_CHANNELS)
+_COUNT = tuple(f"count_{ch}" for ch in ARM_CHANNELS)
+_CURRENT = tuple(f"current_{ch}" for ch in ARM_CHANNELS)
+_HOME = tuple(f"home_{ch}" for ch in ARM_CHANNELS)
+_LIMIT_LO = tuple(f"limit_lo_{ch}" for ch in ARM_CHANNELS)
+_LIMIT_HI = tuple(f"limit_hi_{ch}" for ch in ARM_CHANNELS)
+_CMD_NAMES = tuple(f"duty_{ch}" for ch in ARM_CHANNELS) + tuple(f"enable_{ch}" for ch in ARM_CHANNELS) \
+    + tuple(f"brake_{ch}" for ch in ARM_CHANNELS)
 
 
 @dataclass
@@ -31,6 +40,15 @@ class HalInputs:
     temp_c: float = math.nan         # ANALOG_IN controller_temp_c [degC]
     updated_s: Optional[float] = None  # `now` of the last ANALOG_IN
     tick_s: Optional[float] = None     # `now` of the last PLANT_SYNC
+    # MOTOR_FB, per arm channel in ARM_CHANNELS order
+    counts: list = field(default_factory=lambda: [0] * _N)        # raw 32-bit counts, unsigned
+    currents_a: list = field(default_factory=lambda: [0.0] * _N)
+    fb_s: Optional[float] = None       # `now` of the last MOTOR_FB
+    # DIGITAL_IN
+    home: list = field(default_factory=lambda: [False] * _N)
+    limit_lo: list = field(default_factory=lambda: [False] * _N)
+    limit_hi: list = field(default_factory=lambda: [False] * _N)
+    switches_s: Optional[float] = None
 
 
 class ControllerHal(HalEndpoint):
@@ -41,7 +59,9 @@ class ControllerHal(HalEndpoint):
         super().__init__(bus, codec, max_frames_per_poll)
         self.inputs = HalInputs()
         self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
-        self._handlers = {"PLANT_SYNC": self._on_sync, "ANALOG_IN": self._on_analog}
+        self.motor_alive = 0     # value the next MOTOR_CMD frame will carry
+        self._handlers = {"PLANT_SYNC": self._on_sync, "ANALOG_IN": self._on_analog,
+                          "MOTOR_FB": self._on_feedback, "DIGITAL_IN": self._on_switches}
 
     def poll(self, now: float) -> int:
         """Drain waiting frames and update `inputs`; return how many frames were read.
@@ -65,6 +85,26 @@ class ControllerHal(HalEndpoint):
         self.inputs.supply_v = float(values["supply_v"])
         self.inputs.temp_c = float(values["controller_temp_c"])
         self.inputs.updated_s = now
+
+    def _on_feedback(self, values: SignalValues, now: float) -> None:
+        inputs = self.inputs
+        inputs.counts = [int(values[name]) & 0xFFFF_FFFF for name in _COUNT]
+        inputs.currents_a = [values[name] for name in _CURRENT]
+        inputs.fb_s = now
+
+    def _on_switches(self, values: SignalValues, now: float) -> None:
+        inputs = self.inputs
+        inputs.home = [bool(values[name]) for name in _HOME]
+        inputs.limit_lo = [bool(values[name]) for name in _LIMIT_LO]
+        inputs.limit_hi = [bool(values[name]) for name in _LIMIT_HI]
+        inputs.switches_s = now
+
+    def send_motor_command(self, duty: list, enable: list, brake: list) -> None:
+        """Send MOTOR_CMD: per arm channel duty (-1..1), enable and brake; `motor_alive` advances."""
+        signals = dict(zip(_CMD_NAMES, [max(-1.0, min(1.0, d)) for d in duty] + [int(e) for e in enable]
+                           + [int(b) for b in brake]))
+        self.send("MOTOR_CMD", alive=self.motor_alive, **signals)
+        self.motor_alive = (self.motor_alive + 1) & 0xFF
 
     def is_stale(self, now: float, max_age_s: float) -> bool:
         """True if no ANALOG_IN has arrived, or the last one is older than `max_age_s`."""

@@ -38,19 +38,29 @@ class ParamSpec:
 
 
 class ParamStore:
-    """Values by name; `on_change(name, value)` applies a value when it is set or loaded."""
+    """Values by name; `on_change(name, value)` applies a value when it is set or loaded.
+
+    `check(name, value)` may veto a value that is in range but inconsistent with the others
+    (a soft minimum above its maximum, say): it returns the problem, or None.
+    """
 
     def __init__(self, specs: list[ParamSpec], path: Optional[Path] = None,
-                 on_change: Callable[[str, float], None] = lambda name, value: None) -> None:
+                 on_change: Callable[[str, float], None] = lambda name, value: None,
+                 check: Callable[[str, float], Optional[str]] = lambda name, value: None) -> None:
         self.specs = {spec.name: spec for spec in specs}
         self.order = [spec.name for spec in specs]
         self.path = Path(path) if path is not None else None
         self._values = {spec.name: float(spec.default) for spec in specs}
         self._on_change = on_change
+        self._check = check
         self.load_problems: list[str] = []
 
     def __getitem__(self, name: str) -> float:
         return self._values[name]
+
+    def values(self) -> dict[str, float]:
+        """A copy of every value by name."""
+        return dict(self._values)
 
     def set(self, name: str, value: float) -> tuple[Reason, str]:
         """Set one value; refused (and nothing changes) if unknown, not finite or out of range."""
@@ -59,6 +69,9 @@ class ParamStore:
             return Reason.UNKNOWN_PARAM, f"no parameter {name!r}"
         if not isinstance(value, (int, float)) or not math.isfinite(value) or not spec.lo <= value <= spec.hi:
             return Reason.OUT_OF_RANGE, f"{name}={value} outside {spec.lo}..{spec.hi} {spec.unit}".rstrip()
+        problem = self._check(name, float(value))
+        if problem is not None:
+            return Reason.OUT_OF_RANGE, f"{name}={value}: {problem}"
         self._values[name] = float(value)
         self._on_change(name, float(value))
         return Reason.OK, ""

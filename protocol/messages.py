@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from protocol.reasons import Reason
 from protocol.schema import Direction, Field, MessageSpec, MsgClass, Schema
-from protocol.states import ControllerState
+from protocol.states import ARM_AXES, Axis, AxisMode, ControllerState, GripAction, MotionOutcome
 
 PROTOCOL_VERSION = 1
 
@@ -32,6 +32,30 @@ _STATS = (
     Field("naks_rx", "u32", "NAKs received"),
     Field("retransmits", "u32", "reliable frames sent again"),
     Field("srtt_us", "u32", "smoothed round-trip time of reliable frames (RFC 6298)", "us"),
+)
+
+
+def _axis(doc: str = "which axis: j1, j2, j3, j4 or mount", **kw) -> Field:
+    return Field("axis", "u8", doc, enum=Axis, **kw)
+
+
+def _speed(doc: str) -> Field:
+    return Field("speed", "f32", doc, "deg/s", (0.0, 360.0), default=0)
+
+
+# Per-axis telemetry: position, velocity, current, mode and error bits of each arm axis.
+_JOINT_FIELDS = tuple(
+    f
+    for a in ARM_AXES
+    for f in (
+        Field(f"{a.name.lower()}_pos", "f32",
+              "gripper opening" if a is Axis.GRIPPER else f"{a.name.lower()} angle",
+              "mm" if a is Axis.GRIPPER else "deg"),
+        Field(f"{a.name.lower()}_vel", "f32", "velocity", "mm/s" if a is Axis.GRIPPER else "deg/s"),
+        Field(f"{a.name.lower()}_current", "f32", "motor current", "A"),
+        Field(f"{a.name.lower()}_mode", "u8", "what the axis is doing", enum=AxisMode),
+        Field(f"{a.name.lower()}_errors", "u16", "axis error bits (docs/arm.md)"),
+    )
 )
 
 SCHEMA = Schema(PROTOCOL_VERSION, [
@@ -88,6 +112,30 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
     MessageSpec("ParamSave", 0x19, MsgClass.COMMAND, H,
                 "Writes every parameter to the controller's parameter file (atomically).",
                 reply="Result", teleop="save"),
+    MessageSpec("Move", 0x1A, MsgClass.COMMAND, H,
+                "Moves an axis to an absolute angle along a trapezoidal profile; the axis must be homed and "
+                "enabled, the target inside its soft limits. MotionDone reports the end.",
+                (_axis(), Field("target", "f32", "target angle", "deg", (-360.0, 360.0)),
+                 _speed("cruise speed; 0 = the axis's default (joints: the report's 1/2 RPM, 3 deg/s)")),
+                reply="MotionAccepted", teleop="move"),
+    MessageSpec("MoveBy", 0x1B, MsgClass.COMMAND, H,
+                "Moves an axis by a relative angle from its present target (no homing needed). "
+                "MotionDone reports the end.",
+                (_axis(), Field("distance", "f32", "angle to move by", "deg", (-360.0, 360.0)),
+                 _speed("cruise speed; 0 = the axis's default")),
+                reply="MotionAccepted", teleop="moveby"),
+    MessageSpec("Jog", 0x1C, MsgClass.COMMAND, H,
+                "Turns an axis at a constant signed speed until `stop` (or a soft limit, once homed).",
+                (_axis(), Field("speed", "f32", "signed speed", "deg/s", (-360.0, 360.0))),
+                reply="MotionAccepted", teleop="jog"),
+    MessageSpec("Home", 0x1D, MsgClass.COMMAND, H,
+                "Seeks an axis's home switch, sets its zero there and backs off (`all`: every axis at once, "
+                "the gripper opening to its open switch). MotionDone reports the end, per axis.",
+                (_axis("which axis, or all", default=int(Axis.ALL)),), reply="MotionAccepted", teleop="home"),
+    MessageSpec("Grip", 0x1E, MsgClass.COMMAND, H,
+                "Opens the gripper to its open end switch, or closes it until its closed switch or until it "
+                "grips an object (current limit). MotionDone reports the end.",
+                (Field("action", "u8", "open or close", enum=GripAction),), reply="MotionAccepted", teleop="grip"),
     # ---- urgent (bypass ordering) ----
     MessageSpec("EStop", 0x20, MsgClass.URGENT, H,
                 "Emergency stop: safe state at once (PWM off, brakes on), latched until reset.",
@@ -118,6 +166,11 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("max", "f32", "highest allowed value"),
                  Field("index", "u16", "position in the parameter table"),
                  Field("count", "u16", "number of parameters"))),
+    MessageSpec("MotionAccepted", 0x84, MsgClass.COMMAND, C,
+                "Answers Move, MoveBy, Jog, Home and Grip: OK and the motion's id, or the reason it was refused "
+                "(nothing moved).",
+                (_result(), _axis("the axis (all for `home all`)"),
+                 Field("motion_id", "u32", "this motion's number on its axis; MotionDone carries it"))),
     # ---- telemetry (unreliable) ----
     MessageSpec("TelemetryStatus", 0x30, MsgClass.TELEMETRY, C,
                 "Periodic state, sensors, link and loop timing (48-byte payload).",
@@ -135,6 +188,17 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("loop_p99_us", "u32", "99th percentile task execution (within 2x)", "us"),
                  Field("overruns", "u32", "task runs that started late"),
                  Field("tx_backlog_bytes", "u16", "bytes queued for the wire", "B"))),
+    MessageSpec("TelemetryJoints", 0x31, MsgClass.TELEMETRY, C,
+                "Periodic arm state: every axis's position, velocity, current, mode and errors, and the timing "
+                "of the 1 kHz arm loop.",
+                (Field("uptime_ms", "u32", "controller uptime", "ms"),
+                 Field("homed", "u8", "bit n set: axis n is homed (j1 = bit 0 ... mount = bit 5)"))
+                + _JOINT_FIELDS
+                + (Field("arm_exec_max_us", "u32", "arm loop: longest execution", "us"),
+                   Field("arm_exec_p99_us", "u32", "arm loop: 99th percentile execution (within 2x)", "us"),
+                   Field("arm_late_max_us", "u32", "arm loop: latest start after its deadline", "us"),
+                   Field("arm_overruns", "u32", "arm loop: runs that started later than their tolerance"),
+                   Field("arm_period_us", "u32", "arm loop period", "us"))),
     # ---- events (reliable, controller -> host) ----
     MessageSpec("StateChanged", 0x40, MsgClass.EVENT, C,
                 "The supervisor changed state (entering the safe state included).",
@@ -142,6 +206,13 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("previous", "u8", "previous state", enum=ControllerState),
                  Field("reason", "u8", "why", enum=Reason),
                  Field("faults", "u32", "latched fault bits"),
+                 Field("uptime_ms", "u32", "controller uptime", "ms"))),
+    MessageSpec("MotionDone", 0x41, MsgClass.EVENT, C, "A motion ended: how, why, and where the axis is.",
+                (_axis("the axis"),
+                 Field("motion_id", "u32", "the motion's id (from MotionAccepted)"),
+                 Field("outcome", "u8", "how it ended", enum=MotionOutcome),
+                 Field("reason", "u8", "why (OK when done)", enum=Reason),
+                 Field("position", "f32", "position at the end (gripper: opening)", "deg or mm"),
                  Field("uptime_ms", "u32", "controller uptime", "ms"))),
 ])
 

@@ -36,6 +36,18 @@ class Reason(enum.IntEnum):
     HOST_REQUEST = 24
     UNKNOWN_PARAM = 25
     SAVE_FAILED = 26
+    NOT_HOMED = 27
+    SOFT_LIMIT = 28
+    BUSY = 29
+    ENCODER_FAULT = 30
+    STALL = 31
+    FOLLOWING_ERROR = 32
+    OVER_CURRENT = 33
+    HOMING_FAILED = 34
+    OPEN_CIRCUIT = 35
+    GRIPPER_TIMEOUT = 36
+    NOT_SETTLED = 37
+    CANCELLED = 38
 
     @property
     def doc(self) -> str:
@@ -105,6 +117,25 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.UNKNOWN_PARAM: ("no parameter has that name", "list them with `params` (teleop) / ParamList"),
     Reason.SAVE_FAILED: ("the parameters could not be written to their file (the previous file is intact)",
                          "check the --params path, its directory and free space, then save again"),
+    Reason.NOT_HOMED: ("absolute moves need a homed axis", "home it first (`home j1`, or `home all`); "
+                       "relative moves and jogs are allowed before homing"),
+    Reason.SOFT_LIMIT: ("the target lies beyond the joint's soft limit, or a motion stopped at it",
+                        "choose a target inside the limits (parameters <axis>_min_deg and <axis>_max_deg)"),
+    Reason.BUSY: ("the axis is homing", "wait for it to finish, or `stop` it first"),
+    Reason.ENCODER_FAULT: ("an encoder count jumped further than its joint can move",
+                           "check the encoder, reset, then home again"),
+    Reason.STALL: ("a joint was driven hard but did not move", "clear the jam or the brake, then reset"),
+    Reason.FOLLOWING_ERROR: ("a joint fell too far behind its setpoint", "check encoder and load, then reset"),
+    Reason.OVER_CURRENT: ("a motor current stayed above its trip level", "check the motor for a short, then reset"),
+    Reason.HOMING_FAILED: ("no home switch was found within the axis's maximum homing travel",
+                           "check the home switch, reset, home again"),
+    Reason.OPEN_CIRCUIT: ("a motor was driven but drew no current", "check the motor circuit, then reset"),
+    Reason.GRIPPER_TIMEOUT: ("the gripper reached neither its end switch nor a grip in time",
+                             "check the gripper's switches and motor, then reset"),
+    Reason.NOT_SETTLED: ("the motion's profile ended but the joint did not settle within its tolerance in time",
+                         "check the load and the gains; the joint holds where it is"),
+    Reason.CANCELLED: ("the motion was cancelled by disable, e-stop or the safe state",
+                       "see the controller's state; enable and command it again"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

@@ -1,0 +1,262 @@
+"""The arm's motor loops: five joint axes and the gripper, run by one 1 kHz scheduler task.
+
+Each tick (`step`) reads the latest HAL inputs (MOTOR_FB counts and currents, DIGITAL_IN
+switches, each with the `now` it arrived), runs every axis's pipeline (`firmware_py/axis.py`)
+and the gripper (`firmware_py/gripper.py`), and sends one MOTOR_CMD frame with every
+channel's duty, enable and brake. A channel is enabled only while the supervisor allows
+outputs and its axis is driving; otherwise it is braked.
+
+Gravity feed-forward: J1..J3's holding torques from the firmware's mass model
+(`arm_config.MassModel`) at the present joint angles, times the `gravity_m_s2` parameter
+(0 in orbit), computed once per tick.
+
+Faults: an axis fault calls `on_fault(fault, reason, now)` with the controller-wide fault bit
+and reason (`AXIS_FAULTS`), which takes the one path to the safe state. Motion ends are
+reported through `on_motion_done(axis_index, motion_id, outcome, reason, position, now)`.
+
+Units: the protocol speaks degrees (gripper: millimetres); inside it is radians and metres.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional
+
+from protocol.reasons import Reason
+from protocol.states import Fault
+
+from firmware_py import arm_config
+from firmware_py.arm_config import AXIS_NAMES, DRIVES, GRIPPER, MASSES
+from firmware_py.axis import Axis, AxisError, AxisMode, Outcome, Refusal
+from firmware_py.gripper import Gripper
+from firmware_py.hal import ControllerHal
+from firmware_py.params import ParamStore
+
+GRIPPER_INDEX = AXIS_NAMES.index("gripper")
+
+# AxisError bit -> (controller fault bit, reason), in priority order (the first match names the cause)
+AXIS_FAULTS: tuple[tuple[AxisError, Fault, Reason], ...] = (
+    (AxisError.ENCODER_STALE, Fault.HAL_STALE, Reason.HAL_STALE),
+    (AxisError.CURRENT_STALE, Fault.HAL_STALE, Reason.HAL_STALE),
+    (AxisError.ENCODER_GLITCH, Fault.ENCODER, Reason.ENCODER_FAULT),
+    (AxisError.OPEN_CIRCUIT, Fault.OPEN_CIRCUIT, Reason.OPEN_CIRCUIT),
+    (AxisError.OVER_CURRENT, Fault.OVER_CURRENT, Reason.OVER_CURRENT),
+    (AxisError.STALL, Fault.STALL, Reason.STALL),
+    (AxisError.FOLLOWING_ERROR, Fault.FOLLOWING_ERROR, Reason.FOLLOWING_ERROR),
+    (AxisError.HOMING_FAILED, Fault.HOMING_FAILED, Reason.HOMING_FAILED),
+)
+
+REFUSAL_REASON = {
+    Refusal.OK: Reason.OK,
+    Refusal.NOT_ENABLED: Reason.NOT_ALLOWED_IN_STATE,
+    Refusal.FAULT: Reason.FAULT_LATCHED,
+    Refusal.SOFT_LIMIT: Reason.SOFT_LIMIT,
+    Refusal.NOT_HOMED: Reason.NOT_HOMED,
+    Refusal.BAD_VALUE: Reason.OUT_OF_RANGE,
+    Refusal.BUSY: Reason.BUSY,
+}
+
+OUTCOME_REASON = {
+    Outcome.DONE: Reason.OK,
+    Outcome.NOT_SETTLED: Reason.NOT_SETTLED,
+    Outcome.STOPPED: Reason.HOST_REQUEST,
+    Outcome.SOFT_LIMIT: Reason.SOFT_LIMIT,
+    Outcome.DISABLED: Reason.CANCELLED,
+}
+
+FaultSink = Callable[[Fault, Reason, float], None]
+MotionSink = Callable[[int, int, Outcome, Reason, float, float], None]
+
+
+def fault_of(bits: int) -> tuple[Fault, Reason]:
+    for bit, fault, reason in AXIS_FAULTS:
+        if bits & bit:
+            return fault, reason
+    return Fault.NONE, Reason.FAULT_LATCHED
+
+
+class ArmController:
+    """The five joint axes and the gripper, in HAL channel order."""
+
+    def __init__(self, hal: ControllerHal, params: ParamStore, dt_s: float = 0.001,
+                 on_fault: FaultSink = lambda fault, reason, now: None,
+                 on_motion_done: MotionSink = lambda *args: None,
+                 stopwatch: Optional[Callable[[], float]] = None) -> None:
+        self.hal = hal
+        self.params = params
+        self.dt_s = dt_s
+        self._on_fault = on_fault
+        self._on_motion_done = on_motion_done
+        self.outputs_allowed = False
+        self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick
+        values = params.values()
+        self.joints: dict[str, Axis] = {}
+        for index, drive in enumerate(DRIVES):
+            gravity = (lambda k: (lambda pos: self._tau[k]))(index) if index < 3 else None
+            self.joints[drive.name] = Axis(arm_config.axis_config(drive, values, dt_s), gravity_nm=gravity,
+                                           stopwatch=stopwatch, on_fault=self._axis_fault)
+        self.gripper = Gripper(GRIPPER, on_fault=self._gripper_fault)
+        self._apply_gripper_params()
+        # HAL channel order; the gripper sits at GRIPPER_INDEX
+        self.channels: list = [self.joints.get(name, self.gripper) for name in AXIS_NAMES]
+        self._reported = [(0, Outcome.NONE)] * len(self.channels)
+        self._duty = [0.0] * len(self.channels)
+
+    # ---- parameters ----
+    def check_param(self, name: str, value: float) -> Optional[str]:
+        """Veto a value that would make an axis's configuration inconsistent (e.g. min above max)."""
+        for drive in DRIVES:
+            if name.startswith(drive.name + "_"):
+                try:
+                    arm_config.axis_config(drive, self.params.values(), self.dt_s, override=(name, value))
+                except ValueError as exc:
+                    return str(exc)
+        return None
+
+    def param_changed(self, name: str, value: float) -> None:
+        for drive in DRIVES:
+            if name.startswith(drive.name + "_"):
+                self.joints[drive.name].reconfigure(arm_config.axis_config(drive, self.params.values(), self.dt_s))
+        if name.startswith("grip_"):
+            self._apply_gripper_params()
+
+    def _apply_gripper_params(self) -> None:
+        g, p = self.gripper, self.params
+        g.grip_duty, g.hold_duty = p["grip_duty"], p["grip_hold_duty"]
+        g.grip_current_a, g.timeout_s = p["grip_current_a"], p["grip_timeout_s"]
+
+    # ---- whole-arm commands ----
+    def enable(self, now: float) -> None:
+        self.outputs_allowed = True
+        for channel in self.channels:
+            channel.enable(now)
+
+    def safe(self) -> None:
+        """The safe-state hook: every channel stops driving, brakes on; MOTOR_CMD says so at once."""
+        self.outputs_allowed = False
+        for channel in self.channels:
+            channel.safe()
+        n = len(self.channels)
+        self.hal.send_motor_command([0.0] * n, [False] * n, [True] * n)
+
+    def reset(self, now: float) -> None:
+        for channel in self.channels:
+            channel.reset_errors(now)
+
+    def stop_all(self, now: float) -> None:
+        for channel in self.channels:
+            channel.stop(now)
+
+    # ---- per-axis commands: (reason, motion_id); degrees in ----
+    def move(self, index: int, target_deg: float, speed_dps: float, relative: bool, now: float
+             ) -> tuple[Reason, str, int]:
+        axis = self._joint(index)
+        if axis is None:
+            return Reason.OUT_OF_RANGE, "the gripper opens and closes with Grip", 0
+        speed = math.radians(speed_dps) if speed_dps > 0 else None
+        if relative:
+            refusal, detail = axis.move_by(math.radians(target_deg), now, speed)
+        else:
+            refusal, detail = axis.move_to(math.radians(target_deg), now, speed)
+        return REFUSAL_REASON[refusal], detail, axis.motion_id
+
+    def jog(self, index: int, speed_dps: float, now: float) -> tuple[Reason, str, int]:
+        axis = self._joint(index)
+        if axis is None:
+            return Reason.OUT_OF_RANGE, "the gripper opens and closes with Grip", 0
+        refusal, detail = axis.jog(math.radians(speed_dps), now)
+        return REFUSAL_REASON[refusal], detail, axis.motion_id
+
+    def home(self, index: int, now: float) -> tuple[Reason, str, int]:
+        if index == GRIPPER_INDEX:
+            refusal, detail = self.gripper.open(now)
+            return REFUSAL_REASON[refusal], detail, self.gripper.motion_id
+        axis = self._joint(index)
+        refusal, detail = axis.home(now)
+        return REFUSAL_REASON[refusal], detail, axis.motion_id
+
+    def home_all(self, now: float) -> tuple[Reason, str, int]:
+        """Home every axis at once; refused (nothing starts) if any one would refuse."""
+        for channel in self.channels:
+            if channel.mode in (AxisMode.IDLE, AxisMode.FAULT, AxisMode.HOMING):
+                refusal = {AxisMode.IDLE: Refusal.NOT_ENABLED, AxisMode.FAULT: Refusal.FAULT}.get(
+                    channel.mode, Refusal.BUSY)
+                name = AXIS_NAMES[self.channels.index(channel)]
+                return REFUSAL_REASON[refusal], f"{name}: {refusal.name.lower()}", 0
+        for index in range(len(self.channels)):
+            self.home(index, now)
+        return Reason.OK, "", 0
+
+    def grip(self, close: bool, now: float) -> tuple[Reason, str, int]:
+        refusal, detail = (self.gripper.close if close else self.gripper.open)(now)
+        return REFUSAL_REASON[refusal], detail, self.gripper.motion_id
+
+    def _joint(self, index: int) -> Optional[Axis]:
+        return None if index == GRIPPER_INDEX else self.channels[index]
+
+    # ---- the tick ----
+    def step(self, now: float) -> float:
+        inputs = self.hal.inputs
+        fb_s = inputs.fb_s
+        if fb_s is None:                 # nothing from the plant yet: nothing to control
+            return now + self.dt_s
+        joints = self.joints
+        g = self.params["gravity_m_s2"]
+        if g:
+            self._tau[:] = MASSES.holding_torques_nm(joints["j1"].pos_rad, joints["j2"].pos_rad,
+                                                     joints["j3"].pos_rad, g, self.params["payload_kg"])
+        counts, currents, home = inputs.counts, inputs.currents_a, inputs.home
+        duty = self._duty
+        channels = self.channels
+        for k, channel in enumerate(channels):
+            if k == GRIPPER_INDEX:
+                duty[k] = channel.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
+            else:
+                duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
+        allowed = self.outputs_allowed
+        brake = [channel.brake or not allowed for channel in channels]
+        self.hal.send_motor_command(duty if allowed else [0.0] * len(duty), [not b for b in brake], brake)
+        self._report_motion_ends(now)
+        return now + self.dt_s
+
+    def _report_motion_ends(self, now: float) -> None:
+        for k, channel in enumerate(self.channels):
+            key = (channel.motion_id, channel.outcome)
+            if key == self._reported[k]:
+                continue
+            self._reported[k] = key
+            if channel.outcome in (Outcome.NONE, Outcome.RUNNING):
+                continue
+            if channel.outcome is Outcome.FAULT:
+                reason = fault_of(int(channel.faults) if k != GRIPPER_INDEX else 0)[1] if k != GRIPPER_INDEX \
+                    else Reason.GRIPPER_TIMEOUT
+                if reason is Reason.FAULT_LATCHED:
+                    reason = Reason.CANCELLED     # cancelled by another axis's fault
+            else:
+                reason = OUTCOME_REASON[channel.outcome]
+            self._on_motion_done(k, channel.motion_id, channel.outcome, reason, self.position(k), now)
+
+    # ---- faults ----
+    def _axis_fault(self, bits: AxisError, now: float) -> None:
+        fault, reason = fault_of(int(bits))
+        self._on_fault(fault, reason, now)
+
+    def _gripper_fault(self, bits: int, now: float) -> None:
+        self._on_fault(Fault.GRIPPER, Reason.GRIPPER_TIMEOUT, now)
+
+    # ---- telemetry (protocol units) ----
+    def position(self, k: int) -> float:
+        if k == GRIPPER_INDEX:
+            return self.gripper.opening_m * 1000.0
+        return math.degrees(self.channels[k].pos_rad)
+
+    def velocity(self, k: int) -> float:
+        if k == GRIPPER_INDEX:
+            return self.gripper.vel_m_s * 1000.0
+        return math.degrees(self.channels[k].vel_rad_s)
+
+    def homed_bits(self) -> int:
+        return sum(1 << k for k, channel in enumerate(self.channels) if channel.homed)
+
+    def errors(self, k: int) -> int:
+        channel = self.channels[k]
+        return int(channel.faults) if k == GRIPPER_INDEX else int(channel.errors)

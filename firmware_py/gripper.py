@@ -1,0 +1,160 @@
+"""The gripper: a push/pull motor on a lead screw, opened and closed against switches and current.
+
+Unlike a joint it has no position loop: the report's gripper is a 27.5 VDC push/pull motor
+(Key to Figure 9, part 64) that runs until something stops it. So:
+
+* `open`: drive at `grip_duty` toward open until the open end switch closes. The switch is
+  also the gripper's home: the opening is known from then on (`homed`).
+* `close`: drive toward closed until the closed end switch closes (nothing between the jaws)
+  or until the current reaches `grip_current_a` with the jaws still for `grip_confirm_s`
+  (they close on an object): then hold at `grip_hold_duty`, which sets the grip force.
+* Either taking longer than `grip_timeout_s` latches the GRIPPER fault bit.
+
+Duty is positive toward open. `update` runs one tick and returns the duty, like `Axis.update`.
+"""
+from __future__ import annotations
+
+from typing import Callable, Optional
+
+from firmware_py.arm_config import GripperModel
+from firmware_py.axis import AxisMode, Outcome, Refusal
+
+GRIPPER_TIMEOUT = 1 << 0          # the gripper's one fault bit (mapped to Fault.GRIPPER)
+_CONFIRM_S = 0.03                 # jaws still this long at grip current: gripped
+_OPEN, _CLOSE = 1, -1
+
+
+class Gripper:
+    def __init__(self, model: GripperModel, on_fault: Callable[[int, float], None] = lambda bits, now: None) -> None:
+        self.model = model
+        self._on_fault = on_fault
+        self.mode = AxisMode.IDLE
+        self.duty = 0.0
+        self.brake = True              # "not driven" on the bus (the gripper has no brake; its screw holds)
+        self.homed = False
+        self.gripped = False
+        self.motion_id = 0
+        self.outcome = Outcome.NONE
+        self.faults = 0
+        self.grip_duty = 0.8
+        self.hold_duty = 0.3
+        self.grip_current_a = 0.6
+        self.timeout_s = 5.0
+        self._direction = 0
+        self._started_s = 0.0
+        self._still_since: Optional[float] = None
+        self._last_count: Optional[int] = None
+        self._ref_count = 0            # count at which the opening was `_ref_m`
+        self._ref_m = 0.0
+        self.opening_m = 0.0
+        self.vel_m_s = 0.0
+        self._vel_count: Optional[int] = None
+        self._vel_s = 0.0
+
+    # ---- commands ----
+    def enable(self, now: float) -> tuple[Refusal, str]:
+        if self.mode is AxisMode.FAULT:
+            return Refusal.FAULT, "gripper: fault latched; reset first"
+        if self.mode is AxisMode.IDLE:
+            self.mode = AxisMode.HOLDING
+            self.brake = False
+        return Refusal.OK, ""
+
+    def open(self, now: float) -> tuple[Refusal, str]:
+        return self._start(_OPEN, now)
+
+    def close(self, now: float) -> tuple[Refusal, str]:
+        return self._start(_CLOSE, now)
+
+    def stop(self, now: float) -> None:
+        if self.mode is AxisMode.MOVING:
+            self._finish(Outcome.STOPPED)
+
+    def safe(self) -> None:
+        self.duty = 0.0
+        self.brake = True
+        self._direction = 0
+        if self.outcome is Outcome.RUNNING:
+            self.outcome = Outcome.FAULT if self.faults else Outcome.DISABLED
+        if self.mode is not AxisMode.FAULT:
+            self.mode = AxisMode.IDLE
+
+    def disable(self, now: float) -> None:
+        self.safe()
+
+    def reset_errors(self, now: float) -> None:
+        self.faults = 0
+        if self.mode is AxisMode.FAULT:
+            self.mode = AxisMode.IDLE
+
+    # ---- the tick ----
+    def update(self, now: float, count: int, i_a: float, closed_switch: bool, open_switch: bool) -> float:
+        self._track(now, count)
+        if self.mode is AxisMode.HOLDING:
+            self.duty = -self.hold_duty if self.gripped else 0.0
+            return self.duty
+        if self.mode is not AxisMode.MOVING:
+            self.duty = 0.0
+            return 0.0
+        if self._direction == _OPEN:
+            if open_switch:
+                self._ref_count, self._ref_m = count, self.model.open_switch_m
+                self.opening_m = self._ref_m
+                self.homed = True
+                self._finish(Outcome.DONE)
+                return 0.0
+        else:
+            if closed_switch:
+                self._finish(Outcome.DONE)
+                return 0.0
+            moving = self._last_count is None or count != self._last_count
+            if abs(i_a) >= self.grip_current_a and not moving:
+                if self._still_since is None:
+                    self._still_since = now
+                elif now - self._still_since >= _CONFIRM_S:
+                    self.gripped = True
+                    self._finish(Outcome.DONE)
+                    return self.duty
+            else:
+                self._still_since = None
+        self._last_count = count
+        if now - self._started_s > self.timeout_s:
+            self.faults |= GRIPPER_TIMEOUT
+            self.outcome = Outcome.FAULT
+            self.mode = AxisMode.FAULT
+            self.safe()
+            self._on_fault(GRIPPER_TIMEOUT, now)
+            return 0.0
+        self.duty = self._direction * self.grip_duty
+        return self.duty
+
+    # ---- helpers ----
+    def _start(self, direction: int, now: float) -> tuple[Refusal, str]:
+        if self.mode is AxisMode.FAULT:
+            return Refusal.FAULT, "gripper: fault latched; reset first"
+        if self.mode is AxisMode.IDLE:
+            return Refusal.NOT_ENABLED, "gripper: not enabled"
+        self.mode = AxisMode.MOVING
+        self._direction = direction
+        self._started_s = now
+        self._still_since = None
+        self._last_count = None
+        self.gripped = False
+        self.motion_id += 1
+        self.outcome = Outcome.RUNNING
+        return Refusal.OK, ""
+
+    def _finish(self, outcome: Outcome) -> None:
+        self.mode = AxisMode.HOLDING
+        self._direction = 0
+        self.outcome = outcome
+        self.duty = -self.hold_duty if self.gripped else 0.0
+
+    def _track(self, now: float, count: int) -> None:
+        """Opening from counts (relative to the last open-switch reference), velocity over 20 ms."""
+        self.opening_m = self._ref_m + (count - self._ref_count) * self.model.m_per_count
+        if self._vel_count is None:
+            self._vel_count, self._vel_s = count, now
+        elif now - self._vel_s >= 0.02:
+            self.vel_m_s = (count - self._vel_count) * self.model.m_per_count / (now - self._vel_s)
+            self._vel_count, self._vel_s = count, now
