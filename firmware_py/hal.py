@@ -1,7 +1,7 @@
 """The controller's end of the HAL bus: inputs from the plant, outputs to it.
 
-`ControllerHal` never blocks and never raises on what arrives: `poll(now)` drains
-whatever frames are waiting, keeps the latest value of each input together with
+`ControllerHal` never blocks and never raises on what arrives: `poll(now)` (from
+`HalEndpoint`) drains whatever frames are waiting, keeps the latest value of each input together with
 the `now` at which it arrived (so the supervisor can tell a live input from a
 stale one), and counts what it could not use. `send_outputs` sends the global
 enable/brake command with a rolling `alive` counter; the plant expires that
@@ -22,13 +22,11 @@ import can
 from protocol.hal import ARM_CHANNELS, HalCodec, HalEndpoint, SignalValues
 
 _N = len(ARM_CHANNELS)
-_COUNT = tuple(f"count_{ch}" for ch in ARM_CHANNELS)
-_CURRENT = tuple(f"current_{ch}" for ch in ARM_CHANNELS)
-_HOME = tuple(f"home_{ch}" for ch in ARM_CHANNELS)
-_LIMIT_LO = tuple(f"limit_lo_{ch}" for ch in ARM_CHANNELS)
-_LIMIT_HI = tuple(f"limit_hi_{ch}" for ch in ARM_CHANNELS)
-_CMD_NAMES = tuple(f"duty_{ch}" for ch in ARM_CHANNELS) + tuple(f"enable_{ch}" for ch in ARM_CHANNELS) \
-    + tuple(f"brake_{ch}" for ch in ARM_CHANNELS)
+_FB_ORDER = ("tick", *(f"count_{ch}" for ch in ARM_CHANNELS), *(f"current_{ch}" for ch in ARM_CHANNELS))
+_SWITCH_ORDER = (*(f"home_{ch}" for ch in ARM_CHANNELS), *(f"limit_lo_{ch}" for ch in ARM_CHANNELS),
+                 *(f"limit_hi_{ch}" for ch in ARM_CHANNELS), "tick")
+_CMD_ORDER = (*(f"duty_{ch}" for ch in ARM_CHANNELS), *(f"enable_{ch}" for ch in ARM_CHANNELS),
+              *(f"brake_{ch}" for ch in ARM_CHANNELS), "alive")
 
 
 @dataclass
@@ -60,25 +58,14 @@ class ControllerHal(HalEndpoint):
         self.inputs = HalInputs()
         self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
         self.motor_alive = 0     # value the next MOTOR_CMD frame will carry
-        self._handlers = {"PLANT_SYNC": self._on_sync, "ANALOG_IN": self._on_analog,
-                          "MOTOR_FB": self._on_feedback, "DIGITAL_IN": self._on_switches}
+        self.on_frame("PLANT_SYNC", self._on_sync, ("tick",))
+        self.on_frame("ANALOG_IN", self._on_analog)
+        self.on_frame("MOTOR_FB", self._on_feedback, _FB_ORDER)
+        self.on_frame("DIGITAL_IN", self._on_switches, _SWITCH_ORDER)
+        self._motor_cmd = self.codec.layout("MOTOR_CMD", _CMD_ORDER)
 
-    def poll(self, now: float) -> int:
-        """Drain waiting frames and update `inputs`; return how many frames were read.
-
-        The count includes frames that were then counted as bad. Frames declared
-        for the other direction (CTRL_OUTPUTS from another controller, say) are
-        read and ignored.
-        """
-        before = self.frames_received
-        for name, values in self.receive():
-            handler = self._handlers.get(name)
-            if handler is not None:
-                handler(values, now)
-        return self.frames_received - before
-
-    def _on_sync(self, values: SignalValues, now: float) -> None:
-        self.inputs.tick = int(values["tick"])
+    def _on_sync(self, values: list, now: float) -> None:
+        self.inputs.tick = values[0]
         self.inputs.tick_s = now
 
     def _on_analog(self, values: SignalValues, now: float) -> None:
@@ -86,24 +73,23 @@ class ControllerHal(HalEndpoint):
         self.inputs.temp_c = float(values["controller_temp_c"])
         self.inputs.updated_s = now
 
-    def _on_feedback(self, values: SignalValues, now: float) -> None:
+    def _on_feedback(self, values: list, now: float) -> None:
         inputs = self.inputs
-        inputs.counts = [int(values[name]) & 0xFFFF_FFFF for name in _COUNT]
-        inputs.currents_a = [values[name] for name in _CURRENT]
+        inputs.counts = [c & 0xFFFF_FFFF for c in values[1:_N + 1]]
+        inputs.currents_a = values[_N + 1:]
         inputs.fb_s = now
 
-    def _on_switches(self, values: SignalValues, now: float) -> None:
+    def _on_switches(self, values: list, now: float) -> None:
         inputs = self.inputs
-        inputs.home = [bool(values[name]) for name in _HOME]
-        inputs.limit_lo = [bool(values[name]) for name in _LIMIT_LO]
-        inputs.limit_hi = [bool(values[name]) for name in _LIMIT_HI]
+        inputs.home = [v == 1 for v in values[:_N]]
+        inputs.limit_lo = [v == 1 for v in values[_N:2 * _N]]
+        inputs.limit_hi = [v == 1 for v in values[2 * _N:3 * _N]]
         inputs.switches_s = now
 
     def send_motor_command(self, duty: list, enable: list, brake: list) -> None:
         """Send MOTOR_CMD: per arm channel duty (-1..1), enable and brake; `motor_alive` advances."""
-        signals = dict(zip(_CMD_NAMES, [max(-1.0, min(1.0, d)) for d in duty] + [int(e) for e in enable]
-                           + [int(b) for b in brake]))
-        self.send("MOTOR_CMD", alive=self.motor_alive, **signals)
+        self.send_frame(self._motor_cmd, [-1.0 if d < -1.0 else 1.0 if d > 1.0 else d for d in duty]
+                        + [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake] + [self.motor_alive])
         self.motor_alive = (self.motor_alive + 1) & 0xFF
 
     def is_stale(self, now: float, max_age_s: float) -> bool:

@@ -1,25 +1,62 @@
-"""The minimal plant: supply bus and control-box temperature, with faults.
+"""The plant: supply bus, control-box temperature and the arm, with expiring commands and faults.
 
-No motors yet (a later issue adds them): the load is a stand-in current that is
-drawn while the outputs are enabled. The plant knows nothing of buses or clocks:
-`step(dt_s, ...)` integrates it, and its measured values are sampled (with noise
-from the injected generator) once per step, so the same seed and the same
+`Plant` owns an `ArmPlant` (`hil_sim.arm`: the six motor channels J1, J2, J3, J4, gripper,
+mount with their loads) and the two things around it: the supply and the control box.
+The plant knows nothing of buses or clocks: `step(dt_s, ...)` integrates it with the
+outputs it is given, and its measured values are sampled once per step (supply and
+temperature with noise from the injected generator), so the same seed and the same
 sequence of steps give the same numbers however often they are read.
 
-Seams for the motor plant: `_load_current_a()` (what flows through the supply)
-and `_box_heat_w()` (what heats the control box) are the two places the motors
-will add to; `ExpiringOutputs` is the shape each motor channel's PWM command will
-take (Klipper's pwm ``max_duration``).
+Per step:
+
+1. What each channel gets. A channel is driven (its bridge switching at `duty`) only if
+   the global command enables outputs AND its own command enables it (and it has no
+   `open_circuit` fault). Its brake is applied if the global command says brake_all OR
+   its own command says brake (OR it has a `stuck_brake` fault). The caller gives the
+   commands as they stand: `ExpiringOutputs` (the global CTRL_OUTPUTS) and
+   `ExpiringMotorCommands` (MOTOR_CMD) read as the safe state (off, braked) once expired.
+2. The arm is stepped with the supply voltage of the previous step (the bus a millisecond
+   ago; an explicit one-step lag, stable because the bus's source resistance is far below
+   the motors' armature resistance).
+3. Supply: load current = electronics (`idle_current_a`, plus `enabled_current_a` while
+   outputs are enabled: gate drivers and bridge supplies) + what the bridges draw,
+   `ArmPlant.supply_current_a()` (sum of duty * armature current; negative while a motor
+   regenerates, which lifts the bus by I * R: the supply is taken to absorb it). The bus
+   sags by that current times `supply_source_ohm`.
+4. Box temperature: a first-order lag toward ambient + heat * thermal resistance. The heat
+   is what stays in the box: the electronics (bus voltage * electronics current) and the
+   drive stages' conduction losses (`drive_on_resistance_ohm` * i^2 per channel). The
+   motors' own copper and friction losses are outside the box, in the arm. Switching
+   losses are neglected.
+
+Sensors (read after a step): `supply_v`, `temp_c` (noisy), `encoder_counts`,
+`currents_a` and `switches()` (exact: quantisation is the encoders' only error). The
+encoder counts go through the fault model (`encoder_dropout`, `encoder_glitch`).
+
+Faults: `inject(name, channel=None)`, `clear(name, channel=None)`, `faults`; the table
+of names, effects and what a controller should see is `hil_sim.faults.FAULT_TABLE`.
+`FAULTS` (kept for existing callers) lists the plant-wide faults, the ones that take no
+channel; `CHANNEL_FAULTS` the others.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Optional
+from numbers import Integral
+from typing import Generic, Optional, Sequence, TypeVar
 
 import numpy as np
 
-FAULTS = ("supply_sag", "over_temperature")
+from hil_sim.arm import ArmPlant
+from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNELS, ArmPlantParams
+from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
+from hil_sim.motor import TWO_PI
+
+# The plant-wide faults (no channel). Per-channel ones: CHANNEL_FAULTS; all: hil_sim.faults.
+FAULTS = PLANT_FAULTS
+N_CHANNELS = len(CHANNELS)
+
+_NOISE_BATCH = 512   # normal deviates drawn from the generator at once (two per step)
 
 
 @dataclass(frozen=True)
@@ -37,8 +74,12 @@ class PlantParams:
     supply_sag_v: float = 18.0
     # Control electronics, always drawn.
     idle_current_a: float = 0.25
-    # Extra current while outputs are enabled: power stages energised. Stand-in until motors exist.
+    # Extra current while outputs are enabled: gate drivers and bridge supplies energised. The
+    # motors' own currents come on top (ArmPlant.supply_current_a).
     enabled_current_a: float = 0.75
+    # ASSUMED: each channel's H-bridge conducts through two power MOSFETs of the IRF540 class
+    # (0.077 ohm each): i^2 * 0.15 ohm per channel heats the box. Switching losses neglected.
+    drive_on_resistance_ohm: float = 0.15
     ambient_c: float = 22.0
     # Ambient while the "over_temperature" fault is injected: box left in the sun, 15 degC above
     # the report's limit (operating step 4: keep the controller between -10 C and 45 C).
@@ -52,99 +93,227 @@ class PlantParams:
     temp_noise_c: float = 0.1
     # A CTRL_OUTPUTS command older than this is void: outputs off, brakes on.
     output_timeout_s: float = 0.1
+    # A MOTOR_CMD older than this is void: every arm channel off and braked (20 ms: twenty
+    # controller ticks at 1 kHz).
+    motor_cmd_timeout_s: float = 0.02
+    # The jump of the "encoder_glitch" fault, in counts (J1: 11 deg, a 1 ms speed no joint has).
+    encoder_glitch_counts: int = 20000
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
             if not math.isfinite(value):
                 raise ValueError(f"PlantParams.{f.name} must be finite, got {value}")
-        for name in ("supply_source_ohm", "idle_current_a", "enabled_current_a",
+        for name in ("supply_source_ohm", "idle_current_a", "enabled_current_a", "drive_on_resistance_ohm",
                      "supply_noise_v", "temp_noise_c", "supply_sag_v"):
             if getattr(self, name) < 0:
                 raise ValueError(f"PlantParams.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("supply_nominal_v", "thermal_resistance_c_per_w",
-                     "thermal_capacity_j_per_c", "output_timeout_s"):
+                     "thermal_capacity_j_per_c", "output_timeout_s", "motor_cmd_timeout_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"PlantParams.{name} must be > 0, got {getattr(self, name)}")
+        glitch = self.encoder_glitch_counts
+        if not isinstance(glitch, Integral) or isinstance(glitch, bool) or glitch == 0:
+            raise ValueError(f"PlantParams.encoder_glitch_counts must be a non-zero integer, got {glitch!r}")
 
     @property
     def thermal_time_constant_s(self) -> float:
         return self.thermal_resistance_c_per_w * self.thermal_capacity_j_per_c
 
 
-class ExpiringOutputs:
-    """The last output command received, void after `timeout_s` without a fresh one.
+T = TypeVar("T")
 
-    Expired (and before the first command) it reads as the safe state: outputs
-    disabled, brakes applied. A command whose `alive` counter repeats the previous
-    one is a duplicate (CAN can deliver a frame twice, a stuck sender repeats one
-    forever) and does not refresh the timer. Expiry does not latch: a fresh command
-    applies again. Latching belongs to the controller's supervisor.
+
+class _Expiring(Generic[T]):
+    """The last command received, void (read as `safe`) after `timeout_s` without a fresh one.
+
+    A command whose `alive` counter repeats the previous one is a duplicate (CAN can
+    deliver a frame twice, a stuck sender repeats one forever) and does not refresh the
+    timer. Expiry does not latch: a fresh command applies again. Latching belongs to the
+    controller's supervisor.
     """
 
-    SAFE = (False, True)  # (outputs_enabled, brake)
-
-    def __init__(self, timeout_s: float) -> None:
+    def __init__(self, timeout_s: float, safe: T) -> None:
+        if not (timeout_s > 0 and math.isfinite(timeout_s)):
+            raise ValueError(f"timeout_s must be finite and > 0, got {timeout_s}")
         self.timeout_s = timeout_s
-        self._commanded = self.SAFE
+        self.safe = safe
+        self._commanded = safe
         self._refreshed_s: Optional[float] = None
         self._last_alive: Optional[int] = None
         self.expired = True       # as of the last current() call
         self.expiries = 0         # times a live command lapsed
         self.alive_repeats = 0    # commands ignored for repeating `alive`
 
-    def command(self, outputs_enabled: bool, brake: bool, alive: int, now: float) -> bool:
-        """Record a command received at `now`; return False if it was ignored as a repeat."""
+    def _refresh(self, value: T, alive: int, now: float) -> bool:
         if alive == self._last_alive:
             self.alive_repeats += 1
             return False
         self._last_alive = alive
-        self._commanded = (bool(outputs_enabled), bool(brake))
+        self._commanded = value
         self._refreshed_s = now
         return True
 
-    def current(self, now: float) -> tuple[bool, bool]:
-        """(outputs_enabled, brake) to apply at `now`."""
+    def current(self, now: float) -> T:
+        """The command to apply at `now` (`safe` if none is fresh)."""
         if self._refreshed_s is None or now - self._refreshed_s > self.timeout_s:
             if not self.expired:
                 self.expiries += 1
                 self.expired = True
-            return self.SAFE
+            return self.safe
         self.expired = False
         return self._commanded
 
 
-class Plant:
-    """Supply and box temperature, stepped by `dt_s`; measured values are noisy samples."""
+class ExpiringOutputs(_Expiring[tuple[bool, bool]]):
+    """The global output command (CTRL_OUTPUTS): (outputs_enabled, brake).
 
-    def __init__(self, params: PlantParams, rng: np.random.Generator) -> None:
+    Expired (and before the first command) it reads as the safe state: outputs
+    disabled, brakes applied. Klipper's pwm ``max_duration``.
+    """
+
+    SAFE = (False, True)  # (outputs_enabled, brake)
+
+    def __init__(self, timeout_s: float) -> None:
+        super().__init__(timeout_s, self.SAFE)
+
+    def command(self, outputs_enabled: bool, brake: bool, alive: int, now: float) -> bool:
+        """Record a command received at `now`; return False if it was ignored as a repeat."""
+        return self._refresh((bool(outputs_enabled), bool(brake)), alive, now)
+
+
+MotorCommand = tuple[list, list, list]   # (duty, enable, brake), one entry per channel
+
+
+class ExpiringMotorCommands(_Expiring[MotorCommand]):
+    """The per-channel motor command (MOTOR_CMD): (duty, enable, brake) lists, order `CHANNELS`.
+
+    One frame carries every channel, so their commands are refreshed, and expire,
+    together. Expired (and before the first command) every channel reads as duty 0,
+    disabled, brake applied. The lists returned by `current` are the plant's own: do not
+    modify them.
+    """
+
+    def __init__(self, timeout_s: float, n_channels: int = N_CHANNELS) -> None:
+        self.n_channels = n_channels
+        super().__init__(timeout_s, ([0.0] * n_channels, [False] * n_channels, [True] * n_channels))
+
+    def command(self, duty: Sequence[float], enable: Sequence[bool], brake: Sequence[bool],
+                alive: int, now: float) -> bool:
+        """Record a command received at `now`; return False if it was ignored as a repeat.
+
+        ValueError (nothing recorded) if a list has the wrong length or a duty is not in [-1, 1].
+        """
+        n = self.n_channels
+        if len(duty) != n or len(enable) != n or len(brake) != n:
+            raise ValueError(f"a motor command needs {n} duties, enables and brakes, got "
+                             f"{len(duty)}, {len(enable)}, {len(brake)}")
+        try:
+            in_range = all([-1.0 <= d <= 1.0 for d in duty])     # NaN is not
+        except TypeError:
+            in_range = False
+        if not in_range:
+            raise ValueError(f"duty must be numbers in [-1, 1], got {list(duty)}")
+        # Copies (the caller may reuse its lists); enable and brake are read for truth by `Plant.step`.
+        return self._refresh((list(duty), list(enable), list(brake)), alive, now)
+
+
+class Plant:
+    """Supply, box temperature and arm, stepped by `dt_s`; measured values are sampled per step.
+
+    `arm` is the `ArmPlant` (set an object between the jaws, a payload, the gravity mode,
+    or move a joint by hand through it). `commanded` and `motor_commands` hold what the bus
+    last commanded; the node feeds them and hands `step` what they read at its `now`.
+    """
+
+    def __init__(self, params: PlantParams, rng: np.random.Generator, *,
+                 arm_params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
+                 payload_kg: float = 0.0) -> None:
         self.params = params
         self._rng = rng
+        self._noise: list[float] = []
+        self._noise_at = 0
+        self.arm = ArmPlant(arm_params, gravity=gravity, payload_kg=payload_kg)
+        n = N_CHANNELS
+        # Encoder and switch constants, as plain floats (cheaper per tick than the arm's numpy views).
+        ch = arm_params.channels
+        self._pos0 = [c.start_pos_rad for c in ch]
+        self._counts_per_rad = [c.counts_per_output_rev / TWO_PI for c in ch]
+        self._home_rad = [c.home_rad for c in ch]
+        self._limit_lo_rad = [c.limit_lo_rad for c in ch]
+        self._limit_hi_rad = [c.limit_hi_rad for c in ch]
+        # Faults: active keys ("jam:j2"), and per-channel state the step reads.
         self._faults: set[str] = set()
-        # What the bus last commanded (the node feeds it); `step` applies what it is given.
+        self._open_circuit = [False] * n
+        self._stuck_brake = [False] * n
+        self._frozen_count: list[Optional[int]] = [None] * n   # encoder_dropout: the count shown
+        self._count_offset = [0] * n                            # encoder_glitch
+        self._jam_saved_stops: dict[int, tuple[float, float]] = {}
+        # What the bus last commanded (the node feeds them); `step` applies what it is given.
         self.commanded = ExpiringOutputs(params.output_timeout_s)
-        self.outputs_enabled = False  # as applied by the last step
+        self.motor_commands = ExpiringMotorCommands(params.motor_cmd_timeout_s, n)
+        # As applied by the last step.
+        self.outputs_enabled = False
         self.brake = True
+        self.channel_duty = [0.0] * n
+        self.channel_driven = [False] * n
+        self.channel_braked = [True] * n
         self.temp_true_c = params.ambient_c  # box starts at ambient (just powered on)
         self.supply_true_v = params.supply_nominal_v
-        self.current_a = 0.0
+        self.current_a = 0.0          # total drawn from the supply at the last step
+        self.currents_a = [0.0] * n   # armature currents (current sense, exact)
         self.step(0.0, outputs_enabled=False, brake=True)
 
+    # -- faults -------------------------------------------------------------------------------
     @property
     def faults(self) -> frozenset[str]:
+        """Active faults: "supply_sag", "over_temperature", "<name>:<channel>" (e.g. "jam:j2")."""
         return frozenset(self._faults)
 
-    def inject(self, fault: str) -> None:
-        self._faults.add(self._check_fault(fault))
+    def inject(self, fault: str, channel: Optional[Channel] = None) -> None:
+        """Start fault `fault` (on `channel`, a name or index, for per-channel faults).
 
-    def clear(self, fault: str) -> None:
-        self._faults.discard(self._check_fault(fault))
+        See `hil_sim.faults.FAULT_TABLE`. Already active: nothing changes. Bad name or
+        channel: ValueError, nothing changes.
+        """
+        spec, index = resolve(fault, channel)
+        key = fault_key(spec, index)
+        if key in self._faults:
+            return
+        if index is not None:
+            self._set_channel_fault(spec.name, index, True)
+        self._faults.add(key)
 
-    @staticmethod
-    def _check_fault(fault: str) -> str:
-        if fault not in FAULTS:
-            raise ValueError(f"unknown fault {fault!r}; known faults: {', '.join(FAULTS)}")
-        return fault
+    def clear(self, fault: str, channel: Optional[Channel] = None) -> None:
+        """End fault `fault` (on `channel`). Not active: nothing changes. Bad input: ValueError."""
+        spec, index = resolve(fault, channel)
+        key = fault_key(spec, index)
+        if key not in self._faults:
+            return
+        if index is not None:
+            self._set_channel_fault(spec.name, index, False)
+        self._faults.discard(key)
+
+    def _set_channel_fault(self, name: str, k: int, on: bool) -> None:
+        if name == "open_circuit":
+            self._open_circuit[k] = on
+        elif name == "stuck_brake":
+            self._stuck_brake[k] = on
+        elif name == "encoder_dropout":
+            # Freeze what the encoder interface shows now; cleared, it shows the true count again.
+            self._frozen_count[k] = self.encoder_counts[k] if on else None
+        elif name == "encoder_glitch":
+            self._count_offset[k] = self.params.encoder_glitch_counts if on else 0
+        elif name == "jam":
+            motors = self.arm.motors
+            if on:
+                self._jam_saved_stops[k] = motors.stops_rad(k)
+                here = motors.positions()[k]
+                motors.set_stops(k, here, here)
+            else:
+                motors.set_stops(k, *self._jam_saved_stops.pop(k))
+        else:  # pragma: no cover - the table and this method must agree
+            raise AssertionError(f"fault {name!r} is declared but not implemented")
 
     @property
     def ambient_c(self) -> float:
@@ -156,36 +325,53 @@ class Plant:
         p = self.params
         return p.supply_sag_v if "supply_sag" in self._faults else p.supply_nominal_v
 
-    def _load_current_a(self) -> float:
-        p = self.params
-        return p.idle_current_a + (p.enabled_current_a if self.outputs_enabled else 0.0)
+    # -- integration --------------------------------------------------------------------------
+    def step(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Optional[Sequence[float]] = None,
+             enable: Optional[Sequence[bool]] = None, channel_brake: Optional[Sequence[bool]] = None) -> None:
+        """Advance `dt_s` seconds with these commands applied, then sample the sensors.
 
-    def _box_heat_w(self) -> float:
-        # For now everything drawn is dissipated in the box (there is nothing else to heat).
-        # With motors, only electronics and drive-stage losses stay here.
-        return self.supply_true_v * self.current_a
-
-    def step(self, dt_s: float, outputs_enabled: bool, brake: bool) -> None:
-        """Advance `dt_s` seconds with these outputs applied, then sample the sensors.
-
-        `brake` is tracked but has no physical effect until motors exist.
+        `outputs_enabled` and `brake` are the global command (CTRL_OUTPUTS); `duty`,
+        `enable` and `channel_brake` the per-channel one (MOTOR_CMD, order `CHANNELS`),
+        all three or none (none: every channel off and braked). See the module docstring
+        for how they combine.
         """
         if not dt_s >= 0 or not math.isfinite(dt_s):
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s}")
+        if duty is None and enable is None and channel_brake is None:
+            duty, enable, channel_brake = self.motor_commands.safe
+        elif duty is None or enable is None or channel_brake is None:
+            raise ValueError("give duty, enable and channel_brake together, or none of them")
+        elif not len(duty) == len(enable) == len(channel_brake) == N_CHANNELS:
+            raise ValueError(f"duty, enable and channel_brake need {N_CHANNELS} entries each")
         p = self.params
-        self.outputs_enabled = bool(outputs_enabled)
-        self.brake = bool(brake)
-        self.current_a = self._load_current_a()
+        arm = self.arm
+        outputs_enabled = self.outputs_enabled = bool(outputs_enabled)
+        brake = self.brake = bool(brake)
+        driven = [outputs_enabled and bool(e) and not o for e, o in zip(enable, self._open_circuit)]
+        braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
+        self.channel_duty, self.channel_driven, self.channel_braked = list(duty), driven, braked
+        arm.step(dt_s, duty, driven, braked, self.supply_true_v)
+        currents = self.currents_a = arm.motors.i_a.tolist()
+        electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
+        self.current_a = electronics_a + arm.supply_current_a()
         self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
+        # Heat left in the box: electronics, and the bridges' conduction losses.
+        heat_w = self.supply_true_v * electronics_a + p.drive_on_resistance_ohm * sum([i * i for i in currents])
         # First-order lag toward ambient + P * Rth, integrated exactly for a step with constant input
         # (stable for any dt_s).
-        target_c = self.ambient_c + self._box_heat_w() * p.thermal_resistance_c_per_w
+        target_c = self.ambient_c + heat_w * p.thermal_resistance_c_per_w
         decay = math.exp(-dt_s / p.thermal_time_constant_s)
         self.temp_true_c = target_c + (self.temp_true_c - target_c) * decay
-        noise = self._rng.standard_normal(2)
-        self._supply_v = self.supply_true_v + float(noise[0]) * p.supply_noise_v
-        self._temp_c = self.temp_true_c + float(noise[1]) * p.temp_noise_c
+        at = self._noise_at
+        if at >= len(self._noise):
+            # Drawn in batches: the same sequence of deviates as two per step, for less overhead.
+            self._noise = self._rng.standard_normal(_NOISE_BATCH).tolist()
+            at = 0
+        self._noise_at = at + 2
+        self._supply_v = self.supply_true_v + self._noise[at] * p.supply_noise_v
+        self._temp_c = self.temp_true_c + self._noise[at + 1] * p.temp_noise_c
 
+    # -- sensors --------------------------------------------------------------------------------
     @property
     def supply_v(self) -> float:
         """Measured supply voltage at the controller [V] (noisy, sampled at the last step)."""
@@ -195,3 +381,28 @@ class Plant:
     def temp_c(self) -> float:
         """Measured control-box temperature [degC] (noisy, sampled at the last step)."""
         return self._temp_c
+
+    @property
+    def encoder_counts(self) -> list[int]:
+        """What each channel's encoder interface shows: quadrature counts since power-on.
+
+        The true count (as `ArmPlant.encoder_counts`, unbounded Python ints) plus any
+        glitch offset, or the frozen value while the encoder has dropped out.
+        """
+        counts = [math.floor((x - x0) * k) + off for x, x0, k, off
+                  in zip(self.arm.motors.positions(), self._pos0, self._counts_per_rad, self._count_offset)]
+        frozen = self._frozen_count
+        if frozen.count(None) != N_CHANNELS:
+            counts = [c if f is None else f for c, f in zip(counts, frozen)]
+        return counts
+
+    def switches(self) -> tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]:
+        """(home, limit_lo, limit_hi) per channel, True = closed (as `ArmPlant`'s switch arrays)."""
+        pos = self.arm.motors.positions()
+        return (tuple([x >= h for x, h in zip(pos, self._home_rad)]),
+                tuple([x <= lo for x, lo in zip(pos, self._limit_lo_rad)]),
+                tuple([x >= hi for x, hi in zip(pos, self._limit_hi_rad)]))
+
+
+__all__ = ["CHANNEL_FAULTS", "ExpiringMotorCommands", "ExpiringOutputs", "FAULTS", "MotorCommand", "Plant",
+           "PlantParams"]

@@ -36,12 +36,14 @@ class World:
 
     def __init__(self, clock: Clock, port: Port, psk: bytes, *, seed: int = 0, baud: int = 115200,
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
-                 plant_params: Optional[PlantParams] = None, deterministic: bool = False) -> None:
+                 plant_params: Optional[PlantParams] = None, deterministic: bool = False,
+                 gravity: str = "earth", payload_kg: float = 0.0) -> None:
         self.clock = clock
         channel = f"aspod-hal-{uuid.uuid4().hex}"   # a private virtual bus: no shared registry state
         self.plant_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self.controller_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.plant = Plant(plant_params or PlantParams(), np.random.default_rng(seed))
+        self.plant = Plant(plant_params or PlantParams(), np.random.default_rng(seed), gravity=gravity,
+                           payload_kg=payload_kg)
         self.plant_node = PlantNode(self.plant_bus, self.plant)
         stopwatch = clock.now if deterministic else RealClock.precise_now
         self.scheduler = Scheduler(clock, stopwatch=stopwatch)
@@ -70,11 +72,13 @@ class LockstepBench:
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  host_config: Optional[LinkConfig] = None,
                  to_controller: Callable[[bytes], bytes] = lambda b: b,
-                 to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001) -> None:
+                 to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
+                 gravity: str = "earth", payload_kg: float = 0.0) -> None:
         self.clock = SimClock()
         self.port = BufferPort()
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
-                           controller_config=controller_config, deterministic=True)
+                           controller_config=controller_config, deterministic=True, gravity=gravity,
+                           payload_kg=payload_kg)
         self.events: list = []
         self.telemetry: list = []
         self.host = HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 1),

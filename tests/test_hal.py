@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import statistics
-import uuid
 from pathlib import Path
 
 import can
@@ -27,29 +26,6 @@ CODEC = HalCodec()
 SYNC_ID = CODEC.frame_id("PLANT_SYNC")
 OUTPUTS_ID = CODEC.frame_id("CTRL_OUTPUTS")
 ANALOG_ID = CODEC.frame_id("ANALOG_IN")
-
-
-@pytest.fixture
-def virtual_can():
-    """Factory: each call gives `open_bus()` for a fresh, unique virtual channel.
-
-    Every bus opened through it is shut down at teardown.
-    """
-    opened: list[can.BusABC] = []
-
-    def new_channel():
-        channel = f"aspod-hal-test-{uuid.uuid4().hex}"
-
-        def open_bus() -> can.BusABC:
-            bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-            opened.append(bus)
-            return bus
-
-        return open_bus
-
-    yield new_channel
-    for bus in opened:
-        bus.shutdown()
 
 
 def drain(bus: can.BusABC) -> list[can.Message]:
@@ -239,9 +215,12 @@ def test_controller_sees_supply_temperature_and_tick(virtual_can):
     assert inputs.tick == rig.node.tick - 1        # the last step's tick
     assert not rig.hal.is_stale(rig.clock.now(), max_age_s=0.011)
     assert rig.hal.bad_frames == 0 and rig.node.bad_frames == 0
-    # PLANT_SYNC every 1 ms step, ANALOG_IN every 10th step, starting with the first.
+    # PLANT_SYNC and MOTOR_FB every 1 ms step, ANALOG_IN and DIGITAL_IN every 10th step, starting with the first.
     assert rig.node.analog_every_n == 10
-    assert rig.node.frames_sent == rig.node.tick + math.ceil(rig.node.tick / 10)
+    n = rig.node.tick
+    assert rig.node.sent_by_name == {"PLANT_SYNC": n, "MOTOR_FB": n, "DIGITAL_IN": math.ceil(n / 10),
+                                     "ANALOG_IN": math.ceil(n / 10)}
+    assert rig.node.frames_sent == 2 * n + 2 * math.ceil(n / 10)
 
 
 def test_controller_detects_a_silent_plant(virtual_can):

@@ -1,0 +1,55 @@
+"""The firmware's description of the arm agrees with the plant it drives, and with the protocol."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from firmware_py import arm_config
+from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
+from firmware_py.axis import AxisMode as FirmwareAxisMode, Outcome
+from hil_sim.arm import static_torques_nm
+from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS, CHANNELS
+from protocol.hal import ARM_CHANNELS
+from protocol.states import Axis, AxisMode, MotionOutcome
+
+PLANT = {c.drive.name: c for c in CHANNEL_PARAMS}
+
+
+def test_channel_orders_agree_everywhere():
+    assert ARM_CHANNELS == CHANNELS == arm_config.AXIS_NAMES
+    assert tuple(a.name.lower() for a in Axis if a is not Axis.ALL) == CHANNELS
+
+
+def test_wire_enums_mirror_the_firmware_ones():
+    assert {m.name: int(m) for m in AxisMode} == {m.name: int(m) for m in FirmwareAxisMode}
+    assert {m.name: int(m) for m in MotionOutcome} == {m.name: int(m) for m in Outcome}
+
+
+@pytest.mark.parametrize("drive", DRIVES, ids=lambda d: d.name)
+def test_drive_constants_match_the_plant(drive):
+    plant = PLANT[drive.name]
+    d = plant.drive
+    assert drive.ratio == pytest.approx(d.ratio)
+    assert drive.kt_nm_a == pytest.approx(d.motor.kt_nm_a)
+    assert drive.r_ohm == pytest.approx(d.motor.r_ohm)
+    assert drive.efficiency == pytest.approx(d.efficiency, abs=2e-3)
+    assert drive.inertia_kg_m2 == pytest.approx(d.inertia_kg_m2, rel=1e-3)
+    assert drive.rad_per_count == pytest.approx(2 * math.pi / plant.counts_per_output_rev)
+    # soft limits lie inside the limit switches
+    assert plant.limit_lo_rad < math.radians(drive.soft_min_deg) < math.radians(drive.soft_max_deg) < plant.limit_hi_rad
+
+
+def test_gripper_constants_match_the_plant():
+    g = ARM_PLANT_PARAMS.gripper
+    assert GRIPPER.lead_m_per_rad == pytest.approx(g.lead_m_per_rad)
+    assert GRIPPER.open_switch_m == pytest.approx(g.open_switch_m)
+    assert GRIPPER.ratio == pytest.approx(PLANT["gripper"].drive.ratio)
+
+
+@pytest.mark.parametrize("pose", [(0.0, 0.0, 0.0), (0.5, -1.2, 0.3), (1.2, -2.0, -0.6), (-0.8, 1.0, 1.5)])
+@pytest.mark.parametrize("payload_kg", [0.0, 0.3])
+def test_gravity_model_matches_the_plant(pose, payload_kg):
+    plant = static_torques_nm(*pose, ARM_PLANT_PARAMS.geometry, 9.80665, payload_kg)
+    firmware = MASSES.holding_torques_nm(*pose, 9.80665, payload_kg)
+    assert firmware == pytest.approx(plant, rel=1e-6, abs=1e-9)
