@@ -230,6 +230,10 @@ class FrameLayout:
         self._conv = tuple(conv)
         self._bits = tuple(bits)
         self._fields_in = tuple(fields_in)
+        # Signals whose declared range is their whole raw range need no range check of their own:
+        # struct refuses what does not fit, and any raw value decodes inside the range.
+        self._full_range = all(_covers_raw_range(signals[n]) for n in self.order)
+        self._scaled = tuple(i for i, c in enumerate(conv) if not c[0])
         self._struct: Optional[struct.Struct] = None
         fields = sorted((signals[n].start, signals[n].length, signals[n].is_signed, i)
                         for i, n in enumerate(self.order))
@@ -251,6 +255,16 @@ class FrameLayout:
         """Frame bytes for physical `values` in `order`; HalEncodeError if one is out of range."""
         if len(values) != len(self._conv):
             raise HalEncodeError(f"{self.name}: {len(values)} values for {len(self._conv)} signals")
+        if self._full_range and self._struct is not None:
+            raws = list(values)
+            conv = self._conv
+            try:
+                for i in self._scaled:
+                    _, scale, offset, lo, hi, _ = conv[i]
+                    raws[i] = round((raws[i] - offset) / scale)
+                return self._struct.pack(*raws)
+            except (struct.error, TypeError, ValueError, OverflowError):
+                pass       # out of range, not a number or not an integer: the slow path says which
         raws = []
         for v, (identity, scale, offset, lo, hi, signal_name) in zip(values, self._conv):
             if not lo <= v <= hi:
@@ -268,6 +282,12 @@ class FrameLayout:
         if len(data) != self.length:
             raise HalDecodeError(
                 f"{self.name} (0x{self.frame_id:03X}): {len(data)} data bytes, declared {self.length}")
+        if self._full_range and self._struct is not None:
+            values = list(self._struct.unpack(data))
+            for i in self._scaled:
+                f = self._fields_in[i]
+                values[i] = values[i] * f[5] + f[6]
+            return values
         x = int.from_bytes(data, "little")
         values = []
         for start, mask, sign, span, identity, scale, offset, lo, hi, signal_name in self._fields_in:
@@ -284,6 +304,20 @@ class FrameLayout:
     def message(self, values: Sequence) -> can.Message:
         return HalFrame(arbitration_id=self.frame_id, data=self.pack(values), dlc=self.length,
                       is_extended_id=False, is_fd=self.is_fd)
+
+
+def _covers_raw_range(signal) -> bool:
+    """True if the signal's declared range is exactly what its raw integer can hold."""
+    if signal.minimum is None or signal.maximum is None:
+        return True
+    if signal.is_signed:
+        raw_lo, raw_hi = -(1 << (signal.length - 1)), (1 << (signal.length - 1)) - 1
+    else:
+        raw_lo, raw_hi = 0, (1 << signal.length) - 1
+    lo = raw_lo * signal.scale + signal.offset
+    hi = raw_hi * signal.scale + signal.offset
+    tolerance = abs(signal.scale) * 1e-6
+    return abs(min(lo, hi) - signal.minimum) <= tolerance and abs(max(lo, hi) - signal.maximum) <= tolerance
 
 
 Handler = Callable[[object, float], None]
