@@ -1,6 +1,6 @@
-"""`python -m bench` (`make bench`): the codec benchmark, then the round-trip benchmark.
+"""`python -m bench` (`make bench`): the codec, round-trip and real-time loop benchmarks, in that order.
 
-    python -m bench [--quick] [--only codec|rtt]
+    python -m bench [--quick] [--only codec|rtt|realtime]
 
 These print figures and ratios beside a peer measured in the same run; they are not
 pass/fail tests. The exit status is 0 when every benchmark produced its figures
@@ -15,8 +15,9 @@ from typing import Optional, Sequence
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer frames and pings: a smoke run of a few seconds")
-    parser.add_argument("--only", choices=("codec", "rtt"), help="run one benchmark only")
+    parser.add_argument("--quick", action="store_true",
+                        help="fewer frames and pings, 5 s loops instead of 60 s: a smoke run")
+    parser.add_argument("--only", choices=("codec", "rtt", "realtime"), help="run one benchmark only")
     return parser
 
 
@@ -36,6 +37,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from bench import bench_rtt
         results = bench_rtt.main(quick=args.quick)
         if any(r.error for r in results):
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "realtime"):
+        from bench import bench_realtime
+        if bench_realtime.main(quick=args.quick).error:
             status = 1
     return status
 

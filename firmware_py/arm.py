@@ -1,6 +1,6 @@
 """The arm's motor loops: five joint axes and the gripper, run by one 1 kHz scheduler task.
 
-Each tick (`step`) reads the latest HAL inputs (MOTOR_FB counts and currents, DIGITAL_IN
+Each tick (`step`) polls the HAL bus and reads the latest inputs (MOTOR_FB counts and currents, DIGITAL_IN
 switches, each with the `now` it arrived), runs every axis's pipeline (`firmware_py/axis.py`)
 and the gripper (`firmware_py/gripper.py`), and sends one MOTOR_CMD frame with every
 channel's duty, enable and brake. A channel is enabled only while the supervisor allows
@@ -195,6 +195,7 @@ class ArmController:
 
     # ---- the tick ----
     def step(self, now: float) -> float:
+        self.hal.poll(now)
         inputs = self.hal.inputs
         fb_s = inputs.fb_s
         if fb_s is None:                 # nothing from the plant yet: nothing to control

@@ -48,8 +48,8 @@ class Drive:
     soft_min_deg: float
     soft_max_deg: float
     home_dir: int = 1           # the home flag is active at and above home: seek it upward
+    i_limit_a: float = 1.5
     vel_bandwidth_rad_s: float = 30.0
-    i_limit_a: float = 3.0
 
     @property
     def rad_per_count(self) -> float:
@@ -64,13 +64,18 @@ class Drive:
 # the 200 oz-in one (J3, part 58), the wrist roll's small gearmotor, the TENV mount gearmotor.
 # Ratios: gear heads 100:1 (J1-J3), 200:1 (J4), 300:1 (mount); sprockets 16:1 (J1, two 4:1
 # pairs), 6:1 (J2), 3:1 (J3) from "JOINTS AND ACTUATORS"; the mount's 4:1 chain.
+#
+# Current limits: near each motor's rating, so that a joint can hold and move its load
+# (J1 needs about 1.1 A against gravity at full stretch, the report's 285.6 oz-in) but cannot
+# drag its own spring-applied brake (1.5 x the rated output torque): a stuck brake then
+# stalls the joint instead of wearing the brake away.
 DRIVES = (
-    Drive("j1", 5.0 * OZ_IN_TO_NM, 6.0, 1600.0, 0.687, 38.40, 3.5, 4.35, -55.0, 85.0),
-    Drive("j2", 5.0 * OZ_IN_TO_NM, 6.0, 600.0, 0.708, 5.40, 0.34, 0.61, -130.0, 130.0),
-    Drive("j3", 3.5 * OZ_IN_TO_NM, 8.0, 300.0, 0.708, 0.72, 0.011, 0.072, -130.0, 130.0),
-    Drive("j4", 2.5 * OZ_IN_TO_NM, 10.0, 200.0, 0.66, 0.12, 0.0005, 0.0052, -175.0, 175.0),
-    Drive("mount", 8.0 * OZ_IN_TO_NM, 4.0, 1200.0, 0.665, 172.85, 15.8, 5.76, -165.0, 165.0,
-          vel_bandwidth_rad_s=15.0, i_limit_a=5.0),
+    Drive("j1", 5.0 * OZ_IN_TO_NM, 6.0, 1600.0, 0.687, 38.40, 3.5, 4.35, -55.0, 85.0, i_limit_a=1.5),
+    Drive("j2", 5.0 * OZ_IN_TO_NM, 6.0, 600.0, 0.708, 5.40, 0.34, 0.61, -130.0, 130.0, i_limit_a=1.5),
+    Drive("j3", 3.5 * OZ_IN_TO_NM, 8.0, 300.0, 0.708, 0.72, 0.011, 0.072, -130.0, 130.0, i_limit_a=1.0),
+    Drive("j4", 2.5 * OZ_IN_TO_NM, 10.0, 200.0, 0.66, 0.12, 0.0005, 0.0052, -175.0, 175.0, i_limit_a=0.4),
+    Drive("mount", 8.0 * OZ_IN_TO_NM, 4.0, 1200.0, 0.665, 172.85, 15.8, 5.76, -165.0, 165.0, i_limit_a=1.2,
+          vel_bandwidth_rad_s=15.0),
 )
 AXIS_NAMES = ("j1", "j2", "j3", "j4", "gripper", "mount")   # HAL channel order
 JOINTS = {d.name: d for d in DRIVES}

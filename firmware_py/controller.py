@@ -130,8 +130,9 @@ class Controller:
         self.started_s = now
         self.link.started_s = now
         scheduler.add("comms", self.comms.step, now)
-        scheduler.add("hal", self._hal_step, now)
-        scheduler.add("arm", self.arm.step, now)
+        scheduler.add("hal", self._hal_step, now, period_s=self.config.hal_period_s)
+        # the motor loops first at each tick: they read the HAL themselves, so nothing else delays them
+        scheduler.add("arm", self.arm.step, now, period_s=self.config.arm_period_s, priority=0)
         scheduler.add("health", self._health_step, now + self.config.health_period_s, tolerance_s=0.005)
         scheduler.add("telemetry", self._telemetry_step, now + 0.1, tolerance_s=0.01)
 
@@ -328,7 +329,7 @@ class Controller:
 
     def _accepted(self, axis: int, outcome: tuple[Reason, str, int]) -> Message:
         reason, _detail, motion_id = outcome
-        return M["MotionAccepted"](int(reason), axis, motion_id & 0xFFFFFFFF)
+        return M["MotionAccepted"](int(reason), axis, motion_id & 0xFFFFFFFF if reason is Reason.OK else 0)
 
     def _joint_motion(self, msg: Message, start: Callable[[], tuple[Reason, str, int]]) -> Message:
         refusal = self._motion_refusal()

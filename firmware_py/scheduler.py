@@ -1,7 +1,13 @@
 """Cooperative scheduler: one thread, tasks that take `now` and return their next wake time.
 
-As in Klipper's reactor, a periodic task is just a task that returns `now + period`;
-there is no special case for it. Returning ``None`` retires the task. Execution time
+As in Klipper's reactor, a task returns when it next wants to run; returning ``None``
+retires it. A task added with `period_s` is phase-locked instead: it is due again at
+its previous deadline plus the period, whatever its own lateness, so a 1 kHz loop runs
+at 1 kHz on average and every 1 ms task shares one grid (returning `now + period`
+would stretch each period by that run's lateness). A periodic task that falls more
+than a whole period behind skips the periods it missed (counted in `skipped`) rather
+than running back to back to catch up. Tasks due at the same time run by `priority`
+(lower first), then in the order their wake-ups were scheduled. Execution time
 is measured with a separate stopwatch (real CPU time by default, injectable so a
 lock-step run can stay byte-for-byte deterministic), and lateness against the
 requested wake time is counted as an overrun when it exceeds the task's tolerance.
@@ -30,6 +36,7 @@ class TaskStats:
     exec_max_s: float = 0.0
     late_max_s: float = 0.0
     overruns: int = 0
+    skipped: int = 0          # periods a periodic task missed entirely (it was more than a period late)
     _hist: list[int] = field(default_factory=lambda: [0] * _HIST_BUCKETS, repr=False)
 
     def record(self, exec_s: float, late_s: float, overrun: bool) -> None:
@@ -61,10 +68,13 @@ class TaskStats:
 class Task:
     """A scheduled callable with its own statistics."""
 
-    def __init__(self, name: str, fn: TaskFn, tolerance_s: float) -> None:
+    def __init__(self, name: str, fn: TaskFn, tolerance_s: float, period_s: Optional[float] = None,
+                 priority: int = 10) -> None:
         self.name = name
         self.fn = fn
         self.tolerance_s = tolerance_s
+        self.period_s = period_s
+        self.priority = priority
         self.stats = TaskStats()
         self.wake_s: Optional[float] = None
 
@@ -75,16 +85,22 @@ class Scheduler:
     def __init__(self, clock: Clock, stopwatch: Callable[[], float] = RealClock.precise_now) -> None:
         self.clock = clock
         self._stopwatch = stopwatch
-        self._heap: list[tuple[float, int, Task]] = []
+        self._heap: list[tuple[float, int, int, Task]] = []
         self._order = itertools.count()
         self.tasks: dict[str, Task] = {}
 
     def add(self, name: str, fn: TaskFn, first_wake_s: Optional[float] = None,
-            tolerance_s: float = 0.002) -> Task:
-        """Schedule `fn` to run first at `first_wake_s` (default: now)."""
+            tolerance_s: float = 0.002, *, period_s: Optional[float] = None, priority: int = 10) -> Task:
+        """Schedule `fn` to run first at `first_wake_s` (default: now).
+
+        With `period_s` the task is periodic and phase-locked (see the module doc); what
+        `fn` returns then only matters if it is None (retire).
+        """
         if name in self.tasks:
             raise ValueError(f"a task named {name!r} is already scheduled")
-        task = Task(name, fn, tolerance_s)
+        if period_s is not None and not period_s > 0:
+            raise ValueError(f"period_s must be > 0, got {period_s}")
+        task = Task(name, fn, tolerance_s, period_s, priority)
         self.tasks[name] = task
         self._push(task, self.clock.now() if first_wake_s is None else first_wake_s)
         return task
@@ -103,10 +119,10 @@ class Scheduler:
 
     def _push(self, task: Task, wake_s: float) -> None:
         task.wake_s = wake_s
-        heapq.heappush(self._heap, (wake_s, next(self._order), task))
+        heapq.heappush(self._heap, (wake_s, task.priority, next(self._order), task))
 
     def next_wake_s(self) -> Optional[float]:
-        while self._heap and self._heap[0][0] != self._heap[0][2].wake_s:
+        while self._heap and self._heap[0][0] != self._heap[0][3].wake_s:
             heapq.heappop(self._heap)  # superseded by a later push
         return self._heap[0][0] if self._heap else None
 
@@ -122,7 +138,7 @@ class Scheduler:
             wake = self.next_wake_s()
             if wake is None or wake > horizon:
                 return ran
-            _, _, task = heapq.heappop(self._heap)
+            task = heapq.heappop(self._heap)[3]
             task.wake_s = None
             start = self._stopwatch()
             next_wake = task.fn(now)
@@ -134,6 +150,16 @@ class Scheduler:
                 pass   # removed while it ran
             elif next_wake is None:
                 del self.tasks[task.name]
+            elif task.period_s is not None:
+                period = task.period_s
+                next_wake = wake + period
+                after = self.clock.now()
+                if next_wake <= after:     # a whole period (or more) missed: skip to the next on the grid
+                    missed = int((after - wake) / period)
+                    task.stats.skipped += missed
+                    next_wake = wake + (missed + 1) * period
+                if task.wake_s is None or next_wake < task.wake_s:
+                    self._push(task, next_wake)
             elif task.wake_s is None or next_wake < task.wake_s:
                 self._push(task, next_wake)
             now = self.clock.now()

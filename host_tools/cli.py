@@ -1,6 +1,8 @@
 """`aspod`: one command line, thin subcommands on shared argument helpers.
 
-    aspod sim [--pty | --tcp PORT | --port DEVICE] [--baud N] [--key-file PATH] ...
+    aspod sim [--pty | --tcp PORT | --port DEVICE] [--baud N] [--key-file PATH] [--hal INTERFACE] ...
+    aspod plant --interface X --channel Y [--bitrate N] [--seed N] [--gravity earth|orbit] [--payload-kg M]
+    aspod firmware --interface X --channel Y [--pty | --tcp PORT | --port DEVICE] [--baud N] ...
     aspod teleop URL [--script FILE] [--key-file PATH] ...
     aspod demo
 
@@ -49,26 +51,95 @@ def add_link_args(parser: argparse.ArgumentParser) -> None:
                         help="line rate in baud, 8N1 (default 115200; one of " + ", ".join(map(str, BAUD_RATES)) + ")")
 
 
+def _interface(text: str) -> str:
+    from host_tools import nodes   # imported when used: it loads the controller and the plant
+    try:
+        return nodes.check_interface(text, between_processes=True)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _gravity(text: str) -> str:
+    from host_tools import nodes
+    if text not in nodes.GRAVITY_MODES:
+        raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(nodes.GRAVITY_MODES)}")
+    return text
+
+
+def add_bus_args(parser: argparse.ArgumentParser) -> None:
+    """The HAL bus: a python-can interface and channel, opened for CAN FD."""
+    parser.add_argument("--interface", type=_interface, required=True,
+                        help="python-can interface: udp_multicast (between processes, no hardware), socketcan, "
+                             "pcan, ... (not virtual: it joins only buses in one process)")
+    parser.add_argument("--channel", required=True,
+                        help="python-can channel: udp_multicast a multicast group (e.g. 239.74.163.2), "
+                             "socketcan an interface (can0), ...")
+    parser.add_argument("--bitrate", type=_bounded(int, 1, 10_000_000), default=None, metavar="BIT/S",
+                        help="nominal (arbitration) bit rate, for interfaces that set one")
+    parser.add_argument("--data-bitrate", type=_bounded(int, 1, 20_000_000), default=None, metavar="BIT/S",
+                        help="CAN FD data-phase bit rate, for interfaces that set one")
+    parser.add_argument("--bus-arg", action="append", metavar="KEY=VALUE",
+                        help="further keyword for the python-can bus, repeatable (udp_multicast: port=N, "
+                             "default 43113; socketcand: host=H port=N)")
+
+
+def add_controller_args(parser: argparse.ArgumentParser) -> None:
+    """The controller's UART and settings, shared by `aspod sim` and `aspod firmware`."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true", help="serve a new pseudo-terminal (the default)")
+    where.add_argument("--tcp", type=_bounded(int, 0, 65535), metavar="PORT",
+                       help="serve TCP on 127.0.0.1:PORT (0 picks a free port)")
+    where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
+    add_link_args(parser)
+    parser.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
+    parser.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=None, metavar="S",
+                        help="safe state after this long without a valid frame (default: saved, else 3 s)")
+    parser.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=None, metavar="HZ",
+                        help="telemetry rate at start (default: saved, else 10)")
+    parser.add_argument("--params", type=Path, default=None, metavar="FILE",
+                        help="parameter file, loaded at boot and written by `save` "
+                             f"(default {auth.default_key_path().with_name('params.json')})")
+
+
+def add_arm_args(parser: argparse.ArgumentParser) -> None:
+    """The plant's arm: gravity and payload."""
+    parser.add_argument("--gravity", type=_gravity, default="earth",
+                        help="the arm's gravity: earth or orbit (default earth)")
+    parser.add_argument("--payload-kg", type=_bounded(float, 0.0, 1000.0), default=0.0, metavar="M",
+                        help="mass carried at the gripper tip, kg (default 0)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     sim = sub.add_parser("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
-    where = sim.add_mutually_exclusive_group()
-    where.add_argument("--pty", action="store_true", help="serve a new pseudo-terminal (the default)")
-    where.add_argument("--tcp", type=_bounded(int, 0, 65535), metavar="PORT",
-                       help="serve TCP on 127.0.0.1:PORT (0 picks a free port)")
-    where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
-    add_link_args(sim)
-    sim.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
-    sim.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=None, metavar="S",
-                     help="safe state after this long without a valid frame (default: saved, else 3 s)")
-    sim.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=None, metavar="HZ",
-                     help="telemetry rate at start (default: saved, else 10)")
-    sim.add_argument("--params", type=Path, default=None, metavar="FILE",
-                     help="parameter file, loaded at boot and written by `save` "
-                          f"(default {auth.default_key_path().with_name('params.json')})")
+    add_controller_args(sim)
     sim.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
+    sim.add_argument("--hal", type=_interface, metavar="INTERFACE",
+                     help="run the plant as a separate process (`aspod plant`), meeting it on this python-can "
+                          "interface, e.g. udp_multicast (default: one process, a private virtual bus)")
+    sim.add_argument("--hal-channel", metavar="CH",
+                     help="channel for --hal (udp_multicast: a multicast group; default: a fresh group and "
+                          "port for this run)")
+    sim.add_argument("--hal-arg", action="append", metavar="KEY=VALUE",
+                     help="further keyword for the --hal bus, repeatable (udp_multicast: port=N)")
+    add_arm_args(sim)
+
+    plant = sub.add_parser("plant", help="run only the plant, in real time, on a python-can interface; "
+                                         "prints an ASPOD-PLANT ready line")
+    add_bus_args(plant)
+    plant.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
+    add_arm_args(plant)
+    plant.add_argument("--stop-on-stdin-eof", action="store_true",
+                       help="also stop when standard input closes (for a parent process that started it)")
+
+    firmware = sub.add_parser("firmware", help="run only the controller, its HAL on a python-can interface; "
+                                               "prints ASPOD-LINK and ASPOD-KEY lines")
+    add_bus_args(firmware)
+    add_controller_args(firmware)
+    firmware.add_argument("--boot-timeout", type=_bounded(float, 0.01, 3600), default=None, metavar="S",
+                          help="HAL inputs must arrive this soon after start, else HAL_STALE (default 1 s)")
 
     teleop = sub.add_parser("teleop", help="console to a controller: interactive, or a script")
     teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")
@@ -78,8 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--connect-timeout", type=_bounded(float, 0.1, 600), default=10.0, metavar="S")
     teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
 
-    demo = sub.add_parser("demo", help="start a simulator on a pty and run a scripted teleop session against it")
-    demo.add_argument("--baud", type=_baud, default=115200)
+    demo = sub.add_parser("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
+                                       "reports the positioning error of each step")
+    demo.add_argument("--json", action="store_true", help="print one JSON object (steps, errors, times)")
+    demo.add_argument("--gravity", type=_gravity, default="earth", help="earth (default) or orbit")
+    demo.add_argument("--seed", type=int, default=0, help="seed of the plant's noise and the link's nonces")
+    demo.add_argument("--link", action="store_true",
+                      help="instead: start `aspod sim --pty` and run a scripted teleop session over the pty")
+    demo.add_argument("--baud", type=_baud, default=115200, help="line rate for --link")
     return parser
 
 
@@ -100,6 +177,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.command == "sim":
             from host_tools.sim import run_sim
             return run_sim(args)
+        if args.command == "plant":
+            from host_tools.plant_cli import run_plant
+            return run_plant(args)
+        if args.command == "firmware":
+            from host_tools.firmware_cli import run_firmware
+            return run_firmware(args)
         if args.command == "teleop":
             from host_tools.teleop_cli import run_teleop
             return run_teleop(args, host_key(args.key_file))

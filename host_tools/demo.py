@@ -1,12 +1,19 @@
-"""`aspod demo` (what `make demo` runs): a simulator on a pty and a scripted teleop session.
+"""`aspod demo` (what `make demo` runs): the arm picks up debris and drops it in the bin.
 
-It starts `aspod sim --pty` as a subprocess, reads the ASPOD-LINK and ASPOD-KEY lines,
-runs the script below over the printed port exactly as `aspod teleop --script` would,
-and prints a summary: round-trip times, frames and errors at both ends.
+By default it runs the pick-and-place (`host_tools/pick_place.py`) on the simulated clock,
+faster than real time, and prints each step with the gripper's positioning error against
+the report's 1 cm; `--json` prints one JSON object instead; `--gravity orbit` runs it
+without gravity.
+
+`--link` runs the link demo instead: it starts `aspod sim --pty` as a subprocess, reads the
+ASPOD-LINK and ASPOD-KEY lines, runs the script below over the printed port exactly as
+`aspod teleop --script` would, and prints a summary: round-trip times, frames and errors at
+both ends.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import selectors
 import subprocess
 import sys
@@ -15,8 +22,9 @@ from protocol import auth
 from protocol.errors import LinkError
 from protocol.reasons import Reason
 
+from host_tools import pick_place
 from host_tools.client import HostClient
-from host_tools.teleop import EXIT_LINK, EXIT_OK, run_script
+from host_tools.teleop import EXIT_FAILED, EXIT_LINK, EXIT_OK, run_script
 
 SCRIPT = """\
 # a short session: link check, enable, e-stop while enabled, recover
@@ -47,6 +55,30 @@ def _read_line(proc: subprocess.Popen) -> str:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    if args.link:
+        return run_link_demo(args)
+    if args.json:
+        report = pick_place.run(args.gravity, args.seed)
+        print(json.dumps(report, indent=1))
+        return EXIT_OK if report["within_spec"] else EXIT_FAILED
+    print(f"pick and place, gravity {args.gravity}, on the simulated clock (spec: within "
+          f"{pick_place.SPEC_M * 100:.0f} cm at the gripper)", flush=True)
+
+    def progress(result: pick_place.StepResult) -> None:
+        print(f"  {result.name:<16} error {result.position_error_m * 1000:7.3f} mm   "
+              f"({result.sim_time_s:6.2f} s simulated)", flush=True)
+    report = pick_place.run(args.gravity, args.seed, progress)
+    if report["error"]:
+        print(f"aspod demo: {report['error']}", file=sys.stderr)
+    worst = report["max_position_error_m"]
+    print(f"max position error {'-' if worst is None else f'{worst * 1000:.3f}'} mm; "
+          f"{report['sim_time_s']:.1f} s simulated in {report['wall_time_s']:.1f} s wall "
+          f"({report['speed_x_real_time']}x real time)")
+    print("demo " + ("ok" if report["within_spec"] else "FAILED"))
+    return EXIT_OK if report["within_spec"] else EXIT_FAILED
+
+
+def run_link_demo(args: argparse.Namespace) -> int:
     sim = subprocess.Popen([sys.executable, "-m", "host_tools.cli", "sim", "--pty", "--baud", str(args.baud)],
                            stdout=subprocess.PIPE, bufsize=0)
     try:

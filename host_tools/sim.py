@@ -3,6 +3,10 @@
 Prints `ASPOD-LINK <url>` as its first line on stdout and `ASPOD-KEY <path>` as its
 second, then runs until SIGINT or SIGTERM. Without --key-file it uses (creating it
 if needed) the per-user development key that the host tools also default to.
+
+With --hal INTERFACE the plant runs as a separate process (`aspod plant`) and the two
+meet on that python-can interface: see host_tools/firmware_cli.py and
+docs/separate_processes.md.
 """
 from __future__ import annotations
 
@@ -10,50 +14,23 @@ import argparse
 import signal
 import sys
 
-from firmware_py.controller import ControllerConfig
-from firmware_py.uart import DevicePort, PtyPort, TcpServerPort
-from protocol import auth
-from protocol.link import LinkConfig
-from protocol.reasons import Reason
-from protocol.states import Fault
 from timebase import RealClock
 
+from host_tools.firmware_cli import (apply_command_line, controller_config, log_states, open_port,
+                                    run_sim_over_hal)
 from host_tools.world import World
 
 
 def run_sim(args: argparse.Namespace) -> int:
-    if args.key_file is not None:
-        psk, key_path = auth.load_key(args.key_file), args.key_file
-    else:
-        psk, key_path = auth.load_or_create_dev_key()
-    if args.tcp is not None:
-        port = TcpServerPort(args.tcp)
-    elif args.port is not None:
-        port = DevicePort(args.port, args.baud)
-    else:
-        port = PtyPort()
-    params_path = args.params if args.params is not None else auth.default_key_path().with_name("params.json")
-    timeout_s = args.link_timeout if args.link_timeout is not None else LinkConfig.link_timeout_s
-    link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
-    config = ControllerConfig(link=link, params_path=params_path)
+    if getattr(args, "hal", None) is not None:   # plant in a process of its own, on a real python-can interface
+        return run_sim_over_hal(args)
+    psk, key_path, params_path, config = controller_config(args)
+    port = open_port(args)
     world = World(RealClock(), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
-                  controller_config=config)
+                  controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg)
     params = world.controller.params
-    for problem in params.load_problems:
-        print(f"aspod sim: parameters: {problem}", file=sys.stderr, flush=True)
-    # what the command line says wins over the saved set
-    for name, value in (("link_timeout_s", args.link_timeout), ("telemetry_hz", args.telemetry_hz)):
-        if value is not None:
-            reason, detail = params.set(name, value)
-            if reason is not Reason.OK:
-                raise ValueError(f"--{name}: {detail}")
-    world.controller.telemetry_hz = int(params["telemetry_hz"])
-    controller = world.controller
-
-    def log_state(new, old, reason, now) -> None:
-        print(f"aspod sim: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
-              f"faults {Fault(controller.supervisor.faults).name or 'none'}", file=sys.stderr, flush=True)
-    controller.state_listeners.append(log_state)
+    apply_command_line(world.controller, args, "aspod sim")
+    log_states(world.controller, "aspod sim")
     print(f"ASPOD-LINK {port.url}", flush=True)
     print(f"ASPOD-KEY {key_path}", flush=True)
     print(f"aspod sim: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "

@@ -7,22 +7,18 @@ runs faster than real time and repeats exactly for a given seed.
 from __future__ import annotations
 
 import random
-import uuid
 from typing import Callable, Optional
 
-import can
-import numpy as np
-
 from firmware_py.controller import Controller, ControllerConfig
-from firmware_py.hal import ControllerHal
 from firmware_py.scheduler import Scheduler
 from firmware_py.uart import BufferPort, PacedUart, Port
-from hil_sim.hal_node import PlantNode
-from hil_sim.plant import Plant, PlantParams
+from hil_sim.plant import PlantParams
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
 from timebase import Clock, RealClock, SimClock
+
+from host_tools.nodes import build_controller, build_plant_node, open_virtual_pair
 
 
 def seeded_nonces(seed: int) -> Callable[[], bytes]:
@@ -39,18 +35,15 @@ class World:
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
                  gravity: str = "earth", payload_kg: float = 0.0) -> None:
         self.clock = clock
-        channel = f"aspod-hal-{uuid.uuid4().hex}"   # a private virtual bus: no shared registry state
-        self.plant_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.controller_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.plant = Plant(plant_params or PlantParams(), np.random.default_rng(seed), gravity=gravity,
-                           payload_kg=payload_kg)
-        self.plant_node = PlantNode(self.plant_bus, self.plant)
+        self.plant_bus, self.controller_bus = open_virtual_pair()
+        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, gravity=gravity, payload_kg=payload_kg)
+        self.plant = self.plant_node.plant
         stopwatch = clock.now if deterministic else RealClock.precise_now
         self.scheduler = Scheduler(clock, stopwatch=stopwatch)
-        self.scheduler.add("plant", self.plant_node.step)
+        self.scheduler.add("plant", self.plant_node.step, period_s=self.plant_node.period_s)
         self.uart = PacedUart(port, baud, paced)
-        self.controller = Controller(psk, self.uart, ControllerHal(self.controller_bus), controller_config,
-                                     nonce_source=seeded_nonces(seed) if deterministic else new_nonce)
+        self.controller = build_controller(psk, self.uart, self.controller_bus, controller_config,
+                                           nonce_source=seeded_nonces(seed) if deterministic else new_nonce)
         self.controller.attach(self.scheduler)
 
     def close(self) -> None:
@@ -73,12 +66,13 @@ class LockstepBench:
                  host_config: Optional[LinkConfig] = None,
                  to_controller: Callable[[bytes], bytes] = lambda b: b,
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
-                 gravity: str = "earth", payload_kg: float = 0.0) -> None:
+                 gravity: str = "earth", payload_kg: float = 0.0,
+                 plant_params: Optional[PlantParams] = None) -> None:
         self.clock = SimClock()
         self.port = BufferPort()
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, gravity=gravity,
-                           payload_kg=payload_kg)
+                           payload_kg=payload_kg, plant_params=plant_params)
         self.events: list = []
         self.telemetry: list = []
         self.host = HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 1),

@@ -73,3 +73,31 @@ def test_sim_clock_never_goes_back():
     assert clock.now() == 5.0
     with pytest.raises(ValueError):
         clock.advance(-1)
+
+
+def test_periodic_tasks_stay_on_their_grid_and_skip_what_they_missed():
+    clock = SimClock()
+    sched = Scheduler(clock, stopwatch=clock.now)
+    starts: list[float] = []
+
+    def task(now: float) -> float:
+        starts.append(now)
+        if len(starts) == 3:
+            clock.advance(0.0035)        # this run overran by three and a half periods
+        return now + 0.5                 # ignored: the task is periodic
+
+    sched.add("loop", task, 0.0, period_s=0.001)
+    sched.run_until(0.0095)
+    # on the 1 ms grid throughout; the periods at 3, 4 and 5 ms were missed and skipped
+    assert [round(s * 1e4) for s in starts] == [0, 10, 20, 60, 70, 80, 90]
+    assert sched.tasks["loop"].stats.skipped == 3
+
+
+def test_tasks_due_together_run_by_priority():
+    clock = SimClock()
+    sched = Scheduler(clock, stopwatch=clock.now)
+    order: list[str] = []
+    for name, priority in (("plant", 10), ("hal", 10), ("arm", 0)):
+        sched.add(name, lambda now, n=name: order.append(n) or now + 0.001, 0.0, priority=priority)
+    sched.run_until(0.0)
+    assert order == ["arm", "plant", "hal"]

@@ -1,0 +1,168 @@
+"""`aspod firmware`: the controller alone, its HAL on a python-can interface.
+
+This is the half that would run against real CAN hardware: the plant is whatever
+answers on the bus (`aspod plant` in another process, or a real I/O board). The
+UART side is `aspod sim`'s: a pty (default), a TCP port or a serial device, and the
+same first two lines on stdout:
+
+    ASPOD-LINK <url>
+    ASPOD-KEY <path>
+
+State changes are logged on stderr; at exit, the HAL counters:
+
+    aspod firmware: HAL counters frames_sent=... frames_received=... own_echoes=... bad_frames=... bus_errors=...
+
+`aspod sim --hal INTERFACE` is this with `aspod plant` started as a child process
+(`run_sim_over_hal`): the child is ready before the controller boots, is watched while
+the controller runs (if it dies, that is said on stderr and the controller's HAL
+staleness check takes it to the safe state) and is stopped when the controller stops.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from typing import Any, Callable, Optional
+
+from firmware_py.controller import Controller, ControllerConfig
+from firmware_py.scheduler import Scheduler
+from firmware_py.uart import DevicePort, PacedUart, Port, PtyPort, TcpServerPort
+from protocol import auth
+from protocol.link import LinkConfig
+from protocol.reasons import Reason
+from protocol.states import Fault
+from timebase import RealClock
+
+from host_tools import nodes
+from host_tools.plant_cli import PlantProcess, bus_options, describe_exit
+
+PLANT_WATCH_S = 0.1
+
+
+def open_port(args: argparse.Namespace) -> Port:
+    if args.tcp is not None:
+        return TcpServerPort(args.tcp)
+    if args.port is not None:
+        return DevicePort(args.port, args.baud)
+    return PtyPort()
+
+
+def controller_config(args: argparse.Namespace):
+    """(psk, key path, params path, ControllerConfig) from the link options, as `aspod sim` takes them."""
+    if args.key_file is not None:
+        psk, key_path = auth.load_key(args.key_file), args.key_file
+    else:
+        psk, key_path = auth.load_or_create_dev_key()
+    params_path = args.params if args.params is not None else auth.default_key_path().with_name("params.json")
+    timeout_s = args.link_timeout if args.link_timeout is not None else LinkConfig.link_timeout_s
+    link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
+    boot_timeout_s = getattr(args, "boot_timeout", None)
+    extra = {"boot_timeout_s": boot_timeout_s} if boot_timeout_s is not None else {}
+    return psk, key_path, params_path, ControllerConfig(link=link, params_path=params_path, **extra)
+
+
+def apply_command_line(controller: Controller, args: argparse.Namespace, prog: str) -> None:
+    """Report parameter-file problems; what the command line says wins over the saved set.
+
+    `--gravity orbit` (aspod sim) also tells the controller: its gravity feed-forward goes to 0.
+    """
+    params = controller.params
+    for problem in params.load_problems:
+        print(f"{prog}: parameters: {problem}", file=sys.stderr, flush=True)
+    gravity = 0.0 if getattr(args, "gravity", "earth") == "orbit" else None
+    for name, value in (("link_timeout_s", args.link_timeout), ("telemetry_hz", args.telemetry_hz),
+                        ("gravity_m_s2", gravity)):
+        if value is not None:
+            reason, detail = params.set(name, value)
+            if reason is not Reason.OK:
+                raise ValueError(f"--{name}: {detail}")
+    controller.telemetry_hz = int(params["telemetry_hz"])
+
+
+def run_controller(args: argparse.Namespace, prog: str, interface: str, channel: str, options: dict[str, Any],
+                   plant: Optional[PlantProcess] = None) -> int:
+    """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything."""
+    stopping: list[int] = []
+    signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
+    signal.signal(signal.SIGINT, lambda signum, frame: stopping.append(signum))
+    psk, key_path, params_path, config = controller_config(args)
+    bus = nodes.open_bus(interface, channel, node=nodes.CONTROLLER, **options)
+    uart = None
+    controller: Optional[Controller] = None
+    try:
+        port = open_port(args)
+        uart = PacedUart(port, args.baud, not args.no_pacing)
+        controller = nodes.build_controller(psk, uart, bus, config)
+        params = controller.params
+        apply_command_line(controller, args, prog)
+        scheduler = Scheduler(RealClock())
+        controller.attach(scheduler)
+        log_states(controller, prog)
+        if plant is not None:
+            scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
+        print(f"ASPOD-LINK {port.url}", flush=True)
+        print(f"ASPOD-KEY {key_path}", flush=True)
+        print(f"{prog}: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "
+              f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; "
+              f"HAL on {nodes.describe_bus(interface, channel, options)}; Ctrl-C stops", file=sys.stderr, flush=True)
+        scheduler.run_forever(lambda: bool(stopping))
+    finally:
+        if plant is not None:
+            status = plant.stop()
+            if not plant.reported and status is not None and status not in (0, -signal.SIGTERM):
+                print(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}",
+                      file=sys.stderr, flush=True)
+        bus.shutdown()
+        if uart is not None:
+            uart.close()
+        if controller is not None:
+            print(f"{prog}: HAL counters {nodes.format_counters(nodes.hal_counters(controller.hal))}",
+                  file=sys.stderr, flush=True)
+    return 0
+
+
+def log_states(controller: Controller, prog: str) -> None:
+    def log_state(new, old, reason, now) -> None:
+        print(f"{prog}: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
+              f"faults {Fault(controller.supervisor.faults).name or 'none'}", file=sys.stderr, flush=True)
+    controller.state_listeners.append(log_state)
+
+
+def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callable[[float], Optional[float]]:
+    """A task that says so, once, if the plant process ends while the controller runs."""
+    def step(now: float) -> Optional[float]:
+        status = plant.exit_status()
+        if status is None:
+            return now + PLANT_WATCH_S
+        if not stopping and not plant.stopped:
+            plant.reported = True
+            print(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}; the HAL has gone "
+                  "quiet, the controller's staleness check takes it to the safe state", file=sys.stderr, flush=True)
+        return None
+    return step
+
+
+def run_firmware(args: argparse.Namespace) -> int:
+    """`aspod firmware --interface X --channel Y ...`."""
+    return run_controller(args, "aspod firmware", args.interface, args.channel, bus_options(args))
+
+
+def run_sim_over_hal(args: argparse.Namespace) -> int:
+    """`aspod sim --hal INTERFACE [--hal-channel CH]`: `aspod plant` as a child, the controller here."""
+    interface = nodes.check_interface(args.hal, between_processes=True)
+    options = nodes.parse_bus_args(args.hal_arg or ())
+    channel = args.hal_channel
+    if channel is None:
+        if interface != "udp_multicast":
+            raise ValueError(f"--hal {interface} needs --hal-channel (the {interface} channel to use)")
+        channel, port = nodes.fresh_udp_multicast()   # private to this run
+        options.setdefault("port", port)
+    nodes.open_bus(interface, channel, **options).shutdown()   # fail here, before a child is started
+    plant = PlantProcess(interface, channel, options, seed=args.seed,
+                         extra_args=("--gravity", args.gravity, "--payload-kg", str(args.payload_kg)))
+    print(f"aspod sim: plant process {plant.pid} ready on {nodes.describe_bus(interface, channel, options)}",
+          file=sys.stderr, flush=True)
+    try:
+        return run_controller(args, "aspod sim", interface, channel, options, plant)
+    finally:
+        plant.stop()

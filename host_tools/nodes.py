@@ -1,0 +1,264 @@
+"""Building the two HAL nodes, the same way for every world.
+
+`World` (one process, a private virtual bus), `aspod plant` (the plant alone) and
+`aspod firmware` (the controller alone) all get their bus from `open_bus`, the plant
+from `build_plant_node` and the controller from `build_controller`, so a plant in
+its own process is the very plant `aspod sim` runs in-process.
+
+Buses. Any python-can interface works, opened for CAN FD (MOTOR_CMD and MOTOR_FB are
+16- and 48-byte FD frames). Two need care:
+
+* `virtual` joins only buses of the same process: fine for `World`, useless between
+  processes (`open_bus` refuses it there: see `IN_PROCESS_ONLY`).
+* `udp_multicast` (python-can's `multicast` extra, msgpack) carries frames between
+  processes over IP multicast, on loopback or a LAN. The channel is a multicast group
+  (239.0.0.0/8 or ff00::/8), the `port` keyword the UDP port. Every sender gets its own
+  frames back, which no real CAN controller does by default; `open_bus(..., node=...)`
+  then wraps the bus in `OwnEchoFilter`, which drops (and counts) the frames the DBC
+  declares as sent by that node, so the node's counters count only what others sent.
+"""
+from __future__ import annotations
+
+import ipaddress
+import random
+import socket
+import uuid
+from typing import Any, Callable, Iterable, Optional
+
+import can
+import numpy as np
+
+from firmware_py.controller import Controller, ControllerConfig
+from firmware_py.hal import ControllerHal
+from firmware_py.uart import PacedUart
+from hil_sim.arm_params import GRAVITY_M_S2
+from hil_sim.hal_node import PlantNode
+from hil_sim.plant import Plant, PlantParams
+from protocol.auth import new_nonce
+from protocol.hal import HalCodec
+
+PLANT = "PLANT"            # node names as the DBC declares them (BU_)
+CONTROLLER = "CONTROLLER"
+NODES = (PLANT, CONTROLLER)
+
+# Interfaces whose buses meet only inside one process.
+IN_PROCESS_ONLY = frozenset({"virtual"})
+# Interfaces on which a node receives the frames it sent itself.
+ECHOES_OWN_FRAMES = frozenset({"udp_multicast"})
+# python-can's default port for udp_multicast.
+UDP_MULTICAST_DEFAULT_PORT = 43113
+
+GRAVITY_MODES = tuple(GRAVITY_M_S2)     # "earth", "orbit"
+
+
+class BusOpenError(OSError):
+    """The interface exists but the bus cannot be opened here (no driver, no device, no network)."""
+
+
+class OwnEchoFilter:
+    """A bus that drops the frames the DBC declares as sent by `node` (its own echoes).
+
+    For interfaces on which every sender receives its own frames (udp_multicast). Dropped
+    frames are counted in `own_echoes`; everything else (frames of the other node,
+    undeclared IDs, error frames) passes, so bad frames are still counted by the node.
+    Everything but `recv` is the wrapped bus's own. A positive `recv` timeout restarts
+    after each dropped echo (the HAL nodes only ever poll with timeout 0).
+    """
+
+    def __init__(self, bus: can.BusABC, node: str, codec: Optional[HalCodec] = None) -> None:
+        codec = codec or HalCodec()
+        own = frozenset(m.frame_id for m in codec.database.messages if node in (m.senders or ()))
+        if not own:
+            raise ValueError(f"no HAL frame is declared as sent by {node!r}; nodes: {', '.join(NODES)}")
+        self.bus = bus
+        self.node = node
+        self.own_ids = own
+        self.own_echoes = 0
+
+    def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
+        while True:
+            msg = self.bus.recv(timeout)
+            if (msg is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame
+                    or msg.arbitration_id not in self.own_ids):
+                return msg
+            self.own_echoes += 1
+
+    def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
+        self.bus.send(msg, timeout)
+
+    def shutdown(self) -> None:
+        self.bus.shutdown()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.bus, name)
+
+    def __enter__(self) -> "OwnEchoFilter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+
+def own_echoes(bus: Any) -> int:
+    """Own frames dropped on `bus` so far (0 for a bus that does not echo them)."""
+    return bus.own_echoes if isinstance(bus, OwnEchoFilter) else 0
+
+
+def check_interface(interface: str, *, between_processes: bool = False) -> str:
+    """`interface` if python-can knows it (and it can join other processes, if asked); else ValueError."""
+    valid = can.interfaces.VALID_INTERFACES
+    if interface not in valid:
+        raise ValueError(f"unknown python-can interface {interface!r}; known: {', '.join(sorted(valid))}")
+    if between_processes and interface in IN_PROCESS_ONLY:
+        raise ValueError(f"interface {interface!r} joins only buses in the same process; between processes "
+                         "use udp_multicast (or real CAN: socketcan, pcan, ...); `aspod sim` without --hal "
+                         "runs plant and controller in one process on a virtual bus")
+    return interface
+
+
+def open_bus(interface: str, channel: str, *, node: Optional[str] = None, bitrate: Optional[int] = None,
+             data_bitrate: Optional[int] = None, between_processes: bool = True, **kwargs: Any) -> can.BusABC:
+    """Open a python-can bus for the HAL (CAN FD) on `interface` / `channel`.
+
+    `node` (PLANT or CONTROLLER) says who will use it: on an interface that echoes
+    a sender's own frames, the bus comes wrapped in `OwnEchoFilter`. `bitrate` and
+    `data_bitrate` (the FD data phase) go to the interface only if given; `kwargs`
+    go as they are (udp_multicast: `port`, `hop_limit`; socketcand: `host`, `port`; ...).
+
+    Raises ValueError for settings that cannot be right (unknown interface, a
+    udp_multicast channel that is not a multicast group, keywords the interface
+    refuses), `BusOpenError` (an OSError) when the bus cannot be opened here.
+    """
+    check_interface(interface, between_processes=between_processes)
+    if node is not None and node not in NODES:
+        raise ValueError(f"unknown node {node!r}; nodes: {', '.join(NODES)}")
+    options: dict[str, Any] = dict(kwargs)
+    if bitrate is not None:
+        options["bitrate"] = bitrate
+    if data_bitrate is not None:
+        options["data_bitrate"] = data_bitrate
+    if interface == "virtual":
+        options.setdefault("receive_own_messages", False)
+        options.setdefault("protocol", can.CanProtocol.CAN_FD)
+    else:
+        options.setdefault("fd", True)
+    if interface == "udp_multicast":
+        _check_udp_multicast(channel, options)
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **options)
+    except TypeError as exc:
+        raise ValueError(f"interface {interface!r} refuses these settings {options}: {exc}") from exc
+    except (can.CanError, OSError, ImportError) as exc:
+        raise BusOpenError(f"cannot open the {interface} bus on channel {channel!r}: {exc}"
+                           + (f" ({exc.__cause__})" if exc.__cause__ else "")) from exc
+    if node is not None and interface in ECHOES_OWN_FRAMES:
+        return OwnEchoFilter(bus, node)   # type: ignore[return-value]
+    return bus
+
+
+def _check_udp_multicast(channel: str, options: dict[str, Any]) -> None:
+    try:
+        group = ipaddress.ip_address(channel)
+    except ValueError:
+        group = None
+    if group is None or not group.is_multicast:
+        raise ValueError(f"udp_multicast: channel {channel!r} is not a multicast group address "
+                         "(IPv4 224.0.0.0/4, e.g. 239.74.163.2, or IPv6 ff00::/8)")
+    port = options.get("port", UDP_MULTICAST_DEFAULT_PORT)
+    if not isinstance(port, int) or isinstance(port, bool) or not 1 <= port <= 65535:
+        raise ValueError(f"udp_multicast: port {port!r} is not a whole number in 1..65535")
+
+
+def fresh_udp_multicast() -> tuple[str, int]:
+    """A multicast group and a UDP port for one private udp_multicast bus.
+
+    On Linux a socket bound to a port receives every group joined on the host at that
+    port, so it is the port that keeps two runs apart: take one the kernel says is free
+    now. The group is random within 239.255.0.0/16 (organisation-local scope).
+    """
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("", 0))
+        port = probe.getsockname()[1]
+    rng = random.SystemRandom()
+    return f"239.255.{rng.randrange(256)}.{rng.randrange(1, 255)}", port
+
+
+def open_virtual_pair() -> tuple[can.BusABC, can.BusABC]:
+    """(plant bus, controller bus) on a new private python-can virtual channel (one process)."""
+    channel = f"aspod-hal-{uuid.uuid4().hex}"   # private: no shared registry state
+    return (open_bus("virtual", channel, between_processes=False),
+            open_bus("virtual", channel, between_processes=False))
+
+
+def describe_bus(interface: str, channel: str, options: Optional[dict[str, Any]] = None) -> str:
+    """`interface=... channel=... key=value ...`, for readiness lines and logs."""
+    extra = "".join(f" {key}={value}" for key, value in sorted((options or {}).items()))
+    return f"interface={interface} channel={channel}{extra}"
+
+
+# ---- the plant ----
+
+def check_arm_settings(gravity: str, payload_kg: float) -> None:
+    if gravity not in GRAVITY_M_S2:
+        raise ValueError(f"unknown gravity {gravity!r}; known: {', '.join(GRAVITY_MODES)}")
+    if not (np.isfinite(payload_kg) and payload_kg >= 0):
+        raise ValueError(f"payload_kg must be finite and >= 0, got {payload_kg}")
+
+
+def build_plant(seed: int = 0, params: Optional[PlantParams] = None, *, gravity: str = "earth",
+                payload_kg: float = 0.0) -> Plant:
+    """The plant, its noise seeded with `seed`; the arm under `gravity` with `payload_kg`."""
+    check_arm_settings(gravity, payload_kg)
+    rng = np.random.default_rng(seed)
+    return Plant(params or PlantParams(), rng, gravity=gravity, payload_kg=payload_kg)
+
+
+def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParams] = None, *,
+                     gravity: str = "earth", payload_kg: float = 0.0, period_s: float = 0.001) -> PlantNode:
+    """The plant on `bus`; add its `step` to a scheduler (`scheduler.add("plant", node.step, period_s=node.period_s)`)."""
+    return PlantNode(bus, build_plant(seed, params, gravity=gravity, payload_kg=payload_kg), period_s)
+
+
+# ---- the controller ----
+
+def build_controller(psk: bytes, uart: PacedUart, bus: can.BusABC, config: Optional[ControllerConfig] = None, *,
+                     nonce_source: Callable[[], bytes] = new_nonce) -> Controller:
+    """The controller with its HAL on `bus` and its link on `uart`; `controller.attach(scheduler)` starts it."""
+    return Controller(psk, uart, ControllerHal(bus), config, nonce_source=nonce_source)
+
+
+def hal_counters(endpoint: Any) -> dict[str, int]:
+    """A HAL node's counters (PlantNode or ControllerHal), own echoes included."""
+    return {"frames_sent": endpoint.frames_sent, "frames_received": endpoint.frames_received,
+            "own_echoes": own_echoes(endpoint.bus), "bad_frames": endpoint.bad_frames,
+            "bus_errors": endpoint.bus_errors}
+
+
+def format_counters(counters: dict[str, Any]) -> str:
+    return " ".join(f"{key}={value}" for key, value in counters.items())
+
+
+def parse_bus_args(items: Iterable[str]) -> dict[str, Any]:
+    """`KEY=VALUE` strings (--bus-arg) to constructor keywords: ints, floats, true/false, else text."""
+    options: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key.isidentifier():
+            raise ValueError(f"bus argument {item!r} is not KEY=VALUE (e.g. port=43113)")
+        if key in ("interface", "channel"):
+            raise ValueError(f"bus argument {key!r}: use --{key} (or --hal/--hal-channel) instead")
+        options[key] = _guess_value(text.strip())
+    return options
+
+
+def _guess_value(text: str) -> Any:
+    lowered = text.lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text

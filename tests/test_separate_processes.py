@@ -1,0 +1,339 @@
+"""Plant and controller in separate processes, meeting on a real python-can interface (udp_multicast).
+
+`aspod plant`, `aspod firmware` and `aspod sim --hal` run as real subprocesses, in real
+time, on a multicast group and UDP port of their own (so parallel runs do not meet); a
+host talks to the controller over a real pty. Bounds are generous (tens of seconds) and
+the assertions are about behaviour, not speed. If udp_multicast does not work here (no
+msgpack, no multicast on loopback), a real probe says so and the sessions are skipped.
+
+The controller's `hal_stale_s` is set to 0.5 s (default 0.1 s) through its parameter
+file: with plant, controller, host and pytest sharing a small machine, a process can be
+descheduled for 100 ms, which would be a true HAL_STALE but not the one these tests are
+about (docs/separate_processes.md).
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+from typing import Optional
+
+import can
+import pytest
+
+from host_tools import nodes
+from host_tools.client import HostClient
+from protocol import auth
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import ControllerState, Fault
+
+pytestmark = pytest.mark.pty
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+ASPOD = [sys.executable, "-m", "host_tools.cli"]
+WAIT_S = 30.0
+COUNTERS = re.compile(r"aspod plant: stopped after [\d.]+ s; counters (.*)")
+
+
+@pytest.fixture(scope="module")
+def multicast_works():
+    """A real probe: two udp_multicast buses, a 48-byte CAN FD frame from one to the other."""
+    group, port = nodes.fresh_udp_multicast()
+    try:
+        sender = nodes.open_bus("udp_multicast", group, port=port)
+    except (OSError, ValueError) as exc:
+        pytest.skip(f"udp_multicast cannot be opened here: {exc}")
+    try:
+        receiver = nodes.open_bus("udp_multicast", group, port=port)
+        try:
+            sender.send(can.Message(arbitration_id=0x200, data=bytes(range(48)), is_fd=True, is_extended_id=False))
+            got = receiver.recv(timeout=5.0)
+        finally:
+            receiver.shutdown()
+    except (OSError, can.CanError) as exc:
+        pytest.skip(f"udp_multicast does not carry frames here: {exc}")
+    finally:
+        sender.shutdown()
+    if got is None or not got.is_fd or bytes(got.data) != bytes(range(48)):
+        pytest.skip(f"udp_multicast opened but a CAN FD frame did not arrive intact on loopback (got {got})")
+
+
+@pytest.fixture
+def env(tmp_path):
+    """A private per-user config directory, so the development key is the test's own."""
+    return {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
+
+
+@pytest.fixture
+def params_file(tmp_path) -> Path:
+    path = tmp_path / "params.json"
+    path.write_text(json.dumps({"version": 1, "params": {"hal_stale_s": 0.5}}))
+    return path
+
+
+class Proc:
+    """A subprocess with unbuffered stdout/stderr pipes, read line by line with a bound per line."""
+
+    def __init__(self, args: list[str], env: dict) -> None:
+        self.args = args
+        self.proc = subprocess.Popen(ASPOD + args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, env=env, bufsize=0)
+        self.seen: list[str] = []     # stderr lines read so far
+
+    def line(self, stream=None, timeout_s: float = WAIT_S) -> str:
+        stream = stream or self.proc.stdout
+        data = bytearray()
+        with selectors.DefaultSelector() as sel:
+            sel.register(stream, selectors.EVENT_READ)
+            while not data.endswith(b"\n"):
+                if not sel.select(timeout_s):
+                    raise AssertionError(f"aspod {self.args[0]}: nothing for {timeout_s} s (so far {bytes(data)!r}; "
+                                         f"stderr so far {self.seen})")
+                byte = stream.read(1)
+                if not byte:
+                    raise AssertionError(f"aspod {self.args[0]} closed its output (so far {bytes(data)!r}; "
+                                         f"stderr so far {self.seen})")
+                data += byte
+        return data.decode().rstrip("\n")
+
+    def wait_stderr(self, pattern: str, timeout_s: float = WAIT_S) -> re.Match:
+        """Read stderr until a line matches `pattern` (lines read are kept in `seen`)."""
+        for old in self.seen:
+            found = re.search(pattern, old)
+            if found:
+                return found
+        while True:
+            text = self.line(self.proc.stderr, timeout_s)
+            self.seen.append(text)
+            found = re.search(pattern, text)
+            if found:
+                return found
+
+    def stop(self, sig: int = signal.SIGTERM) -> tuple[int, str]:
+        """Signal it, wait (then kill), return (exit status, the rest of its stderr)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            _, err = self.proc.communicate(timeout=WAIT_S)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, err = self.proc.communicate()
+        return self.proc.returncode, err.decode(errors="replace")
+
+
+@pytest.fixture
+def procs(env):
+    """Start `aspod ...` subprocesses; every one is stopped at teardown, whatever happened."""
+    started: list[Proc] = []
+
+    def start(*args: str) -> Proc:
+        started.append(Proc(list(args), env))
+        return started[-1]
+    yield start
+    for proc in reversed(started):
+        if proc.proc.poll() is None:
+            proc.proc.kill()
+        proc.proc.communicate()
+
+
+@pytest.fixture
+def clients():
+    opened: list[HostClient] = []
+
+    def connect(url: str, key_path: str) -> HostClient:
+        client = HostClient(url, auth.load_key(Path(key_path)))
+        opened.append(client)
+        client.connect()
+        return client
+    yield connect
+    for client in opened:
+        client.close()
+
+
+def counters(text: str) -> dict[str, int]:
+    found = COUNTERS.search(text)
+    assert found, f"no counters line in {text!r}"
+    return {key: int(value) for key, value in (item.split("=") for item in found.group(1).split())}
+
+
+def start_plant(procs, group: str, port: int) -> Proc:
+    plant = procs("plant", "--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={port}")
+    ready = plant.line()
+    assert ready.startswith("ASPOD-PLANT ready "), ready
+    assert f"interface=udp_multicast channel={group} port={port}" in ready
+    return plant
+
+
+def link_of(proc: Proc) -> tuple[str, str]:
+    link, key = proc.line(), proc.line()
+    assert link.startswith("ASPOD-LINK "), link
+    assert key.startswith("ASPOD-KEY "), key
+    return link.split(" ", 1)[1], key.split(" ", 1)[1]
+
+
+def status(client: HostClient):
+    handle = client.call(M["GetStatus"]())
+    assert handle.ok, handle.describe()
+    return handle.reply
+
+
+def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_hal_stale(
+        multicast_works, procs, clients, params_file):
+    group, port = nodes.fresh_udp_multicast()
+    plant = start_plant(procs, group, port)
+    firmware = procs("firmware", "--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={port}",
+                     "--pty", "--params", str(params_file))
+    url, key_path = link_of(firmware)
+    firmware.wait_stderr(r"BOOT -> IDLE \(OK\)")          # HAL inputs arrived over the interface
+    client = clients(url, key_path)
+    reply = status(client)
+    assert reply.state == ControllerState.IDLE and reply.faults == 0, (reply, firmware.seen)
+    assert 20.0 < reply.supply_v < 35.0                    # the plant's 28 V supply, measured
+    assert client.call(M["Enable"]()).ok
+    assert status(client).state == ControllerState.ENABLED
+    assert client.call(M["Ping"](7)).ok
+
+    code, err = plant.stop()                               # the plant goes away
+    assert code == 0, err
+    seen = counters(err)
+    assert seen["frames_received"] > 0                     # CTRL_OUTPUTS from the other process ...
+    assert seen["own_echoes"] > 0                          # ... its own frames came back and were dropped
+    assert seen["bad_frames"] == 0 and seen["bus_errors"] == 0
+
+    firmware.wait_stderr(r"ENABLED -> FAULT \(HAL_STALE\), faults HAL_STALE")
+    client.wait_for(lambda: False, 1.0)                    # twice hal_stale_s since the plant went: stale for sure
+    reply = status(client)
+    assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
+    assert reply.safe_reason == Reason.HAL_STALE
+    assert client.wait_for(lambda: any(e.reason == Reason.HAL_STALE for e in client.events), WAIT_S)
+    refused = client.call(M["Reset"]())
+    assert not refused.ok and refused.reason == Reason.HAL_STALE   # the cause is still there
+
+    start_plant(procs, group, port)                        # a new plant on the same bus
+    for _ in range(100):                                   # its first ANALOG_IN is 10 ms away; bounded retries
+        reset = client.call(M["Reset"]())
+        if reset.ok:
+            break
+        assert reset.reason == Reason.HAL_STALE, reset.describe()
+        client.wait_for(lambda: False, 0.1)
+    assert reset.ok
+    assert status(client).state == ControllerState.IDLE
+
+
+def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_works, procs, clients, params_file):
+    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
+    url, key_path = link_of(sim)
+    plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready on interface=udp_multicast").group(1))
+    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")
+    client = clients(url, key_path)
+    assert client.call(M["Enable"]()).ok
+
+    os.kill(plant_pid, signal.SIGKILL)                     # no goodbye, no counters
+    sim.wait_stderr(rf"the plant process \(pid {plant_pid}\) ended: killed by SIGKILL")
+    sim.wait_stderr(r"ENABLED -> FAULT \(HAL_STALE\)")
+    reply = status(client)
+    assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
+    client.close()
+    code, err = sim.stop()
+    assert code == 0, err
+    assert "HAL counters" in err
+
+
+def test_stopping_sim_with_hal_stops_its_plant_which_saw_the_controller(multicast_works, procs, clients,
+                                                                       params_file):
+    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
+    url, key_path = link_of(sim)
+    plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready").group(1))
+    client = clients(url, key_path)
+    assert client.call(M["Enable"]()).ok
+    assert client.call(M["Ping"](1)).ok
+    client.close()
+    code, err = sim.stop()
+    assert code == 0, err
+    seen = counters(err)                                   # the child shares the parent's stderr
+    assert seen["frames_received"] > 0 and seen["bad_frames"] == 0
+    assert not _running(plant_pid)
+    assert "ended" not in err                              # a plant we stopped is not news
+
+
+def test_a_plant_whose_parent_is_killed_stops_by_itself(multicast_works, procs, params_file):
+    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
+    link_of(sim)
+    plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready").group(1))
+    code, err = sim.stop(signal.SIGKILL)                   # the parent cannot stop its child now ...
+    assert code == -signal.SIGKILL
+    # ... but the child's stdin (a pipe from the parent) closes, and the plant stops; its
+    # stderr is the parent's (now our pipe), so its farewell arrives on it.
+    assert "standard input closed" in err and COUNTERS.search(err), err
+    assert _gone_within(plant_pid, WAIT_S)                 # it closed stderr; give it time to finish exiting
+
+
+def _gone_within(pid: int, timeout_s: float) -> bool:
+    """Wait (bounded, real-process session) until `pid` has exited."""
+    waiter = threading.Event()
+    for _ in range(int(timeout_s / 0.05)):
+        if not _running(pid):
+            return True
+        waiter.wait(0.05)
+    return not _running(pid)
+
+
+def _running(pid: int) -> bool:
+    """True if `pid` exists and is not a zombie waiting for a reaper."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    except OSError:
+        return True
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["plant", "--interface", "nosuchbus", "--channel", "x"], "unknown python-can interface 'nosuchbus'"),
+    (["plant", "--interface", "virtual", "--channel", "x"], "joins only buses in the same process"),
+    (["sim", "--hal", "virtual"], "joins only buses in the same process"),
+    (["sim", "--hal", "socketcan"], "needs --hal-channel"),
+    (["firmware", "--interface", "udp_multicast"], "--channel"),
+    (["plant", "--interface", "udp_multicast", "--channel", "10.1.2.3"], "not a multicast group"),
+    (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "port=70000"],
+     "port 70000 is not a whole number in 1..65535"),
+    (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "port"], "is not KEY=VALUE"),
+    (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--gravity", "moon"],
+     "'moon' is not one of earth, orbit"),
+    (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--payload-kg", "-1"], "outside"),
+])
+def test_bad_bus_arguments_exit_2_with_a_reason(env, args, message):
+    done = subprocess.run(ASPOD + args, capture_output=True, env=env, stdin=subprocess.DEVNULL, timeout=60)
+    assert done.returncode == 2, done.stderr.decode()
+    assert message in done.stderr.decode()
+
+
+def test_a_bus_that_cannot_be_opened_here_exits_3(env):
+    done = subprocess.run(ASPOD + ["plant", "--interface", "socketcan", "--channel", "aspodnone0"],
+                          capture_output=True, env=env, stdin=subprocess.DEVNULL, timeout=60)
+    assert done.returncode == 3, done.stderr.decode()
+    assert "cannot open the socketcan bus on channel 'aspodnone0'" in done.stderr.decode()
+
+
+def test_own_echo_filter_drops_only_what_the_node_declares_as_its_own():
+    channel = "aspod-echo-test"
+    raw = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    other = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    bus = nodes.OwnEchoFilter(raw, nodes.PLANT)
+    try:
+        for frame_id in (0x010, 0x280, 0x020, 0x7FF):          # PLANT_SYNC, ANALOG_IN (own), CTRL_OUTPUTS, undeclared
+            other.send(can.Message(arbitration_id=frame_id, data=bytes(8), is_extended_id=False))
+        got: list[Optional[int]] = []
+        while (msg := bus.recv(timeout=0)) is not None:
+            got.append(msg.arbitration_id)
+        assert got == [0x020, 0x7FF] and bus.own_echoes == 2
+    finally:
+        bus.shutdown()
+        other.shutdown()
