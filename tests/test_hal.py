@@ -91,11 +91,13 @@ def mean_supply(samples) -> float:
 # --- codec -----------------------------------------------------------------------------------
 
 def test_dbc_declares_the_bus():
-    assert CODEC.names == ("PLANT_SYNC", "CTRL_OUTPUTS", "MOTOR_CMD", "DIGITAL_IN", "MOTOR_FB", "ANALOG_IN")
+    assert CODEC.names == ("PLANT_SYNC", "CTRL_OUTPUTS", "TRACKER_CMD", "MOTOR_CMD", "DIGITAL_IN", "MOTOR_FB",
+                           "ANALOG_IN", "TRACKER_SENSE", "TRACKER_POS")
     assert (SYNC_ID, OUTPUTS_ID, ANALOG_ID) == (0x010, 0x020, 0x280)
     senders = {m.name: m.senders for m in CODEC.database.messages}
     assert senders == {"PLANT_SYNC": ["PLANT"], "CTRL_OUTPUTS": ["CONTROLLER"], "MOTOR_CMD": ["CONTROLLER"],
-                       "DIGITAL_IN": ["PLANT"], "MOTOR_FB": ["PLANT"], "ANALOG_IN": ["PLANT"]}
+                       "DIGITAL_IN": ["PLANT"], "MOTOR_FB": ["PLANT"], "ANALOG_IN": ["PLANT"],
+                       "TRACKER_CMD": ["CONTROLLER"], "TRACKER_SENSE": ["PLANT"], "TRACKER_POS": ["PLANT"]}
     assert CODEC.cycle_time_s("ANALOG_IN") == pytest.approx(0.01)
     # the per-tick motor frames carry every arm channel in one CAN FD frame each way
     assert CODEC.is_fd("MOTOR_CMD") and CODEC.is_fd("MOTOR_FB") and not CODEC.is_fd("DIGITAL_IN")
@@ -132,6 +134,9 @@ def test_docs_list_every_declared_frame():
             for ch in ARM_CHANNELS:
                 if name.endswith("_" + ch):
                     name = name[: -len(ch)] + "<ch>"
+            for ax in ("az", "el"):      # tracker signals: `relay_cw_<ax>`, `cell_<ax>_a`
+                name = name.replace(f"_{ax}_", "_<ax>_") if f"_{ax}_" in name else (
+                    name[: -len(ax)] + "<ax>" if name.endswith("_" + ax) else name)
             assert f"`{name}`" in doc, f"docs/hal_bus.md does not mention {name}"
 
 
@@ -164,7 +169,7 @@ def test_analog_in_round_trip_within_resolution(supply_v, temp_c):
 
 
 def test_encode_rejects_what_the_dbc_does_not_declare():
-    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_OUTPUTS, MOTOR_CMD, DIGITAL_IN, MOTOR_FB, ANALOG_IN"):
+    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_OUTPUTS, TRACKER_CMD, MOTOR_CMD"):
         CODEC.encode("MOTOR_CMD_0", duty=0.5)
     with pytest.raises(HalEncodeError, match="controller_temp_c"):
         CODEC.encode("ANALOG_IN", supply_v=28.0)
