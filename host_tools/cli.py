@@ -92,6 +92,8 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
     add_link_args(parser)
     parser.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
+    parser.add_argument("--loop-hz", type=_bounded(float, 50.0, 5000.0), default=1000.0, metavar="HZ",
+                        help="rate of the arm's motor loops (default 1000)")
     parser.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=None, metavar="S",
                         help="safe state after this long without a valid frame (default: saved, else 3 s)")
     parser.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=None, metavar="HZ",

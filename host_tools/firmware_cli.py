@@ -58,6 +58,9 @@ def controller_config(args: argparse.Namespace):
     link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
     boot_timeout_s = getattr(args, "boot_timeout", None)
     extra = {"boot_timeout_s": boot_timeout_s} if boot_timeout_s is not None else {}
+    loop_hz = getattr(args, "loop_hz", None)
+    if loop_hz is not None:
+        extra["arm_period_s"] = 1.0 / loop_hz
     return psk, key_path, params_path, ControllerConfig(link=link, params_path=params_path, **extra)
 
 
