@@ -1,6 +1,6 @@
-"""`python -m bench` (`make bench`): the codec, round-trip and real-time loop benchmarks, in that order.
+"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed and tracking, in that order.
 
-    python -m bench [--quick] [--only codec|rtt|realtime]
+    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking]
 
 These print figures and ratios beside a peer measured in the same run; they are not
 pass/fail tests. The exit status is 0 when every benchmark produced its figures
@@ -16,8 +16,10 @@ from typing import Optional, Sequence
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true",
-                        help="fewer frames and pings, 5 s loops instead of 60 s: a smoke run")
-    parser.add_argument("--only", choices=("codec", "rtt", "realtime"), help="run one benchmark only")
+                        help="fewer frames and pings, 5 s loops instead of 60 s, 5 simulated s of lock-step "
+                             "instead of 20, shorter tracking moves and no pick-and-place: a smoke run")
+    parser.add_argument("--only", choices=("codec", "rtt", "realtime", "lockstep", "tracking"),
+                        help="run one benchmark only")
     return parser
 
 
@@ -43,6 +45,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.only in (None, "realtime"):
         from bench import bench_realtime
         if bench_realtime.main(quick=args.quick).error:
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "lockstep"):
+        from bench import bench_lockstep
+        if bench_lockstep.main(quick=args.quick).error:
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "tracking"):
+        from bench import bench_tracking
+        if bench_tracking.main(quick=args.quick).error:
             status = 1
     return status
 
