@@ -58,6 +58,14 @@ def test_teleop_builds_messages_from_field_declarations():
     ("ping colour=red", ["no argument 'colour'"]),
     ("warp 9", ["line 7: unknown command 'warp'"]),
     ("wait forever", ["not a number of seconds"]),
+    ("wait j1 soon", ["timeout", "'soon' is not a number of seconds"]),
+    ("wait j7 5", ["'j7' is not an axis"]),
+    ("wait all 5 6", ["at most an axis and a timeout"]),
+    ("wait 5000", ["outside 0..3600"]),
+    ("watch later", ["watch", "not a number of seconds"]),
+    ("move elbow 3", ["axis", "one of j1, j2, j3, j4, gripper, mount, all"]),
+    ("move j1 400", ["target=400.0 is outside [-360.0, 360.0] deg"]),
+    ("grip tight", ["one of open, close"]),
     ('ping "unclosed', ["line 7"]),
 ])
 def test_teleop_refuses_bad_lines_with_a_reason(line, words):
@@ -78,3 +86,26 @@ def test_help_describes_every_command_with_its_fields():
     for word in teleop.all_words():
         assert word in text
     assert "0..200" in teleop.help_text("telemetry")
+
+
+def test_wait_waits_for_motions_or_pauses():
+    from protocol.states import Axis
+    assert (teleop.parse_line("wait", 1).axis, teleop.parse_line("wait", 1).seconds) == (Axis.ALL, 120.0)
+    step = teleop.parse_line("wait j1 5", 1)
+    assert step.waits_for_motion and (step.axis, step.seconds) == (Axis.J1, 5.0)
+    assert teleop.parse_line("wait gripper", 1).axis == Axis.GRIPPER
+    step = teleop.parse_line("wait 2.5", 1)
+    assert not step.waits_for_motion and step.seconds == 2.5        # a pause, as before
+    assert "wait [AXIS|all] [TIMEOUT]" in teleop.help_text("wait")
+
+
+def test_motion_words_take_declared_enum_values_and_complete_them():
+    from host_tools.teleop_words import completions
+    assert teleop.parse_line("home", 1).message == SCHEMA["Home"].type(255)          # declared default: all
+    assert teleop.parse_line("grip close", 1).message.action == 1
+    assert teleop.parse_line("move mount -2.5", 1).message == SCHEMA["Move"].type(5, -2.5, 0.0)
+    assert completions("mo", 0, "mo") == ["move", "moveby"]
+    assert completions("move ", 5, "") == ["j1", "j2", "j3", "j4", "gripper", "mount", "all"]
+    assert completions("grip c", 5, "c") == ["close"]
+    assert completions("wait g", 5, "g") == ["gripper"]
+    assert "one of j1, j2, j3, j4, gripper, mount, all" in teleop.help_text("move")

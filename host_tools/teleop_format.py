@@ -1,0 +1,150 @@
+"""Teleop's output: one console shared by two threads, and how values, replies and reasons read.
+
+The link's pump thread prints events (motion ends) as they arrive while the main thread prints
+replies and the live `watch` block, so every line goes out whole, under one lock (`Console`).
+Names, units and reason texts all come from the declarations (protocol/messages.py,
+protocol/reasons.py, protocol/states.py).
+"""
+from __future__ import annotations
+
+import textwrap
+import threading
+from typing import Optional, TextIO
+
+from protocol.host_link import CommandHandle
+from protocol.reasons import Reason, reason_name
+from protocol.schema import Field, Message
+from protocol.states import Fault
+
+WIDTH = 96          # wrap long docs to fit a 100-column terminal
+INDENT = "     "    # continuation lines line up under the text after "ok   " / "FAIL "
+
+
+class Console:
+    """Whole lines to one stream from several threads; on a terminal, a block redrawn in place."""
+
+    def __init__(self, out: TextIO) -> None:
+        self.out = out
+        self.live = _isatty(out)
+        self._lock = threading.Lock()
+        self._block_lines = 0      # lines of the live block just above the cursor (0: none)
+
+    def line(self, text: str = "") -> None:
+        with self._lock:
+            self.out.write(text + "\n")
+            self.out.flush()
+            self._block_lines = 0  # anything printed below the block: redraw it afresh below that
+
+    def lines(self, texts: list[str]) -> None:
+        self.line("\n".join(texts))
+
+    def block(self, texts: list[str]) -> None:
+        """Draw `texts` over the previous block (terminal only: cursor up, rewrite, clear to the end)."""
+        with self._lock:
+            up = f"\033[{self._block_lines}F" if self._block_lines else ""
+            self.out.write(up + "".join(t + "\033[K\n" for t in texts))
+            self.out.flush()
+            self._block_lines = len(texts)
+
+
+def _isatty(out: TextIO) -> bool:
+    try:
+        return out.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def wrap(text: str, indent: str = INDENT) -> list[str]:
+    return textwrap.wrap(text, WIDTH, initial_indent=indent, subsequent_indent=indent + "  ") or [indent]
+
+
+def enum_word(enum_type, value: int) -> str:
+    """A wire value as teleop spells it (`j1`, `all`, `close`), or the number if unknown."""
+    try:
+        return enum_type(value).name.lower()
+    except ValueError:
+        return str(value)
+
+
+def format_faults(value: int) -> str:
+    if not value:
+        return "none"
+    known = Fault(value & sum(int(f) for f in Fault))
+    names = [f.name for f in Fault if f and known & f]
+    unknown = value & ~int(known)
+    return ",".join(names + ([f"0x{unknown:x}"] if unknown else []))
+
+
+def format_value(fld: Field, value) -> str:
+    if fld.enum is Reason or fld.name in ("reason", "result", "safe_reason"):
+        return reason_name(value)
+    if fld.enum is not None:
+        try:
+            return fld.enum(value).name
+        except ValueError:
+            return str(value)
+    if fld.name == "faults":
+        return format_faults(value)
+    if isinstance(value, float):
+        return f"{value:.2f}"
+    if isinstance(value, bytes):
+        return value.hex()
+    return str(value)
+
+
+def message_parts(msg: Message, skip: tuple[str, ...] = ("result",)) -> list[str]:
+    """`Name`, then `field=value unit` for each field."""
+    parts = [msg.spec.name]
+    for fld, value in zip(msg.spec.fields, msg):
+        if fld.name in skip:
+            continue
+        unit = f" {fld.unit}" if fld.unit and not isinstance(value, bytes) else ""
+        parts.append(f"{fld.name}={format_value(fld, value)}{unit}")
+    return parts
+
+
+def format_message(msg: Message, skip: tuple[str, ...] = ("result",)) -> str:
+    return " ".join(message_parts(msg, skip))
+
+
+def pack(parts: list[str], first: str, indent: str = INDENT) -> str:
+    """Parts joined by spaces into lines of at most WIDTH, never splitting a part."""
+    lines, line, placed = [], first, 0
+    for part in filter(None, parts):
+        sep = "" if line.endswith(" ") else " "
+        if placed and len(line) + len(sep) + len(part) > WIDTH:
+            lines.append(line)
+            line, sep, placed = indent, "", 0
+        line += sep + part
+        placed += 1
+    return "\n".join(lines + [line])
+
+
+def reason_lines(reason: int, indent: str = INDENT) -> list[str]:
+    """What a reason means and what to do, from protocol/reasons.py (nothing for OK)."""
+    try:
+        known = Reason(reason)
+    except ValueError:
+        return wrap(f"reason {reason} is not known to this build: check the schema hash", indent)
+    if known is Reason.OK:
+        return []
+    return wrap(known.doc, indent) + wrap(f"remedy: {known.remedy}", indent)
+
+
+def latency(handle: CommandHandle) -> str:
+    return f" ({handle.latency_s * 1000:.1f} ms)" if handle.latency_s is not None else ""
+
+
+def format_outcome(handle: CommandHandle) -> str:
+    """`ok   Reply fields (ms)`, or `FAIL Name: rejected: REASON (n) (ms)` with the reason's doc and remedy."""
+    if handle.ok:
+        parts = message_parts(handle.reply) if handle.reply is not None else []
+        return pack(parts + [latency(handle).strip()], "ok   ")
+    return "\n".join(failure_lines(handle))
+
+
+def failure_lines(handle: CommandHandle, extra: Optional[list[str]] = None) -> list[str]:
+    reason = int(handle.reason)
+    detail = f" ({handle.detail})" if handle.detail else ""
+    head = f"FAIL {handle.msg.spec.name}: {handle.outcome.value}: {reason_name(reason)} ({reason}){detail}"
+    return [head + latency(handle)] + reason_lines(reason) + (extra or [])

@@ -1,0 +1,289 @@
+"""Teleop's words: a line of text -> a checked message (or a local word), and the help that goes with it.
+
+The command words, their arguments (names, enum values, defaults, units, ranges), help and
+completion all come from the protocol declaration (`teleop=` in protocol/messages.py). The
+few local words act on the console itself; `wait` names its axes from the declared Axis enum.
+Every check runs before anything is sent, so a bad line changes nothing.
+"""
+from __future__ import annotations
+
+import shlex
+import textwrap
+from dataclasses import dataclass
+from typing import Optional
+
+from protocol.messages import SCHEMA
+from protocol.schema import Field, Message, MessageSpec
+
+# The axes `wait` takes: the declared enum of the motion commands' `axis` field (Home's includes `all`).
+AXIS_ENUM = next(f.enum for f in SCHEMA["Home"].fields if f.name == "axis")
+AXIS_ALL = next(a for a in AXIS_ENUM if a.name == "ALL")
+AXES = tuple(a for a in AXIS_ENUM if a is not AXIS_ALL)          # every channel, in declared order
+AXIS_WORDS = tuple(a.name.lower() for a in AXIS_ENUM)           # j1 ... mount, all
+
+WAIT_TIMEOUT_S = 120.0         # default for `wait [AXIS|all]`: a 330 deg mount move at 3 deg/s takes 110 s
+MAX_WAIT_S = 3600.0
+WATCH_S = 5.0
+HELP_WIDTH = 96
+
+LOCAL_COMMANDS = {
+    "help": "help [command]: list the commands, or describe one",
+    "watch": f"watch [seconds]: live arm and controller telemetry (default {WATCH_S:g} s; Ctrl-C ends it early); "
+             "on a pipe, the last reading once",
+    "link": "link: this end's and the controller's link statistics",
+    "params": "params: every parameter with its value and range (get NAME / set NAME VALUE / save)",
+    "wait": f"wait [AXIS|all] [TIMEOUT]: wait until the motions started here on AXIS (default all: every "
+            f"axis) have ended (default timeout {WAIT_TIMEOUT_S:g} s; a timeout fails the line); "
+            "wait SECONDS: pause. AXIS: " + ", ".join(AXIS_WORDS[:-1]),
+    "connect": "connect: handshake again (a new session)",
+    "quit": "quit: leave",
+}
+
+SCRIPT_RULES = ("in a script (--script FILE, or a pipe), a motion that ends other than DONE counts as a failed "
+                "command (a jog's STOPPED by `stop` is its normal end): the script stops there, or goes on "
+                "with --keep-going, and exits 1")
+
+
+class TeleopError(ValueError):
+    """A line that cannot be turned into a command."""
+
+
+@dataclass
+class Step:
+    word: str
+    args: list[str]
+    line_no: int
+    text: str
+    message: Optional[Message] = None
+    seconds: Optional[float] = None       # watch, and wait as a pause
+    axis: Optional[int] = None            # wait for motions: an AXIS value (AXIS_ALL: every axis)
+
+    @property
+    def waits_for_motion(self) -> bool:
+        return self.word == "wait" and self.axis is not None
+
+
+def commands() -> dict[str, MessageSpec]:
+    return SCHEMA.teleop_commands()
+
+
+def all_words() -> list[str]:
+    return sorted(list(commands()) + list(LOCAL_COMMANDS))
+
+
+def enum_words(fld: Field) -> list[str]:
+    return [m.name.lower() for m in fld.enum] if fld.enum is not None else []
+
+
+def parse_value(fld: Field, text: str):
+    try:
+        if fld.enum is not None and not text.lstrip("-").isdigit():
+            return int(fld.enum[text.upper()])
+        if fld.type == "f32":
+            return float(text)
+        if fld.type == "bool":
+            lowered = text.lower()
+            if lowered in ("1", "true", "on", "yes"):
+                return True
+            if lowered in ("0", "false", "off", "no"):
+                return False
+            raise ValueError(text)
+        if fld.type.startswith("bytes"):
+            return bytes.fromhex(text)
+        if fld.type.startswith("str"):
+            if fld.check(text):
+                raise ValueError(text)
+            return text
+        return int(text, 0)
+    except (ValueError, KeyError):
+        kind = f"one of {', '.join(enum_words(fld))}" if fld.enum else fld.type
+        raise TeleopError(f"{fld.name}: {text!r} is not a valid {kind}") from None
+
+
+def build_message(spec: MessageSpec, args: list[str]) -> Message:
+    """A message from `name=value` or positional arguments, range-checked as on the wire."""
+    values: dict[str, object] = {}
+    names = [f.name for f in spec.fields]
+    for index, arg in enumerate(args):
+        key, sep, text = arg.partition("=")
+        if not sep:
+            if index >= len(names):
+                raise TeleopError(f"{spec.teleop} takes {len(names)} argument(s): {usage(spec)}")
+            key, text = names[index], arg
+        fld = next((f for f in spec.fields if f.name == key), None)
+        if fld is None:
+            raise TeleopError(f"{spec.teleop} has no argument {key!r}: {usage(spec)}")
+        values[key] = parse_value(fld, text)
+    for fld in spec.fields:
+        if fld.name not in values and fld.default is not None:
+            values[fld.name] = fld.default
+    missing = [n for n in names if n not in values]
+    if missing:
+        raise TeleopError(f"{spec.teleop} needs {', '.join(missing)}: {usage(spec)}")
+    msg = spec.type(**values)
+    for fld, value in zip(spec.fields, msg):
+        problem = fld.check(value) if fld.limits is None or fld.range is not None else _type_range(fld, value)
+        if problem:
+            raise TeleopError(problem)
+    return msg
+
+
+def _type_range(fld: Field, value) -> Optional[str]:
+    lo, hi = fld.limits
+    if not lo <= value <= hi:
+        return f"{fld.name}={value} does not fit in {fld.type} ({lo}..{hi})"
+    return fld.check(value)
+
+
+def usage(spec: MessageSpec) -> str:
+    def arg(f: Field) -> str:
+        name = "|".join(enum_words(f)) if f.enum is not None and len(f.enum) <= 3 else f.name.upper()
+        name += f"({f.unit})" if f.unit else ""
+        return f"[{name}]" if f.default is not None else name
+    return " ".join([spec.teleop] + [arg(f) for f in spec.fields])
+
+
+def _seconds(text: str, what: str, line_no: int) -> float:
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise TeleopError(f"line {line_no}: {what}: {text!r} is not a number of seconds") from None
+    if not 0 <= seconds <= MAX_WAIT_S:
+        raise TeleopError(f"line {line_no}: {what}: {seconds:g} s is outside 0..{MAX_WAIT_S:g}")
+    return seconds
+
+
+def _parse_wait(step: Step) -> None:
+    """`wait` / `wait AXIS|all [TIMEOUT]`: wait for motions; `wait SECONDS`: pause."""
+    args, n = step.args, step.line_no
+    if len(args) > 2:
+        raise TeleopError(f"line {n}: wait takes at most an axis and a timeout: wait [AXIS|all] [TIMEOUT]")
+    if not args:
+        step.axis, step.seconds = int(AXIS_ALL), WAIT_TIMEOUT_S
+        return
+    word = args[0].lower()
+    if word in AXIS_WORDS:
+        step.axis = int(AXIS_ENUM[word.upper()])
+        step.seconds = _seconds(args[1], f"wait {word}: timeout", n) if len(args) == 2 else WAIT_TIMEOUT_S
+        return
+    if len(args) == 2:
+        raise TeleopError(f"line {n}: wait: {args[0]!r} is not an axis ({', '.join(AXIS_WORDS)})")
+    try:
+        float(word)
+    except ValueError:
+        raise TeleopError(f"line {n}: wait: {args[0]!r} is not a number of seconds nor an axis "
+                          f"({', '.join(AXIS_WORDS)})") from None
+    step.seconds = _seconds(word, "wait", n)
+
+
+def parse_line(text: str, line_no: int) -> Optional[Step]:
+    """A step for one line; None for blank lines and comments; raises TeleopError."""
+    stripped = text.split("#", 1)[0].strip()
+    if not stripped:
+        return None
+    try:
+        words = shlex.split(stripped)
+    except ValueError as exc:
+        raise TeleopError(f"line {line_no}: {exc}") from None
+    word, args = words[0].lower(), words[1:]
+    if word in ("exit",):
+        word = "quit"
+    step = Step(word, args, line_no, stripped)
+    if word in LOCAL_COMMANDS:
+        if word == "wait":
+            _parse_wait(step)
+        elif word == "watch":
+            if len(args) > 1:
+                raise TeleopError(f"line {line_no}: watch takes at most a number of seconds")
+            step.seconds = _seconds(args[0], "watch", line_no) if args else WATCH_S
+        elif word == "help" and len(args) > 1:
+            raise TeleopError(f"line {line_no}: help takes at most one command word")
+        elif word not in ("help",) and args:
+            raise TeleopError(f"line {line_no}: {word} takes no arguments")
+        return step
+    spec = commands().get(word)
+    if spec is None:
+        raise TeleopError(f"line {line_no}: unknown command {word!r} (known: {', '.join(all_words())})")
+    try:
+        step.message = build_message(spec, args)
+    except TeleopError as exc:
+        raise TeleopError(f"line {line_no}: {exc}") from None
+    return step
+
+
+def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
+    """Every line parsed: the steps, and a message for each line that is not a command."""
+    steps, problems = [], []
+    for number, text in enumerate(lines, 1):
+        try:
+            step = parse_line(text, number)
+        except TeleopError as exc:
+            problems.append(str(exc))
+            continue
+        if step is not None:
+            steps.append(step)
+    return steps, problems
+
+
+def help_text(word: Optional[str] = None) -> str:
+    cmds = commands()
+    if word is None:
+        rows = [line for _, s in sorted(cmds.items()) for line in _row(usage(s), s.doc)]
+        rows += [line for text in LOCAL_COMMANDS.values() for line in _wrap(text, "  ")]
+        return "\n".join(["commands:"] + rows + _wrap(SCRIPT_RULES, ""))
+    word = word.lower()
+    if word in LOCAL_COMMANDS:
+        return "\n".join(_wrap(LOCAL_COMMANDS[word], "") + (_wrap(SCRIPT_RULES, "  ") if word == "wait" else []))
+    spec = cmds.get(word)
+    if spec is None:
+        return f"unknown command {word!r}"
+    lines = [usage(spec)] + _wrap(spec.doc, "  ")
+    for f in spec.fields:
+        rng = f" range {f.range[0]}..{f.range[1]}" if f.range else ""
+        choices = f"; one of {', '.join(enum_words(f))}" if f.enum is not None else ""
+        default = f" (default {_default_word(f)})" if f.default is not None else ""
+        lines += _wrap(f"{f.name}: {f.type}{' [' + f.unit + ']' if f.unit else ''}{rng}: {f.doc}{choices}{default}",
+                       "  ")
+    if spec.reply == "MotionAccepted":
+        lines += _wrap("prints the motion id (axis#id); its end (MotionDone) is printed when it comes; `wait` "
+                       "waits for it", "  ")
+    return "\n".join(lines)
+
+
+def _row(left: str, text: str, width: int = 34) -> list[str]:
+    """`  usage   doc` with the doc wrapped in its column (on its own lines when the usage is long)."""
+    pad = " " * (width + 3)
+    body = textwrap.wrap(text, HELP_WIDTH - len(pad)) or [""]
+    if len(left) > width:
+        return [f"  {left}"] + [pad + b for b in body]
+    return [f"  {left:<{width}} {body[0]}"] + [pad + b for b in body[1:]]
+
+
+def _wrap(text: str, indent: str) -> list[str]:
+    return textwrap.wrap(text, HELP_WIDTH, initial_indent=indent, subsequent_indent=indent + "    ")
+
+
+def _default_word(f: Field) -> str:
+    if f.enum is not None:
+        try:
+            return f.enum(f.default).name.lower()
+        except ValueError:
+            pass
+    return str(f.default)
+
+
+def completions(line: str, begin: int, text: str) -> list[str]:
+    """Tab completion: the word, then the declared enum values of the argument at that position."""
+    before = line[:begin].split()
+    if not before:
+        return [w for w in all_words() if w.startswith(text)]
+    word, position = before[0].lower(), len(before) - 1
+    if word == "help":
+        options = all_words() if position == 0 else []
+    elif word == "wait":
+        options = list(AXIS_WORDS) if position == 0 else []
+    else:
+        spec = commands().get(word)
+        fields = spec.fields if spec is not None else ()
+        options = enum_words(fields[position]) if position < len(fields) else []
+    return [o for o in options if o.startswith(text.lower())]

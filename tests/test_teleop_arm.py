@@ -1,0 +1,287 @@
+"""Teleop drives the arm: `aspod sim --pty` as a subprocess, teleop scripts over the real pty.
+
+Real time (homing alone takes about 7 s), so the moves are small (2-3 deg at the default
+3 deg/s) and run side by side; bounds are generous and the tests assert behaviour, not speed.
+The tests share one simulator (module scope) and run in file order; each one that needs the
+arm homed homes it itself if an earlier test did not.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from host_tools.client import HostClient
+from host_tools.teleop import EXIT_FAILED, EXIT_OK, run_script
+from host_tools.teleop_motion import MotionTracker
+from host_tools.teleop_words import parse_line
+from protocol import auth
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import Axis, AxisMode, MotionOutcome
+
+ASPOD = [sys.executable, "-m", "host_tools.cli"]
+AXES = ("j1", "j2", "j3", "j4", "gripper", "mount")
+JOINTS = ("j1", "j2", "j3", "j4", "mount")
+HOME = "reset\nenable\nhome all\nwait all 60\n"
+END = re.compile(r"^! (\w+)#(\d+) (\w+) at (-?[\d.]+) (deg|mm) \(line (\d+): ([^,]+)", re.M)
+
+
+def read_line(proc: subprocess.Popen, timeout_s: float = 30.0) -> str:
+    line = bytearray()
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while not line.endswith(b"\n"):
+            assert sel.select(timeout_s), f"no output from aspod sim (so far: {bytes(line)!r})"
+            byte = proc.stdout.read(1)
+            assert byte, f"aspod sim exited (so far: {bytes(line)!r})"
+            line += byte
+    return line.decode().rstrip("\n")
+
+
+class ArmSim:
+    def __init__(self, tmp: Path) -> None:
+        self.env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "config")}
+        self.params = tmp / "params.json"
+        self.proc = subprocess.Popen(ASPOD + ["sim", "--pty", "--telemetry-hz", "10", "--params", str(self.params)],
+                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=self.env, bufsize=0)
+        self.url = read_line(self.proc).split(" ", 1)[1]
+        self.key_path = Path(read_line(self.proc).split(" ", 1)[1])
+        self.homed = False
+        self.runs: dict[str, str] = {}   # outputs kept for later tests
+
+    def teleop(self, script: str, tmp: Path, *args: str) -> tuple[int, str, str]:
+        path = tmp / "script.txt"
+        path.write_text(script)
+        done = subprocess.run(ASPOD + ["teleop", self.url, "--script", str(path), *args], capture_output=True,
+                              env=self.env, timeout=120)
+        return done.returncode, done.stdout.decode(), done.stderr.decode()
+
+    def ensure_homed(self, tmp: Path) -> None:
+        if not self.homed:
+            status, out, err = self.teleop(HOME, tmp)
+            assert status == EXIT_OK, out + err
+            self.homed = True
+
+    def stop(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+# ---- the motion tracker, without a link ----
+def accepted(axis: Axis, motion_id: int):
+    return SCHEMA["MotionAccepted"].type(0, int(axis), motion_id)
+
+
+def done(axis: Axis, motion_id: int, outcome=MotionOutcome.DONE, reason=Reason.OK, uptime_ms: int = 1000):
+    return SCHEMA["MotionDone"].type(int(axis), motion_id, int(outcome), int(reason), 1.0, uptime_ms)
+
+
+def test_home_all_ends_are_matched_per_axis_and_older_ends_are_not_taken_for_them():
+    tracker = MotionTracker()
+    tracker.on_done(done(Axis.J1, 4, uptime_ms=100), 0.0)        # an end held over from an earlier session
+    tracker.note_uptime(500)
+    before = tracker.sending()
+    motions, replaced, held = tracker.started(parse_line("home all", 3), accepted(Axis.ALL, 0), before, 1.0)
+    assert [m.label for m in motions] == ["j1#?", "j2#?", "j3#?", "j4#?", "gripper#?", "mount#?"]
+    assert replaced == [] and held == []
+    mine, _, show = tracker.on_done(done(Axis.J1, 4, uptime_ms=600), 2.0)   # not above the id seen before
+    assert mine is None and show
+    mine, _, _ = tracker.on_done(done(Axis.J1, 5, uptime_ms=700), 3.0)
+    assert mine is motions[0] and mine.label == "j1#5" and mine.ok
+    assert len(tracker.running()) == 5 and tracker.running(int(Axis.J1)) == []
+
+
+def test_an_end_that_comes_before_its_reply_is_held_then_claimed():
+    tracker = MotionTracker()
+    before = tracker.sending()
+    mine, _, show = tracker.on_done(done(Axis.GRIPPER, 2), 1.0)
+    assert mine is None and not show                              # held: the reply may name it
+    motions, _, held = tracker.started(parse_line("grip open", 1), accepted(Axis.GRIPPER, 2), before, 1.1)
+    assert held == [(held[0][0], motions[0])] and not motions[0].running
+
+
+def test_a_replaced_motion_is_not_waited_for_and_a_failed_end_is_counted_once():
+    tracker = MotionTracker()
+    first, _, _ = tracker.started(parse_line("moveby j1 5", 1), accepted(Axis.J1, 2), tracker.sending(), 0.0)
+    second, replaced, _ = tracker.started(parse_line("moveby j1 1", 2), accepted(Axis.J1, 3), tracker.sending(), 0.5)
+    assert replaced == first and first[0].replaced_by == "this moveby j1 1" and tracker.running() == second
+    tracker.on_done(done(Axis.J1, 3, MotionOutcome.DISABLED, Reason.CANCELLED), 1.0)
+    assert [m.label for m in tracker.take_failures()] == ["j1#3"] and tracker.take_failures() == []
+    jog, _, _ = tracker.started(parse_line("jog j2 1", 3), accepted(Axis.J2, 1), tracker.sending(), 2.0)
+    tracker.on_done(done(Axis.J2, 1, MotionOutcome.STOPPED, Reason.HOST_REQUEST), 3.0)
+    assert jog[0].ok and tracker.take_failures() == []           # a jog ends STOPPED by `stop`
+    assert tracker.counts() == {"started": 3, "done": 1, "failed": 1, "replaced": 1, "running": 0}
+
+
+# ---- over a real pty, with `aspod sim` ----
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    arm = ArmSim(tmp_path_factory.mktemp("arm"))
+    yield arm
+    arm.stop()
+
+
+def ends(out: str) -> dict[str, list[tuple]]:
+    """MotionDone lines by axis: (id, outcome, position, line number, command)."""
+    found: dict[str, list[tuple]] = {}
+    for axis, motion_id, outcome, pos, _unit, line_no, text in END.findall(out):
+        found.setdefault(axis, []).append((int(motion_id), outcome, float(pos), int(line_no), text.strip()))
+    return found
+
+
+SESSION = """\
+reset
+enable
+home all
+wait all 60
+watch 0.5
+move j1 2
+move j2 2
+move j3 2
+move j4 2
+moveby mount 3
+grip close
+wait all 30
+grip open
+wait gripper 30
+watch 0.5
+get j1_max_deg
+set j1_speed_dps 2.5
+save
+status
+"""
+
+
+@pytest.mark.pty
+def test_a_script_homes_the_arm_moves_every_joint_grips_and_saves_a_parameter(sim, tmp_path):
+    status, out, err = sim.teleop(SESSION, tmp_path, "--summary")
+    sim.runs["session"] = out
+    assert status == EXIT_OK, out + err
+    sim.homed = True
+    assert "ok   motion all started: one end per axis follows (j1, j2, j3, j4, gripper, mount)" in out
+    by_axis = ends(out)
+    for axis in AXES:                       # home all: one end per axis, DONE, from line 3
+        assert by_axis[axis][0][1:2] == ("DONE",) and by_axis[axis][0][3:] == (3, "home all"), by_axis[axis]
+    for axis in ("j1", "j2", "j3", "j4"):   # each joint reached its target
+        motion_id, outcome, pos, _line, text = by_axis[axis][1]
+        assert f"ok   motion {axis}#{motion_id} started" in out
+        assert outcome == "DONE" and text == f"move {axis} 2" and abs(pos - 2.0) < 0.05, by_axis[axis]
+    home_end = by_axis["mount"][0][2]
+    _id, outcome, pos, _line, _text = by_axis["mount"][1]
+    assert outcome == "DONE" and abs(pos - (home_end + 3.0)) < 0.1, by_axis["mount"]
+    grip = by_axis["gripper"]
+    assert [g[1] for g in grip] == ["DONE"] * 3 and [g[4] for g in grip] == ["home all", "grip close", "grip open"]
+    assert abs(grip[2][2] - 50.3) < 1.0                                 # open at its open switch again
+    assert out.count("ok   wait all: 6 motion(s) ended") == 2
+    assert "ok   wait gripper: 1 motion(s) ended" in out
+    assert "homed 6/6" in out and "arm loop 1000 us: exec max" in out   # the watch block
+    for axis in AXES:
+        assert re.search(rf"^{axis}\s+yes\s+-?[\d.]+ (deg|mm)\s+-?[\d.]+ (deg|mm)/s\s+-?[\d.]+ A  HOLDING", out, re.M)
+    assert "name=j1_max_deg value=85.00" in out and "name=j1_speed_dps value=2.50" in out
+    assert json.loads(sim.params.read_text())["params"]["j1_speed_dps"] == 2.5
+    assert "state=ENABLED faults=none" in out
+    assert "motions: 13 started, 13 done, 0 failed, 0 replaced, 0 running" in out
+    session = out.split("\ncommands: ")[0]                              # all but the --summary
+    assert max(len(line) for line in session.splitlines()) <= 100, max(session.splitlines(), key=len)
+
+
+@pytest.mark.pty
+@pytest.mark.xfail(strict=True, reason="controller bug: the gripper's opening is computed from raw 32-bit counts "
+                   "without unwrapping (firmware_py/gripper.py _track), so closing below the power-on opening "
+                   "reads ~1.36e6 mm")
+def test_the_gripper_reports_a_sane_opening_after_closing(sim):
+    out = sim.runs.get("session")
+    if out is None:
+        pytest.skip("needs the session of the test above")
+    closed = [e for e in ends(out)["gripper"] if e[4] == "grip close"]
+    assert closed and 0.0 <= closed[0][2] <= 60.0, closed
+
+
+@pytest.mark.pty
+def test_a_move_beyond_a_soft_limit_is_refused_with_its_reason_and_remedy(sim, tmp_path):
+    sim.ensure_homed(tmp_path)
+    status, out, err = sim.teleop("reset\nenable\nmove j1 100\nstatus\n", tmp_path)
+    assert status == EXIT_FAILED, out + err
+    assert "FAIL Move: rejected: SOFT_LIMIT (28)" in out
+    assert "the target lies beyond the joint's soft limit" in out and "remedy: choose a target inside the limits" in out
+    assert "j1: target 100 deg, soft limits -55 .. 85 deg (parameters j1_min_deg, j1_max_deg)" in out
+    assert "> status" not in out                                  # the script stopped there
+    assert "error: line 3: 'move j1 100' failed; stopping" in err
+    assert "motion j1#" not in out                                # nothing started
+
+
+def positions(msg) -> dict[str, float]:
+    return {a: getattr(msg, f"{a}_pos") for a in AXES}
+
+
+@pytest.mark.pty
+def test_estop_in_the_middle_of_a_move_stops_every_motor_until_reset_and_enable(sim):
+    client = HostClient(sim.url, auth.load_key(sim.key_path))
+    samples: list[tuple[float, object]] = []
+    client.telemetry_listeners.append(lambda msg, now: msg.spec.name == "TelemetryJoints" and samples.append((now, msg)))
+    try:
+        client.connect()
+        out, err = io.StringIO(), io.StringIO()
+        script = ["reset", "enable", "moveby j1 3", "moveby j2 -3", "moveby j3 3", "moveby j4 3", "moveby mount 3",
+                  "grip close", "wait 1", "estop", "wait 2", "status"]
+        status, _session = run_script(client, script, out, keep_going=True, err=err)
+        text = out.getvalue()
+        moving = next(k for k, (_now, msg) in enumerate(samples) if msg.j1_mode == AxisMode.MOVING)
+        estop_s = next(now for now, msg in samples[moving:] if msg.j1_mode == AxisMode.IDLE)
+        sim.runs["estop"] = (estop_s, list(samples))
+        # the motions were cut short: each ends DISABLED (CANCELLED, with its doc and remedy) and fails the script
+        assert status == EXIT_FAILED, text + err.getvalue()
+        by_axis = ends(text)
+        assert {a: [e[1] for e in by_axis[a]] for a in AXES} == {a: ["DISABLED"] for a in AXES}, text
+        assert "CANCELLED (38)" in text and "remedy: see the controller's state; enable and command it again" in text
+        assert err.getvalue().count("ended DISABLED (CANCELLED)") == 6
+        assert "state=ESTOP faults=ESTOP" in text
+        # every motor off and braked; once the brakes have caught the joints, nothing moves for a second
+        after = [(now, msg) for now, msg in samples if now >= estop_s + 0.3]
+        assert after and after[-1][0] - after[0][0] >= 1.0, len(after)
+        first = positions(after[0][1])
+        for _now, msg in after:
+            assert all(getattr(msg, f"{a}_mode") == AxisMode.IDLE for a in AXES)
+            assert all(getattr(msg, f"{a}_current") == 0.0 for a in AXES)
+            for axis in JOINTS:
+                assert abs(getattr(msg, f"{axis}_pos") - first[axis]) < 0.01, (axis, first, msg)
+        # while the e-stop is latched, motion is refused with its reason
+        status, _session = run_script(client, ["moveby j1 1"], out := io.StringIO(), err=io.StringIO())
+        assert status == EXIT_FAILED and "FAIL MoveBy: rejected: ESTOP (18)" in out.getvalue()
+        assert "remedy: clear the cause, then send reset" in out.getvalue()
+        # reset and enable: motion works again, from where the arm stood
+        held = positions(samples[-1][1])
+        status, _session = run_script(client, ["reset", "enable", "moveby j1 1", "moveby mount -1", "wait all 20",
+                                               "status"], out := io.StringIO(), err=io.StringIO())
+        text = out.getvalue()
+        assert status == EXIT_OK, text
+        done = ends(text)
+        assert done["j1"][0][1] == "DONE" and abs(done["j1"][0][2] - (held["j1"] + 1.0)) < 0.1, (held, text)
+        assert done["mount"][0][1] == "DONE" and abs(done["mount"][0][2] - (held["mount"] - 1.0)) < 0.1, text
+        assert "state=ENABLED" in text
+    finally:
+        client.close()
+
+
+@pytest.mark.pty
+@pytest.mark.xfail(strict=True, reason="the gripper has no brake and the plant lets its lead screw coast freely "
+                   "with the bridge open, so it keeps closing for about a second (~10 mm) after an e-stop")
+def test_the_gripper_stops_at_an_estop_too(sim):
+    if "estop" not in sim.runs:
+        pytest.skip("needs the e-stop test above")
+    estop_s, samples = sim.runs["estop"]
+    after = [msg.gripper_pos for now, msg in samples if estop_s + 0.3 <= now <= estop_s + 1.5]
+    assert after and max(after) - min(after) < 0.1, after
