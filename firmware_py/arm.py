@@ -61,6 +61,7 @@ OUTCOME_REASON = {
     Outcome.STOPPED: Reason.HOST_REQUEST,
     Outcome.SOFT_LIMIT: Reason.SOFT_LIMIT,
     Outcome.DISABLED: Reason.CANCELLED,
+    Outcome.SUPERSEDED: Reason.HOST_REQUEST,
 }
 
 FaultSink = Callable[[Fault, Reason, float], None]
@@ -99,6 +100,7 @@ class ArmController:
         # HAL channel order; the gripper sits at GRIPPER_INDEX
         self.channels: list = [self.joints.get(name, self.gripper) for name in AXIS_NAMES]
         self._reported = [(0, Outcome.NONE)] * len(self.channels)
+        self._running: list[Optional[int]] = [None] * len(self.channels)   # motion id last seen RUNNING
         self._duty = [0.0] * len(self.channels)
 
     # ---- parameters ----
@@ -225,6 +227,11 @@ class ArmController:
             if key == self._reported[k]:
                 continue
             self._reported[k] = key
+            running = self._running[k]
+            if running is not None and running != channel.motion_id:
+                # a newer command replaced it before it ended: it ends here, superseded
+                self._on_motion_done(k, running, Outcome.SUPERSEDED, Reason.HOST_REQUEST, self.position(k), now)
+            self._running[k] = channel.motion_id if channel.outcome is Outcome.RUNNING else None
             if channel.outcome in (Outcome.NONE, Outcome.RUNNING):
                 continue
             if channel.outcome is Outcome.FAULT:

@@ -112,6 +112,7 @@ class Outcome(enum.IntEnum):
     SOFT_LIMIT = 5    # stopped at a soft limit
     FAULT = 6         # cancelled by a fault
     DISABLED = 7      # cancelled by disable/safe
+    SUPERSEDED = 8    # replaced by a newer motion command on the same axis before it ended
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from typing import Callable, Optional
 
 from firmware_py.arm_config import GripperModel
 from firmware_py.axis import AxisMode, Outcome, Refusal
+from firmware_py.estimator import unwrap_delta
 
 GRIPPER_TIMEOUT = 1 << 0          # the gripper's one fault bit (mapped to Fault.GRIPPER)
 _CONFIRM_S = 0.03                 # jaws still this long at grip current: gripped
@@ -152,9 +153,10 @@ class Gripper:
 
     def _track(self, now: float, count: int) -> None:
         """Opening from counts (relative to the last open-switch reference), velocity over 20 ms."""
-        self.opening_m = self._ref_m + (count - self._ref_count) * self.model.m_per_count
+        # counts are 32-bit and wrap: always take differences modulo 2**32
+        self.opening_m = self._ref_m + unwrap_delta(count, self._ref_count) * self.model.m_per_count
         if self._vel_count is None:
             self._vel_count, self._vel_s = count, now
         elif now - self._vel_s >= 0.02:
-            self.vel_m_s = (count - self._vel_count) * self.model.m_per_count / (now - self._vel_s)
+            self.vel_m_s = unwrap_delta(count, self._vel_count) * self.model.m_per_count / (now - self._vel_s)
             self._vel_count, self._vel_s = count, now

@@ -253,6 +253,9 @@ class DcMotorBank:
              load_torque_nm=None, load_inertia_kg_m2=None) -> None:
         """Advance `dt_s` with per-channel `duty` in [-1, 1] (clipped; NaN = 0), `enable`, `brake`.
 
+        A channel without a mechanical brake (`brake_hold_nm` 0) that is braked and not enabled
+        is dynamically braked: its armature is shorted, so it stops instead of coasting.
+
         `load_torque_nm` opposes positive motion (gravity's pull, as a holding torque);
         `load_inertia_kg_m2` adds to each drive's own inertia. Both are held over the step.
         Per-channel arguments are sequences (lists are fastest) or numpy arrays.
@@ -277,6 +280,10 @@ class DcMotorBank:
                 else:
                     u = supply_v if u >= 1.0 else -supply_v if u <= -1.0 else 0.0
                 p = (a_e * cur[k] + u) * inv_aer    # current if the shaft stood still this step
+            elif brake[k] and hold == 0.0:
+                # No mechanical brake: "brake" shorts the armature through the bridge's low side
+                # (dynamic braking), so back-EMF current stops the motor instead of letting it coast.
+                p = a_e * cur[k] * inv_aer
             else:
                 p = q = 0.0                          # bridge open: no current, no back-EMF drag
             m = (inertia + extra[k]) * inv_h

@@ -94,8 +94,9 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.WRONG_DIRECTION: ("the message is declared for the other direction or another class",
                              "send only host-to-controller messages in their declared class"),
     Reason.BAD_LENGTH: ("the payload length does not match the message's declared fields", "check the schema hash"),
-    Reason.OUT_OF_RANGE: ("a field is outside its declared range or is not a finite number",
-                          "see the message's field table in docs/protocol.md for the range"),
+    Reason.OUT_OF_RANGE: ("a field is outside its declared range or is not a finite number, or beyond a limit the "
+                          "controller sets (an axis's speed parameter, say), or not meaningful for that axis",
+                          "see the message's field table in docs/protocol.md and the axis's parameters (`params`)"),
     Reason.SEQUENCE_GAP: ("a command's sequence number skips ahead of the next expected one",
                           "none: the host retransmits from the expected sequence (go-back-N)"),
     Reason.NOT_ALLOWED_IN_STATE: ("the command is not allowed in the controller's present state",

@@ -101,6 +101,7 @@ class MotionOutcome(enum.IntEnum):
     SOFT_LIMIT = 5    # stopped at a soft limit
     FAULT = 6         # cancelled by a fault
     DISABLED = 7      # cancelled by disable, e-stop or the safe state
+    SUPERSEDED = 8    # replaced by a newer motion command on the same axis before it ended
 
 
 class GripAction(enum.IntEnum):

@@ -234,3 +234,32 @@ def test_same_seed_same_telemetry_bytes():
     first, second = _session_bytes(7), _session_bytes(7)
     assert len(first) > 5000 and first == second
     assert _session_bytes(8) != first
+
+
+def test_a_motion_replaced_by_a_newer_one_ends_superseded(bench):
+    first = start(bench, M["MoveBy"](int(Axis.MOUNT), 3.0, 0))
+    bench.run_for(0.5)
+    second = start(bench, M["MoveBy"](int(Axis.MOUNT), 1.0, 0))
+    assert bench.wait_until(lambda: motion_done(bench, Axis.MOUNT, second) is not None, 30)
+    old = motion_done(bench, Axis.MOUNT, first)
+    assert old is not None and old.outcome == MotionOutcome.SUPERSEDED and old.reason == Reason.HOST_REQUEST
+    assert motion_done(bench, Axis.MOUNT, second).outcome == MotionOutcome.DONE
+
+
+def test_the_gripper_opening_survives_the_32_bit_count_wrap_and_stops_at_an_estop(bench):
+    arm = bench.world.plant.arm
+    run_motion(bench, M["Home"](int(Axis.GRIPPER)))
+    motion_id = start(bench, M["Grip"](int(GripAction.CLOSE)))
+    assert bench.wait_until(lambda: motion_done(bench, Axis.GRIPPER, motion_id) is not None, 10)
+    event = motion_done(bench, Axis.GRIPPER, motion_id)
+    assert event.outcome == MotionOutcome.DONE
+    assert event.position == pytest.approx(arm.gripper_opening_m * 1000, abs=0.5)   # mm, closed
+    start(bench, M["Grip"](int(GripAction.OPEN)))
+    bench.run_for(0.5)
+    assert bench.call(M["EStop"]()).ok
+    moving = arm.gripper_opening_m
+    bench.run_for(0.5)          # the shorted armature stops the rotor within about 0.4 s (at most ~2-3 mm of jaw)
+    opening = arm.gripper_opening_m
+    assert abs(opening - moving) < 0.003
+    bench.run_for(1.0)
+    assert arm.gripper_opening_m == pytest.approx(opening, abs=1e-5)      # dynamically braked, not coasting
