@@ -601,8 +601,8 @@ def report(bare: LoopResult, world: LoopResult, duration_s: float, rounds: int) 
             lines.append("  NOTE: the two rows met differently loaded machines (others differ by more than 0.25 "
                          "core): the ratios say little; run again on a quieter machine")
     lines.append("  the bare loop keeps its 1 ms grid: after a stall it runs back to back to catch up (periods near "
-                 "0, jitter near 1 ms), and every run more than 1 ms behind counts as missed; the world's tasks "
-                 "(`now + period`) never catch up, so a stall costs them one missed run and a longer period")
+                 "0, jitter near 1 ms), and every run more than 1 ms behind counts as missed; the world's periodic tasks "
+                 "keep the grid too but skip the periods a stall cost them (counted as skipped) instead of bursting")
     if world.error:
         lines.append(f"  world: {world.error}")
     if world.runs:
