@@ -95,6 +95,15 @@ FAULT_TABLE: tuple[FaultSpec, ...] = (
         "the command again.",
         "MOTOR_FB count_<ch> still (or creeping at high duty) with a high current_<ch> -> "
         "stall."),
+    FaultSpec(
+        "clouds", False,
+        "A cloud bank covers the sun over the solar tracker: the direct beam drops by "
+        "TrackerParams.overcast_attenuation (95 %) on top of any scheduled cloud passages "
+        "(Plant(clouds=...)); the diffuse light stays. Nothing else changes. Cleared: the beam "
+        "returns at once. (Timed passages: the clouds spec, hil_sim.sun.parse_clouds.)",
+        "TRACKER_SENSE: both cells of each pair drop to their diffuse level (about 0.03 V at noon), "
+        "their difference to noise: no direction to follow -> the tracker should hold (brakes on) "
+        "rather than hunt, and resume when the beam returns."),
 )
 
 FAULTS_BY_NAME: dict[str, FaultSpec] = {f.name: f for f in FAULT_TABLE}

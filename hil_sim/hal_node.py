@@ -10,7 +10,19 @@ Each `step(now)` (one plant tick):
    commands as they stand at `now` (the safe state once expired);
 3. sends PLANT_SYNC and MOTOR_FB (every step), DIGITAL_IN (when any switch changed since
    the last one sent, and at least every `digital_every_n` steps) and ANALOG_IN (every
-   `analog_every_n` steps).
+   `analog_every_n` steps);
+4. with `tracker=True`, every `tracker_every_n` steps (10 ms, the DBC's cycle of
+   TRACKER_SENSE and TRACKER_POS), at tick `tracker_phase` modulo that (5: half-way between
+   two ANALOG_IN ticks, so the slow work of the two does not pile into one tick): steps
+   `plant.tracker` over the time gone since its last step with the TRACKER_CMD as it
+   stands (`plant.tracker_commands`, read in 1. like the others; the safe state once
+   expired, 0.1 s), then sends TRACKER_SENSE and TRACKER_POS.
+
+The tracker is off by default: an arm-only node sends exactly what it sent before and pays
+nothing for the tracker. With it on (measured as below, median, best of 3 runs of 30,000
+ticks): the tracker's ticks cost about 30 us more (its step 5 us, the two frames packed
+and sent the rest), the others about 1 us more (reading TRACKER_CMD every 10th tick, the
+bookkeeping): about 4 us a tick on average, a tenth of the arm node's 38 us.
 
 The slow frames go out at the periods declared in the DBC (GenMsgCycleTime, 10 ms), not
 every tick: at 1 kHz every classic 8-byte frame costs about 11-13 % of a 1 Mbit/s bus.
@@ -52,9 +64,11 @@ import can
 
 from hil_sim.arm_params import CHANNELS
 from hil_sim.plant import N_CHANNELS, Plant
+from hil_sim.tracker import TrackerCommand
 from protocol.hal import HalCodec, HalEndpoint
 
 _HALF = 1 << 31
+TRACKER_CMD_SIGNALS = TrackerCommand._fields      # TRACKER_CMD's signals but `alive`, in the DBC's order
 _STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h",
                  (32, False): "I", (32, True): "i", (64, False): "Q", (64, True): "q"}
 
@@ -65,18 +79,21 @@ class PlantNode(HalEndpoint):
     `tick` is the index of the next step; `frames_sent` counts every frame sent and
     `sent_by_name` each kind; `dt_clamps` the steps cut to `max_dt_s`; `bad_frames`,
     `bus_errors` as in `HalEndpoint`. DIGITAL_IN and ANALOG_IN periods default to the
-    DBC's declared cycle times.
+    DBC's declared cycle times. `tracker=True` adds the solar tracker (TRACKER_CMD in,
+    TRACKER_SENSE and TRACKER_POS out every `tracker_period_s`, by default the DBC's 10 ms).
     """
 
     def __init__(self, bus: can.BusABC, plant: Plant, period_s: float = 0.001,
                  codec: Optional[HalCodec] = None, *, analog_period_s: Optional[float] = None,
                  digital_period_s: Optional[float] = None, max_dt_s: float = 0.1,
-                 max_frames_per_step: int = 256) -> None:
+                 max_frames_per_step: int = 256, tracker: bool = False,
+                 tracker_period_s: Optional[float] = None) -> None:
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         if not max_dt_s >= period_s:
             raise ValueError(f"max_dt_s ({max_dt_s}) must be >= period_s ({period_s})")
-        for name, value in (("analog_period_s", analog_period_s), ("digital_period_s", digital_period_s)):
+        for name, value in (("analog_period_s", analog_period_s), ("digital_period_s", digital_period_s),
+                            ("tracker_period_s", tracker_period_s)):
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be > 0, got {value}")
         super().__init__(bus, codec, max_frames_per_step)
@@ -107,6 +124,25 @@ class PlantNode(HalEndpoint):
                                                     *(f"limit_lo_{ch}" for ch in CHANNELS),
                                                     *(f"limit_hi_{ch}" for ch in CHANNELS), "tick"))
         self._analog = codec.layout("ANALOG_IN", ("supply_v", "controller_temp_c"))
+        self.tracker = bool(tracker)
+        if tracker_period_s is None:
+            tracker_period_s = codec.cycle_time_s("TRACKER_POS") or period_s
+        self.tracker_every_n = max(1, round(tracker_period_s / period_s))
+        self.tracker_phase = self.tracker_every_n // 2
+        self._tracker_dt = 0.0
+        if self.tracker:
+            # The sun for the day now (pvlib's import and a day's table, about 1 s the first time in a
+            # process), not in the middle of a real-time run when the photocells are first powered.
+            plant.tracker.preload_sun()
+            commands = plant.tracker_commands
+            self.on_frame("TRACKER_CMD", lambda v, now: commands.command(v[:10], int(v[10]), now),
+                          (*TRACKER_CMD_SIGNALS, "alive"))
+            self._tracker_sense = codec.layout("TRACKER_SENSE", ("cell_az_a", "cell_az_b", "cell_el_a", "cell_el_b"))
+            self._tracker_pos = codec.layout("TRACKER_POS", ("angle_az", "angle_el", "limit_cw_az", "limit_ccw_az",
+                                                             "limit_cw_el", "limit_ccw_el", "motor_supply_v"))
+            self._cell_range_v = codec.limits("TRACKER_SENSE", "cell_az_a")
+            self._angle_range_deg = codec.limits("TRACKER_POS", "angle_az")
+            self._motor_supply_range_v = codec.limits("TRACKER_POS", "motor_supply_v")
         self.tick = 0            # index of the next step; PLANT_SYNC carries it modulo 2**32
         self._last_now: Optional[float] = None
         self.dt_clamps = 0       # steps whose elapsed time exceeded max_dt_s (stalls)
@@ -148,8 +184,26 @@ class PlantNode(HalEndpoint):
         if tick % self.analog_every_n == 0:
             self.send_frame(self._analog, (_saturate(plant.supply_v, self._supply_range_v),
                                       _saturate(plant.temp_c, self._temp_range_c)))
+        if self.tracker:
+            self._tracker_dt += dt_s
+            if tick % self.tracker_every_n == self.tracker_phase:
+                self._step_tracker(now)
         self.tick = tick + 1
         return now + self.period_s
+
+    def _step_tracker(self, now: float) -> None:
+        """Step the tracker over the time since its last step; send TRACKER_SENSE and TRACKER_POS."""
+        plant = self.plant
+        tracker = plant.tracker
+        # To the nanosecond, as dt_s: the sum of ten 1 ms steps must not drift in the last bits.
+        tracker.step(round(self._tracker_dt, 9), plant.tracker_commands.current(now))
+        self._tracker_dt = 0.0
+        cells = self._cell_range_v
+        self.send_frame(self._tracker_sense, [_saturate(v, cells) for v in tracker.cells_v])
+        angles = self._angle_range_deg
+        az, el = tracker.angles_measured_deg
+        self.send_frame(self._tracker_pos, (_saturate(az, angles), _saturate(el, angles), *tracker.limits,
+                                            _saturate(tracker.motor_supply_v, self._motor_supply_range_v)))
 
 
 def _saturate(value: float, limits: tuple[float, float]) -> float:

@@ -37,6 +37,19 @@ Faults: `inject(name, channel=None)`, `clear(name, channel=None)`, `faults`; the
 of names, effects and what a controller should see is `hil_sim.faults.FAULT_TABLE`.
 `FAULTS` (kept for existing callers) lists the plant-wide faults, the ones that take no
 channel; `CHANNEL_FAULTS` the others.
+
+The solar tracker. `Plant` also owns `tracker`, a `hil_sim.tracker.TrackerPlant` (two
+axes, 90 VDC motors, relays, brakes, limits, photocells, the sun at `site` from the
+simulated date-time `start`, with `clouds`), and `tracker_commands`, the expiring
+TRACKER_CMD (`ExpiringTrackerCommands`, 0.1 s). `Plant.step` does not step it: the
+tracker is slow and runs at its own 10 ms rate, stepped by whoever drives it
+(`PlantNode(..., tracker=True)` every 10th tick with the time gone since its last step, or
+`plant.tracker.step(dt_s, cmd)` directly), so an arm-only run pays nothing for it. Its
+simulated date-time is `start` + the time it has been stepped through
+(`plant.tracker.utc`). Building it costs microseconds: the sun is computed (and pvlib
+imported) only when the photocells are first powered or the sun is asked for. Its noise
+comes from a generator spawned from the plant's (`rng.spawn`), so the arm's noise stream
+is the same with or without it.
 """
 from __future__ import annotations
 
@@ -51,6 +64,8 @@ from hil_sim.arm import ArmPlant
 from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNELS, ArmPlantParams
 from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
 from hil_sim.motor import TWO_PI
+from hil_sim.sun import DEFAULT_START, TUCSON, DateTimeLike, Site
+from hil_sim.tracker import SAFE_COMMAND, TRACKER_PARAMS, TrackerCommand, TrackerParams, TrackerPlant
 
 # The plant-wide faults (no channel). Per-channel ones: CHANNEL_FAULTS; all: hil_sim.faults.
 FAULTS = PLANT_FAULTS
@@ -98,6 +113,9 @@ class PlantParams:
     motor_cmd_timeout_s: float = 0.02
     # The jump of the "encoder_glitch" fault, in counts (J1: 11 deg, a 1 ms speed no joint has).
     encoder_glitch_counts: int = 20000
+    # A TRACKER_CMD older than this is void: relays open, brakes on, sensors and motors unpowered
+    # (protocol/hal.dbc: "the plant expires it after 0.1 s").
+    tracker_cmd_timeout_s: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -109,7 +127,7 @@ class PlantParams:
             if getattr(self, name) < 0:
                 raise ValueError(f"PlantParams.{name} must be >= 0, got {getattr(self, name)}")
         for name in ("supply_nominal_v", "thermal_resistance_c_per_w",
-                     "thermal_capacity_j_per_c", "output_timeout_s", "motor_cmd_timeout_s"):
+                     "thermal_capacity_j_per_c", "output_timeout_s", "motor_cmd_timeout_s", "tracker_cmd_timeout_s"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"PlantParams.{name} must be > 0, got {getattr(self, name)}")
         glitch = self.encoder_glitch_counts
@@ -218,17 +236,52 @@ class ExpiringMotorCommands(_Expiring[MotorCommand]):
         return self._refresh((list(duty), list(enable), list(brake)), alive, now)
 
 
+class ExpiringTrackerCommands(_Expiring[TrackerCommand]):
+    """The solar tracker's command (TRACKER_CMD) as a `hil_sim.tracker.TrackerCommand`.
+
+    Expired (and before the first command) it reads as `SAFE_COMMAND`: both relays of
+    each axis open, brakes applied, duty 0, sensor and motor power off (a silent
+    controller de-energises everything it drives).
+    """
+
+    def __init__(self, timeout_s: float) -> None:
+        super().__init__(timeout_s, SAFE_COMMAND)
+
+    def command(self, cmd, alive: int, now: float) -> bool:
+        """Record `cmd` (a TrackerCommand or 10 values in its order) received at `now`; False if a repeat.
+
+        ValueError (nothing recorded) for the wrong number of values or a duty outside [0, 1].
+        """
+        try:
+            cmd = TrackerCommand(*cmd)
+        except TypeError:
+            raise ValueError(f"a tracker command has {len(TrackerCommand._fields)} values "
+                             f"({', '.join(TrackerCommand._fields)}), got {cmd!r}") from None
+        if not (0.0 <= cmd.duty_az <= 1.0 and 0.0 <= cmd.duty_el <= 1.0):
+            raise ValueError(f"tracker duties must be in [0, 1], got az {cmd.duty_az!r}, el {cmd.duty_el!r}")
+        return self._refresh(cmd, alive, now)
+
+
 class Plant:
     """Supply, box temperature and arm, stepped by `dt_s`; measured values are sampled per step.
 
     `arm` is the `ArmPlant` (set an object between the jaws, a payload, the gravity mode,
     or move a joint by hand through it). `commanded` and `motor_commands` hold what the bus
     last commanded; the node feeds them and hands `step` what they read at its `now`.
+
+    The solar tracker: `tracker` (`hil_sim.tracker.TrackerPlant`, built from
+    `tracker_params`, `site`, `start` and `clouds`; see the module docstring) and
+    `tracker_commands` (TRACKER_CMD, expiring). `start` is the simulated date-time at which
+    the tracker's clock starts, an aware datetime or a POSIX timestamp (default
+    `hil_sim.sun.DEFAULT_START`, the June solstice 2026 at 06:00 MST); `site` defaults to
+    Tucson; `clouds` is None, a spec string ("12:00+300s@0.9,14:30+10m@0.5",
+    `hil_sim.sun.parse_clouds`) or `CloudPassage` items.
     """
 
     def __init__(self, params: PlantParams, rng: np.random.Generator, *,
                  arm_params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
-                 payload_kg: float = 0.0) -> None:
+                 payload_kg: float = 0.0, site: Site = TUCSON, start: DateTimeLike = DEFAULT_START,
+                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS) -> None:
         self.params = params
         self._rng = rng
         self._noise: list[float] = []
@@ -258,6 +311,9 @@ class Plant:
         self.channel_duty = [0.0] * n
         self.channel_driven = [False] * n
         self.channel_braked = [True] * n
+        # The solar tracker, with a generator of its own so that the arm's noise stream does not change.
+        self.tracker = TrackerPlant(tracker_params, _spawn(rng), site=site, start=start, clouds=clouds)
+        self.tracker_commands = ExpiringTrackerCommands(params.tracker_cmd_timeout_s)
         self.temp_true_c = params.ambient_c  # box starts at ambient (just powered on)
         self.supply_true_v = params.supply_nominal_v
         self.current_a = 0.0          # total drawn from the supply at the last step
@@ -282,6 +338,8 @@ class Plant:
             return
         if index is not None:
             self._set_channel_fault(spec.name, index, True)
+        elif spec.name == "clouds":
+            self.tracker.overcast = True
         self._faults.add(key)
 
     def clear(self, fault: str, channel: Optional[Channel] = None) -> None:
@@ -292,6 +350,8 @@ class Plant:
             return
         if index is not None:
             self._set_channel_fault(spec.name, index, False)
+        elif spec.name == "clouds":
+            self.tracker.overcast = False
         self._faults.discard(key)
 
     def _set_channel_fault(self, name: str, k: int, on: bool) -> None:
@@ -404,5 +464,14 @@ class Plant:
                 tuple([x >= hi for x, hi in zip(pos, self._limit_hi_rad)]))
 
 
-__all__ = ["CHANNEL_FAULTS", "ExpiringMotorCommands", "ExpiringOutputs", "FAULTS", "MotorCommand", "Plant",
-           "PlantParams"]
+def _spawn(rng: np.random.Generator) -> np.random.Generator:
+    """An independent child generator; the parent's stream is left as it was (numpy's `Generator.spawn`)."""
+    try:
+        return rng.spawn(1)[0]
+    except (AttributeError, TypeError, ValueError):
+        # A generator without a seed sequence (built from a bare state) cannot spawn: seed a child from it.
+        return np.random.default_rng(int(rng.integers(2**63)))
+
+
+__all__ = ["CHANNEL_FAULTS", "ExpiringMotorCommands", "ExpiringOutputs", "ExpiringTrackerCommands", "FAULTS",
+           "MotorCommand", "Plant", "PlantParams"]
