@@ -48,6 +48,8 @@ class Reason(enum.IntEnum):
     GRIPPER_TIMEOUT = 36
     NOT_SETTLED = 37
     CANCELLED = 38
+    DIAL_NOT_LOW = 39
+    SWITCH_POSITION = 40
 
     @property
     def doc(self) -> str:
@@ -137,6 +139,13 @@ _TABLE: dict[Reason, tuple[str, str]] = {
                          "check the load and the gains; the joint holds where it is"),
     Reason.CANCELLED: ("the motion was cancelled by disable, e-stop or the safe state",
                        "see the controller's state; enable and command it again"),
+    Reason.DIAL_NOT_LOW: ("the control box's speed dial is above its low setting (parameter trk_dial_low_pct): the "
+                          "report's operating instructions forbid starting (speed switch on, or main power on with "
+                          "the speed switch on), changing the control mode or changing direction with the dial high",
+                          "turn the dial low first (`dial 0`), repeat the switch, then turn the dial up"),
+    Reason.SWITCH_POSITION: ("that switch has no such position (main and sensor: off, on; mode: manual, sensor; "
+                             "direction: cw, ccw; speed: brake, on)",
+                             "use one of the switch's own positions, e.g. `switch speed brake`"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

@@ -107,3 +107,87 @@ class MotionOutcome(enum.IntEnum):
 class GripAction(enum.IntEnum):
     OPEN = 0
     CLOSE = 1
+
+
+# ---- the solar tracker's control box (firmware_py/tracker.py) ----
+
+class Switch(enum.IntEnum):
+    """The switches of the solar tracker's control box (report, "Control Box" and its operating instructions)."""
+
+    MAIN = 0        # main power: off / on (the 90 VDC motors' supply)
+    SENSOR = 1      # sensor power: off / on (the photocells)
+    MODE = 2        # control mode: manual / sensor
+    DIRECTION = 3   # direction: cw / ccw (manual mode; sensor mode follows the photocells)
+    SPEED = 4       # speed switch: brake / on
+
+
+class SwitchPosition(enum.IntEnum):
+    """Positions of the control box's switches; each switch has two (SWITCH_POSITIONS)."""
+
+    OFF = 0
+    ON = 1
+    MANUAL = 2
+    SENSOR = 3
+    CW = 4
+    CCW = 5
+    BRAKE = 6
+
+
+SWITCH_POSITIONS: dict[Switch, tuple[SwitchPosition, SwitchPosition]] = {
+    Switch.MAIN: (SwitchPosition.OFF, SwitchPosition.ON),
+    Switch.SENSOR: (SwitchPosition.OFF, SwitchPosition.ON),
+    Switch.MODE: (SwitchPosition.MANUAL, SwitchPosition.SENSOR),
+    Switch.DIRECTION: (SwitchPosition.CW, SwitchPosition.CCW),
+    Switch.SPEED: (SwitchPosition.BRAKE, SwitchPosition.ON),
+}
+
+
+class TrackerAxis(enum.IntEnum):
+    """The tracker's directional systems; BOTH addresses both at once."""
+
+    AZ = 0
+    EL = 1
+    BOTH = 2
+
+
+class TempSide(enum.IntEnum):
+    """Which edge of the control box's allowed temperature range a warning is about."""
+
+    COLD = 0        # near temp_min_c (report: -10 C)
+    HOT = 1         # near temp_max_c (report: 45 C)
+
+
+class TrackerWarning(enum.IntFlag):
+    """Warning bits of TelemetryTracker: conditions the operator should know of; none is a fault."""
+
+    NONE = 0
+    TEMP_LOW = 1 << 0
+    TEMP_HIGH = 1 << 1
+    SENSE_STALE = 1 << 2
+    POS_STALE = 1 << 3
+    NO_SUN = 1 << 4
+    NO_CLOCK = 1 << 5
+    FF_FALLBACK = 1 << 6
+    SUN_DOWN = 1 << 7
+    LIMIT_AZ = 1 << 8
+    LIMIT_EL = 1 << 9
+    NOT_ENABLED = 1 << 10
+
+
+TRACKER_WARNING_DOCS: dict[TrackerWarning, str] = {
+    TrackerWarning.TEMP_LOW: "control box within temp_warn_c of temp_min_c (or below it)",
+    TrackerWarning.TEMP_HIGH: "control box within temp_warn_c of temp_max_c (or above it)",
+    TrackerWarning.SENSE_STALE: "no TRACKER_SENSE (photocells) for trk_stale_s: sensor mode does not drive",
+    TrackerWarning.POS_STALE: "no TRACKER_POS (angles, limit switches) for trk_stale_s: the tracker does not drive",
+    TrackerWarning.NO_SUN: "sensor power on but a photocell pair sums below trk_sun_min_v (clouds, night, "
+                           "far off the sun): the relay logic holds that axis",
+    TrackerWarning.NO_CLOCK: "the controller's UTC clock was never set (SetClock): no sun angles, no feed-forward",
+    TrackerWarning.FF_FALLBACK: "trk_ff asks for the sun-rate feed-forward but there is no clock: the report's "
+                                "relay logic runs instead",
+    TrackerWarning.SUN_DOWN: "the ephemeris puts the sun below the horizon: the feed-forward holds",
+    TrackerWarning.LIMIT_AZ: "an azimuth travel limit switch is closed: no drive further that way",
+    TrackerWarning.LIMIT_EL: "an elevation travel limit switch is closed: no drive further that way",
+    TrackerWarning.NOT_ENABLED: "the box asks for drive (main on, speed on) but the controller is not ENABLED",
+}
+
+assert set(TRACKER_WARNING_DOCS) == {w for w in TrackerWarning if w != TrackerWarning.NONE}
