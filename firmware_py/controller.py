@@ -10,7 +10,10 @@ Tasks (period):
   hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
   health      10 ms     boot check, HAL staleness, supply and temperature limits
   arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py)
-  telemetry   1/rate    TelemetryStatus and TelemetryJoints frames
+  tracker     10 ms     the solar tracker's control box and relay logic, TRACKER_CMD (firmware_py/tracker.py)
+  telemetry   1/rate    TelemetryStatus and TelemetryJoints frames; while the tracker's box is in use (main or
+                        sensor power on), TelemetryTracker (at most 10 Hz) half a period after them, so the three
+                        never queue at once (the link keeps two telemetry frames queued, not three)
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ from protocol.schema import Direction, Message, MsgClass
 from protocol.states import Axis, ControllerState, Fault, GripAction
 
 from firmware_py import arm_config
+from firmware_py import tracker as tracker_config
 from firmware_py.arm import ArmController
 from firmware_py.axis import Outcome
 from firmware_py.comms import CommsTask
@@ -36,9 +40,11 @@ from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.scheduler import Scheduler
 from firmware_py.supervisor import Supervisor
+from firmware_py.tracker import TrackerController
 from firmware_py.uart import PacedUart
 
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
 _HANDLERS: dict[str, Callable] = {}
 
 
@@ -81,7 +87,9 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("supply_min_v", 22.0, 0, 60, "V", "supply below this is a fault (nominal 28 V)"),
         ParamSpec("temp_min_c", -10.0, -40, 125, "degC", "controller colder than this is a fault (report: -10 C)"),
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
-    ] + arm_config.parameter_table()
+        ParamSpec("temp_warn_c", 5.0, 0, 40, "degC",
+                  "warn (TemperatureWarning, TEMP_LOW/TEMP_HIGH) within this of temp_min_c or temp_max_c"),
+    ] + arm_config.parameter_table() + tracker_config.parameter_table()
 
 
 class Controller:
@@ -93,9 +101,14 @@ class Controller:
         self.uart = uart
         self.hal = hal
         self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed,
-                                 check=lambda name, value: self.arm.check_param(name, value))
+                                 check=lambda name, value: (self.arm.check_param(name, value)
+                                                            or self.tracker.check_param(name, value)))
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
                                  on_motion_done=self._motion_done, stopwatch=stopwatch)
+        self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
+                                         allowed=lambda: self.supervisor.outputs_allowed)
+        self._tracker_telemetry_due = False      # the telemetry task's next run sends TelemetryTracker
+        self._tracker_telemetry_count = 0
         self.params.load()
         self.telemetry_hz = int(self.params["telemetry_hz"])
         self.scheduler: Optional[Scheduler] = None
@@ -112,6 +125,7 @@ class Controller:
         self._outputs_due_s = 0.0
         self.supervisor.add_safe_hook("outputs off, brakes on", self._outputs_safe)
         self.supervisor.add_safe_hook("arm: every motor off, brakes on", self.arm.safe)
+        self.supervisor.add_safe_hook("tracker: relays open, brakes on, speed switches to brake", self.tracker.safe)
         self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: self.hal.is_stale(self._now(), self.params["hal_stale_s"]))
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
@@ -133,6 +147,7 @@ class Controller:
         scheduler.add("hal", self._hal_step, now, period_s=self.config.hal_period_s)
         # the motor loops first at each tick: they read the HAL themselves, so nothing else delays them
         scheduler.add("arm", self.arm.step, now, period_s=self.config.arm_period_s, priority=0)
+        scheduler.add("tracker", self.tracker.step, now, period_s=self.tracker.period_s, priority=5)
         scheduler.add("health", self._health_step, now + self.config.health_period_s, tolerance_s=0.005)
         scheduler.add("telemetry", self._telemetry_step, now + 0.1, tolerance_s=0.01)
 
@@ -194,15 +209,43 @@ class Controller:
             sup.enter_safe_state(Fault.SUPPLY_LOW, now)
         if self._temp_out_of_range():
             sup.enter_safe_state(Fault.OVER_TEMPERATURE, now)
+        self._temperature_warnings(now)
         return now + cfg.health_period_s
+
+    def _temperature_warnings(self, now: float) -> None:
+        """TemperatureWarning once per crossing of the warning band inside temp_min_c / temp_max_c."""
+        p, temp_c = self.params, self.hal.inputs.temp_c
+        for side, active, limit_c in self.tracker.temp_watch.update(temp_c, p["temp_min_c"], p["temp_max_c"],
+                                                                   p["temp_warn_c"]):
+            self.link.send_event(M["TemperatureWarning"](int(side), active, _finite(temp_c), limit_c,
+                                                         self.uptime_ms(now)))
 
     def _telemetry_step(self, now: float) -> float:
         if self.telemetry_hz == 0:
+            self._tracker_telemetry_due = False
             return now + 0.1
+        period = 1.0 / self.telemetry_hz
+        if self._tracker_telemetry_due:
+            # half a period after the others: the link keeps two telemetry frames queued, not three
+            self._tracker_telemetry_due = False
+            if not self.link.quiet:
+                self.link.send_telemetry(self.tracker_telemetry(now))
+            return now + period / 2
         if not self.link.quiet:
             self.link.send_telemetry(self.telemetry(now))
             self.link.send_telemetry(self.joint_telemetry(now))
-        return now + 1.0 / self.telemetry_hz
+        if not self.tracker.in_use:
+            self._tracker_telemetry_count = 0
+            return now + period
+        self._tracker_telemetry_count += 1
+        if self._tracker_telemetry_count >= math.ceil(self.telemetry_hz / TRACKER_TELEMETRY_MAX_HZ - 1e-9):
+            self._tracker_telemetry_count = 0
+            self._tracker_telemetry_due = True
+            return now + period / 2
+        return now + period
+
+    def tracker_telemetry(self, now: float) -> Message:
+        return M["TelemetryTracker"](uptime_ms=self.uptime_ms(now), **self.tracker.telemetry_fields(now))
 
     def telemetry(self, now: float) -> Message:
         stats = self.link.stats
@@ -239,6 +282,8 @@ class Controller:
             self.link.config.link_timeout_s = value
         if hasattr(self, "arm"):
             self.arm.param_changed(name, value)
+        if hasattr(self, "tracker"):
+            self.tracker.param_changed(name, value)
 
     # ---- commands ----
     def _execute(self, msg: Message, urgent: bool, now: float) -> Message:
@@ -277,6 +322,8 @@ class Controller:
     @handles("SetTelemetryRate")
     def _set_telemetry(self, msg: Message, now: float) -> Message:
         self.telemetry_hz = msg.rate_hz
+        self._tracker_telemetry_due = False
+        self._tracker_telemetry_count = 0
         if self.scheduler is not None:
             self.scheduler.wake("telemetry", now)
         return M["Result"](int(Reason.OK))
@@ -317,6 +364,37 @@ class Controller:
     def _stop(self, msg: Message, now: float) -> Message:
         """Every axis decelerates at its limit and holds; accepted in any state."""
         self.arm.stop_all(now)
+        return M["Result"](int(Reason.OK))
+
+    # ---- the solar tracker's control box and the clock ----
+    def _box_state(self, reason: Reason) -> Message:
+        box = self.tracker.box
+        return M["BoxState"](int(reason), int(box.main), int(box.sensor),
+                             int(box.mode[0]), int(box.direction[0]), int(box.speed[0]), box.dial_pct(0),
+                             int(box.mode[1]), int(box.direction[1]), int(box.speed[1]), box.dial_pct(1))
+
+    def _box_changed(self, now: float) -> None:
+        """Outputs follow a box change at once, not at the next 10 ms tick."""
+        if self.scheduler is not None and "tracker" in self.scheduler.tasks:
+            self.scheduler.wake("tracker", now)
+
+    @handles("BoxSwitch")
+    def _box_switch(self, msg: Message, now: float) -> Message:
+        reason, _detail = self.tracker.switch(msg.switch, msg.position, msg.axis)
+        if reason is Reason.OK:
+            self._box_changed(now)
+        return self._box_state(reason)
+
+    @handles("BoxDial")
+    def _box_dial(self, msg: Message, now: float) -> Message:
+        reason, _detail = self.tracker.dial(msg.percent, msg.axis)
+        if reason is Reason.OK:
+            self._box_changed(now)
+        return self._box_state(reason)
+
+    @handles("SetClock")
+    def _set_clock(self, msg: Message, now: float) -> Message:
+        self.tracker.set_clock(msg.utc_s + msg.utc_ms / 1000.0, now)
         return M["Result"](int(Reason.OK))
 
     # ---- motion: refused unless ENABLED; MotionDone events report the end ----

@@ -8,6 +8,13 @@ enable/brake command with a rolling `alive` counter; the plant expires that
 command if it stops arriving, so a controller that stalls ends in the safe state
 without having to do anything.
 
+The solar tracker's frames: TRACKER_SENSE (photocells) and TRACKER_POS (angles, limit
+switches, 90 VDC bus) land in `HalInputs` with the `now` they arrived (`sense_s`,
+`pos_s`; None until the first, so a plant without the tracker leaves them None);
+`send_tracker_command` sends TRACKER_CMD. What a stale tracker input means is the
+tracker's business (`firmware_py/tracker.py`), not the supervisor's: the tracker frames
+never make the HAL stale.
+
 This module knows the bus only through `protocol.hal` (the DBC) and python-can's
 `BusABC`: it runs unchanged on a virtual bus, socketcan, or any other interface.
 """
@@ -27,6 +34,11 @@ _SWITCH_ORDER = (*(f"home_{ch}" for ch in ARM_CHANNELS), *(f"limit_lo_{ch}" for 
                  *(f"limit_hi_{ch}" for ch in ARM_CHANNELS), "tick")
 _CMD_ORDER = (*(f"duty_{ch}" for ch in ARM_CHANNELS), *(f"enable_{ch}" for ch in ARM_CHANNELS),
               *(f"brake_{ch}" for ch in ARM_CHANNELS), "alive")
+TRACKER_AXES = ("az", "el")
+_SENSE_ORDER = ("cell_az_a", "cell_az_b", "cell_el_a", "cell_el_b")
+_POS_ORDER = ("angle_az", "angle_el", "limit_cw_az", "limit_ccw_az", "limit_cw_el", "limit_ccw_el", "motor_supply_v")
+_TRACKER_CMD_ORDER = ("relay_cw_az", "relay_ccw_az", "relay_cw_el", "relay_ccw_el", "brake_az", "brake_el",
+                      "sensor_power", "motor_power", "duty_az", "duty_el", "alive")
 
 
 @dataclass
@@ -47,6 +59,14 @@ class HalInputs:
     limit_lo: list = field(default_factory=lambda: [False] * _N)
     limit_hi: list = field(default_factory=lambda: [False] * _N)
     switches_s: Optional[float] = None
+    # TRACKER_SENSE: photocell voltages (cell_az_a, cell_az_b, cell_el_a, cell_el_b) [V]
+    cells_v: list = field(default_factory=lambda: [math.nan] * 4)
+    sense_s: Optional[float] = None    # `now` of the last TRACKER_SENSE
+    # TRACKER_POS: axis angles [az, el] (deg), limit switches [[cw, ccw] az, [cw, ccw] el], the 90 V bus
+    tracker_angles_deg: list = field(default_factory=lambda: [math.nan, math.nan])
+    tracker_limits: list = field(default_factory=lambda: [[False, False], [False, False]])
+    motor_supply_v: float = math.nan
+    pos_s: Optional[float] = None      # `now` of the last TRACKER_POS
 
 
 class ControllerHal(HalEndpoint):
@@ -63,6 +83,11 @@ class ControllerHal(HalEndpoint):
         self.on_frame("MOTOR_FB", self._on_feedback, _FB_ORDER)
         self.on_frame("DIGITAL_IN", self._on_switches, _SWITCH_ORDER)
         self._motor_cmd = self.codec.layout("MOTOR_CMD", _CMD_ORDER)
+        self.tracker_alive = 0   # value the next TRACKER_CMD frame will carry
+        self.tracker_both_refused = 0   # TRACKER_CMD requests with both relays of an axis closed (sent open)
+        self.on_frame("TRACKER_SENSE", self._on_tracker_sense, _SENSE_ORDER)
+        self.on_frame("TRACKER_POS", self._on_tracker_pos, _POS_ORDER)
+        self._tracker_cmd = self.codec.layout("TRACKER_CMD", _TRACKER_CMD_ORDER)
 
     def _on_sync(self, values: list, now: float) -> None:
         self.inputs.tick = values[0]
@@ -85,6 +110,37 @@ class ControllerHal(HalEndpoint):
         inputs.limit_lo = [v == 1 for v in values[_N:2 * _N]]
         inputs.limit_hi = [v == 1 for v in values[2 * _N:3 * _N]]
         inputs.switches_s = now
+
+    def _on_tracker_sense(self, values: list, now: float) -> None:
+        self.inputs.cells_v = values
+        self.inputs.sense_s = now
+
+    def _on_tracker_pos(self, values: list, now: float) -> None:
+        inputs = self.inputs
+        inputs.tracker_angles_deg = values[:2]
+        inputs.tracker_limits = [[values[2] == 1, values[3] == 1], [values[4] == 1, values[5] == 1]]
+        inputs.motor_supply_v = values[6]
+        inputs.pos_s = now
+
+    def send_tracker_command(self, relays: list, brakes: list, sensor_power: bool, motor_power: bool,
+                             duties: list) -> bool:
+        """Send TRACKER_CMD: per axis (az, el) `relays` [cw, ccw], `brakes`, `duties` (0..1, saturated).
+
+        The last line of the relay interlock: an axis asked for both relays gets neither (counted in
+        `tracker_both_refused`). `tracker_alive` advances on every attempt; a failed send is counted
+        in `bus_errors` (the plant expires the last command after 0.1 s: relays open, brakes on).
+        """
+        bits = []
+        for cw, ccw in relays:
+            if cw and ccw:
+                self.tracker_both_refused += 1
+                cw = ccw = False
+            bits += [1 if cw else 0, 1 if ccw else 0]
+        values = [bits[0], bits[1], bits[2], bits[3], 1 if brakes[0] else 0, 1 if brakes[1] else 0,
+                  1 if sensor_power else 0, 1 if motor_power else 0,
+                  *(0.0 if not d > 0.0 else 1.0 if d > 1.0 else d for d in duties), self.tracker_alive]
+        self.tracker_alive = (self.tracker_alive + 1) & 0xFF
+        return self.send_frame(self._tracker_cmd, values)
 
     def send_motor_command(self, duty: list, enable: list, brake: list) -> None:
         """Send MOTOR_CMD: per arm channel duty (-1..1), enable and brake; `motor_alive` advances."""
