@@ -34,6 +34,7 @@ from firmware_py.uart import PacedUart
 from hil_sim.arm_params import GRAVITY_M_S2
 from hil_sim.hal_node import PlantNode
 from hil_sim.plant import Plant, PlantParams
+from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
 from protocol.hal import HalCodec
 
@@ -206,17 +207,24 @@ def check_arm_settings(gravity: str, payload_kg: float) -> None:
 
 
 def build_plant(seed: int = 0, params: Optional[PlantParams] = None, *, gravity: str = "earth",
-                payload_kg: float = 0.0) -> Plant:
-    """The plant, its noise seeded with `seed`; the arm under `gravity` with `payload_kg`."""
+                payload_kg: float = 0.0, start: DateTimeLike = DEFAULT_START, clouds=None) -> Plant:
+    """The plant, its noise seeded with `seed`; the arm under `gravity` with `payload_kg`; the solar
+    tracker's sun from `start` (an aware datetime or POSIX seconds) with `clouds` (`hil_sim.sun`)."""
     check_arm_settings(gravity, payload_kg)
     rng = np.random.default_rng(seed)
-    return Plant(params or PlantParams(), rng, gravity=gravity, payload_kg=payload_kg)
+    return Plant(params or PlantParams(), rng, gravity=gravity, payload_kg=payload_kg, start=start, clouds=clouds)
 
 
 def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParams] = None, *,
-                     gravity: str = "earth", payload_kg: float = 0.0, period_s: float = 0.001) -> PlantNode:
-    """The plant on `bus`; add its `step` to a scheduler (`scheduler.add("plant", node.step, period_s=node.period_s)`)."""
-    return PlantNode(bus, build_plant(seed, params, gravity=gravity, payload_kg=payload_kg), period_s)
+                     gravity: str = "earth", payload_kg: float = 0.0, period_s: float = 0.001,
+                     tracker: bool = True, start: DateTimeLike = DEFAULT_START, clouds=None) -> PlantNode:
+    """The plant on `bus`; add its `step` to a scheduler (`scheduler.add("plant", node.step, period_s=node.period_s)`).
+
+    `tracker` puts the solar tracker on the bus too (TRACKER_CMD in, TRACKER_SENSE and
+    TRACKER_POS out every 10 ms); without it the plant is the arm, mount and gripper alone.
+    """
+    plant = build_plant(seed, params, gravity=gravity, payload_kg=payload_kg, start=start, clouds=clouds)
+    return PlantNode(bus, plant, period_s, tracker=tracker)
 
 
 # ---- the controller ----

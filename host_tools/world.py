@@ -13,6 +13,7 @@ from firmware_py.controller import Controller, ControllerConfig
 from firmware_py.scheduler import Scheduler
 from firmware_py.uart import BufferPort, PacedUart, Port
 from hil_sim.plant import PlantParams
+from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
@@ -33,10 +34,12 @@ class World:
     def __init__(self, clock: Clock, port: Port, psk: bytes, *, seed: int = 0, baud: int = 115200,
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
-                 gravity: str = "earth", payload_kg: float = 0.0) -> None:
+                 gravity: str = "earth", payload_kg: float = 0.0, tracker: bool = True,
+                 start: DateTimeLike = DEFAULT_START, clouds=None) -> None:
         self.clock = clock
         self.plant_bus, self.controller_bus = open_virtual_pair()
-        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, gravity=gravity, payload_kg=payload_kg)
+        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, gravity=gravity, payload_kg=payload_kg,
+                                           tracker=tracker, start=start, clouds=clouds)
         self.plant = self.plant_node.plant
         stopwatch = clock.now if deterministic else RealClock.precise_now
         self.scheduler = Scheduler(clock, stopwatch=stopwatch)
@@ -67,12 +70,14 @@ class LockstepBench:
                  to_controller: Callable[[bytes], bytes] = lambda b: b,
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
                  gravity: str = "earth", payload_kg: float = 0.0,
-                 plant_params: Optional[PlantParams] = None) -> None:
+                 plant_params: Optional[PlantParams] = None, tracker: bool = True,
+                 start: DateTimeLike = DEFAULT_START, clouds=None) -> None:
         self.clock = SimClock()
         self.port = BufferPort()
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, gravity=gravity,
-                           payload_kg=payload_kg, plant_params=plant_params)
+                           payload_kg=payload_kg, plant_params=plant_params, tracker=tracker, start=start,
+                           clouds=clouds)
         self.events: list = []
         self.telemetry: list = []
         self.host = HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 1),

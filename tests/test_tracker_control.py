@@ -5,12 +5,11 @@ Unit tests drive `firmware_py.tracker.TrackerController` through a tiny stand-in
 The closed-loop tests step `hil_sim.tracker.TrackerPlant` directly through the same stand-in
 (fast: half an hour of tracking in about 3 s). The bus tests run the whole controller on a
 `LockstepBench`, once on a plant without the tracker (TRACKER_SENSE never arrives) and once
-on a `PlantNode(..., tracker=True)`, talking to it only through the link.
+on a plant with the tracker, talking to it only through the link.
 """
 from __future__ import annotations
 
 import copy
-import inspect
 import math
 import random
 from datetime import datetime, timedelta, timezone
@@ -22,12 +21,10 @@ from firmware_py import tracker as T
 from firmware_py.ephemeris import sun_position, sun_rates, wrap180
 from firmware_py.hal import HalInputs
 from firmware_py.params import ParamStore
-from hil_sim.hal_node import PlantNode
-from hil_sim.plant import Plant, PlantParams
+from hil_sim.plant import PlantParams
 from hil_sim.sun import MST, TUCSON, solar_position
 from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand, TrackerPlant
 from host_tools import teleop
-from host_tools import world as world_module
 from host_tools.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
@@ -519,8 +516,8 @@ def test_through_a_cloud_the_feed_forward_keeps_tracking_where_the_relay_logic_h
 
 @pytest.fixture
 def plain_bench():
-    """The standard world: its plant has no tracker, so TRACKER_SENSE and TRACKER_POS never arrive."""
-    bench = LockstepBench(seed=5)
+    """A world whose plant has no tracker, so TRACKER_SENSE and TRACKER_POS never arrive."""
+    bench = LockstepBench(seed=5, tracker=False)
     assert bench.connect()
     yield bench
     bench.close()
@@ -589,18 +586,9 @@ def test_a_temperature_warning_once_per_crossing_and_no_fault():
 
 
 @pytest.fixture
-def tracker_bench(monkeypatch):
-    """A LockstepBench whose plant node runs the tracker, at 10:00 MST on the June solstice at Tucson."""
-    if "tracker" not in inspect.signature(PlantNode).parameters:
-        pytest.skip("the plant's node has no tracker yet")
-
-    def build_node(bus, seed=0, params=None, *, gravity="earth", payload_kg=0.0, period_s=0.001):
-        plant = Plant(params or PlantParams(), np.random.default_rng(seed), gravity=gravity, payload_kg=payload_kg,
-                      start=datetime(2026, 6, 21, 10, 0, tzinfo=MST))
-        return PlantNode(bus, plant, period_s, tracker=True)
-
-    monkeypatch.setattr(world_module, "build_plant_node", build_node)
-    bench = LockstepBench(seed=2)
+def tracker_bench():
+    """A LockstepBench whose plant runs the tracker, from 10:00 MST on the June solstice at Tucson."""
+    bench = LockstepBench(seed=2, start=datetime(2026, 6, 21, 10, 0, tzinfo=MST))
     assert bench.connect()
     yield bench
     bench.close()
