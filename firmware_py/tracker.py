@@ -89,9 +89,10 @@ correction loop's bandwidth is 1 / tau, so this costs it about 2 deg of phase an
 cells' noise (1 mV rms a cell, about 0.1 deg of azimuth error a sample in the morning) out
 of the relays' decisions. Without a sun in the cells (sum below `trk_sun_min_v`) the
 correction is 0 and the feed-forward alone carries the axis through the cloud. The relays
-follow the sign of w, with hysteresis on |w| (close above 1.5 %, open below 0.5 % of the top
-speed: 0.066 and 0.022 deg/min; the sun's azimuth rate at Tucson in June is 0.11 deg/min at
-its slowest, mid-morning and late afternoon) and the same dwell; the duty is the one that
+follow the sign of w, with hysteresis on |w| (close above 0.02 deg/min, open below 0.007
+deg/min; the sun's azimuth rate at Tucson in June is 0.11 deg/min at its slowest,
+mid-morning and late afternoon, and the elevation rate passes through 0 at transit) and the
+same dwell; the duty is the one that
 gives |w| by the firmware's model of the drive (`TrackerDrive`, below), at the 90 V bus
 voltage TRACKER_POS measures, capped by the dial (the dial stays the operator's speed
 limit). So the axis runs at the sun's speed
@@ -135,11 +136,19 @@ AZ, EL = 0, 1
 DEG = math.pi / 180.0
 ADC_COUNTS = 1023                # the dial's 10-bit ADC: 0..1023
 EPHEMERIS_PERIOD_S = 1.0         # sun position and rates recomputed this often, extrapolated in between
-FF_CLOSE_FRACTION = 0.015        # feed-forward: a relay closes above this fraction of the top speed
-FF_OPEN_FRACTION = 0.005         # ... and opens below this one
+FF_CLOSE_DEG_S = 0.02 / 60.0     # feed-forward: a relay closes above this commanded rate
+FF_OPEN_DEG_S = 0.007 / 60.0     # ... and opens below this one
 FF_ERROR_FILTER = 1.0 / 30.0     # feed-forward: the photocell error is low-passed at this x trk_ff_tau_s
 TEMP_WARN_HYST_C = 0.5           # a temperature warning clears this far back inside its band
 COS_EL_FLOOR = 0.1               # azimuth error = cross-beam error / max(cos(elevation), this)
+
+# Warning bits as plain ints, for the 10 ms path.
+_TEMP_LOW, _TEMP_HIGH = int(TrackerWarning.TEMP_LOW), int(TrackerWarning.TEMP_HIGH)
+_SENSE_STALE, _POS_STALE, _NO_CLOCK = (int(TrackerWarning.SENSE_STALE), int(TrackerWarning.POS_STALE),
+                                       int(TrackerWarning.NO_CLOCK))
+_NOT_ENABLED, _NO_SUN, _SUN_DOWN = int(TrackerWarning.NOT_ENABLED), int(TrackerWarning.NO_SUN), int(TrackerWarning.SUN_DOWN)
+_FF_FALLBACK = int(TrackerWarning.FF_FALLBACK)
+_LIMIT = (int(TrackerWarning.LIMIT_AZ), int(TrackerWarning.LIMIT_EL))
 
 ON, OFF, BRAKE = SwitchPosition.ON, SwitchPosition.OFF, SwitchPosition.BRAKE
 MANUAL, SENSOR, CW, CCW = SwitchPosition.MANUAL, SwitchPosition.SENSOR, SwitchPosition.CW, SwitchPosition.CCW
@@ -147,11 +156,10 @@ MANUAL, SENSOR, CW, CCW = SwitchPosition.MANUAL, SwitchPosition.SENSOR, SwitchPo
 
 @dataclass(frozen=True)
 class TrackerDrive:
-    """One axis's drive as the firmware knows it: a 90 VDC PM motor on a 160,000:1 train.
+    """One axis's drive as the firmware knows it: a 90 VDC PM motor on a 20,000:1 train.
 
     The report gives the 90 V only; the rest is ASSUMED, the catalogue figures of the 1/8 hp,
-    1750 rpm, 90 VDC motor class such a speed controller drives and a train slow enough that
-    full duty is about three times the sun's fastest azimuth rate (the numbers
+    1750 rpm, 90 VDC motor class such a speed controller drives and its gear train (the numbers
     hil_sim/tracker.py documents for the plant; tests/test_tracker_control.py checks the two
     agree, as a controller's configuration must match the build it drives).
     """
@@ -161,7 +169,7 @@ class TrackerDrive:
     k_v_s_rad: float = 0.43            # Kt = Ke
     coulomb_nm: float = 0.06           # friction at the motor shaft
     viscous_nm_s_rad: float = 2e-4
-    gear_ratio: float = 160_000.0
+    gear_ratio: float = 20_000.0
 
     def speed_deg_s(self, duty: float, bus_v: Optional[float] = None) -> float:
         """Steady axis speed at `duty` (friction dead band included) [deg/s]."""
@@ -268,8 +276,12 @@ class TempWatch:
 
     @property
     def flags(self) -> TrackerWarning:
-        return ((TrackerWarning.TEMP_LOW if self.active[TempSide.COLD] else TrackerWarning.NONE)
-                | (TrackerWarning.TEMP_HIGH if self.active[TempSide.HOT] else TrackerWarning.NONE))
+        return TrackerWarning(self.bits)
+
+    @property
+    def bits(self) -> int:
+        """`flags` as a plain int."""
+        return (_TEMP_LOW if self.active[TempSide.COLD] else 0) | (_TEMP_HIGH if self.active[TempSide.HOT] else 0)
 
     def update(self, temp_c: float, min_c: float, max_c: float, margin_c: float
                ) -> list[tuple[TempSide, bool, float]]:
@@ -466,21 +478,28 @@ class TrackerController:
         self._filter(inputs.sense_s, inputs.cells_v, stale_s)
         self._update_ephemeris(now)
         allowed = self._allowed()
-        warn = self.temp_watch.flags
-        warn |= TrackerWarning.NONE if sense_ok else TrackerWarning.SENSE_STALE
-        warn |= TrackerWarning.NONE if pos_ok else TrackerWarning.POS_STALE
-        warn |= TrackerWarning.NONE if self._clock is not None else TrackerWarning.NO_CLOCK
+        # Warning bits as a plain int on this 10 ms path (IntFlag arithmetic costs a microsecond an operation).
+        warn = self.temp_watch.bits
+        if not sense_ok:
+            warn |= _SENSE_STALE
+        if not pos_ok:
+            warn |= _POS_STALE
+        if self._clock is None:
+            warn |= _NO_CLOCK
         ff_wanted = p["trk_ff"] >= 0.5
         sun = self.sun(now)
         sun_min = p["trk_sun_min_v"]
+        dwell_s, chatter_s = p["trk_dwell_s"], p["trk_chatter_s"]
+        main_on, sensor_on = box.main is ON, box.sensor is ON
         ff_active = False
         for k, ax in enumerate(self.axes):
-            permitted = allowed and box.main is ON and box.speed[k] is ON and pos_ok
-            if box.main is ON and box.speed[k] is ON and not allowed:
-                warn |= TrackerWarning.NOT_ENABLED
+            speed_on = box.speed[k] is ON
+            permitted = allowed and main_on and speed_on and pos_ok
+            if main_on and speed_on and not allowed:
+                warn |= _NOT_ENABLED
             sensor_mode = box.mode[k] is SENSOR
-            if sensor_mode and box.sensor is ON and sense_ok and not ax.sum_v >= sun_min:
-                warn |= TrackerWarning.NO_SUN
+            if sensor_mode and sensor_on and sense_ok and not ax.sum_v >= sun_min:
+                warn |= _NO_SUN
             target, duty = 0, 0.0
             if not (permitted and sensor_mode and ff_wanted):
                 ax.error_deg, ax.error_s = math.nan, None      # the feed-forward starts afresh
@@ -489,31 +508,33 @@ class TrackerController:
             elif not sensor_mode:
                 ax.want = 0
                 target, duty = (1 if box.direction[k] is CW else -1), box.dial_duty(k)
-            elif box.sensor is not ON or not sense_ok:
+            elif not sensor_on or not sense_ok:
                 ax.want = 0
             elif ff_wanted and sun is not None:
                 if sun[1] < 0.0:
-                    warn |= TrackerWarning.SUN_DOWN
+                    warn |= _SUN_DOWN
                     ax.want = 0
                 else:
                     ff_active = True
                     target, duty = self._feedforward(k, ax, sun_min, now)
             else:
                 if ff_wanted:
-                    warn |= TrackerWarning.FF_FALLBACK
+                    warn |= _FF_FALLBACK
                 target, duty = self._relay_logic(k, ax, sun_min)
             if inputs.pos_s is not None:
                 limit_cw, limit_ccw = inputs.tracker_limits[k]
                 if limit_cw or limit_ccw:
-                    warn |= TrackerWarning.LIMIT_AZ if k == AZ else TrackerWarning.LIMIT_EL
+                    warn |= _LIMIT[k]
                 if (target > 0 and limit_cw) or (target < 0 and limit_ccw):
                     target = 0
-            self._apply(ax, target, now, p["trk_dwell_s"], p["trk_chatter_s"])
+            if target != ax.relay:
+                self._apply(ax, target, now, dwell_s, chatter_s)
             ax.duty = duty if ax.relay else 0.0
             ax.brake = not permitted
         self.ff_active = ff_active
-        self.warnings = warn
-        self._send(motor_power=allowed and box.main is ON)
+        if warn != self.warnings:
+            self.warnings = TrackerWarning(warn)
+        self._send(motor_power=allowed and main_on)
         return now + self.period_s
 
     def _filter(self, sense_s: Optional[float], cells: list, stale_s: float) -> None:
@@ -571,12 +592,11 @@ class TrackerController:
             ax.error_deg, ax.error_s = math.nan, None
         cmd = rate + correction
         ax.rate_cmd_dps = cmd
-        top = self.drive.top_speed_deg_s
         size, sign = abs(cmd), (1 if cmd > 0 else -1)
         w = ax.want
         if w == 0:
-            w = sign if size > FF_CLOSE_FRACTION * top else 0
-        elif w != sign or size < FF_OPEN_FRACTION * top:
+            w = sign if size > FF_CLOSE_DEG_S else 0
+        elif w != sign or size < FF_OPEN_DEG_S:
             w = 0
         ax.want = w
         bus_v = self.hal.inputs.motor_supply_v
@@ -584,9 +604,8 @@ class TrackerController:
         return w, min(self.drive.duty_for(size, bus_v), self.box.dial_duty(k))
 
     def _apply(self, ax: AxisState, target: int, now: float, dwell_s: float, chatter_s: float) -> None:
-        """Move the relay towards `target`: open at once; close only after the dwell; reverse through open."""
-        if target == ax.relay:
-            return
+        """Move the relay towards `target` (not where it is): open at once; close only after the dwell;
+        reverse through open."""
         if ax.relay != 0:
             self._set_relay(ax, 0, now)
             return

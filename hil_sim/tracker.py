@@ -40,12 +40,12 @@ a stand-alone run may use any step):
    reversing relays): it cannot sink current, so a motor turning faster than the duty asks
    coasts down instead of regenerating. A limit switch cuts its own direction (ASSUMED,
    the usual wiring: each switch in series with its direction's motor lead): the axis
-   coasts a little past it (0.02 deg from full speed, less with the brake) and can be
+   coasts a little past it (about 0.18 deg from full speed, less with the brake) and can be
    driven back; the controller sees the switch in TRACKER_POS.
 3. Brake (`brake_<ax>` = the speed switch at Brake, report step 7): the armature leaves the
    drive for a braking resistor, whatever the relays and the duty say (dynamic braking,
    as adjustable-speed drives of this class do it): the motor stops within about 0.1 s
-   (0.0014 deg of axis travel from full speed) and cannot be driven. At standstill the
+   (0.011 deg of axis travel from full speed) and cannot be driven. At standstill the
    gear train holds the axis (ASSUMED self-locking, as a worm final stage is; no
    external torques, wind or unbalance, are modelled, so nothing would turn it anyway).
 4. Motor and gears (per axis, at the motor shaft): the armature and shaft equations of
@@ -87,17 +87,23 @@ for the reason given:
   speed controller" drives: R 8 ohm, L 40 mH, Kt = Ke 0.43 V s/rad, rotor 2.5e-4 kg m^2,
   friction 0.06 N m + 2e-4 N m s/rad. That makes the catalogue figures come out: 0.51 N m
   (1/8 hp) at 1750 rpm with 1.4 A, no-load 1960 rpm and 0.23 A at 90 V.
-* Gears: 160,000:1 in all (e.g. a 1600:1 gear-head gearmotor on a 100:1 worm wheel). The
-  sun needs at most 1.50 deg/min in azimuth on the design day (the June solstice at
-  Tucson, at transit: 15 deg/h x cos(declination) / sin(zenith distance) = 15 x 0.917 /
-  0.153 = 90 deg/h; computed with the SPA in tests/test_tracker_plant.py) and 0.21
-  deg/min in elevation. Full duty gives 4.40 deg/min, 2.9 x the fastest azimuth rate:
-  margin to catch up after a cloud or a manual move, yet low enough that the report's
-  sensor mode (relays on and off at a fixed dial speed: "If the speedpot setting is too
-  low the solar trackers will be lagging ... if it is set too high the solar tracker will
-  constantly be fluctuating") works in the upper half of the dial rather than at its
-  bottom. Both axes have the same train (the report describes two alike directional
-  systems), so elevation's top speed is 21 x its need.
+* Gears: 20,000:1 in all (e.g. a 200:1 parallel-shaft gearmotor, a common catalogue ratio
+  for 90 VDC gearmotors, on a 100:1 self-locking worm wheel): full duty gives 35.2 deg/min
+  (0.59 deg/s), so a manual move from the stow position to the sun (operating steps 3-6)
+  takes a minute or two. The sun needs at most 1.50 deg/min in azimuth on the design day
+  (the June solstice at Tucson, at transit: 15 deg/h x cos(declination) / sin(zenith
+  distance) = 15 x 0.917 / 0.153 = 90 deg/h; computed with the SPA in
+  tests/test_tracker_plant.py), 4.3 % of the top speed, and 0.21 deg/min in elevation.
+  The ratio is chosen so that the plant shows what the report's operating step 10 warns
+  of: "If the speedpot setting is too low the solar trackers will be lagging the sun
+  constantly trying to catch up. However, if it is set too high the solar tracker will
+  constantly be fluctuating from leading then lagging". Around the sun's rate the dial
+  lags at midday; from about 70 % up the axis runs so fast that it overshoots the
+  controller's deadband before the filtered photocell difference and the relays can stop
+  it, and hunts (measured in tests/test_tracker_day.py and `make bench`). With a slower
+  train (160,000:1 tried: 4.4 deg/min at full duty) the overshoot stays inside the
+  deadband at any dial and the tracker never hunts. Both axes have the same train (the
+  report describes two alike directional systems).
 * Relays: operate 15 ms, release 5 ms: the maxima in a general-purpose power relay's data
   sheet (Omron G2R: operate time 15 ms max., release time 5 ms max.), used as fixed times
   (the worst case is the one a controller must live with). A direct reversal therefore
@@ -181,8 +187,8 @@ class TrackerAxisParams:
     limit_cw_deg: float
     stop_ccw_deg: float
     stop_cw_deg: float
-    # ASSUMED: the cutter and tracker head about the axis; reflected through 160,000:1 it is
-    # nothing beside the rotor (20 / 160000^2 kg m^2), kept for completeness.
+    # ASSUMED: the cutter and tracker head about the axis; reflected through 20,000:1 it is
+    # nothing beside the rotor (20 / 20000^2 = 5e-8 kg m^2), kept for completeness.
     output_inertia_kg_m2: float = 20.0
 
     def __post_init__(self) -> None:
@@ -220,7 +226,7 @@ class TrackerParams:
     stiction_nm: float = 0.08
     viscous_nm_s_rad: float = 2e-4
     rated_torque_nm: float = 0.51    # 1/8 hp at 1750 rpm
-    gear_ratio: float = 160_000.0    # motor turns per axis turn
+    gear_ratio: float = 20_000.0     # motor turns per axis turn
     # The speed switch's Brake position (report, operating step 7): the armature on a braking resistor.
     brake_resistor_ohm: float = 8.0
     relay_operate_s: float = 0.015
@@ -440,8 +446,14 @@ class TrackerPlant:
 
     def _relays(self, k: int, req_cw: bool, req_ccw: bool, t0: float, t1: float) -> tuple[float, float]:
         """Advance axis k's relay pair over [t0, t1]; return how long each contact was closed in it."""
-        p = self.params
         coil, closed, flip = self._coil[k], self.relay_closed[k], self._flip_at[k]
+        if flip[0] is None and flip[1] is None and coil[0] == (req_cw and not closed[1]) \
+                and coil[1] == (req_ccw and not closed[0]):
+            # Nothing switches in this step (the common case): each contact stays as it is.
+            if closed[0] and closed[1]:
+                self.both_closed_s += t1 - t0
+            return (t1 - t0 if closed[0] else 0.0), (t1 - t0 if closed[1] else 0.0)
+        p = self.params
         req = (req_cw, req_ccw)
         on = [0.0, 0.0]
         t = t0
@@ -528,7 +540,10 @@ class TrackerPlant:
                 qq = q
             else:
                 pp = qq = 0.0
-            w2, i2 = _shaft(w, pp, qq, m, kt, p)
+            if w == 0.0 and pp == 0.0:
+                w2 = i2 = 0.0                                      # at rest, nothing applied: stays at rest
+            else:
+                w2, i2 = _shaft(w, pp, qq, m, kt, p)
             if connected and i2 * (on_cw - on_ccw) < 0.0:
                 # The drive cannot sink current: the armature is effectively open, the motor coasts.
                 w2, i2 = _shaft(w, 0.0, 0.0, m, kt, p)
