@@ -4,7 +4,8 @@
     aspod plant --interface X --channel Y [--bitrate N] [--seed N] [--gravity earth|orbit] [--payload-kg M]
     aspod firmware --interface X --channel Y [--pty | --tcp PORT | --port DEVICE] [--baud N] ...
     aspod teleop URL [--script FILE] [--key-file PATH] ...
-    aspod demo
+    aspod demo [--json] [--gravity earth|orbit]
+    aspod tracker-day [--mode relay|feedforward] [--dial X] [--date YYYY-MM-DD] [--clouds SPEC] [--json] [--plot F]
 
 Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused or unreachable.
 """
@@ -159,6 +160,29 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--link", action="store_true",
                       help="instead: start `aspod sim --pty` and run a scripted teleop session over the pty")
     demo.add_argument("--baud", type=_baud, default=115200, help="line rate for --link")
+
+    day = sub.add_parser("tracker-day", help="the solar tracker through a simulated day at Tucson, on the "
+                                             "simulated clock; pointing error, lag and relay switchings")
+    day.add_argument("--mode", choices=("relay", "feedforward"), default="relay",
+                     help="relay: the report's relay logic (default); feedforward: the sun-rate feed-forward")
+    day.add_argument("--dial", default="50", metavar="X",
+                     help="speed dial, percent, for both axes (50, the default) or az,el (40,20); in feedforward "
+                          "mode it caps the speed")
+    day.add_argument("--date", default="2026-06-21", metavar="YYYY-MM-DD",
+                     help="the day (default 2026-06-21, the June solstice: the sun's fastest azimuth)")
+    day.add_argument("--clouds", default=None, metavar="SPEC",
+                     help="cloud passages TIME+DURATION@ATTENUATION, comma-separated, local standard time: "
+                          "'12:00+300s@0.9,14:30+10m@0.5'")
+    day.add_argument("--from", dest="start", default=None, metavar="HH:MM",
+                     help="start (local standard time; default: when the sun climbs above 5 deg)")
+    day.add_argument("--to", dest="end", default=None, metavar="HH:MM",
+                     help="end (default: when the sun sinks below 5 deg)")
+    day.add_argument("--param", action="append", metavar="NAME=VALUE",
+                     help="a tracker parameter of the firmware, repeatable (e.g. trk_deadband_mv=1.5)")
+    day.add_argument("--seed", type=int, default=0, help="seed of the photocells' and sensors' noise")
+    day.add_argument("--json", action="store_true", help="print one JSON object")
+    day.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                     help="write the pointing error and the lag over the day to this PNG")
     return parser
 
 
@@ -191,6 +215,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.command == "demo":
             from host_tools.demo import run_demo
             return run_demo(args)
+        if args.command == "tracker-day":
+            from host_tools.tracker_day import run_tracker_day
+            return run_tracker_day(args)
     except (KeyFileError, ValueError) as exc:   # bad key file, or settings out of their bounds
         print(f"aspod: {exc}", file=sys.stderr)
         return EXIT_USAGE

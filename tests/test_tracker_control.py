@@ -2,8 +2,8 @@
 
 Unit tests drive `firmware_py.tracker.TrackerController` through a tiny stand-in HAL
 (`StandIn`: the inputs as `ControllerHal` keeps them, the TRACKER_CMD frames it would send).
-The closed-loop tests step `hil_sim.tracker.TrackerPlant` directly through the same stand-in
-(fast: half an hour of tracking in about 3 s). The bus tests run the whole controller on a
+The tracker closed around its plant through a day (lag, hunting, the feed-forward, clouds) is
+tested in tests/test_tracker_day.py. The bus tests run the whole controller on a
 `LockstepBench`, once on a plant without the tracker (TRACKER_SENSE never arrives) and once
 on a plant with the tracker, talking to it only through the link.
 """
@@ -14,7 +14,6 @@ import math
 import random
 from datetime import datetime, timedelta, timezone
 
-import numpy as np
 import pytest
 
 from firmware_py import tracker as T
@@ -23,7 +22,7 @@ from firmware_py.hal import HalInputs
 from firmware_py.params import ParamStore
 from hil_sim.plant import PlantParams
 from hil_sim.sun import MST, TUCSON, solar_position
-from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand, TrackerPlant
+from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand
 from host_tools import teleop
 from host_tools.world import LockstepBench
 from protocol.messages import SCHEMA
@@ -415,16 +414,17 @@ def test_feed_forward_sets_the_duty_from_the_suns_rate_and_the_dial_caps_it():
     assert rate_az == pytest.approx(1.50 / 60, abs=0.001) and tracker.ff_active
     assert relays(out, 0) == 1 and out.duty_az == pytest.approx(T.DRIVE.duty_for(rate_az, 90.0))
     assert T.DRIVE.speed_deg_s(out.duty_az) == pytest.approx(rate_az)      # the speed the sun needs
-    assert abs(rate_el) < T.FF_CLOSE_FRACTION * T.DRIVE.top_speed_deg_s and relays(out, 1) == 0  # el: standstill
+    assert abs(rate_el) < T.FF_CLOSE_DEG_S and relays(out, 1) == 0  # el: standstill
     # the photocells say the sun is ahead (CW) by atan(4 mV / 0.66 V) / cos(81 deg) = 2.2 deg of azimuth
     out = tick(tracker, hal, 0.01, diff_az_mv=4.0, angles=(180.0, 81.0))
     error = math.degrees(math.atan(0.004 / 0.66)) / math.cos(math.radians(81.0))
     filtered = error * -math.expm1(-0.01 / (T.FF_ERROR_FILTER * 30.0))          # its low-pass, one step on
     correction = filtered / 30.0
     assert tracker.axes[0].rate_cmd_dps == pytest.approx(rate_az + correction, rel=1e-6)
-    assert tracker.dial(10.0, AZ)[0] is Reason.OK
+    assert out.duty_az > T.quantize_dial(3.0) / 1023
+    assert tracker.dial(3.0, AZ)[0] is Reason.OK
     out = tick(tracker, hal, 0.02, diff_az_mv=4.0, angles=(180.0, 81.0))
-    assert out.duty_az == pytest.approx(T.quantize_dial(10.0) / 1023)      # capped by the dial
+    assert out.duty_az == pytest.approx(T.quantize_dial(3.0) / 1023)       # capped by the dial
 
 
 def test_feed_forward_without_a_clock_falls_back_to_the_relay_logic_and_says_so():
@@ -437,79 +437,6 @@ def test_feed_forward_without_a_clock_falls_back_to_the_relay_logic_and_says_so(
     tracker.set_clock(night, 0.0)
     out = tick(tracker, hal, 0.01, diff_az_mv=5.0)
     assert relays(out, 0) == 0 and tracker.warnings & TrackerWarning.SUN_DOWN
-
-
-# ---- closed loop around the plant's tracker, without a bus -------------------------------------------------------
-
-class PlantStandIn(StandIn):
-    """The stand-in wired to a `TrackerPlant`: its sensors in, through the DBC's resolutions."""
-
-    def __init__(self, plant: TrackerPlant) -> None:
-        super().__init__()
-        self.plant = plant
-        self.sent = [TrackerCommand()]
-
-    def sample(self, now: float) -> None:
-        p, i = self.plant, self.inputs
-        i.cells_v, i.sense_s = [round(v, 3) for v in p.cells_v], now
-        i.tracker_angles_deg = [round(a, 2) for a in p.angles_measured_deg]
-        i.tracker_limits = [list(p.limits[:2]), list(p.limits[2:])]
-        i.motor_supply_v, i.pos_s = round(p.motor_supply_v, 2), now
-
-
-def track(hour: int, minutes: float, ff: int, dial=(40.0, 20.0), clouds=None, seed: int = 1):
-    """Track the plant's sun for `minutes` from `hour`:00 MST on the June solstice at Tucson, starting aligned."""
-    plant = TrackerPlant(TRACKER_PARAMS, seed, start=datetime(2026, 6, 21, hour, 0, tzinfo=MST), clouds=clouds)
-    el, az, _, _ = plant.sun()
-    plant.set_angles(az, el)
-    hal = PlantStandIn(plant)
-    store = ParamStore(T.parameter_table())
-    store.set("trk_ff", ff)
-    tracker = T.TrackerController(hal, store, 0.01, allowed=lambda: True)
-    tracker.set_clock(plant.utc.timestamp(), 0.0)
-    for switch, position in ((Switch.MODE, P.SENSOR), (Switch.SENSOR, P.ON), (Switch.MAIN, P.ON), (Switch.SPEED, P.ON)):
-        assert tracker.switch(switch, position)[0] is Reason.OK
-    tracker.dial(dial[0], AZ)
-    tracker.dial(dial[1], EL)
-    errors, now = [], 0.0
-    for i in range(round(minutes * 6000)):
-        plant.step(0.01, hal.last)
-        now += 0.01
-        hal.sample(now)
-        tracker.step(now)
-        if i >= 3000 and i % 100 == 0:                     # after the first 30 s, once a second
-            errors.append(plant.angular_error_deg())
-    return tracker, plant, np.array(errors)
-
-
-def test_the_relay_logic_tracks_the_sun_within_its_deadband_without_hunting():
-    tracker, plant, errors = track(12, 10, ff=0)          # through transit, azimuth at 1.5 deg/min
-    assert errors.max() < 0.3 and errors.mean() < 0.2       # measured: 0.19 and 0.15 deg
-    assert all(ax.reversals == 0 for ax in tracker.axes)
-    assert 5 < tracker.axes[0].switchings < 100 and tracker.axes[0].chatter <= 1
-    assert plant.both_relays_refused == [0, 0] and plant.both_closed_s == 0.0
-
-
-def test_a_dial_too_low_lags_the_sun_as_the_report_warns():
-    _tracker, _plant, errors = track(12, 10, ff=0, dial=(5.0, 5.0))
-    assert errors[-1] > 1.0 and errors[-1] > errors[0] + 0.5        # constantly trying to catch up
-
-
-def test_the_feed_forward_neither_lags_nor_hunts():
-    tracker, plant, errors = track(12, 10, ff=1, dial=(100.0, 100.0))
-    assert errors.max() < 0.03 and errors.mean() < 0.015     # measured: 0.02 and 0.006 deg
-    az = tracker.axes[0]
-    assert az.switchings <= 3 and az.reversals == 0           # the azimuth relay stays closed: runs smoothly
-    assert tracker.axes[1].reversals <= 2                     # elevation turns over at transit
-    assert plant.high_duty_starts[1] == 0
-
-
-def test_through_a_cloud_the_feed_forward_keeps_tracking_where_the_relay_logic_holds():
-    cloud = "12:05+300s@0.95"
-    _t, _p, relay_errors = track(12, 10, ff=0, clouds=cloud)
-    tracker, _p, ff_errors = track(12, 10, ff=1, dial=(100.0, 100.0), clouds=cloud)
-    assert relay_errors.max() > 0.8                           # held while the sun walked on (measured 1.3 deg)
-    assert ff_errors.max() < 0.05                             # measured 0.02 deg
 
 
 # ---- over the HAL bus and the link -------------------------------------------------------------------------------
@@ -609,7 +536,7 @@ def test_over_the_bus_the_tracker_closes_on_the_sun_and_the_feed_forward_holds_i
     assert (first.relay_az, first.relay_el) == (1, 1) and first.cell_diff_az > 0 and first.cell_diff_el > 0
     assert first.sun_az == pytest.approx(tracker.sun()[1], abs=0.02)      # the controller's ephemeris
     assert first.sun_el == pytest.approx(tracker.sun()[0], abs=0.02)
-    assert first.error_az == pytest.approx(1.0, abs=0.1) and first.error_el == pytest.approx(0.6, abs=0.1)
+    assert 0.3 < first.error_az < 1.1 and 0.0 < first.error_el < 0.7          # closing on the sun
     assert bench.wait_until(lambda: tracker.angular_error_deg() < 0.2, 60.0)      # closed on the sun
     assert tracker.relay_closures[0] >= 1 and tracker.relay_closures[1] >= 1
     relay_error = tracker.angular_error_deg()
