@@ -75,14 +75,11 @@ class _Signals:
         self.spec = []
         for name in names:
             s = message.get_signal_by_name(name)
-            self.spec.append((s.scale, s.offset, s.minimum, s.maximum))
+            self.spec.append((s.scale, 1.0 / s.scale, s.offset, s.minimum, s.maximum))
 
     def __call__(self, values: Sequence[float]) -> list[float]:
-        out = []
-        for v, (scale, offset, lo, hi) in zip(values, self.spec):
-            v = lo if v < lo else hi if v > hi else v
-            out.append(round((v - offset) / scale) * scale + offset)
-        return out
+        return [round(((lo if v < lo else hi if v > hi else v) - offset) * inv) * scale + offset
+                for v, (scale, inv, offset, lo, hi) in zip(values, self.spec)]
 
 
 class DayHal:
@@ -345,6 +342,7 @@ def plot_days(results: Sequence[DayResult], path: str, title: Optional[str] = No
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 7.5), sharex=True, constrained_layout=True)
     for r in results:
@@ -359,8 +357,10 @@ def plot_days(results: Sequence[DayResult], path: str, title: Optional[str] = No
     top.axhline(0.0, color="black", lw=0.6)
     top.set_ylabel("lag along the sun's path [deg]\n(+ behind the sun, - ahead)")
     bottom.set_ylabel("pointing error [deg]\n(focal axis to sun)")
-    bottom.set_xlabel(f"local standard time (UTC{first.settings.site.utc_offset_h:+g}) [h]")
+    bottom.set_xlabel(f"local standard time (UTC{first.settings.site.utc_offset_h:+g})")
     bottom.set_yscale("log")
+    bottom.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(
+        lambda h, _pos: f"{int(h) % 24:02d}:{int(round(h % 1 * 60)) % 60:02d}"))
     for ax in (top, bottom):
         ax.grid(True, which="both", lw=0.3)
     top.legend(loc="upper left", fontsize=8)
