@@ -591,16 +591,18 @@ class TrackerPlant:
         f_s = ce * cs * cd + se * ss                  # focal axis . sun
         eaz_s = cs * math.sin(d)                      # direction of increasing azimuth . sun
         eel_s = ce * ss - se * cs * cd                # direction of increasing elevation . sun
-        ct, st = self._cos_tilt, self._sin_tilt
+        a_f = self._cos_tilt * f_s                     # each cell: cos incidence = cos45 (f.s) +- sin45 (e.s)
+        b_az, b_el = self._sin_tilt * eaz_s, self._sin_tilt * eel_s
         k = p.cell_v_per_w_m2
-        diffuse = p.cell_diffuse_view * dhi
+        kb = k * dni
+        base = k * p.cell_diffuse_view * dhi
         sigma = p.cell_noise_v
-        out = []
-        for j, cos_inc in enumerate((ct * f_s + st * eaz_s, ct * f_s - st * eaz_s,
-                                     ct * f_s + st * eel_s, ct * f_s - st * eel_s)):
-            v = k * (dni * (cos_inc if cos_inc > 0.0 else 0.0) + diffuse) + noise[at + j] * sigma
-            out.append(v if v > 0.0 else 0.0)
-        return out[0], out[1], out[2], out[3]
+        c0, c1, c2, c3 = a_f + b_az, a_f - b_az, a_f + b_el, a_f - b_el
+        v0 = base + (kb * c0 if c0 > 0.0 else 0.0) + noise[at] * sigma
+        v1 = base + (kb * c1 if c1 > 0.0 else 0.0) + noise[at + 1] * sigma
+        v2 = base + (kb * c2 if c2 > 0.0 else 0.0) + noise[at + 2] * sigma
+        v3 = base + (kb * c3 if c3 > 0.0 else 0.0) + noise[at + 3] * sigma
+        return (v0 if v0 > 0.0 else 0.0, v1 if v1 > 0.0 else 0.0, v2 if v2 > 0.0 else 0.0, v3 if v3 > 0.0 else 0.0)
 
 
 def _shaft(w: float, p_i: float, q: float, m: float, kt: float, p: TrackerParams) -> tuple[float, float]:
