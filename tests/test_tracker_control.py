@@ -10,6 +10,7 @@ on a plant with the tracker, talking to it only through the link.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import random
 from datetime import datetime, timedelta, timezone
@@ -27,7 +28,7 @@ from host_tools import teleop
 from host_tools.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
-from protocol.states import ControllerState, Switch, SwitchPosition as P, TempSide, TrackerAxis, TrackerWarning
+from protocol.states import ControllerState, Fault, Switch, SwitchPosition as P, TempSide, TrackerAxis, TrackerWarning
 
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 AZ, EL, BOTH = TrackerAxis.AZ, TrackerAxis.EL, TrackerAxis.BOTH
@@ -508,6 +509,29 @@ def test_a_temperature_warning_once_per_crossing_and_no_fault():
         bench.run_for(0.5)
         warnings = [e for e in bench.events if e.spec.name == "TemperatureWarning"]
         assert [(w.side, w.active) for w in warnings] == [(TempSide.HOT, True), (TempSide.HOT, False)]
+    finally:
+        bench.close()
+
+
+@pytest.mark.parametrize("ambient_c, side, beyond_c", [(-7.0, TempSide.COLD, -12.0), (42.0, TempSide.HOT, 47.0)])
+def test_near_a_temperature_limit_a_warning_and_beyond_it_the_safe_state(ambient_c, side, beyond_c):
+    bench = LockstepBench(seed=7, plant_params=PlantParams(ambient_c=ambient_c),
+                          start=datetime(2026, 6, 21, 10, 0, tzinfo=MST))
+    try:
+        assert bench.connect()
+        box_on(bench, mode="manual")
+        assert bench.call(M["Enable"]()).ok
+        bench.run_for(2.0)
+        plant, sup = bench.world.plant, bench.controller.supervisor
+        warnings = [e for e in bench.events if e.spec.name == "TemperatureWarning"]
+        assert [(w.side, w.active) for w in warnings] == [(side, True)]
+        assert sup.state is ControllerState.ENABLED and plant.tracker.relay_closed[0] == [True, False]   # a warning only
+        plant.temp_true_c = beyond_c
+        plant.params = dataclasses.replace(plant.params, ambient_c=beyond_c)      # and it stays there
+        bench.run_for(0.5)
+        assert sup.state is ControllerState.FAULT and sup.faults & Fault.OVER_TEMPERATURE
+        assert plant.tracker.relay_closed == [[False, False], [False, False]]      # the safe state, at the plant
+        assert bench.call(M["Reset"]()).reason is Reason.OVER_TEMPERATURE          # still out of range: latched
     finally:
         bench.close()
 
