@@ -53,6 +53,22 @@ __all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_LINK", "LOCAL_COMMANDS"
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
+ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
+
+
+class AlignedWatch:
+    """`wait aligned`'s count of TelemetryTracker in a row whose pointing error is below `deg` (fed by the pump)."""
+
+    def __init__(self, deg: float, axis: Optional[str]) -> None:
+        self.deg, self.axis = deg, axis
+        self.last: Optional[Message] = None
+        self.error: Optional[float] = None
+        self.streak = 0
+
+    def feed(self, msg: Message) -> None:
+        error = pointing_error_deg(msg, self.axis)
+        self.streak = self.streak + 1 if error is not None and error < self.deg else 0
+        self.last, self.error = msg, error
 
 
 class Session:
@@ -75,6 +91,7 @@ class Session:
         self.sent = 0
         self.failed = 0
         self.all_events = all_events
+        self._aligned: Optional[AlignedWatch] = None     # `wait aligned` in progress
         self.event_prefix = "\n" if all_events else ""   # interactive: step off the prompt's line
         client.telemetry_listeners.append(self._on_telemetry)
         client.event_listeners.append(self._on_event)
@@ -89,6 +106,9 @@ class Session:
     def _on_telemetry(self, msg: Message, now: float) -> None:
         self.telemetry.on_telemetry(msg, now)
         self.tracker.note_uptime(msg.uptime_ms)
+        aligned = self._aligned
+        if aligned is not None and msg.spec.name == "TelemetryTracker":
+            aligned.feed(msg)
 
     def _on_event(self, msg: Message, now: float) -> None:
         if msg.spec.name == "MotionDone":
@@ -208,36 +228,30 @@ class Session:
         return True
 
     def wait_aligned(self, step: Step) -> bool:
-        """Until a TelemetryTracker that came after this line began reports a pointing error below the line's;
-        False on timeout, without the controller's clock, or on link loss."""
-        client, cache, clock = self.client, self.telemetry, self.client.clock
+        """Until ALIGNED_READINGS TelemetryTracker in a row, all come after this line began, report a pointing
+        error below the line's (one reading alone could pass on the potentiometers' noise); False on timeout,
+        without the controller's clock, or on link loss."""
+        client, clock = self.client, self.client.clock
         what = f"wait aligned{' ' + step.aligned_axis if step.aligned_axis else ''} {step.aligned_deg:g} deg"
-        seen = cache.latest.get("TelemetryTracker")
+        watch = self._aligned = AlignedWatch(step.aligned_deg, step.aligned_axis)   # fed by _on_telemetry
         start = clock.now()
-
-        def fresh() -> Optional[Message]:
-            msg = cache.latest.get("TelemetryTracker")
-            return msg if msg is not seen else None
 
         def link_down() -> bool:
             return client.io_error is not None or client.link.state is not LinkState.UP
 
         def settled() -> bool:
-            msg = fresh()
-            if msg is None:
-                return link_down()
-            error = pointing_error_deg(msg, step.aligned_axis)
-            return error is None or error < step.aligned_deg or link_down()
+            msg = watch.last
+            return link_down() or (msg is not None and (not clock_set(msg) or watch.streak >= ALIGNED_READINGS))
         why = None
         try:
             client.wait_for(settled, step.seconds)
         except KeyboardInterrupt:
             why = "interrupted"
-        msg = fresh()
-        took = clock.now() - start
-        error = pointing_error_deg(msg, step.aligned_axis) if msg is not None else None
-        if error is not None and error < step.aligned_deg and why is None:
-            self.console.line(f"ok   {what}: {error:.3f} deg after {took:.1f} s (az {msg.error_az:+.3f}, "
+        finally:
+            self._aligned = None
+        msg, took = watch.last, clock.now() - start
+        if why is None and msg is not None and watch.streak >= ALIGNED_READINGS:
+            self.console.line(f"ok   {what}: {watch.error:.3f} deg after {took:.1f} s (az {msg.error_az:+.3f}, "
                               f"el {msg.error_el:+.3f} deg)")
             return True
         if why is None:
@@ -250,7 +264,7 @@ class Session:
             elif link_down():
                 why = "the link is down"
             else:
-                why = (f"timed out after {step.seconds:g} s: {error:.3f} deg (az {msg.error_az:+.3f}, "
+                why = (f"timed out after {step.seconds:g} s: {watch.error:.3f} deg (az {msg.error_az:+.3f}, "
                        f"el {msg.error_el:+.3f} deg)")
         self.console.line(f"FAIL {what}: {why}")
         return False

@@ -165,6 +165,16 @@ def test_pointing_error_is_the_angle_to_the_sun_or_one_axis():
     assert (pointing_error_deg(high, "az"), pointing_error_deg(high, "el")) == (2.0, 0.3)
 
 
+def test_wait_aligned_counts_readings_in_a_row_so_one_noisy_reading_does_not_pass():
+    from host_tools.teleop import AlignedWatch
+    watch = AlignedWatch(0.5, "el")
+    for error_el, streak in ((0.4, 1), (0.6, 0), (0.45, 1), (-0.49, 2), (0.1, 3)):
+        watch.feed(tracker_msg(error_el=error_el))
+        assert (watch.streak, watch.error) == (streak, abs(error_el))
+    watch.feed(tracker_msg(utc_s=0, warnings=int(TrackerWarning.NO_CLOCK), error_el=0.0))
+    assert watch.streak == 0 and watch.error is None                 # no clock: no error to trust
+
+
 def test_box_state_replies_read_in_one_line():
     reply = SCHEMA["BoxState"].type(0, int(P.ON), int(P.OFF), int(P.MANUAL), int(P.CW), int(P.ON), 30.0,
                                     int(P.MANUAL), int(P.CW), int(P.ON), 30.0)
