@@ -26,6 +26,7 @@ from hil_sim.sun import MST
 from hil_sim.tracker import TrackerCommand
 from host_tools.teleop import EXIT_OK, Session
 from host_tools.teleop_bench import BenchClient
+from host_tools.teleop_box import AXIS_HEADER
 from host_tools.teleop_words import Step, check_script
 from host_tools.world import LockstepBench
 from protocol.states import ControllerState, SwitchPosition as P
@@ -206,6 +207,20 @@ def test_the_procedure_ends_on_the_sun_with_a_healthy_controller(run):
     # the panel at the end says so too
     panel = run.out.split("> box")[-1]
     assert re.search(r"^pointing error 0\.\d\d deg; .* refusals 4$", panel, re.M), panel
+
+
+def test_the_doc_shows_the_script_and_the_panel_as_they_are():
+    doc = (ROOT / "docs" / "tracker_procedure.md").read_text(encoding="utf-8")
+    lines = {line.split("#", 1)[0].strip() for line in SCRIPT.read_text(encoding="utf-8").splitlines()}
+    bench = doc.split("## The operating procedure as a bench")[1].split("Run it by hand")[0]
+    tables = [row for row in bench.splitlines() if row.startswith("| ")]
+    quoted = {q for row in tables for q in re.findall(r"`([a-z][^`]*)`", row) if q.split()[0] in
+              ("reset", "telemetry", "clock", "enable", "dial", "switch", "wait", "expect")}
+    assert len(quoted) > 20 and quoted <= lines, sorted(quoted - lines)
+    assert f"\n{AXIS_HEADER}\n" in doc
+    for word in ("--sun-start", "--clouds", "--no-tracker", "aspod sim --hal", "watch box", "expect REASON",
+                 "wait aligned [az|el] DEG [TIMEOUT]", "python -m host_tools.teleop_bench"):
+        assert word in doc, word
 
 
 # ---- over a real pty -----------------------------------------------------------------------------------------
