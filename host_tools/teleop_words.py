@@ -341,7 +341,7 @@ def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
 def help_text(word: Optional[str] = None) -> str:
     cmds = commands()
     if word is None:
-        rows = [line for _, s in sorted(cmds.items()) for line in _row(usage(s), s.doc)]
+        rows = [line for w, s in sorted(cmds.items()) for line in _row(usage(s), " ".join((s.doc, *NOTES.get(w, ()))))]
         rows += [line for text in LOCAL_COMMANDS.values() for line in _wrap(text, "  ")]
         return "\n".join(["commands:"] + rows + _wrap(SCRIPT_RULES, ""))
     word = word.lower()
@@ -366,10 +366,10 @@ def help_text(word: Optional[str] = None) -> str:
 
 # Conveniences teleop adds to a declared command, shown in its help.
 NOTES = {
-    "clock": (f"also: `clock now` (the host's UTC when the line runs) and `clock {CLOCK_FORMAT}`, e.g. "
+    "clock": (f"Also: `clock now` (the host's UTC when the line runs) and `clock {CLOCK_FORMAT}`, e.g. "
               "`clock 2026-03-20T06:50-07:00` (MST, Tucson); the simulator prints its sun's start "
               "(`aspod sim --sun-start`)",),
-    "switch": ("a refusal (DIAL_NOT_LOW, SWITCH_POSITION) prints the reason's meaning and remedy and the box as it "
+    "switch": ("A refusal (DIAL_NOT_LOW, SWITCH_POSITION) prints the reason's meaning and remedy and the box as it "
                "still stands; `box` shows the whole box; in a script `expect DIAL_NOT_LOW switch ...` checks that "
                "an interlock refuses",),
 }

@@ -90,7 +90,9 @@ def test_help_and_completion_cover_the_new_words():
     text = help_text()
     for word in ("box:", "expect REASON COMMAND", "wait aligned [az|el] DEG [TIMEOUT]", "watch [box] [seconds]"):
         assert word in text
-    assert "clock now" in help_text("clock") and "2026-03-20T06:50-07:00" in help_text("clock")
+    flat = " ".join(text.split())                             # as wrapped for the terminal, unwrapped
+    assert "Also: `clock now`" in flat and "Also: `clock now`" in " ".join(help_text("clock").split())
+    assert "2026-03-20T06:50-07:00" in help_text("clock")
     assert "expect DIAL_NOT_LOW switch" in help_text("switch")
     assert completions("ex", 0, "ex") == ["expect"]
     assert completions("expect DI", 7, "DI") == ["DIAL_NOT_LOW"]
@@ -302,3 +304,7 @@ def test_box_shows_the_box_after_the_lines_before_it(session):
     assert lines[4].split()[:6] == ["el", "MANUAL", "CW", "BRAKE", "40.0", "%"]       # the dial just turned
     assert float(lines[3].split()[12]) == pytest.approx(0.2, abs=0.05)   # a+b: the sun near sunrise
     assert "warnings: none" in text
+    ok, text = run(session, "watch box 1")                    # on a pipe: the last reading, once, at the end
+    watched = text.splitlines()
+    assert ok and watched[0].startswith("box  main OFF  sensor ON") and "(no new telemetry" not in text
+    assert watched[2] == AXIS_HEADER and len(watched) == 7             # the block alone: no warning docs
