@@ -1,7 +1,9 @@
 """`aspod`: one command line, thin subcommands on shared argument helpers.
 
     aspod sim [--pty | --tcp PORT | --port DEVICE] [--baud N] [--key-file PATH] [--hal INTERFACE] ...
+              [--sun-start now|ISO] [--clouds SPEC] [--no-tracker]
     aspod plant --interface X --channel Y [--bitrate N] [--seed N] [--gravity earth|orbit] [--payload-kg M]
+              [--sun-start now|ISO] [--clouds SPEC] [--no-tracker]
     aspod firmware --interface X --channel Y [--pty | --tcp PORT | --port DEVICE] [--baud N] ...
     aspod teleop URL [--script FILE] [--key-file PATH] ...
     aspod demo [--json] [--gravity earth|orbit]
@@ -112,6 +114,39 @@ def add_arm_args(parser: argparse.ArgumentParser) -> None:
                         help="mass carried at the gripper tip, kg (default 0)")
 
 
+def _sun_start(text: str):
+    from host_tools.teleop_clock import parse_when
+    try:
+        parse_when(text, "sun start", posix=False)    # resolved when the plant is built (plant_cli)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def _clouds(text: str) -> str:
+    from datetime import date
+
+    from hil_sim.sun import parse_clouds
+    try:
+        parse_clouds(text, date(2026, 1, 1), -7.0)     # the form only; the day is the start's (plant_cli)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def add_tracker_args(parser: argparse.ArgumentParser) -> None:
+    """The plant's solar tracker: the sun's date-time at start, clouds, or no tracker at all."""
+    parser.add_argument("--sun-start", type=_sun_start, default=None, metavar="now|ISO",
+                        help="the simulated sun's date-time at start: `now` (the default: the real sun at Tucson, "
+                             "so that `clock now` at teleop matches it) or ISO 8601 with its offset, e.g. "
+                             "2026-03-20T06:50-07:00 (MST; Z for UTC); 2000-2099")
+    parser.add_argument("--clouds", type=_clouds, default=None, metavar="SPEC",
+                        help="cloud passages TIME+DURATION@ATTENUATION, comma-separated, local standard time on the "
+                             "start's date: '12:00+300s@0.9,14:30+10m@0.5'")
+    parser.add_argument("--no-tracker", action="store_true",
+                        help="a plant without the solar tracker (the arm, mount and gripper only)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -128,12 +163,14 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--hal-arg", action="append", metavar="KEY=VALUE",
                      help="further keyword for the --hal bus, repeatable (udp_multicast: port=N)")
     add_arm_args(sim)
+    add_tracker_args(sim)
 
     plant = sub.add_parser("plant", help="run only the plant, in real time, on a python-can interface; "
                                          "prints an ASPOD-PLANT ready line")
     add_bus_args(plant)
     plant.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
     add_arm_args(plant)
+    add_tracker_args(plant)
     plant.add_argument("--stop-on-stdin-eof", action="store_true",
                        help="also stop when standard input closes (for a parent process that started it)")
 

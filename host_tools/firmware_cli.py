@@ -34,7 +34,7 @@ from protocol.states import Fault
 from timebase import RealClock
 
 from host_tools import nodes
-from host_tools.plant_cli import PlantProcess, bus_options, describe_exit
+from host_tools.plant_cli import PlantProcess, bus_options, describe_exit, tracker_child_args, tracker_options
 
 PLANT_WATCH_S = 0.1
 
@@ -160,9 +160,11 @@ def run_sim_over_hal(args: argparse.Namespace) -> int:
             raise ValueError(f"--hal {interface} needs --hal-channel (the {interface} channel to use)")
         channel, port = nodes.fresh_udp_multicast()   # private to this run
         options.setdefault("port", port)
+    tracker_options(args, warm=False)                           # bad tracker options fail here too
     nodes.open_bus(interface, channel, **options).shutdown()   # fail here, before a child is started
     plant = PlantProcess(interface, channel, options, seed=args.seed,
-                         extra_args=("--gravity", args.gravity, "--payload-kg", str(args.payload_kg)))
+                         extra_args=("--gravity", args.gravity, "--payload-kg", str(args.payload_kg),
+                                     *tracker_child_args(args)))
     print(f"aspod sim: plant process {plant.pid} ready on {nodes.describe_bus(interface, channel, options)}",
           file=sys.stderr, flush=True)
     try:

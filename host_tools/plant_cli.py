@@ -5,7 +5,8 @@ It closes the loop around a controller in another process (`aspod firmware`, or
 
     ASPOD-PLANT ready interface=<interface> channel=<channel> [key=value ...] pid=<pid>
 
-on stdout once its bus is open and its first tick is due, runs until SIGINT or SIGTERM
+on stdout once its bus is open and its first tick is due (and, on stderr, where the simulated
+sun starts: `tracker_options`, `sun_line`), runs until SIGINT or SIGTERM
 (or, with --stop-on-stdin-eof, until its standard input closes: the parent that
 started it has gone), shuts the bus down and prints its counters on stderr:
 
@@ -20,6 +21,7 @@ readiness line, notice if it dies, stop it.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import select
 import selectors
@@ -29,9 +31,11 @@ import sys
 from typing import Any, Optional, Sequence
 
 from firmware_py.scheduler import Scheduler
+from hil_sim.sun import TUCSON, SunTable, as_clouds, to_utc
 from timebase import RealClock
 
 from host_tools import nodes
+from host_tools.teleop_clock import NOW, parse_when
 
 READY = "ASPOD-PLANT ready"
 STDIN_CHECK_S = 0.1
@@ -47,18 +51,75 @@ def bus_options(args: argparse.Namespace) -> dict[str, Any]:
     return options
 
 
+def tracker_options(args: argparse.Namespace, *, warm: bool = True) -> dict[str, Any]:
+    """`tracker`, `start` and `clouds` for `World` / `build_plant_node` from --no-tracker, --sun-start, --clouds.
+
+    `now` (the default) is read from the one wall clock (`RealClock.wall_time()`) after the day's
+    sun has been computed (pvlib's import and a day's table take about a second), so that the
+    plant's sun is the real sun at Tucson when the run starts. ValueError with the reason for
+    options that contradict each other or clouds that do not fit the start's day. `warm` False:
+    only check them (a parent whose child process builds the plant).
+    """
+    text, clouds = getattr(args, "sun_start", None), getattr(args, "clouds", None)
+    if getattr(args, "no_tracker", False):
+        given = [name for name, value in (("--sun-start", text), ("--clouds", clouds)) if value is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} set the solar tracker's sun, but --no-tracker leaves the "
+                             "tracker out: drop one or the other")
+        return {"tracker": False}
+    seconds = parse_when(text or NOW, "--sun-start", posix=False)
+    if seconds is None:
+        if warm:
+            SunTable(TUCSON).preload(RealClock.wall_time())  # the table, cached for the plant
+        seconds = RealClock.wall_time()
+    start = to_utc(seconds)
+    return {"tracker": True, "start": start, "clouds": as_clouds(clouds, start, TUCSON)}
+
+
+def sun_line(prog: str, options: dict[str, Any], tracker=None, *, from_now: bool = False) -> str:
+    """Where the plant's sun starts (and where it stands then, given the plant's `tracker`), for stderr."""
+    if not options.get("tracker"):
+        return f"{prog}: no solar tracker (--no-tracker)"
+    start = options["start"]
+    local = start.astimezone(TUCSON.local_tz).isoformat(timespec="seconds")
+    where = ""
+    if tracker is not None:
+        el, az, dni, _dhi = tracker.sun()
+        if math.isfinite(el):
+            where = f", azimuth {az:.2f} deg, elevation {el:.2f} deg, clear-sky beam {dni:.0f} W/m^2"
+    passages = ", ".join(f"{p.start.astimezone(TUCSON.local_tz):%H:%M:%S}+{p.duration_s:g}s@{p.attenuation:g}"
+                         for p in options["clouds"]) or "none"
+    clock = "clock now" if from_now else f"clock {local}"
+    return (f"{prog}: the sun starts at {local} ({start:%Y-%m-%dT%H:%M:%S}Z{', now' if from_now else ''}) at "
+            f"Tucson{where}; clouds {passages}; at teleop `{clock}` sets the controller's clock to it")
+
+
+def sun_from_now(args: argparse.Namespace) -> bool:
+    return (getattr(args, "sun_start", None) or NOW).lower() == NOW
+
+
+def tracker_child_args(args: argparse.Namespace) -> list[str]:
+    """The tracker options as `aspod plant` takes them, for a child plant process (`aspod sim --hal`)."""
+    out = []
+    for flag, value in (("--sun-start", getattr(args, "sun_start", None)), ("--clouds", getattr(args, "clouds", None))):
+        if value is not None:
+            out += [flag, value]
+    return out + (["--no-tracker"] if getattr(args, "no_tracker", False) else [])
+
+
 def run_plant(args: argparse.Namespace) -> int:
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
     signal.signal(signal.SIGINT, lambda signum, frame: stopping.append(signum))
     options = bus_options(args)
     nodes.check_arm_settings(args.gravity, args.payload_kg)
+    sun = tracker_options(args)
     bus = nodes.open_bus(args.interface, args.channel, node=nodes.PLANT, **options)
     clock = RealClock()
     node = None
     started_s = clock.now()
     try:
-        node = nodes.build_plant_node(bus, args.seed, gravity=args.gravity, payload_kg=args.payload_kg)
+        node = nodes.build_plant_node(bus, args.seed, gravity=args.gravity, payload_kg=args.payload_kg, **sun)
         scheduler = Scheduler(clock)
         scheduler.add("plant", node.step, period_s=node.period_s)
         if args.stop_on_stdin_eof:
@@ -66,6 +127,8 @@ def run_plant(args: argparse.Namespace) -> int:
         print(f"{READY} {nodes.describe_bus(args.interface, args.channel, options)} pid={os.getpid()}", flush=True)
         print(f"aspod plant: running on {args.interface} {args.channel}, seed {args.seed}, gravity {args.gravity}, "
               f"payload {args.payload_kg} kg; Ctrl-C stops", file=sys.stderr, flush=True)
+        print(sun_line("aspod plant", sun, node.plant.tracker, from_now=sun_from_now(args)), file=sys.stderr,
+              flush=True)
         started_s = clock.now()
         scheduler.run_forever(lambda: bool(stopping))
     finally:

@@ -4,6 +4,10 @@ Prints `ASPOD-LINK <url>` as its first line on stdout and `ASPOD-KEY <path>` as 
 second, then runs until SIGINT or SIGTERM. Without --key-file it uses (creating it
 if needed) the per-user development key that the host tools also default to.
 
+The plant carries the solar tracker unless --no-tracker; its sun starts at --sun-start
+(`now` by default: the real sun at Tucson, which `clock now` at teleop matches) with
+--clouds; where it starts is said on stderr (host_tools/plant_cli.py `tracker_options`).
+
 With --hal INTERFACE the plant runs as a separate process (`aspod plant`) and the two
 meet on that python-can interface: see host_tools/firmware_cli.py and
 docs/separate_processes.md.
@@ -18,6 +22,7 @@ from timebase import RealClock
 
 from host_tools.firmware_cli import (apply_command_line, controller_config, log_states, open_port,
                                     run_sim_over_hal)
+from host_tools.plant_cli import sun_from_now, sun_line, tracker_options
 from host_tools.world import World
 
 
@@ -25,9 +30,10 @@ def run_sim(args: argparse.Namespace) -> int:
     if getattr(args, "hal", None) is not None:   # plant in a process of its own, on a real python-can interface
         return run_sim_over_hal(args)
     psk, key_path, params_path, config = controller_config(args)
+    sun = tracker_options(args)
     port = open_port(args)
     world = World(RealClock(), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
-                  controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg)
+                  controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg, **sun)
     params = world.controller.params
     apply_command_line(world.controller, args, "aspod sim")
     log_states(world.controller, "aspod sim")
@@ -36,6 +42,7 @@ def run_sim(args: argparse.Namespace) -> int:
     print(f"aspod sim: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "
           f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops",
           file=sys.stderr, flush=True)
+    print(sun_line("aspod sim", sun, world.plant.tracker, from_now=sun_from_now(args)), file=sys.stderr, flush=True)
     stopping = []
 
     def stop(signum, frame):

@@ -13,25 +13,37 @@ with the reason's doc and remedy when it did not end DONE); `wait [AXIS|all]` wa
 motions this session started (teleop_motion.py). In a script a motion that ends other than
 DONE is a failed command. `watch` shows the arm live (teleop_watch.py).
 
+The solar tracker: `box` prints its control box and `watch box` shows it live (teleop_box.py);
+a refused `switch` prints the reason's doc and remedy, the dials against the low setting and the
+box as it still stands; `wait aligned [az|el] DEG [TIMEOUT]` waits until the tracker points at
+the sun; `expect REASON COMMAND` passes only if COMMAND is refused with exactly REASON (how a
+script shows that an interlock holds); `clock now` is read from the host's UTC when it runs
+(`wall_time`, the one wall clock: timebase.RealClock.wall_time unless a bench gives its own).
+
 Modules: teleop_words (parsing, help), teleop_format (output), teleop_motion (motions and
-their ends), teleop_watch (live telemetry), this one (the session, scripts, the console).
+their ends), teleop_watch (live telemetry), teleop_box (the control box), teleop_clock
+(date-times), this one (the session, scripts, the console).
 """
 from __future__ import annotations
 
 import statistics
 import sys
-from typing import Optional, TextIO
+from typing import Callable, Optional, TextIO
 
 from protocol.link import LinkState
 from protocol.messages import SCHEMA
-from protocol.reasons import Reason
+from protocol.reasons import Reason, reason_name
+from protocol.reliable import Outcome
 from protocol.schema import Message
+from timebase import RealClock
 
+from host_tools.teleop_box import box_block, box_state_text, clock_set, pointing_error_deg
+from host_tools.teleop_clock import utc_text
 from host_tools.teleop_format import (INDENT, Console, failure_lines, format_message, format_outcome, format_value,
                                       latency)
 from host_tools.teleop_motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
                                       started_text, still_running_lines)
-from host_tools.teleop_watch import TelemetryCache, watch
+from host_tools.teleop_watch import TelemetryCache, arm_block, watch
 from host_tools.teleop_words import (LOCAL_COMMANDS, Step, TeleopError, all_words, build_message, check_script,
                                      commands, completions, help_text, parse_line, parse_value, usage)
 
@@ -40,6 +52,23 @@ __all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_LINK", "LOCAL_COMMANDS"
            "help_text", "interactive", "parse_line", "parse_value", "run_script", "usage"]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
+ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
+
+
+class AlignedWatch:
+    """`wait aligned`'s count of TelemetryTracker in a row whose pointing error is below `deg` (fed by the pump)."""
+
+    def __init__(self, deg: float, axis: Optional[str]) -> None:
+        self.deg, self.axis = deg, axis
+        self.last: Optional[Message] = None
+        self.error: Optional[float] = None
+        self.streak = 0
+
+    def feed(self, msg: Message) -> None:
+        error = pointing_error_deg(msg, self.axis)
+        self.streak = self.streak + 1 if error is not None and error < self.deg else 0
+        self.last, self.error = msg, error
 
 
 class Session:
@@ -47,10 +76,13 @@ class Session:
 
     It listens to the client's telemetry and events from construction until `close()`.
     `all_events`: print every event (interactive), not only motion ends (scripts).
+    `wall_time`: the host's UTC, POSIX seconds (for `clock now`).
     """
 
-    def __init__(self, client, out: TextIO = sys.stdout, all_events: bool = False) -> None:
+    def __init__(self, client, out: TextIO = sys.stdout, all_events: bool = False,
+                 wall_time: Callable[[], float] = RealClock.wall_time) -> None:
         self.client = client
+        self.wall_time = wall_time
         self.out = out
         self.console = Console(out)
         self.tracker = MotionTracker()
@@ -59,6 +91,7 @@ class Session:
         self.sent = 0
         self.failed = 0
         self.all_events = all_events
+        self._aligned: Optional[AlignedWatch] = None     # `wait aligned` in progress
         self.event_prefix = "\n" if all_events else ""   # interactive: step off the prompt's line
         client.telemetry_listeners.append(self._on_telemetry)
         client.event_listeners.append(self._on_event)
@@ -73,6 +106,9 @@ class Session:
     def _on_telemetry(self, msg: Message, now: float) -> None:
         self.telemetry.on_telemetry(msg, now)
         self.tracker.note_uptime(msg.uptime_ms)
+        aligned = self._aligned
+        if aligned is not None and msg.spec.name == "TelemetryTracker":
+            aligned.feed(msg)
 
     def _on_event(self, msg: Message, now: float) -> None:
         if msg.spec.name == "MotionDone":
@@ -86,32 +122,46 @@ class Session:
 
     # ---- steps ----
     def run_step(self, step: Step) -> bool:
-        if step.message is None:
+        if not step.sends:
             return self.run_local(step)
+        message = step.build(self.wall_time)
         self.sent += 1
-        is_motion = step.message.spec.reply == "MotionAccepted"
+        is_motion = message.spec.reply == "MotionAccepted"
         before = self.tracker.sending() if is_motion else None
-        handle = self.client.call(step.message)
+        handle = self.client.call(message)
         if handle.ok and handle.latency_s is not None:
             self.latencies_s.append(handle.latency_s)
         if not is_motion:
-            lines = [format_outcome(handle)] if handle.ok else failure_lines(handle, self._hints(step, handle))
+            lines = [self._ok_line(handle)] if handle.ok else failure_lines(handle, self._hints(message, step, handle))
         elif handle.ok:
             motions, replaced, held = self.tracker.started(step, handle.reply, before, self.client.clock.now())
             lines = replaced_lines(replaced) + [f"ok   {started_text(motions)}{latency(handle)}"]
             lines += [line for end, mine in held for line in end_lines(end, mine)]
         else:
             held = self.tracker.refused()
-            lines = failure_lines(handle, self._hints(step, handle))
+            lines = failure_lines(handle, self._hints(message, step, handle))
             lines += [line for end, mine in held for line in end_lines(end, mine)]
-        if not handle.ok:
+        ok = handle.ok
+        if step.expect is not None:
+            ok, lines = expected_lines(step, handle, lines)
+        if not ok:
             self.failed += 1
         self.console.lines(lines)
-        return handle.ok
+        return ok
 
-    def _hints(self, step: Step, handle) -> list[str]:
-        """What the refusal of a motion command means for this command: the soft limits in force, ..."""
-        msg = step.message
+    def _ok_line(self, handle) -> str:
+        name = handle.msg.spec.name
+        if name == "SetClock":
+            msg = handle.msg
+            return f"ok   controller clock set to {utc_text(msg.utc_s)[:-1]}.{msg.utc_ms:03d}Z{latency(handle)}"
+        if handle.reply is not None and handle.reply.spec.name == "BoxState":
+            return f"ok   {box_state_text(handle.reply)}{latency(handle)}"
+        return format_outcome(handle)
+
+    def _hints(self, msg: Message, step: Step, handle) -> list[str]:
+        """What a refusal means for this command: the soft limits in force, the dials against their low setting, ..."""
+        if handle.reply is not None and handle.reply.spec.name == "BoxState":
+            return self._box_hints(msg, handle)
         if handle.reply is None or msg.spec.reply != "MotionAccepted":
             return []
         if handle.reason == Reason.SOFT_LIMIT and any(f.name == "axis" for f in msg.spec.fields):
@@ -135,6 +185,18 @@ class Session:
             return hints + [f"{INDENT}see `help {step.word}`"]
         return []
 
+    def _box_hints(self, msg: Message, handle) -> list[str]:
+        """A refused `switch`: the dials against the interlock's low setting, and the box as it still stands."""
+        reply, hints = handle.reply, []
+        if handle.reason == Reason.DIAL_NOT_LOW:
+            low = self.client.call(SCHEMA["ParamGet"].type("trk_dial_low_pct"), 5.0)
+            limit = f"trk_dial_low_pct = {low.reply.value:g} %" if low.ok else "parameter trk_dial_low_pct"
+            axis = getattr(msg, "axis", 2)
+            axes = [a for k, a in enumerate(("az", "el")) if axis in (k, 2)]
+            dials = ", ".join(f"{a} {getattr(reply, f'dial_{a}'):.1f} %" for a in axes)
+            hints.append(f"{INDENT}dial {dials}; low is at or below {limit}")
+        return hints + [f"{INDENT}nothing changed: {box_state_text(reply)}"]
+
     def run_local(self, step: Step) -> bool:
         word, args, console = step.word, step.args, self.console
         if word == "help":
@@ -143,7 +205,14 @@ class Session:
             console.line(link_report(self.client))
         elif word == "params":
             return list_params(self.client, console)
+        elif word == "box":
+            # a reading sent after this line began (so after the replies before it), if one comes soon
+            seen = self.telemetry.latest.get("TelemetryTracker")
+            self.client.wait_for(lambda: self.telemetry.latest.get("TelemetryTracker") is not seen, BOX_FRESH_S)
+            console.lines(box_block(self.telemetry.latest, detail=True))
         elif word == "wait":
+            if step.waits_for_alignment:
+                return self.wait_aligned(step)
             if step.waits_for_motion:
                 return self.wait_motions(step.axis, step.seconds)
             if self.tracker.running():
@@ -154,8 +223,51 @@ class Session:
             self.client.connect()
             console.line("link up")
         elif word == "watch":
-            watch(self.client, self.telemetry, step.seconds, console)
+            block = (lambda cache: box_block(cache.latest)) if step.view == "box" else arm_block
+            watch(self.client, self.telemetry, step.seconds, console, block)
         return True
+
+    def wait_aligned(self, step: Step) -> bool:
+        """Until ALIGNED_READINGS TelemetryTracker in a row, all come after this line began, report a pointing
+        error below the line's (one reading alone could pass on the potentiometers' noise); False on timeout,
+        without the controller's clock, or on link loss."""
+        client, clock = self.client, self.client.clock
+        what = f"wait aligned{' ' + step.aligned_axis if step.aligned_axis else ''} {step.aligned_deg:g} deg"
+        watch = self._aligned = AlignedWatch(step.aligned_deg, step.aligned_axis)   # fed by _on_telemetry
+        start = clock.now()
+
+        def link_down() -> bool:
+            return client.io_error is not None or client.link.state is not LinkState.UP
+
+        def settled() -> bool:
+            msg = watch.last
+            return link_down() or (msg is not None and (not clock_set(msg) or watch.streak >= ALIGNED_READINGS))
+        why = None
+        try:
+            client.wait_for(settled, step.seconds)
+        except KeyboardInterrupt:
+            why = "interrupted"
+        finally:
+            self._aligned = None
+        msg, took = watch.last, clock.now() - start
+        if why is None and msg is not None and watch.streak >= ALIGNED_READINGS:
+            self.console.line(f"ok   {what}: {watch.error:.3f} deg after {took:.1f} s (az {msg.error_az:+.3f}, "
+                              f"el {msg.error_el:+.3f} deg)")
+            return True
+        if why is None:
+            if msg is None:
+                why = ("the link is down" if link_down() else
+                       f"no TelemetryTracker in {took:.1f} s: it goes out while main or sensor power is on, at the "
+                       "telemetry rate (`telemetry 10`)")
+            elif not clock_set(msg):
+                why = "the controller's clock is not set (NO_CLOCK): no sun to point at; `clock now` first"
+            elif link_down():
+                why = "the link is down"
+            else:
+                why = (f"timed out after {step.seconds:g} s: {watch.error:.3f} deg (az {msg.error_az:+.3f}, "
+                       f"el {msg.error_el:+.3f} deg)")
+        self.console.line(f"FAIL {what}: {why}")
+        return False
 
     def wait_motions(self, axis: int, timeout_s: float) -> bool:
         """Until every motion this session started on `axis` (or any) has ended; False on timeout or link loss."""
@@ -211,6 +323,22 @@ class Session:
         return "\n".join(lines)
 
 
+def expected_lines(step: Step, handle, lines: list[str]) -> tuple[bool, list[str]]:
+    """`expect REASON COMMAND`: (passed, the lines to print). It passes only if COMMAND was refused with
+    exactly REASON; the refusal's explanation is printed either way."""
+    want = step.expect
+    name = handle.msg.spec.name
+    if handle.outcome is Outcome.REJECTED and handle.reason == want:
+        return True, [f"ok   {name} refused as expected: {reason_name(int(want))} ({int(want)}){latency(handle)}"] + \
+            lines[1:]
+    if handle.ok:
+        got = "it was accepted"
+    else:
+        got = f"{handle.outcome.value}: {reason_name(int(handle.reason))} ({int(handle.reason)})"
+    return False, [f"FAIL expected {name} to be refused with {want.name} ({int(want)}), but {got}"] + \
+        [INDENT + line for line in lines]
+
+
 def list_params(client, console: Console) -> bool:
     """Every parameter, read one by one with ParamList."""
     index, count = 0, 1
@@ -244,14 +372,14 @@ def peer_age(client) -> str:
 
 
 def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
-               err: TextIO = sys.stderr) -> tuple[int, Session]:
-    """Check every line, then run them; returns (exit status, session).
+               err: TextIO = sys.stderr, wall_time: Callable[[], float] = RealClock.wall_time) -> tuple[int, Session]:
+    """Check every line, then run them; returns (exit status, session). `wall_time` as for `Session`.
 
     A failed command, or a motion that ends other than DONE (noticed after each line), fails the
     script: it stops there unless `keep_going`, and the status is EXIT_FAILED either way.
     """
     steps, problems = check_script(lines)
-    session = Session(client, out)
+    session = Session(client, out, wall_time=wall_time)
     if problems:
         session.close()
         for problem in problems:

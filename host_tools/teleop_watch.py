@@ -11,11 +11,12 @@
 
 Axes, units and modes come from the TelemetryJoints declaration; the state and faults from
 TelemetryStatus. On a terminal the block is redrawn in place at up to 10 Hz; on a pipe or a
-file the last reading is printed once at the end.
+file the last reading is printed once at the end. `watch box` shows the solar tracker's control
+box the same way (teleop_box.py).
 """
 from __future__ import annotations
 
-from typing import Optional
+from typing import Callable, Optional
 
 from protocol.messages import SCHEMA
 from protocol.schema import Message
@@ -124,13 +125,14 @@ def arm_block(cache: TelemetryCache) -> list[str]:
     return lines + timing_lines(status, joints)
 
 
-def watch(client, cache: TelemetryCache, seconds: float, console: Console) -> None:
-    """Show the block for `seconds` (Ctrl-C ends it early)."""
+def watch(client, cache: TelemetryCache, seconds: float, console: Console,
+          block: Callable[[TelemetryCache], list[str]] = arm_block) -> None:
+    """Show `block` (the arm's; `watch box`: the control box's) for `seconds` (Ctrl-C ends it early)."""
     clock = client.clock
     deadline = clock.now() + seconds
     at_start = cache.received
     if console.live and cache.latest:
-        console.block(arm_block(cache))
+        console.block(block(cache))
     try:
         while True:
             left = deadline - clock.now()
@@ -141,7 +143,7 @@ def watch(client, cache: TelemetryCache, seconds: float, console: Console) -> No
                 continue
             seen = cache.received
             if client.wait_for(lambda: cache.received != seen, left) and cache.latest:
-                console.block(arm_block(cache))
+                console.block(block(cache))
                 clock.sleep(min(REFRESH_S, max(0.0, deadline - clock.now())))
     except KeyboardInterrupt:
         pass
@@ -149,4 +151,4 @@ def watch(client, cache: TelemetryCache, seconds: float, console: Console) -> No
         console.line("(no telemetry: is the rate 0? `telemetry 10` starts it)")
     elif not console.live:
         stale = "" if cache.received != at_start else ["(no new telemetry while watching; the last reading)"]
-        console.lines(list(stale) + arm_block(cache))
+        console.lines(list(stale) + block(cache))

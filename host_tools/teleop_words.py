@@ -4,6 +4,11 @@ The command words, their arguments (names, enum values, defaults, units, ranges)
 completion all come from the protocol declaration (`teleop=` in protocol/messages.py). The
 few local words act on the console itself; `wait` names its axes from the declared Axis enum.
 Every check runs before anything is sent, so a bad line changes nothing.
+
+Besides the declared commands: `box` and `watch box` (the solar tracker's control box,
+teleop_box.py), `wait aligned [az|el] DEG [TIMEOUT]` (until the tracker points at the sun),
+`expect REASON COMMAND` (a script line that passes only if COMMAND is refused with exactly
+REASON) and `clock now` / `clock YYYY-MM-DDTHH:MM[:SS]+HH:MM` besides POSIX seconds.
 """
 from __future__ import annotations
 
@@ -13,7 +18,11 @@ from dataclasses import dataclass
 from typing import Optional
 
 from protocol.messages import SCHEMA
+from protocol.reasons import Reason
 from protocol.schema import Field, Message, MessageSpec
+
+from host_tools.teleop_clock import FORMAT as CLOCK_FORMAT
+from host_tools.teleop_clock import parse_when, split_seconds
 
 # The axes `wait` takes: the declared enum of the motion commands' `axis` field (Home's includes `all`).
 AXIS_ENUM = next(f.enum for f in SCHEMA["Home"].fields if f.name == "axis")
@@ -22,19 +31,33 @@ AXES = tuple(a for a in AXIS_ENUM if a is not AXIS_ALL)          # every channel
 AXIS_WORDS = tuple(a.name.lower() for a in AXIS_ENUM)           # j1 ... mount, all
 
 WAIT_TIMEOUT_S = 120.0         # default for `wait [AXIS|all]`: a 330 deg mount move at 3 deg/s takes 110 s
+ALIGNED_TIMEOUT_S = 300.0      # default for `wait aligned`: 150 deg of azimuth at the full dial's 35 deg/min
 MAX_WAIT_S = 3600.0
 WATCH_S = 5.0
 HELP_WIDTH = 96
+TRACKER_AXES = ("az", "el")
+WATCH_VIEWS = ("box",)          # `watch box`; plain `watch` is the arm
+EXPECTABLE = tuple(r.name for r in Reason if r is not Reason.OK)
 
 LOCAL_COMMANDS = {
     "help": "help [command]: list the commands, or describe one",
-    "watch": f"watch [seconds]: live arm and controller telemetry (default {WATCH_S:g} s; Ctrl-C ends it early); "
-             "on a pipe, the last reading once",
+    "watch": f"watch [box] [seconds]: live arm and controller telemetry, or with `box` the solar tracker's "
+             f"control box (default {WATCH_S:g} s; Ctrl-C ends it early); on a pipe, the last reading once",
+    "box": "box: the solar tracker's control box as a person at it sees it, from the latest TelemetryTracker: "
+           "switches, dials, relays (CW, CCW, open), brakes, duties, photocell difference and sum, angles, the "
+           "sun and the pointing error, counters, warnings with their meaning, the box's temperature",
+    "expect": "expect REASON COMMAND...: COMMAND must be refused with exactly REASON (e.g. `expect DIAL_NOT_LOW "
+              "switch mode sensor`); the line fails if COMMAND is accepted or refused for another reason. "
+              "REASON is a reason code's name; checked with the rest of a script before anything is sent",
     "link": "link: this end's and the controller's link statistics",
     "params": "params: every parameter with its value and range (get NAME / set NAME VALUE / save)",
     "wait": f"wait [AXIS|all] [TIMEOUT]: wait until the motions started here on AXIS (default all: every "
             f"axis) have ended (default timeout {WAIT_TIMEOUT_S:g} s; a timeout fails the line); "
-            "wait SECONDS: pause. AXIS: " + ", ".join(AXIS_WORDS[:-1]),
+            "wait SECONDS: pause. AXIS: " + ", ".join(AXIS_WORDS[:-1]) + ". "
+            "wait aligned [az|el] DEG [TIMEOUT]: until the solar tracker points at the sun within DEG degrees in "
+            "three TelemetryTracker in a row (the angle between the focal axis and the ephemeris sun; with az or el, "
+            "that axis's error alone); it needs the controller's clock (`clock now`) and the box in use (main or "
+            f"sensor power on); default timeout {ALIGNED_TIMEOUT_S:g} s; a timeout fails the line",
     "connect": "connect: handshake again (a new session)",
     "quit": "quit: leave",
 }
@@ -57,10 +80,30 @@ class Step:
     message: Optional[Message] = None
     seconds: Optional[float] = None       # watch, and wait as a pause
     axis: Optional[int] = None            # wait for motions: an AXIS value (AXIS_ALL: every axis)
+    view: str = "arm"                     # watch: "arm" or "box"
+    aligned_deg: Optional[float] = None   # wait aligned: the pointing error to wait for ...
+    aligned_axis: Optional[str] = None    # ... of one axis (az, el), or None: the angle to the sun
+    expect: Optional[Reason] = None       # expect REASON COMMAND: the refusal that passes
+    clock_now: bool = False               # clock now: SetClock built from the host's UTC when it runs
 
     @property
     def waits_for_motion(self) -> bool:
         return self.word == "wait" and self.axis is not None
+
+    @property
+    def waits_for_alignment(self) -> bool:
+        return self.word == "wait" and self.aligned_deg is not None
+
+    @property
+    def sends(self) -> bool:
+        """A command for the controller (built now, or for `clock now` when it runs)."""
+        return self.message is not None or self.clock_now
+
+    def build(self, wall_time) -> Message:
+        """The message to send; `wall_time()` (POSIX seconds) is read for `clock now`."""
+        if self.clock_now:
+            return SCHEMA["SetClock"].type(*split_seconds(wall_time()))
+        return self.message
 
 
 def commands() -> dict[str, MessageSpec]:
@@ -153,9 +196,30 @@ def _seconds(text: str, what: str, line_no: int) -> float:
     return seconds
 
 
+def _parse_aligned(step: Step) -> None:
+    """`wait aligned [az|el] DEG [TIMEOUT]`."""
+    args, n = step.args[1:], step.line_no
+    if args and args[0].lower() in TRACKER_AXES:
+        step.aligned_axis, args = args[0].lower(), args[1:]
+    if not 1 <= len(args) <= 2:
+        raise TeleopError(f"line {n}: wait aligned [az|el] DEG [TIMEOUT]: a pointing error in degrees, then "
+                          "optionally a timeout in seconds")
+    try:
+        deg = float(args[0])
+    except ValueError:
+        raise TeleopError(f"line {n}: wait aligned: {args[0]!r} is not a number of degrees") from None
+    if not 0 < deg <= 180:
+        raise TeleopError(f"line {n}: wait aligned: {deg:g} deg is outside (0, 180]")
+    step.aligned_deg = deg
+    step.seconds = _seconds(args[1], "wait aligned: timeout", n) if len(args) == 2 else ALIGNED_TIMEOUT_S
+
+
 def _parse_wait(step: Step) -> None:
-    """`wait` / `wait AXIS|all [TIMEOUT]`: wait for motions; `wait SECONDS`: pause."""
+    """`wait` / `wait AXIS|all [TIMEOUT]`: wait for motions; `wait SECONDS`: pause; `wait aligned ...`."""
     args, n = step.args, step.line_no
+    if args and args[0].lower() == "aligned":
+        _parse_aligned(step)
+        return
     if len(args) > 2:
         raise TeleopError(f"line {n}: wait takes at most an axis and a timeout: wait [AXIS|all] [TIMEOUT]")
     if not args:
@@ -167,7 +231,7 @@ def _parse_wait(step: Step) -> None:
         step.seconds = _seconds(args[1], f"wait {word}: timeout", n) if len(args) == 2 else WAIT_TIMEOUT_S
         return
     if len(args) == 2:
-        raise TeleopError(f"line {n}: wait: {args[0]!r} is not an axis ({', '.join(AXIS_WORDS)})")
+        raise TeleopError(f"line {n}: wait: {args[0]!r} is not an axis ({', '.join(AXIS_WORDS)}) nor `aligned`")
     try:
         float(word)
     except ValueError:
@@ -189,12 +253,16 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
     if word in ("exit",):
         word = "quit"
     step = Step(word, args, line_no, stripped)
+    if word == "expect":
+        return _parse_expect(step)
     if word in LOCAL_COMMANDS:
         if word == "wait":
             _parse_wait(step)
         elif word == "watch":
+            if args and args[0].lower() in WATCH_VIEWS:
+                step.view, args = args[0].lower(), args[1:]
             if len(args) > 1:
-                raise TeleopError(f"line {line_no}: watch takes at most a number of seconds")
+                raise TeleopError(f"line {line_no}: watch takes `box` and at most a number of seconds")
             step.seconds = _seconds(args[0], "watch", line_no) if args else WATCH_S
         elif word == "help" and len(args) > 1:
             raise TeleopError(f"line {line_no}: help takes at most one command word")
@@ -205,10 +273,55 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
     if spec is None:
         raise TeleopError(f"line {line_no}: unknown command {word!r} (known: {', '.join(all_words())})")
     try:
-        step.message = build_message(spec, args)
+        if spec.name == "SetClock" and args and _is_date_time(args[0]):
+            _parse_clock(step, spec)
+        else:
+            step.message = build_message(spec, args)
     except TeleopError as exc:
         raise TeleopError(f"line {line_no}: {exc}") from None
     return step
+
+
+def _is_date_time(text: str) -> bool:
+    """`now`, or a date-time rather than a number (or name=value) for SetClock's fields."""
+    return text.lower() == "now" or ("-" in text[1:] and "=" not in text)
+
+
+def _parse_clock(step: Step, spec: MessageSpec) -> None:
+    """`clock now` (read when it runs) or `clock YYYY-MM-DDTHH:MM[:SS]+HH:MM`."""
+    if len(step.args) != 1:
+        raise TeleopError(f"{spec.teleop} now, or {spec.teleop} {CLOCK_FORMAT}, takes nothing after it")
+    try:
+        seconds = parse_when(step.args[0], "clock")
+    except ValueError as exc:
+        raise TeleopError(str(exc)) from None
+    if seconds is None:
+        step.clock_now = True
+    else:
+        step.message = spec.type(*split_seconds(seconds))
+
+
+def _parse_expect(step: Step) -> Step:
+    """`expect REASON COMMAND...`: COMMAND's step, which passes only if refused with exactly REASON."""
+    n, args = step.line_no, step.args
+    if not args:
+        raise TeleopError(f"line {n}: expect REASON COMMAND: e.g. `expect DIAL_NOT_LOW switch mode sensor`")
+    name = args[0].upper()
+    if name == "OK":
+        raise TeleopError(f"line {n}: expect OK: write the command alone; a script fails when a command is refused")
+    if name not in EXPECTABLE:
+        raise TeleopError(f"line {n}: expect: {args[0]!r} is not a reason code (e.g. DIAL_NOT_LOW, SWITCH_POSITION, "
+                          "SOFT_LIMIT; `help expect`)")
+    if len(args) > 1 and args[1].lower() == "expect":
+        raise TeleopError(f"line {n}: expect {name}: one command follows the reason, not another `expect`")
+    rest = " ".join(shlex.quote(a) for a in args[1:])
+    inner = parse_line(rest, n) if rest else None
+    if inner is None or not inner.sends:
+        what = f"{inner.word!r} is a local word" if inner is not None else "nothing follows the reason"
+        raise TeleopError(f"line {n}: expect {name}: {what}; it takes a command for the controller "
+                          f"(e.g. `expect {name} switch speed on`)")
+    inner.expect, inner.text = Reason[name], step.text
+    return inner
 
 
 def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
@@ -228,7 +341,7 @@ def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
 def help_text(word: Optional[str] = None) -> str:
     cmds = commands()
     if word is None:
-        rows = [line for _, s in sorted(cmds.items()) for line in _row(usage(s), s.doc)]
+        rows = [line for w, s in sorted(cmds.items()) for line in _row(usage(s), " ".join((s.doc, *NOTES.get(w, ()))))]
         rows += [line for text in LOCAL_COMMANDS.values() for line in _wrap(text, "  ")]
         return "\n".join(["commands:"] + rows + _wrap(SCRIPT_RULES, ""))
     word = word.lower()
@@ -247,7 +360,19 @@ def help_text(word: Optional[str] = None) -> str:
     if spec.reply == "MotionAccepted":
         lines += _wrap("prints the motion id (axis#id); its end (MotionDone) is printed when it comes; `wait` "
                        "waits for it", "  ")
+    lines += [line for note in NOTES.get(word, ()) for line in _wrap(note, "  ")]
     return "\n".join(lines)
+
+
+# Conveniences teleop adds to a declared command, shown in its help.
+NOTES = {
+    "clock": (f"Also: `clock now` (the host's UTC when the line runs) and `clock {CLOCK_FORMAT}`, e.g. "
+              "`clock 2026-03-20T06:50-07:00` (MST, Tucson); the simulator prints its sun's start "
+              "(`aspod sim --sun-start`)",),
+    "switch": ("A refusal (DIAL_NOT_LOW, SWITCH_POSITION) prints the reason's meaning and remedy and the box as it "
+               "still stands; `box` shows the whole box; in a script `expect DIAL_NOT_LOW switch ...` checks that "
+               "an interlock refuses",),
+}
 
 
 def _row(left: str, text: str, width: int = 34) -> list[str]:
@@ -281,7 +406,19 @@ def completions(line: str, begin: int, text: str) -> list[str]:
     if word == "help":
         options = all_words() if position == 0 else []
     elif word == "wait":
-        options = list(AXIS_WORDS) if position == 0 else []
+        options = (list(AXIS_WORDS) + ["aligned"] if position == 0 else
+                   list(TRACKER_AXES) if position == 1 and before[1].lower() == "aligned" else [])
+    elif word == "watch":
+        options = list(WATCH_VIEWS) if position == 0 else []
+    elif word == "expect":
+        if position == 0:
+            return [r for r in EXPECTABLE if r.lower().startswith(text.lower())]
+        if position == 1:
+            return [w for w in sorted(commands()) if w.startswith(text.lower())]
+        rest = line[:begin].split(None, 2)[2]
+        return completions(rest, len(rest), text)
+    elif word == "clock":
+        options = ["now"] if position == 0 else []
     else:
         spec = commands().get(word)
         fields = spec.fields if spec is not None else ()

@@ -1,0 +1,135 @@
+"""A teleop session on the simulated clock: `BenchClient` makes a `LockstepBench` look like `HostClient`.
+
+`Session` and `run_script` (teleop.py) talk to a client: `call(msg)`, `wait_for(predicate,
+timeout_s)`, `clock` (`now`, `sleep`), `link`, `io_error`, `telemetry_listeners`,
+`event_listeners`. `HostClient` provides them over a real port in real time, with a pump
+thread; `BenchClient` provides them on a `LockstepBench`, in one thread: waiting runs the whole
+world (plant, controller, host link) in simulated time, so a teleop script that takes minutes
+at the real box runs in seconds and the same seed gives the same session. The host's UTC is
+the plant's simulated date-time (`wall_time`: the sun's start + the simulated time), so
+`clock now` in a script sets the controller to the plant's sun, as it does against `aspod sim`
+with its default `--sun-start now`.
+
+By hand, a script on the simulated clock (the plant's state at the end is printed after it):
+
+    python -m host_tools.teleop_bench benches/tracker_procedure.txt --sun-start 2026-03-20T06:50-07:00
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+from protocol.errors import LinkError
+from protocol.host_link import CommandHandle
+from protocol.reasons import Reason
+from protocol.schema import Message
+from timebase import Clock
+
+from host_tools.world import LockstepBench
+
+
+class BenchClock(Clock):
+    """The bench's simulated clock; waiting on it runs the world until then."""
+
+    def __init__(self, bench: LockstepBench) -> None:
+        self.bench = bench
+
+    def now(self) -> float:
+        return self.bench.clock.now()
+
+    def sleep_until(self, deadline: float) -> None:
+        if deadline > self.now():
+            self.bench.world.scheduler.run_until(deadline)
+
+    @property
+    def is_real_time(self) -> bool:
+        return False
+
+
+class BenchClient:
+    """What teleop's `Session` needs of a client, on a `LockstepBench` (which it does not own)."""
+
+    def __init__(self, bench: LockstepBench) -> None:
+        self.bench = bench
+        self.clock = BenchClock(bench)
+        self.link = bench.host
+        self.io_error: Optional[str] = None
+        self.telemetry_listeners: list[Callable[[Message, float], None]] = []
+        self.event_listeners: list[Callable[[Message, float], None]] = []
+        self.events: list[Message] = []
+        host = bench.host
+        on_telemetry, on_event = host.on_telemetry, host.on_event     # the bench's own lists keep filling
+
+        def telemetry(msg: Message, now: float) -> None:
+            on_telemetry(msg, now)
+            for listener in list(self.telemetry_listeners):
+                listener(msg, now)
+
+        def event(msg: Message, now: float) -> None:
+            on_event(msg, now)
+            self.events.append(msg)
+            for listener in list(self.event_listeners):
+                listener(msg, now)
+        host.on_telemetry, host.on_event = telemetry, event
+
+    def wall_time(self) -> float:
+        """The host's UTC in the simulated world: the plant's sun start + the simulated time [POSIX s]."""
+        return self.bench.world.plant.tracker.start_utc.timestamp() + self.bench.clock.now()
+
+    def connect(self, timeout_s: float = 10.0) -> None:
+        if not self.bench.connect(timeout_s):
+            raise LinkError(Reason.LINK_SUSPENDED, f"no session with the bench's controller in {timeout_s:g} s")
+
+    def call(self, msg: Message, timeout_s: float = 30.0) -> CommandHandle:
+        return self.bench.call(msg, timeout_s)
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        self.bench.wait_until(predicate, timeout_s)
+        return predicate()
+
+    def close(self) -> None:
+        pass
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    from host_tools.teleop import EXIT_USAGE, run_script
+    from host_tools.teleop_clock import parse_when
+    parser = argparse.ArgumentParser(prog="python -m host_tools.teleop_bench",
+                                     description="run a teleop script against a whole world on the simulated clock")
+    parser.add_argument("script", type=Path)
+    parser.add_argument("--sun-start", default="2026-03-20T06:50-07:00", metavar="ISO",
+                        help="the plant's sun at start (default 2026-03-20T06:50-07:00, the March equinox at sunrise)")
+    parser.add_argument("--clouds", default=None, metavar="SPEC", help="cloud passages, as `aspod sim --clouds`")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--keep-going", action="store_true")
+    args = parser.parse_args(argv)
+    try:
+        lines = args.script.read_text(encoding="utf-8").splitlines()
+        start = parse_when(args.sun_start, "--sun-start", posix=False)
+        if start is None:
+            raise ValueError("--sun-start: a simulated run needs a date-time, not `now`")
+        bench = LockstepBench(seed=args.seed, start=start, clouds=args.clouds)
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        print(f"teleop_bench: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        client = BenchClient(bench)
+        client.connect()
+        status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going,
+                                     wall_time=client.wall_time)
+        tracker = bench.world.plant.tracker
+        el, az, _dni, _dhi = tracker.sun()
+        print(session.summary())
+        print(f"plant after {bench.clock.now():.1f} simulated s: tracker az {tracker.angle_deg[0]:.3f} el "
+              f"{tracker.angle_deg[1]:.3f} deg, sun az {az:.3f} el {el:.3f} deg, off the sun by "
+              f"{tracker.angular_error_deg():.3f} deg; relay closings az {tracker.relay_closures[0]} el "
+              f"{tracker.relay_closures[1]}, starts at a high duty {tracker.high_duty_starts}")
+        return status
+    finally:
+        bench.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
