@@ -1,5 +1,8 @@
 """The simulator's world: a plant and a controller meeting on a python-can bus, one scheduler.
 
+The bus is a private `host_tools.local_bus` pair: a `can.BusABC` for one process and one
+thread, much cheaper per frame than python-can's `virtual` interface (see that module).
+
 Used by `aspod sim` (real time, a pty or TCP port) and by tests and benches (a
 `SimClock`, an in-memory port, a `HostLink` driven in the same thread), so a bench
 runs faster than real time and repeats exactly for a given seed.
@@ -19,7 +22,8 @@ from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
 from timebase import Clock, RealClock, SimClock
 
-from host_tools.nodes import build_controller, build_plant_node, open_virtual_pair
+from host_tools.local_bus import open_local_pair
+from host_tools.nodes import build_controller, build_plant_node
 
 
 def seeded_nonces(seed: int) -> Callable[[], bytes]:
@@ -37,7 +41,7 @@ class World:
                  gravity: str = "earth", payload_kg: float = 0.0, tracker: bool = True,
                  start: DateTimeLike = DEFAULT_START, clouds=None) -> None:
         self.clock = clock
-        self.plant_bus, self.controller_bus = open_virtual_pair()
+        self.plant_bus, self.controller_bus = open_local_pair()
         self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, gravity=gravity, payload_kg=payload_kg,
                                            tracker=tracker, start=start, clouds=clouds)
         self.plant = self.plant_node.plant
