@@ -161,6 +161,8 @@ class BufferPort:
         self.outbox = bytearray()
 
     def read(self, max_bytes: int) -> bytes:
+        if not self.inbox:
+            return b""
         data = bytes(self.inbox[:max_bytes])
         del self.inbox[:max_bytes]
         return data
@@ -211,6 +213,8 @@ class PacedUart:
                 if not buf and self._rx_head_s < now:
                     self._rx_head_s = now
                 buf += data
+        if not buf:
+            return b""
         count = min(len(buf), max_bytes, int((now - self._rx_head_s) / self.byte_time_s + 1e-9))
         if count <= 0:
             return b""

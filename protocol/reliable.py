@@ -96,8 +96,8 @@ class ReliableSender:
 
         Returns [] once suspended; check `take_failed()` after calling.
         """
-        if self.suspended:
-            return []
+        if self.suspended or not (self._inflight or self._waiting):
+            return []          # nothing in flight, nothing waiting (most calls: the link polls every 1 ms)
         out: list[Pending] = []
         expired = [p for p in self._inflight.values() if p.due_s is not None and now >= p.due_s]
         if expired:
