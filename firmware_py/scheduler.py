@@ -16,6 +16,7 @@ Tasks due at the same time run in the order their wake-ups were scheduled.
 from __future__ import annotations
 
 import itertools
+import math
 from heapq import heappop, heappush
 from dataclasses import dataclass, field
 from typing import Callable, Optional
@@ -63,6 +64,28 @@ class TaskStats:
             if seen >= threshold:
                 return (1 << bucket) * 1e-6
         return self.exec_max_s
+
+
+def poll_tick(origin_s: float, period_s: float, t_s: float, *, after: bool = False) -> float:
+    """The first of the polls `origin_s + period_s`, `+ period_s` again, ... at or after `t_s`
+    (strictly after, with `after`).
+
+    For a task that polls every `period_s` from its last run at `origin_s` (returning
+    `now + period_s` each time) but sleeps while polling would find nothing: it wakes at the
+    very poll that would first have seen a timer due at `t_s`, or (`after`) news that came at
+    `t_s` once that moment's poll was done. The polls are summed one period at a time, as the
+    polling task sums them, so a wake lands on the same float the poll would have had.
+    """
+    if t_s == math.inf:
+        return t_s
+    t = origin_s + period_s
+    if after:
+        while t <= t_s:
+            t += period_s
+    else:
+        while t < t_s:
+            t += period_s
+    return t
 
 
 class Task:
