@@ -38,13 +38,13 @@ seed, every row simulates exactly the same thing on every run; only the wall tim
 from __future__ import annotations
 
 import math
-import uuid
 from dataclasses import dataclass, field
 from typing import Optional
 
 from bench.bench_realtime import CpuMeter
 from firmware_py.scheduler import Scheduler
-from host_tools.nodes import build_plant_node, open_bus
+from host_tools.local_bus import LocalBus, LocalChannel
+from host_tools.nodes import build_plant_node
 from host_tools.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.states import Axis, ControllerState, GripAction
@@ -175,7 +175,7 @@ class PlantRow(Row):
     def __init__(self, driven: bool = False, seed: int = SEED) -> None:
         self.label = self.DRIVEN_LABEL if driven else self.IDLE_LABEL
         self.clock = SimClock()
-        self.bus = open_bus("virtual", f"aspod-bench-{uuid.uuid4().hex}", between_processes=False)
+        self.bus = LocalBus(LocalChannel())       # the world's kind of bus, with nobody else on it
         self.node = build_plant_node(self.bus, seed)
         self.scheduler = Scheduler(self.clock, stopwatch=self.clock.now)
         self.scheduler.add("plant", self.node.step, period_s=self.node.period_s)

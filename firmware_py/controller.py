@@ -6,7 +6,7 @@ Commands are handled by methods declared with `@handles("MessageName")`; at star
 every command the protocol declares for the controller must have one.
 
 Tasks (period):
-  comms       1 ms      UART <-> link (firmware_py/comms.py)
+  comms       1 ms      UART <-> link (firmware_py/comms.py); over an in-memory line, only when there is work
   hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
   health      10 ms     boot check, HAL staleness, supply and temperature limits
   arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py)
@@ -144,6 +144,7 @@ class Controller:
         self.started_s = now
         self.link.started_s = now
         scheduler.add("comms", self.comms.step, now)
+        self.comms.attach(lambda at_s: scheduler.wake("comms", at_s), scheduler.clock.now)
         scheduler.add("hal", self._hal_step, now, period_s=self.config.hal_period_s)
         # the motor loops first at each tick: they read the HAL themselves, so nothing else delays them
         scheduler.add("arm", self.arm.step, now, period_s=self.config.arm_period_s, priority=0)

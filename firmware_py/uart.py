@@ -18,7 +18,7 @@ import os
 import socket
 import termios
 import tty
-from typing import Optional, Protocol
+from typing import Callable, Optional, Protocol
 
 BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
 BITS_PER_BYTE = 10            # 8N1: start + 8 data + stop
@@ -153,20 +153,38 @@ class DevicePort:
 
 
 class BufferPort:
-    """An in-memory port for lock-step worlds: the other side fills `inbox`, drains `outbox`."""
+    """An in-memory port for lock-step worlds: the other side fills `inbox`, drains `outbox`.
 
-    def __init__(self, url: str = "memory://") -> None:
+    With `notifies` it says when bytes move, so that neither end has to poll it:
+    `deliver(data)` (the other side's write) calls `on_input`, `write` calls `on_output`. A
+    comms task over such a port sleeps through the polls that would find nothing
+    (`firmware_py/comms.py`).
+    """
+
+    def __init__(self, url: str = "memory://", notifies: bool = True) -> None:
         self.url = url
+        self.notifies = notifies
         self.inbox = bytearray()
         self.outbox = bytearray()
+        self.on_input: Callable[[], None] = lambda: None
+        self.on_output: Callable[[], None] = lambda: None
+
+    def deliver(self, data: bytes) -> None:
+        """The other side writes `data` (it reaches `read`); `on_input` is told."""
+        if data:
+            self.inbox += data
+            self.on_input()
 
     def read(self, max_bytes: int) -> bytes:
+        if not self.inbox:
+            return b""
         data = bytes(self.inbox[:max_bytes])
         del self.inbox[:max_bytes]
         return data
 
     def write(self, data: bytes) -> int:
         self.outbox += data
+        self.on_output()
         return len(data)
 
     def close(self) -> None:
@@ -211,6 +229,8 @@ class PacedUart:
                 if not buf and self._rx_head_s < now:
                     self._rx_head_s = now
                 buf += data
+        if not buf:
+            return b""
         count = min(len(buf), max_bytes, int((now - self._rx_head_s) / self.byte_time_s + 1e-9))
         if count <= 0:
             return b""

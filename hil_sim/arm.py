@@ -39,85 +39,130 @@ from hil_sim.arm_params import (ARM_PLANT_PARAMS, CHANNELS, GRAVITY_M_S2, GRIPPE
 from hil_sim.motor import TWO_PI, DcMotorBank
 
 
-# ---- pure functions of the pose --------------------------------------------------------------
-def _pose(q1: float, q2: float, q3: float, a: ArmGeometry):
-    """Arm-plane points (x, z) from J1: elbow, wrist, turned-part cg, tip; and cos a1..a3."""
-    c1, s1 = math.cos(q1), math.sin(q1)
-    a2 = q1 + q2
-    c2, s2 = math.cos(a2), math.sin(a2)
-    c3, s3 = math.cos(a2 + q3), math.sin(a2 + q3)
-    ex, ez = a.link2_m * c1, a.link2_m * s1
-    wx, wz = ex + a.link3_m * c2, ez + a.link3_m * s2
-    rx, rz = wx + a.wrist_turned_cg_m * c3, wz + a.wrist_turned_cg_m * s3
-    tx, tz = wx + a.tip_m * c3, wz + a.tip_m * s3
-    return (ex, ez), (wx, wz), (rx, rz), (tx, tz), (c1, c2, c3)
+# ---- the lumped mass model ------------------------------------------------------------------
+class LoadModel:
+    """Gravity torques and inertias of the lumped mass model, its constants resolved once.
 
+    Every formula of the model lives here, once: the plant asks at every step (`update`), the
+    pure functions below build a model for one question. Everything that does not depend on
+    the pose is worked out at construction with the very expressions the formulas use, so a
+    step computes the same numbers, to the bit, for a few attribute reads less (the arm plant
+    runs it every simulated millisecond, in a budget of 50 us for the whole world).
+    """
 
-def _static_torques(pose, a: ArmGeometry, g: float, payload_kg: float):
-    c1, c2, c3 = pose[4]
-    t3 = g * (a.wrist_turned_kg * a.wrist_turned_cg_m + payload_kg * a.tip_m) * c3
-    beyond_j3 = a.wrist_fixed_kg + a.wrist_turned_kg + payload_kg
-    t2 = g * (a.link3_kg * a.link3_m / 2.0 + beyond_j3 * a.link3_m) * c2 + t3
-    beyond_j2 = a.elbow_hw_kg + a.link3_kg + beyond_j3
-    t1 = g * (a.link2_kg * a.link2_m / 2.0 + beyond_j2 * a.link2_m) * c1 + t2
-    return t1, t2, t3
+    def __init__(self, geometry: ArmGeometry, mount: MountParams = ARM_PLANT_PARAMS.mount, payload_kg: float = 0.0,
+                 g_m_s2: float = 0.0) -> None:
+        a, m, p, g = geometry, mount, payload_kg, g_m_s2
+        self.geometry, self.mount, self.payload_kg, self.g_m_s2 = a, m, p, g
+        self._l2, self._l3, self._cg, self._tip = a.link2_m, a.link3_m, a.wrist_turned_cg_m, a.tip_m
+        # torques: t3 = g K3 c3, t2 = g K2 c2 + t3, t1 = g K1 c1 + t2
+        beyond_j3 = a.wrist_fixed_kg + a.wrist_turned_kg + p
+        beyond_j2 = a.elbow_hw_kg + a.link3_kg + beyond_j3
+        self._k3 = a.wrist_turned_kg * a.wrist_turned_cg_m + p * a.tip_m
+        self._k2 = a.link3_kg * a.link3_m / 2.0 + beyond_j3 * a.link3_m
+        self._k1 = a.link2_kg * a.link2_m / 2.0 + beyond_j2 * a.link2_m
+        # inertias: the rods about their centres, the turned part about its own cg, what J3 and J4 turn
+        self._rod2 = a.link2_kg * a.link2_m ** 2 / 12.0
+        self._rod3 = a.link3_kg * a.link3_m ** 2 / 12.0
+        self._turned = a.wrist_turned_inertia_kg_m2
+        self._i3 = self._turned + a.wrist_turned_kg * a.wrist_turned_cg_m ** 2 + p * a.tip_m ** 2
+        self._i4 = a.roll_inertia_kg_m2 + p * a.payload_gyration_m ** 2
+        self._masses = (a.link2_kg, a.elbow_hw_kg, a.link3_kg, a.wrist_fixed_kg, a.wrist_turned_kg, p)
+        # the mount: the parts at the base radius, and the mobile arm and guide wheels
+        r0, self._reach = m.base_radius_m, m.reach_sign
+        self._r0 = r0
+        self._link1_kg, self._shoulder_kg = a.link1_kg, a.shoulder_hw_kg
+        self._at_base = 0.0 + a.link1_kg * r0 * r0 + a.shoulder_hw_kg * r0 * r0
+        self._base = m.mobile_arm_kg * r0 * r0 / 3.0
+        self._wheels = m.guide_wheels_kg * r0 * r0
 
+    def pose(self, q1: float, q2: float, q3: float):
+        """Arm-plane points (x, z) from J1: elbow, wrist, turned-part cg, tip; and cos a1..a3."""
+        c1, s1 = math.cos(q1), math.sin(q1)
+        a2 = q1 + q2
+        c2, s2 = math.cos(a2), math.sin(a2)
+        c3, s3 = math.cos(a2 + q3), math.sin(a2 + q3)
+        ex, ez = self._l2 * c1, self._l2 * s1
+        wx, wz = ex + self._l3 * c2, ez + self._l3 * s2
+        rx, rz = wx + self._cg * c3, wz + self._cg * s3
+        tx, tz = wx + self._tip * c3, wz + self._tip * s3
+        return (ex, ez), (wx, wz), (rx, rz), (tx, tz), (c1, c2, c3)
 
-def _joint_inertias(pose, a: ArmGeometry, payload_kg: float):
-    (ex, ez), (wx, wz), (rx, rz), (tx, tz), _ = pose
-    rod2 = a.link2_kg * a.link2_m ** 2 / 12.0
-    rod3 = a.link3_kg * a.link3_m ** 2 / 12.0
-    turned = a.wrist_turned_inertia_kg_m2
-    i3 = turned + a.wrist_turned_kg * a.wrist_turned_cg_m ** 2 + payload_kg * a.tip_m ** 2
-    # About J2: the same parts, origin moved to the elbow.
-    i2 = (rod3 + a.link3_kg * ((wx - ex) ** 2 + (wz - ez) ** 2) / 4.0
-          + a.wrist_fixed_kg * ((wx - ex) ** 2 + (wz - ez) ** 2)
-          + turned + a.wrist_turned_kg * ((rx - ex) ** 2 + (rz - ez) ** 2)
-          + payload_kg * ((tx - ex) ** 2 + (tz - ez) ** 2))
-    i1 = (rod2 + a.link2_kg * (ex * ex + ez * ez) / 4.0 + a.elbow_hw_kg * (ex * ex + ez * ez)
-          + rod3 + a.link3_kg * ((ex + wx) ** 2 + (ez + wz) ** 2) / 4.0
-          + a.wrist_fixed_kg * (wx * wx + wz * wz)
-          + turned + a.wrist_turned_kg * (rx * rx + rz * rz) + payload_kg * (tx * tx + tz * tz))
-    i4 = a.roll_inertia_kg_m2 + payload_kg * a.payload_gyration_m ** 2
-    return i1, i2, i3, i4
+    def torques(self, pose) -> tuple[float, float, float]:
+        """Torque J1, J2, J3 must each supply to hold the pose still (positive = raising)."""
+        c1, c2, c3 = pose[4]
+        g = self.g_m_s2
+        t3 = g * self._k3 * c3
+        t2 = g * self._k2 * c2 + t3
+        return g * self._k1 * c1 + t2, t2, t3
 
+    def inertias(self, pose) -> tuple[float, float, float, float]:
+        """What J1, J2, J3, J4 each turn, about their own axis, the other joints frozen."""
+        (ex, ez), (wx, wz), (rx, rz), (tx, tz), _ = pose
+        link2_kg, elbow_kg, link3_kg, fixed_kg, turned_kg, p = self._masses
+        rod3, turned = self._rod3, self._turned
+        # About J2: the same parts, origin moved to the elbow.
+        span = (wx - ex) ** 2 + (wz - ez) ** 2
+        i2 = (rod3 + link3_kg * span / 4.0 + fixed_kg * span + turned
+              + turned_kg * ((rx - ex) ** 2 + (rz - ez) ** 2) + p * ((tx - ex) ** 2 + (tz - ez) ** 2))
+        i1 = (self._rod2 + link2_kg * (ex * ex + ez * ez) / 4.0 + elbow_kg * (ex * ex + ez * ez)
+              + rod3 + link3_kg * ((ex + wx) ** 2 + (ez + wz) ** 2) / 4.0
+              + fixed_kg * (wx * wx + wz * wz)
+              + turned + turned_kg * (rx * rx + rz * rz) + p * (tx * tx + tz * tz))
+        return i1, i2, self._i3, self._i4
 
-def _radial_masses(pose, a: ArmGeometry, m: MountParams, payload_kg: float):
-    """(mass kg, distance from the shaft axis m) of every lumped part of the manipulator."""
-    (ex, _), (wx, _), (rx, _), (tx, _), _ = pose
-    r0, k = m.base_radius_m, m.reach_sign
-    return ((a.link1_kg, r0), (a.shoulder_hw_kg, r0), (a.link2_kg, r0 + k * ex / 2.0),
-            (a.elbow_hw_kg, r0 + k * ex), (a.link3_kg, r0 + k * (ex + wx) / 2.0),
-            (a.wrist_fixed_kg, r0 + k * wx), (a.wrist_turned_kg, r0 + k * rx),
-            (payload_kg, r0 + k * tx))
+    def _outer_radii(self, pose) -> tuple[float, ...]:
+        """Distances from the shaft axis of the parts J1 carries, in the order of `_masses`."""
+        (ex, _), (wx, _), (rx, _), (tx, _), _ = pose
+        r0, k = self._r0, self._reach
+        return (r0 + k * ex / 2.0, r0 + k * ex, r0 + k * (ex + wx) / 2.0, r0 + k * wx, r0 + k * rx, r0 + k * tx)
 
+    def radial_masses(self, pose):
+        """(mass kg, distance from the shaft axis m) of every lumped part of the manipulator."""
+        r0 = self._r0
+        return ((self._link1_kg, r0), (self._shoulder_kg, r0), *zip(self._masses, self._outer_radii(pose)))
 
-def _mount_inertia(pose, a: ArmGeometry, m: MountParams, payload_kg: float) -> float:
-    c1, c2, c3 = pose[4]
-    total = sum(mass * r * r for mass, r in _radial_masses(pose, a, m, payload_kg))
-    # Rods about a vertical axis through their centre: m (L cos a)^2 / 12.
-    total += (a.link2_kg * (a.link2_m * c1) ** 2 + a.link3_kg * (a.link3_m * c2) ** 2) / 12.0
-    total += a.wrist_turned_inertia_kg_m2 * c3 * c3
-    r0 = m.base_radius_m
-    return total + m.mobile_arm_kg * r0 * r0 / 3.0 + m.guide_wheels_kg * r0 * r0
+    def mount_inertia(self, pose) -> float:
+        """The mobile arm, guide wheels and manipulator about the central shaft."""
+        c1, c2, c3 = pose[4]
+        link2_kg, elbow_kg, link3_kg, fixed_kg, turned_kg, p = self._masses
+        r2, re, r3, rw, rr, rt = self._outer_radii(pose)
+        # link I and the shoulder hardware (at the base radius), then outward, summed in that order
+        total = (self._at_base + link2_kg * r2 * r2 + elbow_kg * re * re + link3_kg * r3 * r3 + fixed_kg * rw * rw
+                 + turned_kg * rr * rr + p * rt * rt)
+        a = self.geometry
+        # Rods about a vertical axis through their centre: m (L cos a)^2 / 12.
+        total += (a.link2_kg * (self._l2 * c1) ** 2 + a.link3_kg * (self._l3 * c2) ** 2) / 12.0
+        total += self._turned * c3 * c3
+        return total + self._base + self._wheels
+
+    def update(self, q1: float, q2: float, q3: float, load: list, inertia: list) -> None:
+        """The plant's step: gravity torques into `load`, inertias into `inertia` (channel order)."""
+        pose = self.pose(q1, q2, q3)
+        load[J1], load[J2], load[J3] = self.torques(pose)
+        inertia[J1], inertia[J2], inertia[J3], inertia[J4] = self.inertias(pose)
+        inertia[MOUNT] = self.mount_inertia(pose)
 
 
 def static_torques_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
                       g_m_s2: float, payload_kg: float = 0.0) -> tuple[float, float, float]:
     """Torque J1, J2, J3 must each supply to hold the pose still (positive = raising)."""
-    return _static_torques(_pose(q1_rad, q2_rad, q3_rad, geometry), geometry, g_m_s2, payload_kg)
+    model = LoadModel(geometry, payload_kg=payload_kg, g_m_s2=g_m_s2)
+    return model.torques(model.pose(q1_rad, q2_rad, q3_rad))
 
 
 def joint_inertias_kg_m2(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
                          payload_kg: float = 0.0) -> tuple[float, float, float, float]:
     """What J1, J2, J3, J4 each turn, about their own axis, the other joints frozen."""
-    return _joint_inertias(_pose(q1_rad, q2_rad, q3_rad, geometry), geometry, payload_kg)
+    model = LoadModel(geometry, payload_kg=payload_kg)
+    return model.inertias(model.pose(q1_rad, q2_rad, q3_rad))
 
 
 def mount_inertia_kg_m2(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
                         mount: MountParams, payload_kg: float = 0.0) -> float:
     """The mobile arm, guide wheels and manipulator about the central shaft."""
-    return _mount_inertia(_pose(q1_rad, q2_rad, q3_rad, geometry), geometry, mount, payload_kg)
+    model = LoadModel(geometry, mount, payload_kg)
+    return model.mount_inertia(model.pose(q1_rad, q2_rad, q3_rad))
 
 
 def mount_static_moment_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
@@ -126,8 +171,8 @@ def mount_static_moment_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry
 
     It loads the shaft and the mobile arm, not the mount's drive (the platform is level).
     """
-    pose = _pose(q1_rad, q2_rad, q3_rad, geometry)
-    return g_m_s2 * sum(mass * r for mass, r in _radial_masses(pose, geometry, mount, payload_kg))
+    model = LoadModel(geometry, mount, payload_kg)
+    return g_m_s2 * sum(mass * r for mass, r in model.radial_masses(model.pose(q1_rad, q2_rad, q3_rad)))
 
 
 def gripper_position_m(pos_rad: Sequence[float], geometry: ArmGeometry = ARM_PLANT_PARAMS.geometry,
@@ -138,7 +183,7 @@ def gripper_position_m(pos_rad: Sequence[float], geometry: ArmGeometry = ARM_PLA
     mount's zero. Uses J1, J2, J3 and the mount; J4 and the gripper do not move the tip.
     """
     q1, q2, q3 = float(pos_rad[J1]), float(pos_rad[J2]), float(pos_rad[J3])
-    tx, tz = _pose(q1, q2, q3, geometry)[3]
+    tx, tz = LoadModel(geometry, mount).pose(q1, q2, q3)[3]
     rho = mount.base_radius_m + mount.reach_sign * tx
     phi = float(pos_rad[MOUNT])
     return np.array([rho * math.cos(phi), rho * math.sin(phi), geometry.link1_m + tz])
@@ -175,6 +220,8 @@ class ArmPlant:
         self._duty = [0.0] * len(ch)
         self._enable = [False] * len(ch)
         self.payload_kg = 0.0
+        self.g_m_s2 = GRAVITY_M_S2["earth"]
+        self._loads = LoadModel(params.geometry, params.mount, self.payload_kg, self.g_m_s2)
         self.set_gravity(gravity)
         self.set_payload(payload_kg)
 
@@ -246,13 +293,11 @@ class ArmPlant:
         return enable
 
     def _update_loads(self) -> None:
-        q1, q2, q3 = self.motors.positions()[:3]
-        a, p = self.params.geometry, self.payload_kg
-        pose = _pose(q1, q2, q3, a)
-        load, inertia = self._load_nm, self._inertia
-        load[J1], load[J2], load[J3] = _static_torques(pose, a, self.g_m_s2, p)
-        inertia[J1], inertia[J2], inertia[J3], inertia[J4] = _joint_inertias(pose, a, p)
-        inertia[MOUNT] = _mount_inertia(pose, a, self.params.mount, p)
+        model = self._loads
+        if model.payload_kg != self.payload_kg or model.g_m_s2 != self.g_m_s2:
+            model = self._loads = LoadModel(self.params.geometry, self.params.mount, self.payload_kg, self.g_m_s2)
+        q = self.motors.positions()
+        model.update(q[0], q[1], q[2], self._load_nm, self._inertia)
 
     # -- measured and true values --
     @property

@@ -233,6 +233,10 @@ class DcMotorBank:
         """Output shaft angles as a list of floats (cheaper than `pos_rad` for a few channels)."""
         return list(self._pos)
 
+    def currents(self) -> list[float]:
+        """Armature currents as a list of floats (cheaper than `i_a` for a few channels)."""
+        return list(self._i)
+
     def stops_rad(self, channel: int) -> tuple[float, float]:
         return self._stop_lo[channel], self._stop_hi[channel]
 
@@ -328,13 +332,25 @@ class DcMotorBank:
         return np.array(self._pos) * self.ratio
 
     def supply_current_a(self, duty, enable) -> float:
-        """Average current drawn from the supply by the bridges (lossless switches): sum duty * i."""
+        """Average current drawn from the supply by the bridges (lossless switches): sum duty * i.
+
+        Duty is clipped to [-1, 1] as `max(-1, min(1, d))` would (NaN reads as 1). A channel not
+        enabled adds 0 (its term, 0 * i, would add nothing either: the sum never is -0.0).
+        """
         total = 0.0
         for d, e, i in zip(_floats(duty), _floats(enable), self._i):
-            total += max(-1.0, min(1.0, d)) * e * i
+            if e:
+                d = d if d < 1.0 else 1.0
+                total += (d if d > -1.0 else -1.0) * e * i
         return total
 
 
 def _floats(values) -> list:
-    """A per-channel argument as a list of Python numbers (numpy scalars are slow to compute with)."""
+    """A per-channel argument as a list of Python numbers (numpy scalars are slow to compute with).
+
+    A list is taken as it is (read, never kept or changed): copying it would cost more than the
+    arithmetic on six channels.
+    """
+    if type(values) is list:
+        return values
     return values.tolist() if isinstance(values, np.ndarray) else list(values)

@@ -318,6 +318,7 @@ class Plant:
         self.supply_true_v = params.supply_nominal_v
         self.current_a = 0.0          # total drawn from the supply at the last step
         self.currents_a = [0.0] * n   # armature currents (current sense, exact)
+        self._decay_dt_s, self._decay = math.nan, 1.0   # the temperature's decay factor for that step length
         self.step(0.0, outputs_enabled=False, brake=True)
 
     # -- faults -------------------------------------------------------------------------------
@@ -411,7 +412,7 @@ class Plant:
         braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
         self.channel_duty, self.channel_driven, self.channel_braked = list(duty), driven, braked
         arm.step(dt_s, duty, driven, braked, self.supply_true_v)
-        currents = self.currents_a = arm.motors.i_a.tolist()
+        currents = self.currents_a = arm.motors.currents()
         electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
         self.current_a = electronics_a + arm.supply_current_a()
         self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
@@ -420,7 +421,9 @@ class Plant:
         # First-order lag toward ambient + P * Rth, integrated exactly for a step with constant input
         # (stable for any dt_s).
         target_c = self.ambient_c + heat_w * p.thermal_resistance_c_per_w
-        decay = math.exp(-dt_s / p.thermal_time_constant_s)
+        if dt_s != self._decay_dt_s:      # the same step length every tick: the same factor
+            self._decay_dt_s, self._decay = dt_s, math.exp(-dt_s / p.thermal_time_constant_s)
+        decay = self._decay
         self.temp_true_c = target_c + (self.temp_true_c - target_c) * decay
         at = self._noise_at
         if at >= len(self._noise):

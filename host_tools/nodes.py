@@ -1,14 +1,15 @@
 """Building the two HAL nodes, the same way for every world.
 
-`World` (one process, a private virtual bus), `aspod plant` (the plant alone) and
-`aspod firmware` (the controller alone) all get their bus from `open_bus`, the plant
-from `build_plant_node` and the controller from `build_controller`, so a plant in
-its own process is the very plant `aspod sim` runs in-process.
+`aspod plant` (the plant alone) and `aspod firmware` (the controller alone) get their
+bus from `open_bus`, `World` (one process, one thread) a private pair from
+`host_tools.local_bus.open_local_pair`; all of them build the plant with
+`build_plant_node` and the controller with `build_controller`, so a plant in its own
+process is the very plant `aspod sim` runs in-process.
 
 Buses. Any python-can interface works, opened for CAN FD (MOTOR_CMD and MOTOR_FB are
 16- and 48-byte FD frames). Two need care:
 
-* `virtual` joins only buses of the same process: fine for `World`, useless between
+* `virtual` joins only buses of the same process (across its threads), useless between
   processes (`open_bus` refuses it there: see `IN_PROCESS_ONLY`).
 * `udp_multicast` (python-can's `multicast` extra, msgpack) carries frames between
   processes over IP multicast, on loopback or a LAN. The channel is a multicast group
@@ -22,7 +23,6 @@ from __future__ import annotations
 import ipaddress
 import random
 import socket
-import uuid
 from typing import Any, Callable, Iterable, Optional
 
 import can
@@ -113,7 +113,7 @@ def check_interface(interface: str, *, between_processes: bool = False) -> str:
     if between_processes and interface in IN_PROCESS_ONLY:
         raise ValueError(f"interface {interface!r} joins only buses in the same process; between processes "
                          "use udp_multicast (or real CAN: socketcan, pcan, ...); `aspod sim` without --hal "
-                         "runs plant and controller in one process on a virtual bus")
+                         "runs plant and controller in one process on a private in-process bus")
     return interface
 
 
@@ -182,13 +182,6 @@ def fresh_udp_multicast() -> tuple[str, int]:
         port = probe.getsockname()[1]
     rng = random.SystemRandom()
     return f"239.255.{rng.randrange(256)}.{rng.randrange(1, 255)}", port
-
-
-def open_virtual_pair() -> tuple[can.BusABC, can.BusABC]:
-    """(plant bus, controller bus) on a new private python-can virtual channel (one process)."""
-    channel = f"aspod-hal-{uuid.uuid4().hex}"   # private: no shared registry state
-    return (open_bus("virtual", channel, between_processes=False),
-            open_bus("virtual", channel, between_processes=False))
 
 
 def describe_bus(interface: str, channel: str, options: Optional[dict[str, Any]] = None) -> str:

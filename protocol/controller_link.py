@@ -8,6 +8,7 @@ called when a session has seen no valid frame for `link_timeout_s`.
 """
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from typing import Callable, Optional
 
@@ -174,6 +175,19 @@ class ControllerLink(LinkEndpoint):
             del self._undelivered[:-MAX_UNDELIVERED_EVENTS]
             return
         self._events.submit(spec.id, spec.encode(msg))
+        self.on_work()
+
+    def next_timer_s(self) -> float:
+        """`LinkEndpoint.next_timer_s` with the events' timers and the link watchdog."""
+        timer = super().next_timer_s()
+        if self.session is None:
+            return timer
+        if self._events.suspended:
+            return -math.inf
+        timer = min(timer, self._events.next_due_s())
+        if self.last_valid_rx_s is not None and not self.link_lost:
+            timer = min(timer, self.last_valid_rx_s + self.config.link_timeout_s)
+        return timer
 
     def poll(self, now: float) -> None:
         super().poll(now)

@@ -25,6 +25,8 @@ import can
 import cantools
 from cantools.database.can import Database, Message as DbcMessage
 
+from protocol.frame_code import Field, compile_pack, compile_unpack
+
 DBC_PATH = Path(__file__).with_name("hal.dbc")
 
 SignalValues = dict[str, Union[int, float]]
@@ -164,17 +166,38 @@ class HalCodec:
         return spec.name, values  # type: ignore[return-value]
 
 
+_new_message = can.Message.__new__
+
+
 class HalFrame(can.Message):
-    """A `can.Message` that is cheaper to deep-copy; what it copies to is a plain `can.Message`.
+    """A `can.Message` that is cheaper to build and to deep-copy; its copies are plain `can.Message`s.
 
     python-can's virtual bus deep-copies every frame it delivers, and `Message.__deepcopy__`
     copies the data bytearray through the generic `copy` machinery: 2.5 of the 3.7 us a copy
     takes, on a path that runs for every frame. This copies the data with `bytearray()`,
     which is as deep (a bytearray holds only ints) and takes 0.7 us in all. Real
     interfaces (socketcan and the like) do not copy; there it changes nothing.
+
+    `data_frame` builds a standard-ID data frame with every other field at `can.Message`'s
+    default, in 0.4 us against the constructor's 0.95 (its keyword handling and checks).
     """
 
     __slots__ = ()
+
+    @classmethod
+    def data_frame(cls, arbitration_id: int, data: bytes, is_fd: bool) -> "HalFrame":
+        """What `cls(arbitration_id=..., data=data, is_extended_id=False, is_fd=...)` builds, sooner."""
+        msg = _new_message(cls)
+        msg.timestamp = 0.0
+        msg.arbitration_id = arbitration_id
+        msg.is_extended_id = msg.is_remote_frame = msg.is_error_frame = False
+        msg.channel = None
+        msg.is_fd = is_fd
+        msg.is_rx = True
+        msg.bitrate_switch = msg.error_state_indicator = False
+        msg.data = bytearray(data)
+        msg.dlc = len(msg.data)
+        return msg
 
     def __deepcopy__(self, memo: Optional[dict]) -> can.Message:
         return can.Message(timestamp=self.timestamp, arbitration_id=self.arbitration_id,
@@ -194,7 +217,10 @@ class FrameLayout:
     codec's. `unpack` gives the physical values `HalCodec.decode` would, as a list, and
     raises `HalDecodeError` where it would (wrong length, a value outside its declared
     range widened by half a count). Byte-aligned layouts of 8/16/32/64-bit fields pack
-    through `struct`, others (single bits) by shifting into one integer.
+    through `struct`, others (single bits) by shifting into one integer. Both directions
+    first try straight-line code compiled for the layout (`protocol.frame_code`,
+    `pack_source` and `unpack_source`), which declines to the checked table-driven code
+    whenever a value needs a closer look.
     """
 
     def __init__(self, codec: "HalCodec", name: str, order: Sequence[str]) -> None:
@@ -233,7 +259,6 @@ class FrameLayout:
         # Signals whose declared range is their whole raw range need no range check of their own:
         # struct refuses what does not fit, and any raw value decodes inside the range.
         self._full_range = all(_covers_raw_range(signals[n]) for n in self.order)
-        self._scaled = tuple(i for i, c in enumerate(conv) if not c[0])
         self._struct: Optional[struct.Struct] = None
         fields = sorted((signals[n].start, signals[n].length, signals[n].is_signed, i)
                         for i, n in enumerate(self.order))
@@ -250,21 +275,25 @@ class FrameLayout:
                 if at <= 8 * self.length:
                     fmt += f"{(8 * self.length - at) // 8}x" if at < 8 * self.length else ""
                     self._struct = struct.Struct(fmt)
+        # The fast paths: straight-line code for this layout (protocol/frame_code.py); the table-driven
+        # code below stays the reference and says what is wrong when they decline.
+        code_fields = [Field(signals[n].start, signals[n].length, signals[n].is_signed, c[1], c[2], c[3], c[4],
+                             f[7], f[8]) for n, c, f in zip(self.order, conv, fields_in)]
+        self._fast_pack, self.pack_source = compile_pack(
+            name, code_fields, self.length, check_all=not (self._full_range and self._struct is not None))
+        self._fast_unpack, self.unpack_source = compile_unpack(name, code_fields, self.length)
 
     def pack(self, values: Sequence) -> bytes:
         """Frame bytes for physical `values` in `order`; HalEncodeError if one is out of range."""
+        try:
+            data = self._fast_pack(values)
+        except (struct.error, TypeError, ValueError, OverflowError):
+            data = None    # a wrong count, out of range, not a number or not an integer: the checks below say which
+        return data if data is not None else self._pack_checked(values)
+
+    def _pack_checked(self, values: Sequence) -> bytes:
         if len(values) != len(self._conv):
             raise HalEncodeError(f"{self.name}: {len(values)} values for {len(self._conv)} signals")
-        if self._full_range and self._struct is not None:
-            raws = list(values)
-            conv = self._conv
-            try:
-                for i in self._scaled:
-                    _, scale, offset, lo, hi, _ = conv[i]
-                    raws[i] = round((raws[i] - offset) / scale)
-                return self._struct.pack(*raws)
-            except (struct.error, TypeError, ValueError, OverflowError):
-                pass       # out of range, not a number or not an integer: the slow path says which
         raws = []
         for v, (identity, scale, offset, lo, hi, signal_name) in zip(values, self._conv):
             if not lo <= v <= hi:
@@ -279,15 +308,13 @@ class FrameLayout:
 
     def unpack(self, data: bytes) -> list:
         """Physical values in `order` from frame bytes; HalDecodeError as `HalCodec.decode` raises it."""
+        values = self._fast_unpack(data)
+        return values if values is not None else self._unpack_checked(data)
+
+    def _unpack_checked(self, data: bytes) -> list:
         if len(data) != self.length:
             raise HalDecodeError(
                 f"{self.name} (0x{self.frame_id:03X}): {len(data)} data bytes, declared {self.length}")
-        if self._full_range and self._struct is not None:
-            values = list(self._struct.unpack(data))
-            for i in self._scaled:
-                f = self._fields_in[i]
-                values[i] = values[i] * f[5] + f[6]
-            return values
         x = int.from_bytes(data, "little")
         values = []
         for start, mask, sign, span, identity, scale, offset, lo, hi, signal_name in self._fields_in:
@@ -302,8 +329,7 @@ class FrameLayout:
         return values
 
     def message(self, values: Sequence) -> can.Message:
-        return HalFrame(arbitration_id=self.frame_id, data=self.pack(values), dlc=self.length,
-                      is_extended_id=False, is_fd=self.is_fd)
+        return HalFrame.data_frame(self.frame_id, self.pack(values), self.is_fd)
 
 
 def _covers_raw_range(signal) -> bool:

@@ -110,6 +110,7 @@ class HostLink(LinkEndpoint):
         self._hello_nonce = self._nonce()
         self._hello_tries = 0
         self._hello_due_s = now
+        self.on_work()
 
     def _send_hello(self, now: float) -> None:
         self._hello_tries += 1
@@ -295,6 +296,15 @@ class HostLink(LinkEndpoint):
         self.stats.retransmits = self._retransmits_before + self._commands.retransmits + self._urgent.retransmits
         if self._commands.rtt.srtt_s is not None:
             self.stats.srtt_us = int(self._commands.rtt.srtt_s * 1e6)
+
+    def next_timer_s(self) -> float:
+        """`LinkEndpoint.next_timer_s` with the Hello's retry and the commands' timers."""
+        timer = super().next_timer_s()
+        if self.state is LinkState.CONNECTING and self._hello_due_s is not None:
+            timer = min(timer, self._hello_due_s)
+        if self.state is LinkState.UP:
+            timer = min(timer, self._urgent.next_due_s(), self._commands.next_due_s())
+        return timer
 
     @property
     def srtt_s(self) -> Optional[float]:

@@ -18,6 +18,7 @@ the link.
 from __future__ import annotations
 
 import enum
+import math
 from collections import deque
 from dataclasses import dataclass, field, fields
 from typing import Callable, Optional
@@ -154,6 +155,9 @@ class LinkEndpoint:
         self._nak_refill_s: Optional[float] = None
         self.last_valid_rx_s: Optional[float] = None
         self.started_s: Optional[float] = None
+        # Called when the link has work for its transport that no timer announces: a frame queued,
+        # an event or a connection to start. A transport that sleeps until `next_timer_s` wakes on it.
+        self.on_work: Callable[[], None] = lambda: None
 
     # ---- receive path ----
     def feed(self, data: bytes, now: float) -> None:
@@ -272,6 +276,7 @@ class LinkEndpoint:
         if prio == PRIO_TELEMETRY and len(q) > self.config.telemetry_backlog:
             q.popleft()
             self.stats.telemetry_dropped += 1
+        self.on_work()
 
     def send_message(self, msg: Message, prio: int, seq: int = 0) -> None:
         spec = msg.spec
@@ -328,6 +333,19 @@ class LinkEndpoint:
             if self._next_heartbeat_s is None or now >= self._next_heartbeat_s:
                 self._next_heartbeat_s = now + self.heartbeat_s
                 self.send_message(self.heartbeat(now), PRIO_HEARTBEAT)
+
+    def next_timer_s(self) -> float:
+        """The earliest time at which `poll` may have something to do.
+
+        Never later than that, possibly earlier (a transport polling then finds nothing to do);
+        -inf: poll now; inf: nothing until a frame arrives or `on_work` is called. For a
+        transport that sleeps between frames rather than polling every period.
+        """
+        if self.started_s is None:
+            return -math.inf
+        if self.session is not None and self.state is LinkState.UP and not self.quiet:
+            return -math.inf if self._next_heartbeat_s is None else self._next_heartbeat_s
+        return math.inf
 
     @property
     def quiet(self) -> bool:

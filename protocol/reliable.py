@@ -12,6 +12,7 @@ sender goes back). Sequence numbers are 16-bit, compared in serial arithmetic.
 from __future__ import annotations
 
 import enum
+import math
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any, Optional
@@ -91,13 +92,22 @@ class ReliableSender:
     def outstanding(self) -> int:
         return len(self._inflight) + len(self._waiting)
 
+    def next_due_s(self) -> float:
+        """When `due` may next return something: -inf if frames wait for the window (at once, or as
+        soon as an answer opens it), the earliest retransmission timer, inf if nothing is in flight."""
+        if self.suspended:
+            return math.inf
+        if self._waiting:
+            return -math.inf
+        return min([p.due_s for p in self._inflight.values() if p.due_s is not None], default=math.inf)
+
     def due(self, now: float) -> list[Pending]:
         """Frames to send now: new ones the window admits and those whose timer expired.
 
         Returns [] once suspended; check `take_failed()` after calling.
         """
-        if self.suspended:
-            return []
+        if self.suspended or not (self._inflight or self._waiting):
+            return []          # nothing in flight, nothing waiting (most calls: the link polls every 1 ms)
         out: list[Pending] = []
         expired = [p for p in self._inflight.values() if p.due_s is not None and now >= p.due_s]
         if expired:

@@ -19,7 +19,7 @@ from firmware_py.scheduler import Scheduler
 from hil_sim.arm_params import CHANNELS, J1, J2, J4, MOUNT
 from hil_sim.faults import CHANNEL_FAULTS, FAULT_NAMES, FAULT_TABLE, PLANT_FAULTS, describe
 from hil_sim.hal_node import PlantNode
-from protocol.hal import FrameLayout
+from protocol.hal import FrameLayout, HalFrame
 from hil_sim.plant import ExpiringMotorCommands, Plant, PlantParams
 from protocol.hal import ARM_CHANNELS, HalCodec, HalDecodeError, HalEncodeError
 from timebase import SimClock
@@ -577,6 +577,42 @@ def test_frame_layout_refuses_values_outside_the_declared_range():
         fb.pack(good[:-1])
     with pytest.raises(ValueError, match="does not list the declared signals"):
         FrameLayout(CODEC, "MOTOR_FB", ("tick",))
+
+
+def test_frame_layout_refuses_bits_and_duties_outside_their_range():
+    layout = LAYOUTS["MOTOR_CMD"]
+    good = [0] * len(layout.order)
+    assert layout.pack(good) == bytes(16)
+    for signal, bad in (("enable_j2", 2), ("brake_mount", -1), ("duty_j1", 1.5), ("alive", 256)):
+        values = list(good)
+        values[layout.order.index(signal)] = bad
+        with pytest.raises(HalEncodeError, match=signal):
+            layout.pack(values)
+
+
+@settings(max_examples=100, deadline=None)
+@given(name=st.sampled_from(sorted(LAYOUTS)), data=st.data())
+def test_a_layout_in_any_order_takes_its_fast_paths_and_gives_the_same_bytes(name, data):
+    declared = LAYOUTS[name]
+    order = data.draw(st.permutations(declared.order))
+    layout = FrameLayout(CODEC, name, order)
+    message = CODEC.database.get_message_by_name(name)
+    values = {}
+    for s in message.signals:
+        raw = data.draw(st.integers(round(s.minimum / s.scale), round(s.maximum / s.scale)))
+        values[s.name] = raw if s.scale == 1 else raw * s.scale
+    packed = layout._fast_pack([values[n] for n in order])          # in range: never declined
+    assert packed == declared.pack([values[n] for n in declared.order])
+    assert layout._fast_unpack(packed) == [dict(zip(declared.order, declared.unpack(packed)))[n] for n in order]
+    assert "for " not in layout.pack_source + layout.unpack_source  # straight-line code
+
+
+def test_a_hal_frame_built_quickly_is_the_message_the_constructor_builds():
+    fast = HalFrame.data_frame(0x200, b"\x01\x02\x03", True)
+    slow = can.Message(arbitration_id=0x200, data=b"\x01\x02\x03", is_extended_id=False, is_fd=True)
+    assert isinstance(fast, can.Message)
+    assert {n: getattr(fast, n) for n in can.Message.__slots__ if n != "__weakref__"} == \
+        {n: getattr(slow, n) for n in can.Message.__slots__ if n != "__weakref__"}
 
 
 def test_bad_motor_cmd_frames_are_counted_and_not_applied(virtual_can):

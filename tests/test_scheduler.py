@@ -1,9 +1,11 @@
 """The cooperative scheduler and the injected clock."""
 from __future__ import annotations
 
+import math
+
 import pytest
 
-from firmware_py.scheduler import Scheduler
+from firmware_py.scheduler import Scheduler, poll_tick
 from timebase import SimClock
 
 
@@ -101,3 +103,15 @@ def test_tasks_due_together_run_by_priority():
         sched.add(name, lambda now, n=name: order.append(n) or now + 0.001, 0.0, priority=priority)
     sched.run_until(0.0)
     assert order == ["arm", "plant", "hal"]
+
+
+def test_poll_tick_lands_on_the_very_float_a_polling_task_would_have_had():
+    period, origin = 0.001, 0.0437
+    polls = [origin]
+    for _ in range(3000):
+        polls.append(polls[-1] + period)          # what `return now + period` does, poll after poll
+    for due in (0.0437, 0.04371, 0.0447, 0.5, 1.2345678, polls[1234], polls[1234] + 1e-12):
+        assert poll_tick(origin, period, due) == min(p for p in polls[1:] if p >= due)
+        assert poll_tick(origin, period, due, after=True) == min(p for p in polls[1:] if p > due)
+    assert poll_tick(origin, period, -math.inf) == polls[1]       # due already: the next poll
+    assert poll_tick(origin, period, math.inf) == math.inf        # nothing due: sleep
