@@ -15,7 +15,7 @@ Both sides carry a 48-byte payload:
   fed the same 4 KiB chunks. Signed frames use MAVLink 2 signing (SHA-256 of key and
   frame, 6 bytes kept, 48-bit timestamp checked per stream).
 
-Each figure is the best of several rounds (frames / seconds, `time.perf_counter`,
+Each figure is the best of several rounds (frames / seconds, `RealClock.precise_now`,
 garbage collector paused while timing, as `timeit` does); within a round the
 contenders take turns, so load from elsewhere on the machine hits them alike. Every repeat's output is
 checked afterwards: encoders must give the reference bytes, decoders must give back
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import gc
 import os
-import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
@@ -34,6 +33,7 @@ from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import MsgClass
 from protocol.states import ControllerState, Fault
+from timebase import RealClock
 
 CHUNK_BYTES = 4096
 KEY = bytes(range(1, 33))                   # 32-byte key, both sides
@@ -97,9 +97,9 @@ def _time_once(prepare: Prepare, check: Check) -> float:
     gc.collect()
     gc.disable()
     try:
-        t0 = time.perf_counter()
+        t0 = RealClock.precise_now()
         out = run()
-        elapsed = time.perf_counter() - t0
+        elapsed = RealClock.precise_now() - t0
     finally:
         gc.enable()
     check(out)
