@@ -10,19 +10,28 @@ Gravity feed-forward: J1..J3's holding torques from the firmware's mass model
 (`arm_config.MassModel`) at the present joint angles, times the `gravity_m_s2` parameter
 (0 in orbit), computed once per tick.
 
-Faults: an axis fault calls `on_fault(fault, reason, now)` with the controller-wide fault bit
-and reason (`AXIS_FAULTS`), which takes the one path to the safe state. Motion ends are
-reported through `on_motion_done(axis_index, motion_id, outcome, reason, position, now)`.
+Faults: an axis fault calls `on_fault(fault, reason, now, measured)` with the controller-wide fault
+bit and reason (`AXIS_FAULTS`), which takes the one path to the safe state; `measured` says, for a
+stale input, which axis, how old and against which limit (`Measured`). Motion ends are reported
+through `on_motion_done(axis_index, motion_id, outcome, reason, position, now)`.
+
+Lateness (a controller on the wall clock only, `judge_lateness`): each tick measures how long
+after the previous one it started. Beyond `loop_late_warn_s` it calls `on_late(late_s, now)`,
+which warns or, beyond `loop_late_max_s`, faults by name (SCHEDULER_OVERRUN, the host is
+overloaded) and returns True, and the tick does nothing more; the estimators are told how many
+ticks went by, so the motion the plant made meanwhile is not taken for an encoder glitch. On a
+simulated clock (paced or lock-step) ticks are never late: the world slows down instead.
 
 Units: the protocol speaks degrees (gripper: millimetres); inside it is radians and metres.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 from protocol.reasons import Reason
-from protocol.states import Fault
+from protocol.states import Fault, FaultCause
 
 from firmware_py import arm_config
 from firmware_py.arm_config import AXIS_NAMES, DRIVES, GRIPPER, MASSES
@@ -35,8 +44,8 @@ GRIPPER_INDEX = AXIS_NAMES.index("gripper")
 
 # AxisError bit -> (controller fault bit, reason), in priority order (the first match names the cause)
 AXIS_FAULTS: tuple[tuple[AxisError, Fault, Reason], ...] = (
-    (AxisError.ENCODER_STALE, Fault.HAL_STALE, Reason.HAL_STALE),
-    (AxisError.CURRENT_STALE, Fault.HAL_STALE, Reason.HAL_STALE),
+    (AxisError.ENCODER_STALE, Fault.HAL_STALE, Reason.ENCODER_STALE),
+    (AxisError.CURRENT_STALE, Fault.HAL_STALE, Reason.CURRENT_STALE),
     (AxisError.ENCODER_GLITCH, Fault.ENCODER, Reason.ENCODER_FAULT),
     (AxisError.OPEN_CIRCUIT, Fault.OPEN_CIRCUIT, Reason.OPEN_CIRCUIT),
     (AxisError.OVER_CURRENT, Fault.OVER_CURRENT, Reason.OVER_CURRENT),
@@ -64,8 +73,22 @@ OUTCOME_REASON = {
     Outcome.SUPERSEDED: Reason.HOST_REQUEST,
 }
 
-FaultSink = Callable[[Fault, Reason, float], None]
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What tripped a fault, as measured: the cause, the axis (protocol.states.Axis; ALL: none), the value and
+    its limit [s]."""
+
+    cause: FaultCause
+    axis: int
+    value_s: float
+    limit_s: float
+
+
+FaultSink = Callable[[Fault, Reason, float, Optional[Measured]], None]
 MotionSink = Callable[[int, int, Outcome, Reason, float, float], None]
+LateSink = Callable[[float, float], bool]
 
 
 def fault_of(bits: int) -> tuple[Fault, Reason]:
@@ -79,22 +102,28 @@ class ArmController:
     """The five joint axes and the gripper, in HAL channel order."""
 
     def __init__(self, hal: ControllerHal, params: ParamStore, dt_s: float = 0.001,
-                 on_fault: FaultSink = lambda fault, reason, now: None,
+                 on_fault: FaultSink = lambda fault, reason, now, measured: None,
                  on_motion_done: MotionSink = lambda *args: None,
-                 stopwatch: Optional[Callable[[], float]] = None) -> None:
+                 stopwatch: Optional[Callable[[], float]] = None,
+                 on_late: LateSink = lambda late_s, now: False) -> None:
         self.hal = hal
         self.params = params
         self.dt_s = dt_s
         self._on_fault = on_fault
         self._on_motion_done = on_motion_done
+        self._on_late = on_late
+        self.judge_lateness = False      # set for a controller on the wall clock (Controller.attach)
+        self._last_tick_s: Optional[float] = None
         self.outputs_allowed = False
         self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick
         values = params.values()
         self.joints: dict[str, Axis] = {}
         for index, drive in enumerate(DRIVES):
             gravity = (lambda k: (lambda pos: self._tau[k]))(index) if index < 3 else None
+            k = AXIS_NAMES.index(drive.name)
             self.joints[drive.name] = Axis(arm_config.axis_config(drive, values, dt_s), gravity_nm=gravity,
-                                           stopwatch=stopwatch, on_fault=self._axis_fault)
+                                           stopwatch=stopwatch,
+                                           on_fault=(lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k))
         self.gripper = Gripper(GRIPPER, on_fault=self._gripper_fault)
         self._apply_gripper_params()
         # HAL channel order; the gripper sits at GRIPPER_INDEX
@@ -116,7 +145,7 @@ class ArmController:
 
     def param_changed(self, name: str, value: float) -> None:
         for drive in DRIVES:
-            if name.startswith(drive.name + "_"):
+            if name.startswith(drive.name + "_") or name in ("encoder_stale_s", "current_stale_s"):
                 self.joints[drive.name].reconfigure(arm_config.axis_config(drive, self.params.values(), self.dt_s))
         if name.startswith("grip_"):
             self._apply_gripper_params()
@@ -197,6 +226,15 @@ class ArmController:
 
     # ---- the tick ----
     def step(self, now: float) -> float:
+        last, self._last_tick_s = self._last_tick_s, now
+        if self.judge_lateness and last is not None:
+            late = now - last - self.dt_s
+            if late > self.params["loop_late_warn_s"]:
+                if self._on_late(late, now):
+                    return now + self.dt_s      # faulted: the safe state's hook has sent the motor command
+                skipped = int(late / self.dt_s + 0.5)
+                for axis in self.joints.values():
+                    axis.estimator.skip(skipped)
         self.hal.poll(now)
         inputs = self.hal.inputs
         fb_s = inputs.fb_s
@@ -244,12 +282,21 @@ class ArmController:
             self._on_motion_done(k, channel.motion_id, channel.outcome, reason, self.position(k), now)
 
     # ---- faults ----
-    def _axis_fault(self, bits: AxisError, now: float) -> None:
+    def _axis_fault(self, k: int, bits: AxisError, now: float) -> None:
         fault, reason = fault_of(int(bits))
-        self._on_fault(fault, reason, now)
+        measured = None
+        if reason in (Reason.ENCODER_STALE, Reason.CURRENT_STALE):
+            if reason is Reason.ENCODER_STALE:
+                measured = Measured(FaultCause.ENCODER_AGE, k, self.joints[AXIS_NAMES[k]].count_age_s(now),
+                                    self.params["encoder_stale_s"])
+            else:
+                fb_s = self.hal.inputs.fb_s
+                measured = Measured(FaultCause.CURRENT_AGE, k, math.inf if fb_s is None else now - fb_s,
+                                    self.params["current_stale_s"])
+        self._on_fault(fault, reason, now, measured)
 
     def _gripper_fault(self, bits: int, now: float) -> None:
-        self._on_fault(Fault.GRIPPER, Reason.GRIPPER_TIMEOUT, now)
+        self._on_fault(Fault.GRIPPER, Reason.GRIPPER_TIMEOUT, now, None)
 
     # ---- telemetry (protocol units) ----
     def position(self, k: int) -> float:

@@ -137,7 +137,15 @@ def parameter_table() -> list[ParamSpec]:
     """The arm's parameters: per joint limits, speed, acceleration, gains, current limit; gripper; gravity."""
     specs = [ParamSpec("gravity_m_s2", 9.80665, 0.0, 20.0, "m/s^2",
                        "gravity the feed-forward compensates (9.80665 on Earth, 0 in orbit)"),
-             ParamSpec("payload_kg", 0.0, 0.0, 5.0, "kg", "mass carried at the gripper, for the feed-forward")]
+             ParamSpec("payload_kg", 0.0, 0.0, 5.0, "kg", "mass carried at the gripper, for the feed-forward"),
+             # Staleness limits (docs/realtime.md). In a simulated world (paced or lock-step) time never
+             # stalls, so they only ever judge the plant; on real time they must also outlast the stalls a
+             # CPython process sees on a busy host (measured here: loops 25 ms late at load 5, CAN gaps of
+             # 8.7 ms between two quiet processes), hence about twice the worst seen.
+             ParamSpec("encoder_stale_s", 0.05, 0.002, 10.0, "s",
+                       "an axis with no new encoder count for this long faults (HAL_STALE, ENCODER_STALE)"),
+             ParamSpec("current_stale_s", 0.05, 0.002, 10.0, "s",
+                       "a driving axis with no current reading for this long faults (HAL_STALE, CURRENT_STALE)")]
     for d in DRIVES:
         gains = default_gains(d)
         n = d.name
@@ -180,7 +188,8 @@ def axis_config(d: Drive, values: dict[str, float], dt_s: float, override: Optio
     vel = math.radians(values[f"{n}_speed_dps"])
     return AxisConfig(
         estimator=EstimatorConfig(rad_per_count=d.rad_per_count, dt_s=dt_s,
-                                  max_vel_rad_s=1.5 * d.no_load_speed_rad_s, max_acc_rad_s2=2.0),
+                                  max_vel_rad_s=1.5 * d.no_load_speed_rad_s, max_acc_rad_s2=2.0,
+                                  stale_ticks=max(1, math.ceil(values["encoder_stale_s"] / dt_s - 1e-9))),
         name=n, vel_limit_rad_s=vel, acc_limit_rad_s2=math.radians(values[f"{n}_acc_dps2"]),
         kp_pos_1_s=values[f"{n}_kp"], kv_duty_s_rad=values[f"{n}_kv"], ki_duty_rad=values[f"{n}_ki"],
         ff_vel_duty_s_rad=gains["ff_vel_duty_s_rad"], ff_acc_duty_s2_rad=gains["ff_acc_duty_s2_rad"],
@@ -191,4 +200,4 @@ def axis_config(d: Drive, values: dict[str, float], dt_s: float, override: Optio
         stall_time_s=0.5, stall_vel_rad_s=0.002,
         home_dir=d.home_dir, home_vel_rad_s=min(0.02, vel), home_pos_rad=0.0, home_backoff_rad=0.02,
         home_max_travel_rad=math.radians(60.0),
-        current_stale_s=0.02)
+        current_stale_s=values["current_stale_s"])

@@ -419,6 +419,10 @@ class Axis:
         self._err &= ~_SOFT_LIMIT
         return Refusal.OK, ""
 
+    def count_age_s(self, now: float) -> float:
+        """How long ago the last new encoder count arrived (inf: none yet)."""
+        return math.inf if self._count_s is None else now - self._count_s
+
     # ---- the tick ----
     def update(self, now: float, count: Optional[int], count_s: Optional[float], i_a: float,
                i_s: Optional[float], home_switch: bool = False) -> float:

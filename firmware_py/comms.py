@@ -17,6 +17,12 @@ bytes arrived or another task gave the link work (a frame or an event queued:
 `max_idle_s`; the end of a frame on the wire wakes it as before. So it sees everything
 at the same poll as a task that never slept (`scheduler.poll_tick`), and the world
 runs as it did when it polled.
+
+Its own stalls are not the host's silence: when a run starts more than `excused_after_s` after
+the time it asked for (the process was descheduled, the host is overloaded), the time it was
+not running is not counted toward the link timeout (`link.last_valid_rx_s` moves forward by
+it, `stalls_excused_s` counts it), and the bytes the host sent meanwhile are read before the
+watchdog looks.
 """
 from __future__ import annotations
 
@@ -30,7 +36,7 @@ from firmware_py.uart import PacedUart
 
 class CommsTask:
     def __init__(self, link: LinkEndpoint, uart: PacedUart, poll_period_s: float = 0.001,
-                 max_telemetry_hold_s: float = 0.05, max_idle_s: float = 0.05) -> None:
+                 max_telemetry_hold_s: float = 0.05, max_idle_s: float = 0.05, excused_after_s: float = 0.05) -> None:
         self.link = link
         self.uart = uart
         self.poll_period_s = poll_period_s
@@ -42,6 +48,9 @@ class CommsTask:
         self._now: Callable[[], float] = lambda: 0.0
         self._last_s: Optional[float] = None
         self._running = False
+        self.excused_after_s = excused_after_s
+        self._asked_s: Optional[float] = None    # the wake time the last run asked for
+        self.stalls_excused_s = 0.0
 
     def attach(self, wake: Callable[[float], None], now: Callable[[], float]) -> None:
         """`wake(at_s)` brings this task's next run forward to `at_s` (the scheduler's `wake` for it)."""
@@ -69,6 +78,10 @@ class CommsTask:
     def step(self, now: float) -> float:
         self._running = True
         self._last_s = now
+        asked = self._asked_s
+        if asked is not None and now - asked > self.excused_after_s and self.link.last_valid_rx_s is not None:
+            self.link.last_valid_rx_s += now - asked       # we were not running: the host was not silent
+            self.stalls_excused_s += now - asked
         try:
             data = self.uart.receive(now)
             if data:
@@ -89,4 +102,5 @@ class CommsTask:
         for deadline in (self.uart.next_tx_deadline(), self.uart.next_rx_deadline()):
             if deadline is not None and now < deadline < wake:
                 wake = deadline
+        self._asked_s = wake
         return wake

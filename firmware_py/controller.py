@@ -5,8 +5,17 @@ owns the scheduler, the clock, the serial port and the HAL bus, and passes them 
 Commands are handled by methods declared with `@handles("MessageName")`; at start-up
 every command the protocol declares for the controller must have one.
 
+Two times (docs/realtime.md). The control tasks run on the scheduler given to `attach`, whose
+clock is the controller's time: the wall clock on real hardware, simulated time paced to the wall
+clock in a one-process simulator, time granted by the plant's ticks in lock-step, or a simulated
+clock in benches. The link to the host is a real process at the other end of a real port, so
+`attach` may put the comms task on a second scheduler on the wall clock (`link_scheduler`); the
+commands it delivers are then executed at the controller's time (`control_now`), whatever the
+link's clock says.
+
 Tasks (period):
-  comms       1 ms      UART <-> link (firmware_py/comms.py); over an in-memory line, only when there is work
+  comms       1 ms      UART <-> link (firmware_py/comms.py); over an in-memory line, only when there is work;
+                        on the link scheduler when there is one
   hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
   health      10 ms     boot check, HAL staleness, supply and temperature limits
   arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py)
@@ -14,6 +23,8 @@ Tasks (period):
   telemetry   1/rate    TelemetryStatus and TelemetryJoints frames; while the tracker's box is in use (main or
                         sensor power on), TelemetryTracker (at most 10 Hz) half a period after them, so the three
                         never queue at once (the link keeps two telemetry frames queued, not three)
+  time-watch  50 ms     (link scheduler, wall clock) lock-step: a plant whose tick has not come for
+                        lockstep_wait_s is HAL_STALE, since the controller's own time stands still without it
 """
 from __future__ import annotations
 
@@ -29,22 +40,26 @@ from protocol.link import LinkConfig
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
-from protocol.states import Axis, ControllerState, Fault, GripAction
+from protocol.states import Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
+from timebase import TimingReport
 
 from firmware_py import arm_config
 from firmware_py import tracker as tracker_config
-from firmware_py.arm import ArmController
+from firmware_py.arm import ArmController, Measured
 from firmware_py.axis import Outcome
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.scheduler import Scheduler
-from firmware_py.supervisor import Supervisor
+from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker import TrackerController
 from firmware_py.uart import PacedUart
 
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
+TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
+LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often (controller time)
+RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears this far above rtf_warn
 _HANDLERS: dict[str, Callable] = {}
 
 
@@ -83,7 +98,18 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("link_timeout_s", config.link.link_timeout_s, max(0.05, config.link.heartbeat_s * 1.5), 3600, "s",
                   "safe state after this long without a valid frame"),
         ParamSpec("telemetry_hz", 10, 0, 200, "Hz", "telemetry rate at boot (SetTelemetryRate changes it live)"),
-        ParamSpec("hal_stale_s", 0.1, 0.005, 10, "s", "HAL inputs older than this are a fault"),
+        ParamSpec("hal_stale_s", 0.2, 0.005, 10, "s",
+                  "analog inputs (ANALOG_IN, every 10 ms) older than this are a fault (HAL_STALE)"),
+        ParamSpec("loop_late_warn_s", 0.01, 0.001, 10, "s",
+                  "on the wall clock only: the motor loop starting this late warns (TimingWarning LOOP_LATE)"),
+        ParamSpec("loop_late_max_s", 0.1, 0.002, 60, "s",
+                  "on the wall clock only: the motor loop starting this late while outputs are enabled faults "
+                  "(SCHEDULER_OVERRUN, HOST_OVERLOADED)"),
+        ParamSpec("lockstep_wait_s", 2.0, 0.1, 3600, "s",
+                  "lock-step: no tick from the plant for this long on the wall clock is a fault (HAL_STALE)"),
+        ParamSpec("rtf_warn", 0.9, 0.0, 1.0, "",
+                  "paced or lock-step: a world below this real-time factor over the last second warns "
+                  "(TimingWarning BELOW_REAL_TIME; 0: never)"),
         ParamSpec("supply_min_v", 22.0, 0, 60, "V", "supply below this is a fault (nominal 28 V)"),
         ParamSpec("temp_min_c", -10.0, -40, 125, "degC", "controller colder than this is a fault (report: -10 C)"),
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
@@ -104,7 +130,7 @@ class Controller:
                                  check=lambda name, value: (self.arm.check_param(name, value)
                                                             or self.tracker.check_param(name, value)))
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
-                                 on_motion_done=self._motion_done, stopwatch=stopwatch)
+                                 on_motion_done=self._motion_done, stopwatch=stopwatch, on_late=self._loop_late)
         self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
                                          allowed=lambda: self.supervisor.outputs_allowed)
         self._tracker_telemetry_due = False      # the telemetry task's next run sends TelemetryTracker
@@ -112,8 +138,14 @@ class Controller:
         self.params.load()
         self.telemetry_hz = int(self.params["telemetry_hz"])
         self.scheduler: Optional[Scheduler] = None
+        self.link_scheduler: Optional[Scheduler] = None
         # called as listener(new, old, reason, now) on every state change (the sim logs them)
         self.state_listeners: list[Callable[[ControllerState, ControllerState, Reason, float], None]] = []
+        # called with every FaultReport and TimingWarning sent (the sim logs them)
+        self.report_listeners: list[Callable[[Message], None]] = []
+        self._late_warned_s: Optional[float] = None     # when a late loop was last warned of
+        self._late_worst_s = 0.0                        # the worst lateness since then
+        self._below_real_time = False
         self.started_s: Optional[float] = None
         self.supervisor = Supervisor(on_change=self._state_changed)
         self.link = ControllerLink(psk, self._execute, dataclasses.replace(self.config.link,
@@ -126,7 +158,8 @@ class Controller:
         self.supervisor.add_safe_hook("outputs off, brakes on", self._outputs_safe)
         self.supervisor.add_safe_hook("arm: every motor off, brakes on", self.arm.safe)
         self.supervisor.add_safe_hook("tracker: relays open, brakes on, speed switches to brake", self.tracker.safe)
-        self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: self.hal.is_stale(self._now(), self.params["hal_stale_s"]))
+        self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: (self.hal.is_stale(self._now(), self.params["hal_stale_s"])
+                                                                   or self._plant_silent()))
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
         missing = [s.name for s in SCHEMA.by_id.values()
@@ -138,13 +171,26 @@ class Controller:
     def _now(self) -> float:
         return self.scheduler.clock.now() if self.scheduler else 0.0
 
-    def attach(self, scheduler: Scheduler) -> None:
+    control_now = _now
+
+    def attach(self, scheduler: Scheduler, link_scheduler: Optional[Scheduler] = None) -> None:
+        """Add the tasks: the control tasks to `scheduler`, the comms task to `link_scheduler` (default: the same).
+
+        Give a `link_scheduler` on the wall clock when `scheduler`'s clock is not the wall clock
+        (paced, lock-step): run both with `firmware_py.scheduler.run_live`.
+        """
         self.scheduler = scheduler
+        link_scheduler = link_scheduler or scheduler
+        self.link_scheduler = link_scheduler
         now = scheduler.clock.now()
         self.started_s = now
-        self.link.started_s = now
-        scheduler.add("comms", self.comms.step, now)
-        self.comms.attach(lambda at_s: scheduler.wake("comms", at_s), scheduler.clock.now)
+        link_now = link_scheduler.clock.now()
+        self.link.started_s = link_now
+        link_scheduler.add("comms", self.comms.step, link_now)
+        self.comms.attach(lambda at_s: link_scheduler.wake("comms", at_s), link_scheduler.clock.now)
+        self.arm.judge_lateness = scheduler.clock.timing().mode == "realtime"
+        if hasattr(scheduler.clock, "stalled_s"):
+            link_scheduler.add("time-watch", self._time_watch, link_now + TIME_WATCH_S, tolerance_s=1.0)
         scheduler.add("hal", self._hal_step, now, period_s=self.config.hal_period_s)
         # the motor loops first at each tick: they read the HAL themselves, so nothing else delays them
         scheduler.add("arm", self.arm.step, now, period_s=self.config.arm_period_s, priority=0)
@@ -161,7 +207,7 @@ class Controller:
         self._outputs_sent = False
 
     def _link_lost(self, now: float) -> None:
-        self.supervisor.enter_safe_state(Fault.LINK_LOST, now)
+        self.supervisor.enter_safe_state(Fault.LINK_LOST, self._now())   # the link's clock may be another
 
     def _state_changed(self, new: ControllerState, old: ControllerState, reason: Reason, now: float) -> None:
         for listener in self.state_listeners:
@@ -169,8 +215,73 @@ class Controller:
         self.link.send_event(M["StateChanged"](int(new), int(old), int(reason), int(self.supervisor.faults),
                                                self.uptime_ms(now)))
 
-    def _arm_fault(self, fault: Fault, reason: Reason, now: float) -> None:
+    def _arm_fault(self, fault: Fault, reason: Reason, now: float, measured: Optional[Measured]) -> None:
+        self._trip(fault, now, reason, measured)
+
+    def _trip(self, fault: Fault, now: float, reason: Optional[Reason] = None,
+              measured: Optional[Measured] = None) -> None:
+        """The safe state for `fault`, said with what was measured (FaultReport) the first time it latches."""
+        if measured is not None and not self.supervisor.faults & fault:
+            report = M["FaultReport"](int(fault), int(reason or FAULT_REASON.get(fault, Reason.FAULT_LATCHED)),
+                                      int(measured.cause), measured.axis, _ms(measured.value_s),
+                                      _ms(measured.limit_s), self.uptime_ms(now))
+            self._report(report)
         self.supervisor.enter_safe_state(fault, now, reason)
+
+    def _report(self, msg: Message) -> None:
+        self.link.send_event(msg)
+        for listener in self.report_listeners:
+            listener(msg)
+
+    # ---- time: the controller's own host, never the hardware ----
+    def timing(self) -> TimingReport:
+        return self.scheduler.clock.timing() if self.scheduler else TimingReport("simulated")
+
+    def _loop_late(self, late_s: float, now: float) -> bool:
+        """The motor loop started `late_s` late on the wall clock: warn, or fault if outputs are enabled and it
+        is beyond loop_late_max_s. True if it faulted."""
+        p = self.params
+        if late_s > p["loop_late_max_s"] and self.supervisor.outputs_allowed:
+            self._trip(Fault.SCHEDULER_OVERRUN, now, Reason.HOST_OVERLOADED,
+                       Measured(FaultCause.LOOP_LATE, int(Axis.ALL), late_s, p["loop_late_max_s"]))
+            return True
+        self._late_worst_s = max(self._late_worst_s, late_s)
+        if self._late_warned_s is None or now - self._late_warned_s >= LATE_WARNING_EVERY_S:
+            self._late_warned_s = now
+            self._report(M["TimingWarning"](int(TimingIssue.LOOP_LATE), True, self._late_worst_s,
+                                            p["loop_late_warn_s"], self.uptime_ms(now)))
+            self._late_worst_s = 0.0
+        return False
+
+    def _below_real_time_check(self, now: float) -> None:
+        """Paced or lock-step: say so (TimingWarning BELOW_REAL_TIME) when the world falls below rtf_warn."""
+        limit = self.params["rtf_warn"]
+        timing = self.timing()
+        rtf = timing.rtf_recent
+        if timing.mode not in ("paced", "lockstep") or not limit > 0 or not math.isfinite(rtf):
+            return
+        if not self._below_real_time and rtf < limit:
+            self._below_real_time = True
+        elif self._below_real_time and rtf >= limit + RTF_CLEAR_MARGIN:
+            self._below_real_time = False
+        else:
+            return
+        self._report(M["TimingWarning"](int(TimingIssue.BELOW_REAL_TIME), self._below_real_time, rtf, limit,
+                                        self.uptime_ms(now)))
+
+    def _plant_silent(self) -> bool:
+        clock = self.scheduler.clock if self.scheduler else None
+        return clock is not None and hasattr(clock, "stalled_s") and \
+            clock.stalled_s() > self.params["lockstep_wait_s"]
+
+    def _time_watch(self, link_now: float) -> float:
+        """Lock-step, on the wall clock: a plant whose tick has not come for lockstep_wait_s is HAL_STALE."""
+        stalled = self.scheduler.clock.stalled_s()
+        limit = self.params["lockstep_wait_s"]
+        if stalled > limit and not self.supervisor.faults & Fault.HAL_STALE:
+            self._trip(Fault.HAL_STALE, self._now(), Reason.HAL_STALE,
+                       Measured(FaultCause.PLANT_SILENT, int(Axis.ALL), stalled, limit))
+        return link_now + TIME_WATCH_S
 
     def _motion_done(self, axis: int, motion_id: int, outcome: Outcome, reason: Reason, position: float,
                      now: float) -> None:
@@ -196,16 +307,22 @@ class Controller:
             self._outputs_due_s = now + self._outputs_period_s
         return now + self.config.hal_period_s
 
+    def _hal_input_age(self, now: float) -> Measured:
+        updated = self.hal.inputs.updated_s
+        age = now - (self.started_s or 0.0) if updated is None else now - updated
+        return Measured(FaultCause.HAL_INPUT_AGE, int(Axis.ALL), age, self.params["hal_stale_s"])
+
     def _health_step(self, now: float) -> float:
         sup, cfg, stale_s = self.supervisor, self.config, self.params["hal_stale_s"]
+        self._below_real_time_check(now)
         if sup.state is ControllerState.BOOT:
             if not self.hal.is_stale(now, stale_s):
                 sup.boot_complete(now)
             elif now - (self.started_s or 0.0) > cfg.boot_timeout_s:
-                sup.enter_safe_state(Fault.HAL_STALE, now)
+                self._trip(Fault.HAL_STALE, now, Reason.HAL_STALE, self._hal_input_age(now))
             return now + cfg.health_period_s
         if self.hal.is_stale(now, stale_s):
-            sup.enter_safe_state(Fault.HAL_STALE, now)
+            self._trip(Fault.HAL_STALE, now, Reason.HAL_STALE, self._hal_input_age(now))
         if self._supply_low():
             sup.enter_safe_state(Fault.SUPPLY_LOW, now)
         if self._temp_out_of_range():
@@ -261,7 +378,16 @@ class Controller:
             loop_max_us=min(0xFFFFFFFF, int(max((t.stats.exec_max_s for t in tasks), default=0) * 1e6)),
             loop_p99_us=min(0xFFFFFFFF, int(max((t.stats.exec_p99_s for t in tasks), default=0) * 1e6)),
             overruns=sum(t.stats.overruns for t in tasks) & 0xFFFFFFFF,
-            tx_backlog_bytes=min(0xFFFF, self.uart.backlog_bytes))
+            tx_backlog_bytes=min(0xFFFF, self.uart.backlog_bytes), **self._timing_fields(total=False))
+
+    def _timing_fields(self, total: bool = True) -> dict:
+        """The timing fields of Status (`total`) and TelemetryStatus (0 where nothing is measured)."""
+        timing = self.timing()
+        fields = {"timing": int(TimingMode[timing.mode.upper()]), "rtf_recent": _finite(timing.rtf_recent),
+                  "lag_ms": _finite(timing.lag_s * 1000.0)}
+        if total:
+            fields["rtf_total"] = _finite(timing.rtf_total)
+        return fields
 
     def joint_telemetry(self, now: float) -> Message:
         arm = self.arm
@@ -287,8 +413,9 @@ class Controller:
             self.tracker.param_changed(name, value)
 
     # ---- commands ----
-    def _execute(self, msg: Message, urgent: bool, now: float) -> Message:
-        return _HANDLERS[msg.spec.name](self, msg, now)
+    def _execute(self, msg: Message, urgent: bool, link_now: float) -> Message:
+        """Run a command at the controller's time (the link's clock may be the wall clock)."""
+        return _HANDLERS[msg.spec.name](self, msg, self._now())
 
     @handles("Ping")
     def _ping(self, msg: Message, now: float) -> Message:
@@ -299,7 +426,7 @@ class Controller:
         sup = self.supervisor
         return M["Status"](int(Reason.OK), int(sup.state), int(sup.faults), int(sup.safe_reason),
                            self.uptime_ms(now), _finite(self.hal.inputs.supply_v), _finite(self.hal.inputs.temp_c),
-                           self.link.commands_executed & 0xFFFFFFFF, self.telemetry_hz)
+                           self.link.commands_executed & 0xFFFFFFFF, self.telemetry_hz, **self._timing_fields())
 
     @handles("Reset")
     def _reset(self, msg: Message, now: float) -> Message:
@@ -447,3 +574,8 @@ class Controller:
 
 def _finite(value: float) -> float:
     return value if math.isfinite(value) else 0.0
+
+
+def _ms(seconds: float) -> float:
+    """Seconds to milliseconds for the wire (f32); never-seen inputs (inf) as the largest f32."""
+    return min(seconds * 1000.0, 3.4e38) if seconds == seconds else 0.0

@@ -185,6 +185,11 @@ class _CountTracker:
         self.flags = 2 | (1 if self.missed_ticks >= self._stale_ticks else 0)
         return None
 
+    def skip(self, ticks: int) -> None:
+        """`ticks` ticks went by without an update (a controller on the wall clock ran late): the next
+        count may have moved as far as those ticks allow (the glitch check widens with them)."""
+        self.missed_ticks += ticks
+
     @property
     def last_flags(self) -> EstimatorFlag:
         return EstimatorFlag(self.flags)
@@ -225,6 +230,10 @@ class SteadyStateEstimator(_CountTracker):
         self.pos_rad = pos
         return self.flags
 
+    def skip(self, ticks: int) -> None:
+        super().skip(ticks)
+        self.pos_rad += self.vel_rad_s * self._dt * ticks     # predicted through them
+
     def set_position(self, pos_rad: float) -> None:
         """Redefine the present position as `pos_rad` (homing); velocity is kept."""
         shift = pos_rad - self.pos_rad
@@ -248,6 +257,11 @@ class KalmanEstimator(_CountTracker):
     @property
     def vel_rad_s(self) -> float:
         return float(self.kf.x[1, 0])
+
+    def skip(self, ticks: int) -> None:
+        super().skip(ticks)
+        for _ in range(ticks):
+            self.kf.predict()
 
     def update(self, count: Optional[int]) -> int:
         self.kf.predict()

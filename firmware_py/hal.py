@@ -78,7 +78,7 @@ class ControllerHal(HalEndpoint):
         self.inputs = HalInputs()
         self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
         self.motor_alive = 0     # value the next MOTOR_CMD frame will carry
-        self.on_frame("PLANT_SYNC", self._on_sync, ("tick",))
+        self.on_frame("PLANT_SYNC", self._on_sync, ("tick", "lockstep", "period_us"))
         self.on_frame("ANALOG_IN", self._on_analog)
         self.on_frame("MOTOR_FB", self._on_feedback, _FB_ORDER)
         self.on_frame("DIGITAL_IN", self._on_switches, _SWITCH_ORDER)

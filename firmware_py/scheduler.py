@@ -212,3 +212,28 @@ class Scheduler:
             if wake is None:
                 return
             self.clock.sleep_until(wake)
+
+
+def run_live(control: Scheduler, link: Scheduler, should_stop: Callable[[], bool] = lambda: False) -> None:
+    """Run two schedulers in one thread: `control` on its own clock, `link` on the wall clock.
+
+    A live run keeps two times (docs/Code_Overview.md, "Time"). The control tasks (plant,
+    motor loops, health, telemetry) run on `control.clock`: the wall clock itself on real
+    hardware, simulated time paced to the wall clock in a one-process simulator
+    (`timebase.PacedClock`), or time granted tick by tick over the HAL bus in lock-step
+    (`protocol.lockstep`). The link to the host is a real process on the other end of a
+    real port, so its task runs on the wall clock (`link.clock`) whatever the world's time
+    does: `control.clock.advance(next control wake, next link wake)` returns in time for
+    the link, and when the world is late it catches up one deadline at a time, with the
+    link served between them. Returns when `should_stop()` or when neither has a task left.
+    """
+    advance = control.clock.advance
+    inf = math.inf
+    while not should_stop():
+        link.run_due()
+        control.run_due()
+        control_wake = control.next_wake_s()
+        link_wake = link.next_wake_s()
+        if control_wake is None and link_wake is None:
+            return
+        advance(inf if control_wake is None else control_wake, inf if link_wake is None else link_wake)

@@ -22,7 +22,7 @@ FAULT_REASON: dict[Fault, Reason] = {
     Fault.HAL_STALE: Reason.HAL_STALE,
     Fault.SUPPLY_LOW: Reason.SUPPLY_LOW,
     Fault.OVER_TEMPERATURE: Reason.OVER_TEMPERATURE,
-    Fault.SCHEDULER_OVERRUN: Reason.FAULT_LATCHED,
+    Fault.SCHEDULER_OVERRUN: Reason.HOST_OVERLOADED,
 }
 
 SAFE_STATES = (ControllerState.FAULT, ControllerState.ESTOP)

@@ -5,18 +5,24 @@ Each `step(now)` (one plant tick):
 1. reads every waiting frame: CTRL_OUTPUTS goes to `plant.commanded`, MOTOR_CMD to
    `plant.motor_commands`, each stamped `now` (both expire: 0.1 s and 20 ms by default,
    see `hil_sim.plant`);
-2. integrates the plant over the time that really passed since the last step (clamped
-   to `max_dt_s`, because a real-time run can stall; clamps are counted), with the
-   commands as they stand at `now` (the safe state once expired);
-3. sends PLANT_SYNC and MOTOR_FB (every step), DIGITAL_IN (when any switch changed since
-   the last one sent, and at least every `digital_every_n` steps) and ANALOG_IN (every
+2. integrates the plant over the time that passed since the last step (on a paced or
+   lock-step clock exactly one period; on the wall clock whatever passed, clamped to
+   `max_dt_s`, because a real-time run can stall; clamps are counted), with the commands
+   as they stand at `now` (the safe state once expired);
+3. sends MOTOR_FB (every step), DIGITAL_IN (when any switch changed since the last one
+   sent, and at least every `digital_every_n` steps) and ANALOG_IN (every
    `analog_every_n` steps);
 4. with `tracker=True`, every `tracker_every_n` steps (10 ms, the DBC's cycle of
    TRACKER_SENSE and TRACKER_POS), at tick `tracker_phase` modulo that (5: half-way between
    two ANALOG_IN ticks, so the slow work of the two does not pile into one tick): steps
    `plant.tracker` over the time gone since its last step with the TRACKER_CMD as it
    stands (`plant.tracker_commands`, read in 1. like the others; the safe state once
-   expired, 0.1 s), then sends TRACKER_SENSE and TRACKER_POS.
+   expired, 0.1 s), then sends TRACKER_SENSE and TRACKER_POS;
+5. sends PLANT_SYNC last, with the tick, the tick's length and whether the plant runs in
+   lock-step (`lockstep`: it then integrates each tick only once the controller has
+   answered the last one with CTRL_SYNC: `protocol.lockstep`, docs/hal_bus.md). Every
+   frame of the tick is on the bus before it, so a controller that follows PLANT_SYNC
+   has the whole tick in hand.
 
 The tracker is off by default: an arm-only node sends exactly what it sent before and pays
 nothing for the tracker. With it on (measured as below, median, best of 3 runs of 30,000
@@ -87,7 +93,7 @@ class PlantNode(HalEndpoint):
                  codec: Optional[HalCodec] = None, *, analog_period_s: Optional[float] = None,
                  digital_period_s: Optional[float] = None, max_dt_s: float = 0.1,
                  max_frames_per_step: int = 256, tracker: bool = False,
-                 tracker_period_s: Optional[float] = None) -> None:
+                 tracker_period_s: Optional[float] = None, lockstep: bool = False) -> None:
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         if not max_dt_s >= period_s:
@@ -117,7 +123,12 @@ class PlantNode(HalEndpoint):
              *(f"brake_{ch}" for ch in CHANNELS), "alive"))
         self.on_frame("CTRL_OUTPUTS", lambda v, now: plant.commanded.command(
             bool(v["outputs_enabled"]), bool(v["brake_all"]), int(v["alive"]), now))
-        self._sync = codec.layout("PLANT_SYNC", ("tick",))
+        self._sync = codec.layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
+        self.lockstep = bool(lockstep)
+        self._period_us = round(period_s * 1e6)
+        if not 1 <= self._period_us <= 65535:
+            raise ValueError(f"period_s must be within 1 us .. 65.535 ms (PLANT_SYNC period_us), got {period_s}")
+        self.sync_resends = 0
         self._motor_fb = codec.layout("MOTOR_FB", ("tick", *(f"count_{ch}" for ch in CHANNELS),
                                                    *(f"current_{ch}" for ch in CHANNELS)))
         self._digital = codec.layout("DIGITAL_IN", (*(f"home_{ch}" for ch in CHANNELS),
@@ -170,7 +181,6 @@ class PlantNode(HalEndpoint):
         plant.step(dt_s, enabled, brake, duty, enable, channel_brake)
         tick = self.tick
         wire_tick = tick & 0xFFFF_FFFF
-        self.send_frame(self._sync, (wire_tick,))
         lo, hi = self._current_range_a
         self.send_frame(self._motor_fb, (
             wire_tick,
@@ -188,8 +198,15 @@ class PlantNode(HalEndpoint):
             self._tracker_dt += dt_s
             if tick % self.tracker_every_n == self.tracker_phase:
                 self._step_tracker(now)
+        self.send_frame(self._sync, (wire_tick, int(self.lockstep), self._period_us))
         self.tick = tick + 1
         return now + self.period_s
+
+    def resend_sync(self) -> None:
+        """Send the last PLANT_SYNC again (lock-step: the controller's answer is overdue)."""
+        if self.tick:
+            self.sync_resends += 1
+            self.send_frame(self._sync, ((self.tick - 1) & 0xFFFF_FFFF, int(self.lockstep), self._period_us))
 
     def _step_tracker(self, now: float) -> None:
         """Step the tracker over the time since its last step; send TRACKER_SENSE and TRACKER_POS."""

@@ -14,6 +14,7 @@ Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused or u
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Optional, Sequence
@@ -45,6 +46,32 @@ def _bounded(kind, lo: float, hi: float):
             raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}")
         return value
     return parse
+
+
+def _speed(text: str) -> float:
+    if text.strip().lower() == "max":
+        return math.inf
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number or `max`") from None
+    if not 0.01 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"{value} is outside 0.01..1000 (or `max`)")
+    return value
+
+
+def add_speed_arg(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--speed", type=_speed, default=1.0, metavar="X|max",
+                        help=f"{what} simulated time at X times real time at most (default 1), or `max`: as fast "
+                             "as the work allows; late, it slows down rather than jumps (docs/realtime.md)")
+
+
+TIMINGS = ("lockstep", "realtime")
+
+
+def add_timing_arg(parser: argparse.ArgumentParser, default: str, what: str) -> None:
+    parser.add_argument("--timing", choices=TIMINGS, default=default,
+                        help=f"{what} (default {default}; docs/realtime.md)")
 
 
 def add_link_args(parser: argparse.ArgumentParser) -> None:
@@ -162,6 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "port for this run)")
     sim.add_argument("--hal-arg", action="append", metavar="KEY=VALUE",
                      help="further keyword for the --hal bus, repeatable (udp_multicast: port=N)")
+    add_speed_arg(sim, "the world (one process; with --hal, the plant process, in lock-step with the controller) "
+                       "runs")
     add_arm_args(sim)
     add_tracker_args(sim)
 
@@ -173,6 +202,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_tracker_args(plant)
     plant.add_argument("--stop-on-stdin-eof", action="store_true",
                        help="also stop when standard input closes (for a parent process that started it)")
+    add_timing_arg(plant, "lockstep", "lockstep: integrate each tick only once the controller (aspod firmware "
+                                      "--timing lockstep) has answered the last one, so neither side sees the "
+                                      "other's stalls; realtime: tick on the wall clock, whoever listens (to close "
+                                      "the loop around a controller that does not speak lock-step)")
+    add_speed_arg(plant, "the plant")
 
     firmware = sub.add_parser("firmware", help="run only the controller, its HAL on a python-can interface; "
                                                "prints ASPOD-LINK and ASPOD-KEY lines")
@@ -180,6 +214,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_controller_args(firmware)
     firmware.add_argument("--boot-timeout", type=_bounded(float, 0.01, 3600), default=None, metavar="S",
                           help="HAL inputs must arrive this soon after start, else HAL_STALE (default 1 s)")
+    add_timing_arg(firmware, "lockstep", "lockstep: the controller's time follows the plant's PLANT_SYNC ticks "
+                                         "(aspod plant --timing lockstep); realtime: the wall clock, as on real "
+                                         "hardware, with the staleness limits and loop deadlines as parameters")
 
     teleop = sub.add_parser("teleop", help="console to a controller: interactive, or a script")
     teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")

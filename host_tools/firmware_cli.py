@@ -1,7 +1,12 @@
 """`aspod firmware`: the controller alone, its HAL on a python-can interface.
 
 This is the half that would run against real CAN hardware: the plant is whatever
-answers on the bus (`aspod plant` in another process, or a real I/O board). The
+answers on the bus (`aspod plant` in another process, or a real I/O board). With
+--timing lockstep (the default) its time follows the plant's PLANT_SYNC ticks
+(`protocol.lockstep.LockstepFollower`; the plant runs `--timing lockstep` too); with
+--timing realtime it runs on the wall clock, as against real hardware, where the
+staleness limits and the motor loop's deadline are parameters (docs/realtime.md). Either
+way the link to the host runs on the wall clock. The
 UART side is `aspod sim`'s: a pty (default), a TCP port or a serial device, and the
 same first two lines on stdout:
 
@@ -13,28 +18,31 @@ State changes are logged on stderr; at exit, the HAL counters:
     aspod firmware: HAL counters frames_sent=... frames_received=... own_echoes=... bad_frames=... bus_errors=...
 
 `aspod sim --hal INTERFACE` is this with `aspod plant` started as a child process
-(`run_sim_over_hal`): the child is ready before the controller boots, is watched while
-the controller runs (if it dies, that is said on stderr and the controller's HAL
-staleness check takes it to the safe state) and is stopped when the controller stops.
+(`run_sim_over_hal`), both in lock-step: the child is ready before the controller boots, is
+watched while the controller runs (if it dies, that is said on stderr and the controller's
+lock-step watch takes it to the safe state) and is stopped when the controller stops.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 from typing import Any, Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
-from firmware_py.scheduler import Scheduler
+from firmware_py.scheduler import Scheduler, run_live
 from firmware_py.uart import DevicePort, PacedUart, Port, PtyPort, TcpServerPort
 from protocol import auth
 from protocol.link import LinkConfig
+from protocol.lockstep import LockstepFollower
 from protocol.reasons import Reason
 from protocol.states import Fault
 from timebase import RealClock
 
 from host_tools import nodes
 from host_tools.plant_cli import PlantProcess, bus_options, describe_exit, tracker_child_args, tracker_options
+from host_tools.teleop_format import describe_report
 
 PLANT_WATCH_S = 0.1
 
@@ -83,32 +91,39 @@ def apply_command_line(controller: Controller, args: argparse.Namespace, prog: s
 
 
 def run_controller(args: argparse.Namespace, prog: str, interface: str, channel: str, options: dict[str, Any],
-                   plant: Optional[PlantProcess] = None) -> int:
-    """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything."""
+                   plant: Optional[PlantProcess] = None, timing: str = "lockstep") -> int:
+    """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
+
+    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock.
+    """
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
     signal.signal(signal.SIGINT, lambda signum, frame: stopping.append(signum))
     psk, key_path, params_path, config = controller_config(args)
     bus = nodes.open_bus(interface, channel, node=nodes.CONTROLLER, **options)
+    wall = RealClock()
+    follower = LockstepFollower(bus, wall) if timing == "lockstep" else None
     uart = None
     controller: Optional[Controller] = None
     try:
         port = open_port(args)
         uart = PacedUart(port, args.baud, not args.no_pacing)
-        controller = nodes.build_controller(psk, uart, bus, config)
+        controller = nodes.build_controller(psk, uart, follower.tap if follower else bus, config)
         params = controller.params
         apply_command_line(controller, args, prog)
-        scheduler = Scheduler(RealClock())
-        controller.attach(scheduler)
+        scheduler = Scheduler(follower or wall)
+        link_scheduler = Scheduler(wall)
+        controller.attach(scheduler, link_scheduler)
         log_states(controller, prog)
         if plant is not None:
-            scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
+            link_scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
         print(f"{prog}: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "
               f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; "
-              f"HAL on {nodes.describe_bus(interface, channel, options)}; Ctrl-C stops", file=sys.stderr, flush=True)
-        scheduler.run_forever(lambda: bool(stopping))
+              f"HAL on {nodes.describe_bus(interface, channel, options)}, timing {timing}; Ctrl-C stops",
+              file=sys.stderr, flush=True)
+        run_live(scheduler, link_scheduler, lambda: bool(stopping))
     finally:
         if plant is not None:
             status = plant.stop()
@@ -119,16 +134,24 @@ def run_controller(args: argparse.Namespace, prog: str, interface: str, channel:
         if uart is not None:
             uart.close()
         if controller is not None:
-            print(f"{prog}: HAL counters {nodes.format_counters(nodes.hal_counters(controller.hal))}",
-                  file=sys.stderr, flush=True)
+            counters = nodes.hal_counters(controller.hal)
+            if follower is not None:
+                counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs,
+                                rtf=f"{follower.timing().rtf_total:.2f}")
+            print(f"{prog}: HAL counters {nodes.format_counters(counters)}", file=sys.stderr, flush=True)
     return 0
 
 
 def log_states(controller: Controller, prog: str) -> None:
+    """State changes, fault reports and timing warnings on stderr, as they happen."""
     def log_state(new, old, reason, now) -> None:
         print(f"{prog}: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
               f"faults {Fault(controller.supervisor.faults).name or 'none'}", file=sys.stderr, flush=True)
+
+    def log_report(msg) -> None:
+        print(f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}", file=sys.stderr, flush=True)
     controller.state_listeners.append(log_state)
+    controller.report_listeners.append(log_report)
 
 
 def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callable[[float], Optional[float]]:
@@ -140,14 +163,15 @@ def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callabl
         if not stopping and not plant.stopped:
             plant.reported = True
             print(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}; the HAL has gone "
-                  "quiet, the controller's staleness check takes it to the safe state", file=sys.stderr, flush=True)
+                  "quiet, the controller's lock-step watch takes it to the safe state", file=sys.stderr, flush=True)
         return None
     return step
 
 
 def run_firmware(args: argparse.Namespace) -> int:
     """`aspod firmware --interface X --channel Y ...`."""
-    return run_controller(args, "aspod firmware", args.interface, args.channel, bus_options(args))
+    return run_controller(args, "aspod firmware", args.interface, args.channel, bus_options(args),
+                          timing=args.timing)
 
 
 def run_sim_over_hal(args: argparse.Namespace) -> int:
@@ -164,10 +188,11 @@ def run_sim_over_hal(args: argparse.Namespace) -> int:
     nodes.open_bus(interface, channel, **options).shutdown()   # fail here, before a child is started
     plant = PlantProcess(interface, channel, options, seed=args.seed,
                          extra_args=("--gravity", args.gravity, "--payload-kg", str(args.payload_kg),
+                                     "--timing", "lockstep", "--speed", "max" if args.speed == math.inf else repr(args.speed),
                                      *tracker_child_args(args)))
     print(f"aspod sim: plant process {plant.pid} ready on {nodes.describe_bus(interface, channel, options)}",
           file=sys.stderr, flush=True)
     try:
-        return run_controller(args, "aspod sim", interface, channel, options, plant)
+        return run_controller(args, "aspod sim", interface, channel, options, plant, timing="lockstep")
     finally:
         plant.stop()

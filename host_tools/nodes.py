@@ -36,7 +36,7 @@ from hil_sim.hal_node import PlantNode
 from hil_sim.plant import Plant, PlantParams
 from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
-from protocol.hal import HalCodec
+from protocol.hal import BusView, HalCodec
 
 PLANT = "PLANT"            # node names as the DBC declares them (BU_)
 CONTROLLER = "CONTROLLER"
@@ -50,13 +50,14 @@ ECHOES_OWN_FRAMES = frozenset({"udp_multicast"})
 UDP_MULTICAST_DEFAULT_PORT = 43113
 
 GRAVITY_MODES = tuple(GRAVITY_M_S2)     # "earth", "orbit"
+PLANT_PERIOD_S = 0.001                  # the plant's tick (1 kHz)
 
 
 class BusOpenError(OSError):
     """The interface exists but the bus cannot be opened here (no driver, no device, no network)."""
 
 
-class OwnEchoFilter:
+class OwnEchoFilter(BusView):
     """A bus that drops the frames the DBC declares as sent by `node` (its own echoes).
 
     For interfaces on which every sender receives its own frames (udp_multicast). Dropped
@@ -71,7 +72,7 @@ class OwnEchoFilter:
         own = frozenset(m.frame_id for m in codec.database.messages if node in (m.senders or ()))
         if not own:
             raise ValueError(f"no HAL frame is declared as sent by {node!r}; nodes: {', '.join(NODES)}")
-        self.bus = bus
+        super().__init__(bus)
         self.node = node
         self.own_ids = own
         self.own_echoes = 0
@@ -84,25 +85,12 @@ class OwnEchoFilter:
                 return msg
             self.own_echoes += 1
 
-    def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
-        self.bus.send(msg, timeout)
-
-    def shutdown(self) -> None:
-        self.bus.shutdown()
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.bus, name)
-
-    def __enter__(self) -> "OwnEchoFilter":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.shutdown()
-
 
 def own_echoes(bus: Any) -> int:
-    """Own frames dropped on `bus` so far (0 for a bus that does not echo them)."""
-    return bus.own_echoes if isinstance(bus, OwnEchoFilter) else 0
+    """Own frames dropped on `bus` so far (0 for a bus that does not echo them); `bus` may be wrapped
+    (a lock-step `SyncTap` passes its bus's attributes through)."""
+    count = getattr(bus, "own_echoes", 0)
+    return count if isinstance(count, int) else 0
 
 
 def check_interface(interface: str, *, between_processes: bool = False) -> str:
@@ -209,15 +197,17 @@ def build_plant(seed: int = 0, params: Optional[PlantParams] = None, *, gravity:
 
 
 def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParams] = None, *,
-                     gravity: str = "earth", payload_kg: float = 0.0, period_s: float = 0.001,
-                     tracker: bool = True, start: DateTimeLike = DEFAULT_START, clouds=None) -> PlantNode:
+                     gravity: str = "earth", payload_kg: float = 0.0, period_s: float = PLANT_PERIOD_S,
+                     tracker: bool = True, start: DateTimeLike = DEFAULT_START, clouds=None,
+                     lockstep: bool = False) -> PlantNode:
     """The plant on `bus`; add its `step` to a scheduler (`scheduler.add("plant", node.step, period_s=node.period_s)`).
 
     `tracker` puts the solar tracker on the bus too (TRACKER_CMD in, TRACKER_SENSE and
     TRACKER_POS out every 10 ms); without it the plant is the arm, mount and gripper alone.
+    `lockstep` says so in PLANT_SYNC (the plant's clock does the waiting: `protocol.lockstep`).
     """
     plant = build_plant(seed, params, gravity=gravity, payload_kg=payload_kg, start=start, clouds=clouds)
-    return PlantNode(bus, plant, period_s, tracker=tracker)
+    return PlantNode(bus, plant, period_s, tracker=tracker, lockstep=lockstep)
 
 
 # ---- the controller ----

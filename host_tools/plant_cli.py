@@ -1,7 +1,13 @@
-"""`aspod plant`: the plant alone, in real time, on a python-can interface.
+"""`aspod plant`: the plant alone, on a python-can interface.
 
 It closes the loop around a controller in another process (`aspod firmware`, or
-`aspod sim --hal`, which starts this as its child) or on other hardware. It prints
+`aspod sim --hal`, which starts this as its child) or on other hardware. Its time is
+simulated time paced to the wall clock at --speed (`timebase.PacedClock`: late, it slows
+down instead of jumping). With --timing lockstep (the default) it is also gated by the
+controller: tick N is integrated only once the controller has answered tick N - 1 with
+CTRL_SYNC (`protocol.lockstep.LockstepLeader`), so neither process ever sees the other's
+stalls; --timing realtime ticks whoever listens (a controller that does not speak lock-step).
+It prints
 
     ASPOD-PLANT ready interface=<interface> channel=<channel> [key=value ...] pid=<pid>
 
@@ -28,17 +34,19 @@ import selectors
 import signal
 import subprocess
 import sys
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
-from firmware_py.scheduler import Scheduler
+from firmware_py.scheduler import Scheduler, run_live
 from hil_sim.sun import TUCSON, SunTable, as_clouds, to_utc
-from timebase import RealClock
+from protocol.lockstep import LockstepLeader
+from timebase import PacedClock, RealClock
 
 from host_tools import nodes
 from host_tools.teleop_clock import NOW, parse_when
 
 READY = "ASPOD-PLANT ready"
 STDIN_CHECK_S = 0.1
+WAITING_NOTE_S = 5.0     # lock-step: say so on stderr when the controller has not answered for this long
 
 
 def bus_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -115,32 +123,65 @@ def run_plant(args: argparse.Namespace) -> int:
     nodes.check_arm_settings(args.gravity, args.payload_kg)
     sun = tracker_options(args)
     bus = nodes.open_bus(args.interface, args.channel, node=nodes.PLANT, **options)
-    clock = RealClock()
+    wall = RealClock()
+    pace = PacedClock(wall, args.speed)
+    lockstep = args.timing == "lockstep"
     node = None
-    started_s = clock.now()
+    leader: Optional[LockstepLeader] = None
+    started_s = wall.now()
     try:
-        node = nodes.build_plant_node(bus, args.seed, gravity=args.gravity, payload_kg=args.payload_kg, **sun)
-        scheduler = Scheduler(clock)
+        if lockstep:
+            leader = LockstepLeader(bus, pace, nodes.PLANT_PERIOD_S, reoffer=lambda: node.resend_sync())
+        node = nodes.build_plant_node(leader.tap if leader else bus, args.seed, gravity=args.gravity,
+                                      payload_kg=args.payload_kg, lockstep=lockstep, **sun)
+        scheduler = Scheduler(leader or pace)
         scheduler.add("plant", node.step, period_s=node.period_s)
+        link = Scheduler(wall)              # the wall clock's own tasks: the parent, the waiting note
         if args.stop_on_stdin_eof:
-            scheduler.add("stdin", _stdin_watch(stopping), tolerance_s=1.0)
+            link.add("stdin", _stdin_watch(stopping), tolerance_s=1.0)
+        if leader is not None:
+            link.add("waiting", _waiting_note(leader, node), wall.now() + 1.0, tolerance_s=1.0)
+        speed = "max" if args.speed == math.inf else f"{args.speed:g}x"
         print(f"{READY} {nodes.describe_bus(args.interface, args.channel, options)} pid={os.getpid()}", flush=True)
         print(f"aspod plant: running on {args.interface} {args.channel}, seed {args.seed}, gravity {args.gravity}, "
-              f"payload {args.payload_kg} kg; Ctrl-C stops", file=sys.stderr, flush=True)
+              f"payload {args.payload_kg} kg, timing {args.timing} at speed {speed}; Ctrl-C stops",
+              file=sys.stderr, flush=True)
         print(sun_line("aspod plant", sun, node.plant.tracker, from_now=sun_from_now(args)), file=sys.stderr,
               flush=True)
-        started_s = clock.now()
-        scheduler.run_forever(lambda: bool(stopping))
+        started_s = wall.now()
+        pace.start()
+        run_live(scheduler, link, lambda: bool(stopping))
     finally:
         bus.shutdown()
         if node is not None:
+            timing = (leader or pace).timing()
             counters = {"ticks": node.tick, **nodes.hal_counters(node), "dt_clamps": node.dt_clamps,
-                        "output_expiries": node.plant.commanded.expiries}
-            print(f"aspod plant: stopped after {clock.now() - started_s:.1f} s; counters "
+                        "output_expiries": node.plant.commanded.expiries,
+                        "rtf": f"{timing.rtf_total:.2f}", "slipped_s": f"{timing.slipped_s:.3f}"}
+            if leader is not None:
+                counters.update(sync_resends=node.sync_resends, held_dropped=leader.tap.dropped)
+            print(f"aspod plant: stopped after {wall.now() - started_s:.1f} s; counters "
                   f"{nodes.format_counters(counters)}", file=sys.stderr, flush=True)
             if node.last_bus_error is not None:
                 print(f"aspod plant: last bus error: {node.last_bus_error}", file=sys.stderr, flush=True)
     return 0
+
+
+def _waiting_note(leader: LockstepLeader, node) -> Callable[[float], Optional[float]]:
+    """A wall-clock task: in lock-step, say on stderr when the controller has not answered for a while."""
+    said = [0.0]
+
+    def step(now: float) -> float:
+        stalled = leader.stalled_s()
+        if stalled >= WAITING_NOTE_S and stalled - said[0] >= WAITING_NOTE_S:
+            said[0] = stalled
+            print(f"aspod plant: lock-step: waiting {stalled:.0f} s for the controller's CTRL_SYNC for tick "
+                  f"{node.tick} (is `aspod firmware --timing lockstep` running on this bus?)", file=sys.stderr,
+                  flush=True)
+        elif stalled < WAITING_NOTE_S:
+            said[0] = 0.0
+        return now + 1.0
+    return step
 
 
 def _stdin_watch(stopping: list[int]):

@@ -1,4 +1,10 @@
-"""`aspod sim`: the controller and its plant in one process, in real time, on a real port.
+"""`aspod sim`: the controller and its plant in one process, on a real port.
+
+Plant and controller share one simulated time paced to the wall clock (`timebase.PacedClock`
+at --speed, 1 by default): when the process falls behind, the world slows down instead of
+jumping, so the host's stalls never look like hardware faults; the link to the host stays on
+the wall clock (docs/realtime.md). The real-time factor and the lag are in telemetry and
+`status`; falling below real time is said on stderr and in a TimingWarning event.
 
 Prints `ASPOD-LINK <url>` as its first line on stdout and `ASPOD-KEY <path>` as its
 second, then runs until SIGINT or SIGTERM. Without --key-file it uses (creating it
@@ -18,7 +24,7 @@ import argparse
 import signal
 import sys
 
-from timebase import RealClock
+from timebase import PacedClock, RealClock
 
 from host_tools.firmware_cli import (apply_command_line, controller_config, log_states, open_port,
                                     run_sim_over_hal)
@@ -32,8 +38,9 @@ def run_sim(args: argparse.Namespace) -> int:
     psk, key_path, params_path, config = controller_config(args)
     sun = tracker_options(args)
     port = open_port(args)
-    world = World(RealClock(), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
-                  controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg, **sun)
+    wall = RealClock()
+    world = World(PacedClock(wall, args.speed), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
+                  controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg, link_clock=wall, **sun)
     params = world.controller.params
     apply_command_line(world.controller, args, "aspod sim")
     log_states(world.controller, "aspod sim")
@@ -51,7 +58,7 @@ def run_sim(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
     try:
-        world.scheduler.run_forever(lambda: bool(stopping))
+        world.run(lambda: bool(stopping))
     finally:
         world.close()
     return 0

@@ -39,8 +39,8 @@ from timebase import RealClock
 
 from host_tools.teleop_box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop_clock import utc_text
-from host_tools.teleop_format import (INDENT, Console, failure_lines, format_message, format_outcome, format_value,
-                                      latency)
+from host_tools.teleop_format import (INDENT, Console, describe_report, failure_lines, format_message, format_outcome,
+                                      format_value, latency)
 from host_tools.teleop_motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop_watch import TelemetryCache, arm_block, watch
@@ -117,6 +117,8 @@ class Session:
             if lines:
                 lines[0] = self.event_prefix + lines[0]
                 self.console.lines(lines)
+        elif msg.spec.name in ("FaultReport", "TimingWarning"):     # said always: why a fault, a slow host
+            self.console.line(f"{self.event_prefix}! {describe_report(msg)}")
         elif self.all_events:
             self.console.line(f"{self.event_prefix}! {format_message(msg)}")
 

@@ -25,7 +25,7 @@ from protocol.errors import LinkError
 from protocol.host_link import CommandHandle
 from protocol.reasons import Reason
 from protocol.schema import Message
-from timebase import Clock
+from timebase import Clock, TimingReport
 
 from host_tools.world import LockstepBench
 
@@ -42,6 +42,12 @@ class BenchClock(Clock):
     def sleep_until(self, deadline: float) -> None:
         if deadline > self.now():
             self.bench.world.scheduler.run_until(deadline)
+
+    def advance(self, deadline: float, wall_deadline: float) -> None:
+        self.sleep_until(deadline)
+
+    def timing(self) -> TimingReport:
+        return self.bench.clock.timing()
 
     @property
     def is_real_time(self) -> bool:

@@ -14,7 +14,7 @@ from typing import Optional, TextIO
 from protocol.host_link import CommandHandle
 from protocol.reasons import Reason, reason_name
 from protocol.schema import Field, Message
-from protocol.states import Fault
+from protocol.states import FAULT_CAUSE_DOCS, Axis, Fault, FaultCause, TimingIssue, TimingMode
 
 WIDTH = 96          # wrap long docs to fit a 100-column terminal
 INDENT = "     "    # continuation lines line up under the text after "ok   " / "FAIL "
@@ -148,3 +148,36 @@ def failure_lines(handle: CommandHandle, extra: Optional[list[str]] = None) -> l
     detail = f" ({handle.detail})" if handle.detail else ""
     head = f"FAIL {handle.msg.spec.name}: {handle.outcome.value}: {reason_name(reason)} ({reason}){detail}"
     return [head + latency(handle)] + reason_lines(reason) + (extra or [])
+
+
+def time_summary(timing: int, rtf_recent: float, lag_ms: float) -> str:
+    """How the controller's time keeps up with the wall clock (Status, TelemetryStatus)."""
+    mode = enum_word(TimingMode, timing)
+    if timing in (TimingMode.SIMULATED, TimingMode.REALTIME):
+        return f"time {mode}"
+    return f"time {mode}: {rtf_recent:.2f}x real time over the last second, lag {lag_ms:.1f} ms"
+
+
+def describe_report(msg: Message) -> str:
+    """A FaultReport or TimingWarning in words: what was measured, against which limit (its parameter)."""
+    if msg.spec.name == "FaultReport":
+        try:
+            cause = FaultCause(msg.cause)
+            what, param = FAULT_CAUSE_DOCS[cause]
+        except ValueError:
+            what, param = f"cause {msg.cause}", "?"
+        axis = "" if msg.axis == Axis.ALL else f"{enum_word(Axis, msg.axis)}: "
+        return (f"FAULT {format_faults(msg.fault)} ({reason_name(msg.reason)}): {axis}{what}: "
+                f"{msg.value_ms:.1f} ms against a limit of {msg.limit_ms:.1f} ms (parameter {param})")
+    if msg.spec.name == "TimingWarning":
+        if msg.issue == TimingIssue.LOOP_LATE:
+            return (f"TIMING the host is overloaded: the motor loop started {msg.value * 1000:.1f} ms late "
+                    f"(warns past loop_late_warn_s = {msg.limit * 1000:.0f} ms; faults SCHEDULER_OVERRUN past "
+                    "loop_late_max_s while enabled)")
+        if msg.issue == TimingIssue.BELOW_REAL_TIME:
+            if not msg.active:
+                return f"TIMING back to {msg.value:.2f}x real time"
+            return (f"TIMING below real time: the world ran at {msg.value:.2f}x real time over the last second "
+                    f"(rtf_warn {msg.limit:.2f}): the host is too slow, so simulated time slows down with it; "
+                    "nothing is faulted")
+    return format_message(msg)

@@ -21,7 +21,7 @@ from typing import Callable, Optional
 from protocol.messages import SCHEMA
 from protocol.schema import Message
 
-from host_tools.teleop_format import Console, enum_word, format_faults, format_value
+from host_tools.teleop_format import Console, enum_word, format_faults, format_value, time_summary
 from host_tools.teleop_words import AXIS_ENUM
 
 REFRESH_S = 0.1
@@ -114,6 +114,7 @@ def timing_lines(status: Optional[Message], joints: Optional[Message]) -> list[s
         lines.append(f"all tasks: exec max {status.loop_max_us} / p99 {status.loop_p99_us} us, overruns "
                      f"{status.overruns}; link rx/tx {status.frames_rx}/{status.frames_tx}, errors "
                      f"{status.link_errors}, backlog {status.tx_backlog_bytes} B")
+        lines.append(time_summary(status.timing, status.rtf_recent, status.lag_ms))
     return lines
 
 

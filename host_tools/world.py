@@ -3,8 +3,9 @@
 The bus is a private `host_tools.local_bus` pair: a `can.BusABC` for one process and one
 thread, much cheaper per frame than python-can's `virtual` interface (see that module).
 
-Used by `aspod sim` (real time, a pty or TCP port) and by tests and benches (a
-`SimClock`, an in-memory port, a `HostLink` driven in the same thread), so a bench
+Used by `aspod sim` (a pty or TCP port; the world on a `PacedClock`, simulated time paced to
+the wall clock, and the link on the wall clock itself: `link_clock`, `run`) and by tests and
+benches (a `SimClock`, an in-memory port, a `HostLink` driven in the same thread), so a bench
 runs faster than real time and repeats exactly for a given seed.
 """
 from __future__ import annotations
@@ -14,14 +15,14 @@ import random
 from typing import Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
-from firmware_py.scheduler import Scheduler, poll_tick
+from firmware_py.scheduler import Scheduler, poll_tick, run_live
 from firmware_py.uart import BufferPort, PacedUart, Port
 from hil_sim.plant import PlantParams
 from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
-from timebase import Clock, RealClock, SimClock
+from timebase import Clock, PacedClock, RealClock, SimClock
 
 from host_tools.local_bus import open_local_pair
 from host_tools.nodes import build_controller, build_plant_node
@@ -34,13 +35,17 @@ def seeded_nonces(seed: int) -> Callable[[], bytes]:
 
 
 class World:
-    """Plant + controller on one scheduler, the controller's UART on `port`."""
+    """Plant + controller on one scheduler, the controller's UART on `port`.
+
+    With `link_clock` (the wall clock, when `clock` is a `PacedClock`), the controller's comms
+    task runs on a second scheduler on it (`link_scheduler`): `run(should_stop)` runs both.
+    """
 
     def __init__(self, clock: Clock, port: Port, psk: bytes, *, seed: int = 0, baud: int = 115200,
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
                  gravity: str = "earth", payload_kg: float = 0.0, tracker: bool = True,
-                 start: DateTimeLike = DEFAULT_START, clouds=None) -> None:
+                 start: DateTimeLike = DEFAULT_START, clouds=None, link_clock: Optional[Clock] = None) -> None:
         self.clock = clock
         self.plant_bus, self.controller_bus = open_local_pair()
         self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, gravity=gravity, payload_kg=payload_kg,
@@ -52,7 +57,14 @@ class World:
         self.uart = PacedUart(port, baud, paced)
         self.controller = build_controller(psk, self.uart, self.controller_bus, controller_config,
                                            nonce_source=seeded_nonces(seed) if deterministic else new_nonce)
-        self.controller.attach(self.scheduler)
+        self.link_scheduler = Scheduler(link_clock) if link_clock is not None else self.scheduler
+        self.controller.attach(self.scheduler, self.link_scheduler)
+
+    def run(self, should_stop: Callable[[], bool]) -> None:
+        """Run the world (and its link, on its own clock) until `should_stop()`."""
+        if isinstance(self.clock, PacedClock):
+            self.clock.start()
+        run_live(self.scheduler, self.link_scheduler, should_stop)
 
     def close(self) -> None:
         self.plant_bus.shutdown()

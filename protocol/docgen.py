@@ -166,7 +166,12 @@ def render() -> str:
     out += ["", "## Fault bits", "", "Latched on entry to the safe state; cleared only by `reset`, which is refused",
             "while a fault's cause is still present.", "", "| bit | fault | meaning | remedy |", "|---|---|---|---|"]
     out += [f"| `{int(f):#06x}` | `{f.name}` | {doc} | {remedy} |" for f, (doc, remedy) in FAULT_DOCS.items()]
-    return "\n".join(out) + "\n"
+    out += ["", "## Enumerations", "", "The values of every other field declared `one of` an enumeration.", ""]
+    enums = {f.enum for s in specs for f in s.fields if f.enum is not None} - {Reason, ControllerState}
+    for enum_type in sorted(enums, key=lambda e: e.__name__):
+        out += [f"### {enum_type.__name__}", "", "| value | name |", "|---|---|"]
+        out += [f"| {int(member)} | `{member.name}` |" for member in enum_type] + [""]
+    return "\n".join(out).rstrip("\n") + "\n"
 
 
 if __name__ == "__main__":

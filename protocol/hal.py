@@ -19,7 +19,7 @@ import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Optional, Sequence, Union
+from typing import Any, Callable, Optional, Sequence, Union
 
 import can
 import cantools
@@ -347,6 +347,36 @@ def _covers_raw_range(signal) -> bool:
 
 
 Handler = Callable[[object, float], None]
+
+
+class BusView:
+    """A python-can bus seen through something that looks at what it receives.
+
+    Subclasses override `recv`; everything else (`send`, `shutdown`, any attribute) is the
+    wrapped bus's, so a node uses a view as it would the bus (`host_tools.nodes.OwnEchoFilter`,
+    `protocol.lockstep.SyncTap`). A context manager, as python-can's buses are.
+    """
+
+    def __init__(self, bus: Any) -> None:
+        self.bus = bus
+
+    def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
+        return self.bus.recv(timeout)
+
+    def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
+        self.bus.send(msg, timeout)
+
+    def shutdown(self) -> None:
+        self.bus.shutdown()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.bus, name)
+
+    def __enter__(self) -> "BusView":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
 
 
 class HalEndpoint:

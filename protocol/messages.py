@@ -10,8 +10,9 @@ from __future__ import annotations
 
 from protocol.reasons import Reason
 from protocol.schema import Direction, Field, MessageSpec, MsgClass, Schema
-from protocol.states import (ARM_AXES, TRACKER_WARNING_DOCS, Axis, AxisMode, ControllerState, GripAction,
-                             MotionOutcome, Switch, SwitchPosition, TempSide, TrackerAxis)
+from protocol.states import (ARM_AXES, FAULT_CAUSE_DOCS, TIMING_ISSUE_DOCS, TRACKER_WARNING_DOCS, Axis, AxisMode,
+                             ControllerState, FaultCause, GripAction, MotionOutcome, Switch, SwitchPosition, TempSide,
+                             TimingIssue, TimingMode, TrackerAxis)
 
 PROTOCOL_VERSION = 1
 
@@ -35,6 +36,20 @@ _STATS = (
     Field("retransmits", "u32", "reliable frames sent again"),
     Field("srtt_us", "u32", "smoothed round-trip time of reliable frames (RFC 6298)", "us"),
 )
+
+
+# How the controller's time relates to the wall clock (docs/realtime.md): TelemetryStatus (the three that change)
+# and Status (with the factor since start as well).
+_TIMING = (
+    Field("timing", "u8", "where the controller's time comes from", enum=TimingMode),
+    Field("rtf_recent", "f32", "real-time factor over about the last second: simulated s per wall s (0: not "
+          "measured, a simulated clock)"),
+    Field("lag_ms", "f32", "how far the controller's time is behind its schedule on the wall clock", "ms"),
+)
+_RTF_TOTAL = Field("rtf_total", "f32", "real-time factor since start (0: not measured)")
+
+_CAUSES = "; ".join(f"{c.name}: {what} ({param})" for c, (what, param) in FAULT_CAUSE_DOCS.items())
+_ISSUES = "; ".join(f"{i.name}: {doc}" for i, doc in TIMING_ISSUE_DOCS.items())
 
 
 def _axis(doc: str = "which axis: j1, j2, j3, j4 or mount", **kw) -> Field:
@@ -228,7 +243,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("supply_v", "f32", "supply voltage", "V"),
                  Field("temp_c", "f32", "controller temperature", "degC"),
                  Field("commands_executed", "u32", "commands executed since boot"),
-                 Field("telemetry_hz", "u16", "telemetry rate", "Hz"))),
+                 Field("telemetry_hz", "u16", "telemetry rate", "Hz")) + _TIMING + (_RTF_TOTAL,)),
     MessageSpec("ParamValue", 0x83, MsgClass.COMMAND, C, "Answers ParamGet, ParamSet and ParamList.",
                 (_result(),
                  Field("name", "str16", "parameter name"),
@@ -248,7 +263,8 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("motion_id", "u32", "this motion's number on its axis; MotionDone carries it"))),
     # ---- telemetry (unreliable) ----
     MessageSpec("TelemetryStatus", 0x30, MsgClass.TELEMETRY, C,
-                "Periodic state, sensors, link and loop timing (48-byte payload).",
+                "Periodic state, sensors, link and loop timing, and how the controller's time keeps up with the wall "
+                "clock (57-byte payload).",
                 (Field("uptime_ms", "u32", "controller uptime", "ms"),
                  Field("state", "u8", "supervisor state", enum=ControllerState),
                  Field("safe_reason", "u8", "why the safe state was entered", enum=Reason),
@@ -262,7 +278,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("loop_max_us", "u32", "longest task execution since boot", "us"),
                  Field("loop_p99_us", "u32", "99th percentile task execution (within 2x)", "us"),
                  Field("overruns", "u32", "task runs that started late"),
-                 Field("tx_backlog_bytes", "u16", "bytes queued for the wire", "B"))),
+                 Field("tx_backlog_bytes", "u16", "bytes queued for the wire", "B")) + _TIMING),
     MessageSpec("TelemetryJoints", 0x31, MsgClass.TELEMETRY, C,
                 "Periodic arm state: every axis's position, velocity, current, mode and errors, and the timing "
                 "of the 1 kHz arm loop.",
@@ -314,6 +330,26 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("active", "bool", "1: the warning is raised; 0: cleared"),
                  Field("temp_c", "f32", "the temperature read", "degC"),
                  Field("limit_c", "f32", "the fault limit it is about", "degC"),
+                 Field("uptime_ms", "u32", "controller uptime", "ms"))),
+    MessageSpec("FaultReport", 0x43, MsgClass.EVENT, C,
+                "What tripped a fault, as measured: sent with the StateChanged of a staleness or timing fault, so "
+                "that the host can say what was stale, for how long, and which parameter sets the limit. Causes: "
+                + _CAUSES + ".",
+                (Field("fault", "u32", "the fault bit latched"),
+                 Field("reason", "u8", "the reason given with it", enum=Reason),
+                 Field("cause", "u8", "what was measured", enum=FaultCause),
+                 _axis("the axis it was measured on (all: not an axis)"),
+                 Field("value_ms", "f32", "the age or lateness measured", "ms"),
+                 Field("limit_ms", "f32", "the limit it passed (the cause's parameter)", "ms"),
+                 Field("uptime_ms", "u32", "controller uptime", "ms"))),
+    MessageSpec("TimingWarning", 0x44, MsgClass.EVENT, C,
+                "The emulator's own host is too slow, said by name (never reported as a hardware fault): "
+                + _ISSUES + ". Raised once per crossing (`active` 1) and cleared (`active` 0) when it has passed; a "
+                "late loop is raised at most once a second.",
+                (Field("issue", "u8", "what it is about", enum=TimingIssue),
+                 Field("active", "bool", "1: raised; 0: cleared"),
+                 Field("value", "f32", "the loop's lateness (s) or the real-time factor measured"),
+                 Field("limit", "f32", "the warning's limit (loop_late_warn_s or rtf_warn)"),
                  Field("uptime_ms", "u32", "controller uptime", "ms"))),
 ])
 

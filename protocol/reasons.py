@@ -50,6 +50,9 @@ class Reason(enum.IntEnum):
     CANCELLED = 38
     DIAL_NOT_LOW = 39
     SWITCH_POSITION = 40
+    ENCODER_STALE = 41
+    CURRENT_STALE = 42
+    HOST_OVERLOADED = 43
 
     @property
     def doc(self) -> str:
@@ -112,7 +115,9 @@ _TABLE: dict[Reason, tuple[str, str]] = {
                            "read `status` for the fault bits, clear the cause, then send reset"),
     Reason.SESSION_RESET: ("the session was replaced before the command was answered; its outcome is unknown",
                            "query status before retrying"),
-    Reason.HAL_STALE: ("the hardware bus (HAL) inputs stopped arriving", "check the plant or CAN bus, then reset"),
+    Reason.HAL_STALE: ("the hardware bus (HAL) inputs stopped arriving: the analog inputs are older than hal_stale_s, "
+                       "or in lock-step the plant's tick has not come for lockstep_wait_s",
+                       "check the plant or CAN bus (FaultReport says what was how old), then reset"),
     Reason.SUPPLY_LOW: ("the supply voltage fell below its limit", "restore the supply, then reset"),
     Reason.OVER_TEMPERATURE: ("the controller temperature left its allowed range",
                               "let the controller cool (or warm) into range, then reset"),
@@ -146,6 +151,15 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.SWITCH_POSITION: ("that switch has no such position (main and sensor: off, on; mode: manual, sensor; "
                              "direction: cw, ccw; speed: brake, on)",
                              "use one of the switch's own positions, e.g. `switch speed brake`"),
+    Reason.ENCODER_STALE: ("an axis had no new encoder count for longer than encoder_stale_s",
+                           "check the encoder and the HAL bus (FaultReport gives the age); on a slow host raise "
+                           "encoder_stale_s; then reset"),
+    Reason.CURRENT_STALE: ("an axis had no current reading for longer than current_stale_s while driving",
+                           "check the current sense and the HAL bus (FaultReport gives the age); on a slow host "
+                           "raise current_stale_s; then reset"),
+    Reason.HOST_OVERLOADED: ("the controller's motor loop ran later than loop_late_max_s on the wall clock: the "
+                             "computer running the emulator is overloaded, the hardware is not at fault",
+                             "reduce the load on the host, or raise loop_late_max_s, then reset"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

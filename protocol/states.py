@@ -38,13 +38,17 @@ FAULT_DOCS: dict[Fault, tuple[str, str]] = {
     Fault.LINK_LOST: ("no valid frame from the host within the link timeout",
                       "restore the link (teleop reconnects), then `reset`"),
     Fault.ESTOP: ("an emergency stop was commanded", "clear the cause, then `reset`"),
-    Fault.HAL_STALE: ("the hardware bus inputs (plant sync, analog inputs) stopped arriving",
+    Fault.HAL_STALE: ("a hardware bus input got older than its limit: the analog inputs (hal_stale_s), an "
+                      "encoder count (encoder_stale_s), a motor current (current_stale_s), or in lock-step the "
+                      "plant's tick (lockstep_wait_s); FaultReport says which and how old",
                       "check the plant process or CAN bus, then `reset`"),
     Fault.SUPPLY_LOW: ("supply voltage below the configured minimum", "restore the supply, then `reset`"),
     Fault.OVER_TEMPERATURE: ("controller temperature outside its configured range",
                              "bring the controller back into range, then `reset`"),
-    Fault.SCHEDULER_OVERRUN: ("the control loop missed its deadlines repeatedly",
-                              "reduce load or the loop rate, then `reset`"),
+    Fault.SCHEDULER_OVERRUN: ("the controller's motor loop ran later than loop_late_max_s on the wall clock: the "
+                              "host running it is overloaded (only a controller on real time can be late; a "
+                              "simulated world slows down instead)",
+                              "reduce the load on the host (or raise loop_late_max_s), then `reset`"),
     Fault.ENCODER: ("an encoder count jumped further than its joint can move (glitch)",
                     "check the encoder and its wiring, reset, then home the joint again"),
     Fault.STALL: ("a joint was driven hard but did not move (jam, stuck brake, overload)",
@@ -191,3 +195,56 @@ TRACKER_WARNING_DOCS: dict[TrackerWarning, str] = {
 }
 
 assert set(TRACKER_WARNING_DOCS) == {w for w in TrackerWarning if w != TrackerWarning.NONE}
+
+
+# ---- time: how the controller's clock relates to the wall clock, and what it measured ----
+
+class TimingMode(enum.IntEnum):
+    """Where the controller's time comes from (TelemetryStatus, Status; docs/realtime.md)."""
+
+    SIMULATED = 0   # a simulated clock with no wall clock (lock-step benches, tests): real-time factor not measured
+    REALTIME = 1    # the wall clock itself: a controller on real hardware
+    PACED = 2       # simulated time paced to the wall clock (one-process `aspod sim`): late, it slows down
+    LOCKSTEP = 3    # simulated time granted tick by tick by the plant over the HAL bus (separate processes)
+
+
+class FaultCause(enum.IntEnum):
+    """What was measured when a fault tripped (FaultReport): the quantity, its parameter."""
+
+    HAL_INPUT_AGE = 0    # age of the last ANALOG_IN (hal_stale_s)
+    ENCODER_AGE = 1      # age of an axis's last new encoder count (encoder_stale_s)
+    CURRENT_AGE = 2      # age of an axis's last current reading while driving (current_stale_s)
+    LOOP_LATE = 3        # how late the motor loop ran on the wall clock (loop_late_max_s)
+    PLANT_SILENT = 4     # lock-step: wall time without a tick from the plant (lockstep_wait_s)
+
+
+FAULT_CAUSE_DOCS: dict[FaultCause, tuple[str, str]] = {
+    FaultCause.HAL_INPUT_AGE: ("the analog inputs (ANALOG_IN) are old", "hal_stale_s"),
+    FaultCause.ENCODER_AGE: ("the axis's last new encoder count (MOTOR_FB) is old", "encoder_stale_s"),
+    FaultCause.CURRENT_AGE: ("the axis's last current reading (MOTOR_FB) is old while it drives", "current_stale_s"),
+    FaultCause.LOOP_LATE: ("the 1 kHz motor loop ran late on the wall clock: the host is overloaded",
+                           "loop_late_max_s"),
+    FaultCause.PLANT_SILENT: ("lock-step: no tick from the plant for this long on the wall clock (plant process "
+                              "gone or stopped)", "lockstep_wait_s"),
+}
+
+assert set(FAULT_CAUSE_DOCS) == set(FaultCause)
+
+
+class TimingIssue(enum.IntEnum):
+    """What a TimingWarning is about: the emulator's own host is too slow, never the hardware."""
+
+    LOOP_LATE = 0         # real time: the motor loop started later than loop_late_warn_s
+    BELOW_REAL_TIME = 1   # paced or lock-step: the world ran slower than real time over the last second
+
+
+TIMING_ISSUE_DOCS: dict[TimingIssue, str] = {
+    TimingIssue.LOOP_LATE: "the controller runs on the wall clock and its motor loop started late by `value` "
+                           "seconds (limit loop_late_warn_s): the host is overloaded; past loop_late_max_s it "
+                           "faults (SCHEDULER_OVERRUN)",
+    TimingIssue.BELOW_REAL_TIME: "the simulated world ran at `value` times real time over the last second (limit "
+                                 "rtf_warn): the host is too slow for real time, so simulated time slows down with "
+                                 "it; nothing is faulted, timing seen by a real-time host differs",
+}
+
+assert set(TIMING_ISSUE_DOCS) == set(TimingIssue)

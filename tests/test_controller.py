@@ -105,11 +105,13 @@ def test_hal_silence_is_a_fault(bench):
 def test_telemetry_rate_is_set_over_the_link(bench):
     def count(name):
         return sum(1 for m in bench.telemetry if m.spec.name == name)
-    assert bench.call(M["SetTelemetryRate"](50)).ok
+    # 40 Hz: TelemetryStatus (96 B on the wire) and TelemetryJoints (154 B) take 10 kB/s, 87 % of the 115200-baud
+    # line's 11.52 kB/s (at 50 Hz they would need 108 %: the link's bounded telemetry queue drops the excess)
+    assert bench.call(M["SetTelemetryRate"](40)).ok
     start, start_joints = count("TelemetryStatus"), count("TelemetryJoints")
     bench.run_for(1.0)
-    assert 45 <= count("TelemetryStatus") - start <= 51
-    assert 45 <= count("TelemetryJoints") - start_joints <= 51   # the arm's, at the same rate
+    assert 36 <= count("TelemetryStatus") - start <= 41
+    assert 36 <= count("TelemetryJoints") - start_joints <= 41   # the arm's, at the same rate
     assert bench.call(M["SetTelemetryRate"](0)).ok
     start = len(bench.telemetry)
     bench.run_for(1.0)

@@ -91,11 +91,12 @@ def mean_supply(samples) -> float:
 # --- codec -----------------------------------------------------------------------------------
 
 def test_dbc_declares_the_bus():
-    assert CODEC.names == ("PLANT_SYNC", "CTRL_OUTPUTS", "TRACKER_CMD", "MOTOR_CMD", "DIGITAL_IN", "MOTOR_FB",
-                           "ANALOG_IN", "TRACKER_SENSE", "TRACKER_POS")
-    assert (SYNC_ID, OUTPUTS_ID, ANALOG_ID) == (0x010, 0x020, 0x280)
+    assert CODEC.names == ("PLANT_SYNC", "CTRL_SYNC", "CTRL_OUTPUTS", "TRACKER_CMD", "MOTOR_CMD", "DIGITAL_IN",
+                           "MOTOR_FB", "ANALOG_IN", "TRACKER_SENSE", "TRACKER_POS")
+    assert (SYNC_ID, CODEC.frame_id("CTRL_SYNC"), OUTPUTS_ID, ANALOG_ID) == (0x010, 0x011, 0x020, 0x280)
     senders = {m.name: m.senders for m in CODEC.database.messages}
-    assert senders == {"PLANT_SYNC": ["PLANT"], "CTRL_OUTPUTS": ["CONTROLLER"], "MOTOR_CMD": ["CONTROLLER"],
+    assert senders == {"PLANT_SYNC": ["PLANT"], "CTRL_SYNC": ["CONTROLLER"], "CTRL_OUTPUTS": ["CONTROLLER"],
+                       "MOTOR_CMD": ["CONTROLLER"],
                        "DIGITAL_IN": ["PLANT"], "MOTOR_FB": ["PLANT"], "ANALOG_IN": ["PLANT"],
                        "TRACKER_CMD": ["CONTROLLER"], "TRACKER_SENSE": ["PLANT"], "TRACKER_POS": ["PLANT"]}
     assert CODEC.cycle_time_s("ANALOG_IN") == pytest.approx(0.01)
@@ -141,11 +142,11 @@ def test_docs_list_every_declared_frame():
 
 
 @settings(max_examples=200, deadline=None)
-@given(tick=st.integers(0, 2**32 - 1))
-def test_plant_sync_round_trip(tick):
-    msg = CODEC.encode("PLANT_SYNC", tick=tick)
+@given(tick=st.integers(0, 2**32 - 1), lockstep=st.integers(0, 1), period_us=st.integers(0, 65535))
+def test_plant_sync_round_trip(tick, lockstep, period_us):
+    msg = CODEC.encode("PLANT_SYNC", tick=tick, lockstep=lockstep, period_us=period_us)
     assert (msg.arbitration_id, msg.is_extended_id, msg.dlc, len(msg.data)) == (SYNC_ID, False, 8, 8)
-    assert CODEC.decode(msg) == ("PLANT_SYNC", {"tick": tick})
+    assert CODEC.decode(msg) == ("PLANT_SYNC", {"tick": tick, "lockstep": lockstep, "period_us": period_us})
 
 
 @settings(max_examples=200, deadline=None)
@@ -169,7 +170,7 @@ def test_analog_in_round_trip_within_resolution(supply_v, temp_c):
 
 
 def test_encode_rejects_what_the_dbc_does_not_declare():
-    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_OUTPUTS, TRACKER_CMD, MOTOR_CMD"):
+    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_SYNC, CTRL_OUTPUTS, TRACKER_CMD, MOTOR_CMD"):
         CODEC.encode("MOTOR_CMD_0", duty=0.5)
     with pytest.raises(HalEncodeError, match="controller_temp_c"):
         CODEC.encode("ANALOG_IN", supply_v=28.0)

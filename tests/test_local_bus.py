@@ -68,7 +68,7 @@ def test_a_hal_node_reads_the_declared_frames_through_it():
     plant_end, controller_end = open_local_pair()
     hal = ControllerHal(controller_end)
     try:
-        plant_end.send(CODEC.encode("PLANT_SYNC", tick=41))
+        plant_end.send(CODEC.encode("PLANT_SYNC", tick=41, lockstep=0, period_us=1000))
         plant_end.send(CODEC.encode("ANALOG_IN", supply_v=27.5, controller_temp_c=31.0))
         assert hal.poll(now=1.0) == 2
         assert hal.inputs.tick == 41 and hal.inputs.supply_v == pytest.approx(27.5)

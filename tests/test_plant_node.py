@@ -137,13 +137,14 @@ def test_positive_duty_turns_the_channel_and_its_counts_rise(virtual_can):
     for channel in (J2, MOUNT):
         assert set(rig.counts(channel)) == {0}
         assert set(rig.currents(channel)) == {0.0}
-    # MOTOR_FB every tick, right after PLANT_SYNC and with its tick; counts are the arm's own.
+    # MOTOR_FB every tick with its tick, PLANT_SYNC last in the tick (1 ms, not in lock-step); counts are the arm's.
     syncs = [v["tick"] for _, v in rig.seen("PLANT_SYNC")]
     fbs = rig.fb()
     assert syncs == [v["tick"] for v in fbs] == list(range(len(syncs)))
     assert len(syncs) == rig.node.tick == rig.node.sent_by_name["MOTOR_FB"]
     order = [n for _, n, v, _ in rig.frames if v.get("tick") == 20]
-    assert order == ["PLANT_SYNC", "MOTOR_FB", "DIGITAL_IN"]
+    assert order == ["MOTOR_FB", "DIGITAL_IN", "PLANT_SYNC"]
+    assert {(v["lockstep"], v["period_us"]) for _, v in rig.seen("PLANT_SYNC")} == {(0, 1000)}
     last_tick, _, true_counts = rig.truth[-1]
     assert fbs[-1]["tick"] == last_tick
     assert [fbs[-1][f"count_{ch}"] for ch in CHANNELS] == [wrap32(c) for c in true_counts]

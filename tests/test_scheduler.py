@@ -53,7 +53,7 @@ def test_lateness_beyond_tolerance_counts_as_an_overrun():
     clock, sched = make()
 
     def hog(now):
-        clock.advance(0.005)          # this task takes 5 ms of (simulated) time
+        clock.advance_by(0.005)          # this task takes 5 ms of (simulated) time
         return now + 0.001
     sched.add("hog", hog, 0.0)
     sched.add("victim", lambda now: now + 0.001, 0.0, tolerance_s=0.002)
@@ -74,7 +74,7 @@ def test_sim_clock_never_goes_back():
     clock.sleep_until(1.0)
     assert clock.now() == 5.0
     with pytest.raises(ValueError):
-        clock.advance(-1)
+        clock.advance_by(-1)
 
 
 def test_periodic_tasks_stay_on_their_grid_and_skip_what_they_missed():
@@ -85,7 +85,7 @@ def test_periodic_tasks_stay_on_their_grid_and_skip_what_they_missed():
     def task(now: float) -> float:
         starts.append(now)
         if len(starts) == 3:
-            clock.advance(0.0035)        # this run overran by three and a half periods
+            clock.advance_by(0.0035)        # this run overran by three and a half periods
         return now + 0.5                 # ignored: the task is periodic
 
     sched.add("loop", task, 0.0, period_s=0.001)

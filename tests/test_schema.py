@@ -244,7 +244,7 @@ def test_unrepresentable_value_is_an_encode_error(name: str, data):
 def test_f32_too_large_for_float32_is_an_encode_error():
     """A finite supply voltage beyond float32 (a sensor gone mad) must not crash the encoder."""
     status = SCHEMA["Status"]
-    msg = status.type(0, 1, 0, 0, 0, 1e39, 20.0, 0, 0)
+    msg = status.type(0, 1, 0, 0, 0, 1e39, 20.0, 0, 0, 0, 0.0, 0.0, 0.0)
     with pytest.raises(EncodeError):
         status.encode(msg)
 

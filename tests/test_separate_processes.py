@@ -156,10 +156,10 @@ def clients():
         client.close()
 
 
-def counters(text: str) -> dict[str, int]:
+def counters(text: str) -> dict[str, float]:
     found = COUNTERS.search(text)
     assert found, f"no counters line in {text!r}"
-    return {key: int(value) for key, value in (item.split("=") for item in found.group(1).split())}
+    return {key: float(value) for key, value in (item.split("=") for item in found.group(1).split())}
 
 
 def start_plant(procs, group: str, port: int) -> Proc:
@@ -250,6 +250,7 @@ def test_stopping_sim_with_hal_stops_its_plant_which_saw_the_controller(multicas
     sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
     url, key_path = link_of(sim)
     plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready").group(1))
+    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")               # the first ticks came: enable is allowed
     client = clients(url, key_path)
     assert client.call(M["Enable"]()).ok
     assert client.call(M["Ping"](1)).ok

@@ -3,6 +3,7 @@
 `timebase` sits below `protocol`, `firmware_py`, `hil_sim` and `host_tools`, and
 imports none of them, so each may use it without breaking the import order.
 """
-from timebase.clock import Clock, RealClock, SimClock
+from timebase.clock import Clock, RealClock, SimClock, TimingReport
+from timebase.paced import PacedClock, RateMeter
 
-__all__ = ["Clock", "RealClock", "SimClock"]
+__all__ = ["Clock", "PacedClock", "RateMeter", "RealClock", "SimClock", "TimingReport"]

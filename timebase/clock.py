@@ -4,12 +4,42 @@ Everything else receives a `Clock` and asks it for `now()` (monotonic seconds,
 ``float``) or to wait until a deadline. `RealClock` is used for live sessions,
 `SimClock` for lock-step runs, tests and benches: waiting on a `SimClock` jumps
 straight to the deadline (as trio's MockClock does), so a simulated hour takes
-as long as the work done in it.
+as long as the work done in it. Clocks whose time runs apart from the wall clock
+but is paced by it (`timebase.paced.PacedClock`, the lock-step clocks of
+`protocol.lockstep`) are built on a `RealClock` given to them; they never read the
+OS clock themselves.
+
+Every clock can say how its time relates to the wall clock (`timing()`, a
+`TimingReport`), and can `advance(deadline, wall_deadline)`: move its time toward
+`deadline` but return by `wall_deadline` on the wall clock, so that one thread can
+run a simulated world and a real link side by side (`firmware_py.scheduler.run_live`).
 """
 from __future__ import annotations
 
 import abc
+import math
 import time
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TimingReport:
+    """How a clock's time relates to the wall clock, for telemetry and `status`.
+
+    `mode`: "realtime" (the wall clock itself), "paced" (simulated time paced to the wall
+    clock; late, it slows down rather than jumping), "lockstep" (simulated time granted
+    tick by tick by another process on the HAL bus) or "simulated" (no wall clock at all).
+    `rtf_recent` and `rtf_total`: simulated seconds per wall second over about the last
+    second and since the start (NaN where nothing is measured). `lag_s`: wall seconds by
+    which time is behind its schedule now; `slipped_s`: lag given up for good (the world
+    fell too far behind to catch up and was re-anchored), in wall seconds.
+    """
+
+    mode: str
+    rtf_recent: float = math.nan
+    rtf_total: float = math.nan
+    lag_s: float = 0.0
+    slipped_s: float = 0.0
 
 
 class Clock(abc.ABC):
@@ -25,6 +55,16 @@ class Clock(abc.ABC):
 
     def sleep(self, duration_s: float) -> None:
         self.sleep_until(self.now() + max(0.0, duration_s))
+
+    @abc.abstractmethod
+    def advance(self, deadline: float, wall_deadline: float) -> None:
+        """Move time toward `deadline`; return once it is there, or by `wall_deadline` on the wall
+        clock, whichever comes first (at once if either has passed). `wall_deadline` is wall-clock
+        time (`RealClock.now`); a clock with no wall clock ignores it."""
+
+    @abc.abstractmethod
+    def timing(self) -> TimingReport:
+        """How this clock's time relates to the wall clock now."""
 
     @property
     @abc.abstractmethod
@@ -42,6 +82,12 @@ class RealClock(Clock):
         delay = deadline - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+
+    def advance(self, deadline: float, wall_deadline: float) -> None:
+        self.sleep_until(min(deadline, wall_deadline))
+
+    def timing(self) -> TimingReport:
+        return TimingReport("realtime", 1.0, 1.0)
 
     @property
     def is_real_time(self) -> bool:
@@ -71,10 +117,16 @@ class SimClock(Clock):
         if deadline > self._now:
             self._now = float(deadline)
 
-    def advance(self, duration_s: float) -> None:
+    def advance_by(self, duration_s: float) -> None:
         if duration_s < 0:
             raise ValueError(f"cannot advance a clock by a negative duration ({duration_s} s)")
         self._now += duration_s
+
+    def advance(self, deadline: float, wall_deadline: float) -> None:
+        self.sleep_until(deadline)      # no wall clock here: straight to the deadline
+
+    def timing(self) -> TimingReport:
+        return TimingReport("simulated")
 
     @property
     def is_real_time(self) -> bool:
