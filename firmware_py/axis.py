@@ -279,8 +279,10 @@ class Axis:
         self._open_since: Optional[float] = None
 
     def reconfigure(self, config: AxisConfig) -> None:
-        """Take new gains and limits at the next tick (the estimator keeps its own configuration)."""
+        """Take new gains and limits at the next tick (the estimator keeps its own filter; its staleness limit
+        follows the parameter)."""
         self.config = c = config
+        self.estimator.set_stale_ticks(c.estimator.stale_ticks)
         # hot-path copies of the configuration
         self._dt = c.estimator.dt_s
         self._kp, self._kv, self._ki = c.kp_pos_1_s, c.kv_duty_s_rad, c.ki_duty_rad

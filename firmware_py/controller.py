@@ -59,7 +59,8 @@ M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
 TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
 LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often (controller time)
-RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears this far above rtf_warn
+RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world has run this far above rtf_warn ...
+RTF_CLEAR_AFTER_S = 10.0          # ... for this long (controller time): one warning per slow spell, not a flutter
 _HANDLERS: dict[str, Callable] = {}
 
 
@@ -146,6 +147,7 @@ class Controller:
         self._late_warned_s: Optional[float] = None     # when a late loop was last warned of
         self._late_worst_s = 0.0                        # the worst lateness since then
         self._below_real_time = False
+        self._real_time_since: Optional[float] = None  # below real time: since when it has kept up again
         self.started_s: Optional[float] = None
         self.supervisor = Supervisor(on_change=self._state_changed)
         self.link = ControllerLink(psk, self._execute, dataclasses.replace(self.config.link,
@@ -260,12 +262,20 @@ class Controller:
         rtf = timing.rtf_recent
         if timing.mode not in ("paced", "lockstep") or not limit > 0 or not math.isfinite(rtf):
             return
-        if not self._below_real_time and rtf < limit:
+        if not self._below_real_time:
+            if rtf >= limit:
+                return
             self._below_real_time = True
-        elif self._below_real_time and rtf >= limit + RTF_CLEAR_MARGIN:
-            self._below_real_time = False
-        else:
+            self._real_time_since = None
+        elif rtf < limit + RTF_CLEAR_MARGIN:
+            self._real_time_since = None
             return
+        else:
+            if self._real_time_since is None:
+                self._real_time_since = now
+            if now - self._real_time_since < RTF_CLEAR_AFTER_S:
+                return
+            self._below_real_time = False
         self._report(M["TimingWarning"](int(TimingIssue.BELOW_REAL_TIME), self._below_real_time, rtf, limit,
                                         self.uptime_ms(now)))
 

@@ -185,6 +185,12 @@ class _CountTracker:
         self.flags = 2 | (1 if self.missed_ticks >= self._stale_ticks else 0)
         return None
 
+    def set_stale_ticks(self, ticks: int) -> None:
+        """A new staleness limit (the encoder_stale_s parameter changed), from the next update."""
+        if ticks < 1:
+            raise ValueError("stale_ticks must be >= 1")
+        self._stale_ticks = ticks
+
     def skip(self, ticks: int) -> None:
         """`ticks` ticks went by without an update (a controller on the wall clock ran late): the next
         count may have moved as far as those ticks allow (the glitch check widens with them)."""

@@ -97,8 +97,9 @@ class LockstepBench:
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
                  gravity: str = "earth", payload_kg: float = 0.0,
                  plant_params: Optional[PlantParams] = None, tracker: bool = True,
-                 start: DateTimeLike = DEFAULT_START, clouds=None, sleeping_line: bool = True) -> None:
-        self.clock = SimClock()
+                 start: DateTimeLike = DEFAULT_START, clouds=None, sleeping_line: bool = True,
+                 clock: Optional[SimClock] = None) -> None:
+        self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, gravity=gravity,

@@ -175,9 +175,8 @@ class LockstepFollower(Clock):
             if self._waiting_since is None:
                 self._waiting_since = wall_now
             left = wall_deadline - wall_now
-            if left <= 0:
-                return
-            self.tap.wait(min(left, REOFFER_S))
+            if not self.tap.wait(max(0.0, min(left, REOFFER_S))) and left <= 0:
+                return                      # nothing came, and the wall clock's tasks are due
         if deadline > self._now:
             self._now = float(deadline)
 
@@ -261,9 +260,8 @@ class LockstepLeader(Clock):
                 self.reoffers += 1
                 self._offered_s = wall_now
             left = wall_deadline - wall_now
-            if left <= 0:
-                return
-            self.tap.wait(min(left, self.reoffer_s - (wall_now - self._offered_s)))
+            if not self.tap.wait(max(0.0, min(left, self.reoffer_s - (wall_now - self._offered_s)))) and left <= 0:
+                return                      # nothing came, and the wall clock's tasks are due
         self._waiting_since = None
         self.pace.advance(deadline, wall_deadline)
 

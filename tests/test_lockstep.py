@@ -1,0 +1,189 @@
+"""Lock-step over the HAL bus (protocol/lockstep.py): plant and controller share one time, tick by tick.
+
+Here both run in one thread on an in-process bus pair, each on its own scheduler and lock-step
+clock as in their own processes (`aspod plant`, `aspod firmware`), stepped in turn and never
+blocking; the wall clock is a `SimClock` moved by hand. The same clocks between real processes
+over udp_multicast are tested in tests/test_separate_processes.py.
+"""
+from __future__ import annotations
+
+import math
+
+import can
+import pytest
+
+from firmware_py.axis import Outcome
+from firmware_py.controller import ControllerConfig
+from firmware_py.scheduler import Scheduler
+from firmware_py.uart import BufferPort, PacedUart
+from host_tools.local_bus import open_local_pair
+from host_tools.nodes import build_controller, build_plant_node
+from protocol.hal import BusView, HalCodec
+from protocol.lockstep import REOFFER_S, LockstepFollower, LockstepLeader
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import Axis, ControllerState, Fault, FaultCause
+from timebase import PacedClock, SimClock
+
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+KEY = b"lockstep-test-key-0123456789"
+CTRL_SYNC_ID = HalCodec().frame_id("CTRL_SYNC")
+
+
+class DropFrames(BusView):
+    """Loses the next `count` frames with id `frame_id` that this end sends."""
+
+    def __init__(self, bus, frame_id: int) -> None:
+        super().__init__(bus)
+        self.frame_id, self.count, self.dropped = frame_id, 0, 0
+
+    def send(self, msg: can.Message, timeout=None) -> None:
+        if msg.arbitration_id == self.frame_id and self.count:
+            self.count -= 1
+            self.dropped += 1
+            return
+        self.bus.send(msg, timeout)
+
+
+class Pair:
+    """A lock-step plant (as fast as it goes) and controller, stepped in turn in one thread."""
+
+    def __init__(self, seed: int = 1, controller: bool = True) -> None:
+        self.wall = SimClock(1000.0)
+        self.plant_bus, self._controller_end = open_local_pair()
+        self.start_plant(seed)
+        self.control = None
+        if controller:
+            self.start_controller()
+
+    def start_controller(self) -> None:
+        self.controller_bus = DropFrames(self._controller_end, CTRL_SYNC_ID)
+        self.follower = LockstepFollower(self.controller_bus, self.wall)
+        self.controller = build_controller(KEY, PacedUart(BufferPort(notifies=False)), self.follower.tap,
+                                           ControllerConfig())
+        self.control = Scheduler(self.follower, stopwatch=self.follower.now)
+        self.link = Scheduler(self.wall)
+        self.controller.attach(self.control, self.link)
+
+    def start_plant(self, seed: int) -> None:
+        """A plant on the bus (a new one, counting its ticks from 0, if there was one already)."""
+        self.leader = LockstepLeader(self.plant_bus, PacedClock(self.wall, math.inf), 0.001,
+                                     reoffer=lambda: self.node.resend_sync())
+        self.node = build_plant_node(self.leader.tap, seed, tracker=False, lockstep=True)
+        self.plant = Scheduler(self.leader, stopwatch=self.leader.now)
+        self.plant.add("plant", self.node.step, period_s=self.node.period_s)
+
+    def turn(self, plant: bool = True) -> None:
+        """One pass of each process's loop (`run_live`), returning at once where it would wait."""
+        sides = ([(self.plant, None)] if plant else []) + ([(self.control, self.link)] if self.control else [])
+        for scheduler, link in sides:
+            if link is not None:
+                link.run_due()
+            scheduler.run_due()
+            scheduler.clock.advance(scheduler.next_wake_s(), self.wall.now())
+
+    def run_until(self, predicate, turns: int = 100_000) -> bool:
+        for _ in range(turns):
+            if predicate():
+                return True
+            self.turn()
+        return predicate()
+
+    def execute(self, msg):
+        return self.controller._execute(msg, False, self.wall.now())
+
+
+def test_the_controller_runs_each_tick_on_the_plant_tick_before_it_and_nothing_runs_ahead():
+    pair = Pair()
+    assert pair.follower.now() == 0.0 and pair.node.tick == 0
+    pair.turn()
+    assert pair.node.tick == 1                        # tick 0 needs no answer ...
+    for _ in range(5):
+        pair.turn(plant=True)
+    assert pair.run_until(lambda: pair.node.tick >= 2000)
+    # ... every later tick waited for the controller: one motor loop per plant tick, in step
+    arm_runs = pair.control.tasks["arm"].stats.runs
+    assert pair.node.tick - 1 <= arm_runs <= pair.node.tick
+    assert pair.follower.now() == pytest.approx((pair.node.tick - 1) * 0.001, abs=0.0015)
+    assert pair.controller.supervisor.state is ControllerState.IDLE and not pair.controller.supervisor.faults
+    assert pair.follower.timing().mode == "lockstep" and pair.leader.timing().mode == "lockstep"
+
+
+def test_a_move_in_lock_step_ends_done_and_is_the_same_to_the_bit_whatever_the_wall_clock_does():
+    def move(stall_every: int) -> tuple:
+        pair = Pair(seed=3)
+        assert pair.run_until(lambda: pair.controller.supervisor.state is ControllerState.IDLE)
+        assert pair.execute(M["Enable"]()).result == Reason.OK
+        accepted = pair.execute(M["MoveBy"](int(Axis.J1), 5.0, 0))
+        assert accepted.result == Reason.OK
+        axis = pair.controller.arm.channels[int(Axis.J1)]
+        turns = 0
+
+        def done() -> bool:
+            nonlocal turns
+            turns += 1
+            if stall_every and turns % stall_every == 0:
+                pair.wall.advance_by(0.25)           # a process descheduled for a quarter of a second
+            return axis.outcome is not Outcome.RUNNING
+        assert pair.run_until(done, 200_000)
+        assert axis.outcome is Outcome.DONE and not pair.controller.supervisor.faults
+        return pair.node.tick, tuple(pair.node.plant.arm.pos_rad)
+    assert move(stall_every=0) == move(stall_every=997)
+
+
+def test_a_lost_ctrl_sync_costs_a_re_offer_not_the_run():
+    pair = Pair()
+    assert pair.run_until(lambda: pair.node.tick >= 50)
+    pair.controller_bus.count = 1                   # the controller's next CTRL_SYNC is lost
+    for _ in range(20):
+        pair.turn()
+    stuck = pair.node.tick
+    assert pair.controller_bus.dropped == 1 and pair.leader.stalled_s() == 0.0
+    for _ in range(20):
+        pair.turn()
+    assert pair.node.tick == stuck                  # the plant waits: it never runs ahead
+    pair.wall.advance_by(REOFFER_S)                 # ... and after 0.1 s (wall) offers its tick again
+    assert pair.run_until(lambda: pair.node.tick >= stuck + 100)
+    assert pair.node.sync_resends >= 1 and pair.follower.syncs_sent > stuck
+
+
+def test_a_controller_started_after_the_plant_picks_it_up_at_once():
+    pair = Pair(controller=False)
+    for _ in range(30):                             # the plant alone: tick 0, then it waits, offering it again
+        pair.wall.advance_by(0.05)
+        pair.turn()
+    assert pair.node.tick == 1 and pair.node.sync_resends >= 5
+    pair.start_controller()                         # its CTRL_SYNC(0) makes the plant offer its tick at once:
+    assert pair.run_until(lambda: pair.node.tick >= 100, 1000)   # no wall time passes here
+    assert pair.follower.plant_lockstep is True
+
+
+def test_a_new_plant_counting_from_zero_is_followed_and_time_goes_on():
+    pair = Pair()
+    assert pair.run_until(lambda: pair.node.tick >= 300)
+    before = pair.follower.now()
+    pair.start_plant(seed=2)                        # a new plant process on the same bus: ticks from 0 again
+    assert pair.run_until(lambda: pair.node.tick >= 100)
+    assert pair.follower.resyncs == 1 and pair.follower.now() > before
+    assert not pair.controller.supervisor.faults
+
+
+def test_a_silent_plant_is_hal_stale_after_lockstep_wait_s_on_the_wall_clock_and_says_so():
+    pair = Pair()
+    reports = []
+    pair.controller.report_listeners.append(reports.append)
+    assert pair.run_until(lambda: pair.controller.supervisor.state is ControllerState.IDLE)
+    frozen = pair.follower.now()
+    limit = pair.controller.params["lockstep_wait_s"]
+    for _ in range(int(limit / 0.05) + 2):           # the plant is gone: only the wall clock moves
+        pair.wall.advance_by(0.05)
+        pair.turn(plant=False)
+    assert pair.follower.now() == frozen             # its time stands still without the plant ...
+    sup = pair.controller.supervisor
+    assert sup.state is ControllerState.FAULT and sup.faults & Fault.HAL_STALE   # ... and the wall clock says why
+    report = [r for r in reports if r.spec.name == "FaultReport"][-1]
+    assert report.cause == FaultCause.PLANT_SILENT and report.value_ms >= limit * 1000 and \
+        report.limit_ms == pytest.approx(limit * 1000)
+    assert pair.execute(M["Reset"]()).result == Reason.HAL_STALE    # refused while the plant stays away
+    pair.start_plant(seed=1)
+    assert pair.run_until(lambda: pair.execute(M["Reset"]()).result == Reason.OK, 2000)
