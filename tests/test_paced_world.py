@@ -1,0 +1,120 @@
+"""The one-process world as `aspod sim` runs it, on a host that stalls: slower, never faulty.
+
+Plant and controller on a `PacedClock`, the link and a host on the wall clock (`World(link_clock=)`,
+`run_live`), exactly as in `aspod sim`; only the wall clock is a `SimClock` here, so that the tests
+can stall the process on purpose (a task on the wall clock that moves it on, as a descheduled
+process finds it moved on) and nothing waits on real time.
+"""
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from firmware_py.scheduler import run_live
+from firmware_py.uart import BufferPort
+from host_tools.world import World
+from protocol.host_link import HostLink
+from protocol.link import LinkState
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import Axis, ControllerState, TimingIssue, TimingMode
+from timebase import PacedClock, SimClock
+
+M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+KEY = b"paced-world-key-0123456789abcdef"
+
+
+class LiveRig:
+    """`aspod sim`'s world with a host in the same thread, on a wall clock the test moves."""
+
+    def __init__(self) -> None:
+        self.wall = SimClock(50.0)
+        self.port = BufferPort(notifies=False)
+        self.world = World(PacedClock(self.wall), self.port, KEY, link_clock=self.wall, deterministic=True,
+                           tracker=False)
+        self.events: list = []
+        rng = random.Random(7)
+        self.host = HostLink(KEY, nonce_source=lambda: rng.randbytes(16),
+                             on_event=lambda msg, now: self.events.append(msg))
+        self.world.link_scheduler.add("host", self._host_step)
+        self.stalls: list[tuple[float, float]] = []      # (every_s, stall_s): the process loses stall_s each every_s
+        self.world.clock.start()
+
+    def _host_step(self, now: float) -> float:
+        if self.port.outbox:
+            self.host.feed(bytes(self.port.outbox), now)
+            self.port.outbox.clear()
+        self.host.poll(now)
+        out = self.host.take_all(now)
+        if out:
+            self.port.deliver(out)
+        return now + 0.001
+
+    def cost(self, wall_per_tick_s: float) -> None:
+        """From now on each simulated millisecond of the world takes `wall_per_tick_s` of the host's time."""
+        def work(now: float) -> float:
+            self.wall.advance_by(wall_per_tick_s)
+            return now + 0.001
+        self.world.scheduler.add("work", work, period_s=0.001, priority=99)
+
+    def stall(self, every_s: float, stall_s: float) -> None:
+        """From now on the process is descheduled for `stall_s` every `every_s` of wall time."""
+        def hog(now: float) -> float:
+            self.wall.advance_by(stall_s)
+            return self.wall.now() + every_s
+        self.world.link_scheduler.add(f"stall-{len(self.stalls)}", hog, self.wall.now() + every_s)
+        self.stalls.append((every_s, stall_s))
+
+    def run_until(self, predicate, wall_s: float) -> bool:
+        end = self.wall.now() + wall_s
+        run_live(self.world.scheduler, self.world.link_scheduler, lambda: predicate() or self.wall.now() >= end)
+        return predicate()
+
+    def call(self, msg, wall_s: float = 10.0):
+        handle = self.host.submit(msg, self.wall.now())
+        assert self.run_until(lambda: handle.done, wall_s), f"{msg.spec.name}: no outcome"
+        return handle
+
+    @property
+    def controller(self):
+        return self.world.controller
+
+
+def test_a_host_too_slow_for_real_time_slows_the_world_down_and_faults_nothing():
+    rig = LiveRig()
+    rig.host.connect(rig.wall.now())
+    assert rig.run_until(lambda: rig.host.state is LinkState.UP, 5.0)
+    assert rig.call(M["Enable"]()).ok
+    rig.cost(0.003)                                    # each simulated ms takes 3 ms of the host ...
+    rig.stall(every_s=0.005, stall_s=0.020)            # ... which also loses 20 ms in every 25: a very busy machine
+    accepted = rig.call(M["MoveBy"](int(Axis.J1), 3.0, 0)).reply
+    assert rig.run_until(lambda: any(e.spec.name == "MotionDone" and e.motion_id == accepted.motion_id
+                                     for e in rig.events), 120.0)
+    done = [e for e in rig.events if e.spec.name == "MotionDone"][-1]
+    assert done.reason == Reason.OK and done.position == pytest.approx(3.0, abs=0.05)
+    sup = rig.controller.supervisor
+    assert sup.state is ControllerState.ENABLED and not sup.faults
+    # the plant integrated every millisecond the controller lived through, and no other
+    node, clock = rig.world.plant_node, rig.world.clock
+    assert node.dt_clamps == 0 and abs(node.tick - clock.now() / node.period_s) <= 1
+    # ... and the slowness is said by name, with the factor
+    warnings = [e for e in rig.events if e.spec.name == "TimingWarning"]
+    assert warnings and warnings[0].issue == TimingIssue.BELOW_REAL_TIME and warnings[0].value < 0.5
+    status = rig.call(M["GetStatus"](), 30.0).reply
+    assert status.timing == TimingMode.PACED and 0.05 < status.rtf_recent < 0.5
+
+
+def test_a_stall_longer_than_the_link_timeout_is_not_the_hosts_silence():
+    rig = LiveRig()
+    rig.host.connect(rig.wall.now())
+    assert rig.run_until(lambda: rig.host.state is LinkState.UP, 5.0)
+    assert rig.call(M["Enable"]()).ok
+    rig.run_until(lambda: False, 0.5)
+    rig.wall.advance_by(4.0)                           # the whole process stopped for 4 s (link timeout 3 s)
+    rig.run_until(lambda: False, 1.0)
+    sup = rig.controller.supervisor
+    assert sup.state is ControllerState.ENABLED and not sup.faults, [e for e in rig.events]
+    assert rig.controller.comms.stalls_excused_s >= 3.9
+    assert rig.world.clock.slips == 1                  # too far behind to catch up: the world was re-anchored
+    assert rig.call(M["Ping"](3)).ok
