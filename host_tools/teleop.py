@@ -20,6 +20,12 @@ the sun; `expect REASON COMMAND` passes only if COMMAND is refused with exactly 
 script shows that an interlock holds); `clock now` is read from the host's UTC when it runs
 (`wall_time`, the one wall clock: timebase.RealClock.wall_time unless a bench gives its own).
 
+Waiting (`wait all`, `wait aligned`): the timeout counts the controller's own time when it says
+its time is simulated (paced or lock-step: TelemetryStatus `timing`), so that a host too slow
+for real time slows the wait down with the world instead of failing a script that would pass on
+a faster machine; a controller whose telemetry stops for `TELEMETRY_SILENCE_S` ends the wait.
+On real time, or without telemetry, it counts the wall clock.
+
 Modules: teleop_words (parsing, help), teleop_format (output), teleop_motion (motions and
 their ends), teleop_watch (live telemetry), teleop_box (the control box), teleop_clock
 (date-times), this one (the session, scripts, the console).
@@ -35,12 +41,13 @@ from protocol.messages import SCHEMA
 from protocol.reasons import Reason, reason_name
 from protocol.reliable import Outcome
 from protocol.schema import Message
+from protocol.states import TimingMode
 from timebase import RealClock
 
 from host_tools.teleop_box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop_clock import utc_text
-from host_tools.teleop_format import (INDENT, Console, describe_report, failure_lines, format_message, format_outcome,
-                                      format_value, latency)
+from host_tools.teleop_format import (INDENT, Console, failure_lines, format_message, format_outcome,
+                                      format_value, latency, report_lines)
 from host_tools.teleop_motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop_watch import TelemetryCache, arm_block, watch
@@ -54,6 +61,8 @@ __all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_LINK", "LOCAL_COMMANDS"
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
 ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
+TELEMETRY_SILENCE_S = 15.0   # a wait in the controller's time ends if no telemetry comes for this long (wall)
+SIMULATED_TIMINGS = (TimingMode.PACED, TimingMode.LOCKSTEP)
 
 
 class AlignedWatch:
@@ -118,7 +127,7 @@ class Session:
                 lines[0] = self.event_prefix + lines[0]
                 self.console.lines(lines)
         elif msg.spec.name in ("FaultReport", "TimingWarning"):     # said always: why a fault, a slow host
-            self.console.line(f"{self.event_prefix}! {describe_report(msg)}")
+            self.console.lines(report_lines(msg, self.event_prefix))
         elif self.all_events:
             self.console.line(f"{self.event_prefix}! {format_message(msg)}")
 
@@ -229,14 +238,42 @@ class Session:
             watch(self.client, self.telemetry, step.seconds, console, block)
         return True
 
+    def wait(self, predicate: Callable[[], bool], timeout_s: float) -> tuple[bool, float, str]:
+        """Wait for `predicate()`, at most `timeout_s`: (held, seconds waited, "" or why it gave up early).
+
+        The seconds are the controller's when its time is simulated (see the module doc), else the wall
+        clock's.
+        """
+        client, cache = self.client, self.telemetry
+        status = cache.status
+        clock = client.clock
+        start_wall = clock.now()
+        if status is None or status.timing not in SIMULATED_TIMINGS:
+            held = client.wait_for(predicate, timeout_s)
+            return held, clock.now() - start_wall, ""
+        start_ms = status.uptime_ms
+
+        def waited_s() -> float:
+            return (cache.status.uptime_ms - start_ms) / 1000.0
+
+        while True:
+            seen = cache.received
+            if client.wait_for(lambda: predicate() or waited_s() >= timeout_s or cache.received != seen,
+                               TELEMETRY_SILENCE_S):
+                if predicate():
+                    return True, waited_s(), ""
+                if waited_s() >= timeout_s:
+                    return False, waited_s(), ""
+                continue
+            return predicate(), waited_s(), f"no telemetry for {TELEMETRY_SILENCE_S:g} s (wall clock)"
+
     def wait_aligned(self, step: Step) -> bool:
         """Until ALIGNED_READINGS TelemetryTracker in a row, all come after this line began, report a pointing
         error below the line's (one reading alone could pass on the potentiometers' noise); False on timeout,
         without the controller's clock, or on link loss."""
-        client, clock = self.client, self.client.clock
+        client = self.client
         what = f"wait aligned{' ' + step.aligned_axis if step.aligned_axis else ''} {step.aligned_deg:g} deg"
         watch = self._aligned = AlignedWatch(step.aligned_deg, step.aligned_axis)   # fed by _on_telemetry
-        start = clock.now()
 
         def link_down() -> bool:
             return client.io_error is not None or client.link.state is not LinkState.UP
@@ -244,14 +281,15 @@ class Session:
         def settled() -> bool:
             msg = watch.last
             return link_down() or (msg is not None and (not clock_set(msg) or watch.streak >= ALIGNED_READINGS))
-        why = None
+        why, took = None, 0.0
         try:
-            client.wait_for(settled, step.seconds)
+            _, took, why = self.wait(settled, step.seconds)
+            why = why or None
         except KeyboardInterrupt:
             why = "interrupted"
         finally:
             self._aligned = None
-        msg, took = watch.last, clock.now() - start
+        msg = watch.last
         if why is None and msg is not None and watch.streak >= ALIGNED_READINGS:
             self.console.line(f"ok   {what}: {watch.error:.3f} deg after {took:.1f} s (az {msg.error_az:+.3f}, "
                               f"el {msg.error_el:+.3f} deg)")
@@ -273,7 +311,7 @@ class Session:
 
     def wait_motions(self, axis: int, timeout_s: float) -> bool:
         """Until every motion this session started on `axis` (or any) has ended; False on timeout or link loss."""
-        client, tracker, clock = self.client, self.tracker, self.client.clock
+        client, tracker = self.client, self.tracker
         name = axis_word(axis)
         waiting = tracker.running(axis)
         if not waiting:
@@ -282,18 +320,18 @@ class Session:
         jogs = [m.label for m in waiting if m.kind == "Jog"]
         if jogs:
             self.console.line(f"     ({', '.join(jogs)}: a jog ends only with `stop` or at a soft limit)")
-        start = clock.now()
 
         def link_down() -> bool:
             return client.io_error is not None or client.link.state is not LinkState.UP
-        why = None
+        why, took = None, 0.0
         try:
-            client.wait_for(lambda: not tracker.running(axis) or link_down(), timeout_s)
+            _, took, why = self.wait(lambda: not tracker.running(axis) or link_down(), timeout_s)
+            why = why or None
         except KeyboardInterrupt:
             why = "interrupted"
         left = tracker.running(axis)
         if not left:
-            self.console.line(f"ok   wait {name}: {len(waiting)} motion(s) ended ({clock.now() - start:.1f} s)")
+            self.console.line(f"ok   wait {name}: {len(waiting)} motion(s) ended ({took:.1f} s)")
             return True
         why = why or ("the link is down" if link_down() else f"timed out after {timeout_s:g} s")
         self.console.lines([f"FAIL wait {name}: {why}"] + still_running_lines(left, INDENT))

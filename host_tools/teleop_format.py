@@ -158,6 +158,11 @@ def time_summary(timing: int, rtf_recent: float, lag_ms: float) -> str:
     return f"time {mode}: {rtf_recent:.2f}x real time over the last second, lag {lag_ms:.1f} ms"
 
 
+def report_lines(msg: Message, prefix: str = "") -> list[str]:
+    """A FaultReport or TimingWarning as teleop prints it: `! ...`, wrapped to the console's width."""
+    return textwrap.wrap(describe_report(msg), WIDTH, initial_indent=prefix + "! ", subsequent_indent="  ")
+
+
 def describe_report(msg: Message) -> str:
     """A FaultReport or TimingWarning in words: what was measured, against which limit (its parameter)."""
     if msg.spec.name == "FaultReport":

@@ -1,0 +1,88 @@
+"""A real-time teleop session of arm moves on a machine the test keeps busy: every motion ends DONE.
+
+The test starts CPU hogs of its own (one per core, so that every core of the machine is kept
+busy whatever else runs), then runs `aspod sim` and a scripted `aspod teleop` over a
+real pty, in one process and with the plant as a separate process in lock-step over udp_multicast.
+Under such load the world runs slower than real time (it says so: TimingWarning), but it never
+faults for it. Bounds are about behaviour, and the time limits are generous (the lock-step pair
+runs at a fraction of real time on a machine this busy).
+"""
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.pty
+ASPOD = [sys.executable, "-m", "host_tools.cli"]
+# Relative moves (no homing needed), three joints at once, out and back: 6 motion ends in all.
+SCRIPT = """\
+enable
+moveby j1 4
+moveby j2 -3
+moveby mount 3
+wait all 600
+moveby j1 -4
+moveby j2 3
+moveby mount -3
+wait all 600
+status
+"""
+MOTIONS = 6
+
+
+@pytest.fixture
+def hogs():
+    """CPU hogs started and stopped by the test: one per core."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 2)]
+    yield procs
+    for proc in procs:
+        proc.kill()
+        proc.wait()
+
+
+def first_lines(proc: subprocess.Popen, count: int, timeout_s: float = 120.0) -> list[str]:
+    lines, buffer = [], bytearray()
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while len(lines) < count:
+            if not sel.select(timeout_s):
+                raise AssertionError(f"aspod sim printed nothing for {timeout_s} s (so far {lines})")
+            byte = proc.stdout.read(1)
+            if not byte:
+                raise AssertionError(f"aspod sim exited: {proc.stderr.read().decode()}")
+            buffer += byte
+            if byte == b"\n":
+                lines.append(buffer.decode().strip())
+                buffer.clear()
+    return lines
+
+
+@pytest.mark.parametrize("mode", [(), ("--hal", "udp_multicast")], ids=["one-process", "lockstep-processes"])
+def test_a_session_of_arm_moves_on_a_busy_machine_ends_every_motion_done_without_a_fault(mode, hogs, tmp_path):
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
+    sim = subprocess.Popen(ASPOD + ["sim", "--pty", "--params", str(tmp_path / "params.json"), *mode],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, bufsize=0)
+    try:
+        link, _key = first_lines(sim, 2)
+        url = link.split(" ", 1)[1]
+        done = subprocess.run(ASPOD + ["teleop", url, "--connect-timeout", "60"], input=SCRIPT.encode(),
+                              capture_output=True, env=env, timeout=900)
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        try:
+            _, err = sim.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            sim.kill()
+            _, err = sim.communicate()
+    out, err = done.stdout.decode(), err.decode()
+    assert done.returncode == 0, out + done.stderr.decode() + err
+    ends = re.findall(r"! (\w+)#\d+ (\w+) at ", out)
+    assert len(ends) == MOTIONS and {outcome for _, outcome in ends} == {"DONE"}, out
+    assert "state=ENABLED faults=none" in out and "FAULT" not in out, out
+    assert "-> FAULT" not in err and "HAL_STALE" not in err, err
