@@ -6,10 +6,10 @@ host talks to the controller over a real pty. Bounds are generous (tens of secon
 the assertions are about behaviour, not speed. If udp_multicast does not work here (no
 msgpack, no multicast on loopback), a real probe says so and the sessions are skipped.
 
-The controller's `hal_stale_s` is set to 0.5 s (default 0.1 s) through its parameter
-file: with plant, controller, host and pytest sharing a small machine, a process can be
-descheduled for 100 ms, which would be a true HAL_STALE but not the one these tests are
-about (docs/separate_processes.md).
+Plant and controller run in lock-step (the default): however long either process is
+descheduled on a busy machine, the other's time waits for it, so no staleness check can trip
+on it; a plant that has gone for good is HAL_STALE after `lockstep_wait_s` of wall time
+(docs/realtime.md).
 """
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def env(tmp_path):
 @pytest.fixture
 def params_file(tmp_path) -> Path:
     path = tmp_path / "params.json"
-    path.write_text(json.dumps({"version": 1, "params": {"hal_stale_s": 0.5}}))
+    path.write_text(json.dumps({"version": 1, "params": {}}))
     return path
 
 
@@ -207,7 +207,7 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     assert seen["bad_frames"] == 0 and seen["bus_errors"] == 0
 
     firmware.wait_stderr(r"ENABLED -> FAULT \(HAL_STALE\), faults HAL_STALE")
-    client.wait_for(lambda: False, 1.0)                    # twice hal_stale_s since the plant went: stale for sure
+    client.wait_for(lambda: False, 1.0)                    # the plant stays gone: the cause is still there
     reply = status(client)
     assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
     assert reply.safe_reason == Reason.HAL_STALE
@@ -236,13 +236,18 @@ def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_
 
     os.kill(plant_pid, signal.SIGKILL)                     # no goodbye, no counters
     sim.wait_stderr(rf"the plant process \(pid {plant_pid}\) ended: killed by SIGKILL")
+    # the controller's time stands still without its plant: the wall clock says how long it has waited
+    silent = sim.wait_stderr(r"FAULT HAL_STALE \(HAL_STALE\): lock-step: no tick from the plant .*: ([\d.]+) ms "
+                             r"against a limit of 2000.0 ms \(parameter lockstep_wait_s\)")
+    assert float(silent.group(1)) >= 2000.0
     sim.wait_stderr(r"ENABLED -> FAULT \(HAL_STALE\)")
     reply = status(client)
     assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
     client.close()
     code, err = sim.stop()
     assert code == 0, err
-    assert "HAL counters" in err
+    lockstep = re.search(r"HAL counters .*ctrl_syncs=(\d+) resyncs=(\d+)", err)
+    assert lockstep and int(lockstep.group(1)) > 0 and lockstep.group(2) == "0", err     # it ran in lock-step
 
 
 def test_stopping_sim_with_hal_stops_its_plant_which_saw_the_controller(multicast_works, procs, clients,
