@@ -226,12 +226,12 @@ def build_parser() -> argparse.ArgumentParser:
 def host_key(path: Optional[Path]) -> bytes:
     """The key a host tool uses: --key-file, else the development key that `aspod sim` made."""
     if path is not None:
-        return auth.load_key(path)
+        return auth.load_key(path, "--key-file")
     default = auth.default_key_path()
     if not default.exists():
         raise KeyFileError(f"no key file given and no development key at {default}: "
                            "start `aspod sim` once (it creates it) or pass --key-file")
-    return auth.load_key(default)
+    return auth.load_key(default, "development key")
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:

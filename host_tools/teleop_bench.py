@@ -96,6 +96,7 @@ class BenchClient:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     from host_tools.teleop import EXIT_USAGE, run_script
     from host_tools.teleop_clock import parse_when
+    from host_tools.teleop_words import read_script
     parser = argparse.ArgumentParser(prog="python -m host_tools.teleop_bench",
                                      description="run a teleop script against a whole world on the simulated clock")
     parser.add_argument("script", type=Path)
@@ -106,12 +107,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--keep-going", action="store_true")
     args = parser.parse_args(argv)
     try:
-        lines = args.script.read_text(encoding="utf-8").splitlines()
+        lines = read_script(args.script, option="script")
         start = parse_when(args.sun_start, "--sun-start", posix=False)
         if start is None:
             raise ValueError("--sun-start: a simulated run needs a date-time, not `now`")
         bench = LockstepBench(seed=args.seed, start=start, clouds=args.clouds)
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except (OSError, ValueError) as exc:     # TeleopError included
         print(f"teleop_bench: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:

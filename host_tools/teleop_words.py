@@ -15,8 +15,10 @@ from __future__ import annotations
 import shlex
 import textwrap
 from dataclasses import dataclass
-from typing import Optional
+from pathlib import Path
+from typing import BinaryIO, Optional
 
+from protocol import files
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Field, Message, MessageSpec
@@ -38,6 +40,7 @@ HELP_WIDTH = 96
 TRACKER_AXES = ("az", "el")
 WATCH_VIEWS = ("box",)          # `watch box`; plain `watch` is the arm
 EXPECTABLE = tuple(r.name for r in Reason if r is not Reason.OK)
+SCRIPT_LIMIT = 4 * files.MIB    # a script of ~100,000 lines; checked whole before it runs
 
 LOCAL_COMMANDS = {
     "help": "help [command]: list the commands, or describe one",
@@ -322,6 +325,22 @@ def _parse_expect(step: Step) -> Step:
                           f"(e.g. `expect {name} switch speed on`)")
     inner.expect, inner.text = Reason[name], step.text
     return inner
+
+
+def read_script(path: Optional[Path], stdin: Optional[BinaryIO] = None, option: str = "--script") -> list[str]:
+    """The lines of a script: the regular file `path` (named by `option`), or else all of `stdin` (a pipe, say);
+    at most SCRIPT_LIMIT bytes of UTF-8 text. TeleopError naming the option and the file, else."""
+    source = f"{option} {path}" if path is not None else "standard input"
+    try:
+        if path is not None:
+            raw = files.read_bounded(path, SCRIPT_LIMIT)
+        else:
+            raw = files.read_stream_bounded(stdin, SCRIPT_LIMIT, "standard input")
+        return raw.decode("utf-8").splitlines()
+    except files.InputFileError as exc:
+        raise TeleopError(f"{option} {exc}" if path is not None else str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise TeleopError(f"{source}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
 
 
 def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:

@@ -1,0 +1,108 @@
+"""Bad input at the real command line: files that are not files, numbers out of bounds, unknown keywords.
+
+Everything runs the real `aspod` as a subprocess: what is refused exits 2 with a reason that
+names the option and what was wrong, before anything starts; nothing hangs or fills memory
+(every run has a time bound far above what a refusal takes, so that a hang fails the test
+instead of stalling the suite).
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+
+import pytest
+import test_e2e
+from test_e2e import ASPOD, Sim
+
+from firmware_py.params import PARAMS_FILE_LIMIT
+from host_tools.teleop_words import SCRIPT_LIMIT
+from protocol import auth, files
+
+pytestmark = pytest.mark.pty
+REFUSAL_S = 60.0      # a refusal takes a second or two; a hang or an endless read would take forever
+NOWHERE = "socket://127.0.0.1:9"     # never reached: the input is refused before any connection
+env = test_e2e.env                   # the fixture: a private per-user config directory
+
+
+def aspod(env: dict, *args: str, stdin=subprocess.DEVNULL) -> subprocess.CompletedProcess:
+    return subprocess.run(ASPOD + list(args), capture_output=True, env=env, stdin=stdin, timeout=REFUSAL_S)
+
+
+@pytest.fixture
+def dev_env(env, tmp_path):
+    """The private config directory with its development key (as `aspod sim` leaves it)."""
+    auth.load_or_create_dev_key(tmp_path / "config" / "aspod" / "dev.key")
+    return env
+
+
+def special_file(kind: str, tmp_path, limit: int) -> str:
+    """A path that no input may be: an endless device, a FIFO, a directory, a regular file one byte too large."""
+    if kind in ("/dev/zero", "/dev/urandom"):
+        return kind
+    path = tmp_path / kind
+    if kind == "fifo":
+        os.mkfifo(path)        # nobody ever writes to it: opening it for reading would wait forever
+    elif kind == "directory":
+        path.mkdir()
+    else:
+        path.write_bytes(b"#" * (limit + 1))
+    return str(path)
+
+
+KINDS = ("/dev/zero", "fifo", "directory", "too-large")
+WHY = {"/dev/zero": "a character device, not a regular file", "/dev/urandom": "a character device, not a regular file",
+       "fifo": "a FIFO (named pipe), not a regular file", "directory": "a directory, not a regular file",
+       "too-large": "larger than"}
+
+
+@pytest.mark.parametrize("kind", KINDS + ("/dev/urandom",))
+@pytest.mark.parametrize("command, option, limit", [
+    (("teleop", NOWHERE), "--key-file", auth.KEY_FILE_LIMIT),
+    (("sim", "--tcp", "0"), "--key-file", auth.KEY_FILE_LIMIT),
+    (("sim", "--tcp", "0"), "--params", PARAMS_FILE_LIMIT),
+    (("teleop", NOWHERE), "--script", SCRIPT_LIMIT),
+])
+def test_a_file_input_that_is_not_a_small_regular_file_exits_2_naming_the_option_and_the_file(
+        dev_env, tmp_path, kind, command, option, limit):
+    if kind == "/dev/urandom" and command[0] == "sim" and option == "--params":
+        pytest.skip("one endless device per option is enough")
+    path = special_file(kind, tmp_path, limit)
+    done = aspod(dev_env, *command, option, path)
+    err = done.stderr.decode()
+    assert done.returncode == 2, err
+    assert f"{option} {path}: {WHY[kind]}" in err
+    if kind == "too-large":
+        assert files.size_text(limit) in err
+    assert "ASPOD-LINK" not in done.stdout.decode()       # nothing was started
+
+
+def test_a_file_input_at_its_limit_is_read(tmp_path):
+    path = tmp_path / "exact"
+    path.write_bytes(b"x" * 1000)
+    assert files.read_bounded(path, 1000) == b"x" * 1000
+    with pytest.raises(files.InputFileError) as err:
+        files.read_bounded(path, 999)
+    assert err.value.refused and "larger than 999 bytes" in str(err.value)
+    with pytest.raises(files.InputFileError) as err:
+        files.read_bounded(tmp_path / "absent", 1000)
+    assert err.value.missing and not err.value.refused
+
+
+def test_an_endless_script_on_standard_input_is_refused(dev_env):
+    with open("/dev/zero", "rb") as endless:
+        done = aspod(dev_env, "teleop", NOWHERE, stdin=endless)
+    assert done.returncode == 2
+    assert f"standard input: larger than {files.size_text(SCRIPT_LIMIT)}" in done.stderr.decode()
+
+
+def test_a_damaged_small_parameter_file_is_reported_and_the_defaults_stay(env, tmp_path):
+    params = tmp_path / "params.json"
+    params.write_text("{not json")
+    sim = Sim(env, "--tcp", "0", "--params", str(params))
+    try:
+        done = sim.teleop("get telemetry_hz\n")
+        assert done.returncode == 0, done.stderr.decode()
+        assert "value=10.00" in done.stdout.decode()
+    finally:
+        sim.stop()
+    assert f"parameters: {params}: Expecting property name" in sim.proc.stderr.read().decode()
