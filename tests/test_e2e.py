@@ -216,3 +216,39 @@ def test_teleop_reads_sets_and_saves_parameters(sim_factory, tmp_path):
     assert '"telemetry_hz": 5' in params.read_text()
     done = sim.teleop("set supply_min_v 99\n")
     assert done.returncode == 1 and "OUT_OF_RANGE" in done.stdout.decode()
+
+
+def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the_line(sim_factory):
+    """Another local process connects while the genuine host's session is live and writes garbage: it is
+    closed at once, the genuine session goes on undisturbed; when the genuine host leaves, the next connects."""
+    import socket
+    sim = sim_factory("--tcp", "0")
+    host, port = sim.url[len("socket://"):].rsplit(":", 1)
+    genuine = sim.client()
+    try:
+        assert genuine.call(M["Ping"](1)).ok
+        intruder = socket.create_connection((host, int(port)), timeout=30)
+        try:
+            intruder.sendall(random_bytes(4096))
+            try:
+                assert intruder.recv(1) == b""          # closed by the controller's port ...
+            except ConnectionResetError:
+                pass                                    # ... with its unread garbage thrown away
+        finally:
+            intruder.close()
+        for token in range(2, 7):
+            assert genuine.call(M["Ping"](token)).ok, genuine.io_error
+        status = genuine.call(M["GetStatus"]()).reply
+        assert not status.faults & Fault.LINK_LOST
+        assert genuine.wait_for(lambda: genuine.link.peer_stats is not None, 10.0)
+        before = genuine.link.peer_stats_s
+        assert genuine.wait_for(lambda: genuine.link.peer_stats_s != before, 10.0)   # a heartbeat after it all
+        assert genuine.link.peer_stats.crc_errors == 0     # none of the intruder's bytes reached the link
+        assert genuine.io_error is None and genuine.link.stats.auth_errors == 0
+    finally:
+        genuine.close()
+    following = sim.client()          # the genuine host left: the next one gets the line at once
+    try:
+        assert following.call(M["Ping"](7)).ok
+    finally:
+        following.close()
