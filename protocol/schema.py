@@ -16,7 +16,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Optional
 
-from protocol.errors import EncodeError, ParseError
+from protocol.errors import EncodeError, ParseError, shown
 from protocol.reasons import Reason
 
 
@@ -49,6 +49,7 @@ _TYPES: dict[str, tuple[str, tuple[float, float] | None]] = {
     "bool": ("B", (0, 1)),     # one byte, 0 or 1 (a struct "?" would read any non-zero byte as True)
 }
 _F32 = struct.Struct("<f")
+F32_MAX = _F32.unpack(b"\xff\xff\x7f\x7f")[0]     # the largest finite float32, 3.4028235e38
 _NAME = re.compile(r"[A-Za-z0-9_.\-]*")
 
 
@@ -121,13 +122,18 @@ class Field:
             return None
         if self.type.startswith("str"):
             if not isinstance(value, str) or len(value) > self.text_size or not _NAME.fullmatch(value):
-                return f"{self.name}={value!r} is not a name of up to {self.text_size} of A-Z a-z 0-9 _ . -"
+                what = shown(value) if isinstance(value, str) else repr(value)
+                return f"{self.name}={what} is not a name of up to {self.text_size} of A-Z a-z 0-9 _ . -"
             return None
         if self.type == "bool" and value not in (0, 1):
             return f"{self.name}={value} is not 0 or 1"
         if self.type == "f32":
             if not math.isfinite(value):
                 return f"{self.name} is not a finite number ({value})"
+            try:
+                _round_f32(value)
+            except OverflowError:
+                return f"{self.name}={value:g} does not fit in f32 (at most {F32_MAX:g} either side of 0)"
         if self.range is not None:
             lo, hi = self.range
             if not lo <= value <= hi:

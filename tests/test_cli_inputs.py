@@ -106,3 +106,41 @@ def test_a_damaged_small_parameter_file_is_reported_and_the_defaults_stay(env, t
     finally:
         sim.stop()
     assert f"parameters: {params}: Expecting property name" in sim.proc.stderr.read().decode()
+
+
+# ---- teleop scripts: checked whole, fast, before anything is sent -------------------------------------------
+
+def run_script(env: dict, script: str) -> subprocess.CompletedProcess:
+    """A script on standard input against a URL nobody serves: a run that got past the check would exit 3."""
+    return subprocess.run(ASPOD + ["teleop", NOWHERE], input=script.encode(), capture_output=True, env=env,
+                          timeout=REFUSAL_S)
+
+
+def test_a_value_that_overflows_a_float32_is_refused_by_the_script_check(dev_env):
+    done = run_script(dev_env, "estop\nset telemetry_hz 5\nset j1_kp 1e39\n")
+    err = done.stderr.decode()
+    assert done.returncode == 2, err
+    assert "line 3: value=1e+39 does not fit in f32" in err and "nothing was sent" in err
+
+
+def test_a_megabyte_word_is_refused_at_once_and_not_echoed_whole(dev_env):
+    from timebase import RealClock
+    word = "x" * (3 << 20)                  # 3 MiB: shlex took minutes on it; the check refuses it by its length
+    clock = RealClock()
+    start = clock.now()
+    done = run_script(dev_env, f"ping\n{word}\n")
+    took = clock.now() - start
+    err = done.stderr.decode()
+    assert done.returncode == 2, err[:500]
+    assert "line 2: 'xxxx" in err and f"... ({len(word)} chars) is longer than any command" in err
+    assert len(err) < 1000
+    assert took < 30.0, f"{took:.1f} s to refuse it"     # a python start-up and a length check
+
+
+@pytest.mark.parametrize("script, message", [
+    ("ping\nhelp nosuch\n", "line 2: help: no command 'nosuch'"),
+    ("help stauts\n", "(did you mean `status`?)"),
+])
+def test_help_on_an_unknown_topic_is_bad_input(dev_env, script, message):
+    done = run_script(dev_env, script)
+    assert done.returncode == 2 and message in done.stderr.decode(), done.stderr.decode()
