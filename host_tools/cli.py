@@ -9,7 +9,7 @@
     aspod demo [--json] [--gravity earth|orbit]
     aspod tracker-day [--mode relay|feedforward] [--dial X] [--date YYYY-MM-DD] [--clouds SPEC] [--json] [--plot F]
 
-Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused or unreachable.
+Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused, unreachable or lost.
 """
 from __future__ import annotations
 

@@ -148,3 +148,10 @@ def failure_lines(handle: CommandHandle, extra: Optional[list[str]] = None) -> l
     detail = f" ({handle.detail})" if handle.detail else ""
     head = f"FAIL {handle.msg.spec.name}: {handle.outcome.value}: {reason_name(reason)} ({reason}){detail}"
     return [head + latency(handle)] + reason_lines(reason) + (extra or [])
+
+
+def link_down_lines(handle: CommandHandle, cause: str) -> list[str]:
+    """A command that never got its answer because the link went down: the link's trouble, not the retry limit."""
+    return ([f"FAIL {handle.msg.spec.name}: no answer, the link is down: {cause}"]
+            + wrap("its outcome is unknown: once the line is sound, `connect` again and read `status` before "
+                   "sending it again"))

@@ -348,8 +348,8 @@ def _parse_expect(step: Step) -> Step:
     if name == "OK":
         raise TeleopError(f"line {n}: expect OK: write the command alone; a script fails when a command is refused")
     if name not in EXPECTABLE:
-        raise TeleopError(f"line {n}: expect: {shown(args[0])} is not a reason code (e.g. DIAL_NOT_LOW, SWITCH_POSITION, "
-                          "SOFT_LIMIT; `help expect`)")
+        raise TeleopError(f"line {n}: expect: {shown(args[0])} is not a reason code (e.g. DIAL_NOT_LOW, "
+                          "SWITCH_POSITION, SOFT_LIMIT; `help expect`)")
     if len(args) > 1 and args[1].lower() == "expect":
         raise TeleopError(f"line {n}: expect {name}: one command follows the reason, not another `expect`")
     rest = " ".join(shlex.quote(a) for a in args[1:])

@@ -17,6 +17,7 @@ import serial
 
 from host_tools.client import HostClient
 from protocol import auth
+from protocol.errors import LinkError
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
@@ -63,6 +64,16 @@ class Sim:
     def teleop(self, script: str, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
         return subprocess.run(ASPOD + ["teleop", self.url, *args], input=script.encode(), capture_output=True,
                               env=self.env, timeout=timeout_s)
+
+    def teleop_started(self, script: str) -> subprocess.Popen:
+        """`aspod teleop` running `script` in the background, once it has printed its first Pong."""
+        host = subprocess.Popen(ASPOD + ["teleop", self.url], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, env=self.env, bufsize=0)
+        host.stdin.write(script.encode())
+        host.stdin.close()
+        while "ok   Pong" not in read_line(host):
+            pass
+        return host
 
     def client(self) -> HostClient:
         client = HostClient(self.url, auth.load_key(self.key_path))
@@ -252,3 +263,40 @@ def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the
         assert following.call(M["Ping"](7)).ok
     finally:
         following.close()
+
+
+def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
+    sim = sim_factory("--tcp", "0")
+    host = sim.teleop_started("ping\nwait 5\nping\nping\n")
+    sim.proc.kill()                               # the controller's end of the socket closes
+    sim.proc.wait(timeout=10)
+    assert host.wait(timeout=60) == 3
+    out, err = host.stdout.read().decode(), host.stderr.read().decode()
+    assert f"FAIL Ping: no answer, the link is down: {sim.url}: " in out and "socket disconnected" in out
+    assert f"error: line 3: 'ping': the link is down: {sim.url}: " in err
+    assert "retry limit" not in out + err
+
+
+def test_a_second_host_on_the_pty_is_named_as_the_trouble_and_exits_3(sim_factory):
+    """Two hosts on one pty steal each other's frames; the one whose session was replaced says so."""
+    sim = sim_factory("--pty")
+    first = sim.teleop_started("ping\nwait 8\nping\n")
+    second = None
+    for _attempt in range(10):                    # its HelloReply may be read by the first host: try again
+        try:
+            second = sim.client()
+            break
+        except LinkError:
+            continue
+    assert second is not None, "the second host never got a session"
+    try:
+        assert first.wait(timeout=90) == 3
+        out, err = first.stdout.read().decode(), first.stderr.read().decode()
+        # the cause as this end saw it: frames under another session's key, or (pyserial's words, when the other
+        # host read the bytes this one was woken for) "multiple access on port?"
+        assert "FAIL Ping: no answer, the link is down: " in out
+        assert "another program seems to be writing on the line" in err or "multiple access on port" in err, err
+        assert "error: line 3: 'ping': the link is down: " in err
+        assert "retry limit" not in out + err
+    finally:
+        second.close()
