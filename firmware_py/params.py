@@ -124,6 +124,6 @@ class ParamStore:
                 os.fsync(directory)
             finally:
                 os.close(directory)
-        except OSError as exc:
-            return Reason.SAVE_FAILED, f"{self.path}: {exc}"
+        except OSError as exc:    # the reason first (a short reply carries it to the host), then the path
+            return Reason.SAVE_FAILED, f"{exc.strerror or exc}: {exc.filename or self.path}"
         return Reason.OK, ""

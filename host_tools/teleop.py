@@ -186,6 +186,8 @@ class Session:
             return f"ok   controller clock set to {utc_text(msg.utc_s)[:-1]}.{msg.utc_ms:03d}Z{latency(handle)}"
         if handle.reply is not None and handle.reply.spec.name == "BoxState":
             return f"ok   {box_state_text(handle.reply)}{latency(handle)}"
+        if handle.reply is not None and handle.reply.spec.name == "ParamSaved":
+            return f"ok   parameters saved to {handle.reply.detail}{latency(handle)}"
         return format_outcome(handle)
 
     def _hints(self, msg: Message, step: Step, handle) -> list[str]:

@@ -145,7 +145,8 @@ def format_outcome(handle: CommandHandle) -> str:
 
 def failure_lines(handle: CommandHandle, extra: Optional[list[str]] = None) -> list[str]:
     reason = int(handle.reason)
-    detail = f" ({handle.detail})" if handle.detail else ""
+    detail = handle.detail or getattr(handle.reply, "detail", "")    # the link's, or the reply's own (ParamSaved)
+    detail = f" ({detail})" if detail else ""
     head = f"FAIL {handle.msg.spec.name}: {handle.outcome.value}: {reason_name(reason)} ({reason}){detail}"
     return [head + latency(handle)] + reason_lines(reason) + (extra or [])
 

@@ -300,3 +300,17 @@ def test_a_second_host_on_the_pty_is_named_as_the_trouble_and_exits_3(sim_factor
         assert "retry limit" not in out + err
     finally:
         second.close()
+
+
+def test_a_failed_save_shows_the_operating_systems_reason_at_teleop(sim_factory, tmp_path):
+    params = tmp_path / "params.json"
+    (tmp_path / "params.json.tmp").mkdir()        # where the save writes first: it cannot (root or not)
+    sim = sim_factory("--pty", "--params", str(params))
+    done = sim.teleop("set telemetry_hz 5\nsave\n")
+    out = done.stdout.decode()
+    assert done.returncode == 1, done.stderr.decode() + out
+    assert f"FAIL ParamSave: rejected: SAVE_FAILED (26) (Is a directory: {params}.tmp)" in out
+    assert not params.exists()
+    (tmp_path / "params.json.tmp").rmdir()
+    done = sim.teleop("save\n")
+    assert done.returncode == 0 and f"ok   parameters saved to {params}" in done.stdout.decode()
