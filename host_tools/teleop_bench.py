@@ -94,6 +94,7 @@ class BenchClient:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    from host_tools.cli import add_seed_arg
     from host_tools.teleop import EXIT_USAGE, run_script
     from host_tools.teleop_clock import parse_when
     from host_tools.teleop_words import read_script
@@ -103,7 +104,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--sun-start", default="2026-03-20T06:50-07:00", metavar="ISO",
                         help="the plant's sun at start (default 2026-03-20T06:50-07:00, the March equinox at sunrise)")
     parser.add_argument("--clouds", default=None, metavar="SPEC", help="cloud passages, as `aspod sim --clouds`")
-    parser.add_argument("--seed", type=int, default=0)
+    add_seed_arg(parser, "the plant's noise and the link's nonces")
     parser.add_argument("--keep-going", action="store_true")
     args = parser.parse_args(argv)
     try:

@@ -144,3 +144,25 @@ def test_a_megabyte_word_is_refused_at_once_and_not_echoed_whole(dev_env):
 def test_help_on_an_unknown_topic_is_bad_input(dev_env, script, message):
     done = run_script(dev_env, script)
     assert done.returncode == 2 and message in done.stderr.decode(), done.stderr.decode()
+
+
+# ---- numeric options name themselves and their bounds -------------------------------------------------------
+
+@pytest.mark.parametrize("args, message", [
+    (["sim", "--seed", "-1"], "argument --seed: -1 is outside 0..4294967295"),
+    (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--seed", "4294967296"],
+     "argument --seed: 4294967296 is outside 0..4294967295"),
+    (["demo", "--seed", "many"], "argument --seed: 'many' is not a whole number in 0..4294967295"),
+    (["tracker-day", "--seed", "-7"], "argument --seed: -7 is outside 0..4294967295"),
+    (["sim", "--loop-hz", "nan"], "argument --loop-hz: nan is outside 50.0..5000.0"),
+    (["sim", "--baud", "fast"], "argument --baud: 'fast' is not a whole number; one of 9600, 19200"),
+    (["teleop", NOWHERE, "--connect-timeout", "soon"],
+     "argument --connect-timeout: 'soon' is not a number in 0.1..600"),
+    (["tracker-day", "--dial", "-5"], "--dial '-5': outside 0..100 %"),
+    (["tracker-day", "--dial", "40,x"], "--dial '40,x': not a number of percent, 0..100"),
+    (["tracker-day", "--param", "trk_deadband_mv=1e39"], "--param trk_deadband_mv=1e+39 outside 0..100 mV"),
+])
+def test_a_numeric_option_out_of_bounds_names_itself_and_its_bounds(env, args, message):
+    done = aspod(env, *args)
+    assert done.returncode == 2, done.stderr.decode()
+    assert message in done.stderr.decode()
