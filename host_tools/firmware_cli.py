@@ -166,7 +166,7 @@ def run_firmware(args: argparse.Namespace) -> int:
 def run_sim_over_hal(args: argparse.Namespace) -> int:
     """`aspod sim --hal INTERFACE [--hal-channel CH]`: `aspod plant` as a child, the controller here."""
     interface = nodes.check_interface(args.hal, between_processes=True)
-    options = nodes.parse_bus_args(args.hal_arg or ())
+    options = nodes.parse_bus_args(args.hal_arg or (), interface, "--hal-arg")
     channel = args.hal_channel
     if channel is None:
         if interface != "udp_multicast":

@@ -166,3 +166,28 @@ def test_a_numeric_option_out_of_bounds_names_itself_and_its_bounds(env, args, m
     done = aspod(env, *args)
     assert done.returncode == 2, done.stderr.decode()
     assert message in done.stderr.decode()
+
+
+# ---- bus keywords: python-can would ignore a misspelt one ---------------------------------------------------
+
+@pytest.mark.parametrize("args, message", [
+    (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "nonsense_kw=1"],
+     "--bus-arg nonsense_kw: the udp_multicast bus takes no such keyword; it takes can_filters, config_context, "
+     "fd, hop_limit, ignore_config, port, receive_own_messages"),
+    (["firmware", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "prot=5000"],
+     "--bus-arg prot: the udp_multicast bus takes no such keyword"),
+    (["sim", "--hal", "udp_multicast", "--hal-arg", "nonsense_kw=1"],
+     "--hal-arg nonsense_kw: the udp_multicast bus takes no such keyword"),
+])
+def test_an_unknown_bus_keyword_is_refused_with_the_known_ones(env, args, message):
+    done = aspod(env, *args)
+    assert done.returncode == 2, done.stderr.decode()
+    assert message in done.stderr.decode()
+
+
+def test_bus_keywords_come_from_the_constructor_and_for_kwargs_buses_from_their_documentation():
+    from host_tools import nodes
+    assert {"port", "hop_limit", "fd", "can_filters"} <= nodes.bus_keywords("udp_multicast")
+    assert "channel" not in nodes.bus_keywords("udp_multicast")
+    assert {"device_id", "bitrate", "fd", "f_clock_mhz", "data_brp"} <= nodes.bus_keywords("pcan")   # fd: **kwargs
+    assert nodes.parse_bus_args(["port=5000", "hop_limit=2"], "udp_multicast") == {"port": 5000, "hop_limit": 2}
