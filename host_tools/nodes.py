@@ -156,6 +156,9 @@ def open_bus(interface: str, channel: str, *, node: Optional[str] = None, bitrat
     except (can.CanError, OSError, ImportError) as exc:
         raise BusOpenError(f"cannot open the {interface} bus on channel {channel!r}: {exc}"
                            + (f" ({exc.__cause__})" if exc.__cause__ else "")) from exc
+    except Exception as exc:     # a driver that fails in its own way (python-can's kvaser without canlib: NameError)
+        raise BusOpenError(f"cannot open the {interface} bus on channel {channel!r}: its python-can driver failed "
+                           f"({type(exc).__name__}: {exc}); is the vendor's library installed?") from exc
     if node is not None and interface in ECHOES_OWN_FRAMES:
         return OwnEchoFilter(bus, node)   # type: ignore[return-value]
     return bus

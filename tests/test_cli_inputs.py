@@ -191,3 +191,11 @@ def test_bus_keywords_come_from_the_constructor_and_for_kwargs_buses_from_their_
     assert "channel" not in nodes.bus_keywords("udp_multicast")
     assert {"device_id", "bitrate", "fd", "f_clock_mhz", "data_brp"} <= nodes.bus_keywords("pcan")   # fd: **kwargs
     assert nodes.parse_bus_args(["port=5000", "hop_limit=2"], "udp_multicast") == {"port": 5000, "hop_limit": 2}
+
+
+def test_a_bus_whose_driver_fails_in_its_own_way_is_a_link_problem_not_a_crash(env):
+    """python-can's kvaser bus without the vendor's canlib raises NameError; with it and no device, a CanError."""
+    done = aspod(env, "firmware", "--interface", "kvaser", "--channel", "0")
+    assert done.returncode == 3, done.stderr.decode()
+    assert "cannot open the kvaser bus on channel '0'" in done.stderr.decode()
+    assert "Traceback" not in done.stderr.decode()
