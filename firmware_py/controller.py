@@ -491,8 +491,11 @@ class Controller:
 
     @handles("ParamSave")
     def _param_save(self, msg: Message, now: float) -> Message:
-        reason, _detail = self.params.save()
-        return M["Result"](int(reason))
+        """The file written, or why not (the OS's reason), to the host: `ParamSaved.detail`."""
+        reason, detail = self.params.save()
+        text = detail if reason is not Reason.OK else str(self.params.path)
+        reply = M["ParamSaved"]
+        return reply(int(reason), reply.spec.fields[1].fit(text))
 
     @handles("EStop")
     def _estop(self, msg: Message, now: float) -> Message:

@@ -5,7 +5,9 @@ it, renames it over the target (atomic on POSIX) and fsyncs the directory, so a 
 at any point leaves either the previous set or the new one, never a mix or nothing.
 A load never crashes the controller: a missing file means defaults; an unreadable or
 malformed file, an unknown name or an out-of-range value is reported and skipped,
-and that parameter keeps its default.
+and that parameter keeps its default. The file is read through `protocol.files`: what is
+not a regular file (a FIFO, a device, a directory) or is larger than PARAMS_FILE_LIMIT is
+not read at all (reported; the defaults stay), so a load can neither hang nor fill memory.
 """
 from __future__ import annotations
 
@@ -16,9 +18,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
+from protocol import files
 from protocol.reasons import Reason
 
 FILE_VERSION = 1
+PARAMS_FILE_LIMIT = 256 * files.KIB   # a saved set is a few KiB; a file far larger is not a parameter file
 
 
 @dataclass(frozen=True)
@@ -79,24 +83,28 @@ class ParamStore:
     def load(self) -> list[str]:
         """Read the file, if any; returns (and keeps) the problems found. Never raises."""
         problems: list[str] = []
-        if self.path is None or not self.path.exists():
-            self.load_problems = problems
+        self.load_problems = problems
+        if self.path is None:
             return problems
         try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
+            raw = files.read_bounded(self.path, PARAMS_FILE_LIMIT)
+        except files.InputFileError as exc:
+            if not exc.missing:
+                problems.append(f"{exc}; all parameters keep their defaults")
+            return problems
+        try:
+            data = json.loads(raw.decode("utf-8"))
             if not isinstance(data, dict) or data.get("version") != FILE_VERSION or not isinstance(
                     data.get("params"), dict):
                 raise ValueError(f"not a version-{FILE_VERSION} parameter file")
-        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
             problems.append(f"{self.path}: {exc}; all parameters keep their defaults")
-            self.load_problems = problems
             return problems
         for name, value in data["params"].items():
             reason, detail = self.set(name, value) if isinstance(value, (int, float)) and not isinstance(
                 value, bool) else (Reason.OUT_OF_RANGE, f"{name}: {value!r} is not a number")
             if reason is not Reason.OK:
                 problems.append(f"{self.path}: {detail}; kept the default")
-        self.load_problems = problems
         return problems
 
     def save(self) -> tuple[Reason, str]:
@@ -116,6 +124,6 @@ class ParamStore:
                 os.fsync(directory)
             finally:
                 os.close(directory)
-        except OSError as exc:
-            return Reason.SAVE_FAILED, f"{self.path}: {exc}"
+        except OSError as exc:    # the reason first (a short reply carries it to the host), then the path
+            return Reason.SAVE_FAILED, f"{exc.strerror or exc}: {exc.filename or self.path}"
         return Reason.OK, ""

@@ -72,44 +72,97 @@ class PtyPort:
 
 
 class TcpServerPort:
-    """Listens on 127.0.0.1:`port`; the latest client to connect is the line's other end."""
+    """Listens on 127.0.0.1:`port`; one client at a time is the line's other end.
+
+    Who holds the line: a new connection never displaces a client that carries a live
+    authenticated session; a client that has not brought one (no session since it connected, or
+    its session's link timed out) is displaced by a newer connection, so that an idle squatter
+    cannot lock the genuine host out either. A refused connection is closed at once and counted
+    in `refused`. The port learns about sessions from `live_session`, assigned by whoever builds
+    the controller (host_tools/nodes.py `build_controller`): it returns a token naming the live
+    session (or None when there is none, or its link timed out). The client "brought" the session
+    if the token is not the one that was live when the client connected.
+
+    Every change of client (a new one, or the present one closing) increments `generation`: the
+    paced UART then discards what it still held of the old client's bytes (`PacedUart.receive`),
+    so that nothing the old client wrote reaches the controller as if the new one had sent it.
+    """
+
+    MAX_ACCEPTS_PER_READ = 8    # connections taken (or refused) per read: a flood cannot stall the comms task
 
     def __init__(self, port: int, host: str = "127.0.0.1") -> None:
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._listener.bind((host, port))
-        self._listener.listen(1)
+        self._listener.listen(4)
         self._listener.setblocking(False)
         self._client: Optional[socket.socket] = None
+        self._session_at_connect: object = None    # the live session's token when the client connected
         self.port = self._listener.getsockname()[1]
         self.url = f"socket://{host}:{self.port}"
-        self.connections = 0
+        self.live_session: Callable[[], object] = lambda: None
+        self.connections = 0     # clients that became the line's other end
+        self.refused = 0         # connections closed at once: the present client carries a live session
+        self.generation = 0      # changes of client (connected, replaced, gone)
+
+    def client_has_session(self) -> bool:
+        """The present client brought the live session (it came after the client connected)."""
+        if self._client is None:
+            return False
+        token = self.live_session()
+        return token is not None and token is not self._session_at_connect
 
     def _accept(self) -> None:
-        try:
-            client, _addr = self._listener.accept()
-        except (BlockingIOError, InterruptedError):
-            return
-        client.setblocking(False)
-        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for _ in range(self.MAX_ACCEPTS_PER_READ):
+            try:
+                client, _addr = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:        # a connection reset before it was taken, say
+                continue
+            if self.client_has_session():
+                client.close()
+                self.refused += 1
+                continue
+            client.setblocking(False)
+            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._drop_client()
+            self._client = client
+            self._session_at_connect = self.live_session()
+            self.connections += 1
+
+    def _drop_client(self) -> None:
         if self._client is not None:
             self._client.close()
-        self._client = client
-        self.connections += 1
+            self._client = None
+            self.generation += 1
 
     def read(self, max_bytes: int) -> bytes:
-        self._accept()
-        if self._client is None:
-            return b""
+        """The present client's bytes; then new connections are taken or refused. Bytes of a client that
+        left or was replaced during this read are not returned (they were not the new client's)."""
+        generation = self.generation
+        data = self._receive(max_bytes) if self._client is not None else b""
+        self._accept()     # after the present client's end of stream, if it came, was seen
+        return data if self.generation == generation else b""
+
+    def _receive(self, max_bytes: int) -> bytes:
+        """Up to `max_bytes` from the present client; the client is dropped at its end of stream."""
         try:
             data = self._client.recv(max_bytes)
         except (BlockingIOError, InterruptedError):
             return b""
         except OSError:
             data = b""
-        if not data:
-            self._client.close()
-            self._client = None
+        gone = not data
+        if data and len(data) < max_bytes:      # all it had: has it closed behind them?
+            try:
+                gone = self._client.recv(1, socket.MSG_PEEK) == b""
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                gone = True
+        if gone:
+            self._drop_client()
         return data
 
     def write(self, data: bytes) -> int:
@@ -120,8 +173,7 @@ class TcpServerPort:
         except (BlockingIOError, InterruptedError):
             return 0
         except OSError:
-            self._client.close()
-            self._client = None
+            self._drop_client()
             return len(data)
 
     def close(self) -> None:
@@ -202,6 +254,8 @@ class PacedUart:
         self.paced = paced
         self.byte_time_s = BITS_PER_BYTE / baud
         self._rx_buf = bytearray()                  # read from the OS, not yet delivered by the line
+        self._rx_generation = getattr(port, "generation", 0)   # the port's client the bytes came from
+        self.discarded_rx_bytes = 0                 # held back for a client that left or was replaced
         self._rx_head_s = 0.0                       # when the last delivered byte finished arriving
         self._tx_wire_s = 0.0                       # when the transmitter is next idle
         self._in_flight: list[tuple[float, bytes]] = []   # frames on the wire: (done time, bytes)
@@ -225,6 +279,11 @@ class PacedUart:
         buf = self._rx_buf
         if len(buf) < RX_LOOKAHEAD:
             data = self.port.read(RX_LOOKAHEAD - len(buf))
+            generation = getattr(self.port, "generation", 0)
+            if generation != self._rx_generation:    # another client now: what the old one left is not its
+                self._rx_generation = generation
+                self.discarded_rx_bytes += len(buf)
+                buf.clear()
             if data:
                 if not buf and self._rx_head_s < now:
                     self._rx_head_s = now

@@ -9,7 +9,7 @@
     aspod demo [--json] [--gravity earth|orbit]
     aspod tracker-day [--mode relay|feedforward] [--dial X] [--date YYYY-MM-DD] [--clouds SPEC] [--json] [--plot F]
 
-Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused or unreachable.
+Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused, unreachable or lost.
 """
 from __future__ import annotations
 
@@ -21,28 +21,35 @@ from typing import Optional, Sequence
 
 from firmware_py.uart import BAUD_RATES
 from protocol import auth
-from protocol.errors import KeyFileError, LinkError
+from protocol.errors import KeyFileError, LinkError, shown
 
 from host_tools.teleop import EXIT_LINK, EXIT_USAGE
 
 
+SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces: 0 .. 4294967295
+_KIND_NAMES = {int: "whole number", float: "number"}
+
+
 def _baud(text: str) -> int:
+    rates = ", ".join(map(str, BAUD_RATES))
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a whole number; one of {rates}") from None
     if value not in BAUD_RATES:
-        raise argparse.ArgumentTypeError(f"{value} is not one of {', '.join(map(str, BAUD_RATES))}")
+        raise argparse.ArgumentTypeError(f"{value} is not one of {rates}")
     return value
 
 
-def _bounded(kind, lo: float, hi: float):
+def bounded(kind, lo: float, hi: float):
+    """An argparse type: a `kind` (int or float) within lo..hi; the error says the bounds (argparse names the
+    option: `argument --seed: -1 is outside 0..4294967295`)."""
     def parse(text: str):
         try:
             value = kind(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a {kind.__name__}") from None
-        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{shown(text)} is not a {_KIND_NAMES[kind]} in {lo}..{hi}") from None
+        if not lo <= value <= hi:       # NaN too: it compares false
             raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}")
         return value
     return parse
@@ -54,8 +61,8 @@ def _speed(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number or `max`") from None
-    if not 0.01 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a number in 0.01..1000 or `max`") from None
+    if not 0.01 <= value <= 1000:       # NaN too: it compares false
         raise argparse.ArgumentTypeError(f"{value} is outside 0.01..1000 (or `max`)")
     return value
 
@@ -72,6 +79,11 @@ TIMINGS = ("lockstep", "realtime")
 def add_timing_arg(parser: argparse.ArgumentParser, default: str, what: str) -> None:
     parser.add_argument("--timing", choices=TIMINGS, default=default,
                         help=f"{what} (default {default}; docs/realtime.md)")
+
+
+def add_seed_arg(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--seed", type=bounded(int, 0, SEED_MAX), default=0, metavar="N",
+                        help=f"seed of {what}, 0..{SEED_MAX} (default 0)")
 
 
 def add_link_args(parser: argparse.ArgumentParser) -> None:
@@ -104,9 +116,9 @@ def add_bus_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--channel", required=True,
                         help="python-can channel: udp_multicast a multicast group (e.g. 239.74.163.2), "
                              "socketcan an interface (can0), ...")
-    parser.add_argument("--bitrate", type=_bounded(int, 1, 10_000_000), default=None, metavar="BIT/S",
+    parser.add_argument("--bitrate", type=bounded(int, 1, 10_000_000), default=None, metavar="BIT/S",
                         help="nominal (arbitration) bit rate, for interfaces that set one")
-    parser.add_argument("--data-bitrate", type=_bounded(int, 1, 20_000_000), default=None, metavar="BIT/S",
+    parser.add_argument("--data-bitrate", type=bounded(int, 1, 20_000_000), default=None, metavar="BIT/S",
                         help="CAN FD data-phase bit rate, for interfaces that set one")
     parser.add_argument("--bus-arg", action="append", metavar="KEY=VALUE",
                         help="further keyword for the python-can bus, repeatable (udp_multicast: port=N, "
@@ -117,16 +129,16 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
     """The controller's UART and settings, shared by `aspod sim` and `aspod firmware`."""
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true", help="serve a new pseudo-terminal (the default)")
-    where.add_argument("--tcp", type=_bounded(int, 0, 65535), metavar="PORT",
+    where.add_argument("--tcp", type=bounded(int, 0, 65535), metavar="PORT",
                        help="serve TCP on 127.0.0.1:PORT (0 picks a free port)")
     where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
     add_link_args(parser)
     parser.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
-    parser.add_argument("--loop-hz", type=_bounded(float, 50.0, 5000.0), default=1000.0, metavar="HZ",
+    parser.add_argument("--loop-hz", type=bounded(float, 50.0, 5000.0), default=1000.0, metavar="HZ",
                         help="rate of the arm's motor loops (default 1000)")
-    parser.add_argument("--link-timeout", type=_bounded(float, 0.05, 3600), default=None, metavar="S",
+    parser.add_argument("--link-timeout", type=bounded(float, 0.05, 3600), default=None, metavar="S",
                         help="safe state after this long without a valid frame (default: saved, else 3 s)")
-    parser.add_argument("--telemetry-hz", type=_bounded(int, 0, 200), default=None, metavar="HZ",
+    parser.add_argument("--telemetry-hz", type=bounded(int, 0, 200), default=None, metavar="HZ",
                         help="telemetry rate at start (default: saved, else 10)")
     parser.add_argument("--params", type=Path, default=None, metavar="FILE",
                         help="parameter file, loaded at boot and written by `save` "
@@ -137,7 +149,7 @@ def add_arm_args(parser: argparse.ArgumentParser) -> None:
     """The plant's arm: gravity and payload."""
     parser.add_argument("--gravity", type=_gravity, default="earth",
                         help="the arm's gravity: earth or orbit (default earth)")
-    parser.add_argument("--payload-kg", type=_bounded(float, 0.0, 1000.0), default=0.0, metavar="M",
+    parser.add_argument("--payload-kg", type=bounded(float, 0.0, 1000.0), default=0.0, metavar="M",
                         help="mass carried at the gripper tip, kg (default 0)")
 
 
@@ -180,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sim = sub.add_parser("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
     add_controller_args(sim)
-    sim.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
+    add_seed_arg(sim, "the plant's noise")
     sim.add_argument("--hal", type=_interface, metavar="INTERFACE",
                      help="run the plant as a separate process (`aspod plant`), meeting it on this python-can "
                           "interface, e.g. udp_multicast (default: one process, a private virtual bus)")
@@ -197,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     plant = sub.add_parser("plant", help="run only the plant, in real time, on a python-can interface; "
                                          "prints an ASPOD-PLANT ready line")
     add_bus_args(plant)
-    plant.add_argument("--seed", type=int, default=0, help="seed of the plant's noise")
+    add_seed_arg(plant, "the plant's noise")
     add_arm_args(plant)
     add_tracker_args(plant)
     plant.add_argument("--stop-on-stdin-eof", action="store_true",
@@ -212,7 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                "prints ASPOD-LINK and ASPOD-KEY lines")
     add_bus_args(firmware)
     add_controller_args(firmware)
-    firmware.add_argument("--boot-timeout", type=_bounded(float, 0.01, 3600), default=None, metavar="S",
+    firmware.add_argument("--boot-timeout", type=bounded(float, 0.01, 3600), default=None, metavar="S",
                           help="HAL inputs must arrive this soon after start, else HAL_STALE (default 1 s)")
     add_timing_arg(firmware, "lockstep", "lockstep: the controller's time follows the plant's PLANT_SYNC ticks "
                                          "(aspod plant --timing lockstep); realtime: the wall clock, as on real "
@@ -223,14 +235,14 @@ def build_parser() -> argparse.ArgumentParser:
     add_link_args(teleop)
     teleop.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE and exit")
     teleop.add_argument("--keep-going", action="store_true", help="in a script, go on after a failed command")
-    teleop.add_argument("--connect-timeout", type=_bounded(float, 0.1, 600), default=10.0, metavar="S")
+    teleop.add_argument("--connect-timeout", type=bounded(float, 0.1, 600), default=10.0, metavar="S")
     teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
 
     demo = sub.add_parser("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")
     demo.add_argument("--json", action="store_true", help="print one JSON object (steps, errors, times)")
     demo.add_argument("--gravity", type=_gravity, default="earth", help="earth (default) or orbit")
-    demo.add_argument("--seed", type=int, default=0, help="seed of the plant's noise and the link's nonces")
+    add_seed_arg(demo, "the plant's noise and the link's nonces")
     demo.add_argument("--link", action="store_true",
                       help="instead: start `aspod sim --pty` and run a scripted teleop session over the pty")
     demo.add_argument("--baud", type=_baud, default=115200, help="line rate for --link")
@@ -253,7 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="end (default: when the sun sinks below 5 deg)")
     day.add_argument("--param", action="append", metavar="NAME=VALUE",
                      help="a tracker parameter of the firmware, repeatable (e.g. trk_deadband_mv=1.5)")
-    day.add_argument("--seed", type=int, default=0, help="seed of the photocells' and sensors' noise")
+    add_seed_arg(day, "the photocells' and sensors' noise")
     day.add_argument("--json", action="store_true", help="print one JSON object")
     day.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
                      help="write the pointing error and the lag over the day to this PNG")
@@ -263,12 +275,12 @@ def build_parser() -> argparse.ArgumentParser:
 def host_key(path: Optional[Path]) -> bytes:
     """The key a host tool uses: --key-file, else the development key that `aspod sim` made."""
     if path is not None:
-        return auth.load_key(path)
+        return auth.load_key(path, "--key-file")
     default = auth.default_key_path()
     if not default.exists():
         raise KeyFileError(f"no key file given and no development key at {default}: "
                            "start `aspod sim` once (it creates it) or pass --key-file")
-    return auth.load_key(default)
+    return auth.load_key(default, "development key")
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:

@@ -128,7 +128,9 @@ class HostClient:
             try:
                 self._flush(now)   # on the wire now, not after the pump's next read
             except (serial.SerialException, OSError) as exc:
-                self.io_error = str(exc)
+                self.io_error = str(exc)      # the port is gone: the command fails now, with the reason
+                self.link.abandon(now, f"{self.url}: {exc}")
+                self._cond.notify_all()
             return handle
 
     def call(self, msg: Message, timeout_s: float = 30.0) -> CommandHandle:

@@ -31,9 +31,10 @@ import sys
 from typing import Any, Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
+from firmware_py.params import PARAMS_FILE_LIMIT
 from firmware_py.scheduler import Scheduler, run_live
 from firmware_py.uart import DevicePort, PacedUart, Port, PtyPort, TcpServerPort
-from protocol import auth
+from protocol import auth, files
 from protocol.link import LinkConfig
 from protocol.lockstep import LockstepFollower
 from protocol.reasons import Reason
@@ -58,10 +59,11 @@ def open_port(args: argparse.Namespace) -> Port:
 def controller_config(args: argparse.Namespace):
     """(psk, key path, params path, ControllerConfig) from the link options, as `aspod sim` takes them."""
     if args.key_file is not None:
-        psk, key_path = auth.load_key(args.key_file), args.key_file
+        psk, key_path = auth.load_key(args.key_file, "--key-file"), args.key_file
     else:
         psk, key_path = auth.load_or_create_dev_key()
     params_path = args.params if args.params is not None else auth.default_key_path().with_name("params.json")
+    check_params_file(params_path)
     timeout_s = args.link_timeout if args.link_timeout is not None else LinkConfig.link_timeout_s
     link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
     boot_timeout_s = getattr(args, "boot_timeout", None)
@@ -70,6 +72,17 @@ def controller_config(args: argparse.Namespace):
     if loop_hz is not None:
         extra["arm_period_s"] = 1.0 / loop_hz
     return psk, key_path, params_path, ControllerConfig(link=link, params_path=params_path, **extra)
+
+
+def check_params_file(path) -> None:
+    """ValueError (exit 2) naming --params if `path` is there but cannot be a parameter file (a FIFO, a device, a
+    directory, a file larger than PARAMS_FILE_LIMIT); a missing file means the defaults, a damaged one is
+    reported at boot (`apply_command_line`) and the defaults stay."""
+    try:
+        files.check_input(path, PARAMS_FILE_LIMIT)
+    except files.InputFileError as exc:
+        if exc.refused:
+            raise ValueError(f"--params {exc}") from None
 
 
 def apply_command_line(controller: Controller, args: argparse.Namespace, prog: str) -> None:
@@ -177,7 +190,7 @@ def run_firmware(args: argparse.Namespace) -> int:
 def run_sim_over_hal(args: argparse.Namespace) -> int:
     """`aspod sim --hal INTERFACE [--hal-channel CH]`: `aspod plant` as a child, the controller here."""
     interface = nodes.check_interface(args.hal, between_processes=True)
-    options = nodes.parse_bus_args(args.hal_arg or ())
+    options = nodes.parse_bus_args(args.hal_arg or (), interface, "--hal-arg")
     channel = args.hal_channel
     if channel is None:
         if interface != "udp_multicast":

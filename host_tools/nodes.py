@@ -20,8 +20,11 @@ Buses. Any python-can interface works, opened for CAN FD (MOTOR_CMD and MOTOR_FB
 """
 from __future__ import annotations
 
+import importlib
+import inspect
 import ipaddress
 import random
+import re
 import socket
 from typing import Any, Callable, Iterable, Optional
 
@@ -36,6 +39,7 @@ from hil_sim.hal_node import PlantNode
 from hil_sim.plant import Plant, PlantParams
 from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
+from protocol.errors import shown
 from protocol.hal import BusView, HalCodec
 
 PLANT = "PLANT"            # node names as the DBC declares them (BU_)
@@ -140,6 +144,9 @@ def open_bus(interface: str, channel: str, *, node: Optional[str] = None, bitrat
     except (can.CanError, OSError, ImportError) as exc:
         raise BusOpenError(f"cannot open the {interface} bus on channel {channel!r}: {exc}"
                            + (f" ({exc.__cause__})" if exc.__cause__ else "")) from exc
+    except Exception as exc:     # a driver that fails in its own way (python-can's kvaser without canlib: NameError)
+        raise BusOpenError(f"cannot open the {interface} bus on channel {channel!r}: its python-can driver failed "
+                           f"({type(exc).__name__}: {exc}); is the vendor's library installed?") from exc
     if node is not None and interface in ECHOES_OWN_FRAMES:
         return OwnEchoFilter(bus, node)   # type: ignore[return-value]
     return bus
@@ -214,8 +221,16 @@ def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParam
 
 def build_controller(psk: bytes, uart: PacedUart, bus: can.BusABC, config: Optional[ControllerConfig] = None, *,
                      nonce_source: Callable[[], bytes] = new_nonce) -> Controller:
-    """The controller with its HAL on `bus` and its link on `uart`; `controller.attach(scheduler)` starts it."""
-    return Controller(psk, uart, ControllerHal(bus), config, nonce_source=nonce_source)
+    """The controller with its HAL on `bus` and its link on `uart`; `controller.attach(scheduler)` starts it.
+
+    A port that guards its line against takeover (`TcpServerPort.live_session`) is told here
+    about the controller's session: every world (`aspod sim`, `aspod firmware`, `World`) builds
+    its controller through this function, after it opened the port."""
+    controller = Controller(psk, uart, ControllerHal(bus), config, nonce_source=nonce_source)
+    if hasattr(uart.port, "live_session"):
+        link = controller.link
+        uart.port.live_session = lambda: link.session if link.session is not None and not link.link_lost else None
+    return controller
 
 
 def hal_counters(endpoint: Any) -> dict[str, int]:
@@ -229,18 +244,49 @@ def format_counters(counters: dict[str, Any]) -> str:
     return " ".join(f"{key}={value}" for key, value in counters.items())
 
 
-def parse_bus_args(items: Iterable[str]) -> dict[str, Any]:
-    """`KEY=VALUE` strings (--bus-arg) to constructor keywords: ints, floats, true/false, else text."""
+def parse_bus_args(items: Iterable[str], interface: Optional[str] = None, option: str = "--bus-arg") -> dict[str, Any]:
+    """`KEY=VALUE` strings (--bus-arg, --hal-arg) to constructor keywords: ints, floats, true/false, else text.
+
+    With `interface`, every KEY must be one the interface's bus takes (`bus_keywords`): python-can
+    buses take **kwargs and silently ignore what they do not know, so a misspelt keyword would
+    change nothing and say nothing. ValueError naming `option`, and the keywords known, else."""
     options: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or not key.isidentifier():
-            raise ValueError(f"bus argument {item!r} is not KEY=VALUE (e.g. port=43113)")
+            raise ValueError(f"{option} {shown(item)} is not KEY=VALUE (e.g. port=43113)")
         if key in ("interface", "channel"):
-            raise ValueError(f"bus argument {key!r}: use --{key} (or --hal/--hal-channel) instead")
+            raise ValueError(f"{option} {key!r}: use --{key} (or --hal/--hal-channel) instead")
         options[key] = _guess_value(text.strip())
+    known = bus_keywords(interface) if interface is not None and options else None
+    unknown = sorted(set(options) - known) if known is not None else []
+    if unknown:
+        raise ValueError(f"{option} {', '.join(unknown)}: the {interface} bus takes no such keyword; it takes "
+                         f"{', '.join(sorted(known))}")
     return options
+
+
+_DOC_PARAM = re.compile(r":param\s+(?:[^:\n]*\s)?(\w+)\s*:")    # `:param int bitrate:` in a docstring
+
+
+def bus_keywords(interface: str) -> Optional[frozenset[str]]:
+    """The keywords a python-can bus of `interface` takes: its class's constructor's named parameters, the ones
+    its docstrings document (`:param fd:`) when the constructor takes them through **kwargs (kvaser, pcan,
+    ...), and those every bus takes (BusABC's, and `can.Bus`'s own); `channel` aside. None if the class cannot
+    be loaded here (its driver is missing, say: opening the bus will say so)."""
+    try:
+        module, name = can.interfaces.BACKENDS[interface]
+        cls = getattr(importlib.import_module(module), name)
+    except (KeyError, ImportError, AttributeError, OSError):
+        return None
+    named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    own = inspect.signature(cls.__init__).parameters.values()
+    keywords = {p.name for function in (cls.__init__, can.BusABC.__init__, can.Bus)
+                for p in inspect.signature(function).parameters.values() if p.kind in named}
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in own):
+        keywords |= set(_DOC_PARAM.findall((cls.__init__.__doc__ or "") + (cls.__doc__ or "")))
+    return frozenset(keywords - {"self", "channel", "interface"})
 
 
 def _guess_value(text: str) -> Any:

@@ -51,7 +51,7 @@ WAITING_NOTE_S = 5.0     # lock-step: say so on stderr when the controller has n
 
 def bus_options(args: argparse.Namespace) -> dict[str, Any]:
     """Keywords for `nodes.open_bus` from --bitrate, --data-bitrate and --bus-arg."""
-    options = nodes.parse_bus_args(args.bus_arg or ())
+    options = nodes.parse_bus_args(args.bus_arg or (), args.interface)
     if args.bitrate is not None:
         options["bitrate"] = args.bitrate
     if args.data_bitrate is not None:

@@ -36,6 +36,7 @@ import statistics
 import sys
 from typing import Callable, Optional, TextIO
 
+from protocol.errors import shown
 from protocol.link import LinkState
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason, reason_name
@@ -47,7 +48,7 @@ from timebase import RealClock
 from host_tools.teleop_box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop_clock import utc_text
 from host_tools.teleop_format import (INDENT, Console, failure_lines, format_message, format_outcome,
-                                      format_value, latency, report_lines)
+                                      format_value, latency, link_down_lines, report_lines)
 from host_tools.teleop_motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop_watch import TelemetryCache, arm_block, watch
@@ -102,6 +103,7 @@ class Session:
         self.all_events = all_events
         self._aligned: Optional[AlignedWatch] = None     # `wait aligned` in progress
         self.event_prefix = "\n" if all_events else ""   # interactive: step off the prompt's line
+        self._noise_at_start = self._noise()             # frames that failed CRC or authentication so far
         client.telemetry_listeners.append(self._on_telemetry)
         client.event_listeners.append(self._on_event)
 
@@ -143,14 +145,14 @@ class Session:
         if handle.ok and handle.latency_s is not None:
             self.latencies_s.append(handle.latency_s)
         if not is_motion:
-            lines = [self._ok_line(handle)] if handle.ok else failure_lines(handle, self._hints(message, step, handle))
+            lines = [self._ok_line(handle)] if handle.ok else self._failure_lines(message, step, handle)
         elif handle.ok:
             motions, replaced, held = self.tracker.started(step, handle.reply, before, self.client.clock.now())
             lines = replaced_lines(replaced) + [f"ok   {started_text(motions)}{latency(handle)}"]
             lines += [line for end, mine in held for line in end_lines(end, mine)]
         else:
             held = self.tracker.refused()
-            lines = failure_lines(handle, self._hints(message, step, handle))
+            lines = self._failure_lines(message, step, handle)
             lines += [line for end, mine in held for line in end_lines(end, mine)]
         ok = handle.ok
         if step.expect is not None:
@@ -160,6 +162,34 @@ class Session:
         self.console.lines(lines)
         return ok
 
+    def _failure_lines(self, msg: Message, step: Step, handle) -> list[str]:
+        """A refusal with its meaning and hints; a command left unanswered because the link went down, with
+        the link's real trouble (not the retry limit's doc)."""
+        cause = self.link_trouble() if handle.outcome is Outcome.FAILED else None
+        if cause is not None:
+            return link_down_lines(handle, cause)
+        return failure_lines(handle, self._hints(msg, step, handle))
+
+    def _noise(self) -> tuple[int, int]:
+        stats = self.client.link.stats
+        return stats.crc_errors, stats.auth_errors
+
+    def link_trouble(self) -> Optional[str]:
+        """None while the link is up; else why it is down: the port's I/O error (the socket closed, the device
+        gone), or another program writing on the line (frames that failed their CRC, or that do not verify
+        under this session's key, since the session began), or else the controller's silence."""
+        client = self.client
+        where = getattr(client, "url", "the line")
+        if client.io_error is None and client.link.state is LinkState.UP:
+            return None
+        crc, auth = (now - then for now, then in zip(self._noise(), self._noise_at_start))
+        noise = (f"another program seems to be writing on the line: since this session began {crc} frame(s) "
+                 f"failed their CRC and {auth} did not verify under its key (a second host on {where}?)"
+                 if crc or auth else None)
+        if client.io_error is not None:
+            return f"{where}: {client.io_error}" + (f"; {noise}" if noise else "")
+        return noise or f"no answer from the controller on {where} (is it still running?)"
+
     def _ok_line(self, handle) -> str:
         name = handle.msg.spec.name
         if name == "SetClock":
@@ -167,6 +197,8 @@ class Session:
             return f"ok   controller clock set to {utc_text(msg.utc_s)[:-1]}.{msg.utc_ms:03d}Z{latency(handle)}"
         if handle.reply is not None and handle.reply.spec.name == "BoxState":
             return f"ok   {box_state_text(handle.reply)}{latency(handle)}"
+        if handle.reply is not None and handle.reply.spec.name == "ParamSaved":
+            return f"ok   parameters saved to {handle.reply.detail}{latency(handle)}"
         return format_outcome(handle)
 
     def _hints(self, msg: Message, step: Step, handle) -> list[str]:
@@ -296,13 +328,13 @@ class Session:
             return True
         if why is None:
             if msg is None:
-                why = ("the link is down" if link_down() else
+                why = (f"the link is down: {self.link_trouble()}" if link_down() else
                        f"no TelemetryTracker in {took:.1f} s: it goes out while main or sensor power is on, at the "
                        "telemetry rate (`telemetry 10`)")
             elif not clock_set(msg):
                 why = "the controller's clock is not set (NO_CLOCK): no sun to point at; `clock now` first"
             elif link_down():
-                why = "the link is down"
+                why = f"the link is down: {self.link_trouble()}"
             else:
                 why = (f"timed out after {step.seconds:g} s: {watch.error:.3f} deg (az {msg.error_az:+.3f}, "
                        f"el {msg.error_el:+.3f} deg)")
@@ -333,7 +365,7 @@ class Session:
         if not left:
             self.console.line(f"ok   wait {name}: {len(waiting)} motion(s) ended ({took:.1f} s)")
             return True
-        why = why or ("the link is down" if link_down() else f"timed out after {timeout_s:g} s")
+        why = why or (f"the link is down: {self.link_trouble()}" if link_down() else f"timed out after {timeout_s:g} s")
         self.console.lines([f"FAIL wait {name}: {why}"] + still_running_lines(left, INDENT))
         return False
 
@@ -416,7 +448,9 @@ def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
     """Check every line, then run them; returns (exit status, session). `wall_time` as for `Session`.
 
     A failed command, or a motion that ends other than DONE (noticed after each line), fails the
-    script: it stops there unless `keep_going`, and the status is EXIT_FAILED either way.
+    script: it stops there unless `keep_going`, and the status is EXIT_FAILED either way. A line that
+    fails because the link went down stops the script whatever `keep_going` says, with the link's
+    trouble (`Session.link_trouble`) and EXIT_LINK.
     """
     steps, problems = check_script(lines)
     session = Session(client, out, wall_time=wall_time)
@@ -438,9 +472,15 @@ def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
             if ok and not failures:
                 continue
             status = EXIT_FAILED
+            cause = session.link_trouble() if not ok else None
+            if cause is not None:        # nothing more can be sent: stop, --keep-going or not
+                print(f"error: line {step.line_no}: {shown(step.text, 80)}: the link is down: {cause}; stopping",
+                      file=err, flush=True)
+                status = EXIT_LINK
+                break
             if not ok:
-                print(f"error: line {step.line_no}: {step.text!r} failed{'; stopping' if not keep_going else ''}"
-                      f"{stop}", file=err, flush=True)
+                print(f"error: line {step.line_no}: {shown(step.text, 80)} failed"
+                      f"{'; stopping' if not keep_going else ''}{stop}", file=err, flush=True)
             for failure in failures:
                 print(f"error: {failure}{'; stopping' if not keep_going else ''}{stop}", file=err, flush=True)
             if not keep_going:
@@ -499,7 +539,7 @@ def interactive(client, out: TextIO = sys.stdout) -> tuple[int, Session]:
                 session.console.line("(interrupted)")
                 ok = True
             if not ok or session.motion_failures():
-                status = EXIT_FAILED
+                status = max(status, EXIT_LINK if session.link_trouble() is not None else EXIT_FAILED)
     finally:
         session.close()
     return status, session

@@ -100,24 +100,26 @@ class BenchClient:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    from host_tools.cli import add_seed_arg
     from host_tools.teleop import EXIT_USAGE, run_script
     from host_tools.teleop_clock import parse_when
+    from host_tools.teleop_words import read_script
     parser = argparse.ArgumentParser(prog="python -m host_tools.teleop_bench",
                                      description="run a teleop script against a whole world on the simulated clock")
     parser.add_argument("script", type=Path)
     parser.add_argument("--sun-start", default="2026-03-20T06:50-07:00", metavar="ISO",
                         help="the plant's sun at start (default 2026-03-20T06:50-07:00, the March equinox at sunrise)")
     parser.add_argument("--clouds", default=None, metavar="SPEC", help="cloud passages, as `aspod sim --clouds`")
-    parser.add_argument("--seed", type=int, default=0)
+    add_seed_arg(parser, "the plant's noise and the link's nonces")
     parser.add_argument("--keep-going", action="store_true")
     args = parser.parse_args(argv)
     try:
-        lines = args.script.read_text(encoding="utf-8").splitlines()
+        lines = read_script(args.script, option="script")
         start = parse_when(args.sun_start, "--sun-start", posix=False)
         if start is None:
             raise ValueError("--sun-start: a simulated run needs a date-time, not `now`")
         bench = LockstepBench(seed=args.seed, start=start, clouds=args.clouds)
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except (OSError, ValueError) as exc:     # TeleopError included
         print(f"teleop_bench: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:

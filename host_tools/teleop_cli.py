@@ -5,19 +5,18 @@ import argparse
 import sys
 
 from host_tools.client import HostClient
-from host_tools.teleop import EXIT_USAGE, check_script, interactive, run_script
+from host_tools.teleop import EXIT_USAGE, TeleopError, check_script, interactive, run_script
+from host_tools.teleop_words import read_script
 
 
 def run_teleop(args: argparse.Namespace, psk: bytes) -> int:
     lines = None
-    if args.script is not None:
+    if args.script is not None or not sys.stdin.isatty():
         try:
-            lines = args.script.read_text(encoding="utf-8").splitlines()
-        except (OSError, UnicodeDecodeError) as exc:
-            print(f"aspod teleop: cannot read script {args.script}: {exc}", file=sys.stderr)
+            lines = read_script(args.script, sys.stdin.buffer)
+        except TeleopError as exc:
+            print(f"aspod teleop: {exc}", file=sys.stderr)
             return EXIT_USAGE
-    elif not sys.stdin.isatty():
-        lines = sys.stdin.read().splitlines()
     if lines is not None:
         _steps, problems = check_script(lines)
         if problems:

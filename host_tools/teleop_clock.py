@@ -18,6 +18,7 @@ import re
 from datetime import datetime, timezone
 from typing import Optional
 
+from protocol.errors import shown
 from protocol.messages import SCHEMA
 
 _UTC_FIELD = next(f for f in SCHEMA["SetClock"].fields if f.name == "utc_s")
@@ -47,11 +48,11 @@ def parse_iso(text: str, what: str = "date-time", also: str = "") -> float:
     if not _ISO.match(text):
         hint = (" (it needs its UTC offset, e.g. -07:00 for Tucson, MST, or Z for UTC)"
                 if re.match(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}(:\d{2}(\.\d+)?)?$", text) else "")
-        raise ValueError(f"{what} {text!r} is not {also + ' nor ' if also else ''}{FORMAT}{hint}")
+        raise ValueError(f"{what} {shown(text)} is not {also + ' nor ' if also else ''}{FORMAT}{hint}")
     try:
         when = datetime.fromisoformat(text[:-1] + "+00:00" if text.endswith("Z") else text)
     except ValueError as exc:
-        raise ValueError(f"{what} {text!r}: {exc}") from None
+        raise ValueError(f"{what} {shown(text)}: {exc}") from None
     return check_range(when.timestamp(), what)
 
 

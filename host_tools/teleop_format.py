@@ -145,7 +145,8 @@ def format_outcome(handle: CommandHandle) -> str:
 
 def failure_lines(handle: CommandHandle, extra: Optional[list[str]] = None) -> list[str]:
     reason = int(handle.reason)
-    detail = f" ({handle.detail})" if handle.detail else ""
+    detail = handle.detail or getattr(handle.reply, "detail", "")    # the link's, or the reply's own (ParamSaved)
+    detail = f" ({detail})" if detail else ""
     head = f"FAIL {handle.msg.spec.name}: {handle.outcome.value}: {reason_name(reason)} ({reason}){detail}"
     return [head + latency(handle)] + reason_lines(reason) + (extra or [])
 
@@ -186,3 +187,10 @@ def describe_report(msg: Message) -> str:
                     f"(rtf_warn {msg.limit:.2f}): the host is too slow, so simulated time slows down with it; "
                     "nothing is faulted")
     return format_message(msg)
+
+
+def link_down_lines(handle: CommandHandle, cause: str) -> list[str]:
+    """A command that never got its answer because the link went down: the link's trouble, not the retry limit."""
+    return ([f"FAIL {handle.msg.spec.name}: no answer, the link is down: {cause}"]
+            + wrap("its outcome is unknown: once the line is sound, `connect` again and read `status` before "
+                   "sending it again"))

@@ -12,11 +12,16 @@ REASON) and `clock now` / `clock YYYY-MM-DDTHH:MM[:SS]+HH:MM` besides POSIX seco
 """
 from __future__ import annotations
 
+import difflib
+import re
 import shlex
 import textwrap
 from dataclasses import dataclass
-from typing import Optional
+from pathlib import Path
+from typing import BinaryIO, Optional, Sequence
 
+from protocol import files
+from protocol.errors import EncodeError, shown
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Field, Message, MessageSpec
@@ -38,6 +43,10 @@ HELP_WIDTH = 96
 TRACKER_AXES = ("az", "el")
 WATCH_VIEWS = ("box",)          # `watch box`; plain `watch` is the arm
 EXPECTABLE = tuple(r.name for r in Reason if r is not Reason.OK)
+SCRIPT_LIMIT = 4 * files.MIB    # a script of ~100,000 lines; checked whole before it runs
+MAX_INTEGER_TEXT = 80           # u64 in binary with its 0b and a sign is 67 characters
+MAX_PROBLEMS = 50               # a script's problems listed before its check stops
+MAX_LINE_CHARS = 1024           # a command line (its comment aside): the longest real ones are under 100
 
 LOCAL_COMMANDS = {
     "help": "help [command]: list the commands, or describe one",
@@ -106,12 +115,16 @@ class Step:
         return self.message
 
 
+_COMMANDS = SCHEMA.teleop_commands()                             # the declaration does not change: once
+_ALL_WORDS = tuple(sorted(list(_COMMANDS) + list(LOCAL_COMMANDS)))
+
+
 def commands() -> dict[str, MessageSpec]:
-    return SCHEMA.teleop_commands()
+    return dict(_COMMANDS)
 
 
 def all_words() -> list[str]:
-    return sorted(list(commands()) + list(LOCAL_COMMANDS))
+    return list(_ALL_WORDS)
 
 
 def enum_words(fld: Field) -> list[str]:
@@ -137,10 +150,12 @@ def parse_value(fld: Field, text: str):
             if fld.check(text):
                 raise ValueError(text)
             return text
+        if len(text) > MAX_INTEGER_TEXT:     # no integer of ours is this long, and a huge one costs time to convert
+            raise ValueError(text)
         return int(text, 0)
     except (ValueError, KeyError):
         kind = f"one of {', '.join(enum_words(fld))}" if fld.enum else fld.type
-        raise TeleopError(f"{fld.name}: {text!r} is not a valid {kind}") from None
+        raise TeleopError(f"{fld.name}: {shown(text)} is not a valid {kind}") from None
 
 
 def build_message(spec: MessageSpec, args: list[str]) -> Message:
@@ -155,7 +170,7 @@ def build_message(spec: MessageSpec, args: list[str]) -> Message:
             key, text = names[index], arg
         fld = next((f for f in spec.fields if f.name == key), None)
         if fld is None:
-            raise TeleopError(f"{spec.teleop} has no argument {key!r}: {usage(spec)}")
+            raise TeleopError(f"{spec.teleop} has no argument {shown(key)}: {usage(spec)}")
         values[key] = parse_value(fld, text)
     for fld in spec.fields:
         if fld.name not in values and fld.default is not None:
@@ -168,6 +183,10 @@ def build_message(spec: MessageSpec, args: list[str]) -> Message:
         problem = fld.check(value) if fld.limits is None or fld.range is not None else _type_range(fld, value)
         if problem:
             raise TeleopError(problem)
+    try:
+        spec.encode(msg)             # what the link will do with it: refused here, before anything is sent
+    except EncodeError as exc:
+        raise TeleopError(str(exc)) from None
     return msg
 
 
@@ -190,7 +209,7 @@ def _seconds(text: str, what: str, line_no: int) -> float:
     try:
         seconds = float(text)
     except ValueError:
-        raise TeleopError(f"line {line_no}: {what}: {text!r} is not a number of seconds") from None
+        raise TeleopError(f"line {line_no}: {what}: {shown(text)} is not a number of seconds") from None
     if not 0 <= seconds <= MAX_WAIT_S:
         raise TeleopError(f"line {line_no}: {what}: {seconds:g} s is outside 0..{MAX_WAIT_S:g}")
     return seconds
@@ -207,7 +226,7 @@ def _parse_aligned(step: Step) -> None:
     try:
         deg = float(args[0])
     except ValueError:
-        raise TeleopError(f"line {n}: wait aligned: {args[0]!r} is not a number of degrees") from None
+        raise TeleopError(f"line {n}: wait aligned: {shown(args[0])} is not a number of degrees") from None
     if not 0 < deg <= 180:
         raise TeleopError(f"line {n}: wait aligned: {deg:g} deg is outside (0, 180]")
     step.aligned_deg = deg
@@ -231,13 +250,25 @@ def _parse_wait(step: Step) -> None:
         step.seconds = _seconds(args[1], f"wait {word}: timeout", n) if len(args) == 2 else WAIT_TIMEOUT_S
         return
     if len(args) == 2:
-        raise TeleopError(f"line {n}: wait: {args[0]!r} is not an axis ({', '.join(AXIS_WORDS)}) nor `aligned`")
+        raise TeleopError(f"line {n}: wait: {shown(args[0])} is not an axis ({', '.join(AXIS_WORDS)}) nor `aligned`")
     try:
         float(word)
     except ValueError:
-        raise TeleopError(f"line {n}: wait: {args[0]!r} is not a number of seconds nor an axis "
+        raise TeleopError(f"line {n}: wait: {shown(args[0])} is not a number of seconds nor an axis "
                           f"({', '.join(AXIS_WORDS)})") from None
     step.seconds = _seconds(word, "wait", n)
+
+
+_QUOTING = re.compile(r"""['"\\]""")      # a line without these splits as str.split does: no need for shlex
+
+
+def did_you_mean(word: str, choices: Sequence[str]) -> str:
+    """` (did you mean `x`?)` for the choices close to `word`, else "". A word far longer than every choice
+    cannot be close to one, and is not compared (difflib's cost grows with the product of the lengths)."""
+    if not word or len(word) > 2 * max(map(len, choices), default=0):
+        return ""
+    close = difflib.get_close_matches(word, choices, n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(f'`{c}`' for c in close)}?)" if close else ""
 
 
 def parse_line(text: str, line_no: int) -> Optional[Step]:
@@ -245,8 +276,11 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
     stripped = text.split("#", 1)[0].strip()
     if not stripped:
         return None
+    if len(stripped) > MAX_LINE_CHARS:     # refused before it is split into words (shlex: quadratic in a word)
+        raise TeleopError(f"line {line_no}: {shown(stripped)} is longer than any command: at most "
+                          f"{MAX_LINE_CHARS} characters before a comment")
     try:
-        words = shlex.split(stripped)
+        words = shlex.split(stripped) if _QUOTING.search(stripped) else stripped.split()
     except ValueError as exc:
         raise TeleopError(f"line {line_no}: {exc}") from None
     word, args = words[0].lower(), words[1:]
@@ -266,12 +300,16 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
             step.seconds = _seconds(args[0], "watch", line_no) if args else WATCH_S
         elif word == "help" and len(args) > 1:
             raise TeleopError(f"line {line_no}: help takes at most one command word")
+        elif word == "help" and args and args[0].lower() not in _ALL_WORDS:
+            raise TeleopError(f"line {line_no}: help: no command {shown(args[0])}"
+                              f"{did_you_mean(args[0].lower(), _ALL_WORDS)}; `help` lists them all")
         elif word not in ("help",) and args:
             raise TeleopError(f"line {line_no}: {word} takes no arguments")
         return step
-    spec = commands().get(word)
+    spec = _COMMANDS.get(word)
     if spec is None:
-        raise TeleopError(f"line {line_no}: unknown command {word!r} (known: {', '.join(all_words())})")
+        raise TeleopError(f"line {line_no}: unknown command {shown(word)}{did_you_mean(word, _ALL_WORDS)} "
+                          f"(known: {', '.join(_ALL_WORDS)})")
     try:
         if spec.name == "SetClock" and args and _is_date_time(args[0]):
             _parse_clock(step, spec)
@@ -310,8 +348,8 @@ def _parse_expect(step: Step) -> Step:
     if name == "OK":
         raise TeleopError(f"line {n}: expect OK: write the command alone; a script fails when a command is refused")
     if name not in EXPECTABLE:
-        raise TeleopError(f"line {n}: expect: {args[0]!r} is not a reason code (e.g. DIAL_NOT_LOW, SWITCH_POSITION, "
-                          "SOFT_LIMIT; `help expect`)")
+        raise TeleopError(f"line {n}: expect: {shown(args[0])} is not a reason code (e.g. DIAL_NOT_LOW, "
+                          "SWITCH_POSITION, SOFT_LIMIT; `help expect`)")
     if len(args) > 1 and args[1].lower() == "expect":
         raise TeleopError(f"line {n}: expect {name}: one command follows the reason, not another `expect`")
     rest = " ".join(shlex.quote(a) for a in args[1:])
@@ -324,14 +362,34 @@ def _parse_expect(step: Step) -> Step:
     return inner
 
 
+def read_script(path: Optional[Path], stdin: Optional[BinaryIO] = None, option: str = "--script") -> list[str]:
+    """The lines of a script: the regular file `path` (named by `option`), or else all of `stdin` (a pipe, say);
+    at most SCRIPT_LIMIT bytes of UTF-8 text. TeleopError naming the option and the file, else."""
+    source = f"{option} {path}" if path is not None else "standard input"
+    try:
+        if path is not None:
+            raw = files.read_bounded(path, SCRIPT_LIMIT)
+        else:
+            raw = files.read_stream_bounded(stdin, SCRIPT_LIMIT, "standard input")
+        return raw.decode("utf-8").splitlines()
+    except files.InputFileError as exc:
+        raise TeleopError(f"{option} {exc}" if path is not None else str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise TeleopError(f"{source}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
+
+
 def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
-    """Every line parsed: the steps, and a message for each line that is not a command."""
+    """Every line parsed: the steps, and a message for each line that is not a command (the first
+    MAX_PROBLEMS of them: past that, checking stops, and a last message says so; nothing will be sent)."""
     steps, problems = [], []
     for number, text in enumerate(lines, 1):
         try:
             step = parse_line(text, number)
         except TeleopError as exc:
             problems.append(str(exc))
+            if len(problems) == MAX_PROBLEMS and number < len(lines):
+                problems.append(f"checking stopped at line {number} of {len(lines)} after {MAX_PROBLEMS} problems")
+                break
             continue
         if step is not None:
             steps.append(step)

@@ -52,6 +52,7 @@ from firmware_py.hal import HalInputs
 from firmware_py.params import ParamStore
 from hil_sim.sun import TUCSON, Site, as_clouds, solar_position
 from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand, TrackerParams, TrackerPlant, wrap180
+from protocol.errors import shown
 from protocol.hal import HalCodec
 from protocol.reasons import Reason
 from protocol.states import Switch, SwitchPosition, TrackerAxis
@@ -393,13 +394,13 @@ def parse_dial(text: str) -> tuple[float, float]:
     """`X` for both axes or `AZ,EL`, percent 0..100."""
     parts = [p.strip() for p in text.split(",")]
     if len(parts) not in (1, 2):
-        raise ValueError(f"dial {text!r}: one setting for both axes (40) or az,el (40,20)")
+        raise ValueError(f"--dial {shown(text)}: one setting for both axes (40) or az,el (40,20), each 0..100 %")
     try:
         values = [float(p) for p in parts]
     except ValueError:
-        raise ValueError(f"dial {text!r}: not a number") from None
+        raise ValueError(f"--dial {shown(text)}: not a number of percent, 0..100") from None
     if not all(0.0 <= v <= 100.0 for v in values):
-        raise ValueError(f"dial {text!r}: the dial turns from 0 to 100 %")
+        raise ValueError(f"--dial {shown(text)}: outside 0..100 % (the dial turns from 0 to 100 %)")
     return (values[0], values[-1])
 
 
@@ -438,10 +439,15 @@ def settings_from_args(args) -> DaySettings:
                            start=parse_clock(args.start) if args.start else None,
                            end=parse_clock(args.end) if args.end else None,
                            params=tuple(parse_param(p) for p in args.param or ()))
-    names = {spec.name for spec in firmware.parameter_table()}
-    for name, _ in settings.params:
+    table = firmware.parameter_table()
+    names = {spec.name for spec in table}
+    ranges = ParamStore(table)      # each value against its declared range, before the day's sun is computed
+    for name, value in settings.params:
         if name not in names:
             raise ValueError(f"--param {name}: the tracker has no such parameter; it has {', '.join(sorted(names))}")
+        reason, detail = ranges.set(name, value)
+        if reason is not Reason.OK:
+            raise ValueError(f"--param {detail}")
     if args.plot is not None:
         check_plot_path(args.plot)
     return settings

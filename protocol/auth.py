@@ -22,10 +22,12 @@ import secrets
 from dataclasses import dataclass
 from pathlib import Path
 
+from protocol import files
 from protocol.errors import KeyFileError
 from protocol.framing import MacKey
 
 KEY_BYTES = 32
+KEY_FILE_LIMIT = 4 * files.KIB   # a key is 64 hex digits; room for comment lines, not for a mistaken file
 MIN_KEY_BYTES = 16
 NONCE_BYTES = 16
 TO_CONTROLLER = b"h2c"
@@ -82,13 +84,18 @@ def parse_key(text: str, source: str) -> bytes:
     return key
 
 
-def load_key(path: Path | str) -> bytes:
-    path = Path(path)
+def load_key(path: Path | str, what: str = "key file") -> bytes:
+    """The key in the file at `path`; KeyFileError naming `what` (e.g. the option, `--key-file`) and the path.
+
+    Read through `files.read_bounded`: a regular file of at most KEY_FILE_LIMIT bytes."""
+    source = f"{what} {path}"
     try:
-        text = path.read_text(encoding="ascii")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise KeyFileError(f"{path}: cannot read key file: {exc}") from None
-    return parse_key(text, str(path))
+        text = files.read_bounded(path, KEY_FILE_LIMIT).decode("ascii")
+    except files.InputFileError as exc:
+        raise KeyFileError(f"{what} {exc}") from None
+    except UnicodeDecodeError:
+        raise KeyFileError(f"{source}: not a hex key (not ASCII text)") from None
+    return parse_key(text, source)
 
 
 def write_key(path: Path | str, key: bytes) -> None:
@@ -109,4 +116,4 @@ def load_or_create_dev_key(path: Path | str | None = None) -> tuple[bytes, Path]
     path = Path(path) if path is not None else default_key_path()
     if not path.exists():
         write_key(path, secrets.token_bytes(KEY_BYTES))
-    return load_key(path), path
+    return load_key(path, "development key"), path

@@ -136,6 +136,13 @@ socket carries bytes instantly, a real RS-422 line does not. At 9600 baud a byte
 """
 
 
+FIELD_TYPES = """Field types: `u8` to `u64` and `i8` to `i32` (integers), `f32` (IEEE 754 single; finite, and a
+value beyond +-3.4028235e38 cannot be sent), `bool` (one byte, 0 or 1), `bytesN` (N bytes), `strN` (a name:
+up to N of A-Z a-z 0-9 `_` `.` `-`, zero-padded to N bytes), `textN` (up to N printable ASCII characters,
+zero-padded to N bytes). A value outside its type or declared range is refused on encode and on decode.
+"""
+
+
 def _fields_table(spec) -> list[str]:
     if not spec.fields:
         return ["(no fields)", ""]
@@ -147,7 +154,7 @@ def _fields_table(spec) -> list[str]:
 
 
 def render() -> str:
-    out = [INTRO, LINE_TIMING, "## Messages", ""]
+    out = [INTRO, LINE_TIMING, "## Messages", "", FIELD_TYPES]
     out += ["| id | message | class | direction | reply | teleop | meaning |", "|---|---|---|---|---|---|---|"]
     specs = sorted(SCHEMA.by_id.values(), key=lambda s: s.id)
     for s in specs:

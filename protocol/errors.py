@@ -8,6 +8,17 @@ from __future__ import annotations
 from protocol.reasons import Reason
 
 
+SHOWN_CHARS = 40    # how much of a person's text an error message repeats
+
+
+def shown(text: str, head: int = SHOWN_CHARS) -> str:
+    """`text` quoted for an error message: whole if it is short, else its first `head` characters and its
+    length, so that a megabyte typed (or piped) by mistake is not echoed back whole."""
+    if len(text) <= head:
+        return repr(text)
+    return f"{text[:head]!r}... ({len(text)} chars)"
+
+
 class ProtocolError(Exception):
     """Base of every error this package raises."""
 

@@ -173,7 +173,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 (Field("index", "u16", "position in the controller's parameter table"),), reply="ParamValue"),
     MessageSpec("ParamSave", 0x19, MsgClass.COMMAND, H,
                 "Writes every parameter to the controller's parameter file (atomically).",
-                reply="Result", teleop="save"),
+                reply="ParamSaved", teleop="save"),
     MessageSpec("Move", 0x1A, MsgClass.COMMAND, H,
                 "Moves an axis to an absolute angle along a trapezoidal profile; the axis must be homed and "
                 "enabled, the target inside its soft limits. MotionDone reports the end.",
@@ -252,6 +252,12 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("max", "f32", "highest allowed value"),
                  Field("index", "u16", "position in the parameter table"),
                  Field("count", "u16", "number of parameters"))),
+    MessageSpec("ParamSaved", 0x86, MsgClass.COMMAND, C,
+                "Answers ParamSave: OK and the file written, or SAVE_FAILED and why not, in the operating system's "
+                "words (the previous file is intact).",
+                (_result(),
+                 Field("detail", "text200", "OK: the parameter file written; SAVE_FAILED: the reason, then the path "
+                       "(cut to 200 characters, ending in ...)"))),
     MessageSpec("BoxState", 0x85, MsgClass.COMMAND, C,
                 "Answers BoxSwitch and BoxDial: OK or the reason the command was refused, and the control box "
                 "as it now stands (unchanged after a refusal).",

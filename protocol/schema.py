@@ -16,7 +16,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Optional
 
-from protocol.errors import EncodeError, ParseError
+from protocol.errors import EncodeError, ParseError, shown
 from protocol.reasons import Reason
 
 
@@ -49,7 +49,10 @@ _TYPES: dict[str, tuple[str, tuple[float, float] | None]] = {
     "bool": ("B", (0, 1)),     # one byte, 0 or 1 (a struct "?" would read any non-zero byte as True)
 }
 _F32 = struct.Struct("<f")
+F32_MAX = _F32.unpack(b"\xff\xff\x7f\x7f")[0]     # the largest finite float32, 3.4028235e38
 _NAME = re.compile(r"[A-Za-z0-9_.\-]*")
+_TEXT = re.compile(r"[ -~]*")          # printable ASCII
+_SIZED = ("bytes", "str", "text")      # types with their size in their name: bytes16, str16, text200
 
 
 def _round_f32(value: float) -> float:
@@ -59,7 +62,8 @@ def _round_f32(value: float) -> float:
 
 @dataclass(frozen=True)
 class Field:
-    """One typed field. `type` is a key of the table above or `bytesN` (fixed length)."""
+    """One typed field. `type` is a key of the table above, `bytesN` (N raw bytes), `strN` (a name: up to N
+    of [A-Za-z0-9_.-], zero-padded) or `textN` (up to N printable ASCII characters, zero-padded)."""
 
     name: str
     type: str
@@ -71,21 +75,32 @@ class Field:
 
     @property
     def struct_code(self) -> str:
-        if self.type.startswith(("bytes", "str")):
+        if self.type.startswith(_SIZED):
             return f"{self.text_size}s"
         return _TYPES[self.type][0]
 
     @property
     def text_size(self) -> int:
-        """N of a `bytesN` or `strN` field (a `strN` is a name: up to N of [A-Za-z0-9_.-], zero-padded)."""
-        return int(self.type[5:] if self.type.startswith("bytes") else self.type[3:])
+        """N of a `bytesN`, `strN` or `textN` field."""
+        return int(self.type[len(self.type.rstrip("0123456789")):])
+
+    @property
+    def is_text(self) -> bool:
+        """A `strN` or `textN` field: a Python str, ASCII on the wire, zero-padded to N bytes."""
+        return self.type.startswith(("str", "text"))
+
+    def fit(self, text: str) -> str:
+        """`text` made valid for this `textN` field: other than printable ASCII becomes `?`, and what is longer
+        than N is cut, ending in `...` (for a controller's free-text detail, say an OS error)."""
+        text = "".join(c if " " <= c <= "~" else "?" for c in text[:self.text_size + 1])
+        return text if len(text) <= self.text_size else text[:self.text_size - 3] + "..."
 
     @property
     def limits(self) -> Optional[tuple[float, float]]:
         """The range checked on decode (declared, else the type's own for integers)."""
         if self.range is not None:
             return self.range
-        if self.type.startswith(("bytes", "str")) or self.type == "f32":
+        if self.type.startswith(_SIZED) or self.type == "f32":
             return None
         return _TYPES[self.type][1]
 
@@ -95,9 +110,9 @@ class Field:
         `check` gives the reason; this only says yes or no, cheaply, on the hot path.
         """
         lo, hi = self.range if self.range is not None else (None, None)
-        if self.type.startswith("str"):
-            size = self.text_size
-            return lambda v: isinstance(v, str) and len(v) <= size and _NAME.fullmatch(v) is not None
+        if self.is_text:
+            size, pattern = self.text_size, (_NAME if self.type.startswith("str") else _TEXT)
+            return lambda v: isinstance(v, str) and len(v) <= size and pattern.fullmatch(v) is not None
         if self.enum is not None:
             allowed = frozenset(int(m) for m in self.enum)
             return allowed.__contains__
@@ -121,13 +136,23 @@ class Field:
             return None
         if self.type.startswith("str"):
             if not isinstance(value, str) or len(value) > self.text_size or not _NAME.fullmatch(value):
-                return f"{self.name}={value!r} is not a name of up to {self.text_size} of A-Z a-z 0-9 _ . -"
+                what = shown(value) if isinstance(value, str) else repr(value)
+                return f"{self.name}={what} is not a name of up to {self.text_size} of A-Z a-z 0-9 _ . -"
+            return None
+        if self.type.startswith("text"):
+            if not isinstance(value, str) or len(value) > self.text_size or not _TEXT.fullmatch(value):
+                what = shown(value) if isinstance(value, str) else repr(value)
+                return f"{self.name}={what} is not text of up to {self.text_size} printable ASCII characters"
             return None
         if self.type == "bool" and value not in (0, 1):
             return f"{self.name}={value} is not 0 or 1"
         if self.type == "f32":
             if not math.isfinite(value):
                 return f"{self.name} is not a finite number ({value})"
+            try:
+                _round_f32(value)
+            except OverflowError:
+                return f"{self.name}={value:g} does not fit in f32 (at most {F32_MAX:g} either side of 0)"
         if self.range is not None:
             lo, hi = self.range
             if not lo <= value <= hi:
@@ -201,7 +226,7 @@ class MessageSpec:
             elif f.fast_check() is not None:
                 encode_checks.append((i, f, f.fast_check()))
         self._encode_checks = tuple(encode_checks)
-        self._text = tuple(i for i, f in enumerate(self.fields) if f.type.startswith("str"))
+        self._text = tuple(i for i, f in enumerate(self.fields) if f.is_text)
         names = [f.name for f in self.fields]
         spec = self
 
@@ -253,13 +278,15 @@ class MessageSpec:
         return tuple.__new__(self.type, values)
 
     def _text_from_wire(self, values: tuple) -> tuple:
-        """`strN` fields from their zero-padded bytes; anything but one name then zeros is refused."""
+        """`strN` and `textN` fields from their zero-padded bytes; anything but ASCII then zeros is refused (the
+        decode checks then test a name's characters, a text's printability)."""
         values = list(values)
         for index in self._text:
             raw = values[index]
             text = raw.rstrip(b"\x00")
             if b"\x00" in text or not text.isascii():
-                raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {self.fields[index].name} is not a name")
+                raise ParseError(Reason.OUT_OF_RANGE, f"{self.name}: {self.fields[index].name} is not "
+                                 + ("a name" if self.fields[index].type.startswith("str") else "text"))
             values[index] = text.decode("ascii")
         return tuple(values)
 

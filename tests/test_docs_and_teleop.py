@@ -67,12 +67,28 @@ def test_teleop_builds_messages_from_field_declarations():
     ("move j1 400", ["target=400.0 is outside [-360.0, 360.0] deg"]),
     ("grip tight", ["one of open, close"]),
     ('ping "unclosed', ["line 7"]),
+    ("set j1_kp 1e39", ["value=1e+39 does not fit in f32"]),         # finite, but not as a float32 on the wire
+    ("set j1_kp -4e38", ["does not fit in f32"]),
+    ("help nosuch", ["help: no command 'nosuch'", "`help` lists them all"]),
+    ("help pnig", ["did you mean `ping`?"]),
+    ("frobnicat", ["unknown command 'frobnicat'"]),
+    ("staus", ["did you mean `status`?"]),
+    ("get " + "x" * 5000, ["'get xxxx", "... (5004 chars) is longer than any command", "at most 1024"]),
+    ("get " + "x" * 500, ["name: 'xxxx", "... (500 chars) is not a valid str16"]),
+    ("ping 0x" + "f" * 200, ["token: '0xff", "... (202 chars) is not a valid u32"]),
 ])
 def test_teleop_refuses_bad_lines_with_a_reason(line, words):
     with pytest.raises(teleop.TeleopError) as err:
         teleop.parse_line(line, 7)
     for word in words:
         assert word in str(err.value)
+    assert len(str(err.value)) < 400          # a long word is not echoed whole
+
+
+def test_a_comment_may_be_long_and_a_script_check_stops_after_its_first_problems():
+    assert teleop.parse_line("ping  # " + "x" * 100_000, 1).message == SCHEMA["Ping"].type(0)
+    steps, problems = teleop.check_script(["warp 9"] * 1000)
+    assert len(problems) == 51 and problems[-1] == "checking stopped at line 50 of 1000 after 50 problems"
 
 
 def test_a_script_is_checked_whole_before_anything_runs():

@@ -17,6 +17,7 @@ import serial
 
 from host_tools.client import HostClient
 from protocol import auth
+from protocol.errors import LinkError
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
@@ -63,6 +64,16 @@ class Sim:
     def teleop(self, script: str, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
         return subprocess.run(ASPOD + ["teleop", self.url, *args], input=script.encode(), capture_output=True,
                               env=self.env, timeout=timeout_s)
+
+    def teleop_started(self, script: str) -> subprocess.Popen:
+        """`aspod teleop` running `script` in the background, once it has printed its first Pong."""
+        host = subprocess.Popen(ASPOD + ["teleop", self.url], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, env=self.env, bufsize=0)
+        host.stdin.write(script.encode())
+        host.stdin.close()
+        while "ok   Pong" not in read_line(host):
+            pass
+        return host
 
     def client(self) -> HostClient:
         client = HostClient(self.url, auth.load_key(self.key_path))
@@ -216,3 +227,90 @@ def test_teleop_reads_sets_and_saves_parameters(sim_factory, tmp_path):
     assert '"telemetry_hz": 5' in params.read_text()
     done = sim.teleop("set supply_min_v 99\n")
     assert done.returncode == 1 and "OUT_OF_RANGE" in done.stdout.decode()
+
+
+def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the_line(sim_factory):
+    """Another local process connects while the genuine host's session is live and writes garbage: it is
+    closed at once, the genuine session goes on undisturbed; when the genuine host leaves, the next connects."""
+    import socket
+    sim = sim_factory("--tcp", "0")
+    host, port = sim.url[len("socket://"):].rsplit(":", 1)
+    genuine = sim.client()
+    try:
+        assert genuine.call(M["Ping"](1)).ok
+        intruder = socket.create_connection((host, int(port)), timeout=30)
+        try:
+            intruder.sendall(random_bytes(4096))
+            try:
+                assert intruder.recv(1) == b""          # closed by the controller's port ...
+            except ConnectionResetError:
+                pass                                    # ... with its unread garbage thrown away
+        finally:
+            intruder.close()
+        for token in range(2, 7):
+            assert genuine.call(M["Ping"](token)).ok, genuine.io_error
+        status = genuine.call(M["GetStatus"]()).reply
+        assert not status.faults & Fault.LINK_LOST
+        assert genuine.wait_for(lambda: genuine.link.peer_stats is not None, 10.0)
+        before = genuine.link.peer_stats_s
+        assert genuine.wait_for(lambda: genuine.link.peer_stats_s != before, 10.0)   # a heartbeat after it all
+        assert genuine.link.peer_stats.crc_errors == 0     # none of the intruder's bytes reached the link
+        assert genuine.io_error is None and genuine.link.stats.auth_errors == 0
+    finally:
+        genuine.close()
+    following = sim.client()          # the genuine host left: the next one gets the line at once
+    try:
+        assert following.call(M["Ping"](7)).ok
+    finally:
+        following.close()
+
+
+def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
+    sim = sim_factory("--tcp", "0")
+    host = sim.teleop_started("ping\nwait 5\nping\nping\n")
+    sim.proc.kill()                               # the controller's end of the socket closes
+    sim.proc.wait(timeout=10)
+    assert host.wait(timeout=60) == 3
+    out, err = host.stdout.read().decode(), host.stderr.read().decode()
+    assert f"FAIL Ping: no answer, the link is down: {sim.url}: " in out and "socket disconnected" in out
+    assert f"error: line 3: 'ping': the link is down: {sim.url}: " in err
+    assert "retry limit" not in out + err
+
+
+def test_a_second_host_on_the_pty_is_named_as_the_trouble_and_exits_3(sim_factory):
+    """Two hosts on one pty steal each other's frames; the one whose session was replaced says so."""
+    sim = sim_factory("--pty")
+    first = sim.teleop_started("ping\nwait 8\nping\n")
+    second = None
+    for _attempt in range(10):                    # its HelloReply may be read by the first host: try again
+        try:
+            second = sim.client()
+            break
+        except LinkError:
+            continue
+    assert second is not None, "the second host never got a session"
+    try:
+        assert first.wait(timeout=90) == 3
+        out, err = first.stdout.read().decode(), first.stderr.read().decode()
+        # the cause as this end saw it: frames under another session's key, or (pyserial's words, when the other
+        # host read the bytes this one was woken for) "multiple access on port?"
+        assert "FAIL Ping: no answer, the link is down: " in out
+        assert "another program seems to be writing on the line" in err or "multiple access on port" in err, err
+        assert "error: line 3: 'ping': the link is down: " in err
+        assert "retry limit" not in out + err
+    finally:
+        second.close()
+
+
+def test_a_failed_save_shows_the_operating_systems_reason_at_teleop(sim_factory, tmp_path):
+    params = tmp_path / "params.json"
+    (tmp_path / "params.json.tmp").mkdir()        # where the save writes first: it cannot (root or not)
+    sim = sim_factory("--pty", "--params", str(params))
+    done = sim.teleop("set telemetry_hz 5\nsave\n")
+    out = done.stdout.decode()
+    assert done.returncode == 1, done.stderr.decode() + out
+    assert f"FAIL ParamSave: rejected: SAVE_FAILED (26) (Is a directory: {params}.tmp)" in out
+    assert not params.exists()
+    (tmp_path / "params.json.tmp").rmdir()
+    done = sim.teleop("save\n")
+    assert done.returncode == 0 and f"ok   parameters saved to {params}" in done.stdout.decode()

@@ -127,3 +127,28 @@ def test_link_timeout_parameter_applies_to_the_watchdog(tmp_path):
         assert bench.controller.supervisor.faults & Fault.LINK_LOST
     finally:
         bench.close()
+
+
+@pytest.mark.parametrize("kind, problem", [
+    ("fifo", "a FIFO (named pipe), not a regular file"),     # nobody writes to it: a plain open would hang
+    ("device", "a character device, not a regular file"),   # /dev/zero: a plain read would never end
+    ("large", "larger than 256 KiB"),
+])
+def test_a_path_that_is_no_parameter_file_is_not_read_and_defaults_stay(tmp_path, kind, problem):
+    from firmware_py.params import PARAMS_FILE_LIMIT
+    path = tmp_path / "p.json"
+    if kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "device":
+        path = "/dev/zero"
+    else:
+        path.write_text(json.dumps({"version": 1, "params": {"gain": 4.0}}) + " " * PARAMS_FILE_LIMIT)
+    store = ParamStore(SPECS, path)
+    problems = store.load()
+    assert len(problems) == 1 and problem in problems[0] and "keep their defaults" in problems[0]
+    assert store["gain"] == 1.0
+
+
+def test_a_missing_file_means_defaults_without_a_problem(tmp_path):
+    store = ParamStore(SPECS, tmp_path / "absent.json")
+    assert store.load() == [] and store["gain"] == 1.0

@@ -52,14 +52,24 @@ def _str_len(fld: Field) -> int | None:
     return int(fld.type[3:]) if fld.type.startswith("str") else None
 
 
+def _text_len(fld: Field) -> int | None:
+    """N of a `textN` field: up to N printable ASCII characters, zero-padded."""
+    return int(fld.type[4:]) if fld.type.startswith("text") else None
+
+
+def _ascii_len(fld: Field) -> int | None:
+    """N of a field carried as N bytes of ASCII, zero-padded (names and texts)."""
+    return _str_len(fld) if _str_len(fld) is not None else _text_len(fld)
+
+
 def _code(fld: Field) -> str:
-    n = _bytes_len(fld) if _bytes_len(fld) is not None else _str_len(fld)
+    n = _bytes_len(fld) if _bytes_len(fld) is not None else _ascii_len(fld)
     return f"{n}s" if n is not None else _WIRE[fld.type][0]
 
 
 def wire_values(spec: MessageSpec, msg) -> list:
-    """The values as the payload carries them: names as ASCII bytes."""
-    return [v.encode("ascii") if _str_len(f) is not None else v for f, v in zip(spec.fields, msg)]
+    """The values as the payload carries them: names and texts as ASCII bytes."""
+    return [v.encode("ascii") if _ascii_len(f) is not None else v for f, v in zip(spec.fields, msg)]
 
 
 def wire_struct(spec: MessageSpec) -> struct.Struct:
@@ -108,6 +118,9 @@ def field_strategy(fld: Field) -> st.SearchStrategy[Any]:
     n = _str_len(fld)
     if n is not None:
         return st.from_regex(rf"[A-Za-z0-9_.\-]{{0,{n}}}", fullmatch=True)
+    n = _text_len(fld)
+    if n is not None:
+        return st.text(st.characters(min_codepoint=0x20, max_codepoint=0x7E), max_size=n)
     if fld.type not in _WIRE:
         raise AssertionError(f"field {fld.name}: type {fld.type!r} is new; teach tests/test_schema.py about it")
     if fld.type == "bool":
@@ -142,6 +155,9 @@ def bad_value_strategy(fld: Field) -> st.SearchStrategy[Any] | None:
     elif _str_len(fld) is not None:
         # ASCII the wire can carry, but not a name
         options.append(st.from_regex(r"[A-Za-z0-9]{0,6}[ !@#$%^&*()+=,;:~]{1,6}", fullmatch=True))
+    elif _text_len(fld) is not None:
+        # ASCII the wire can carry, but not printable (a zero only as padding: one inside would end the text)
+        options.append(st.from_regex(r"[ -~]{0,6}[\x01-\x1f\x7f]{1,6}", fullmatch=True))
     elif fld.type in _WIRE and _WIRE[fld.type][1] is not None:
         type_lo, type_hi = _WIRE[fld.type][1]
         lo, hi = _int_limits(fld)
@@ -232,6 +248,10 @@ def test_unrepresentable_value_is_an_encode_error(name: str, data):
         bad = data.draw(st.text(min_size=_str_len(fld) + 1, max_size=_str_len(fld) + 8)
                         | st.text(min_size=1).filter(lambda t: any(not (c.isascii() and (c.isalnum() or c in "_.-"))
                                                                     for c in t)), label="text")
+    elif _text_len(fld) is not None:
+        printable = st.characters(min_codepoint=0x20, max_codepoint=0x7E)
+        bad = data.draw(st.text(printable, min_size=_text_len(fld) + 1, max_size=_text_len(fld) + 8)
+                        | st.text(min_size=1).filter(lambda t: any(not " " <= c <= "~" for c in t)), label="text")
     else:
         type_lo, type_hi = _WIRE[fld.type][1]
         bad = data.draw(st.integers(max_value=type_lo - 1) | st.integers(min_value=type_hi + 1), label="int")
@@ -365,6 +385,8 @@ def _other_type(fld: Field) -> str:
         return f"bytes{n + 1}"
     if _str_len(fld) is not None:
         return f"str{_str_len(fld) + 1}"
+    if _text_len(fld) is not None:
+        return f"text{_text_len(fld) + 1}"
     return {"u8": "i8", "i8": "u8", "u16": "i16", "i16": "u16", "u32": "i32", "i32": "u32",
             "u64": "u32", "f32": "u32", "bool": "u8"}[fld.type]
 
@@ -420,3 +442,13 @@ def test_hash_changes_with_message_id(name: str):
 def test_swapping_two_message_ids_changes_the_hash():
     a, b = SCHEMA["Enable"], SCHEMA["Disable"]
     assert _rebuild({a.name: _copy(a, id=b.id), b.name: _copy(b, id=a.id)}).hash != SCHEMA.hash
+
+
+def test_a_text_field_fits_any_text_to_what_it_can_carry():
+    detail = SCHEMA["ParamSaved"].fields[1]
+    assert detail.fit("Permission denied: /srv/params.json") == "Permission denied: /srv/params.json"
+    fitted = detail.fit("No space left on device: /m\u00fcnchen/\t" + "x" * 500)
+    assert len(fitted) == detail.text_size and fitted.endswith("...") and detail.check(fitted) is None
+    assert fitted.startswith("No space left on device: /m?nchen/?")
+    assert SCHEMA["ParamSaved"].decode(SCHEMA["ParamSaved"].encode(SCHEMA["ParamSaved"].type(26, fitted))).detail \
+        == fitted

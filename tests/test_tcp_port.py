@@ -1,0 +1,118 @@
+"""The controller's TCP port over real loopback sockets: who holds the line, and whose bytes reach the controller.
+
+`TcpServerPort` under a `PacedUart`, driven with an explicit `now` (the line's time), while real
+sockets connect, write and close. The only waits are for the kernel to move bytes between two
+sockets of this process: bounded polls of at most `WAIT_S`, each ending as soon as the bytes are
+there. The same policy through the real `aspod sim --tcp` is in tests/test_e2e.py.
+"""
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from firmware_py.uart import PacedUart, TcpServerPort
+from timebase import RealClock
+
+pytestmark = pytest.mark.pty
+WAIT_S = 10.0        # loopback moves bytes in microseconds; this bound only ends a test that would hang
+BYTE_S = 10 / 9600   # one byte on the wire at 9600 baud
+
+
+def until(predicate, what: str):
+    clock = RealClock()
+    deadline = clock.now() + WAIT_S
+    while not predicate():
+        if clock.now() > deadline:
+            raise AssertionError(f"not within {WAIT_S} s: {what}")
+        clock.sleep(0.002)
+
+
+def closed_by_peer(sock: socket.socket) -> bool:
+    """The other end closed `sock` (end of stream, or a reset because unread bytes were thrown away)."""
+    sock.settimeout(WAIT_S)
+    try:
+        return sock.recv(1) == b""
+    except ConnectionResetError:
+        return True
+
+
+def settle(uart: PacedUart, now: float, predicate, what: str) -> None:
+    """Poll the port (through the UART, at line time `now`: nothing more is delivered) until `predicate()`."""
+    until(lambda: uart.receive(now) == b"" and predicate(), what)
+
+
+def delivered_after(uart: PacedUart, n: int, now: float) -> tuple[bytes, float]:
+    """The next `n` bytes the line delivers, the line's time stepping 10 ms at a time from `now`."""
+    got = bytearray()
+    settle(uart, now, lambda: uart.rx_busy, f"{n} bytes reach the UART")
+    while len(got) < n:
+        now += 0.01
+        got += uart.receive(now)
+        assert now < 10.0, bytes(got)
+    return bytes(got), now
+
+
+@pytest.fixture
+def line():
+    port = TcpServerPort(0)
+    uart = PacedUart(port, 9600)
+    sockets: list[socket.socket] = []
+
+    def connect() -> socket.socket:
+        sockets.append(socket.create_connection(("127.0.0.1", port.port), timeout=WAIT_S))
+        return sockets[-1]
+    yield port, uart, connect
+    for sock in sockets:
+        sock.close()
+    uart.close()
+
+
+def test_a_client_without_a_session_is_displaced_and_what_it_left_in_the_uart_is_not_delivered(line):
+    port, uart, connect = line
+    old = connect()
+    old.sendall(b"\x01" * 2000)          # 2 s of line at 9600 baud
+    first, now = delivered_after(uart, 50, 0.0)     # some are delivered, most wait in the UART
+    assert set(first) == {1} and uart.rx_busy
+    new = connect()
+    settle(uart, now, lambda: port.connections == 2, "the new client is taken")
+    assert uart.discarded_rx_bytes > 1000
+    new.sendall(b"\x02" * 10)
+    got, now = delivered_after(uart, 10, now)
+    assert got == b"\x02" * 10                       # none of the old client's held bytes
+    assert closed_by_peer(old)
+
+
+def test_a_client_that_brought_a_live_session_keeps_the_line_and_the_newcomer_is_closed_at_once(line):
+    port, uart, connect = line
+    live = [None]
+    port.live_session = lambda: live[0]
+    genuine = connect()
+    settle(uart, 0.0, lambda: port.connections == 1, "the genuine host is taken")
+    live[0] = object()                   # its handshake completed: a session the controller holds
+    intruder = connect()
+    intruder.sendall(b"\xff" * 100)
+    settle(uart, 0.0, lambda: port.refused == 1, "the intruder is refused")
+    assert closed_by_peer(intruder)
+    genuine.sendall(b"\x03" * 5)
+    got, now = delivered_after(uart, 5, 0.0)
+    assert got == b"\x03" * 5 and port.connections == 1 and port.generation == 0
+    live[0] = None                       # the link timed out: no live session any more
+    newcomer = connect()
+    settle(uart, now, lambda: port.connections == 2, "a newcomer displaces a host whose link timed out")
+    assert closed_by_peer(genuine)
+    newcomer.close()
+
+
+def test_a_session_that_was_live_before_the_client_connected_is_not_the_clients(line):
+    """A squatter that connects while the previous host's session has not timed out yet does not inherit it."""
+    port, uart, connect = line
+    stale = object()
+    port.live_session = lambda: stale    # the last host left a second ago; its link has not timed out
+    squatter = connect()
+    settle(uart, 0.0, lambda: port.connections == 1, "the squatter is taken")
+    genuine = connect()
+    settle(uart, 0.0, lambda: port.connections == 2, "the genuine host displaces it")
+    assert port.refused == 0 and closed_by_peer(squatter)
+    genuine.close()
+    settle(uart, 0.0, lambda: port.generation == 2, "the genuine host's leaving is seen")
