@@ -101,6 +101,7 @@ class TcpServerPort:
         self.port = self._listener.getsockname()[1]
         self.url = f"socket://{host}:{self.port}"
         self.live_session: Callable[[], object] = lambda: None
+        self.on_refused: Callable[[str], None] = lambda peer: None   # told "host:port" of each refused
         self.connections = 0     # clients that became the line's other end
         self.refused = 0         # connections closed at once: the present client carries a live session
         self.generation = 0      # changes of client (connected, replaced, gone)
@@ -115,7 +116,7 @@ class TcpServerPort:
     def _accept(self) -> None:
         for _ in range(self.MAX_ACCEPTS_PER_READ):
             try:
-                client, _addr = self._listener.accept()
+                client, addr = self._listener.accept()
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:        # a connection reset before it was taken, say
@@ -123,6 +124,7 @@ class TcpServerPort:
             if self.client_has_session():
                 client.close()
                 self.refused += 1
+                self.on_refused(f"{addr[0]}:{addr[1]}")
                 continue
             client.setblocking(False)
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

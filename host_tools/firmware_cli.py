@@ -48,9 +48,13 @@ from host_tools.teleop_format import describe_report
 PLANT_WATCH_S = 0.1
 
 
-def open_port(args: argparse.Namespace) -> Port:
+def open_port(args: argparse.Namespace, prog: str) -> Port:
+    """The controller's side of the line; a TCP port says on stderr when it refuses a newcomer."""
     if args.tcp is not None:
-        return TcpServerPort(args.tcp)
+        port = TcpServerPort(args.tcp)
+        port.on_refused = lambda peer: print(f"{prog}: refused a TCP connection from {peer}: a live "
+                                             "authenticated session holds the line", file=sys.stderr, flush=True)
+        return port
     if args.port is not None:
         return DevicePort(args.port, args.baud)
     return PtyPort()
@@ -119,7 +123,7 @@ def run_controller(args: argparse.Namespace, prog: str, interface: str, channel:
     uart = None
     controller: Optional[Controller] = None
     try:
-        port = open_port(args)
+        port = open_port(args, prog)
         uart = PacedUart(port, args.baud, not args.no_pacing)
         controller = nodes.build_controller(psk, uart, follower.tap if follower else bus, config)
         params = controller.params

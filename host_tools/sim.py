@@ -37,7 +37,7 @@ def run_sim(args: argparse.Namespace) -> int:
         return run_sim_over_hal(args)
     psk, key_path, params_path, config = controller_config(args)
     sun = tracker_options(args)
-    port = open_port(args)
+    port = open_port(args, "aspod sim")
     wall = RealClock()
     world = World(PacedClock(wall, args.speed), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
                   controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg, link_clock=wall, **sun)

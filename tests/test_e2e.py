@@ -263,6 +263,9 @@ def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the
         assert following.call(M["Ping"](7)).ok
     finally:
         following.close()
+    sim.stop()
+    assert re.search(rb"aspod sim: refused a TCP connection from 127\.0\.0\.1:\d+: a live authenticated session "
+                     rb"holds the line", sim.proc.stderr.read())
 
 
 def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
