@@ -134,3 +134,18 @@ def test_ticks_the_loop_missed_widen_the_glitch_check_instead_of_faulting():
     # ... but not once the estimator knows that 29 ticks went by unseen
     moving.skip(29)
     assert moving.update(240) == 0 and AxisError.ENCODER_GLITCH
+
+
+def test_stale_currents_fault_by_current_stale_s_when_it_is_the_tighter_limit():
+    bench = LockstepBench(tracker=False)
+    hal = bench.controller.hal
+    hal.bus = LoseFeedback(hal.bus)
+    assert bench.connect() and bench.call(M["Enable"]()).ok
+    assert bench.call(M["ParamSet"]("encoder_stale_s", 0.5)).ok and bench.call(M["ParamSet"]("current_stale_s", 0.03)).ok
+    hal.bus.lost = True
+    assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 1.0)
+    assert bench.controller.supervisor.safe_reason is Reason.CURRENT_STALE
+    bench.run_for(0.1)
+    report = reports(bench, "FaultReport")[0]
+    assert (report.cause, report.reason, report.fault) == (FaultCause.CURRENT_AGE, Reason.CURRENT_STALE, Fault.HAL_STALE)
+    assert report.limit_ms == pytest.approx(30.0) and 30.0 <= report.value_ms <= 32.0
