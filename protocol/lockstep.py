@@ -143,8 +143,9 @@ class LockstepFollower(Clock):
         self._answered = False
         self._waiting_since = None
         wall_now = self.wall.now()
-        if self._first_grant is None:
+        if self._first_grant is None:         # measured from the first tick: the wait for the plant is not slowness
             self._first_grant = (wall_now, self._now)
+            self.meter = RateMeter(wall_now, self._now)
         self.meter.sample(wall_now, self._now)
 
     def _send_done(self) -> None:
