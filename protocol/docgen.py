@@ -7,7 +7,8 @@ when the committed file differs from what this prints.
 from __future__ import annotations
 
 from protocol import framing
-from protocol.link import LinkConfig
+from protocol.host_link import SENT_TAGS
+from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import MsgClass
@@ -78,7 +79,11 @@ block genuine traffic. A frame recorded in an earlier session fails the MAC in a
 one, whichever end restarted; keys differ per direction, so a frame reflected back to
 its sender fails too. A controller that has no session answers frames with
 `NO_SESSION`, signed with the handshake key; a host that receives such a NAK while up
-starts a new session (its unanswered commands end `FAILED`/`SESSION_RESET`).
+starts a new session (its unanswered commands end `FAILED`/`SESSION_RESET`). Since such
+a NAK could be recorded and played back, every NAK echoes the first {NAK_TAG_BYTES} bytes of the
+refused frame's tag (`refused_tag`), and a host that is up believes a handshake NAK only
+if that is the tag of one of the last {SENT_TAGS} frames it sent in this session; any other
+is counted as a replay and ignored ([protocol_security.md](protocol_security.md)).
 
 ## Classes and delivery
 

@@ -132,7 +132,9 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("refused_class", "u8", "class of the refused frame"),
                  Field("refused_seq", "u16", "sequence number of the refused frame"),
                  Field("refused_msg", "u16", "message id of the refused frame"),
-                 Field("expected_seq", "u16", "next sequence number the sender of the NAK expects"))),
+                 Field("expected_seq", "u16", "next sequence number the sender of the NAK expects"),
+                 Field("refused_tag", "bytes8", "first 8 bytes of the refused frame's MAC tag (zeros if it had "
+                       "none): binds the NAK to that one frame, so a recorded NAK refuses nothing later"))),
     # ---- commands (reliable, in order, exactly once) ----
     MessageSpec("Ping", 0x10, MsgClass.COMMAND, H, "Round-trip check through the command channel.",
                 (Field("token", "u32", "any value; echoed back", default=0),), reply="Pong", teleop="ping"),
