@@ -7,6 +7,7 @@ when the committed file differs from what this prints.
 from __future__ import annotations
 
 from protocol import framing
+from protocol.controller_link import HELLO_REANSWER_S, MAX_PENDING_SESSIONS, MAX_WAITING_HELLOS, PENDING_MIN_LIFE_S
 from protocol.host_link import SENT_TAGS
 from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
@@ -71,6 +72,15 @@ host tools default to the same file.
    nonce | controller nonce)`. The controller keeps the new session *pending* and
    adopts it when the first frame signed with its key arrives (the host sends a
    `Heartbeat` at once), so a replayed `Hello` cannot displace a live session.
+
+A `Hello` can be recorded and played back, so the controller bounds its answers: a
+`Hello` whose nonce opened a session a host adopted is a replay (counted, never
+answered); a nonce is answered at most once in {HELLO_REANSWER_S:g} s; the answers go out at
+most {LinkConfig.hello_rate_per_s:g} a second, after the live session's replies and events, the nonce
+answered least often first; at most {MAX_WAITING_HELLOS} wait, and at most {MAX_PENDING_SESSIONS} sessions are
+pending, none evicted within {PENDING_MIN_LIFE_S:g} s of its answer. A host that is up therefore keeps its round trip
+under a flood of recorded `Hello`s, and a new host still connects
+([protocol_security.md](protocol_security.md)).
 
 A receiver checks, in this order and before any state changes: CRC, header, MAC,
 then that the counter is above the last one accepted in this session. The counter is

@@ -297,11 +297,8 @@ class HostLink(LinkEndpoint):
             return
         if verdict is Verdict.NEW:
             self._events.accept(frame.seq, None)
-            try:
-                msg = spec.decode(frame.payload)
-            except ParseError:
-                self.stats.rejected += 1
-            else:
+            msg = self._decode(frame)
+            if msg is not None:
                 self.on_event(msg, now)
         self.send_message(SCHEMA["Ack"].type(), PRIO_RELIABLE)
 

@@ -54,6 +54,7 @@ class LinkConfig:
     max_rto_s: float = 2.0
     hello_tries: int = 5
     nak_rate_per_s: float = 10.0         # answers to unauthenticated or malformed frames
+    hello_rate_per_s: float = 4.0        # controller: HelloReplies a second, to all hosts together
     telemetry_backlog: int = 2           # telemetry frames queued before the oldest is dropped
 
     def __post_init__(self) -> None:
@@ -66,11 +67,41 @@ class LinkConfig:
             (0 < self.min_rto_s <= self.initial_rto_s <= self.max_rto_s, "need 0 < min_rto <= initial_rto <= max_rto"),
             (1 <= self.hello_tries <= 100, "hello_tries must be within 1..100"),
             (self.nak_rate_per_s >= 0, "nak_rate_per_s must be >= 0"),
+            (0.1 <= self.hello_rate_per_s <= 1000, "hello_rate_per_s must be within 0.1..1000"),
             (1 <= self.telemetry_backlog <= 64, "telemetry_backlog must be within 1..64"),
         ]
         for ok, why in checks:
             if not ok:
                 raise ValueError(f"LinkConfig: {why}")
+
+
+class TokenBucket:
+    """At most `rate_per_s` a second on average and `burst` at once, on the `now` it is given."""
+
+    def __init__(self, rate_per_s: float, burst: float) -> None:
+        self.rate_per_s = rate_per_s
+        self.burst = burst
+        self.tokens = burst
+        self._refilled_s: Optional[float] = None
+
+    def _refill(self, now: float) -> None:
+        if self._refilled_s is not None:
+            self.tokens = min(self.burst, self.tokens + (now - self._refilled_s) * self.rate_per_s)
+        self._refilled_s = now
+
+    def take(self, now: float) -> bool:
+        """Spend a token if there is one."""
+        self._refill(now)
+        if self.tokens < 1:
+            return False
+        self.tokens -= 1
+        return True
+
+    def ready_s(self) -> float:
+        """When a token will be there (-inf: now)."""
+        if self.tokens >= 1 or self._refilled_s is None:
+            return -math.inf
+        return self._refilled_s + (1 - self.tokens) / self.rate_per_s if self.rate_per_s > 0 else math.inf
 
 
 @dataclass
@@ -93,6 +124,7 @@ class LinkStats:
     stale_duplicates: int = 0   # a duplicate older than the reply cache (a sender outside its window)
     telemetry_dropped: int = 0  # queued telemetry dropped because the wire was busy
     telemetry_lost: int = 0     # host: gaps in the telemetry sequence
+    hellos_dropped: int = 0     # controller: Hellos not answered (answered < 0.5 s ago, or others deserved it more)
     reasons: dict = field(default_factory=dict)  # Reason -> count of every refusal
 
     def count(self, reason: Reason) -> None:
@@ -153,8 +185,7 @@ class LinkEndpoint:
         self._telemetry_seq = 0
         self._next_heartbeat_s: Optional[float] = None
         self.heartbeat_s = self.config.heartbeat_s
-        self._nak_tokens = self.config.nak_rate_per_s
-        self._nak_refill_s: Optional[float] = None
+        self._naks = TokenBucket(self.config.nak_rate_per_s, self.config.nak_rate_per_s)
         self.last_valid_rx_s: Optional[float] = None
         self.started_s: Optional[float] = None
         # Called when the link has work for its transport that no timer announces: a frame queued,
@@ -245,12 +276,7 @@ class LinkEndpoint:
         self._send_nak(reason, frame, expected)
 
     def _nak_if_allowed(self, reason: Reason, frame: Optional[Frame], now: float) -> None:
-        if self._nak_refill_s is not None:
-            self._nak_tokens = min(self.config.nak_rate_per_s,
-                                   self._nak_tokens + (now - self._nak_refill_s) * self.config.nak_rate_per_s)
-        self._nak_refill_s = now
-        if self._nak_tokens >= 1:
-            self._nak_tokens -= 1
+        if self._naks.take(now):
             self._send_nak(reason, frame, 0)
 
     def _send_nak(self, reason: Reason, frame: Optional[Frame], expected: int) -> None:
@@ -331,9 +357,10 @@ class LinkEndpoint:
         wire, tag = encode_signed(out.cls, out.seq, self._ack_value(), out.msg_id, out.payload, key, counter)
         if not out.handshake:
             self._sent_in_session(tag)
-        if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:
-            # any frame the peer must act on proves the link alive: the heartbeat waits
-            self._next_heartbeat_s = now + self.heartbeat_s
+            if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:
+                # any session frame the peer must act on proves the link alive: the heartbeat waits (not an
+                # answer to some other host's Hello, which the peer does not see as ours)
+                self._next_heartbeat_s = now + self.heartbeat_s
         self.stats.frames_tx += 1
         self.stats.bytes_tx += len(wire)
         return wire
