@@ -21,6 +21,11 @@ recorded and played back at any rate (docs/protocol_security.md):
   another within `PENDING_MIN_LIFE_S`, so a host that got its answer has time to adopt it;
   answering its Hello again does not extend that, so recordings played back cannot hold
   the places for ever.
+
+Events survive fades and new sessions: those a session did not acknowledge are offered
+again in the next one, behind an `EventsCarriedOver` event that says how many of them an
+earlier host was sent (it may have seen them, its acknowledgement lost) and how many were
+lost for want of room (`MAX_UNDELIVERED_EVENTS`).
 """
 from __future__ import annotations
 
@@ -48,7 +53,8 @@ HELLO_REANSWER_S = 0.5        # a nonce is answered at most once in this long (a
 HELLO_BURST = 2               # HelloReplies at once before `hello_rate_per_s` holds
 HELLO_MEMORY = 256            # nonces answered, with how often (the least often answered goes first)
 COMPLETED_MEMORY = 256        # nonces of adopted sessions: a Hello bearing one is a replay
-MAX_UNDELIVERED_EVENTS = 64
+MAX_UNDELIVERED_EVENTS = 64   # events kept for the next session
+CARRIED_OVER = SCHEMA["EventsCarriedOver"]
 
 
 @dataclass
@@ -86,7 +92,8 @@ class ControllerLink(LinkEndpoint):
         self._before_hellos = self._queues[:PRIO_HEARTBEAT]
         self._after_hellos = self._queues[PRIO_HEARTBEAT:]
         self._after_hellos_no_telemetry = self._queues[PRIO_HEARTBEAT:PRIO_TELEMETRY]
-        self._undelivered: list[Pending] = []
+        self._undelivered: list[Pending] = []    # events for the next session; context True: offered already
+        self._events_dropped = 0
         self.link_lost = False
         self.commands_executed = 0
         self._new_channels()
@@ -215,11 +222,37 @@ class ControllerLink(LinkEndpoint):
         self.session = session
         self.state = LinkState.UP
         self._new_channels()
-        for item in self._undelivered[-MAX_UNDELIVERED_EVENTS:]:
-            self._events.submit(item.msg_id, item.payload)
-        self._undelivered = []
+        self._carry_over_events()
         self._next_heartbeat_s = None
         self._on_session(self.last_valid_rx_s or 0.0)
+
+    def _keep_undelivered(self) -> None:
+        """Keep the newest `MAX_UNDELIVERED_EVENTS`; count the others as dropped."""
+        excess = len(self._undelivered) - MAX_UNDELIVERED_EVENTS
+        if excess > 0:
+            del self._undelivered[:excess]
+            self._events_dropped += excess
+
+    def _carry_over_events(self) -> None:
+        """Offer the new session the events the old one left, behind an `EventsCarriedOver` if any of them was
+        offered before (sent at least once, in that session or an earlier one) or some were dropped."""
+        items = []
+        for item in self._undelivered:
+            if item.msg_id == CARRIED_OVER.id:    # an earlier marker never acknowledged: a new one replaces it
+                self._events_dropped += CARRIED_OVER.decode(item.payload).dropped
+            else:
+                items.append(item)
+        self._undelivered = items
+        self._keep_undelivered()
+        offered = max((i + 1 for i, item in enumerate(self._undelivered)
+                       if item.context or item.first_sent_s is not None), default=0)
+        if offered or self._events_dropped:
+            marker = CARRIED_OVER.type(min(offered, 0xFFFF), min(self._events_dropped, 0xFFFF))
+            self._events.submit(CARRIED_OVER.id, CARRIED_OVER.encode(marker))
+        for i, item in enumerate(self._undelivered):
+            self._events.submit(item.msg_id, item.payload, context=i < offered)
+        self._undelivered = []
+        self._events_dropped = 0
 
     # ---- session frames ----
     def _handle(self, frame: Frame, spec, now: float) -> None:
@@ -284,7 +317,7 @@ class ControllerLink(LinkEndpoint):
         spec = msg.spec
         if self.session is None:
             self._undelivered.append(Pending(spec.id, spec.encode(msg)))
-            del self._undelivered[:-MAX_UNDELIVERED_EVENTS]
+            self._keep_undelivered()
             return
         self._events.submit(spec.id, spec.encode(msg))
         self.on_work()

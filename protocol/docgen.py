@@ -7,7 +7,8 @@ when the committed file differs from what this prints.
 from __future__ import annotations
 
 from protocol import framing
-from protocol.controller_link import HELLO_REANSWER_S, MAX_PENDING_SESSIONS, MAX_WAITING_HELLOS, PENDING_MIN_LIFE_S
+from protocol.controller_link import (HELLO_REANSWER_S, MAX_PENDING_SESSIONS, MAX_UNDELIVERED_EVENTS, MAX_WAITING_HELLOS,
+                                      PENDING_MIN_LIFE_S)
 from protocol.host_link import SENT_TAGS
 from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
@@ -125,6 +126,12 @@ the state of the command stream, and are deduplicated the same way.
 
 **Events** use the same machinery in the other direction: the host acknowledges them
 with the `ack` field of any frame (an `Ack` frame when it has nothing else to send).
+Events a session did not acknowledge are offered again in the next one (the newest
+{MAX_UNDELIVERED_EVENTS} are kept). A host may have received some of them and lost only its
+acknowledgement, so they come behind an `EventsCarriedOver` event that counts those an earlier
+session was sent (and those dropped for want of room): the host shows them as from an
+earlier session, possibly seen already, not as new. A host that closes sends what it has
+queued first (its last acknowledgements).
 
 **Heartbeats** go both ways with the sender's link statistics, {LinkConfig.heartbeat_s:.0f} s after the sender's
 last frame other than telemetry (any authenticated frame proves the link alive, and on a

@@ -11,6 +11,11 @@ the handshake key. Such a NAK could be recorded once and replayed forever, so wh
 session is up the host acts on one (a new handshake) only if it echoes the tag of a frame
 the host sent in this session (it keeps the last `SENT_TAGS`); any other is a replay,
 counted and ignored.
+
+Events come to `on_event(msg, now)` once each. An `EventsCarriedOver(count)` says that the
+next `count` were sent to an earlier session, whose host may have seen them (its
+acknowledgement lost); while `on_event` handles one of those,
+`event_from_earlier_session` is True.
 """
 from __future__ import annotations
 
@@ -97,6 +102,7 @@ class HostLink(LinkEndpoint):
         self._telemetry_expected: Optional[int] = None
         self._retransmits_before = 0
         self._sent_tags: deque[bytes] = deque(maxlen=SENT_TAGS)
+        self.event_from_earlier_session = False   # while on_event runs: see the module's doc
         self._new_channels()
 
     def _new_channels(self) -> None:
@@ -106,6 +112,7 @@ class HostLink(LinkEndpoint):
         self._urgent = ReliableSender(window=cfg.window, retry_limit=cfg.retry_limit, in_order=False,
                                       rtt=self._commands.rtt)
         self._events = ReliableReceiver()
+        self._earlier_events = 0     # events still to come that an earlier session was sent (EventsCarriedOver)
 
     # ---- handshake ----
     def connect(self, now: float) -> None:
@@ -297,9 +304,17 @@ class HostLink(LinkEndpoint):
             return
         if verdict is Verdict.NEW:
             self._events.accept(frame.seq, None)
+            earlier = self._earlier_events > 0 and spec.name != "EventsCarriedOver"
+            self._earlier_events -= earlier
             msg = self._decode(frame)
             if msg is not None:
-                self.on_event(msg, now)
+                if spec.name == "EventsCarriedOver":
+                    self._earlier_events = msg.count
+                self.event_from_earlier_session = earlier
+                try:
+                    self.on_event(msg, now)
+                finally:
+                    self.event_from_earlier_session = False
         self.send_message(SCHEMA["Ack"].type(), PRIO_RELIABLE)
 
     def _ack_value(self) -> int:

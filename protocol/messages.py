@@ -317,6 +317,13 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("temp_c", "f32", "the temperature read", "degC"),
                  Field("limit_c", "f32", "the fault limit it is about", "degC"),
                  Field("uptime_ms", "u32", "controller uptime", "ms"))),
+    MessageSpec("EventsCarriedOver", 0x4F, MsgClass.EVENT, C,
+                "First event of a session when an earlier session left events unacknowledged: the next `count` "
+                "events were sent to an earlier host, which may have seen them (its acknowledgement may be what "
+                "was lost); events that no session was sent follow them as new.",
+                (Field("count", "u16", "how many of the events that follow were offered to an earlier session"),
+                 Field("dropped", "u16", "events lost since the last session because more were waiting for a "
+                       "session than the controller keeps"))),
 ])
 
 globals().update({name: spec.type for name, spec in SCHEMA.by_name.items()})
