@@ -35,6 +35,7 @@ from protocol.schema import Message, MsgClass, Schema
 
 SENT_TAGS = 64    # tags of the last frames sent in this session that a handshake NAK may echo
 
+
 @dataclass(eq=False)
 class CommandHandle:
     """One command from submission to its single terminal outcome."""
