@@ -140,6 +140,19 @@ class HostClient:
         return handle
 
     def close(self) -> None:
+        """Stop the pump, send what the link still has queued, then close the port.
+
+        What is queued may be the Acks of the last events: without them the controller offers those events
+        again to the next host (marked as from an earlier session, but a host should not leave them behind).
+        Unread input is discarded first, so that a TCP connection ends with FIN after the last bytes rather
+        than with a reset, which may discard what is still in flight.
+        """
         self._stop = True
         self._thread.join(timeout=2.0)
+        with self._cond:
+            try:
+                self._flush(self.clock.now())
+                self.serial.reset_input_buffer()
+            except (serial.SerialException, OSError):
+                pass                          # the port is gone already: nothing more can be sent
         self.serial.close()

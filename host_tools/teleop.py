@@ -64,6 +64,7 @@ BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker ne
 ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
 TELEMETRY_SILENCE_S = 15.0   # a wait in the controller's time ends if no telemetry comes for this long (wall)
 SIMULATED_TIMINGS = (TimingMode.PACED, TimingMode.LOCKSTEP)
+EARLIER_SESSION_NOTE = " (from an earlier session; may have been seen already)"
 
 
 class AlignedWatch:
@@ -122,16 +123,35 @@ class Session:
             aligned.feed(msg)
 
     def _on_event(self, msg: Message, now: float) -> None:
+        """An event, as it arrives; one an earlier session was sent (EventsCarriedOver) is said to be."""
+        if msg.spec.name == "EventsCarriedOver":
+            if self.all_events:
+                self.console.line(f"{self.event_prefix}! {self._carried_over_text(msg)}")
+            return
+        note = EARLIER_SESSION_NOTE if self.client.link.event_from_earlier_session else ""
         if msg.spec.name == "MotionDone":
             mine, replaced, show = self.tracker.on_done(msg, now)
-            lines = replaced_lines(replaced) + (end_lines(msg, mine) if show else [])
+            ends = end_lines(msg, mine) if show else []
+            if ends:
+                ends[0] += note
+            lines = replaced_lines(replaced) + ends
             if lines:
                 lines[0] = self.event_prefix + lines[0]
                 self.console.lines(lines)
         elif msg.spec.name in ("FaultReport", "TimingWarning"):     # said always: why a fault, a slow host
-            self.console.lines(report_lines(msg, self.event_prefix))
+            lines = report_lines(msg, self.event_prefix)
+            lines[-1] += note
+            self.console.lines(lines)
         elif self.all_events:
-            self.console.line(f"{self.event_prefix}! {format_message(msg)}")
+            self.console.line(f"{self.event_prefix}! {format_message(msg)}{note}")
+
+    @staticmethod
+    def _carried_over_text(msg: Message) -> str:
+        text = (f"{msg.count} event(s) from an earlier session follow: the controller sent them before and has "
+                "no acknowledgement, so they may have been seen already")
+        if msg.dropped:
+            text += f"; {msg.dropped} more were lost while no host was connected (too many waited)"
+        return text
 
     # ---- steps ----
     def run_step(self, step: Step) -> bool:

@@ -5,25 +5,71 @@ that executes one command and returns its reply message; the link calls it at
 most once per sequence number, in order for the command class and at once for the
 urgent class, and answers duplicates from the reply cache. `on_link_lost(now)` is
 called when a session has seen no valid frame for `link_timeout_s`.
+
+Handshake answers are bounded, because a Hello signed with the handshake key can be
+recorded and played back at any rate (docs/protocol_security.md):
+
+- a Hello whose nonce already opened a session that a host adopted is a replay: counted,
+  never answered (the last `COMPLETED_MEMORY` such nonces are remembered);
+- the Hellos to answer wait in a short list, one per nonce (`MAX_WAITING_HELLOS`); a nonce
+  answered less than `HELLO_REANSWER_S` ago is not answered again;
+- answers go out at most `LinkConfig.hello_rate_per_s` a second (`HELLO_BURST` at once),
+  after the session's own frames (commands' replies and events), and the nonce answered
+  least often so far goes first, so a host that has not been answered yet is not starved
+  by a few recorded Hellos played back over and over;
+- a pending session is made when its first HelloReply goes out and is not evicted for
+  another within `PENDING_MIN_LIFE_S`, so a host that got its answer has time to adopt it;
+  answering its Hello again does not extend that, so recordings played back cannot hold
+  the places for ever.
+
+Events survive fades and new sessions: those a session did not acknowledge are offered
+again in the next one, behind an `EventsCarriedOver` event that says how many of them an
+earlier host was sent (it may have seen them, its acknowledgement lost) and how many were
+lost for want of room (`MAX_UNDELIVERED_EVENTS`).
 """
 from __future__ import annotations
 
+import itertools
 import math
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 from protocol import auth
 from protocol.errors import ParseError
 from protocol.framing import Frame
-from protocol.link import (HELLO_ID, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint, LinkState, Session)
+from protocol.link import (HELLO_ID, HELLO_REPLY_ID, PRIO_HEARTBEAT, PRIO_RELIABLE, PRIO_TELEMETRY, PRIO_URGENT,
+                           LinkConfig, LinkEndpoint, LinkState, Session, TokenBucket, _Outgoing)
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
 from protocol.schema import Message, MsgClass, Schema
 
 CommandHandler = Callable[[Message, bool, float], Message]
-MAX_PENDING_SESSIONS = 4
-MAX_UNDELIVERED_EVENTS = 64
+MAX_PENDING_SESSIONS = 8
+PENDING_MIN_LIFE_S = 2.0      # a pending session is kept at least this long after it was made (answered)
+MAX_WAITING_HELLOS = 4        # Hellos waiting for an answer (one per nonce)
+HELLO_REANSWER_S = 0.5        # a nonce is answered at most once in this long (a host resends after 1 s)
+HELLO_BURST = 2               # HelloReplies at once before `hello_rate_per_s` holds
+HELLO_MEMORY = 256            # nonces answered, with how often (the least often answered goes first)
+COMPLETED_MEMORY = 256        # nonces of adopted sessions: a Hello bearing one is a replay
+MAX_UNDELIVERED_EVENTS = 64   # events kept for the next session
+CARRIED_OVER = SCHEMA["EventsCarriedOver"]
+
+
+@dataclass
+class _Hello:
+    """A Hello waiting for its answer."""
+
+    host_nonce: bytes
+    result: Reason
+    order: int                # arrival order, for ties
+
+
+@dataclass
+class _Pending:
+    session: Session
+    made_s: float             # when it was made, at its first HelloReply
 
 
 class ControllerLink(LinkEndpoint):
@@ -37,8 +83,17 @@ class ControllerLink(LinkEndpoint):
         self._handler = handler
         self._on_link_lost = on_link_lost
         self._on_session = on_session
-        self._pending: "OrderedDict[bytes, Session]" = OrderedDict()
-        self._undelivered: list[Pending] = []
+        self._pending: "OrderedDict[bytes, _Pending]" = OrderedDict()
+        self._waiting: "OrderedDict[bytes, _Hello]" = OrderedDict()
+        self._answered: "OrderedDict[bytes, tuple[int, float]]" = OrderedDict()   # nonce -> (answers, last)
+        self._completed: "OrderedDict[bytes, None]" = OrderedDict()
+        self._hello_answers = TokenBucket(self.config.hello_rate_per_s, HELLO_BURST)
+        self._arrivals = itertools.count()
+        self._before_hellos = self._queues[:PRIO_HEARTBEAT]
+        self._after_hellos = self._queues[PRIO_HEARTBEAT:]
+        self._after_hellos_no_telemetry = self._queues[PRIO_HEARTBEAT:PRIO_TELEMETRY]
+        self._undelivered: list[Pending] = []    # events for the next session; context True: offered already
+        self._events_dropped = 0
         self.link_lost = False
         self.commands_executed = 0
         self._new_channels()
@@ -60,39 +115,98 @@ class ControllerLink(LinkEndpoint):
         except ParseError as exc:
             self._refuse(frame, exc.reason, now)
             return
+        nonce = hello.host_nonce
+        if nonce in self._completed:          # its session was adopted: only a recording sends it again
+            self.stats.replays += 1
+            self.stats.count(Reason.REPLAY)
+            return
+        answered = self._answered.get(nonce)
+        if nonce in self._waiting or (answered is not None and now - answered[1] < HELLO_REANSWER_S):
+            self.stats.hellos_dropped += 1
+            return
         result = Reason.OK
         if hello.protocol_version != PROTOCOL_VERSION:
             result = Reason.UNSUPPORTED_VERSION
         elif hello.schema_hash != self.schema.hash:
             result = Reason.SCHEMA_MISMATCH
-        controller_nonce = bytes(auth.NONCE_BYTES)
-        if result is Reason.OK:
-            pending = self._pending.get(hello.host_nonce)
-            if pending is None:   # a retransmitted Hello gets the same answer
-                nonce = self._nonce()
-                pending = Session(auth.session_keys(self._psk, hello.host_nonce, nonce, True),
-                                  hello.host_nonce, nonce)
-                self._pending[hello.host_nonce] = pending
-                while len(self._pending) > MAX_PENDING_SESSIONS:
-                    self._pending.popitem(last=False)
-            controller_nonce = pending.controller_nonce
-        else:
+        if result is not Reason.OK:
             self.stats.rejected += 1
             self.stats.count(result)
+        self._waiting[nonce] = _Hello(nonce, result, next(self._arrivals))
+        if len(self._waiting) > MAX_WAITING_HELLOS:   # the one that deserves an answer least waits no more
+            del self._waiting[max(self._waiting.values(), key=self._hello_rank).host_nonce]
+            self.stats.hellos_dropped += 1
+        self.on_work()
+
+    def _hello_rank(self, hello: _Hello) -> tuple[int, int]:
+        """Who is answered first: the nonce answered least often, then the earliest."""
+        answered = self._answered.get(hello.host_nonce)
+        return (answered[0] if answered else 0, hello.order)
+
+    def _answer_hello(self, now: float) -> Optional[bytes]:
+        """The HelloReply to send now, signed; None if none may go yet (rate, pending sessions)."""
+        ready = [h for h in self._waiting.values() if self._may_answer_s(h) <= now]
+        if not ready or not self._hello_answers.take(now):
+            return None
+        hello = min(ready, key=self._hello_rank)
+        controller_nonce = bytes(auth.NONCE_BYTES)
+        if hello.result is Reason.OK:
+            controller_nonce = self._pending_for(hello.host_nonce, now).session.controller_nonce
+        del self._waiting[hello.host_nonce]
+        count = self._answered.pop(hello.host_nonce, (0, now))[0]
+        self._answered[hello.host_nonce] = (count + 1, now)
+        if len(self._answered) > HELLO_MEMORY:
+            self._answered.popitem(last=False)
         reply = SCHEMA["HelloReply"].type(
-            int(result), PROTOCOL_VERSION, self.schema.hash, hello.host_nonce, controller_nonce,
+            int(hello.result), PROTOCOL_VERSION, self.schema.hash, hello.host_nonce, controller_nonce,
             int(self.config.link_timeout_s * 1000), int(self.config.heartbeat_s * 1000))
-        self._queue(PRIO_URGENT, MsgClass.LINK, 0, SCHEMA["HelloReply"].id,
-                    SCHEMA["HelloReply"].encode(reply), handshake=True)
+        return self._sign(_Outgoing(MsgClass.LINK, 0, HELLO_REPLY_ID, SCHEMA["HelloReply"].encode(reply),
+                                    handshake=True), now)
+
+    def _may_answer_s(self, hello: _Hello) -> float:
+        """When `hello` may be answered, tokens aside: at once (-inf) for a refusal, or if its pending session
+        exists or a place is free; else when the oldest pending session will have had `PENDING_MIN_LIFE_S`
+        (its host had time to adopt it) and may give way."""
+        if hello.result is not Reason.OK or hello.host_nonce in self._pending or \
+                len(self._pending) < MAX_PENDING_SESSIONS:
+            return -math.inf
+        return next(iter(self._pending.values())).made_s + PENDING_MIN_LIFE_S
+
+    def _pending_for(self, host_nonce: bytes, now: float) -> _Pending:
+        """The pending session to answer `host_nonce` with (a Hello sent again gets the same one), made if
+        needed in the place of the oldest (`_may_answer_s` said it may give way)."""
+        pending = self._pending.get(host_nonce)
+        if pending is None:
+            if len(self._pending) >= MAX_PENDING_SESSIONS:
+                self._pending.popitem(last=False)
+            nonce = self._nonce()
+            pending = _Pending(Session(auth.session_keys(self._psk, host_nonce, nonce, True), host_nonce, nonce), now)
+            self._pending[host_nonce] = pending
+        return pending
+
+    def _hellos_ready_s(self) -> float:
+        """When a waiting Hello may next be answered (inf: none waits)."""
+        if not self._waiting:
+            return math.inf
+        return max(self._hello_answers.ready_s(), min(self._may_answer_s(h) for h in self._waiting.values()))
+
+    def take_frame(self, now: float, telemetry: bool = True) -> Optional[bytes]:
+        """`LinkEndpoint.take_frame`, with the answers to Hellos after the session's replies and events."""
+        wire = self._take_from(self._before_hellos, now)
+        if wire is None and self._waiting:
+            wire = self._answer_hello(now)
+        if wire is None:
+            wire = self._take_from(self._after_hellos if telemetry else self._after_hellos_no_telemetry, now)
+        return wire
 
     def _session_for(self, frame: Frame) -> Optional[Session]:
         session = super()._session_for(frame)
         if session is not None:
             return session
         for nonce, pending in self._pending.items():
-            if frame.verify(pending.keys.rx):
-                self._promote(nonce, pending)
-                return pending
+            if frame.verify(pending.session.keys.rx):
+                self._promote(nonce, pending.session)
+                return pending.session
         return None
 
     def _promote(self, nonce: bytes, session: Session) -> None:
@@ -100,14 +214,45 @@ class ControllerLink(LinkEndpoint):
         if self.session is not None:
             self._undelivered.extend(self._events.take_failed())
         del self._pending[nonce]
+        self._waiting.pop(nonce, None)
+        self._answered.pop(nonce, None)
+        self._completed[nonce] = None
+        if len(self._completed) > COMPLETED_MEMORY:
+            self._completed.popitem(last=False)
         self.session = session
         self.state = LinkState.UP
         self._new_channels()
-        for item in self._undelivered[-MAX_UNDELIVERED_EVENTS:]:
-            self._events.submit(item.msg_id, item.payload)
-        self._undelivered = []
+        self._carry_over_events()
         self._next_heartbeat_s = None
         self._on_session(self.last_valid_rx_s or 0.0)
+
+    def _keep_undelivered(self) -> None:
+        """Keep the newest `MAX_UNDELIVERED_EVENTS`; count the others as dropped."""
+        excess = len(self._undelivered) - MAX_UNDELIVERED_EVENTS
+        if excess > 0:
+            del self._undelivered[:excess]
+            self._events_dropped += excess
+
+    def _carry_over_events(self) -> None:
+        """Offer the new session the events the old one left, behind an `EventsCarriedOver` if any of them was
+        offered before (sent at least once, in that session or an earlier one) or some were dropped."""
+        items = []
+        for item in self._undelivered:
+            if item.msg_id == CARRIED_OVER.id:    # an earlier marker never acknowledged: a new one replaces it
+                self._events_dropped += CARRIED_OVER.decode(item.payload).dropped
+            else:
+                items.append(item)
+        self._undelivered = items
+        self._keep_undelivered()
+        offered = max((i + 1 for i, item in enumerate(self._undelivered)
+                       if item.context or item.first_sent_s is not None), default=0)
+        if offered or self._events_dropped:
+            marker = CARRIED_OVER.type(min(offered, 0xFFFF), min(self._events_dropped, 0xFFFF))
+            self._events.submit(CARRIED_OVER.id, CARRIED_OVER.encode(marker))
+        for i, item in enumerate(self._undelivered):
+            self._events.submit(item.msg_id, item.payload, context=i < offered)
+        self._undelivered = []
+        self._events_dropped = 0
 
     # ---- session frames ----
     def _handle(self, frame: Frame, spec, now: float) -> None:
@@ -172,14 +317,14 @@ class ControllerLink(LinkEndpoint):
         spec = msg.spec
         if self.session is None:
             self._undelivered.append(Pending(spec.id, spec.encode(msg)))
-            del self._undelivered[:-MAX_UNDELIVERED_EVENTS]
+            self._keep_undelivered()
             return
         self._events.submit(spec.id, spec.encode(msg))
         self.on_work()
 
     def next_timer_s(self) -> float:
         """`LinkEndpoint.next_timer_s` with the events' timers and the link watchdog."""
-        timer = super().next_timer_s()
+        timer = min(super().next_timer_s(), self._hellos_ready_s())
         if self.session is None:
             return timer
         if self._events.suspended:

@@ -7,7 +7,10 @@ when the committed file differs from what this prints.
 from __future__ import annotations
 
 from protocol import framing
-from protocol.link import LinkConfig
+from protocol.controller_link import (HELLO_REANSWER_S, MAX_PENDING_SESSIONS, MAX_UNDELIVERED_EVENTS, MAX_WAITING_HELLOS,
+                                      PENDING_MIN_LIFE_S)
+from protocol.host_link import SENT_TAGS
+from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import MsgClass
@@ -71,6 +74,15 @@ host tools default to the same file.
    adopts it when the first frame signed with its key arrives (the host sends a
    `Heartbeat` at once), so a replayed `Hello` cannot displace a live session.
 
+A `Hello` can be recorded and played back, so the controller bounds its answers: a
+`Hello` whose nonce opened a session a host adopted is a replay (counted, never
+answered); a nonce is answered at most once in {HELLO_REANSWER_S:g} s; the answers go out at
+most {LinkConfig.hello_rate_per_s:g} a second, after the live session's replies and events, the nonce
+answered least often first; at most {MAX_WAITING_HELLOS} wait, and at most {MAX_PENDING_SESSIONS} sessions are
+pending, none evicted within {PENDING_MIN_LIFE_S:g} s of its answer. A host that is up therefore keeps its round trip
+under a flood of recorded `Hello`s, and a new host still connects
+([protocol_security.md](protocol_security.md)).
+
 A receiver checks, in this order and before any state changes: CRC, header, MAC,
 then that the counter is above the last one accepted in this session. The counter is
 committed only after the MAC verifies, so a forged frame with a huge counter cannot
@@ -78,7 +90,11 @@ block genuine traffic. A frame recorded in an earlier session fails the MAC in a
 one, whichever end restarted; keys differ per direction, so a frame reflected back to
 its sender fails too. A controller that has no session answers frames with
 `NO_SESSION`, signed with the handshake key; a host that receives such a NAK while up
-starts a new session (its unanswered commands end `FAILED`/`SESSION_RESET`).
+starts a new session (its unanswered commands end `FAILED`/`SESSION_RESET`). Since such
+a NAK could be recorded and played back, every NAK echoes the first {NAK_TAG_BYTES} bytes of the
+refused frame's tag (`refused_tag`), and a host that is up believes a handshake NAK only
+if that is the tag of one of the last {SENT_TAGS} frames it sent in this session; any other
+is counted as a replay and ignored ([protocol_security.md](protocol_security.md)).
 
 ## Classes and delivery
 
@@ -110,6 +126,12 @@ the state of the command stream, and are deduplicated the same way.
 
 **Events** use the same machinery in the other direction: the host acknowledges them
 with the `ack` field of any frame (an `Ack` frame when it has nothing else to send).
+Events a session did not acknowledge are offered again in the next one (the newest
+{MAX_UNDELIVERED_EVENTS} are kept). A host may have received some of them and lost only its
+acknowledgement, so they come behind an `EventsCarriedOver` event that counts those an earlier
+session was sent (and those dropped for want of room): the host shows them as from an
+earlier session, possibly seen already, not as new. A host that closes sends what it has
+queued first (its last acknowledgements).
 
 **Heartbeats** go both ways with the sender's link statistics, {LinkConfig.heartbeat_s:.0f} s after the sender's
 last frame other than telemetry (any authenticated frame proves the link alive, and on a

@@ -119,18 +119,29 @@ class Frame:
 def encode_frame(cls: int, seq: int, ack: int, msg_id: int, payload: bytes,
                  key: "bytes | MacKey | None" = None, counter: int = 0) -> bytes:
     """Wire bytes of one frame, delimiters included. With `key`, the frame is signed."""
+    if key is not None:
+        return encode_signed(cls, seq, ack, msg_id, payload, key, counter)[0]
     n = len(payload)
     if n > MAX_PAYLOAD:
         raise ValueError(f"payload of {n} bytes exceeds the {MAX_PAYLOAD}-byte maximum")
-    if key is None:
-        raw = HEADER.pack(VERSION, 0, cls, seq, ack, msg_id, n) + payload
-    else:
-        if not 0 <= counter <= COUNTER_MAX:
-            raise ValueError(f"counter {counter} does not fit in 48 bits")
-        signed = HEADER.pack(VERSION, FLAG_AUTH, cls, seq, ack, msg_id, n) + counter.to_bytes(6, "little") + payload
-        raw = signed + mac_key(key).tag(signed)
+    raw = HEADER.pack(VERSION, 0, cls, seq, ack, msg_id, n) + payload
     raw += _CRC.pack(_crc32(raw))
     return b"\x00" + _cobs_encode(raw) + b"\x00"
+
+
+def encode_signed(cls: int, seq: int, ack: int, msg_id: int, payload: bytes,
+                  key: "bytes | MacKey", counter: int) -> tuple[bytes, bytes]:
+    """Wire bytes of one signed frame, delimiters included, and its tag (which a NAK of it echoes)."""
+    n = len(payload)
+    if n > MAX_PAYLOAD:
+        raise ValueError(f"payload of {n} bytes exceeds the {MAX_PAYLOAD}-byte maximum")
+    if not 0 <= counter <= COUNTER_MAX:
+        raise ValueError(f"counter {counter} does not fit in 48 bits")
+    signed = HEADER.pack(VERSION, FLAG_AUTH, cls, seq, ack, msg_id, n) + counter.to_bytes(6, "little") + payload
+    tag = mac_key(key).tag(signed)
+    raw = signed + tag
+    raw += _CRC.pack(_crc32(raw))
+    return b"\x00" + _cobs_encode(raw) + b"\x00", tag
 
 
 def decode_frame(segment: bytes) -> Frame:

@@ -5,21 +5,35 @@ outcome: SUCCEEDED (answered OK), REJECTED (answered with a reason code) or FAIL
 (never answered: the retry limit suspended the link, or the session was replaced;
 the command may or may not have run, and the handle says so). Nothing is dropped
 silently.
+
+A controller that restarted answers the host's frames with `Nak(NO_SESSION)` signed with
+the handshake key. Such a NAK could be recorded once and replayed forever, so while a
+session is up the host acts on one (a new handshake) only if it echoes the tag of a frame
+the host sent in this session (it keeps the last `SENT_TAGS`); any other is a replay,
+counted and ignored.
+
+Events come to `on_event(msg, now)` once each. An `EventsCarriedOver(count)` says that the
+next `count` were sent to an earlier session, whose host may have seen them (its
+acknowledgement lost); while `on_event` handles one of those,
+`event_from_earlier_session` is True.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Optional
 
 from protocol import auth
 from protocol.errors import EncodeError, ParseError
 from protocol.framing import Frame
-from protocol.link import (HELLO_REPLY_ID, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint, LinkState,
-                           Session)
+from protocol.link import (HELLO_REPLY_ID, NAK_TAG_BYTES, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint,
+                           LinkState, Session)
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import Outcome, Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
 from protocol.schema import Message, MsgClass, Schema
+
+SENT_TAGS = 64    # tags of the last frames sent in this session that a handshake NAK may echo
 
 
 @dataclass(eq=False)
@@ -88,6 +102,8 @@ class HostLink(LinkEndpoint):
         self._hello_tries = 0
         self._telemetry_expected: Optional[int] = None
         self._retransmits_before = 0
+        self._sent_tags: deque[bytes] = deque(maxlen=SENT_TAGS)
+        self.event_from_earlier_session = False   # while on_event runs: see the module's doc
         self._new_channels()
 
     def _new_channels(self) -> None:
@@ -97,6 +113,7 @@ class HostLink(LinkEndpoint):
         self._urgent = ReliableSender(window=cfg.window, retry_limit=cfg.retry_limit, in_order=False,
                                       rtt=self._commands.rtt)
         self._events = ReliableReceiver()
+        self._earlier_events = 0     # events still to come that an earlier session was sent (EventsCarriedOver)
 
     # ---- handshake ----
     def connect(self, now: float) -> None:
@@ -104,6 +121,7 @@ class HostLink(LinkEndpoint):
         self._fail_all(Reason.SESSION_RESET, now, "a new session was started")
         self._retransmits_before += self._commands.retransmits + self._urgent.retransmits
         self._new_channels()
+        self._sent_tags.clear()
         self.session = None
         self.refusal = None
         self.state = LinkState.CONNECTING
@@ -122,10 +140,8 @@ class HostLink(LinkEndpoint):
     def _handle_handshake(self, frame: Frame, now: float) -> None:
         if frame.msg_id != HELLO_REPLY_ID:
             return
-        try:
-            reply = self.schema.decode(frame.msg_id, frame.payload)
-        except ParseError:
-            self.stats.rejected += 1
+        reply = self._decode(frame)
+        if reply is None:
             return
         if self.state is not LinkState.CONNECTING or reply.host_nonce != self._hello_nonce:
             self.stats.replays += 1   # an answer to some other Hello: stale or replayed
@@ -148,10 +164,33 @@ class HostLink(LinkEndpoint):
         self._next_heartbeat_s = None   # a heartbeat at once makes the controller adopt the session
 
     def _handle_handshake_nak(self, frame: Frame, now: float) -> None:
-        """A NAK signed with the handshake key: the controller has no session of ours (it restarted)."""
+        """A NAK signed with the handshake key: the controller has no session of ours (it restarted).
+
+        While up, believed only if it refuses a frame sent in this session (its tag is one of ours):
+        anything else is a recorded NAK played back, which must not end a live session.
+        """
         super()._handle_handshake_nak(frame, now)
-        if self.state is LinkState.UP:
-            self.connect(now)
+        if self.state is not LinkState.UP:
+            return
+        nak = self._decode(frame)
+        if nak is None:
+            return
+        if nak.reason != Reason.NO_SESSION or nak.refused_tag not in self._sent_tags:
+            self.stats.replays += 1
+            self.stats.count(Reason.REPLAY)
+            return
+        self.connect(now)
+
+    def _sent_in_session(self, tag: bytes) -> None:
+        self._sent_tags.append(tag[:NAK_TAG_BYTES])
+
+    def _decode(self, frame: Frame) -> Optional[Message]:
+        """The message in an authenticated frame; None (counted as rejected) if it does not decode."""
+        try:
+            return self.schema.decode(frame.msg_id, frame.payload)
+        except ParseError:
+            self.stats.rejected += 1
+            return None
 
     # ---- commands ----
     def submit(self, msg: Message, now: float) -> CommandHandle:
@@ -234,10 +273,8 @@ class HostLink(LinkEndpoint):
     def _link(self, frame: Frame, spec, now: float) -> None:
         if spec.name not in ("Heartbeat", "Nak"):
             return
-        try:
-            msg = spec.decode(frame.payload)
-        except ParseError:
-            self.stats.rejected += 1
+        msg = self._decode(frame)
+        if msg is None:
             return
         if spec.name == "Heartbeat":
             self.peer_stats, self.peer_stats_s = msg, now
@@ -254,10 +291,8 @@ class HostLink(LinkEndpoint):
             if lost < 0x8000:
                 self.stats.telemetry_lost += lost
         self._telemetry_expected = (frame.seq + 1) & 0xFFFF
-        try:
-            msg = spec.decode(frame.payload)
-        except ParseError:
-            self.stats.rejected += 1
+        msg = self._decode(frame)
+        if msg is None:
             return
         self.last_telemetry = msg
         self.on_telemetry(msg, now)
@@ -270,12 +305,17 @@ class HostLink(LinkEndpoint):
             return
         if verdict is Verdict.NEW:
             self._events.accept(frame.seq, None)
-            try:
-                msg = spec.decode(frame.payload)
-            except ParseError:
-                self.stats.rejected += 1
-            else:
-                self.on_event(msg, now)
+            earlier = self._earlier_events > 0 and spec.name != "EventsCarriedOver"
+            self._earlier_events -= earlier
+            msg = self._decode(frame)
+            if msg is not None:
+                if spec.name == "EventsCarriedOver":
+                    self._earlier_events = msg.count
+                self.event_from_earlier_session = earlier
+                try:
+                    self.on_event(msg, now)
+                finally:
+                    self.event_from_earlier_session = False
         self.send_message(SCHEMA["Ack"].type(), PRIO_RELIABLE)
 
     def _ack_value(self) -> int:

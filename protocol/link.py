@@ -13,7 +13,8 @@ counters. Bad frames are answered with a NAK and a reason where that is safe:
 never for CRC or framing errors (nothing in them can be trusted) and never for
 replays (a duplicating link makes them in the normal course), and at most
 `nak_rate_per_s` a second for the rest, so garbage cannot make the controller flood
-the link.
+the link. A NAK echoes the start of the refused frame's MAC tag (`refused_tag`): tags
+differ in every session, so a host can tell a NAK of a frame it sent from a recorded one.
 """
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from typing import Callable, Optional
 
 from protocol import auth
 from protocol.errors import ParseError
-from protocol.framing import COUNTER_MAX, Frame, FrameReceiver, encode_frame
+from protocol.framing import COUNTER_MAX, Frame, FrameReceiver, encode_signed
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass, Schema
@@ -34,6 +35,7 @@ HELLO_ID = SCHEMA["Hello"].id
 HELLO_REPLY_ID = SCHEMA["HelloReply"].id
 NAK_ID = SCHEMA["Nak"].id
 HANDSHAKE_IDS = frozenset({HELLO_ID, HELLO_REPLY_ID})
+NAK_TAG_BYTES = SCHEMA["Nak"].fields[-1].text_size    # how much of the refused frame's tag a NAK echoes
 
 # Transmit priorities: lower goes first.
 PRIO_URGENT, PRIO_RELIABLE, PRIO_HEARTBEAT, PRIO_TELEMETRY = range(4)
@@ -52,6 +54,7 @@ class LinkConfig:
     max_rto_s: float = 2.0
     hello_tries: int = 5
     nak_rate_per_s: float = 10.0         # answers to unauthenticated or malformed frames
+    hello_rate_per_s: float = 4.0        # controller: HelloReplies a second, to all hosts together
     telemetry_backlog: int = 2           # telemetry frames queued before the oldest is dropped
 
     def __post_init__(self) -> None:
@@ -64,11 +67,41 @@ class LinkConfig:
             (0 < self.min_rto_s <= self.initial_rto_s <= self.max_rto_s, "need 0 < min_rto <= initial_rto <= max_rto"),
             (1 <= self.hello_tries <= 100, "hello_tries must be within 1..100"),
             (self.nak_rate_per_s >= 0, "nak_rate_per_s must be >= 0"),
+            (0.1 <= self.hello_rate_per_s <= 1000, "hello_rate_per_s must be within 0.1..1000"),
             (1 <= self.telemetry_backlog <= 64, "telemetry_backlog must be within 1..64"),
         ]
         for ok, why in checks:
             if not ok:
                 raise ValueError(f"LinkConfig: {why}")
+
+
+class TokenBucket:
+    """At most `rate_per_s` a second on average and `burst` at once, on the `now` it is given."""
+
+    def __init__(self, rate_per_s: float, burst: float) -> None:
+        self.rate_per_s = rate_per_s
+        self.burst = burst
+        self.tokens = burst
+        self._refilled_s: Optional[float] = None
+
+    def _refill(self, now: float) -> None:
+        if self._refilled_s is not None:
+            self.tokens = min(self.burst, self.tokens + (now - self._refilled_s) * self.rate_per_s)
+        self._refilled_s = now
+
+    def take(self, now: float) -> bool:
+        """Spend a token if there is one."""
+        self._refill(now)
+        if self.tokens < 1:
+            return False
+        self.tokens -= 1
+        return True
+
+    def ready_s(self) -> float:
+        """When a token will be there (-inf: now)."""
+        if self.tokens >= 1 or self._refilled_s is None:
+            return -math.inf
+        return self._refilled_s + (1 - self.tokens) / self.rate_per_s if self.rate_per_s > 0 else math.inf
 
 
 @dataclass
@@ -91,6 +124,7 @@ class LinkStats:
     stale_duplicates: int = 0   # a duplicate older than the reply cache (a sender outside its window)
     telemetry_dropped: int = 0  # queued telemetry dropped because the wire was busy
     telemetry_lost: int = 0     # host: gaps in the telemetry sequence
+    hellos_dropped: int = 0     # controller: Hellos not answered (answered < 0.5 s ago, or others deserved it more)
     reasons: dict = field(default_factory=dict)  # Reason -> count of every refusal
 
     def count(self, reason: Reason) -> None:
@@ -151,8 +185,7 @@ class LinkEndpoint:
         self._telemetry_seq = 0
         self._next_heartbeat_s: Optional[float] = None
         self.heartbeat_s = self.config.heartbeat_s
-        self._nak_tokens = self.config.nak_rate_per_s
-        self._nak_refill_s: Optional[float] = None
+        self._naks = TokenBucket(self.config.nak_rate_per_s, self.config.nak_rate_per_s)
         self.last_valid_rx_s: Optional[float] = None
         self.started_s: Optional[float] = None
         # Called when the link has work for its transport that no timer announces: a frame queued,
@@ -180,7 +213,7 @@ class LinkEndpoint:
         else:
             # CRC was right, so the header can be believed enough to say why
             self.stats.rejected += 1
-            self._nak_if_allowed(err.reason, 0, 0, 0, now)
+            self._nak_if_allowed(err.reason, None, now)
 
     def _receive(self, frame: Frame, now: float) -> None:
         if frame.counter is None:
@@ -234,26 +267,27 @@ class LinkEndpoint:
         self.stats.auth_errors += 1
         self.stats.count(reason)
         if frame.msg_id != NAK_ID:   # never answer a NAK with a NAK: two ends would ping-pong
-            self._nak_if_allowed(reason, frame.cls, frame.seq, frame.msg_id, now)
+            self._nak_if_allowed(reason, frame, now)
 
     def _refuse(self, frame: Frame, reason: Reason, now: float, expected: int = 0) -> None:
         """An authenticated frame refused: always answered."""
         self.stats.rejected += 1
         self.stats.count(reason)
-        self._send_nak(reason, frame.cls, frame.seq, frame.msg_id, expected)
+        self._send_nak(reason, frame, expected)
 
-    def _nak_if_allowed(self, reason: Reason, cls: int, seq: int, msg_id: int, now: float) -> None:
-        if self._nak_refill_s is not None:
-            self._nak_tokens = min(self.config.nak_rate_per_s,
-                                   self._nak_tokens + (now - self._nak_refill_s) * self.config.nak_rate_per_s)
-        self._nak_refill_s = now
-        if self._nak_tokens >= 1:
-            self._nak_tokens -= 1
-            self._send_nak(reason, cls, seq, msg_id, 0)
+    def _nak_if_allowed(self, reason: Reason, frame: Optional[Frame], now: float) -> None:
+        if self._naks.take(now):
+            self._send_nak(reason, frame, 0)
 
-    def _send_nak(self, reason: Reason, cls: int, seq: int, msg_id: int, expected: int) -> None:
+    def _send_nak(self, reason: Reason, frame: Optional[Frame], expected: int) -> None:
+        """NAK `frame` (None: a frame too broken to name) with `reason`, echoing its tag."""
         self.stats.naks_tx += 1
-        payload = SCHEMA["Nak"].encode(SCHEMA["Nak"].type(int(reason), cls & 0xFF, seq, msg_id, expected))
+        if frame is None:
+            nak = SCHEMA["Nak"].type(int(reason), 0, 0, 0, expected, bytes(NAK_TAG_BYTES))
+        else:
+            nak = SCHEMA["Nak"].type(int(reason), frame.cls & 0xFF, frame.seq, frame.msg_id, expected,
+                                     frame.tag[:NAK_TAG_BYTES].ljust(NAK_TAG_BYTES, b"\x00"))
+        payload = SCHEMA["Nak"].encode(nak)
         self._queue(PRIO_URGENT, MsgClass.LINK, 0, NAK_ID, payload, handshake=self.session is None)
 
     # ---- role hooks ----
@@ -299,25 +333,40 @@ class LinkEndpoint:
         With `telemetry=False` telemetry frames stay queued (the caller keeps the
         line free for a reply that is about to be due).
         """
-        for q in (self._queues if telemetry else self._queues[:PRIO_TELEMETRY]):
+        return self._take_from(self._queues if telemetry else self._queues[:PRIO_TELEMETRY], now)
+
+    def _take_from(self, queues: list[deque[_Outgoing]], now: float) -> Optional[bytes]:
+        """The first frame of the first of `queues` that has one, signed now."""
+        for q in queues:
             while q:
-                out = q.popleft()
-                if out.handshake:
-                    self._handshake_tx_counter += 1
-                    key, counter = self._handshake.tx, self._handshake_tx_counter
-                elif self.session is not None and self.session.tx_counter < COUNTER_MAX:
-                    self.session.tx_counter += 1
-                    key, counter = self.session.keys.tx, self.session.tx_counter
-                else:
-                    continue  # the session it was meant for is gone
-                wire = encode_frame(out.cls, out.seq, self._ack_value(), out.msg_id, out.payload, key, counter)
-                if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:
-                    # any frame the peer must act on proves the link alive: the heartbeat waits
-                    self._next_heartbeat_s = now + self.heartbeat_s
-                self.stats.frames_tx += 1
-                self.stats.bytes_tx += len(wire)
-                return wire
+                wire = self._sign(q.popleft(), now)
+                if wire is not None:
+                    return wire
         return None
+
+    def _sign(self, out: _Outgoing, now: float) -> Optional[bytes]:
+        """`out` signed for the wire and counted; None if the session it was meant for is gone."""
+        if out.handshake:
+            self._handshake_tx_counter += 1
+            key, counter = self._handshake.tx, self._handshake_tx_counter
+        elif self.session is not None and self.session.tx_counter < COUNTER_MAX:
+            self.session.tx_counter += 1
+            key, counter = self.session.keys.tx, self.session.tx_counter
+        else:
+            return None
+        wire, tag = encode_signed(out.cls, out.seq, self._ack_value(), out.msg_id, out.payload, key, counter)
+        if not out.handshake:
+            self._sent_in_session(tag)
+            if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:
+                # any session frame the peer must act on proves the link alive: the heartbeat waits (not an
+                # answer to some other host's Hello, which the peer does not see as ours)
+                self._next_heartbeat_s = now + self.heartbeat_s
+        self.stats.frames_tx += 1
+        self.stats.bytes_tx += len(wire)
+        return wire
+
+    def _sent_in_session(self, tag: bytes) -> None:
+        """A frame signed with the session key went out with `tag` (the host remembers the last few)."""
 
     def take_all(self, now: float) -> bytes:
         chunks = []

@@ -147,7 +147,9 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("refused_class", "u8", "class of the refused frame"),
                  Field("refused_seq", "u16", "sequence number of the refused frame"),
                  Field("refused_msg", "u16", "message id of the refused frame"),
-                 Field("expected_seq", "u16", "next sequence number the sender of the NAK expects"))),
+                 Field("expected_seq", "u16", "next sequence number the sender of the NAK expects"),
+                 Field("refused_tag", "bytes8", "first 8 bytes of the refused frame's MAC tag (zeros if it had "
+                       "none): binds the NAK to that one frame, so a recorded NAK refuses nothing later"))),
     # ---- commands (reliable, in order, exactly once) ----
     MessageSpec("Ping", 0x10, MsgClass.COMMAND, H, "Round-trip check through the command channel.",
                 (Field("token", "u32", "any value; echoed back", default=0),), reply="Pong", teleop="ping"),
@@ -357,6 +359,13 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("value", "f32", "the loop's lateness (s) or the real-time factor measured"),
                  Field("limit", "f32", "the warning's limit (loop_late_warn_s or rtf_warn)"),
                  Field("uptime_ms", "u32", "controller uptime", "ms"))),
+    MessageSpec("EventsCarriedOver", 0x4F, MsgClass.EVENT, C,
+                "First event of a session when an earlier session left events unacknowledged: the next `count` "
+                "events were sent to an earlier host, which may have seen them (its acknowledgement may be what "
+                "was lost); events that no session was sent follow them as new.",
+                (Field("count", "u16", "how many of the events that follow were offered to an earlier session"),
+                 Field("dropped", "u16", "events lost since the last session because more were waiting for a "
+                       "session than the controller keeps"))),
 ])
 
 globals().update({name: spec.type for name, spec in SCHEMA.by_name.items()})

@@ -242,3 +242,44 @@ def test_a_nak_is_never_answered_with_a_nak():
     wire.controller.feed(forged_nak, wire.now)
     assert wire.controller.stats.naks_tx == naks_before
     assert wire.controller.stats.reasons[Reason.NO_SESSION if wire.controller.session is None else Reason.BAD_MAC]
+
+
+def handshake_naks(chunks: list[bytes]) -> list[bytes]:
+    """The NAKs signed with the controller's handshake key among recorded chunks, each as its wire bytes."""
+    from protocol import auth
+    from protocol.framing import decode_frame
+    key = auth.handshake_keys(KEY, is_controller=True).tx
+    frames = [b"\x00" + s + b"\x00" for chunk in chunks for s in chunk.split(b"\x00") if s]
+    return [w for w in frames if (f := decode_frame(w[1:-1])).msg_id == SCHEMA["Nak"].id and f.verify(key)]
+
+
+def test_a_recorded_handshake_nak_does_not_reset_a_live_session():
+    wire = session_with_commands()
+    wire.controller = wire.new_controller(KEY, random.Random(5))   # a restart: its NAKs can be recorded
+    recorded_from = len(wire.to_host)
+    assert wire.call(Ping(1)).reason is Reason.SESSION_RESET       # the host noticed and reconnects
+    wire.step(200)
+    naks = handshake_naks(wire.to_host[recorded_from:])
+    assert naks and wire.host.state is LinkState.UP and wire.host.sessions_started == 2
+    handle = wire.host.submit(Ping(2), wire.now)
+    replays = wire.host.stats.replays
+    for nak in naks * 3:                                            # played back while the Ping is in flight
+        wire.host.feed(nak, wire.now)
+    wire.step(2000)
+    assert handle.ok and wire.executed[-1] == Ping(2)
+    assert wire.host.state is LinkState.UP and wire.host.sessions_started == 2
+    assert wire.host.stats.replays == replays + 3 * len(naks)
+    assert wire.host.stats.reasons[Reason.REPLAY] >= 3 * len(naks)
+
+
+def test_a_nak_echoes_the_tag_of_the_frame_it_refuses():
+    from protocol.framing import decode_frame
+    wire = session_with_commands()
+    wire.controller = wire.new_controller(KEY, random.Random(5))
+    wire.host.submit(Ping(1), wire.now)
+    sent = wire.host.take_all(wire.now)
+    frame = decode_frame(sent.strip(b"\x00"))
+    wire.controller.feed(sent, wire.now)
+    nak = SCHEMA["Nak"].decode(decode_frame(wire.controller.take_all(wire.now).strip(b"\x00")).payload)
+    assert nak.reason == Reason.NO_SESSION and nak.refused_tag == frame.tag[:8]
+    assert (nak.refused_class, nak.refused_seq, nak.refused_msg) == (MsgClass.COMMAND, 5, SCHEMA["Ping"].id)   # the sixth command

@@ -68,7 +68,7 @@ def test_link_loss_reaches_the_safe_state_within_the_timeout():
         assert bench.call(M["Reset"]()).ok
         assert status(bench).state == ControllerState.IDLE
         # the fault event of the lost session is delivered in the new one
-        assert any(e.reason == Reason.LINK_TIMEOUT for e in bench.events)
+        assert any(e.spec.name == "StateChanged" and e.reason == Reason.LINK_TIMEOUT for e in bench.events)
     finally:
         bench.close()
 

@@ -215,7 +215,8 @@ def test_killing_the_host_sends_the_controller_to_its_safe_state_within_the_time
     try:
         status = client.call(M["GetStatus"]()).reply
         assert status.state == ControllerState.FAULT and status.faults & Fault.LINK_LOST   # latched
-        assert client.wait_for(lambda: any(e.reason == Reason.LINK_TIMEOUT for e in client.events), 10.0)
+        assert client.wait_for(lambda: any(e.spec.name == "StateChanged" and e.reason == Reason.LINK_TIMEOUT
+                                            for e in client.events), 10.0)
         assert client.call(M["Reset"]()).ok
     finally:
         client.close()

@@ -211,7 +211,8 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     reply = status(client)
     assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
     assert reply.safe_reason == Reason.HAL_STALE
-    assert client.wait_for(lambda: any(e.reason == Reason.HAL_STALE for e in client.events), WAIT_S)
+    assert client.wait_for(lambda: any(e.spec.name == "StateChanged" and e.reason == Reason.HAL_STALE
+                                        for e in client.events), WAIT_S)
     refused = client.call(M["Reset"]())
     assert not refused.ok and refused.reason == Reason.HAL_STALE   # the cause is still there
 
