@@ -23,7 +23,7 @@ Tasks (period):
   telemetry   1/rate    TelemetryStatus and TelemetryJoints frames; while the tracker's box is in use (main or
                         sensor power on), TelemetryTracker (at most 10 Hz) half a period after them, so the three
                         never queue at once (the link keeps two telemetry frames queued, not three)
-  time-watch  50 ms     (link scheduler, wall clock) lock-step: a plant whose tick has not come for
+  time-watch  50 ms     (link scheduler, wall clock, live runs) lock-step: a plant whose tick has not come for
                         lockstep_wait_s is HAL_STALE, since the controller's own time stands still without it
 """
 from __future__ import annotations
@@ -191,7 +191,7 @@ class Controller:
         link_scheduler.add("comms", self.comms.step, link_now)
         self.comms.attach(lambda at_s: link_scheduler.wake("comms", at_s), link_scheduler.clock.now)
         self.arm.judge_lateness = scheduler.clock.timing().mode == "realtime"
-        if hasattr(scheduler.clock, "stalled_s"):
+        if link_scheduler is not scheduler:       # a live run: the wall clock watches the control clock's waits
             link_scheduler.add("time-watch", self._time_watch, link_now + TIME_WATCH_S, tolerance_s=1.0)
         scheduler.add("hal", self._hal_step, now, period_s=self.config.hal_period_s)
         # the motor loops first at each tick: they read the HAL themselves, so nothing else delays them
@@ -280,9 +280,7 @@ class Controller:
                                         self.uptime_ms(now)))
 
     def _plant_silent(self) -> bool:
-        clock = self.scheduler.clock if self.scheduler else None
-        return clock is not None and hasattr(clock, "stalled_s") and \
-            clock.stalled_s() > self.params["lockstep_wait_s"]
+        return self.scheduler is not None and self.scheduler.clock.stalled_s() > self.params["lockstep_wait_s"]
 
     def _time_watch(self, link_now: float) -> float:
         """Lock-step, on the wall clock: a plant whose tick has not come for lockstep_wait_s is HAL_STALE."""

@@ -66,6 +66,11 @@ class Clock(abc.ABC):
     def timing(self) -> TimingReport:
         """How this clock's time relates to the wall clock now."""
 
+    def stalled_s(self) -> float:
+        """Wall seconds this clock has been waiting for its time to be granted by someone else (a lock-step
+        clock whose peer is silent); 0 for a clock whose time is never withheld."""
+        return 0.0
+
     @property
     @abc.abstractmethod
     def is_real_time(self) -> bool:
