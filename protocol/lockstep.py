@@ -100,6 +100,8 @@ class LockstepFollower(Clock):
         self.tap = SyncTap(bus, self._sync.frame_id, self._on_sync)
         self._now = 0.0
         self._granted_s = -math.inf        # nothing may run before the plant's first tick
+        self._grant_base_s = 0.0           # granted = base + ticks * period since the first PLANT_SYNC
+        self._grant_ticks = 0
         self._half_tick_s = 0.0005
         self.plant_tick: Optional[int] = None
         self.plant_lockstep: Optional[bool] = None   # what the last PLANT_SYNC said
@@ -137,9 +139,10 @@ class LockstepFollower(Clock):
                 gap = 1
         else:
             gap = 1
-            self._granted_s = self._now - period_s     # the first tick grants the present moment
+            self._grant_base_s, self._grant_ticks = self._now - period_s, 0   # the first tick grants the present moment
         self.plant_tick = tick
-        self._granted_s += gap * period_s
+        self._grant_ticks += gap
+        self._granted_s = self._grant_base_s + self._grant_ticks * period_s   # counted, not summed (no drift)
         self._answered = False
         self._waiting_since = None
         wall_now = self.wall.now()
@@ -234,8 +237,9 @@ class LockstepLeader(Clock):
             (tick,) = self._done.unpack(msg.data)
         except ValueError:
             return
-        tick = int(tick)
         published = round(self.pace.now() / self.period_s)    # the plant's last tick: its time is that tick's
+        # the frame carries the tick modulo 2**32 (49.7 days at 1 kHz): take the one nearest the plant's
+        tick = published + ((int(tick) - published + 0x8000_0000) & 0xFFFF_FFFF) - 0x8000_0000
         if tick > published + 1:
             self.ignored += 1               # beyond anything this plant published: a stale answer to another plant
         elif tick > self.controller_tick:

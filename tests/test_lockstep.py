@@ -48,10 +48,10 @@ class DropFrames(BusView):
 class Pair:
     """A lock-step plant (as fast as it goes) and controller, stepped in turn in one thread."""
 
-    def __init__(self, seed: int = 1, controller: bool = True) -> None:
+    def __init__(self, seed: int = 1, controller: bool = True, first_tick: int = 0) -> None:
         self.wall = SimClock(1000.0)
         self.plant_bus, self._controller_end = open_local_pair()
-        self.start_plant(seed)
+        self.start_plant(seed, first_tick)
         self.control = None
         if controller:
             self.start_controller()
@@ -65,11 +65,13 @@ class Pair:
         self.link = Scheduler(self.wall)
         self.controller.attach(self.control, self.link)
 
-    def start_plant(self, seed: int) -> None:
-        """A plant on the bus (a new one, counting its ticks from 0, if there was one already)."""
-        self.leader = LockstepLeader(self.plant_bus, PacedClock(self.wall, math.inf), 0.001,
-                                     reoffer=lambda: self.node.resend_sync())
+    def start_plant(self, seed: int, first_tick: int = 0) -> None:
+        """A plant on the bus (a new one, counting its ticks from `first_tick`, if there was one already)."""
+        self.leader = LockstepLeader(self.plant_bus, PacedClock(self.wall, math.inf, start_s=first_tick * 0.001),
+                                     0.001, reoffer=lambda: self.node.resend_sync())
+        self.leader.controller_tick = first_tick      # its first tick is free, as tick 0 is
         self.node = build_plant_node(self.leader.tap, seed, tracker=False, lockstep=True)
+        self.node.tick = first_tick
         self.plant = Scheduler(self.leader, stopwatch=self.leader.now)
         self.plant.add("plant", self.node.step, period_s=self.node.period_s)
 
@@ -187,3 +189,32 @@ def test_a_silent_plant_is_hal_stale_after_lockstep_wait_s_on_the_wall_clock_and
     assert pair.execute(M["Reset"]()).result == Reason.HAL_STALE    # refused while the plant stays away
     pair.start_plant(seed=1)
     assert pair.run_until(lambda: pair.execute(M["Reset"]()).result == Reason.OK, 2000)
+
+
+def test_the_followers_grant_is_counted_from_its_first_tick_never_summed():
+    """100,000 ticks granted one by one end exactly 100,000 periods after the first (summing the
+    period would be 0.1 ns off by then, and half a tick off after 53 simulated hours)."""
+    plant_end, controller_end = open_local_pair()
+    follower = LockstepFollower(controller_end, SimClock(1000.0))
+    layout = HalCodec().layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
+    try:
+        for tick in range(100_001):
+            plant_end.send(layout.message((tick, 1, 1000)))
+            follower.tap.recv(timeout=0)
+        assert follower._granted_s == -0.001 + 100_001 * 0.001
+        assert abs(follower._granted_s - 100.0) < 1e-12
+    finally:
+        plant_end.shutdown()
+        controller_end.shutdown()
+
+
+def test_lock_step_goes_on_through_the_32_bit_wrap_of_the_tick():
+    """PLANT_SYNC and CTRL_SYNC carry the tick modulo 2**32 (49.7 days at 1 kHz): across the wrap
+    the controller answers CTRL_SYNC(0) to PLANT_SYNC(2**32 - 1), and the plant takes it as tick 2**32."""
+    wrap = 2 ** 32
+    pair = Pair(first_tick=wrap - 50)
+    assert pair.run_until(lambda: pair.node.tick >= wrap + 50, 20_000)
+    assert pair.leader.controller_tick >= wrap + 49 and pair.leader.ignored == 0
+    assert pair.follower.resyncs == 0 and pair.follower.plant_tick == (pair.node.tick - 1) % wrap
+    assert pair.control.tasks["arm"].stats.runs >= 99
+    assert not pair.controller.supervisor.faults
