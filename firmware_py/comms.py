@@ -18,16 +18,20 @@ bytes arrived or another task gave the link work (a frame or an event queued:
 at the same poll as a task that never slept (`scheduler.poll_tick`), and the world
 runs as it did when it polled.
 
-Its own stalls are not the host's silence: when a run starts more than `excused_after_s` after
-the time it asked for (the process was descheduled, the host is overloaded), the time it was
-not running is not counted toward the link timeout (`link.last_valid_rx_s` moves forward by
-it, `stalls_excused_s` counts it), and the bytes the host sent meanwhile are read before the
-watchdog looks.
+Its own stalls are not the host's silence, but they do not hide it either. When a run starts
+more than `excused_after_s` after the time it asked for (the process was descheduled, the host
+is overloaded), what the host sent meanwhile is still in the OS buffer and starts arriving now,
+at line rate. So the link watchdog may not fire until one longest frame (plus a poll) after the
+run (`stall_grace_s`): a host that sent anything during the stall is heard first. The watchdog's
+count moves forward by at most that grace per stall and never by more than the stall
+(`stalls_excused_s` sums it), so a dead host is still found one link timeout after its last frame,
+plus a few ms per stall, however often the controller is stopped.
 """
 from __future__ import annotations
 
 from typing import Callable, Optional
 
+from protocol.framing import MAX_ENCODED
 from protocol.link import LinkEndpoint
 
 from firmware_py.scheduler import poll_tick
@@ -50,6 +54,7 @@ class CommsTask:
         self._running = False
         self.excused_after_s = excused_after_s
         self._asked_s: Optional[float] = None    # the wake time the last run asked for
+        self.stall_grace_s = uart.wire_time_s(MAX_ENCODED + 1) + poll_period_s   # one longest frame, one poll
         self.stalls_excused_s = 0.0
 
     def attach(self, wake: Callable[[float], None], now: Callable[[], float]) -> None:
@@ -79,9 +84,14 @@ class CommsTask:
         self._running = True
         self._last_s = now
         asked = self._asked_s
-        if asked is not None and now - asked > self.excused_after_s and self.link.last_valid_rx_s is not None:
-            self.link.last_valid_rx_s += now - asked       # we were not running: the host was not silent
-            self.stalls_excused_s += now - asked
+        last_rx = self.link.last_valid_rx_s
+        if asked is not None and now - asked > self.excused_after_s and last_rx is not None:
+            # hear out what the host sent while we were stopped before judging its silence
+            heard_by = now + self.stall_grace_s - self.link.config.link_timeout_s
+            excused = min(now - asked, heard_by - last_rx)
+            if excused > 0:
+                self.link.last_valid_rx_s = last_rx + excused
+                self.stalls_excused_s += excused
         try:
             data = self.uart.receive(now)
             if data:
