@@ -230,11 +230,11 @@ class ArmController:
         if self.judge_lateness and last is not None:
             late = now - last - self.dt_s
             if late > self.params["loop_late_warn_s"]:
+                skipped = int(late / self.dt_s + 0.5)
+                for axis in self.joints.values():     # even when faulting: the next count is no glitch
+                    axis.estimator.skip(skipped)
                 if self._on_late(late, now):
                     return now + self.dt_s      # faulted: the safe state's hook has sent the motor command
-                skipped = int(late / self.dt_s + 0.5)
-                for axis in self.joints.values():
-                    axis.estimator.skip(skipped)
         self.hal.poll(now)
         inputs = self.hal.inputs
         fb_s = inputs.fb_s

@@ -68,6 +68,20 @@ def test_a_loop_late_beyond_loop_late_max_s_while_enabled_is_scheduler_overrun_b
     assert bench.call(M["Reset"]()).ok         # nothing is still present: the host is fine again
 
 
+@pytest.mark.parametrize("stall_s", [0.15, 0.3])
+def test_a_loop_too_late_while_moving_latches_scheduler_overrun_and_nothing_else(stall_s):
+    """The arm moved on during the stall; the estimators are told even when the late tick faults,
+    so the next count is not taken for an encoder glitch (an ENCODER fault beside the overrun)."""
+    bench = stalled_bench(stall_s, at_s=1.0)
+    assert bench.call(M["Enable"]()).ok
+    assert bench.call(M["MoveBy"](int(Axis.J1), 30.0, 0)).ok
+    assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 3.0)
+    bench.run_for(0.5)
+    sup = bench.controller.supervisor
+    assert sup.faults == Fault.SCHEDULER_OVERRUN, repr(Fault(sup.faults))
+    assert [r.reason for r in reports(bench, "FaultReport")] == [Reason.HOST_OVERLOADED]
+
+
 def test_a_late_loop_while_idle_or_below_the_limit_warns_and_faults_nothing():
     bench = stalled_bench(0.3, at_s=1.0)       # idle: nothing is driven, so a late loop harms nothing
     bench.run_for(2.0)
