@@ -4,7 +4,7 @@ Three measurements, each of real `aspod` subprocesses on real ptys (docs/realtim
 
 1. **A busy machine.** CPU hogs of the benchmark's own keep every core busy (one per core) while
    `aspod sim` runs and a scripted teleop session drives the demo's pick-and-place moves (the
-   steps of `host_tools.kinematics.steps`, coordinated as `aspod demo` does them), cycle after
+   steps of `host_tools.apps.kinematics.steps`, coordinated as `aspod demo` does them), cycle after
    cycle, for the whole duration (10 minutes by default): in one process, then with the plant as
    a separate process in lock-step over udp_multicast (`--hal udp_multicast`). Figures: faults
    (the goal is 0), motions started and ended DONE, and the real-time factor: since start at the
@@ -32,10 +32,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
-from host_tools.kinematics import DEMO_SCENE, steps
+from host_tools.apps.kinematics import DEMO_SCENE, steps
 from timebase import RealClock
 
-ASPOD = [sys.executable, "-m", "host_tools.cli"]
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 REPO_ROOT = Path(__file__).resolve().parent.parent
 START_TIMEOUT_S = 120.0
 JOINT_SPEED_DPS = 3.0          # the report's 1/2 RPM, every joint's default speed limit

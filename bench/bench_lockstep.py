@@ -9,7 +9,7 @@ motors (azimuth, elevation), whose relay logic runs at 100 Hz (the DBC's 10 ms c
 Rows, all in this process, each on its own `SimClock` (a simulated hour costs only the work
 done in it):
 
-* **world, all moving** (the figure the goal is about): a `host_tools.world.LockstepBench`
+* **world, all moving** (the figure the goal is about): a `host_tools.worlds.world.LockstepBench`
   as tests and `aspod demo` build it (plant, controller and a `HostLink` over the in-memory
   line, 115200 baud paced, every loop at 1 kHz, the scheduler's deterministic stopwatch),
   connected, telemetry at 10 Hz, enabled; every 2.5 simulated seconds the host sends, through
@@ -45,10 +45,10 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 from bench.bench_realtime import CpuMeter
-from firmware_py.scheduler import Scheduler
-from host_tools.local_bus import LocalBus, LocalChannel
-from host_tools.nodes import build_plant_node
-from host_tools.world import LockstepBench
+from timebase.scheduler import Scheduler
+from host_tools.worlds.local_bus import LocalBus, LocalChannel
+from host_tools.worlds.nodes import build_plant_node
+from host_tools.worlds.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.states import Axis, ControllerState, GripAction, Switch, SwitchPosition, TrackerAxis
 from timebase import RealClock, SimClock

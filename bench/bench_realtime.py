@@ -9,7 +9,7 @@ prints it per row):
 
 * **bare loop**: a Python loop that does nothing but `RealClock.sleep_until(deadline)`,
   then `deadline += 1 ms`: what this machine, its OS and CPython give a 1 kHz loop.
-* **world**: the whole simulator as `aspod sim --pty` runs it (`host_tools.world.World`
+* **world**: the whole simulator as `aspod sim --pty` runs it (`host_tools.worlds.world.World`
   on a `RealClock` and a `PtyPort`, 115200 baud paced, `Scheduler.run_forever`), with a
   teleop-like host attached from a SEPARATE process (so it does not share our GIL, as a
   real teleop does not): a `HostClient` on the pty that connects, sets telemetry to
@@ -361,7 +361,7 @@ def host_main(url: str, key_path: str, telemetry_hz: int, command_period_s: floa
 
     Stops when its stdin closes, then prints one JSON line of what it saw.
     """
-    from host_tools.client import HostClient   # imports pyserial
+    from host_tools.client.live import HostClient   # imports pyserial
     from protocol.messages import SCHEMA
 
     clock = RealClock()
@@ -463,8 +463,8 @@ class WorldRound:
 def run_world(duration_s: float, key: bytes, key_path: Path, rec: Recorder, meter: CpuMeter) -> WorldRound:
     """A fresh world and host: attach, settle, then `duration_s` of `run_forever` recorded into `rec`."""
     from firmware_py.controller import ControllerConfig
-    from firmware_py.uart import PtyPort
-    from host_tools.world import World
+    from host_tools.worlds.ports import PtyPort
+    from host_tools.worlds.world import World
 
     clock = RealClock()
     out = WorldRound()

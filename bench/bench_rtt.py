@@ -114,7 +114,7 @@ class SimProcess:
     def __init__(self, baud: int, telemetry_hz: int, key_path: Path, clock: RealClock, paced: bool = True) -> None:
         self.clock = clock
         self._stderr = tempfile.TemporaryFile()
-        cmd = [sys.executable, "-m", "host_tools.cli", "sim", "--pty", "--baud", str(baud),
+        cmd = [sys.executable, "-m", "host_tools.cli.main", "sim", "--pty", "--baud", str(baud),
                "--telemetry-hz", str(telemetry_hz), "--key-file", str(key_path)] + ([] if paced else ["--no-pacing"])
         self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                      stderr=self._stderr, cwd=REPO_ROOT)
@@ -165,7 +165,7 @@ class SimProcess:
 # ---------------------------------------------------------------- one case
 
 def run_case(case: Case, key: bytes, key_path: Path) -> CaseResult:
-    from host_tools.client import HostClient   # imports pyserial; only this benchmark needs it
+    from host_tools.client.live import HostClient   # imports pyserial; only this benchmark needs it
 
     ping_b, pong_b, _, _ = frame_lengths(key)
     result = CaseResult(case, wire_time_s(ping_b + pong_b, case.baud), ping_b, pong_b)

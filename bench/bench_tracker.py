@@ -7,7 +7,7 @@ clear day, and the number of relay switchings"; "feed-forward mode against the b
 setting on the same day. Goal: RMS pointing error at most 0.2 degrees and at least 3x lower
 than the best relay setting, with fewer relay switchings".
 
-How. `host_tools.tracker_day.run_day` (what `aspod tracker-day` runs: the tracker's firmware
+How. `host_tools.apps.tracker_day.run_day` (what `aspod tracker-day` runs: the tracker's firmware
 and plant every 10 ms, from when the sun climbs above 5 deg to when it sinks below it), on
 the design day, the June solstice at Tucson (the sun's fastest azimuth: 1.5 deg/min at
 transit), clear sky, seed 0. The relay logic at dials `DIALS` (both axes alike), then the
@@ -32,7 +32,7 @@ from datetime import time
 from pathlib import Path
 from typing import Optional
 
-from host_tools.tracker_day import DayResult, DaySettings, plot_days, run_day
+from host_tools.apps.tracker_day import DayResult, DaySettings, plot_days, run_day
 
 DIALS = (3.0, 20.0, 40.0, 60.0, 80.0, 100.0)     # percent; 3 % is below the sun's fastest rate (4.3 % of full speed)
 LOW_DIAL, HIGH_DIAL = DIALS[0], DIALS[-1]

@@ -4,10 +4,10 @@ The issue's goal: "positioning error at the gripper after each move and the sett
 per joint, Earth against orbit". The report's specification: the gripper within 1 cm
 (0.39 in) of where it was sent.
 
-For each gravity (Earth 9.81 m/s^2, orbit 0), a fresh `host_tools.world.LockstepBench`
+For each gravity (Earth 9.81 m/s^2, orbit 0), a fresh `host_tools.worlds.world.LockstepBench`
 (plant, controller and host link on the simulated clock, seed 0) with the plant in that
 gravity; for orbit the controller is told so too (ParamSet `gravity_m_s2` 0, as
-`host_tools/pick_place.py` does), so its gravity feed-forward is off. Everything goes
+`host_tools/apps/pick_place.py` does), so its gravity feed-forward is off. Everything goes
 through the protocol: connect, Enable, Home all (axis ALL; every axis's MotionDone
 awaited), then every joint to the middle pose, 0 deg: links II and III and the gripper
 level and in line, the arm stretched out, where gravity's moment on J1-J3 is largest. Then,
@@ -29,7 +29,7 @@ report's 1/2 RPM, 3 deg/s, at 3 deg/s^2), the other joints holding. For each mov
   `plant.arm.pos_rad[k]`), sampled every simulated millisecond. The controller faults above
   0.05 rad (2.9 deg).
 
-Then (not with --quick) the pick-and-place (`host_tools.pick_place.run`, Earth and orbit):
+Then (not with --quick) the pick-and-place (`host_tools.apps.pick_place.run`, Earth and orbit):
 its per-step tip errors, as `aspod demo` reports them.
 
 Every figure here is simulated, so a given seed gives the same figures on any machine; only
@@ -40,8 +40,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from hil_sim.arm import gripper_position_m
-from host_tools import pick_place
-from host_tools.world import LockstepBench
+from host_tools.apps import pick_place
+from host_tools.worlds.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import Axis, MotionOutcome
@@ -363,7 +363,7 @@ def pick_place_lines(reports: dict[str, dict]) -> list[str]:
             if step["name"] not in names:
                 names.append(step["name"])
     header = "".join(f"{g + ' mm':>12}" for g in gravities)
-    lines = ["  pick-and-place (host_tools.pick_place.run, as `aspod demo`): tip error after each step",
+    lines = ["  pick-and-place (host_tools.apps.pick_place.run, as `aspod demo`): tip error after each step",
              f"    {'step':<34}{header}"]
     for name in names:
         cells = ""

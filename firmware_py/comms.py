@@ -34,7 +34,7 @@ from typing import Callable, Optional
 from protocol.framing import MAX_ENCODED
 from protocol.link import LinkEndpoint
 
-from firmware_py.scheduler import poll_tick
+from timebase.scheduler import poll_tick
 from firmware_py.uart import PacedUart
 
 

@@ -50,7 +50,7 @@ from firmware_py.axis import Outcome
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
-from firmware_py.scheduler import Scheduler
+from timebase.scheduler import Scheduler
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker import TrackerController
 from firmware_py.uart import PacedUart
@@ -179,7 +179,7 @@ class Controller:
         """Add the tasks: the control tasks to `scheduler`, the comms task to `link_scheduler` (default: the same).
 
         Give a `link_scheduler` on the wall clock when `scheduler`'s clock is not the wall clock
-        (paced, lock-step): run both with `firmware_py.scheduler.run_live`.
+        (paced, lock-step): run both with `timebase.scheduler.run_live`.
         """
         self.scheduler = scheduler
         link_scheduler = link_scheduler or scheduler

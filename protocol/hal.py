@@ -353,7 +353,7 @@ class BusView:
     """A python-can bus seen through something that looks at what it receives.
 
     Subclasses override `recv`; everything else (`send`, `shutdown`, any attribute) is the
-    wrapped bus's, so a node uses a view as it would the bus (`host_tools.nodes.OwnEchoFilter`,
+    wrapped bus's, so a node uses a view as it would the bus (`host_tools.worlds.nodes.OwnEchoFilter`,
     `protocol.lockstep.SyncTap`). A context manager, as python-can's buses are.
     """
 

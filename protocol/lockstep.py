@@ -19,7 +19,7 @@ has already answered by sending its CTRL_SYNC again.
 `SyncTap` wraps a node's python-can bus so that the clock sees the other side's sync frames
 as they pass, whoever reads them; `LockstepFollower` is the controller's clock and
 `LockstepLeader` the plant's. Both are `timebase.Clock`s driven through `advance(deadline,
-wall_deadline)` (`firmware_py.scheduler.run_live`): they wait on the bus for the sync they
+wall_deadline)` (`timebase.scheduler.run_live`): they wait on the bus for the sync they
 need, on the wall clock given to them, and return in time for the wall-clock tasks (the link
 to the host, the parent-process watch) that share their thread.
 """

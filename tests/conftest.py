@@ -6,7 +6,7 @@ import uuid
 import can
 import pytest
 
-from host_tools.world import LockstepBench
+from host_tools.worlds.world import LockstepBench
 
 
 @pytest.fixture

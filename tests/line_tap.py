@@ -20,7 +20,8 @@ from typing import Optional
 
 import serial
 
-from firmware_py.uart import DevicePort, Port, PtyPort, TcpServerPort
+from firmware_py.uart import Port
+from host_tools.worlds.ports import DevicePort, PtyPort, TcpServerPort
 from protocol.errors import ParseError
 from protocol.framing import Frame, decode_frame
 from protocol.host_link import HostLink

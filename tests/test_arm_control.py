@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hil_sim.plant import PlantParams
-from host_tools.world import LockstepBench
+from host_tools.worlds.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import Axis, AxisMode, ControllerState, Fault, GripAction, MotionOutcome

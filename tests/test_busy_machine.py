@@ -19,7 +19,7 @@ import sys
 import pytest
 
 pytestmark = pytest.mark.pty
-ASPOD = [sys.executable, "-m", "host_tools.cli"]
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 # Relative moves (no homing needed), three joints at once, out and back: 6 motion ends in all.
 SCRIPT = """\
 enable

@@ -15,7 +15,7 @@ import test_e2e
 from test_e2e import ASPOD, Sim
 
 from firmware_py.params import PARAMS_FILE_LIMIT
-from host_tools.teleop_words import SCRIPT_LIMIT
+from host_tools.teleop.words import SCRIPT_LIMIT
 from protocol import auth, files
 
 pytestmark = pytest.mark.pty
@@ -186,7 +186,7 @@ def test_an_unknown_bus_keyword_is_refused_with_the_known_ones(env, args, messag
 
 
 def test_bus_keywords_come_from_the_constructor_and_for_kwargs_buses_from_their_documentation():
-    from host_tools import nodes
+    from host_tools.worlds import nodes
     assert {"port", "hop_limit", "fd", "can_filters"} <= nodes.bus_keywords("udp_multicast")
     assert "channel" not in nodes.bus_keywords("udp_multicast")
     assert {"device_id", "bitrate", "fd", "f_clock_mhz", "data_brp"} <= nodes.bus_keywords("pcan")   # fd: **kwargs

@@ -35,6 +35,29 @@ def test_packages_import_only_across_allowed_borders(package):
         assert not wrong, f"{path.relative_to(ROOT)} imports {wrong}"
 
 
+# host_tools inside: each part may import only the parts before it (docs/Code_Overview.md)
+HOST_LAYERS = ["exit_codes", "datetimes", "worlds", "client", "teleop", "apps", "cli"]
+
+
+def host_part(path: Path) -> str:
+    parts = path.relative_to(ROOT / "host_tools").parts
+    return parts[0] if len(parts) > 1 else path.stem
+
+
+def test_host_tools_parts_import_only_the_parts_below_them():
+    for path in (ROOT / "host_tools").rglob("*.py"):
+        if path.name == "__init__.py" and path.parent == ROOT / "host_tools":
+            continue
+        me = host_part(path)
+        assert me in HOST_LAYERS, f"{path.relative_to(ROOT)}: a part of host_tools not in the layering"
+        below = set(HOST_LAYERS[:HOST_LAYERS.index(me)])
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("host_tools"):
+                names = node.module.split(".")[1:2] or [a.name for a in node.names]
+                wrong = set(names) - below - {me}
+                assert not wrong, f"{path.relative_to(ROOT)} imports host_tools.{wrong}"
+
+
 def test_only_the_clock_module_reads_os_time_or_sleeps():
     """Everywhere, tests and benchmarks too: time comes from `timebase` (a benchmark's stopwatch is
     `RealClock.precise_now`)."""

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from host_tools import teleop
+from host_tools.teleop import session as teleop
 from protocol import docgen
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
@@ -116,7 +116,7 @@ def test_wait_waits_for_motions_or_pauses():
 
 
 def test_motion_words_take_declared_enum_values_and_complete_them():
-    from host_tools.teleop_words import completions
+    from host_tools.teleop.words import completions
     assert teleop.parse_line("home", 1).message == SCHEMA["Home"].type(255)          # declared default: all
     assert teleop.parse_line("grip close", 1).message.action == 1
     assert teleop.parse_line("move mount -2.5", 1).message == SCHEMA["Move"].type(5, -2.5, 0.0)

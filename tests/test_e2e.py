@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from host_tools.client import HostClient
+from host_tools.client.live import HostClient
 from protocol import auth
 from protocol.errors import LinkError
 from protocol.messages import SCHEMA
@@ -25,7 +25,7 @@ from timebase import RealClock
 
 pytestmark = pytest.mark.pty
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
-ASPOD = [sys.executable, "-m", "host_tools.cli"]
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 SESSION = "ping\nstatus\nestop\nreset\nquit\n"
 
 

@@ -10,7 +10,7 @@ from protocol.messages import SCHEMA
 from protocol.states import Axis, ControllerState, MotionOutcome
 from protocol.reasons import Reason
 
-from host_tools.teleop import EARLIER_SESSION_NOTE, Session
+from host_tools.teleop.session import EARLIER_SESSION_NOTE, Session
 from line_tap import decoded
 from test_auth_replay import KEY, Wire
 
@@ -157,7 +157,7 @@ def test_teleop_shows_events_from_an_earlier_session_as_such():
 
 
 def test_a_host_client_that_closes_sends_what_its_link_still_has_queued():
-    from host_tools.client import HostClient
+    from host_tools.client.live import HostClient
     client = HostClient("loop://", KEY)
     client._stop = True                      # the pump stops with something queued that it has not written
     client._thread.join()

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from firmware_py.hal import ControllerHal
-from firmware_py.scheduler import Scheduler
+from timebase.scheduler import Scheduler
 from hil_sim.hal_node import PlantNode
 from hil_sim.plant import FAULTS, Plant, PlantParams
 from protocol.hal import ARM_CHANNELS, HalCodec, HalDecodeError, HalEncodeError

@@ -11,7 +11,7 @@ from protocol.controller_link import MAX_PENDING_SESSIONS, PENDING_MIN_LIFE_S
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 
-from host_tools.world import LockstepBench
+from host_tools.worlds.world import LockstepBench
 from line_tap import decoded, recorded_hello
 
 KEY = b"flood-test-key-0123456789abcdef"

@@ -13,7 +13,7 @@ import subprocess
 import pytest
 
 import test_e2e
-from host_tools.client import HostClient
+from host_tools.client.live import HostClient
 from line_tap import LineTap, decoded, recorded_hello
 from protocol import auth
 from protocol.link import LinkState

@@ -5,7 +5,7 @@ import random
 
 import pytest
 
-from host_tools.link_emulator import LineFaults, LossyLine
+from host_tools.worlds.link_emulator import LineFaults, LossyLine
 from protocol.controller_link import ControllerLink
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState

@@ -5,7 +5,7 @@ import can
 import pytest
 
 from firmware_py.hal import ControllerHal
-from host_tools.local_bus import LocalBus, LocalChannel, open_local_pair
+from host_tools.worlds.local_bus import LocalBus, LocalChannel, open_local_pair
 from protocol.hal import HalCodec
 
 CODEC = HalCodec()

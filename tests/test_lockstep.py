@@ -14,10 +14,11 @@ import pytest
 
 from firmware_py.axis import Outcome
 from firmware_py.controller import ControllerConfig
-from firmware_py.scheduler import Scheduler
-from firmware_py.uart import BufferPort, PacedUart
-from host_tools.local_bus import open_local_pair
-from host_tools.nodes import build_controller, build_plant_node
+from timebase.scheduler import Scheduler
+from firmware_py.uart import PacedUart
+from host_tools.worlds.ports import BufferPort
+from host_tools.worlds.local_bus import open_local_pair
+from host_tools.worlds.nodes import build_controller, build_plant_node
 from protocol.hal import BusView, HalCodec
 from protocol.lockstep import REOFFER_S, LockstepFollower, LockstepLeader
 from protocol.messages import SCHEMA

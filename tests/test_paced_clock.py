@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from firmware_py.scheduler import Scheduler, run_live
+from timebase.scheduler import Scheduler, run_live
 from timebase import PacedClock, RateMeter, SimClock
 
 

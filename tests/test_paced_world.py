@@ -11,9 +11,9 @@ import random
 
 import pytest
 
-from firmware_py.scheduler import run_live
-from firmware_py.uart import BufferPort
-from host_tools.world import World
+from timebase.scheduler import run_live
+from host_tools.worlds.ports import BufferPort
+from host_tools.worlds.world import World
 from protocol.host_link import HostLink
 from protocol.link import LinkState
 from protocol.messages import SCHEMA

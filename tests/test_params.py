@@ -8,7 +8,7 @@ import pytest
 
 from firmware_py.controller import ControllerConfig
 from firmware_py.params import ParamSpec, ParamStore
-from host_tools.world import LockstepBench
+from host_tools.worlds.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from firmware_py.scheduler import Scheduler
+from timebase.scheduler import Scheduler
 from hil_sim.arm_params import CHANNELS, J1, J2, J4, MOUNT
 from hil_sim.faults import CHANNEL_FAULTS, FAULT_NAMES, FAULT_TABLE, PLANT_FAULTS, describe
 from hil_sim.hal_node import PlantNode

@@ -24,11 +24,12 @@ from test_teleop_arm import ASPOD, read_line
 
 from hil_sim.sun import MST
 from hil_sim.tracker import TrackerCommand
-from host_tools.teleop import EXIT_OK, Session
-from host_tools.teleop_bench import BenchClient
-from host_tools.teleop_box import AXIS_HEADER
-from host_tools.teleop_words import Step, check_script
-from host_tools.world import LockstepBench
+from host_tools.exit_codes import EXIT_OK
+from host_tools.teleop.session import Session
+from host_tools.client.bench import BenchClient
+from host_tools.teleop.box import AXIS_HEADER
+from host_tools.teleop.words import Step, check_script
+from host_tools.worlds.world import LockstepBench
 from protocol.states import ControllerState, SwitchPosition as P
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -219,7 +220,7 @@ def test_the_doc_shows_the_script_and_the_panel_as_they_are():
     assert len(quoted) > 20 and quoted <= lines, sorted(quoted - lines)
     assert f"\n{AXIS_HEADER}\n" in doc
     for word in ("--sun-start", "--clouds", "--no-tracker", "aspod sim --hal", "watch box", "expect REASON",
-                 "wait aligned [az|el] DEG [TIMEOUT]", "python -m host_tools.teleop_bench"):
+                 "wait aligned [az|el] DEG [TIMEOUT]", "python -m host_tools.cli.bench_script"):
         assert word in doc, word
 
 

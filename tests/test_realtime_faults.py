@@ -10,7 +10,7 @@ import pytest
 
 from firmware_py.axis import AxisError
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
-from host_tools.world import LockstepBench
+from host_tools.worlds.world import LockstepBench
 from protocol.hal import BusView, HalCodec
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason

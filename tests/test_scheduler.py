@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from firmware_py.scheduler import Scheduler, poll_tick
+from timebase.scheduler import Scheduler, poll_tick
 from timebase import SimClock
 
 

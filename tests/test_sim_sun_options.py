@@ -16,11 +16,11 @@ import pytest
 import test_separate_processes as separate
 from test_separate_processes import ASPOD, WAIT_S, Proc, link_of
 
-from firmware_py.uart import BufferPort
+from host_tools.worlds.ports import BufferPort
 from hil_sim.sun import MST
-from host_tools.cli import build_parser
-from host_tools.plant_cli import sun_line, tracker_child_args, tracker_options
-from host_tools.world import World
+from host_tools.cli.main import build_parser
+from host_tools.cli.plant import sun_line, tracker_child_args, tracker_options
+from host_tools.worlds.world import World
 from timebase import RealClock, SimClock
 
 EQUINOX = "2026-03-20T06:50-07:00"

@@ -11,7 +11,8 @@ import socket
 
 import pytest
 
-from firmware_py.uart import PacedUart, TcpServerPort
+from firmware_py.uart import PacedUart
+from host_tools.worlds.ports import TcpServerPort
 from timebase import RealClock
 
 pytestmark = pytest.mark.pty

@@ -19,16 +19,17 @@ from pathlib import Path
 
 import pytest
 
-from host_tools.client import HostClient
-from host_tools.teleop import EXIT_FAILED, EXIT_OK, run_script
-from host_tools.teleop_motion import MotionTracker
-from host_tools.teleop_words import parse_line
+from host_tools.client.live import HostClient
+from host_tools.exit_codes import EXIT_FAILED, EXIT_OK
+from host_tools.teleop.session import run_script
+from host_tools.teleop.motion import MotionTracker
+from host_tools.teleop.words import parse_line
 from protocol import auth
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import Axis, AxisMode, MotionOutcome
 
-ASPOD = [sys.executable, "-m", "host_tools.cli"]
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 AXES = ("j1", "j2", "j3", "j4", "gripper", "mount")
 JOINTS = ("j1", "j2", "j3", "j4", "mount")
 HOME = "reset\nenable\nhome all\nwait all 60\n"

@@ -14,13 +14,14 @@ from datetime import datetime
 import pytest
 
 from hil_sim.sun import MST
-from host_tools import teleop
-from host_tools.teleop import EXIT_FAILED, EXIT_OK, EXIT_USAGE, Session, run_script
-from host_tools.teleop_bench import BenchClient
-from host_tools.teleop_box import AXIS_HEADER, box_block, box_state_text, pointing_error_deg
-from host_tools.teleop_clock import parse_when, split_seconds
-from host_tools.teleop_words import completions, help_text, parse_line
-from host_tools.world import LockstepBench
+from host_tools.teleop import session as teleop
+from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from host_tools.teleop.session import Session, run_script
+from host_tools.client.bench import BenchClient
+from host_tools.teleop.box import AXIS_HEADER, box_block, box_state_text, pointing_error_deg
+from host_tools.datetimes import parse_when, split_seconds
+from host_tools.teleop.words import completions, help_text, parse_line
+from host_tools.worlds.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import SwitchPosition as P, TrackerWarning
@@ -168,7 +169,7 @@ def test_pointing_error_is_the_angle_to_the_sun_or_one_axis():
 
 
 def test_wait_aligned_counts_readings_in_a_row_so_one_noisy_reading_does_not_pass():
-    from host_tools.teleop import AlignedWatch
+    from host_tools.teleop.session import AlignedWatch
     watch = AlignedWatch(0.5, "el")
     for error_el, streak in ((0.4, 1), (0.6, 0), (0.45, 1), (-0.49, 2), (0.1, 3)):
         watch.feed(tracker_msg(error_el=error_el))

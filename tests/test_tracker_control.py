@@ -24,8 +24,8 @@ from firmware_py.params import ParamStore
 from hil_sim.plant import PlantParams
 from hil_sim.sun import MST, TUCSON, solar_position
 from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand
-from host_tools import teleop
-from host_tools.world import LockstepBench
+from host_tools.teleop import session as teleop
+from host_tools.worlds.world import LockstepBench
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault, Switch, SwitchPosition as P, TempSide, TrackerAxis, TrackerWarning

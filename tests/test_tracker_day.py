@@ -1,4 +1,4 @@
-"""The solar tracker closed around its plant through (parts of) a day: `host_tools.tracker_day`.
+"""The solar tracker closed around its plant through (parts of) a day: `host_tools.apps.tracker_day`.
 
 The report's operating step 10: "If the speedpot setting is too low the solar trackers will be
 lagging the sun constantly trying to catch up. However, if it is set too high the solar tracker
@@ -16,8 +16,8 @@ from datetime import date, time
 import numpy as np
 import pytest
 
-from host_tools import cli
-from host_tools.tracker_day import DayHal, DaySettings, run_day, sun_window
+from host_tools.cli import main as cli
+from host_tools.apps.tracker_day import DayHal, DaySettings, run_day, sun_window
 from hil_sim.tracker import TrackerPlant
 from protocol.hal import HalCodec
 

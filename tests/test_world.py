@@ -4,7 +4,7 @@ from __future__ import annotations
 import hashlib
 
 from firmware_py.controller import ControllerConfig
-from host_tools.world import LockstepBench
+from host_tools.worlds.world import LockstepBench
 from protocol.link import LinkConfig
 from protocol.messages import SCHEMA
 from protocol.states import Axis, ControllerState, GripAction

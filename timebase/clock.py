@@ -12,7 +12,7 @@ OS clock themselves.
 Every clock can say how its time relates to the wall clock (`timing()`, a
 `TimingReport`), and can `advance(deadline, wall_deadline)`: move its time toward
 `deadline` but return by `wall_deadline` on the wall clock, so that one thread can
-run a simulated world and a real link side by side (`firmware_py.scheduler.run_live`).
+run a simulated world and a real link side by side (`timebase.scheduler.run_live`).
 """
 from __future__ import annotations
 

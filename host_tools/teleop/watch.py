@@ -21,8 +21,8 @@ from typing import Callable, Optional
 from protocol.messages import SCHEMA
 from protocol.schema import Message
 
-from host_tools.teleop_format import Console, enum_word, format_faults, format_value, time_summary
-from host_tools.teleop_words import AXIS_ENUM
+from host_tools.teleop.format import Console, enum_word, format_faults, format_value, time_summary
+from host_tools.teleop.words import AXIS_ENUM
 
 REFRESH_S = 0.1
 _JOINTS = SCHEMA["TelemetryJoints"]

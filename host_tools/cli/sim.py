@@ -12,10 +12,10 @@ if needed) the per-user development key that the host tools also default to.
 
 The plant carries the solar tracker unless --no-tracker; its sun starts at --sun-start
 (`now` by default: the real sun at Tucson, which `clock now` at teleop matches) with
---clouds; where it starts is said on stderr (host_tools/plant_cli.py `tracker_options`).
+--clouds; where it starts is said on stderr (host_tools/cli/plant.py `tracker_options`).
 
 With --hal INTERFACE the plant runs as a separate process (`aspod plant`) and the two
-meet on that python-can interface: see host_tools/firmware_cli.py and
+meet on that python-can interface: see host_tools/cli/firmware.py and
 docs/separate_processes.md.
 """
 from __future__ import annotations
@@ -26,10 +26,10 @@ import sys
 
 from timebase import PacedClock, RealClock
 
-from host_tools.firmware_cli import (apply_command_line, controller_config, log_states, open_port,
+from host_tools.cli.firmware import (apply_command_line, controller_config, log_states, open_port,
                                     run_sim_over_hal)
-from host_tools.plant_cli import sun_from_now, sun_line, tracker_options
-from host_tools.world import World
+from host_tools.cli.plant import sun_from_now, sun_line, tracker_options
+from host_tools.worlds.world import World
 
 
 def run_sim(args: argparse.Namespace) -> int:

@@ -23,7 +23,7 @@ from firmware_py.uart import BAUD_RATES
 from protocol import auth
 from protocol.errors import KeyFileError, LinkError, shown
 
-from host_tools.teleop import EXIT_LINK, EXIT_USAGE
+from host_tools.exit_codes import EXIT_LINK, EXIT_USAGE
 
 
 SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces: 0 .. 4294967295
@@ -94,7 +94,7 @@ def add_link_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _interface(text: str) -> str:
-    from host_tools import nodes   # imported when used: it loads the controller and the plant
+    from host_tools.worlds import nodes   # imported when used: it loads the controller and the plant
     try:
         return nodes.check_interface(text, between_processes=True)
     except ValueError as exc:
@@ -102,7 +102,7 @@ def _interface(text: str) -> str:
 
 
 def _gravity(text: str) -> str:
-    from host_tools import nodes
+    from host_tools.worlds import nodes
     if text not in nodes.GRAVITY_MODES:
         raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(nodes.GRAVITY_MODES)}")
     return text
@@ -154,7 +154,7 @@ def add_arm_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _sun_start(text: str):
-    from host_tools.teleop_clock import parse_when
+    from host_tools.datetimes import parse_when
     try:
         parse_when(text, "sun start", posix=False)    # resolved when the plant is built (plant_cli)
     except ValueError as exc:
@@ -287,22 +287,22 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "sim":
-            from host_tools.sim import run_sim
+            from host_tools.cli.sim import run_sim
             return run_sim(args)
         if args.command == "plant":
-            from host_tools.plant_cli import run_plant
+            from host_tools.cli.plant import run_plant
             return run_plant(args)
         if args.command == "firmware":
-            from host_tools.firmware_cli import run_firmware
+            from host_tools.cli.firmware import run_firmware
             return run_firmware(args)
         if args.command == "teleop":
-            from host_tools.teleop_cli import run_teleop
+            from host_tools.cli.teleop import run_teleop
             return run_teleop(args, host_key(args.key_file))
         if args.command == "demo":
-            from host_tools.demo import run_demo
+            from host_tools.apps.demo import run_demo
             return run_demo(args)
         if args.command == "tracker-day":
-            from host_tools.tracker_day import run_tracker_day
+            from host_tools.apps.tracker_day import run_tracker_day
             return run_tracker_day(args)
     except (KeyFileError, ValueError) as exc:   # bad key file, or settings out of their bounds
         print(f"aspod: {exc}", file=sys.stderr)

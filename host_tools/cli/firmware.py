@@ -32,8 +32,9 @@ from typing import Any, Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
 from firmware_py.params import PARAMS_FILE_LIMIT
-from firmware_py.scheduler import Scheduler, run_live
-from firmware_py.uart import DevicePort, PacedUart, Port, PtyPort, TcpServerPort
+from timebase.scheduler import Scheduler, run_live
+from firmware_py.uart import PacedUart, Port
+from host_tools.worlds.ports import DevicePort, PtyPort, TcpServerPort
 from protocol import auth, files
 from protocol.link import LinkConfig
 from protocol.lockstep import LockstepFollower
@@ -41,9 +42,9 @@ from protocol.reasons import Reason
 from protocol.states import Fault
 from timebase import RealClock
 
-from host_tools import nodes
-from host_tools.plant_cli import PlantProcess, bus_options, describe_exit, tracker_child_args, tracker_options
-from host_tools.teleop_format import describe_report
+from host_tools.worlds import nodes
+from host_tools.cli.plant import PlantProcess, bus_options, describe_exit, tracker_child_args, tracker_options
+from host_tools.teleop.format import describe_report
 
 PLANT_WATCH_S = 0.1
 

@@ -1,6 +1,6 @@
 """`aspod demo` (what `make demo` runs): the arm picks up debris and drops it in the bin.
 
-By default it runs the pick-and-place (`host_tools/pick_place.py`) on the simulated clock,
+By default it runs the pick-and-place (`host_tools/apps/pick_place.py`) on the simulated clock,
 faster than real time, and prints each step with the gripper's positioning error against
 the report's 1 cm; `--json` prints one JSON object instead; `--gravity orbit` runs it
 without gravity.
@@ -22,9 +22,10 @@ from protocol import auth
 from protocol.errors import LinkError
 from protocol.reasons import Reason
 
-from host_tools import pick_place
-from host_tools.client import HostClient
-from host_tools.teleop import EXIT_FAILED, EXIT_LINK, EXIT_OK, run_script
+from host_tools.apps import pick_place
+from host_tools.client.live import HostClient
+from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
+from host_tools.teleop.session import run_script
 
 SCRIPT = """\
 # a short session: link check, enable, e-stop while enabled, recover
@@ -79,7 +80,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def run_link_demo(args: argparse.Namespace) -> int:
-    sim = subprocess.Popen([sys.executable, "-m", "host_tools.cli", "sim", "--pty", "--baud", str(args.baud)],
+    sim = subprocess.Popen([sys.executable, "-m", "host_tools.cli.main", "sim", "--pty", "--baud", str(args.baud)],
                            stdout=subprocess.PIPE, bufsize=0)
     try:
         link_line, key_line = _read_line(sim), _read_line(sim)

@@ -2,7 +2,7 @@
 
 `aspod plant` (the plant alone) and `aspod firmware` (the controller alone) get their
 bus from `open_bus`, `World` (one process, one thread) a private pair from
-`host_tools.local_bus.open_local_pair`; all of them build the plant with
+`host_tools.worlds.local_bus.open_local_pair`; all of them build the plant with
 `build_plant_node` and the controller with `build_controller`, so a plant in its own
 process is the very plant `aspod sim` runs in-process.
 

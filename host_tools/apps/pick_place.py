@@ -8,7 +8,7 @@ the jaws when the gripper reaches it, and its mass rides on the tip once gripped
 
 After each step the gripper tip's true position (the plant's forward kinematics of the
 true joint angles) is compared with where the step should have put it
-(`host_tools.kinematics.steps`): that is the positioning error the report specifies
+(`host_tools.apps.kinematics.steps`): that is the positioning error the report specifies
 within 1 cm. Joint moves of one step are coordinated: each joint gets the speed that makes
 all of them take as long as the slowest one at its speed limit.
 """
@@ -25,8 +25,8 @@ from protocol.reasons import Reason
 from protocol.states import Axis, GripAction, MotionOutcome
 from timebase import RealClock
 
-from host_tools.kinematics import DEMO_SCENE, Scene, Step, steps
-from host_tools.world import LockstepBench
+from host_tools.apps.kinematics import DEMO_SCENE, Scene, Step, steps
+from host_tools.worlds.world import LockstepBench
 
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 AXIS_BY_NAME = {a.name.lower(): a for a in Axis if a is not Axis.ALL}

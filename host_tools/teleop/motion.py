@@ -28,8 +28,8 @@ from protocol.reasons import Reason, reason_name
 from protocol.schema import Message
 from protocol.states import MotionOutcome
 
-from host_tools.teleop_format import enum_word, reason_lines, wrap
-from host_tools.teleop_words import AXES, AXIS_ALL, Step
+from host_tools.teleop.format import enum_word, reason_lines, wrap
+from host_tools.teleop.words import AXES, AXIS_ALL, Step
 
 _KEPT_ENDS = 512
 _JOINTS = SCHEMA["TelemetryJoints"]

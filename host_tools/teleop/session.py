@@ -45,21 +45,21 @@ from protocol.schema import Message
 from protocol.states import TimingMode
 from timebase import RealClock
 
-from host_tools.teleop_box import box_block, box_state_text, clock_set, pointing_error_deg
-from host_tools.teleop_clock import utc_text
-from host_tools.teleop_format import (INDENT, Console, failure_lines, format_message, format_outcome,
+from host_tools.datetimes import utc_text
+from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+from host_tools.teleop.box import box_block, box_state_text, clock_set, pointing_error_deg
+from host_tools.teleop.format import (INDENT, Console, failure_lines, format_message, format_outcome,
                                       format_value, latency, link_down_lines, report_lines)
-from host_tools.teleop_motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
+from host_tools.teleop.motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
                                       started_text, still_running_lines)
-from host_tools.teleop_watch import TelemetryCache, arm_block, watch
-from host_tools.teleop_words import (LOCAL_COMMANDS, Step, TeleopError, all_words, build_message, check_script,
+from host_tools.teleop.watch import TelemetryCache, arm_block, watch
+from host_tools.teleop.words import (LOCAL_COMMANDS, Step, TeleopError, all_words, build_message, check_script,
                                      commands, completions, help_text, parse_line, parse_value, usage)
 
-__all__ = ["EXIT_OK", "EXIT_FAILED", "EXIT_USAGE", "EXIT_LINK", "LOCAL_COMMANDS", "Session", "Step", "TeleopError",
+__all__ = ["LOCAL_COMMANDS", "Session", "Step", "TeleopError",
            "all_words", "build_message", "check_script", "commands", "format_message", "format_outcome",
            "help_text", "interactive", "parse_line", "parse_value", "run_script", "usage"]
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
 ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
 TELEMETRY_SILENCE_S = 15.0   # a wait in the controller's time ends if no telemetry comes for this long (wall)

@@ -36,13 +36,13 @@ import subprocess
 import sys
 from typing import Any, Callable, Optional, Sequence
 
-from firmware_py.scheduler import Scheduler, run_live
+from timebase.scheduler import Scheduler, run_live
 from hil_sim.sun import TUCSON, SunTable, as_clouds, to_utc
 from protocol.lockstep import LockstepLeader
 from timebase import PacedClock, RealClock
 
-from host_tools import nodes
-from host_tools.teleop_clock import NOW, parse_when
+from host_tools.worlds import nodes
+from host_tools.datetimes import NOW, parse_when
 
 READY = "ASPOD-PLANT ready"
 STDIN_CHECK_S = 0.1
@@ -215,7 +215,7 @@ class PlantProcess:
 
     def __init__(self, interface: str, channel: str, options: dict[str, Any], *, seed: int = 0,
                  extra_args: Sequence[str] = (), start_timeout_s: float = 30.0) -> None:
-        argv = [sys.executable, "-m", "host_tools.cli", "plant", "--interface", interface, "--channel", channel,
+        argv = [sys.executable, "-m", "host_tools.cli.main", "plant", "--interface", interface, "--channel", channel,
                 "--seed", str(seed), "--stop-on-stdin-eof", *extra_args]
         for key, value in options.items():
             if key == "bitrate":

@@ -30,7 +30,7 @@ from protocol.messages import SCHEMA
 from protocol.schema import Message
 from protocol.states import TRACKER_WARNING_DOCS, TrackerWarning
 
-from host_tools.teleop_format import INDENT, format_value, wrap
+from host_tools.teleop.format import INDENT, format_value, wrap
 
 AXES = ("az", "el")
 _TRACKER = SCHEMA["TelemetryTracker"]

@@ -4,9 +4,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from host_tools.client import HostClient
-from host_tools.teleop import EXIT_USAGE, TeleopError, check_script, interactive, run_script
-from host_tools.teleop_words import read_script
+from host_tools.client.live import HostClient
+from host_tools.exit_codes import EXIT_USAGE
+from host_tools.teleop.session import TeleopError, check_script, interactive, run_script
+from host_tools.teleop.words import read_script
 
 
 def run_teleop(args: argparse.Namespace, psk: bytes) -> int:

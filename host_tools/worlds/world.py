@@ -1,6 +1,6 @@
 """The simulator's world: a plant and a controller meeting on a python-can bus, one scheduler.
 
-The bus is a private `host_tools.local_bus` pair: a `can.BusABC` for one process and one
+The bus is a private `host_tools.worlds.local_bus` pair: a `can.BusABC` for one process and one
 thread, much cheaper per frame than python-can's `virtual` interface (see that module).
 
 Used by `aspod sim` (a pty or TCP port; the world on a `PacedClock`, simulated time paced to
@@ -15,8 +15,9 @@ import random
 from typing import Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
-from firmware_py.scheduler import Scheduler, poll_tick, run_live
-from firmware_py.uart import BufferPort, PacedUart, Port
+from timebase.scheduler import Scheduler, poll_tick, run_live
+from firmware_py.uart import PacedUart, Port
+from host_tools.worlds.ports import BufferPort
 from hil_sim.plant import PlantParams
 from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
@@ -24,8 +25,8 @@ from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
 from timebase import Clock, PacedClock, RealClock, SimClock
 
-from host_tools.local_bus import open_local_pair
-from host_tools.nodes import build_controller, build_plant_node
+from host_tools.worlds.local_bus import open_local_pair
+from host_tools.worlds.nodes import build_controller, build_plant_node
 
 
 def seeded_nonces(seed: int) -> Callable[[], bytes]:

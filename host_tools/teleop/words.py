@@ -26,8 +26,8 @@ from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Field, Message, MessageSpec
 
-from host_tools.teleop_clock import FORMAT as CLOCK_FORMAT
-from host_tools.teleop_clock import parse_when, split_seconds
+from host_tools.datetimes import FORMAT as CLOCK_FORMAT
+from host_tools.datetimes import parse_when, split_seconds
 
 # The axes `wait` takes: the declared enum of the motion commands' `axis` field (Home's includes `all`).
 AXIS_ENUM = next(f.enum for f in SCHEMA["Home"].fields if f.name == "axis")

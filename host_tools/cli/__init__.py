@@ -1,0 +1,2 @@
+"""The `aspod` command line: the entry point (`main`), one module per command, and the only code
+that reads an `argparse.Namespace`."""

@@ -1,0 +1,230 @@
+"""The OS ports a controller's serial line can sit on: where its bytes meet a pty, a TCP client,
+a device or memory.
+
+Ports are non-blocking byte pipes (`read(max_bytes)`, `write(data) -> int`; the interface is
+`firmware_py.uart.Port`). The host side always goes through pyserial (`serial_for_url`); the
+controller side owns the other end, which pyserial cannot serve: the master of a pty pair, a
+listening TCP socket, or a real device (that one through pyserial). `BufferPort` is the
+in-memory line of the lock-step worlds. The controller's `PacedUart` paces any of them to the
+line's baud rate.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import socket
+import termios
+import tty
+from typing import Callable, Optional
+
+
+
+class PtyPort:
+    """The controller holds the master of a new pty pair; a host opens `url` (the slave)."""
+
+    def __init__(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave, termios.TCSANOW)   # binary frames: no echo, no line discipline
+        os.set_blocking(self._master, False)
+        self.url = os.ttyname(self._slave)
+
+    def read(self, max_bytes: int) -> bytes:
+        try:
+            return os.read(self._master, max_bytes)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:   # no reader on the slave side right now
+                return b""
+            raise
+
+    def write(self, data: bytes) -> int:
+        try:
+            return os.write(self._master, data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return len(data)   # nobody is listening: the bytes are gone, as on a real line
+            raise
+
+    def close(self) -> None:
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class TcpServerPort:
+    """Listens on 127.0.0.1:`port`; one client at a time is the line's other end.
+
+    Who holds the line: a new connection never displaces a client that carries a live
+    authenticated session; a client that has not brought one (no session since it connected, or
+    its session's link timed out) is displaced by a newer connection, so that an idle squatter
+    cannot lock the genuine host out either. A refused connection is closed at once and counted
+    in `refused`. The port learns about sessions from `live_session`, assigned by whoever builds
+    the controller (host_tools/worlds/nodes.py `build_controller`): it returns a token naming the live
+    session (or None when there is none, or its link timed out). The client "brought" the session
+    if the token is not the one that was live when the client connected.
+
+    Every change of client (a new one, or the present one closing) increments `generation`: the
+    paced UART then discards what it still held of the old client's bytes (`PacedUart.receive`),
+    so that nothing the old client wrote reaches the controller as if the new one had sent it.
+    """
+
+    MAX_ACCEPTS_PER_READ = 8    # connections taken (or refused) per read: a flood cannot stall the comms task
+
+    def __init__(self, port: int, host: str = "127.0.0.1") -> None:
+        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._listener.bind((host, port))
+        self._listener.listen(4)
+        self._listener.setblocking(False)
+        self._client: Optional[socket.socket] = None
+        self._session_at_connect: object = None    # the live session's token when the client connected
+        self.port = self._listener.getsockname()[1]
+        self.url = f"socket://{host}:{self.port}"
+        self.live_session: Callable[[], object] = lambda: None
+        self.on_refused: Callable[[str], None] = lambda peer: None   # told "host:port" of each refused
+        self.connections = 0     # clients that became the line's other end
+        self.refused = 0         # connections closed at once: the present client carries a live session
+        self.generation = 0      # changes of client (connected, replaced, gone)
+
+    def client_has_session(self) -> bool:
+        """The present client brought the live session (it came after the client connected)."""
+        if self._client is None:
+            return False
+        token = self.live_session()
+        return token is not None and token is not self._session_at_connect
+
+    def _accept(self) -> None:
+        for _ in range(self.MAX_ACCEPTS_PER_READ):
+            try:
+                client, addr = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:        # a connection reset before it was taken, say
+                continue
+            if self.client_has_session():
+                client.close()
+                self.refused += 1
+                self.on_refused(f"{addr[0]}:{addr[1]}")
+                continue
+            client.setblocking(False)
+            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self._drop_client()
+            self._client = client
+            self._session_at_connect = self.live_session()
+            self.connections += 1
+
+    def _drop_client(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+            self.generation += 1
+
+    def read(self, max_bytes: int) -> bytes:
+        """The present client's bytes; then new connections are taken or refused. Bytes of a client that
+        left or was replaced during this read are not returned (they were not the new client's)."""
+        generation = self.generation
+        data = self._receive(max_bytes) if self._client is not None else b""
+        self._accept()     # after the present client's end of stream, if it came, was seen
+        return data if self.generation == generation else b""
+
+    def _receive(self, max_bytes: int) -> bytes:
+        """Up to `max_bytes` from the present client; the client is dropped at its end of stream."""
+        try:
+            data = self._client.recv(max_bytes)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            data = b""
+        gone = not data
+        if data and len(data) < max_bytes:      # all it had: has it closed behind them?
+            try:
+                gone = self._client.recv(1, socket.MSG_PEEK) == b""
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                gone = True
+        if gone:
+            self._drop_client()
+        return data
+
+    def write(self, data: bytes) -> int:
+        if self._client is None:
+            return len(data)   # no host: the bytes are gone
+        try:
+            return self._client.send(data)
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError:
+            self._drop_client()
+            return len(data)
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+        self._listener.close()
+
+
+class DevicePort:
+    """A real serial device (or any pyserial URL) opened non-blocking."""
+
+    def __init__(self, url: str, baud: int) -> None:
+        import serial   # only this port needs pyserial on the controller side
+        self._serial = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        self.url = url
+
+    def read(self, max_bytes: int) -> bytes:
+        return self._serial.read(max_bytes)
+
+    def write(self, data: bytes) -> int:
+        import serial
+        try:
+            return self._serial.write(data) or 0
+        except serial.SerialTimeoutException:
+            return 0
+
+    def close(self) -> None:
+        self._serial.close()
+
+
+class BufferPort:
+    """An in-memory port for lock-step worlds: the other side fills `inbox`, drains `outbox`.
+
+    With `notifies` it says when bytes move, so that neither end has to poll it:
+    `deliver(data)` (the other side's write) calls `on_input`, `write` calls `on_output`. A
+    comms task over such a port sleeps through the polls that would find nothing
+    (`firmware_py/comms.py`).
+    """
+
+    def __init__(self, url: str = "memory://", notifies: bool = True) -> None:
+        self.url = url
+        self.notifies = notifies
+        self.inbox = bytearray()
+        self.outbox = bytearray()
+        self.on_input: Callable[[], None] = lambda: None
+        self.on_output: Callable[[], None] = lambda: None
+
+    def deliver(self, data: bytes) -> None:
+        """The other side writes `data` (it reaches `read`); `on_input` is told."""
+        if data:
+            self.inbox += data
+            self.on_input()
+
+    def read(self, max_bytes: int) -> bytes:
+        if not self.inbox:
+            return b""
+        data = bytes(self.inbox[:max_bytes])
+        del self.inbox[:max_bytes]
+        return data
+
+    def write(self, data: bytes) -> int:
+        self.outbox += data
+        self.on_output()
+        return len(data)
+
+    def close(self) -> None:
+        pass
