@@ -31,16 +31,16 @@ from dataclasses import dataclass
 from typing import Callable, Optional
 
 from protocol.reasons import Reason
-from protocol.states import Fault, FaultCause
+from protocol.states import ARM_CHANNELS, Fault, FaultCause
 
 from firmware_py import arm_config
-from firmware_py.arm_config import AXIS_NAMES, DRIVES, GRIPPER, MASSES
+from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
 from firmware_py.axis import Axis, AxisError, AxisMode, Outcome, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamStore
 
-GRIPPER_INDEX = AXIS_NAMES.index("gripper")
+GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
 
 # AxisError bit -> (controller fault bit, reason), in priority order (the first match names the cause)
 AXIS_FAULTS: tuple[tuple[AxisError, Fault, Reason], ...] = (
@@ -120,14 +120,14 @@ class ArmController:
         self.joints: dict[str, Axis] = {}
         for index, drive in enumerate(DRIVES):
             gravity = (lambda k: (lambda pos: self._tau[k]))(index) if index < 3 else None
-            k = AXIS_NAMES.index(drive.name)
+            k = ARM_CHANNELS.index(drive.name)
             self.joints[drive.name] = Axis(arm_config.axis_config(drive, values, dt_s), gravity_nm=gravity,
                                            stopwatch=stopwatch,
                                            on_fault=(lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k))
         self.gripper = Gripper(GRIPPER, on_fault=self._gripper_fault)
         self._apply_gripper_params()
         # HAL channel order; the gripper sits at GRIPPER_INDEX
-        self.channels: list = [self.joints.get(name, self.gripper) for name in AXIS_NAMES]
+        self.channels: list = [self.joints.get(name, self.gripper) for name in ARM_CHANNELS]
         self._reported = [(0, Outcome.NONE)] * len(self.channels)
         self._running: list[Optional[int]] = [None] * len(self.channels)   # motion id last seen RUNNING
         self._duty = [0.0] * len(self.channels)
@@ -211,7 +211,7 @@ class ArmController:
             if channel.mode in (AxisMode.IDLE, AxisMode.FAULT, AxisMode.HOMING):
                 refusal = {AxisMode.IDLE: Refusal.NOT_ENABLED, AxisMode.FAULT: Refusal.FAULT}.get(
                     channel.mode, Refusal.BUSY)
-                name = AXIS_NAMES[self.channels.index(channel)]
+                name = ARM_CHANNELS[self.channels.index(channel)]
                 return REFUSAL_REASON[refusal], f"{name}: {refusal.name.lower()}", 0
         for index in range(len(self.channels)):
             self.home(index, now)
@@ -287,7 +287,7 @@ class ArmController:
         measured = None
         if reason in (Reason.ENCODER_STALE, Reason.CURRENT_STALE):
             if reason is Reason.ENCODER_STALE:
-                measured = Measured(FaultCause.ENCODER_AGE, k, self.joints[AXIS_NAMES[k]].count_age_s(now),
+                measured = Measured(FaultCause.ENCODER_AGE, k, self.joints[ARM_CHANNELS[k]].count_age_s(now),
                                     self.params["encoder_stale_s"])
             else:
                 fb_s = self.hal.inputs.fb_s

@@ -77,7 +77,6 @@ DRIVES = (
     Drive("mount", 8.0 * OZ_IN_TO_NM, 4.0, 1200.0, 0.665, 172.85, 15.8, 5.76, -165.0, 165.0, i_limit_a=1.2,
           vel_bandwidth_rad_s=15.0),
 )
-AXIS_NAMES = ("j1", "j2", "j3", "j4", "gripper", "mount")   # HAL channel order
 JOINTS = {d.name: d for d in DRIVES}
 
 

@@ -26,7 +26,8 @@ from typing import Optional
 
 import can
 
-from protocol.hal import ARM_CHANNELS, HalCodec, HalEndpoint, SignalValues
+from protocol.hal import HalCodec, HalEndpoint, SignalValues
+from protocol.states import ARM_CHANNELS
 
 _N = len(ARM_CHANNELS)
 _FB_ORDER = ("tick", *(f"count_{ch}" for ch in ARM_CHANNELS), *(f"current_{ch}" for ch in ARM_CHANNELS))

@@ -34,7 +34,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from hil_sim.arm_params import (ARM_PLANT_PARAMS, CHANNELS, GRAVITY_M_S2, GRIPPER, J1, J2, J3, J4,
+from hil_sim.arm_params import (ARM_PLANT_PARAMS, GRAVITY_M_S2, GRIPPER, J1, J2, J3, J4,
                                 MOUNT, ArmGeometry, ArmPlantParams, MountParams)
 from hil_sim.motor import TWO_PI, DcMotorBank
 
@@ -177,7 +177,7 @@ def mount_static_moment_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry
 
 def gripper_position_m(pos_rad: Sequence[float], geometry: ArmGeometry = ARM_PLANT_PARAMS.geometry,
                        mount: MountParams = ARM_PLANT_PARAMS.mount) -> np.ndarray:
-    """Gripper tip [x, y, z] in metres from per-channel angles (indexed as `CHANNELS`).
+    """Gripper tip [x, y, z] in metres from per-channel angles (indexed as `ARM_CHANNELS`).
 
     Frame: origin on the central shaft's axis at the foot of link I, z up, x toward the
     mount's zero. Uses J1, J2, J3 and the mount; J4 and the gripper do not move the tip.
@@ -193,7 +193,7 @@ def gripper_position_m(pos_rad: Sequence[float], geometry: ArmGeometry = ARM_PLA
 class ArmPlant:
     """The six channels J1, J2, J3, J4, gripper, mount with their loads; no bus, no clock.
 
-    `step(dt_s, duty, enable, brake, supply_v)` takes per-channel arrays (order `CHANNELS`)
+    `step(dt_s, duty, enable, brake, supply_v)` takes per-channel arrays (order `ARM_CHANNELS`)
     and integrates; read `i_a` (current sense), `encoder_counts`, the switch arrays and
     the gripper's `grip_force_n` afterwards.
     """
@@ -368,5 +368,5 @@ def _as_list(values) -> list:
     return values.tolist() if isinstance(values, np.ndarray) else list(values)
 
 
-__all__ = ["ArmPlant", "CHANNELS", "gripper_position_m", "joint_inertias_kg_m2", "mount_inertia_kg_m2",
+__all__ = ["ArmPlant", "gripper_position_m", "joint_inertias_kg_m2", "mount_inertia_kg_m2",
            "mount_static_moment_nm", "static_torques_nm"]

@@ -8,7 +8,7 @@ come out, not measurements of the real parts.
 
 Conventions (see `hil_sim.arm` for the geometry):
 - Channels, in this order: J1 shoulder, J2 elbow, J3 wrist bend, J4 wrist roll, gripper,
-  mount (`CHANNELS`). The tracker axes AZ and EL belong to a later issue.
+  mount (`ARM_CHANNELS`). The tracker axes AZ and EL belong to a later issue.
 - The arm moves in a vertical plane through the mount's central shaft. Link I stands
   vertical on the mobile mount's arm at the track radius; J1 sits on its top. Joint
   angles J1-J3 are measured in that plane, positive = raising (J1 = 0: link II
@@ -34,6 +34,7 @@ import math
 from dataclasses import dataclass
 
 from hil_sim.motor import DriveParams, GearStage, MotorSpec
+from protocol.states import ARM_CHANNELS
 
 # ---- units -------------------------------------------------------------------------------------
 G_EARTH_M_S2 = 9.80665                      # standard gravity (also defines lbf from lb)
@@ -48,7 +49,6 @@ DEG = math.pi / 180.0
 
 GRAVITY_M_S2 = {"earth": G_EARTH_M_S2, "orbit": 0.0}
 
-CHANNELS = ("j1", "j2", "j3", "j4", "gripper", "mount")
 J1, J2, J3, J4, GRIPPER, MOUNT = range(6)
 
 # ---- report figures, kept as printed (tests compare against these) ------------------------------
@@ -341,8 +341,8 @@ class ArmPlantParams:
     max_substep_s: float = 0.001
 
     def __post_init__(self) -> None:
-        if tuple(c.drive.name for c in self.channels) != CHANNELS:
-            raise ValueError(f"channels must be {CHANNELS} in that order")
+        if tuple(c.drive.name for c in self.channels) != ARM_CHANNELS:
+            raise ValueError(f"channels must be {ARM_CHANNELS} in that order")
         if not self.max_substep_s > 0:
             raise ValueError("max_substep_s must be > 0")
 

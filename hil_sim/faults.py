@@ -2,7 +2,7 @@
 
 `Plant.inject(name, channel=None)` and `Plant.clear(name, channel=None)` take a name from
 `FAULT_TABLE`; a per-channel fault also takes a channel, as a name from
-`hil_sim.arm_params.CHANNELS` ("j1" ... "mount") or its index (0-5). `Plant.faults` lists
+`hil_sim.arm_params.ARM_CHANNELS` ("j1" ... "mount") or its index (0-5). `Plant.faults` lists
 the active ones as strings: "supply_sag", "jam:j2". Such a string is also accepted as the
 name (`plant.clear("jam:j2")`), so `for f in plant.faults: plant.clear(f)` clears them all.
 
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from numbers import Integral
 from typing import Optional, Union
 
-from hil_sim.arm_params import CHANNELS
+from protocol.states import ARM_CHANNELS
 
 Channel = Union[str, int]
 
@@ -113,15 +113,15 @@ CHANNEL_FAULTS: tuple[str, ...] = tuple(f.name for f in FAULT_TABLE if f.per_cha
 
 
 def channel_index(channel: Channel) -> int:
-    """Index in `CHANNELS` of a channel given by name or index; ValueError if there is none."""
+    """Index in `ARM_CHANNELS` of a channel given by name or index; ValueError if there is none."""
     if isinstance(channel, str):
-        if channel in CHANNELS:
-            return CHANNELS.index(channel)
+        if channel in ARM_CHANNELS:
+            return ARM_CHANNELS.index(channel)
     elif isinstance(channel, Integral) and not isinstance(channel, bool):
-        if 0 <= channel < len(CHANNELS):
+        if 0 <= channel < len(ARM_CHANNELS):
             return int(channel)
-    raise ValueError(f"unknown channel {channel!r}; channels: {', '.join(CHANNELS)} "
-                     f"(or an index 0-{len(CHANNELS) - 1})")
+    raise ValueError(f"unknown channel {channel!r}; channels: {', '.join(ARM_CHANNELS)} "
+                     f"(or an index 0-{len(ARM_CHANNELS) - 1})")
 
 
 def resolve(name: str, channel: Optional[Channel] = None) -> tuple[FaultSpec, Optional[int]]:
@@ -143,14 +143,14 @@ def resolve(name: str, channel: Optional[Channel] = None) -> tuple[FaultSpec, Op
             raise ValueError(f"fault {name!r} acts on the whole plant and takes no channel, got {channel!r}")
         return spec, None
     if channel is None:
-        raise ValueError(f"fault {name!r} needs a channel: one of {', '.join(CHANNELS)} "
-                         f"(or an index 0-{len(CHANNELS) - 1})")
+        raise ValueError(f"fault {name!r} needs a channel: one of {', '.join(ARM_CHANNELS)} "
+                         f"(or an index 0-{len(ARM_CHANNELS) - 1})")
     return spec, channel_index(channel)
 
 
 def fault_key(spec: FaultSpec, index: Optional[int]) -> str:
     """The string `Plant.faults` lists: "supply_sag", "jam:j2"."""
-    return spec.name if index is None else f"{spec.name}:{CHANNELS[index]}"
+    return spec.name if index is None else f"{spec.name}:{ARM_CHANNELS[index]}"
 
 
 def describe() -> str:

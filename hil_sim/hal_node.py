@@ -68,10 +68,10 @@ from typing import Optional
 
 import can
 
-from hil_sim.arm_params import CHANNELS
 from hil_sim.plant import N_CHANNELS, Plant
 from hil_sim.tracker import TrackerCommand
 from protocol.hal import HalCodec, HalEndpoint
+from protocol.states import ARM_CHANNELS
 
 _HALF = 1 << 31
 TRACKER_CMD_SIGNALS = TrackerCommand._fields      # TRACKER_CMD's signals but `alive`, in the DBC's order
@@ -115,12 +115,12 @@ class PlantNode(HalEndpoint):
         self.max_dt_s = max_dt_s
         self._supply_range_v = codec.limits("ANALOG_IN", "supply_v")
         self._temp_range_c = codec.limits("ANALOG_IN", "controller_temp_c")
-        self._current_range_a = codec.limits("MOTOR_FB", f"current_{CHANNELS[0]}")
+        self._current_range_a = codec.limits("MOTOR_FB", f"current_{ARM_CHANNELS[0]}")
         n = N_CHANNELS
         self.on_frame("MOTOR_CMD", lambda v, now: plant.motor_commands.command(
             v[:n], v[n:2 * n], v[2 * n:3 * n], v[3 * n], now),
-            (*(f"duty_{ch}" for ch in CHANNELS), *(f"enable_{ch}" for ch in CHANNELS),
-             *(f"brake_{ch}" for ch in CHANNELS), "alive"))
+            (*(f"duty_{ch}" for ch in ARM_CHANNELS), *(f"enable_{ch}" for ch in ARM_CHANNELS),
+             *(f"brake_{ch}" for ch in ARM_CHANNELS), "alive"))
         self.on_frame("CTRL_OUTPUTS", lambda v, now: plant.commanded.command(
             bool(v["outputs_enabled"]), bool(v["brake_all"]), int(v["alive"]), now))
         self._sync = codec.layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
@@ -129,11 +129,11 @@ class PlantNode(HalEndpoint):
         if not 1 <= self._period_us <= 65535:
             raise ValueError(f"period_s must be within 1 us .. 65.535 ms (PLANT_SYNC period_us), got {period_s}")
         self.sync_resends = 0
-        self._motor_fb = codec.layout("MOTOR_FB", ("tick", *(f"count_{ch}" for ch in CHANNELS),
-                                                   *(f"current_{ch}" for ch in CHANNELS)))
-        self._digital = codec.layout("DIGITAL_IN", (*(f"home_{ch}" for ch in CHANNELS),
-                                                    *(f"limit_lo_{ch}" for ch in CHANNELS),
-                                                    *(f"limit_hi_{ch}" for ch in CHANNELS), "tick"))
+        self._motor_fb = codec.layout("MOTOR_FB", ("tick", *(f"count_{ch}" for ch in ARM_CHANNELS),
+                                                   *(f"current_{ch}" for ch in ARM_CHANNELS)))
+        self._digital = codec.layout("DIGITAL_IN", (*(f"home_{ch}" for ch in ARM_CHANNELS),
+                                                    *(f"limit_lo_{ch}" for ch in ARM_CHANNELS),
+                                                    *(f"limit_hi_{ch}" for ch in ARM_CHANNELS), "tick"))
         self._analog = codec.layout("ANALOG_IN", ("supply_v", "controller_temp_c"))
         self.tracker = bool(tracker)
         if tracker_period_s is None:

@@ -61,15 +61,16 @@ from typing import Generic, Optional, Sequence, TypeVar
 import numpy as np
 
 from hil_sim.arm import ArmPlant
-from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNELS, ArmPlantParams
+from hil_sim.arm_params import ARM_PLANT_PARAMS, ArmPlantParams
 from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
 from hil_sim.motor import TWO_PI
 from hil_sim.sun import DEFAULT_START, TUCSON, DateTimeLike, Site
 from hil_sim.tracker import SAFE_COMMAND, TRACKER_PARAMS, TrackerCommand, TrackerParams, TrackerPlant
+from protocol.states import ARM_CHANNELS
 
 # The plant-wide faults (no channel). Per-channel ones: CHANNEL_FAULTS; all: hil_sim.faults.
 FAULTS = PLANT_FAULTS
-N_CHANNELS = len(CHANNELS)
+N_CHANNELS = len(ARM_CHANNELS)
 
 _NOISE_BATCH = 512   # normal deviates drawn from the generator at once (two per step)
 
@@ -204,7 +205,7 @@ MotorCommand = tuple[list, list, list]   # (duty, enable, brake), one entry per 
 
 
 class ExpiringMotorCommands(_Expiring[MotorCommand]):
-    """The per-channel motor command (MOTOR_CMD): (duty, enable, brake) lists, order `CHANNELS`.
+    """The per-channel motor command (MOTOR_CMD): (duty, enable, brake) lists, order `ARM_CHANNELS`.
 
     One frame carries every channel, so their commands are refreshed, and expire,
     together. Expired (and before the first command) every channel reads as duty 0,
@@ -392,7 +393,7 @@ class Plant:
         """Advance `dt_s` seconds with these commands applied, then sample the sensors.
 
         `outputs_enabled` and `brake` are the global command (CTRL_OUTPUTS); `duty`,
-        `enable` and `channel_brake` the per-channel one (MOTOR_CMD, order `CHANNELS`),
+        `enable` and `channel_brake` the per-channel one (MOTOR_CMD, order `ARM_CHANNELS`),
         all three or none (none: every channel off and braked). See the module docstring
         for how they combine.
         """

@@ -37,8 +37,6 @@ FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
 _STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h",
                  (32, False): "I", (32, True): "i", (64, False): "Q", (64, True): "q"}
 
-# Arm channels in the order every per-channel HAL frame lists them (signal suffixes).
-ARM_CHANNELS = ("j1", "j2", "j3", "j4", "gripper", "mount")
 
 
 class HalEncodeError(ValueError):

@@ -81,6 +81,9 @@ class Axis(enum.IntEnum):
 
 
 ARM_AXES = tuple(a for a in Axis if a is not Axis.ALL)
+# The arm channels by name, in the same order: the suffixes of the per-channel HAL signals
+# (duty_j1 ... brake_mount). Declared here once; both ends of the bus import it.
+ARM_CHANNELS = tuple(a.name.lower() for a in ARM_AXES)
 
 
 class AxisMode(enum.IntEnum):

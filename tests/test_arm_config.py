@@ -5,20 +5,27 @@ import math
 
 import pytest
 
-from firmware_py import arm_config
 from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
 from firmware_py.axis import AxisMode as FirmwareAxisMode, Outcome
 from hil_sim.arm import static_torques_nm
-from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS, CHANNELS
-from protocol.hal import ARM_CHANNELS
-from protocol.states import Axis, AxisMode, MotionOutcome
+from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS
+from protocol.hal import HalCodec
+from protocol.states import ARM_CHANNELS, AxisMode, MotionOutcome
 
 PLANT = {c.drive.name: c for c in CHANNEL_PARAMS}
 
 
-def test_channel_orders_agree_everywhere():
-    assert ARM_CHANNELS == CHANNELS == arm_config.AXIS_NAMES
-    assert tuple(a.name.lower() for a in Axis if a is not Axis.ALL) == CHANNELS
+def test_the_dbc_lists_the_arm_channels_in_their_declared_order():
+    """`ARM_CHANNELS` (protocol/states.py) is the one declaration; the DBC's per-channel signals follow it."""
+    database = HalCodec().database
+    for name, prefixes in (("MOTOR_CMD", ("duty", "enable", "brake")), ("MOTOR_FB", ("count", "current")),
+                           ("DIGITAL_IN", ("home", "limit_lo", "limit_hi"))):
+        signals = sorted(database.get_message_by_name(name).signals, key=lambda s: s.start)
+        for prefix in prefixes:
+            in_frame = tuple(s.name[len(prefix) + 1:] for s in signals
+                             if s.name.startswith(prefix + "_") and s.name[len(prefix) + 1:] in ARM_CHANNELS)
+            assert in_frame == ARM_CHANNELS, (name, prefix)
+    assert tuple(c.drive.name for c in CHANNEL_PARAMS) == ARM_CHANNELS
 
 
 def test_wire_enums_mirror_the_firmware_ones():

@@ -13,8 +13,9 @@ import pytest
 from hil_sim import arm_params as P
 from hil_sim.arm import (ArmPlant, gripper_position_m, joint_inertias_kg_m2, mount_static_moment_nm,
                          static_torques_nm)
-from hil_sim.arm_params import CHANNELS, GRIPPER, J1, J2, J3, J4, MOUNT
+from hil_sim.arm_params import GRIPPER, J1, J2, J3, J4, MOUNT
 from hil_sim.motor import DcMotorBank
+from protocol.states import ARM_CHANNELS
 
 DT = 0.001
 V_BUS = 28.0
@@ -405,7 +406,7 @@ def test_payload_and_modes_are_checked():
     with pytest.raises(ValueError):
         ArmPlant(payload_kg=-1.0)
     plant = ArmPlant(payload_kg=0.5)
-    assert plant.params.channels[0].drive.name == CHANNELS[0]
+    assert plant.params.channels[0].drive.name == ARM_CHANNELS[0]
     heavy = plant.static_torques_nm()
     plant.set_payload(0.0)
     assert plant.static_torques_nm()[0] < heavy[0]

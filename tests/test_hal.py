@@ -19,7 +19,8 @@ from firmware_py.hal import ControllerHal
 from timebase.scheduler import Scheduler
 from hil_sim.hal_node import PlantNode
 from hil_sim.plant import FAULTS, Plant, PlantParams
-from protocol.hal import ARM_CHANNELS, HalCodec, HalDecodeError, HalEncodeError
+from protocol.hal import HalCodec, HalDecodeError, HalEncodeError
+from protocol.states import ARM_CHANNELS
 from timebase import SimClock
 
 CODEC = HalCodec()

@@ -16,17 +16,18 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from timebase.scheduler import Scheduler
-from hil_sim.arm_params import CHANNELS, J1, J2, J4, MOUNT
+from hil_sim.arm_params import J1, J2, J4, MOUNT
 from hil_sim.faults import CHANNEL_FAULTS, FAULT_NAMES, FAULT_TABLE, PLANT_FAULTS, describe
 from hil_sim.hal_node import PlantNode
 from protocol.hal import FrameLayout, HalFrame
 from hil_sim.plant import ExpiringMotorCommands, Plant, PlantParams
-from protocol.hal import ARM_CHANNELS, HalCodec, HalDecodeError, HalEncodeError
+from protocol.hal import HalCodec, HalDecodeError, HalEncodeError
+from protocol.states import ARM_CHANNELS
 from timebase import SimClock
 
 CODEC = HalCodec()
 CMD_ID = CODEC.frame_id("MOTOR_CMD")
-N = len(CHANNELS)
+N = len(ARM_CHANNELS)
 
 
 class Rig:
@@ -105,13 +106,13 @@ class Rig:
         return [v for _, v in self.seen("MOTOR_FB", since_s)]
 
     def counts(self, channel: int, since_s: float = -1.0) -> list[int]:
-        return [v[f"count_{CHANNELS[channel]}"] for v in self.fb(since_s)]
+        return [v[f"count_{ARM_CHANNELS[channel]}"] for v in self.fb(since_s)]
 
     def currents(self, channel: int, since_s: float = -1.0) -> list[float]:
-        return [v[f"current_{CHANNELS[channel]}"] for v in self.fb(since_s)]
+        return [v[f"current_{ARM_CHANNELS[channel]}"] for v in self.fb(since_s)]
 
     def last_count(self, channel: int) -> int:
-        return self.fb()[-1][f"count_{CHANNELS[channel]}"]
+        return self.fb()[-1][f"count_{ARM_CHANNELS[channel]}"]
 
 
 def wrap32(count: int) -> int:
@@ -147,7 +148,7 @@ def test_positive_duty_turns_the_channel_and_its_counts_rise(virtual_can):
     assert {(v["lockstep"], v["period_us"]) for _, v in rig.seen("PLANT_SYNC")} == {(0, 1000)}
     last_tick, _, true_counts = rig.truth[-1]
     assert fbs[-1]["tick"] == last_tick
-    assert [fbs[-1][f"count_{ch}"] for ch in CHANNELS] == [wrap32(c) for c in true_counts]
+    assert [fbs[-1][f"count_{ch}"] for ch in ARM_CHANNELS] == [wrap32(c) for c in true_counts]
     assert rig.node.bad_frames == 0 and rig.node.bus_errors == 0
 
 
@@ -231,7 +232,7 @@ def test_no_motion_without_the_global_enable(virtual_can):
     assert rig.plant.channel_driven == [False] * N
     # Nothing drives; J1-J3 carry gravity with their brakes released, and must not be driven down
     # by a motor: no current anywhere.
-    assert all(v[f"current_{ch}"] == 0.0 for v in rig.fb() for ch in CHANNELS)
+    assert all(v[f"current_{ch}"] == 0.0 for v in rig.fb() for ch in ARM_CHANNELS)
     for channel in (J4, MOUNT):
         assert set(rig.counts(channel)) == {0}
     # With the global brake on as well, nothing moves at all.
@@ -274,9 +275,9 @@ def test_digital_in_on_a_switch_change_within_one_tick_and_every_10_ms(virtual_c
         if tick in changes:
             sent = digital[tick]                                          # sent in the same tick
             home, lo, hi = switches
-            assert [sent[f"home_{ch}"] for ch in CHANNELS] == [int(s) for s in home]
-            assert [sent[f"limit_lo_{ch}"] for ch in CHANNELS] == [int(s) for s in lo]
-            assert [sent[f"limit_hi_{ch}"] for ch in CHANNELS] == [int(s) for s in hi]
+            assert [sent[f"home_{ch}"] for ch in ARM_CHANNELS] == [int(s) for s in home]
+            assert [sent[f"limit_lo_{ch}"] for ch in ARM_CHANNELS] == [int(s) for s in lo]
+            assert [sent[f"limit_hi_{ch}"] for ch in ARM_CHANNELS] == [int(s) for s in hi]
     assert digital[changes[0]]["home_j4"] == 1                         # the home flag, reached
     # Periodic only when idle: 10 ms apart exactly.
     idle = [t for t in ticks if t < 50]

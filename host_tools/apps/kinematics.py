@@ -27,8 +27,9 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hil_sim.arm import gripper_position_m
-from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, CHANNEL_PARAMS, CHANNELS, DEG,
+from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, CHANNEL_PARAMS, DEG,
                                 IN_TO_M, LB_TO_KG, ArmGeometry, ArmPlantParams, MountParams)
+from protocol.states import ARM_CHANNELS
 
 ELBOWS = ("up", "down")
 SOLVED_CHANNELS = ("j1", "j2", "j3", "mount")
@@ -58,9 +59,9 @@ class JointPose:
         return {"j1": self.q1, "j2": self.q2, "j3": self.q3, "mount": self.mount}
 
     def positions(self, j4_rad: float = 0.0, gripper_rad: float = 0.0) -> list[float]:
-        """All six channel angles in `CHANNELS` order (J4 and gripper as given)."""
+        """All six channel angles in `ARM_CHANNELS` order (J4 and gripper as given)."""
         values = {**self.as_targets(), "j4": j4_rad, "gripper": gripper_rad}
-        return [values[name] for name in CHANNELS]
+        return [values[name] for name in ARM_CHANNELS]
 
 
 def forward(pose: JointPose, geometry: ArmGeometry = ARM_PLANT_PARAMS.geometry,
