@@ -31,11 +31,11 @@ from dataclasses import dataclass
 from typing import Callable, Optional
 
 from protocol.reasons import Reason
-from protocol.states import ARM_CHANNELS, Fault, FaultCause
+from protocol.states import ARM_CHANNELS, AxisMode, Fault, FaultCause, MotionOutcome
 
 from firmware_py import arm_config
 from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
-from firmware_py.axis import Axis, AxisError, AxisMode, Outcome, Refusal
+from firmware_py.axis import Axis, AxisError, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamStore
@@ -65,12 +65,12 @@ REFUSAL_REASON = {
 }
 
 OUTCOME_REASON = {
-    Outcome.DONE: Reason.OK,
-    Outcome.NOT_SETTLED: Reason.NOT_SETTLED,
-    Outcome.STOPPED: Reason.HOST_REQUEST,
-    Outcome.SOFT_LIMIT: Reason.SOFT_LIMIT,
-    Outcome.DISABLED: Reason.CANCELLED,
-    Outcome.SUPERSEDED: Reason.HOST_REQUEST,
+    MotionOutcome.DONE: Reason.OK,
+    MotionOutcome.NOT_SETTLED: Reason.NOT_SETTLED,
+    MotionOutcome.STOPPED: Reason.HOST_REQUEST,
+    MotionOutcome.SOFT_LIMIT: Reason.SOFT_LIMIT,
+    MotionOutcome.DISABLED: Reason.CANCELLED,
+    MotionOutcome.SUPERSEDED: Reason.HOST_REQUEST,
 }
 
 
@@ -87,7 +87,7 @@ class Measured:
 
 
 FaultSink = Callable[[Fault, Reason, float, Optional[Measured]], None]
-MotionSink = Callable[[int, int, Outcome, Reason, float, float], None]
+MotionSink = Callable[[int, int, MotionOutcome, Reason, float, float], None]
 LateSink = Callable[[float, float], bool]
 
 
@@ -128,7 +128,7 @@ class ArmController:
         self._apply_gripper_params()
         # HAL channel order; the gripper sits at GRIPPER_INDEX
         self.channels: list = [self.joints.get(name, self.gripper) for name in ARM_CHANNELS]
-        self._reported = [(0, Outcome.NONE)] * len(self.channels)
+        self._reported = [(0, MotionOutcome.NONE)] * len(self.channels)
         self._running: list[Optional[int]] = [None] * len(self.channels)   # motion id last seen RUNNING
         self._duty = [0.0] * len(self.channels)
 
@@ -268,11 +268,11 @@ class ArmController:
             running = self._running[k]
             if running is not None and running != channel.motion_id:
                 # a newer command replaced it before it ended: it ends here, superseded
-                self._on_motion_done(k, running, Outcome.SUPERSEDED, Reason.HOST_REQUEST, self.position(k), now)
-            self._running[k] = channel.motion_id if channel.outcome is Outcome.RUNNING else None
-            if channel.outcome in (Outcome.NONE, Outcome.RUNNING):
+                self._on_motion_done(k, running, MotionOutcome.SUPERSEDED, Reason.HOST_REQUEST, self.position(k), now)
+            self._running[k] = channel.motion_id if channel.outcome is MotionOutcome.RUNNING else None
+            if channel.outcome in (MotionOutcome.NONE, MotionOutcome.RUNNING):
                 continue
-            if channel.outcome is Outcome.FAULT:
+            if channel.outcome is MotionOutcome.FAULT:
                 reason = fault_of(int(channel.faults) if k != GRIPPER_INDEX else 0)[1] if k != GRIPPER_INDEX \
                     else Reason.GRIPPER_TIMEOUT
                 if reason is Reason.FAULT_LATCHED:

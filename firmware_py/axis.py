@@ -40,15 +40,7 @@ from typing import Callable, Optional
 from firmware_py import profiles
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from firmware_py.profiles import DEFAULT_JOINT_ACC_RAD_S2, REPORT_JOINT_SPEED_RAD_S, Profile
-
-
-class AxisMode(enum.IntEnum):
-    IDLE = 0       # not driven: duty 0, brake on
-    MOVING = 1     # following a move (or stop) profile, then settling
-    JOGGING = 2    # constant velocity until stopped
-    HOMING = 3     # seeking the home switch, then backing off
-    HOLDING = 4    # driven, holding a fixed position
-    FAULT = 5      # a fault bit is latched: duty 0, brake on, until reset_errors
+from protocol.states import AxisMode, MotionOutcome
 
 
 class AxisError(enum.IntFlag):
@@ -99,20 +91,6 @@ class Refusal(enum.IntEnum):
     NOT_HOMED = 4     # absolute moves need a homed axis
     BAD_VALUE = 5     # not finite, or a speed/acceleration beyond the axis's limits
     BUSY = 6          # homing is in progress: stop it first
-
-
-class Outcome(enum.IntEnum):
-    """How the last motion command ended (`Axis.outcome`, with `Axis.motion_id`)."""
-
-    NONE = 0
-    RUNNING = 1
-    DONE = 2          # reached the target and settled within `in_position_rad`
-    NOT_SETTLED = 3   # profile ended but the joint did not settle within `settle_timeout_s`
-    STOPPED = 4       # stopped on request
-    SOFT_LIMIT = 5    # stopped at a soft limit
-    FAULT = 6         # cancelled by a fault
-    DISABLED = 7      # cancelled by disable/safe
-    SUPERSEDED = 8    # replaced by a newer motion command on the same axis before it ended
 
 
 @dataclass(frozen=True)
@@ -261,7 +239,7 @@ class Axis:
         self.target_rad = 0.0            # where the present motion ends (or the hold position)
         self.pos_sp_rad = 0.0            # present setpoint
         self.vel_sp_rad_s = 0.0
-        self.outcome = Outcome.NONE
+        self.outcome = MotionOutcome.NONE
         self.motion_id = 0
         self.duty_requested = 0.0        # before the current limit and saturation
         self._err = 0
@@ -275,7 +253,7 @@ class Axis:
         self._settle_since: Optional[float] = None
         self._home_phase = _SEEK
         self._home_start_rad = 0.0
-        self._stopping_for = Outcome.STOPPED
+        self._stopping_for = MotionOutcome.STOPPED
         self._open_since: Optional[float] = None
 
     def reconfigure(self, config: AxisConfig) -> None:
@@ -332,8 +310,8 @@ class Axis:
         self._profile = None
         self._integ = 0.0
         self._err &= ~_CURRENT_LIMITED
-        if self.outcome is Outcome.RUNNING:
-            self.outcome = Outcome.FAULT if self._err & FAULT_MASK else Outcome.DISABLED
+        if self.outcome is MotionOutcome.RUNNING:
+            self.outcome = MotionOutcome.FAULT if self._err & FAULT_MASK else MotionOutcome.DISABLED
         if self.mode is not _FAULT:
             self.mode = AxisMode.IDLE
 
@@ -394,7 +372,7 @@ class Axis:
         self._start(profiles.jog(p, vel_rad_s, acc, v), AxisMode.JOGGING, math.nan, now)
         return Refusal.OK, ""
 
-    def stop(self, now: float, outcome: Outcome = Outcome.STOPPED) -> None:
+    def stop(self, now: float, outcome: MotionOutcome = MotionOutcome.STOPPED) -> None:
         """Decelerate at the acceleration limit, then hold (accepted in any state)."""
         if self.mode not in (_MOVING, _JOGGING, _HOMING):
             return
@@ -417,7 +395,7 @@ class Axis:
         self._home_phase = _START
         self._start_seek(now, self.config.home_dir)
         self.motion_id += 1
-        self.outcome = Outcome.RUNNING
+        self.outcome = MotionOutcome.RUNNING
         self._err &= ~_SOFT_LIMIT
         return Refusal.OK, ""
 
@@ -556,11 +534,11 @@ class Axis:
                 ahead = pos_sp + profiles.stopping_distance(vel_sp, c.acc_limit_rad_s2) + vel_sp * self._dt
                 if (vel_sp > 0 and ahead >= hi) or (vel_sp < 0 and ahead <= lo):
                     self._err |= _SOFT_LIMIT
-                    self.stop(now, Outcome.SOFT_LIMIT)
+                    self.stop(now, MotionOutcome.SOFT_LIMIT)
                     return self._profile.sample(0.0)
             elif (pos > hi + c.in_position_rad and vel > 0) or (pos < lo - c.in_position_rad and vel < 0):
                 self._err |= _SOFT_LIMIT
-                self.stop(now, Outcome.SOFT_LIMIT)
+                self.stop(now, MotionOutcome.SOFT_LIMIT)
                 return self._profile.sample(0.0)
         if mode is _MOVING and now - self._profile_t0 >= self._profile.duration_s:
             if self._settle_since is None:
@@ -568,8 +546,8 @@ class Axis:
             settled = abs(self.target_rad - pos) <= c.in_position_rad and abs(vel) <= c.in_position_vel_rad_s
             if settled or now - self._settle_since >= c.settle_timeout_s:
                 self._hold(self.target_rad)
-                self.outcome = self._stopping_for if self._stopping_for is not Outcome.DONE else (
-                    Outcome.DONE if settled else Outcome.NOT_SETTLED)
+                self.outcome = self._stopping_for if self._stopping_for is not MotionOutcome.DONE else (
+                    MotionOutcome.DONE if settled else MotionOutcome.NOT_SETTLED)
         return pos_sp, vel_sp, acc_sp
 
     def _homing_step(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float,
@@ -579,7 +557,7 @@ class Axis:
         if phase == _BACKOFF:
             if now - self._profile_t0 >= self._profile.duration_s:
                 self._hold(self._profile.end_pos_rad)
-                self.outcome = Outcome.DONE
+                self.outcome = MotionOutcome.DONE
         elif abs(pos - self._home_start_rad) > c.home_max_travel_rad:
             self._fault(AxisError.HOMING_FAILED, now)
         elif phase == _START:
@@ -618,8 +596,8 @@ class Axis:
         new = bits & ~self._err
         self._err |= bits
         if bits & FAULT_MASK:
-            if self.outcome is Outcome.RUNNING:
-                self.outcome = Outcome.FAULT
+            if self.outcome is MotionOutcome.RUNNING:
+                self.outcome = MotionOutcome.FAULT
             self.mode = AxisMode.FAULT
             self.safe()
             if new:
@@ -693,10 +671,10 @@ class Axis:
         self.mode = mode
         self.target_rad = target_rad
         self._settle_since = None
-        self._stopping_for = Outcome.DONE
+        self._stopping_for = MotionOutcome.DONE
         self._err &= ~_SOFT_LIMIT
         self.motion_id += 1
-        self.outcome = Outcome.RUNNING
+        self.outcome = MotionOutcome.RUNNING
 
     def _start_seek(self, now: float, direction: int, pos_sp: Optional[float] = None,
                     vel_sp: float = 0.0) -> None:

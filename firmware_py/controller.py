@@ -41,12 +41,12 @@ from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
 from protocol.states import Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
+from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 
 from firmware_py import arm_config
 from firmware_py import tracker as tracker_config
 from firmware_py.arm import ArmController, Measured
-from firmware_py.axis import Outcome
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore

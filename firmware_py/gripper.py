@@ -17,7 +17,8 @@ from __future__ import annotations
 from typing import Callable, Optional
 
 from firmware_py.arm_config import GripperModel
-from firmware_py.axis import AxisMode, Outcome, Refusal
+from firmware_py.axis import Refusal
+from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import unwrap_delta
 
 GRIPPER_TIMEOUT = 1 << 0          # the gripper's one fault bit (mapped to Fault.GRIPPER)
@@ -35,7 +36,7 @@ class Gripper:
         self.homed = False
         self.gripped = False
         self.motion_id = 0
-        self.outcome = Outcome.NONE
+        self.outcome = MotionOutcome.NONE
         self.faults = 0
         self.grip_duty = 0.8
         self.hold_duty = 0.3
@@ -69,14 +70,14 @@ class Gripper:
 
     def stop(self, now: float) -> None:
         if self.mode is AxisMode.MOVING:
-            self._finish(Outcome.STOPPED)
+            self._finish(MotionOutcome.STOPPED)
 
     def safe(self) -> None:
         self.duty = 0.0
         self.brake = True
         self._direction = 0
-        if self.outcome is Outcome.RUNNING:
-            self.outcome = Outcome.FAULT if self.faults else Outcome.DISABLED
+        if self.outcome is MotionOutcome.RUNNING:
+            self.outcome = MotionOutcome.FAULT if self.faults else MotionOutcome.DISABLED
         if self.mode is not AxisMode.FAULT:
             self.mode = AxisMode.IDLE
 
@@ -102,11 +103,11 @@ class Gripper:
                 self._ref_count, self._ref_m = count, self.model.open_switch_m
                 self.opening_m = self._ref_m
                 self.homed = True
-                self._finish(Outcome.DONE)
+                self._finish(MotionOutcome.DONE)
                 return 0.0
         else:
             if closed_switch:
-                self._finish(Outcome.DONE)
+                self._finish(MotionOutcome.DONE)
                 return 0.0
             moving = self._last_count is None or count != self._last_count
             if abs(i_a) >= self.grip_current_a and not moving:
@@ -114,14 +115,14 @@ class Gripper:
                     self._still_since = now
                 elif now - self._still_since >= _CONFIRM_S:
                     self.gripped = True
-                    self._finish(Outcome.DONE)
+                    self._finish(MotionOutcome.DONE)
                     return self.duty
             else:
                 self._still_since = None
         self._last_count = count
         if now - self._started_s > self.timeout_s:
             self.faults |= GRIPPER_TIMEOUT
-            self.outcome = Outcome.FAULT
+            self.outcome = MotionOutcome.FAULT
             self.mode = AxisMode.FAULT
             self.safe()
             self._on_fault(GRIPPER_TIMEOUT, now)
@@ -142,10 +143,10 @@ class Gripper:
         self._last_count = None
         self.gripped = False
         self.motion_id += 1
-        self.outcome = Outcome.RUNNING
+        self.outcome = MotionOutcome.RUNNING
         return Refusal.OK, ""
 
-    def _finish(self, outcome: Outcome) -> None:
+    def _finish(self, outcome: MotionOutcome) -> None:
         self.mode = AxisMode.HOLDING
         self._direction = 0
         self.outcome = outcome

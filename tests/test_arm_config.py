@@ -6,11 +6,10 @@ import math
 import pytest
 
 from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
-from firmware_py.axis import AxisMode as FirmwareAxisMode, Outcome
 from hil_sim.arm import static_torques_nm
 from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS
 from protocol.hal import HalCodec
-from protocol.states import ARM_CHANNELS, AxisMode, MotionOutcome
+from protocol.states import ARM_CHANNELS
 
 PLANT = {c.drive.name: c for c in CHANNEL_PARAMS}
 
@@ -26,11 +25,6 @@ def test_the_dbc_lists_the_arm_channels_in_their_declared_order():
                              if s.name.startswith(prefix + "_") and s.name[len(prefix) + 1:] in ARM_CHANNELS)
             assert in_frame == ARM_CHANNELS, (name, prefix)
     assert tuple(c.drive.name for c in CHANNEL_PARAMS) == ARM_CHANNELS
-
-
-def test_wire_enums_mirror_the_firmware_ones():
-    assert {m.name: int(m) for m in AxisMode} == {m.name: int(m) for m in FirmwareAxisMode}
-    assert {m.name: int(m) for m in MotionOutcome} == {m.name: int(m) for m in Outcome}
 
 
 @pytest.mark.parametrize("drive", DRIVES, ids=lambda d: d.name)

@@ -18,7 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_py import profiles
-from firmware_py.axis import Axis, AxisConfig, AxisError, AxisMode, Outcome, Refusal, motor_gains
+from firmware_py.axis import Axis, AxisConfig, AxisError, Refusal, motor_gains
+from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import (COUNT_MODULUS, EstimatorConfig, EstimatorFlag, KalmanEstimator,
                                    SteadyStateEstimator, make_kalman_filter, unwrap_delta)
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
@@ -304,7 +305,7 @@ def test_closed_loop_move_settles_within_a_milliradian(gravity_m_s2):
     duration = profiles.trapezoid(0.2, -0.3, REPORT_JOINT_SPEED_RAD_S, 0.05).duration_s
     start = rig.now
     rig.run(duration + 1.0, record=True)      # the count crosses 2**32 on the way (0.2 rad is ~11k counts)
-    assert rig.axis.outcome is Outcome.DONE and rig.axis.mode is AxisMode.HOLDING
+    assert rig.axis.outcome is MotionOutcome.DONE and rig.axis.mode is AxisMode.HOLDING
     assert abs(rig.joint.angle_rad - (-0.3)) < 1e-3
     settled_at = next(t for t, angle, _, _ in reversed(rig.trace) if abs(angle + 0.3) >= 1e-3)
     assert settled_at - start < duration + 0.5
@@ -320,7 +321,7 @@ def test_relative_moves_need_no_homing_but_absolute_ones_do():
     assert refusal is Refusal.NOT_HOMED and "home" in detail
     assert rig.axis.move_by(0.05, rig.now)[0] is Refusal.OK
     rig.run(3.0)
-    assert rig.axis.outcome is Outcome.DONE
+    assert rig.axis.outcome is MotionOutcome.DONE
     assert abs(rig.joint.angle_rad - 0.05) < 1e-3
 
 
@@ -341,7 +342,7 @@ def test_anti_windup_prevents_overshoot_after_saturation():
         for _ in range(5000):
             rig.run(DT_S, record=True)
             saturated_ticks += rig.axis.duty != rig.axis.duty_requested
-        assert rig.axis.outcome is Outcome.DONE
+        assert rig.axis.outcome is MotionOutcome.DONE
         return max(angle for _, angle, _, _ in rig.trace) - 2.0, saturated_ticks
 
     with_aw, saturated_ticks = run(None)
@@ -359,7 +360,7 @@ def test_a_move_beyond_a_soft_limit_is_refused_with_its_reason():
     refusal, detail = rig.axis.move_to(1.5, rig.now)
     assert refusal is Refusal.SOFT_LIMIT
     assert "beyond the soft limit max 1.0000 rad" in detail and "1.5000" in detail
-    assert rig.axis.mode is AxisMode.HOLDING and rig.axis.outcome is Outcome.NONE
+    assert rig.axis.mode is AxisMode.HOLDING and rig.axis.outcome is MotionOutcome.NONE
     assert rig.axis.move_by(-1.2, rig.now)[0] is Refusal.SOFT_LIMIT
     rig.run(0.2)
     assert abs(rig.joint.angle_rad) < 1e-3                     # nothing moved
@@ -371,7 +372,7 @@ def test_jogging_into_a_soft_limit_stops_at_it():
     rig.axis.enable(rig.now)
     assert rig.axis.jog(REPORT_JOINT_SPEED_RAD_S, rig.now)[0] is Refusal.OK
     rig.run(6.0)
-    assert rig.axis.mode is AxisMode.HOLDING and rig.axis.outcome is Outcome.SOFT_LIMIT
+    assert rig.axis.mode is AxisMode.HOLDING and rig.axis.outcome is MotionOutcome.SOFT_LIMIT
     assert rig.axis.errors & AxisError.SOFT_LIMIT and not rig.axis.faults
     assert 0.99 < rig.joint.angle_rad <= 1.0 + 1e-3
     assert rig.axis.jog(REPORT_JOINT_SPEED_RAD_S, rig.now)[0] is Refusal.SOFT_LIMIT   # no further
@@ -386,7 +387,7 @@ def test_stop_during_a_move_decelerates_and_holds():
     rig.run(3.0)
     rig.axis.stop(rig.now)
     rig.run(3.0)
-    assert rig.axis.outcome is Outcome.STOPPED and rig.axis.mode is AxisMode.HOLDING
+    assert rig.axis.outcome is MotionOutcome.STOPPED and rig.axis.mode is AxisMode.HOLDING
     angle = rig.joint.angle_rad
     rig.run(1.0)
     assert abs(rig.joint.angle_rad - angle) < 1e-4 and angle < 0.2
@@ -407,7 +408,7 @@ def test_a_jam_is_detected_as_a_stall_and_the_axis_goes_safe():
     assert rig.faults and rig.faults[0][0] == AxisError.STALL
     assert rig.faults[0][1] - jam_s < STALL_DETECT_S
     axis = rig.axis
-    assert axis.mode is AxisMode.FAULT and axis.duty == 0.0 and axis.brake and axis.outcome is Outcome.FAULT
+    assert axis.mode is AxisMode.FAULT and axis.duty == 0.0 and axis.brake and axis.outcome is MotionOutcome.FAULT
     assert axis.move_to(0.0, rig.now)[0] is Refusal.FAULT and axis.enable(rig.now)[0] is Refusal.FAULT
     axis.reset_errors(rig.now)
     assert axis.mode is AxisMode.IDLE and axis.enable(rig.now)[0] is Refusal.OK
@@ -422,7 +423,7 @@ def test_homing_finds_the_switch_sets_zero_and_backs_off(start_rad):
     assert rig.axis.home(rig.now)[0] is Refusal.OK
     rig.run(40.0, until=lambda r: r.axis.mode is not AxisMode.HOMING)
     axis = rig.axis
-    assert axis.homed and axis.mode is AxisMode.HOLDING and axis.outcome is Outcome.DONE
+    assert axis.homed and axis.mode is AxisMode.HOLDING and axis.outcome is MotionOutcome.DONE
     rig.run(1.0)
     # zero is where the switch closes (to the distance the joint creeps in one tick at homing speed)
     assert axis.pos_rad == pytest.approx(rig.joint.angle_rad - switch_rad, abs=1e-4)

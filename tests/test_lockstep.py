@@ -12,7 +12,6 @@ import math
 import can
 import pytest
 
-from firmware_py.axis import Outcome
 from firmware_py.controller import ControllerConfig
 from timebase.scheduler import Scheduler
 from firmware_py.uart import PacedUart
@@ -23,7 +22,7 @@ from protocol.hal import BusView, HalCodec
 from protocol.lockstep import REOFFER_S, LockstepFollower, LockstepLeader
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
-from protocol.states import Axis, ControllerState, Fault, FaultCause
+from protocol.states import Axis, ControllerState, Fault, FaultCause, MotionOutcome
 from timebase import PacedClock, SimClock
 
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
@@ -127,9 +126,9 @@ def test_a_move_in_lock_step_ends_done_and_is_the_same_to_the_bit_whatever_the_w
             turns += 1
             if stall_every and turns % stall_every == 0:
                 pair.wall.advance_by(0.25)           # a process descheduled for a quarter of a second
-            return axis.outcome is not Outcome.RUNNING
+            return axis.outcome is not MotionOutcome.RUNNING
         assert pair.run_until(done, 200_000)
-        assert axis.outcome is Outcome.DONE and not pair.controller.supervisor.faults
+        assert axis.outcome is MotionOutcome.DONE and not pair.controller.supervisor.faults
         return pair.node.tick, tuple(pair.node.plant.arm.pos_rad)
     assert move(stall_every=0) == move(stall_every=997)
 
