@@ -24,11 +24,10 @@ from firmware_py.axis import AxisConfig, motor_gains
 from firmware_py.estimator import EstimatorConfig
 from firmware_py.params import ParamSpec
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
+from protocol import units
+from protocol.units import IN_TO_M, LB_TO_KG
 
-DEG = math.pi / 180.0
-OZ_IN_TO_NM = 0.00706155
-IN_TO_M = 0.0254
-LB_TO_KG = 0.45359237
+OZ_IN_TO_NM = round(units.OZ_IN_TO_NM, 8)   # the firmware's table keeps the conversion to six figures: 0.00706155
 SUPPLY_NOMINAL_V = 28.0
 ENCODER_COUNTS_PER_MOTOR_REV = 400     # 100-line quadrature encoders, counted x4
 

@@ -36,7 +36,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-DEG = math.pi / 180.0
+from protocol.units import DEG
+
 UNIX_EPOCH_JD = 2440587.5        # Julian day of 1970-01-01 00:00 UTC
 J2000_JD = 2451545.0             # Julian day of 2000-01-01 12:00 TT
 RATE_STEP_S = 30.0               # half-width of the central difference in `sun_rates`

@@ -130,10 +130,10 @@ from protocol.states import SWITCH_POSITIONS, Switch, SwitchPosition, TempSide, 
 
 from firmware_py import ephemeris
 from firmware_py.params import ParamSpec, ParamStore
+from protocol.units import DEG
 
 AXES = ("az", "el")
 AZ, EL = 0, 1
-DEG = math.pi / 180.0
 ADC_COUNTS = 1023                # the dial's 10-bit ADC: 0..1023
 EPHEMERIS_PERIOD_S = 1.0         # sun position and rates recomputed this often, extrapolated in between
 FF_CLOSE_DEG_S = 0.02 / 60.0     # feed-forward: a relay closes above this commanded rate

@@ -35,17 +35,7 @@ from dataclasses import dataclass
 
 from hil_sim.motor import DriveParams, GearStage, MotorSpec
 from protocol.states import ARM_CHANNELS
-
-# ---- units -------------------------------------------------------------------------------------
-G_EARTH_M_S2 = 9.80665                      # standard gravity (also defines lbf from lb)
-LB_TO_KG = 0.45359237
-IN_TO_M = 0.0254
-LBF_TO_N = LB_TO_KG * G_EARTH_M_S2          # 4.448222 N
-LBF_IN_TO_NM = LBF_TO_N * IN_TO_M           # 0.1129848 N m
-LBF_FT_TO_NM = LBF_IN_TO_NM * 12.0          # 1.355818 N m
-OZ_IN_TO_NM = LBF_IN_TO_NM / 16.0           # 0.00706155 N m
-RPM_TO_RAD_S = 2.0 * math.pi / 60.0
-DEG = math.pi / 180.0
+from protocol.units import DEG, G_EARTH_M_S2, IN_TO_M, LB_TO_KG, LBF_IN_TO_NM, OZ_IN_TO_NM, RPM_TO_RAD_S
 
 GRAVITY_M_S2 = {"earth": G_EARTH_M_S2, "orbit": 0.0}
 

@@ -146,10 +146,10 @@ import numpy as np
 
 from hil_sim.sun import (DEFAULT_START, DEFAULT_TABLE_STEP_S, TUCSON, CloudSchedule, DateTimeLike, Site, SunTable,
                          as_clouds, to_utc)
+from protocol.units import DEG
 
 AXES = ("az", "el")
 AZ, EL = 0, 1
-DEG = math.pi / 180.0
 _NOISE_PER_STEP = 7          # 4 cells, 2 potentiometers, 1 supply
 _NOISE_BATCH = 7 * 128
 

@@ -15,6 +15,7 @@ from hil_sim.arm import (ArmPlant, gripper_position_m, joint_inertias_kg_m2, mou
                          static_torques_nm)
 from hil_sim.arm_params import GRIPPER, J1, J2, J3, J4, MOUNT
 from hil_sim.motor import DcMotorBank
+from protocol import units
 from protocol.states import ARM_CHANNELS
 
 DT = 0.001
@@ -50,8 +51,8 @@ def test_link_weights_follow_from_tube_size_and_density():
     """Table 2's weights agree with Table 1's density for 2 x 2 x 1/8 in tube (within 1 %)."""
     for length_in, weight_lb in ((12, 1.1), (24, 2.2), (12, 1.1)):
         assert P.square_tube_weight_lb(2.0, 0.125, length_in) == pytest.approx(weight_lb, rel=0.01)
-    assert P.OZ_IN_TO_NM == pytest.approx(0.00706155, rel=1e-6)
-    assert P.LBF_FT_TO_NM == pytest.approx(1.3558179, rel=1e-6)
+    assert units.OZ_IN_TO_NM == pytest.approx(0.00706155, rel=1e-6)
+    assert units.LBF_FT_TO_NM == pytest.approx(1.3558179, rel=1e-6)
 
 
 def report_cantilever_moment_lb_in(end_load_lb: float, length_in: float, link_lb: float) -> float:
@@ -72,22 +73,22 @@ def test_report_joint_torques_come_out_in_the_report_load_case():
     assert report_cantilever_moment_lb_in(10.8, 24, 2.2) * 16 == pytest.approx(P.REPORT_J1_TORQUE_OZ_IN)
     assert report_cantilever_moment_lb_in(6.0, 12, 1.1) * 16 == pytest.approx(P.REPORT_J2_TORQUE_OZ_IN)
 
-    g = P.G_EARTH_M_S2
+    g = units.G_EARTH_M_S2
     t1 = static_torques_nm(0.0, -HALF_PI, 0.0, GEO, g)[0]
     t2 = static_torques_nm(0.0, 0.0, -HALF_PI, GEO, g)[1]
-    assert t1 / P.OZ_IN_TO_NM == pytest.approx(4569.6, rel=1e-9)
-    assert t2 / P.OZ_IN_TO_NM == pytest.approx(1257.6, rel=1e-9)
+    assert t1 / units.OZ_IN_TO_NM == pytest.approx(4569.6, rel=1e-9)
+    assert t2 / units.OZ_IN_TO_NM == pytest.approx(1257.6, rel=1e-9)
     # At the motor (the report ignores gear losses): 285.6 and 209.6 oz-in, factors 1.4 and 1.9.
     j1_sprockets = DRIVES["j1"].ratio / DRIVES["j1"].motor.gearhead.ratio
     j2_sprockets = DRIVES["j2"].ratio / DRIVES["j2"].motor.gearhead.ratio
     assert (j1_sprockets, j2_sprockets) == (16.0, 6.0)
-    at_motor_1 = t1 / j1_sprockets / P.OZ_IN_TO_NM
-    at_motor_2 = t2 / j2_sprockets / P.OZ_IN_TO_NM
+    at_motor_1 = t1 / j1_sprockets / units.OZ_IN_TO_NM
+    at_motor_2 = t2 / j2_sprockets / units.OZ_IN_TO_NM
     assert at_motor_1 == pytest.approx(285.6) and at_motor_2 == pytest.approx(209.6)
-    rated_oz_in = DRIVES["j1"].motor.rated_torque_nm / P.OZ_IN_TO_NM
+    rated_oz_in = DRIVES["j1"].motor.rated_torque_nm / units.OZ_IN_TO_NM
     assert rated_oz_in == pytest.approx(400.0)
     assert round(rated_oz_in / at_motor_1, 1) == P.REPORT_J1_SAFETY_FACTOR
-    assert round(DRIVES["j2"].motor.rated_torque_nm / P.OZ_IN_TO_NM / at_motor_2, 1) == P.REPORT_J2_SAFETY_FACTOR
+    assert round(DRIVES["j2"].motor.rated_torque_nm / units.OZ_IN_TO_NM / at_motor_2, 1) == P.REPORT_J2_SAFETY_FACTOR
 
 
 def test_full_horizontal_extension_needs_more_than_the_report_case():
@@ -96,42 +97,42 @@ def test_full_horizontal_extension_needs_more_than_the_report_case():
     Still inside the 400 oz-in motor through 16:1 with the assumed sprocket losses, so
     the arm can hold any pose on Earth, with little margin at J1.
     """
-    t1, t2, t3 = static_torques_nm(0.0, 0.0, 0.0, GEO, P.G_EARTH_M_S2)
-    assert t1 / P.LBF_IN_TO_NM == pytest.approx(372.2, rel=1e-9)
-    assert t2 / P.LBF_IN_TO_NM == pytest.approx(86.6, rel=1e-9)
+    t1, t2, t3 = static_torques_nm(0.0, 0.0, 0.0, GEO, units.G_EARTH_M_S2)
+    assert t1 / units.LBF_IN_TO_NM == pytest.approx(372.2, rel=1e-9)
+    assert t2 / units.LBF_IN_TO_NM == pytest.approx(86.6, rel=1e-9)
     assert t1 < DRIVES["j1"].rated_output_torque_nm
     assert t2 < DRIVES["j2"].rated_output_torque_nm
 
 
 def test_wrist_bend_safety_factor():
     """'WRIST AND GRIPPER': 200 oz-in motor, 3:1 sprockets, safety factor 4.7 (gripper level)."""
-    t3 = static_torques_nm(0.0, 0.0, 0.0, GEO, P.G_EARTH_M_S2)[2]
-    factor = 200.0 * 3.0 / (t3 / P.OZ_IN_TO_NM)
+    t3 = static_torques_nm(0.0, 0.0, 0.0, GEO, units.G_EARTH_M_S2)[2]
+    factor = 200.0 * 3.0 / (t3 / units.OZ_IN_TO_NM)
     assert round(factor, 1) == P.REPORT_J3_SAFETY_FACTOR
 
 
 def test_report_test_load_adds_table_4_differences():
     """Table 4: the 1 oz load adds 0.75 lb in to link III's moment and 1.50 lb in to link II's."""
-    g, load = P.G_EARTH_M_S2, P.REPORT_TEST_LOAD_KG
+    g, load = units.G_EARTH_M_S2, P.REPORT_TEST_LOAD_KG
     for pose, joint, diff_lb_in in (((0.0, 0.0, -HALF_PI), 1, 0.75), ((0.0, -HALF_PI, 0.0), 0, 1.50)):
         loaded = static_torques_nm(*pose, GEO, g, load)[joint]
         unloaded = static_torques_nm(*pose, GEO, g)[joint]
-        assert (loaded - unloaded) / P.LBF_IN_TO_NM == pytest.approx(diff_lb_in, rel=1e-9)
+        assert (loaded - unloaded) / units.LBF_IN_TO_NM == pytest.approx(diff_lb_in, rel=1e-9)
 
 
 def test_mount_moment_is_near_table_4():
     """Table 4's 'mobile mount' moment, 888 lb in: the assumed masses give it within 10 %."""
-    m = mount_static_moment_nm(0.0, 0.0, 0.0, GEO, P.ARM_PLANT_PARAMS.mount, P.G_EARTH_M_S2)
-    assert m / P.LBF_IN_TO_NM == pytest.approx(P.REPORT_MOUNT_MOMENT_LB_IN, rel=0.10)
+    m = mount_static_moment_nm(0.0, 0.0, 0.0, GEO, P.ARM_PLANT_PARAMS.mount, units.G_EARTH_M_S2)
+    assert m / units.LBF_IN_TO_NM == pytest.approx(P.REPORT_MOUNT_MOMENT_LB_IN, rel=0.10)
     # Below the shaft's 55 lbf ft plus the moment of the mobile arm itself: same order.
-    assert m < 1.5 * P.REPORT_SHAFT_TORQUE_LBF_FT * P.LBF_FT_TO_NM
+    assert m < 1.5 * P.REPORT_SHAFT_TORQUE_LBF_FT * units.LBF_FT_TO_NM
 
 
 def test_report_torque_is_carried_by_the_motor_current():
     """Holding J1 in the report's load case takes current = torque / (eta N Kt)."""
     plant = posed(0.0, -HALF_PI, 0.0)
     drive = DRIVES["j1"]
-    need_nm = P.REPORT_J1_TORQUE_OZ_IN * P.OZ_IN_TO_NM
+    need_nm = P.REPORT_J1_TORQUE_OZ_IN * units.OZ_IN_TO_NM
     hold_a = need_nm / drive.kt_out_nm_a
     duty = hold_a * drive.motor.r_ohm / V_BUS
     run(plant, 2.0, duty=only(J1, duty), enable=only(J1, True, False))
@@ -139,7 +140,7 @@ def test_report_torque_is_carried_by_the_motor_current():
     assert plant.pos_rad[J1] == pytest.approx(0.0, abs=1e-4)   # only the first ms of current rise
     assert plant.i_a[J1] == pytest.approx(hold_a, rel=1e-6)
     gearhead_out_oz_in = hold_a * drive.motor.kt_nm_a * drive.motor.gearhead.ratio \
-        * drive.motor.gearhead.efficiency / P.OZ_IN_TO_NM
+        * drive.motor.gearhead.efficiency / units.OZ_IN_TO_NM
     assert gearhead_out_oz_in == pytest.approx(285.6 / P.SPROCKET_EFFICIENCY ** 2, rel=1e-6)
 
 
@@ -168,7 +169,7 @@ def test_constant_duty_reaches_the_analytic_steady_speed():
 
 def test_half_rpm_is_reachable_against_gravity_at_full_extension():
     """The report's 1/2 RPM: J1 can lift the stretched-out arm at that speed from 24 V."""
-    load = static_torques_nm(0.0, 0.0, 0.0, GEO, P.G_EARTH_M_S2)[0]
+    load = static_torques_nm(0.0, 0.0, 0.0, GEO, units.G_EARTH_M_S2)[0]
     assert analytic_steady_speed(DRIVES["j1"], 24.0, load) > P.JOINT_SPEED_RAD_S
 
 
@@ -215,7 +216,7 @@ def test_unpowered_unbraked_arm_falls_on_earth_but_not_in_orbit():
     # J1's first millisecond: a = (gravity - Coulomb) / inertia, opposed by nothing else.
     plant = posed(0.0, 0.0, 0.0)
     inertia = DRIVES["j1"].inertia_kg_m2 + joint_inertias_kg_m2(0.0, 0.0, 0.0, GEO)[0]
-    gravity = static_torques_nm(0.0, 0.0, 0.0, GEO, P.G_EARTH_M_S2)[0]
+    gravity = static_torques_nm(0.0, 0.0, 0.0, GEO, units.G_EARTH_M_S2)[0]
     plant.step(DT, [0.0] * 6, [False] * 6, [False] * 6, V_BUS)
     expected = -(gravity - DRIVES["j1"].coulomb_nm) / (inertia / DT + DRIVES["j1"].viscous_nm_s_rad)
     assert plant.vel_rad_s[J1] == pytest.approx(expected, rel=1e-9)

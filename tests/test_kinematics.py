@@ -9,9 +9,10 @@ import pytest
 from hypothesis import assume, given, settings, strategies as st
 
 from hil_sim.arm import gripper_position_m, static_torques_nm
-from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS, DEG, G_EARTH_M_S2
+from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS
 from host_tools.apps.kinematics import (DEMO_SCENE, JointPose, Scene, Unreachable, chain_points_m, check_limits,
                                    forward, inverse, steps)
+from protocol.units import DEG, G_EARTH_M_S2
 
 GEO = ARM_PLANT_PARAMS.geometry
 MOUNT = ARM_PLANT_PARAMS.mount

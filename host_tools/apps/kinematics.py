@@ -27,9 +27,10 @@ from typing import Optional, Sequence
 import numpy as np
 
 from hil_sim.arm import gripper_position_m
-from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, CHANNEL_PARAMS, DEG,
-                                IN_TO_M, LB_TO_KG, ArmGeometry, ArmPlantParams, MountParams)
+from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, CHANNEL_PARAMS, ArmGeometry, ArmPlantParams,
+                                MountParams)
 from protocol.states import ARM_CHANNELS
+from protocol.units import DEG, IN_TO_M, LB_TO_KG
 
 ELBOWS = ("up", "down")
 SOLVED_CHANNELS = ("j1", "j2", "j3", "mount")

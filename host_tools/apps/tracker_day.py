@@ -56,6 +56,7 @@ from protocol.errors import shown
 from protocol.hal import HalCodec
 from protocol.reasons import Reason
 from protocol.states import Switch, SwitchPosition, TrackerAxis
+from protocol.units import DEG
 from timebase import RealClock
 
 MODES = ("relay", "feedforward")
@@ -63,7 +64,6 @@ MIN_ELEVATION_DEG = 5.0      # the day's window: the sun above this (the photoce
 STEP_S = 0.01                # the tracker's cycle (TRACKER_CMD, TRACKER_SENSE, TRACKER_POS: 10 ms)
 SAMPLE_EVERY = 100           # steps between samples of the truth: once a simulated second
 FIRST_DATE, LAST_DATE = date(2000, 1, 1), date(2099, 12, 31)    # the controller's clock (SetClock)
-DEG = math.pi / 180.0
 
 
 # ---- the HAL between the two, as the DBC quantizes it ------------------------------------------------------
