@@ -49,11 +49,10 @@ from timebase.scheduler import Scheduler
 from host_tools.worlds.local_bus import LocalBus, LocalChannel
 from host_tools.worlds.nodes import build_plant_node
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.states import Axis, ControllerState, GripAction, Switch, SwitchPosition, TrackerAxis
 from timebase import RealClock, SimClock
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 
 FULL_S = 20.0                  # simulated seconds per row
 QUICK_S = 5.0

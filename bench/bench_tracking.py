@@ -42,11 +42,10 @@ from dataclasses import dataclass, field
 from hil_sim.arm import gripper_position_m
 from host_tools.apps import pick_place
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, MotionOutcome
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 GRAVITIES = ("earth", "orbit")
 JOINTS = ("j1", "j2", "j3", "j4", "mount")
 MIDDLE_DEG = 0.0                      # every joint: the arm stretched out, level

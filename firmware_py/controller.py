@@ -37,7 +37,7 @@ from typing import Callable, Optional
 from protocol import auth
 from protocol.controller_link import ControllerLink
 from protocol.link import LinkConfig
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
 from protocol.states import Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
@@ -55,7 +55,6 @@ from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker import TrackerController
 from firmware_py.uart import PacedUart
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
 TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
 LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often (controller time)

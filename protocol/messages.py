@@ -368,4 +368,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                        "session than the controller keeps"))),
 ])
 
-globals().update({name: spec.type for name, spec in SCHEMA.by_name.items()})
+# Every message class by name, the one lookup: `MESSAGES["MoveBy"](axis, 1.0, 0)`. The classes are also
+# attributes of this module (`from protocol.messages import Ping`).
+MESSAGES: dict[str, type] = {name: spec.type for name, spec in SCHEMA.by_name.items()}
+globals().update(MESSAGES)

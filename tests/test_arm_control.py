@@ -14,11 +14,9 @@ import pytest
 
 from hil_sim.plant import PlantParams
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, AxisMode, ControllerState, Fault, GripAction, MotionOutcome
-
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 
 
 def make_bench(**kw) -> LockstepBench:

@@ -4,11 +4,9 @@ from __future__ import annotations
 from firmware_py.controller import ControllerConfig
 from host_tools.worlds.world import LockstepBench
 from protocol.link import LinkConfig
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
-
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 
 
 def status(bench):

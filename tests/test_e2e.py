@@ -18,13 +18,12 @@ import serial
 from host_tools.client.live import HostClient
 from protocol import auth
 from protocol.errors import LinkError
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
 from timebase import RealClock
 
 pytestmark = pytest.mark.pty
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 SESSION = "ping\nstatus\nestop\nreset\nquit\n"
 

@@ -17,14 +17,13 @@ from host_tools.client.live import HostClient
 from line_tap import LineTap, decoded, recorded_hello
 from protocol import auth
 from protocol.link import LinkState
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
 from protocol.states import ControllerState
 from timebase import RealClock
 
 pytestmark = pytest.mark.pty
 env, sim_factory = test_e2e.env, test_e2e.sim_factory       # the fixtures: a private key, sims stopped at the end
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 PORTS = [pytest.param(("--pty",), id="pty"), pytest.param(("--tcp", "0"), id="tcp")]
 LINE_BYTES_PER_S = 115200 / 10
 FLOOD_SHARE = 0.8

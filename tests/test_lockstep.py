@@ -20,12 +20,11 @@ from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from protocol.hal import BusView, HalCodec
 from protocol.lockstep import REOFFER_S, LockstepFollower, LockstepLeader
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, Fault, FaultCause, MotionOutcome
 from timebase import PacedClock, SimClock
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 KEY = b"lockstep-test-key-0123456789"
 CTRL_SYNC_ID = HalCodec().frame_id("CTRL_SYNC")
 

@@ -16,12 +16,11 @@ from host_tools.worlds.ports import BufferPort
 from host_tools.worlds.world import World
 from protocol.host_link import HostLink
 from protocol.link import LinkState
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, Fault, TimingIssue, TimingMode
 from timebase import PacedClock, SimClock
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 KEY = b"paced-world-key-0123456789abcdef"
 
 

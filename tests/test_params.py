@@ -9,11 +9,10 @@ import pytest
 from firmware_py.controller import ControllerConfig
 from firmware_py.params import ParamSpec, ParamStore
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 SPECS = [ParamSpec("gain", 1.0, 0.0, 10.0, "", "a gain"), ParamSpec("limit_v", 22.0, 0.0, 60.0, "V", "a limit")]
 
 

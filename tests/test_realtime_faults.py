@@ -12,12 +12,10 @@ from firmware_py.axis import AxisError
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from host_tools.worlds.world import LockstepBench
 from protocol.hal import BusView, HalCodec
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, Fault, FaultCause, TimingIssue
 from timebase import SimClock, TimingReport
-
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 
 
 class WallLike(SimClock):

@@ -30,12 +30,11 @@ import pytest
 from host_tools.worlds import nodes
 from host_tools.client.live import HostClient
 from protocol import auth
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
 
 pytestmark = pytest.mark.pty
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 WAIT_S = 30.0
 COUNTERS = re.compile(r"aspod plant: stopped after [\d.]+ s; counters (.*)")

@@ -26,11 +26,10 @@ from hil_sim.sun import MST, TUCSON, solar_position
 from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand
 from host_tools.teleop import session as teleop
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault, Switch, SwitchPosition as P, TempSide, TrackerAxis, TrackerWarning
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 AZ, EL, BOTH = TrackerAxis.AZ, TrackerAxis.EL, TrackerAxis.BOTH
 
 

@@ -6,10 +6,8 @@ import hashlib
 from firmware_py.controller import ControllerConfig
 from host_tools.worlds.world import LockstepBench
 from protocol.link import LinkConfig
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.states import Axis, ControllerState, GripAction
-
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 
 
 class Dropper:

@@ -20,7 +20,7 @@ from typing import Optional
 
 import numpy as np
 
-from protocol.messages import SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, GripAction, MotionOutcome
 from timebase import RealClock
@@ -28,7 +28,6 @@ from timebase import RealClock
 from host_tools.apps.kinematics import DEMO_SCENE, Scene, Step, steps
 from host_tools.worlds.world import LockstepBench
 
-M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 AXIS_BY_NAME = {a.name.lower(): a for a in Axis if a is not Axis.ALL}
 SPEC_M = 0.01                     # the report's positioning spec: within 1 cm
 MOTION_TIMEOUT_S = 120.0
