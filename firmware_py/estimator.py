@@ -196,10 +196,6 @@ class _CountTracker:
         count may have moved as far as those ticks allow (the glitch check widens with them)."""
         self.missed_ticks += ticks
 
-    @property
-    def last_flags(self) -> EstimatorFlag:
-        return EstimatorFlag(self.flags)
-
     def resync(self, pos_rad: float) -> None:
         """Forget the reference count: the next count is taken as `pos_rad` whatever its value.
 

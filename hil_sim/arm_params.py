@@ -108,11 +108,6 @@ class ArmGeometry:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"ArmGeometry.{name} must be finite and >= 0, got {value}")
 
-    @property
-    def end_load_kg(self) -> float:
-        """Appendix A's 6.0 lb at the end of link III."""
-        return self.wrist_fixed_kg + self.wrist_turned_kg
-
 
 @dataclass(frozen=True)
 class MountParams:

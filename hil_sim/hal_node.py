@@ -75,8 +75,6 @@ from protocol.states import ARM_CHANNELS
 
 _HALF = 1 << 31
 TRACKER_CMD_SIGNALS = TrackerCommand._fields      # TRACKER_CMD's signals but `alive`, in the DBC's order
-_STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h",
-                 (32, False): "I", (32, True): "i", (64, False): "Q", (64, True): "q"}
 
 
 class PlantNode(HalEndpoint):

@@ -326,11 +326,6 @@ class DcMotorBank:
     def stop_torque_nm(self) -> np.ndarray:
         return np.array(self._stop_t)
 
-    @property
-    def motor_pos_rad(self) -> np.ndarray:
-        """Motor shaft angle (before all gearing): what a motor-mounted encoder sees."""
-        return np.array(self._pos) * self.ratio
-
     def supply_current_a(self, duty, enable) -> float:
         """Average current drawn from the supply by the bridges (lossless switches): sum duty * i.
 

@@ -78,7 +78,8 @@ def _check(var: str, lo: float, hi: float) -> str:
     return f"{_literal(lo)} <= {var} <= {_literal(hi)}"
 
 
-_STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h",
+# struct format codes of the whole-byte integer fields, by (bits, signed)
+STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h",
                  (32, False): "I", (32, True): "i", (64, False): "Q", (64, True): "q"}
 
 
@@ -94,11 +95,11 @@ def struct_plan(fields: Sequence[Field], length: int) -> Optional[tuple[str, lis
     for i in by_start:
         f = fields[i]
         byte, end = f.start // 8, f.start + f.length
-        if f.start % 8 == 0 and (f.length, f.signed) in _STRUCT_CODES:
+        if f.start % 8 == 0 and (f.length, f.signed) in STRUCT_CODES:
             if f.start < at:
                 return None
             fmt += f"{(f.start - at) // 8}x" if f.start > at else ""
-            fmt += _STRUCT_CODES[(f.length, f.signed)]
+            fmt += STRUCT_CODES[(f.length, f.signed)]
             items.append([i])
             at = end
         elif not f.signed and end <= 8 * (byte + 1):
@@ -121,7 +122,7 @@ def struct_plan(fields: Sequence[Field], length: int) -> Optional[tuple[str, lis
 
 def _bits(f: Field) -> bool:
     """Carried inside a byte with others (not a whole struct item of its own)."""
-    return not (f.start % 8 == 0 and (f.length, f.signed) in _STRUCT_CODES)
+    return not (f.start % 8 == 0 and (f.length, f.signed) in STRUCT_CODES)
 
 
 def pack_source(fields: Sequence[Field], length: int, check_all: bool) -> tuple[str, Optional[str]]:

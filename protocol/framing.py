@@ -55,7 +55,6 @@ MIN_RAW = HEADER_SIZE + CRC_SIZE
 MAX_RAW = HEADER_SIZE + COUNTER_SIZE + MAX_PAYLOAD + TAG_SIZE + CRC_SIZE   # 276
 MAX_ENCODED = MAX_RAW + MAX_RAW // 254 + 1                                 # COBS worst case
 COUNTER_MAX = (1 << 48) - 1
-DELIMITER = b"\x00"
 
 _CRC = struct.Struct("<I")
 _cobs_encode = cobs.encode

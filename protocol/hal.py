@@ -25,7 +25,7 @@ import can
 import cantools
 from cantools.database.can import Database, Message as DbcMessage
 
-from protocol.frame_code import Field, compile_pack, compile_unpack
+from protocol.frame_code import STRUCT_CODES, Field, compile_pack, compile_unpack
 
 DBC_PATH = Path(__file__).with_name("hal.dbc")
 
@@ -33,9 +33,6 @@ SignalValues = dict[str, Union[int, float]]
 
 # Data lengths a CAN FD frame can have (ISO 11898-1:2015, DLC 9..15 -> 12..64 bytes).
 FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
-
-_STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h",
-                 (32, False): "I", (32, True): "i", (64, False): "Q", (64, True): "q"}
 
 
 
@@ -260,14 +257,14 @@ class FrameLayout:
         self._struct: Optional[struct.Struct] = None
         fields = sorted((signals[n].start, signals[n].length, signals[n].is_signed, i)
                         for i, n in enumerate(self.order))
-        if all(start % 8 == 0 and (length, signed) in _STRUCT_CODES for start, length, signed, _ in fields) \
+        if all(start % 8 == 0 and (length, signed) in STRUCT_CODES for start, length, signed, _ in fields) \
                 and [i for *_, i in fields] == list(range(len(fields))):
             fmt, at = "<", 0
             for start, length, signed, _ in fields:
                 if start < at:
                     break                             # overlapping signals: use the shifting path
                 fmt += f"{(start - at) // 8}x" if start > at else ""
-                fmt += _STRUCT_CODES[(length, signed)]
+                fmt += STRUCT_CODES[(length, signed)]
                 at = start + length
             else:
                 if at <= 8 * self.length:

@@ -198,10 +198,6 @@ class LockstepFollower(Clock):
         return TimingReport("lockstep", self.meter.recent(wall_now, self._now), self.meter.total(wall_now, self._now),
                             lag)
 
-    @property
-    def is_real_time(self) -> bool:
-        return True
-
 
 class LockstepLeader(Clock):
     """The plant's clock in lock-step: paced by `pace` (a `PacedClock`), gated by the controller's CTRL_SYNC.
@@ -278,7 +274,3 @@ class LockstepLeader(Clock):
     def timing(self) -> TimingReport:
         report = self.pace.timing()
         return TimingReport("lockstep", report.rtf_recent, report.rtf_total, report.lag_s, report.slipped_s)
-
-    @property
-    def is_real_time(self) -> bool:
-        return True

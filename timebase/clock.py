@@ -71,11 +71,6 @@ class Clock(abc.ABC):
         clock whose peer is silent); 0 for a clock whose time is never withheld."""
         return 0.0
 
-    @property
-    @abc.abstractmethod
-    def is_real_time(self) -> bool:
-        """True when time passes on its own (a live session)."""
-
 
 class RealClock(Clock):
     """Wall-clock time from `time.monotonic`; waits with `time.sleep`."""
@@ -93,10 +88,6 @@ class RealClock(Clock):
 
     def timing(self) -> TimingReport:
         return TimingReport("realtime", 1.0, 1.0)
-
-    @property
-    def is_real_time(self) -> bool:
-        return True
 
     @staticmethod
     def precise_now() -> float:
@@ -132,7 +123,3 @@ class SimClock(Clock):
 
     def timing(self) -> TimingReport:
         return TimingReport("simulated")
-
-    @property
-    def is_real_time(self) -> bool:
-        return False

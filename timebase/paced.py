@@ -132,7 +132,3 @@ class PacedClock(Clock):
         wall_now = self.wall.now()
         return TimingReport("paced", self.meter.recent(wall_now, self._now), self.meter.total(wall_now, self._now),
                             self.lag_s, self.slipped_s)
-
-    @property
-    def is_real_time(self) -> bool:
-        return True

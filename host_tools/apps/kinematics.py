@@ -33,7 +33,6 @@ from protocol.states import ARM_CHANNELS
 from protocol.units import DEG, IN_TO_M, LB_TO_KG
 
 ELBOWS = ("up", "down")
-SOLVED_CHANNELS = ("j1", "j2", "j3", "mount")
 _LIMITS = {c.drive.name: (c.limit_lo_rad, c.limit_hi_rad) for c in CHANNEL_PARAMS}
 # Law of cosines round-off: a wrist point this far (relative) beyond full stretch or full
 # fold still counts as reachable (clamped), so targets exactly at the boundary solve.

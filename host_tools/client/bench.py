@@ -44,10 +44,6 @@ class BenchClock(Clock):
     def timing(self) -> TimingReport:
         return self.bench.clock.timing()
 
-    @property
-    def is_real_time(self) -> bool:
-        return False
-
 
 class BenchClient:
     """What teleop's `Session` needs of a client, on a `LockstepBench` (which it does not own)."""
