@@ -68,7 +68,8 @@ from typing import Optional
 
 import can
 
-from hil_sim.plant import N_CHANNELS, Plant
+from hil_sim.commands import N_CHANNELS
+from hil_sim.plant import Plant
 from hil_sim.tracker import TrackerCommand
 from protocol.hal import HalCodec, HalEndpoint
 from protocol.states import ARM_CHANNELS

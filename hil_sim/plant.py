@@ -14,7 +14,8 @@ Per step:
    `open_circuit` fault). Its brake is applied if the global command says brake_all OR
    its own command says brake (OR it has a `stuck_brake` fault). The caller gives the
    commands as they stand: `ExpiringOutputs` (the global CTRL_OUTPUTS) and
-   `ExpiringMotorCommands` (MOTOR_CMD) read as the safe state (off, braked) once expired.
+   `ExpiringMotorCommands` (MOTOR_CMD) (hil_sim/commands.py) read as the safe state (off, braked)
+   once expired.
 2. The arm is stepped with the supply voltage of the previous step (the bus a millisecond
    ago; an explicit one-step lag, stable because the bus's source resistance is far below
    the motors' armature resistance).
@@ -56,21 +57,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from numbers import Integral
-from typing import Generic, Optional, Sequence, TypeVar
+from typing import Optional, Sequence
 
 import numpy as np
 
 from hil_sim.arm import ArmPlant
 from hil_sim.arm_params import ARM_PLANT_PARAMS, ArmPlantParams
+from hil_sim.commands import N_CHANNELS, ExpiringMotorCommands, ExpiringOutputs, ExpiringTrackerCommands
 from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
 from hil_sim.motor import TWO_PI
 from hil_sim.sun import DEFAULT_START, TUCSON, DateTimeLike, Site
-from hil_sim.tracker import SAFE_COMMAND, TRACKER_PARAMS, TrackerCommand, TrackerParams, TrackerPlant
-from protocol.states import ARM_CHANNELS
+from hil_sim.tracker import TRACKER_PARAMS, TrackerParams, TrackerPlant
 
 # The plant-wide faults (no channel). Per-channel ones: CHANNEL_FAULTS; all: hil_sim.faults.
 FAULTS = PLANT_FAULTS
-N_CHANNELS = len(ARM_CHANNELS)
 
 _NOISE_BATCH = 512   # normal deviates drawn from the generator at once (two per step)
 
@@ -138,129 +138,6 @@ class PlantParams:
     @property
     def thermal_time_constant_s(self) -> float:
         return self.thermal_resistance_c_per_w * self.thermal_capacity_j_per_c
-
-
-T = TypeVar("T")
-
-
-class _Expiring(Generic[T]):
-    """The last command received, void (read as `safe`) after `timeout_s` without a fresh one.
-
-    A command whose `alive` counter repeats the previous one is a duplicate (CAN can
-    deliver a frame twice, a stuck sender repeats one forever) and does not refresh the
-    timer. Expiry does not latch: a fresh command applies again. Latching belongs to the
-    controller's supervisor.
-    """
-
-    def __init__(self, timeout_s: float, safe: T) -> None:
-        if not (timeout_s > 0 and math.isfinite(timeout_s)):
-            raise ValueError(f"timeout_s must be finite and > 0, got {timeout_s}")
-        self.timeout_s = timeout_s
-        self.safe = safe
-        self._commanded = safe
-        self._refreshed_s: Optional[float] = None
-        self._last_alive: Optional[int] = None
-        self.expired = True       # as of the last current() call
-        self.expiries = 0         # times a live command lapsed
-        self.alive_repeats = 0    # commands ignored for repeating `alive`
-
-    def _refresh(self, value: T, alive: int, now: float) -> bool:
-        if alive == self._last_alive:
-            self.alive_repeats += 1
-            return False
-        self._last_alive = alive
-        self._commanded = value
-        self._refreshed_s = now
-        return True
-
-    def current(self, now: float) -> T:
-        """The command to apply at `now` (`safe` if none is fresh)."""
-        if self._refreshed_s is None or now - self._refreshed_s > self.timeout_s:
-            if not self.expired:
-                self.expiries += 1
-                self.expired = True
-            return self.safe
-        self.expired = False
-        return self._commanded
-
-
-class ExpiringOutputs(_Expiring[tuple[bool, bool]]):
-    """The global output command (CTRL_OUTPUTS): (outputs_enabled, brake).
-
-    Expired (and before the first command) it reads as the safe state: outputs
-    disabled, brakes applied. Klipper's pwm ``max_duration``.
-    """
-
-    SAFE = (False, True)  # (outputs_enabled, brake)
-
-    def __init__(self, timeout_s: float) -> None:
-        super().__init__(timeout_s, self.SAFE)
-
-    def command(self, outputs_enabled: bool, brake: bool, alive: int, now: float) -> bool:
-        """Record a command received at `now`; return False if it was ignored as a repeat."""
-        return self._refresh((bool(outputs_enabled), bool(brake)), alive, now)
-
-
-MotorCommand = tuple[list, list, list]   # (duty, enable, brake), one entry per channel
-
-
-class ExpiringMotorCommands(_Expiring[MotorCommand]):
-    """The per-channel motor command (MOTOR_CMD): (duty, enable, brake) lists, order `ARM_CHANNELS`.
-
-    One frame carries every channel, so their commands are refreshed, and expire,
-    together. Expired (and before the first command) every channel reads as duty 0,
-    disabled, brake applied. The lists returned by `current` are the plant's own: do not
-    modify them.
-    """
-
-    def __init__(self, timeout_s: float, n_channels: int = N_CHANNELS) -> None:
-        self.n_channels = n_channels
-        super().__init__(timeout_s, ([0.0] * n_channels, [False] * n_channels, [True] * n_channels))
-
-    def command(self, duty: Sequence[float], enable: Sequence[bool], brake: Sequence[bool],
-                alive: int, now: float) -> bool:
-        """Record a command received at `now`; return False if it was ignored as a repeat.
-
-        ValueError (nothing recorded) if a list has the wrong length or a duty is not in [-1, 1].
-        """
-        n = self.n_channels
-        if len(duty) != n or len(enable) != n or len(brake) != n:
-            raise ValueError(f"a motor command needs {n} duties, enables and brakes, got "
-                             f"{len(duty)}, {len(enable)}, {len(brake)}")
-        try:
-            in_range = all([-1.0 <= d <= 1.0 for d in duty])     # NaN is not
-        except TypeError:
-            in_range = False
-        if not in_range:
-            raise ValueError(f"duty must be numbers in [-1, 1], got {list(duty)}")
-        # Copies (the caller may reuse its lists); enable and brake are read for truth by `Plant.step`.
-        return self._refresh((list(duty), list(enable), list(brake)), alive, now)
-
-
-class ExpiringTrackerCommands(_Expiring[TrackerCommand]):
-    """The solar tracker's command (TRACKER_CMD) as a `hil_sim.tracker.TrackerCommand`.
-
-    Expired (and before the first command) it reads as `SAFE_COMMAND`: both relays of
-    each axis open, brakes applied, duty 0, sensor and motor power off (a silent
-    controller de-energises everything it drives).
-    """
-
-    def __init__(self, timeout_s: float) -> None:
-        super().__init__(timeout_s, SAFE_COMMAND)
-
-    def command(self, cmd, alive: int, now: float) -> bool:
-        """Record `cmd` (a TrackerCommand or 10 values in its order) received at `now`; False if a repeat.
-
-        ValueError (nothing recorded) for the wrong number of values or a duty outside [0, 1].
-        """
-        try:
-            cmd = TrackerCommand(*cmd)
-        except TypeError:
-            raise ValueError(f"a tracker command has {len(TrackerCommand._fields)} values "
-                             f"({', '.join(TrackerCommand._fields)}), got {cmd!r}") from None
-        if not (0.0 <= cmd.duty_az <= 1.0 and 0.0 <= cmd.duty_el <= 1.0):
-            raise ValueError(f"tracker duties must be in [0, 1], got az {cmd.duty_az!r}, el {cmd.duty_el!r}")
-        return self._refresh(cmd, alive, now)
 
 
 class Plant:
@@ -477,5 +354,4 @@ def _spawn(rng: np.random.Generator) -> np.random.Generator:
         return np.random.default_rng(int(rng.integers(2**63)))
 
 
-__all__ = ["CHANNEL_FAULTS", "ExpiringMotorCommands", "ExpiringOutputs", "ExpiringTrackerCommands", "FAULTS",
-           "MotorCommand", "Plant", "PlantParams"]
+__all__ = ["CHANNEL_FAULTS", "FAULTS", "Plant", "PlantParams"]

@@ -20,7 +20,8 @@ from hil_sim.arm_params import J1, J2, J4, MOUNT
 from hil_sim.faults import CHANNEL_FAULTS, FAULT_NAMES, FAULT_TABLE, PLANT_FAULTS, describe
 from hil_sim.hal_node import PlantNode
 from protocol.hal import FrameLayout, HalFrame
-from hil_sim.plant import ExpiringMotorCommands, Plant, PlantParams
+from hil_sim.commands import ExpiringMotorCommands
+from hil_sim.plant import Plant, PlantParams
 from protocol.hal import HalCodec, HalDecodeError, HalEncodeError
 from protocol.states import ARM_CHANNELS
 from timebase import SimClock

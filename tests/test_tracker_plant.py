@@ -21,7 +21,8 @@ import numpy as np
 import pytest
 
 from hil_sim.hal_node import PlantNode
-from hil_sim.plant import ExpiringTrackerCommands, Plant, PlantParams
+from hil_sim.commands import ExpiringTrackerCommands
+from hil_sim.plant import Plant, PlantParams
 from hil_sim.sun import (DEFAULT_START, MST, TUCSON, CloudPassage, CloudSchedule, Site, SunTable, parse_clouds,
                          solar_position, to_utc)
 from hil_sim.tracker import AZ, EL, SAFE_COMMAND, TRACKER_PARAMS, TrackerCommand, TrackerPlant, wrap180
