@@ -93,6 +93,29 @@ class Refusal(enum.IntEnum):
     BUSY = 6          # homing is in progress: stop it first
 
 
+class Debounce:
+    """A condition that must hold a while before it counts: `held(condition, now, hold_s)` is True once
+    `condition` has been true at every call since a call at least `hold_s` before `now` (never at the
+    first true call); a false call starts it over."""
+
+    __slots__ = ("since",)
+
+    def __init__(self) -> None:
+        self.since: Optional[float] = None
+
+    def held(self, condition: bool, now: float, hold_s: float) -> bool:
+        if not condition:
+            self.since = None
+            return False
+        if self.since is None:
+            self.since = now
+            return False
+        return now - self.since >= hold_s
+
+    def clear(self) -> None:
+        self.since = None
+
+
 @dataclass(frozen=True)
 class AxisConfig:
     """One axis's gains and limits, checked when built. Angles and speeds are joint-side."""
@@ -248,13 +271,13 @@ class Axis:
         self._integ = 0.0
         self._duty_lo, self._duty_hi = -1.0, 1.0
         self._count_s: Optional[float] = None
-        self._stall_since: Optional[float] = None
-        self._trip_since: Optional[float] = None
+        self._stall = Debounce()    # high duty, yet not moving
+        self._trip = Debounce()     # current above the trip level
         self._settle_since: Optional[float] = None
         self._home_phase = _SEEK
         self._home_start_rad = 0.0
         self._stopping_for = MotionOutcome.STOPPED
-        self._open_since: Optional[float] = None
+        self._open = Debounce()     # driven, yet no current
 
     def reconfigure(self, config: AxisConfig) -> None:
         """Take new gains and limits at the next tick (the estimator keeps its own filter; its staleness limit
@@ -326,7 +349,9 @@ class Axis:
             if self.config.moves_need_home:
                 self.homed = False
         self._err = 0
-        self._stall_since = self._trip_since = self._open_since = None
+        self._stall.clear()
+        self._trip.clear()
+        self._open.clear()
         if self.mode is _FAULT:
             self.mode = AxisMode.IDLE
 
@@ -465,14 +490,10 @@ class Axis:
             return 0.0
         self._integ += self._dt * (self._ki * vel_err + (duty - u) * self._aw)
         # stall: asking for more than it gets (saturated or current-limited) or for high duty, yet not moving
-        if (duty != u or u >= c.stall_duty or u <= -c.stall_duty) and -c.stall_vel_rad_s < vel < c.stall_vel_rad_s:
-            if self._stall_since is None:
-                self._stall_since = now
-            elif now - self._stall_since >= c.stall_time_s:
-                self._fault(AxisError.STALL, now)
-                return 0.0
-        else:
-            self._stall_since = None
+        if self._stall.held((duty != u or u >= c.stall_duty or u <= -c.stall_duty)
+                            and -c.stall_vel_rad_s < vel < c.stall_vel_rad_s, now, c.stall_time_s):
+            self._fault(AxisError.STALL, now)
+            return 0.0
         self.duty_requested = u
         self.duty = duty
         if sw is not None:
@@ -501,23 +522,14 @@ class Axis:
             lo = max(-1.0, lo - self._relax)
         self._duty_lo, self._duty_hi = lo, hi
         self._err = (self._err & ~_CURRENT_LIMITED) | limited
-        if abs(i_a) > c.i_trip_a:
-            if self._trip_since is None:
-                self._trip_since = now
-            elif now - self._trip_since >= c.i_trip_s:
-                self._fault(AxisError.OVER_CURRENT, now)
-                return 0.0
-        else:
-            self._trip_since = None
+        if self._trip.held(abs(i_a) > c.i_trip_a, now, c.i_trip_s):
+            self._fault(AxisError.OVER_CURRENT, now)
+            return 0.0
         duty = hi if u > hi else lo if u < lo else u
-        if (duty >= c.open_circuit_duty or duty <= -c.open_circuit_duty) and -c.open_circuit_a < i_a < c.open_circuit_a:
-            if self._open_since is None:
-                self._open_since = now
-            elif now - self._open_since >= c.open_circuit_s:
-                self._fault(AxisError.OPEN_CIRCUIT, now)
-                return 0.0
-        else:
-            self._open_since = None
+        if self._open.held((duty >= c.open_circuit_duty or duty <= -c.open_circuit_duty)
+                           and -c.open_circuit_a < i_a < c.open_circuit_a, now, c.open_circuit_s):
+            self._fault(AxisError.OPEN_CIRCUIT, now)
+            return 0.0
         return duty
 
     def _supervise_motion(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float, vel: float,
