@@ -154,7 +154,7 @@ class TeleopCompleter(Completer):
                 return found
             if position == 1:
                 allowed = [p.name.lower() for p in SWITCH_POSITIONS[Switch[switch.upper()]]]
-                return [w for w in found if w in allowed]
+                return [w for w in allowed if w in found]      # in the switch's own order (off, on)
             if position == 2 and switch in BOTH_ONLY:
                 return [w for w in found if w == "both"]
         return found
