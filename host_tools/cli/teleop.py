@@ -6,7 +6,8 @@ import sys
 
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_USAGE
-from host_tools.teleop.session import TeleopError, check_script, interactive, run_script
+from host_tools.teleop.console import interactive_console
+from host_tools.teleop.session import TeleopError, check_script, run_script
 from host_tools.teleop.words import read_script
 
 
@@ -34,7 +35,7 @@ def run_teleop(args: argparse.Namespace, psk: bytes) -> int:
         if lines is not None:
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going)
         else:
-            status, session = interactive(client)
+            status, session = interactive_console(client)
         if args.summary or lines is None:
             print(session.summary(), flush=True)
         return status

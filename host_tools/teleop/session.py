@@ -28,7 +28,7 @@ On real time, or without telemetry, it counts the wall clock.
 
 Modules: teleop_words (parsing, help), teleop_format (output), teleop_motion (motions and
 their ends), teleop_watch (live telemetry), teleop_box (the control box), teleop_clock
-(date-times), this one (the session, scripts, the console).
+(date-times), teleop_console (the interactive console), this one (the session, scripts).
 """
 from __future__ import annotations
 
@@ -49,16 +49,16 @@ from host_tools.datetimes import utc_text
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 from host_tools.teleop.box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop.format import (INDENT, Console, failure_lines, format_message, format_outcome,
-                                      format_value, latency, link_down_lines, report_lines)
+                                      latency, link_down_lines, report_lines)
 from host_tools.teleop.motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop.watch import TelemetryCache, arm_block, watch
 from host_tools.teleop.words import (LOCAL_COMMANDS, Step, TeleopError, all_words, build_message, check_script,
-                                     commands, completions, help_text, parse_line, parse_value, usage)
+                                     commands, help_text, parse_line, parse_value, usage)
 
 __all__ = ["LOCAL_COMMANDS", "Session", "Step", "TeleopError",
            "all_words", "build_message", "check_script", "commands", "format_message", "format_outcome",
-           "help_text", "interactive", "parse_line", "parse_value", "run_script", "usage"]
+           "help_text", "parse_line", "parse_value", "run_script", "usage"]
 
 BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
 ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
@@ -511,55 +511,6 @@ def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
         running = session.tracker.running()
         if running:
             session.console.lines(still_running_lines(running, lead="note: when the script ended, "))
-    finally:
-        session.close()
-    return status, session
-
-
-def interactive(client, out: TextIO = sys.stdout) -> tuple[int, Session]:
-    session = Session(client, out, all_events=True)
-    try:
-        import readline
-    except ImportError:   # not on every platform
-        readline = None
-    if readline is not None:
-        def complete(text: str, state: int) -> Optional[str]:
-            line, begin = readline.get_line_buffer(), readline.get_begidx()
-            matches = [w + " " for w in completions(line, begin, text)]
-            return matches[state] if state < len(matches) else None
-        readline.set_completer(complete)
-        readline.set_completer_delims(" \t")
-        readline.parse_and_bind("tab: complete")
-    session.console.line("type `help` for the commands, Tab completes, `quit` leaves")
-    number = 0
-    status = EXIT_OK
-    state_field = SCHEMA["TelemetryStatus"].fields[1]
-    try:
-        while True:
-            telemetry = session.telemetry.status
-            state_name = format_value(state_field, telemetry.state) if telemetry is not None else "?"
-            try:
-                text = input(f"aspod [{client.link.state.value} {state_name}]> ")
-            except (EOFError, KeyboardInterrupt):
-                session.console.line()
-                break
-            number += 1
-            try:
-                step = parse_line(text, number)
-            except TeleopError as exc:
-                session.console.line(f"error: {exc}")
-                continue
-            if step is None:
-                continue
-            if step.word == "quit":
-                break
-            try:
-                ok = session.run_step(step)
-            except KeyboardInterrupt:
-                session.console.line("(interrupted)")
-                ok = True
-            if not ok or session.motion_failures():
-                status = max(status, EXIT_LINK if session.link_trouble() is not None else EXIT_FAILED)
     finally:
         session.close()
     return status, session

@@ -1,0 +1,166 @@
+"""The interactive console (host_tools/teleop/console.py) on prompt_toolkit's pipe input and a vt100 output to a
+buffer: completion, events printed above the prompt without losing what is typed, link loss said at once,
+the prompt's state, history that never fails, output wrapped to the terminal."""
+from __future__ import annotations
+
+import io
+import threading
+from types import SimpleNamespace
+
+from prompt_toolkit.application import create_app_session
+from prompt_toolkit.data_structures import Size
+from prompt_toolkit.document import Document
+from prompt_toolkit.history import InMemoryHistory
+from prompt_toolkit.input import create_pipe_input
+from prompt_toolkit.output.vt100 import Vt100_Output
+
+from protocol.link import LinkState
+from protocol.messages import SCHEMA
+from protocol.reasons import Reason
+from protocol.states import ControllerState
+from timebase import RealClock
+
+from host_tools.teleop import format as teleop_format
+from host_tools.teleop import words as teleop_words
+from host_tools.teleop.console import (TeleopCompleter, TeleopConsole, fit, follow_width,
+                                       history_path, open_history, params_lines, prompt_text)
+from host_tools.teleop.watch import TelemetryCache
+
+PARAMS = ["j1_max_deg", "j1_min_deg", "j1_speed_dps", "trk_dial_low_pct"]
+
+
+class FakeClient:
+    """What the console and Session use of a HostClient: listeners, the link's state and statistics, call()."""
+
+    def __init__(self) -> None:
+        self.clock = RealClock()
+        self.url = "/dev/pts/test"
+        self.io_error = None
+        self.telemetry_listeners, self.event_listeners = [], []
+        stats = SimpleNamespace(crc_errors=0, auth_errors=0)
+        self.link = SimpleNamespace(state=LinkState.UP, stats=stats, event_from_earlier_session=False)
+
+    def call(self, msg, timeout_s: float = 30.0):
+        if msg.spec.name == "ParamList":
+            reply = SCHEMA["ParamValue"].type(0, PARAMS[msg.index], 1.0, 0.0, 2.0, msg.index, len(PARAMS))
+            return SimpleNamespace(ok=True, reply=reply, latency_s=0.001)
+        raise AssertionError(f"unexpected {msg.spec.name}")
+
+    def event(self, msg) -> None:
+        for listener in list(self.event_listeners):
+            listener(msg, self.clock.now())
+
+
+def test_completion_offers_parameters_switch_positions_and_only_the_axes_a_motion_takes():
+    c = TeleopCompleter(lambda: PARAMS)
+    assert c.options("mo") == ["move", "moveby"]
+    assert c.options("move ") == ["j1", "j2", "j3", "j4", "mount"]        # the controller refuses all, gripper
+    assert c.options("jog ") == ["j1", "j2", "j3", "j4", "mount"]
+    assert c.options("home ") == ["j1", "j2", "j3", "j4", "gripper", "mount", "all"]
+    assert c.options("set j1_m") == ["j1_max_deg", "j1_min_deg"]
+    assert c.options("get ") == sorted(PARAMS)
+    assert c.options("switch main ") == ["off", "on"]
+    assert c.options("switch mode ") == ["manual", "sensor"]
+    assert c.options("switch direction c") == ["cw", "ccw"]
+    assert c.options("switch speed ") == ["brake", "on"]
+    assert c.options("switch main on ") == ["both"]
+    assert c.options("switch speed on ") == ["az", "el", "both"]
+    assert c.options("expect DIAL_NOT_LOW switch mode ") == ["manual", "sensor"]
+    done = list(c.get_completions(Document("switch sensor o"), None))
+    assert [(x.text, x.start_position) for x in done] == [("off", -1), ("on", -1)]
+
+
+def test_history_is_per_user_and_never_fails(tmp_path):
+    assert str(history_path({"XDG_STATE_HOME": "/s", "HOME": "/h"})) == "/s/aspod/teleop_history"
+    assert str(history_path({"HOME": "/h"})) == "/h/.local/state/aspod/teleop_history"
+    history = open_history(tmp_path / "a" / "teleop_history")
+    history.store_string("status")
+    assert list(open_history(tmp_path / "a" / "teleop_history").load_history_strings()) == ["status"]
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert isinstance(open_history(blocker / "x" / "teleop_history"), InMemoryHistory)     # cannot be made: in memory
+
+
+def _msg(name: str, **values):
+    spec = SCHEMA[name]
+    return spec.type(**{f.name: values.get(f.name, 0) for f in spec.fields})
+
+
+def test_prompt_shows_the_state_faults_and_moving_axes():
+    client, cache = FakeClient(), TelemetryCache()
+    assert prompt_text(client, cache) == "aspod ? > "
+    cache.on_telemetry(_msg("TelemetryStatus", state=int(ControllerState.FAULT), faults=1), 0.0)
+    assert prompt_text(client, cache).startswith("aspod FAULT ")
+    cache.on_telemetry(_msg("TelemetryStatus", state=int(ControllerState.ENABLED)), 0.0)
+    cache.on_telemetry(_msg("TelemetryJoints", j1_pos=3.04, j1_vel=3.0), 0.0)
+    assert prompt_text(client, cache) == "aspod ENABLED j1 3.0° > "
+    client.link.state = LinkState.SUSPENDED
+    assert prompt_text(client, cache).startswith("aspod LINK ")
+
+
+def test_output_follows_the_terminal_width():
+    try:
+        assert follow_width(80) == 79 and teleop_format.WIDTH == 79 and teleop_words.HELP_WIDTH == 79
+        assert max(map(len, teleop_words.help_text().split("\n"))) <= 79
+        assert follow_width(200) == 96
+    finally:
+        follow_width(97)
+    long = "ok   motion all started: one end per axis follows (j1, j2, j3, j4, gripper, mount) (15.8 ms)"
+    lines = fit(long, 80)
+    assert all(len(x) <= 79 for x in lines) and lines[1].startswith("     ")
+    assert fit("short", 80) == ["short"]
+
+
+def test_params_show_unit_and_description_when_the_reply_has_them():
+    plain = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1)
+    assert params_lines([plain], 80) == ["  j1_speed_dps                3        [0.1 .. 10]"]
+    rich = SimpleNamespace(name="j1_speed_dps", value=3.0, min=0.1, max=10.0, unit="deg/s",
+                           description="the joint's default cruise speed")
+    assert params_lines([rich], 80) == ["  j1_speed_dps                3 deg/s  [0.1 .. 10]",
+                                        "      the joint's default cruise speed"]
+
+
+def _run_console(client, typed, during=None):
+    """Run the console on a pipe and a 80x24 vt100 output to a buffer; `during(console)` runs in another thread
+    while it waits; returns (status, screen text)."""
+    buffer = io.StringIO()
+    output = Vt100_Output(buffer, lambda: Size(rows=24, columns=80), term="xterm")
+    clock = RealClock()
+    with create_pipe_input() as pipe, create_app_session(input=pipe, output=output):
+        console = TeleopConsole(client, history=InMemoryHistory())
+
+        def feed() -> None:
+            clock.sleep(0.5)
+            for text in typed:
+                if callable(text):
+                    text(console)
+                else:
+                    pipe.send_text(text)
+                clock.sleep(0.4)
+        thread = threading.Thread(target=feed, daemon=True)
+        thread.start()
+        status, session = console.run()
+        thread.join()
+    return status, buffer.getvalue()
+
+
+def test_an_event_prints_above_the_prompt_and_what_is_typed_stays():
+    client = FakeClient()
+    event = SCHEMA["StateChanged"].type(int(ControllerState.ENABLED), int(ControllerState.IDLE),
+                                         int(Reason.HOST_REQUEST), 0, 1234)
+    status, screen = _run_console(client, ["stat", lambda c: client.event(event), "\x15quit\r"])
+    assert status == 0
+    at = screen.index("! StateChanged state=ENABLED")
+    assert "stat" in screen[:at]                     # typed before the event came
+    assert "stat" in screen[at:]                     # and drawn again under it, still there
+
+
+def test_losing_the_link_is_said_when_it_happens():
+    client = FakeClient()
+
+    def lose(_console) -> None:
+        client.io_error = "device disconnected"
+        client.link.state = LinkState.SUSPENDED
+    status, screen = _run_console(client, ["ping", lose, "\x15quit\r"])
+    assert "! LINK LOST: /dev/pts/test: device disconnected" in screen
+    assert "aspod LINK LOST > " in screen
