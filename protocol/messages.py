@@ -387,3 +387,11 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
 ])
 
 globals().update({name: spec.type for name, spec in SCHEMA.by_name.items()})
+
+
+def started_motions(reply) -> dict[int, int]:
+    """The motions a MotionAccepted says its command started: axis -> motion id (empty if refused)."""
+    if reply.spec.name != "MotionAccepted":
+        raise TypeError(f"{reply.spec.name} is not a MotionAccepted")
+    ids = {int(a): getattr(reply, f.name) for a, f in zip(ARM_AXES, _STARTED_IDS)}
+    return {axis: motion_id for axis, motion_id in ids.items() if motion_id}
