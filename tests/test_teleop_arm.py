@@ -363,3 +363,13 @@ def test_the_gripper_stops_at_an_estop_too(sim):
     # the shorted armature (dynamic braking) stops the jaws within about 0.4 s
     after = [msg.gripper_pos for now, msg in samples if estop_s + 0.6 <= now <= estop_s + 1.8]
     assert after and max(after) - min(after) < 0.1, after
+
+
+def test_params_shows_every_parameter_with_its_unit_range_and_description(arm_bench):
+    bench, executed = arm_bench
+    status, out, err, _ = bench_script(bench, "params\n")
+    assert status == EXIT_OK, out + err
+    assert re.search(r"^  j1_speed_dps +3 deg/s +\[0\.1 \.\. 30\] +j1 ", out, re.M), out
+    assert re.search(r"^  supply_min_v +22 V +\[0 \.\. 60\] +supply below this is a fault \(nominal 28 V\)$", out,
+                     re.M), out
+    assert executed.count("ParamList") == len(bench.controller.params.order)

@@ -417,7 +417,7 @@ def expected_lines(step: Step, handle, lines: list[str]) -> tuple[bool, list[str
 
 
 def list_params(client, console: Console) -> bool:
-    """Every parameter, read one by one with ParamList."""
+    """Every parameter, read one by one with ParamList: value, unit, range and what it does."""
     index, count = 0, 1
     while index < count:
         handle = client.call(SCHEMA["ParamList"].type(index))
@@ -426,7 +426,8 @@ def list_params(client, console: Console) -> bool:
             return False
         reply = handle.reply
         count = reply.count
-        console.line(f"  {reply.name:<16} {reply.value:>12.6g}   [{reply.min:g} .. {reply.max:g}]")
+        console.line(f"  {reply.name:<16} {reply.value:>12.6g} {reply.unit:<10} [{reply.min:g} .. {reply.max:g}]  "
+                     f"{reply.description}")
         index += 1
     return True
 
