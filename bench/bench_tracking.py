@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from hil_sim.arm import gripper_position_m
 from host_tools.apps import pick_place
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import MESSAGES as M
+from protocol.messages import MESSAGES as M, started_motions
 from protocol.reasons import Reason
 from protocol.states import Axis, MotionOutcome
 
@@ -169,9 +169,7 @@ class Tracker:
             self._call(M["ParamSet"]("gravity_m_s2", 0.0), "set gravity_m_s2 0 (orbit)")
         self._call(M["Enable"](), "enable")
         start = self.bench.clock.now()
-        self._call(M["Home"](int(Axis.ALL)), "home all")
-        channels = self.controller.arm.channels
-        started = {int(a): channels[int(a)].motion_id for a in Axis if a is not Axis.ALL}
+        started = started_motions(self._call(M["Home"](int(Axis.ALL)), "home all"))
         self._check_done(self._wait(started, "home all"), "home all")
         homing_s = self.bench.clock.now() - start
         started = {}

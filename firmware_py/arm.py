@@ -27,7 +27,7 @@ Units: the protocol speaks degrees (gripper: millimetres); inside it is radians 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 from protocol.reasons import Reason
@@ -35,12 +35,29 @@ from protocol.states import ARM_CHANNELS, AxisMode, Fault, FaultCause, MotionOut
 
 from firmware_py import arm_config
 from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
-from firmware_py.axis import Axis, AxisError, Refusal
+from firmware_py.axis import Axis, AxisError, LimitBreach, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamStore
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
+# The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
+LIMIT_PARAMETER = {"min": "{axis}_min_deg", "max": "{axis}_max_deg", "speed": "{axis}_speed_dps",
+                   "acceleration": "{axis}_acc_dps2"}
+
+
+@dataclass(frozen=True)
+class MotionStart:
+    """What a motion command did: the reason (OK: started), a detail for people, the motions it started
+    (axis index -> motion id), and, refused for a limit, the parameter that sets it, its value in the
+    parameter's unit and what the command asked in the same unit."""
+
+    reason: Reason
+    detail: str = ""
+    started: dict[int, int] = field(default_factory=dict)
+    limit: str = ""
+    limit_value: float = 0.0
+    asked: float = 0.0
 
 # AxisError bit -> (controller fault bit, reason), in priority order (the first match names the cause)
 AXIS_FAULTS: tuple[tuple[AxisError, Fault, Reason], ...] = (
@@ -177,49 +194,57 @@ class ArmController:
         for channel in self.channels:
             channel.stop(now)
 
-    # ---- per-axis commands: (reason, motion_id); degrees in ----
-    def move(self, index: int, target_deg: float, speed_dps: float, relative: bool, now: float
-             ) -> tuple[Reason, str, int]:
+    # ---- per-axis commands: degrees in, a MotionStart out ----
+    def move(self, index: int, target_deg: float, speed_dps: float, relative: bool, now: float) -> MotionStart:
         axis = self._joint(index)
         if axis is None:
-            return Reason.OUT_OF_RANGE, "the gripper opens and closes with Grip", 0
+            return MotionStart(Reason.OUT_OF_RANGE, "the gripper opens and closes with Grip")
         speed = math.radians(speed_dps) if speed_dps > 0 else None
         if relative:
             refusal, detail = axis.move_by(math.radians(target_deg), now, speed)
         else:
             refusal, detail = axis.move_to(math.radians(target_deg), now, speed)
-        return REFUSAL_REASON[refusal], detail, axis.motion_id
+        return self._started(index, axis, refusal, detail)
 
-    def jog(self, index: int, speed_dps: float, now: float) -> tuple[Reason, str, int]:
+    def jog(self, index: int, speed_dps: float, now: float) -> MotionStart:
         axis = self._joint(index)
         if axis is None:
-            return Reason.OUT_OF_RANGE, "the gripper opens and closes with Grip", 0
+            return MotionStart(Reason.OUT_OF_RANGE, "the gripper opens and closes with Grip")
         refusal, detail = axis.jog(math.radians(speed_dps), now)
-        return REFUSAL_REASON[refusal], detail, axis.motion_id
+        return self._started(index, axis, refusal, detail)
 
-    def home(self, index: int, now: float) -> tuple[Reason, str, int]:
-        if index == GRIPPER_INDEX:
-            refusal, detail = self.gripper.open(now)
-            return REFUSAL_REASON[refusal], detail, self.gripper.motion_id
-        axis = self._joint(index)
-        refusal, detail = axis.home(now)
-        return REFUSAL_REASON[refusal], detail, axis.motion_id
+    def home(self, index: int, now: float) -> MotionStart:
+        channel = self.channels[index]
+        refusal, detail = channel.open(now) if index == GRIPPER_INDEX else channel.home(now)
+        return self._started(index, channel, refusal, detail)
 
-    def home_all(self, now: float) -> tuple[Reason, str, int]:
-        """Home every axis at once; refused (nothing starts) if any one would refuse."""
+    def home_all(self, now: float) -> MotionStart:
+        """Home every axis at once (the gripper opens); refused (nothing starts) if any one would refuse."""
         for channel in self.channels:
             if channel.mode in (AxisMode.IDLE, AxisMode.FAULT, AxisMode.HOMING):
                 refusal = {AxisMode.IDLE: Refusal.NOT_ENABLED, AxisMode.FAULT: Refusal.FAULT}.get(
                     channel.mode, Refusal.BUSY)
                 name = ARM_CHANNELS[self.channels.index(channel)]
-                return REFUSAL_REASON[refusal], f"{name}: {refusal.name.lower()}", 0
+                return MotionStart(REFUSAL_REASON[refusal], f"{name}: {refusal.name.lower()}")
+        started: dict[int, int] = {}
         for index in range(len(self.channels)):
-            self.home(index, now)
-        return Reason.OK, "", 0
+            started.update(self.home(index, now).started)
+        return MotionStart(Reason.OK, started=started)
 
-    def grip(self, close: bool, now: float) -> tuple[Reason, str, int]:
+    def grip(self, close: bool, now: float) -> MotionStart:
         refusal, detail = (self.gripper.close if close else self.gripper.open)(now)
-        return REFUSAL_REASON[refusal], detail, self.gripper.motion_id
+        return self._started(GRIPPER_INDEX, self.gripper, refusal, detail)
+
+    def _started(self, index: int, channel, refusal: Refusal, detail: str) -> MotionStart:
+        """The MotionStart of one channel's command: its new motion, or the refusal with the limit it broke."""
+        if refusal is Refusal.OK:
+            return MotionStart(Reason.OK, detail, {index: channel.motion_id})
+        breach: Optional[LimitBreach] = getattr(channel, "breach", None)
+        if breach is None:
+            return MotionStart(REFUSAL_REASON[refusal], detail)
+        parameter = LIMIT_PARAMETER[breach.limit].format(axis=ARM_CHANNELS[index])
+        return MotionStart(REFUSAL_REASON[refusal], detail, limit=parameter, limit_value=self.params[parameter],
+                           asked=math.degrees(breach.asked))
 
     def _joint(self, index: int) -> Optional[Axis]:
         return None if index == GRIPPER_INDEX else self.channels[index]

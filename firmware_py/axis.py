@@ -117,6 +117,16 @@ class Debounce:
 
 
 @dataclass(frozen=True)
+class LimitBreach:
+    """Which of the axis's limits a refused move or jog went beyond, in radians: `limit` is "min" or "max"
+    (the soft limits), "speed" or "acceleration"; `asked` is what the command asked (the target, the speed)."""
+
+    limit: str
+    limit_value: float
+    asked: float
+
+
+@dataclass(frozen=True)
 class AxisConfig:
     """One axis's gains and limits, checked when built. Angles and speeds are joint-side."""
 
@@ -264,6 +274,7 @@ class Axis:
         self.vel_sp_rad_s = 0.0
         self.outcome = MotionOutcome.NONE
         self.motion_id = 0
+        self.breach: Optional[LimitBreach] = None    # the limit the last refused move or jog went beyond
         self.duty_requested = 0.0        # before the current limit and saturation
         self._err = 0
         self._profile: Optional[Profile] = None
@@ -382,16 +393,21 @@ class Axis:
     def jog(self, vel_rad_s: float, now: float, acc_rad_s2: Optional[float] = None) -> tuple[Refusal, str]:
         """Constant velocity until `stop` (or a soft limit, when homed)."""
         c = self.config
+        self.breach = None
         refusal = self._check_active()
         if refusal[0] is not Refusal.OK:
             return refusal
         acc = acc_rad_s2 or c.acc_limit_rad_s2
         if not (math.isfinite(vel_rad_s) and abs(vel_rad_s) <= c.vel_limit_rad_s and 0 < acc <= c.acc_limit_rad_s2):
+            if math.isfinite(vel_rad_s) and abs(vel_rad_s) > c.vel_limit_rad_s:
+                self.breach = LimitBreach("speed", c.vel_limit_rad_s, abs(vel_rad_s))
             return Refusal.BAD_VALUE, (f"{c.name}: jog speed {vel_rad_s} rad/s or acceleration {acc} rad/s^2 outside "
                                        f"the limits {c.vel_limit_rad_s} rad/s, {c.acc_limit_rad_s2} rad/s^2")
         if self._limits_on():
             pos, margin = self._setpoint(now)[0], c.in_position_rad   # a jog stops within a tick of a limit
             if (vel_rad_s > 0 and pos >= self._hi_rad - margin) or (vel_rad_s < 0 and pos <= self._lo_rad + margin):
+                self.breach = (LimitBreach("max", self._hi_rad, pos) if vel_rad_s > 0
+                               else LimitBreach("min", self._lo_rad, pos))
                 return Refusal.SOFT_LIMIT, f"{c.name}: at the soft limit; jog the other way"
         p, v, _ = self._setpoint(now)
         self._start(profiles.jog(p, vel_rad_s, acc, v), AxisMode.JOGGING, math.nan, now)
@@ -652,6 +668,7 @@ class Axis:
     def _check_move(self, target_rad: float, vel_rad_s: Optional[float], acc_rad_s2: Optional[float],
                     absolute: bool) -> tuple[Refusal, str]:
         c = self.config
+        self.breach = None
         refusal = self._check_active()
         if refusal[0] is not Refusal.OK:
             return refusal
@@ -660,12 +677,15 @@ class Axis:
         for value, limit, what in ((vel_rad_s, c.vel_limit_rad_s, "speed [rad/s]"),
                                    (acc_rad_s2, c.acc_limit_rad_s2, "acceleration [rad/s^2]")):
             if value is not None and not (math.isfinite(value) and 0 < value <= limit):
+                if math.isfinite(value) and value > limit:
+                    self.breach = LimitBreach(what.split()[0], limit, value)
                 return Refusal.BAD_VALUE, f"{c.name}: {what} {value} outside (0, {limit}]"
         if absolute and not self._limits_on():
             return Refusal.NOT_HOMED, f"{c.name}: not homed; home first (relative moves and jogs are allowed)"
         if self._limits_on() and not c.soft_min_rad <= target_rad <= c.soft_max_rad:
             side = "max" if target_rad > c.soft_max_rad else "min"
             limit = c.soft_max_rad if side == "max" else c.soft_min_rad
+            self.breach = LimitBreach(side, limit, target_rad)
             return Refusal.SOFT_LIMIT, (f"{c.name}: target {target_rad:.4f} rad is beyond the soft limit "
                                         f"{side} {limit:.4f} rad")
         return Refusal.OK, ""

@@ -40,13 +40,13 @@ from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
-from protocol.states import Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
+from protocol.states import ARM_AXES, Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
 from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 
 from firmware_py import arm_config
 from firmware_py import tracker as tracker_config
-from firmware_py.arm import ArmController, Measured
+from firmware_py.arm import ArmController, Measured, MotionStart
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
@@ -466,9 +466,9 @@ class Controller:
     def _param_value(self, reason: Reason, name: str) -> Message:
         spec = self.params.specs.get(name)
         if spec is None:
-            return M["ParamValue"](int(reason), name, 0.0, 0.0, 0.0, 0, len(self.params.order))
+            return M["ParamValue"](int(reason), name, 0.0, 0.0, 0.0, 0, len(self.params.order), "", "")
         return M["ParamValue"](int(reason), name, self.params[name], spec.lo, spec.hi,
-                               self.params.order.index(name), len(self.params.order))
+                               self.params.order.index(name), len(self.params.order), spec.unit, spec.doc)
 
     @handles("ParamGet")
     def _param_get(self, msg: Message, now: float) -> Message:
@@ -543,14 +543,18 @@ class Controller:
         return {ControllerState.ESTOP: Reason.ESTOP, ControllerState.FAULT: Reason.FAULT_LATCHED}.get(
             state, Reason.NOT_ALLOWED_IN_STATE)
 
-    def _accepted(self, axis: int, outcome: tuple[Reason, str, int]) -> Message:
-        reason, _detail, motion_id = outcome
-        return M["MotionAccepted"](int(reason), axis, motion_id & 0xFFFFFFFF if reason is Reason.OK else 0)
+    def _accepted(self, axis: int, start: MotionStart) -> Message:
+        """MotionAccepted for `start`: every motion it started (by axis), or the refusal and the limit it broke."""
+        reply = M["MotionAccepted"]
+        ids = [start.started.get(int(a), 0) & 0xFFFFFFFF for a in ARM_AXES]
+        motion_id = start.started.get(axis, 0) & 0xFFFFFFFF
+        return reply(int(start.reason), axis, motion_id, *ids, start.limit, _finite(start.limit_value),
+                     _finite(start.asked))
 
-    def _joint_motion(self, msg: Message, start: Callable[[], tuple[Reason, str, int]]) -> Message:
+    def _joint_motion(self, msg: Message, start: Callable[[], MotionStart]) -> Message:
         refusal = self._motion_refusal()
         if refusal is not None or msg.axis == Axis.ALL:
-            return M["MotionAccepted"](int(refusal or Reason.OUT_OF_RANGE), msg.axis, 0)
+            return self._accepted(msg.axis, MotionStart(refusal or Reason.OUT_OF_RANGE))
         return self._accepted(msg.axis, start())
 
     @handles("Move")
@@ -569,7 +573,7 @@ class Controller:
     def _home(self, msg: Message, now: float) -> Message:
         refusal = self._motion_refusal()
         if refusal is not None:
-            return M["MotionAccepted"](int(refusal), msg.axis, 0)
+            return self._accepted(msg.axis, MotionStart(refusal))
         if msg.axis == Axis.ALL:
             return self._accepted(msg.axis, self.arm.home_all(now))
         return self._accepted(msg.axis, self.arm.home(msg.axis, now))
@@ -578,7 +582,7 @@ class Controller:
     def _grip(self, msg: Message, now: float) -> Message:
         refusal = self._motion_refusal()
         if refusal is not None:
-            return M["MotionAccepted"](int(refusal), int(Axis.GRIPPER), 0)
+            return self._accepted(int(Axis.GRIPPER), MotionStart(refusal))
         return self._accepted(int(Axis.GRIPPER), self.arm.grip(msg.action == GripAction.CLOSE, now))
 
 

@@ -19,10 +19,13 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from protocol import files
+from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 
 FILE_VERSION = 1
 PARAMS_FILE_LIMIT = 256 * files.KIB   # a saved set is a few KiB; a file far larger is not a parameter file
+# What ParamValue carries of a parameter (protocol/messages.py): a declaration must fit, never be cut on the wire.
+_ON_THE_WIRE = {f.name: f for f in SCHEMA["ParamValue"].fields}
 
 
 @dataclass(frozen=True)
@@ -37,8 +40,11 @@ class ParamSpec:
     def __post_init__(self) -> None:
         if not self.lo <= self.default <= self.hi:
             raise ValueError(f"parameter {self.name}: default {self.default} outside {self.lo}..{self.hi}")
-        if len(self.name) > 16:
-            raise ValueError(f"parameter {self.name}: names are at most 16 characters on the wire")
+        for what, text in (("name", self.name), ("unit", self.unit), ("description", self.doc)):
+            wire = _ON_THE_WIRE[what]
+            problem = wire.check(text)
+            if problem is not None:
+                raise ValueError(f"parameter {self.name}: {problem} (ParamValue.{what} is {wire.type})")
 
 
 class ParamStore:

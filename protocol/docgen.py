@@ -13,6 +13,7 @@ from protocol.host_link import SENT_TAGS
 from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
+from protocol.reliable import NOTHING_RECEIVED_ACK, REPLY_CACHE_SIZE, SEQ_MOD
 from protocol.schema import MsgClass
 from protocol.states import FAULT_DOCS, ControllerState
 
@@ -148,6 +149,55 @@ the controller flood the line. Refusals of authenticated frames are always answe
 No input resets or stops the controller.
 """
 
+RULES = f"""## Refusals, sequence numbers and limits, exactly
+
+Written by hand from the code it cites; the numbers come from the constants named.
+
+**A refusal comes as the command's reply or as a link `Nak`.** A command that reaches its handler is
+answered with its declared reply (`Result`, `MotionAccepted`, `ParamValue`, `BoxState`, ...) whose
+`result` is the reason: the controller's state (`NOT_ALLOWED_IN_STATE`, `ESTOP`, `FAULT_LATCHED`), a
+limit (`SOFT_LIMIT`, `OUT_OF_RANGE`, `NOT_HOMED`, `BUSY`, `UNKNOWN_PARAM`, `DIAL_NOT_LOW`, ...). A
+command whose payload does not decode (a field outside its type, range or enumeration) never reaches
+a handler and is answered with `Result` and the decoder's reason (`OUT_OF_RANGE`, `BAD_LENGTH`, ...)
+(`protocol/controller_link.py` `_handle`). A frame refused before that is answered with a `Nak`:
+`UNKNOWN_MESSAGE` (no such id) and `WRONG_DIRECTION` (an id not sent in this class or direction)
+(`protocol/link.py` `_receive`); `SEQUENCE_GAP` (a command numbered beyond the next expected, once per
+expected value) and `REPLAY` (a duplicate older than the reply cache) (`controller_link.py` `_handle`);
+`UNAUTHENTICATED`, `BAD_MAC` and `NO_SESSION` (at most {LinkConfig.nak_rate_per_s:.0f} a second). A
+bad CRC or COBS and a replayed counter are never answered.
+
+**Only a reply uses up a sequence number.** A command answered with its reply, refused or not, is
+executed-and-answered: the receiver's next expected number moves on by one
+(`protocol/reliable.py` `ReliableReceiver.accept`) and a resend of it gets the same reply from the
+cache, never a second execution. A command refused with a `Nak` leaves the expected number where it
+was: the host sends that number again (for `SEQUENCE_GAP`, from `expected_seq`).
+
+**The speed limit of `Move`, `MoveBy` and `Jog`** is the axis's `<axis>_speed_dps` parameter (j1 to j4
+and mount: 0.1 to 30 deg/s, default the report's 3 deg/s; `firmware_py/arm_config.py`
+`parameter_table`), not the field's range of 0..360, which only bounds what decodes. A faster command is
+refused `OUT_OF_RANGE`, and its `MotionAccepted` says so: `limit` = `<axis>_speed_dps`, `limit_value`
+its value, `asked` the speed asked (`firmware_py/axis.py` `_check_move`, `jog`). A speed of 0 means that
+parameter's value. A target beyond a soft limit is refused `SOFT_LIMIT` with `limit` =
+`<axis>_min_deg` or `<axis>_max_deg`.
+
+**The ack before any event** (or, from the controller, before any command) is
+{NOTHING_RECEIVED_ACK} (`protocol/reliable.py` `NOTHING_RECEIVED_ACK`, one before sequence number 0
+modulo {SEQ_MOD}): the `ack` field always carries the last number received in order.
+
+**What restarts per session.** Command, urgent and event sequence numbers all start at 0 in every
+session, on both ends (`_new_channels` in `protocol/host_link.py` and `protocol/controller_link.py`),
+and the reply caches are emptied with them; the authentication counters start again too (new keys).
+Telemetry sequence numbers do not: they count on for the life of the link endpoint (`protocol/link.py`
+`send_telemetry`), so a gap in them is lost telemetry whatever the sessions did.
+
+**How far back duplicates are answered.** Each receiver keeps the replies to its last
+{REPLY_CACHE_SIZE} sequence numbers (`protocol/reliable.py` `REPLY_CACHE_SIZE`). A duplicate command
+(or event) among those is answered with the cached reply; an older one with `Nak(REPLAY)` (counted as
+a stale duplicate), never executed. Urgent requests are unordered: the last {REPLY_CACHE_SIZE} numbers
+seen are remembered with their replies, and a number not among them is taken as new. The sender's
+window ({LinkConfig.window} in flight, at most {REPLY_CACHE_SIZE}) keeps every resend within the cache.
+"""
+
 LINE_TIMING = """## Line timing
 
 The controller's serial side emulates the wire time of an 8N1 line (10 bits a byte) at
@@ -175,8 +225,13 @@ def _fields_table(spec) -> list[str]:
     return rows + [""]
 
 
+def field_enums() -> set:
+    """Every enumeration a field of a declared message uses."""
+    return {f.enum for s in SCHEMA.by_id.values() for f in s.fields if f.enum is not None}
+
+
 def render() -> str:
-    out = [INTRO, LINE_TIMING, "## Messages", "", FIELD_TYPES]
+    out = [INTRO, RULES, LINE_TIMING, "## Messages", "", FIELD_TYPES]
     out += ["| id | message | class | direction | reply | teleop | meaning |", "|---|---|---|---|---|---|---|"]
     specs = sorted(SCHEMA.by_id.values(), key=lambda s: s.id)
     for s in specs:
@@ -196,8 +251,7 @@ def render() -> str:
             "while a fault's cause is still present.", "", "| bit | fault | meaning | remedy |", "|---|---|---|---|"]
     out += [f"| `{int(f):#06x}` | `{f.name}` | {doc} | {remedy} |" for f, (doc, remedy) in FAULT_DOCS.items()]
     out += ["", "## Enumerations", "", "The values of every other field declared `one of` an enumeration.", ""]
-    enums = {f.enum for s in specs for f in s.fields if f.enum is not None} - {Reason, ControllerState}
-    for enum_type in sorted(enums, key=lambda e: e.__name__):
+    for enum_type in sorted(field_enums() - {Reason, ControllerState}, key=lambda e: e.__name__):
         out += [f"### {enum_type.__name__}", "", "| value | name |", "|---|---|"]
         out += [f"| {int(member)} | `{member.name}` |" for member in enum_type] + [""]
     return "\n".join(out).rstrip("\n") + "\n"

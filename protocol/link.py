@@ -28,6 +28,7 @@ from protocol import auth
 from protocol.errors import ParseError
 from protocol.framing import COUNTER_MAX, Frame, FrameReceiver, encode_signed
 from protocol.messages import SCHEMA
+from protocol.reliable import REPLY_CACHE_SIZE
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass, Schema
 
@@ -62,7 +63,7 @@ class LinkConfig:
             (0.01 <= self.heartbeat_s <= 60, "heartbeat_s must be within 0.01..60 s"),
             (0.05 <= self.link_timeout_s <= 3600, "link_timeout_s must be within 0.05..3600 s"),
             (self.link_timeout_s > self.heartbeat_s, "link_timeout_s must exceed heartbeat_s"),
-            (1 <= self.window <= 64, "window must be within 1..64"),
+            (1 <= self.window <= REPLY_CACHE_SIZE, f"window must be within 1..{REPLY_CACHE_SIZE} (the reply cache)"),
             (1 <= self.retry_limit <= 100, "retry_limit must be within 1..100"),
             (0 < self.min_rto_s <= self.initial_rto_s <= self.max_rto_s, "need 0 < min_rto <= initial_rto <= max_rto"),
             (1 <= self.hello_tries <= 100, "hello_tries must be within 1..100"),

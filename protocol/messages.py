@@ -75,6 +75,13 @@ _JOINT_FIELDS = tuple(
     )
 )
 
+# The motions a motion command started, by axis: MotionDone carries the same ids.
+_STARTED_IDS = tuple(
+    Field(f"{a.name.lower()}_motion_id", "u32", f"the motion this command started on {a.name.lower()} (0: none)")
+    for a in ARM_AXES
+)
+
+
 def _tracker_axis(doc: str = "which axis: az, el or both (default)") -> Field:
     return Field("axis", "u8", doc, enum=TrackerAxis, default=int(TrackerAxis.BOTH))
 
@@ -246,14 +253,17 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("temp_c", "f32", "controller temperature", "degC"),
                  Field("commands_executed", "u32", "commands executed since boot"),
                  Field("telemetry_hz", "u16", "telemetry rate", "Hz")) + _TIMING + (_RTF_TOTAL,)),
-    MessageSpec("ParamValue", 0x83, MsgClass.COMMAND, C, "Answers ParamGet, ParamSet and ParamList.",
+    MessageSpec("ParamValue", 0x83, MsgClass.COMMAND, C,
+                "Answers ParamGet, ParamSet and ParamList: the parameter with its range, unit and description.",
                 (_result(),
                  Field("name", "str16", "parameter name"),
                  Field("value", "f32", "value now in force"),
                  Field("min", "f32", "lowest allowed value"),
                  Field("max", "f32", "highest allowed value"),
                  Field("index", "u16", "position in the parameter table"),
-                 Field("count", "u16", "number of parameters"))),
+                 Field("count", "u16", "number of parameters"),
+                 Field("unit", "text12", "the value's unit (empty: none)"),
+                 Field("description", "text160", "what the parameter does"))),
     MessageSpec("ParamSaved", 0x86, MsgClass.COMMAND, C,
                 "Answers ParamSave: OK and the file written, or SAVE_FAILED and why not, in the operating system's "
                 "words (the previous file is intact).",
@@ -265,10 +275,18 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 "as it now stands (unchanged after a refusal).",
                 (_result(),) + _BOX_FIELDS),
     MessageSpec("MotionAccepted", 0x84, MsgClass.COMMAND, C,
-                "Answers Move, MoveBy, Jog, Home and Grip: OK and the motion's id, or the reason it was refused "
-                "(nothing moved).",
+                "Answers Move, MoveBy, Jog, Home and Grip: OK and the id of every motion the command started (one per "
+                "axis for `home all`), or the reason it was refused (nothing moved) and, refused for a limit, which "
+                "parameter sets that limit, its value and the value asked.",
                 (_result(), _axis("the axis (all for `home all`)"),
-                 Field("motion_id", "u32", "this motion's number on its axis; MotionDone carries it"))),
+                 Field("motion_id", "u32", "this motion's number on its axis; MotionDone carries it (0 for `home "
+                       "all` and when refused)"))
+                + _STARTED_IDS
+                + (Field("limit", "str16", "refused for a limit (SOFT_LIMIT, or OUT_OF_RANGE for a speed): the "
+                         "parameter that sets it, as ParamGet names it (empty otherwise)"),
+                   Field("limit_value", "f32", "that parameter's value, in its unit (deg, deg/s, deg/s^2)"),
+                   Field("asked", "f32", "what the command asked, in the same unit (for MoveBy the target it "
+                         "computed: the present target plus the distance)"))),
     # ---- telemetry (unreliable) ----
     MessageSpec("TelemetryStatus", 0x30, MsgClass.TELEMETRY, C,
                 "Periodic state, sensors, link and loop timing, and how the controller's time keeps up with the wall "
@@ -372,3 +390,11 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
 # attributes of this module (`from protocol.messages import Ping`).
 MESSAGES: dict[str, type] = {name: spec.type for name, spec in SCHEMA.by_name.items()}
 globals().update(MESSAGES)
+
+
+def started_motions(reply) -> dict[int, int]:
+    """The motions a MotionAccepted says its command started: axis -> motion id (empty if refused)."""
+    if reply.spec.name != "MotionAccepted":
+        raise TypeError(f"{reply.spec.name} is not a MotionAccepted")
+    ids = {int(a): getattr(reply, f.name) for a, f in zip(ARM_AXES, _STARTED_IDS)}
+    return {axis: motion_id for axis, motion_id in ids.items() if motion_id}

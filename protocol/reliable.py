@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 SEQ_MOD = 1 << 16
+REPLY_CACHE_SIZE = 64       # a receiver answers a duplicate of any of its last this many sequence numbers
+NOTHING_RECEIVED_ACK = SEQ_MOD - 1   # the ack (last in-order sequence number) before anything arrived: 0 - 1
 
 
 def seq_delta(a: int, b: int) -> int:
@@ -193,7 +195,7 @@ class Verdict(enum.Enum):
 class ReliableReceiver:
     """Accepts each sequence number once, in order; caches the replies for duplicates."""
 
-    cache_size: int = 64
+    cache_size: int = REPLY_CACHE_SIZE
     in_order: bool = True
     expected: int = 0
     _replies: "OrderedDict[int, Any]" = field(default_factory=OrderedDict)
@@ -233,4 +235,5 @@ class ReliableReceiver:
 
     @property
     def last_in_order(self) -> int:
+        """The ack to send: the last sequence number accepted in order (NOTHING_RECEIVED_ACK before any)."""
         return (self.expected - 1) % SEQ_MOD

@@ -76,10 +76,31 @@ def test_absolute_moves_need_homing_then_respect_soft_limits(bench):
     beyond = bench.call(M["Move"](int(Axis.J1), 88.0, 0))
     assert beyond.reason is Reason.SOFT_LIMIT and beyond.reply.motion_id == 0
     assert "soft limit" in Reason.SOFT_LIMIT.doc
-    assert bench.call(M["Move"](int(Axis.J1), 4.0, 6.0)).reason is Reason.OUT_OF_RANGE   # above j1_speed_dps
+    # the refusal names the limit's parameter, its value and what was asked
+    j1_max = bench.call(M["ParamGet"]("j1_max_deg")).reply.value
+    assert (beyond.reply.limit, beyond.reply.asked) == ("j1_max_deg", pytest.approx(88.0))
+    assert beyond.reply.limit_value == pytest.approx(j1_max) and j1_max < 88.0
+    too_fast = bench.call(M["Move"](int(Axis.J1), 4.0, 6.0))
+    assert too_fast.reason is Reason.OUT_OF_RANGE      # above j1_speed_dps, though the field allows 0..360
+    assert (too_fast.reply.limit, too_fast.reply.asked) == ("j1_speed_dps", pytest.approx(6.0))
+    assert too_fast.reply.limit_value == pytest.approx(bench.call(M["ParamGet"]("j1_speed_dps")).reply.value)
+    not_a_limit = bench.call(M["Move"](int(Axis.GRIPPER), 4.0, 0))
+    assert not_a_limit.reason is Reason.OUT_OF_RANGE and not_a_limit.reply.limit == ""
     event = run_motion(bench, M["Move"](int(Axis.J1), 4.0, 2.0))
     assert event.outcome == MotionOutcome.DONE
     assert true_deg(bench, Axis.J1) == pytest.approx(4.0, abs=0.02)
+
+
+def test_home_all_answers_with_the_id_of_every_motion_it_started(bench):
+    handle = bench.call(M["Home"](int(Axis.ALL)))
+    assert handle.ok and handle.reply.axis == Axis.ALL and handle.reply.motion_id == 0
+    started = {a: getattr(handle.reply, f"{a.name.lower()}_motion_id") for a in Axis if a is not Axis.ALL}
+    assert all(started.values()), started
+    assert bench.wait_until(lambda: all(motion_done(bench, a, i) for a, i in started.items()), 60.0)
+    assert all(motion_done(bench, a, i).outcome == MotionOutcome.DONE for a, i in started.items())
+    # a single-axis command names its one motion in its axis's field too, and no other
+    moved = bench.call(M["MoveBy"](int(Axis.J2), 1.0, 0)).reply
+    assert moved.j2_motion_id == moved.motion_id == started[Axis.J2] + 1 and moved.j1_motion_id == 0
 
 
 def test_motion_is_refused_unless_enabled():

@@ -19,15 +19,17 @@ from pathlib import Path
 
 import pytest
 
+from host_tools.client.bench import BenchClient
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK
 from host_tools.teleop.session import run_script
 from host_tools.teleop.motion import MotionTracker
 from host_tools.teleop.words import parse_line
+from host_tools.worlds.world import LockstepBench
 from protocol import auth
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
-from protocol.states import Axis, AxisMode, MotionOutcome
+from protocol.states import ARM_AXES, Axis, AxisMode, MotionOutcome
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 AXES = ("j1", "j2", "j3", "j4", "gripper", "mount")
@@ -83,48 +85,127 @@ class ArmSim:
 
 # ---- the motion tracker, without a link ----
 def accepted(axis: Axis, motion_id: int):
-    return SCHEMA["MotionAccepted"].type(0, int(axis), motion_id)
+    """A MotionAccepted for `axis` (`all`: every axis, each with `motion_id`)."""
+    ids = [motion_id if axis in (a, Axis.ALL) else 0 for a in ARM_AXES]
+    return SCHEMA["MotionAccepted"].type(0, int(axis), 0 if axis is Axis.ALL else motion_id, *ids, "", 0.0, 0.0)
 
 
 def done(axis: Axis, motion_id: int, outcome=MotionOutcome.DONE, reason=Reason.OK, uptime_ms: int = 1000):
     return SCHEMA["MotionDone"].type(int(axis), motion_id, int(outcome), int(reason), 1.0, uptime_ms)
 
 
-def test_home_all_ends_are_matched_per_axis_and_older_ends_are_not_taken_for_them():
+def test_home_all_ends_are_matched_per_axis_by_the_ids_its_reply_names():
     tracker = MotionTracker()
     tracker.on_done(done(Axis.J1, 4, uptime_ms=100), 0.0)        # an end held over from an earlier session
-    tracker.note_uptime(500)
-    before = tracker.sending()
-    motions, replaced, held = tracker.started(parse_line("home all", 3), accepted(Axis.ALL, 0), before, 1.0)
-    assert [m.label for m in motions] == ["j1#?", "j2#?", "j3#?", "j4#?", "gripper#?", "mount#?"]
+    tracker.sending()
+    motions, replaced, held = tracker.started(parse_line("home all", 3), accepted(Axis.ALL, 5), 1.0)
+    assert [m.label for m in motions] == ["j1#5", "j2#5", "j3#5", "j4#5", "gripper#5", "mount#5"]
     assert replaced == [] and held == []
-    mine, _, show = tracker.on_done(done(Axis.J1, 4, uptime_ms=600), 2.0)   # not above the id seen before
+    mine, _, show = tracker.on_done(done(Axis.J1, 4, uptime_ms=600), 2.0)   # not the id the reply named
     assert mine is None and show
     mine, _, _ = tracker.on_done(done(Axis.J1, 5, uptime_ms=700), 3.0)
-    assert mine is motions[0] and mine.label == "j1#5" and mine.ok
+    assert mine is motions[0] and mine.ok
     assert len(tracker.running()) == 5 and tracker.running(int(Axis.J1)) == []
 
 
 def test_an_end_that_comes_before_its_reply_is_held_then_claimed():
     tracker = MotionTracker()
-    before = tracker.sending()
+    tracker.sending()
     mine, _, show = tracker.on_done(done(Axis.GRIPPER, 2), 1.0)
     assert mine is None and not show                              # held: the reply may name it
-    motions, _, held = tracker.started(parse_line("grip open", 1), accepted(Axis.GRIPPER, 2), before, 1.1)
+    motions, _, held = tracker.started(parse_line("grip open", 1), accepted(Axis.GRIPPER, 2), 1.1)
     assert held == [(held[0][0], motions[0])] and not motions[0].running
+
+
+def start(tracker: MotionTracker, line: str, line_no: int, reply, now: float):
+    tracker.sending()
+    return tracker.started(parse_line(line, line_no), reply, now)
 
 
 def test_a_replaced_motion_is_not_waited_for_and_a_failed_end_is_counted_once():
     tracker = MotionTracker()
-    first, _, _ = tracker.started(parse_line("moveby j1 5", 1), accepted(Axis.J1, 2), tracker.sending(), 0.0)
-    second, replaced, _ = tracker.started(parse_line("moveby j1 1", 2), accepted(Axis.J1, 3), tracker.sending(), 0.5)
+    first, _, _ = start(tracker, "moveby j1 5", 1, accepted(Axis.J1, 2), 0.0)
+    second, replaced, _ = start(tracker, "moveby j1 1", 2, accepted(Axis.J1, 3), 0.5)
     assert replaced == first and first[0].replaced_by == "this moveby j1 1" and tracker.running() == second
+    tracker.on_done(done(Axis.J1, 2, MotionOutcome.SUPERSEDED, Reason.HOST_REQUEST), 0.6)   # expected of it
+    assert first[0].ok and tracker.take_failures() == []
     tracker.on_done(done(Axis.J1, 3, MotionOutcome.DISABLED, Reason.CANCELLED), 1.0)
     assert [m.label for m in tracker.take_failures()] == ["j1#3"] and tracker.take_failures() == []
-    jog, _, _ = tracker.started(parse_line("jog j2 1", 3), accepted(Axis.J2, 1), tracker.sending(), 2.0)
+    jog, _, _ = start(tracker, "jog j2 1", 3, accepted(Axis.J2, 1), 2.0)
     tracker.on_done(done(Axis.J2, 1, MotionOutcome.STOPPED, Reason.HOST_REQUEST), 3.0)
     assert jog[0].ok and tracker.take_failures() == []           # a jog ends STOPPED by `stop`
     assert tracker.counts() == {"started": 3, "done": 1, "failed": 1, "replaced": 1, "running": 0}
+
+
+def test_a_superseded_end_before_the_reply_of_its_replacement_is_expected_too():
+    tracker = MotionTracker()
+    first, _, _ = start(tracker, "moveby j2 5", 1, accepted(Axis.J2, 1), 0.0)
+    tracker.sending()                                             # the second moveby, not answered yet
+    mine, _, _ = tracker.on_done(done(Axis.J2, 1, MotionOutcome.SUPERSEDED, Reason.HOST_REQUEST), 0.1)
+    assert mine is first[0] and mine.ok and mine.superseded
+    tracker.started(parse_line("moveby j2 5", 2), accepted(Axis.J2, 2), 0.2)
+    tracker.on_done(done(Axis.J2, 2), 3.0)
+    assert tracker.take_failures() == []
+    assert tracker.counts() == {"started": 2, "done": 1, "failed": 0, "replaced": 1, "running": 0}
+    # replaced by no command of this session (another host's): a failure
+    lone, _, _ = start(tracker, "moveby j3 1", 3, accepted(Axis.J3, 1), 4.0)
+    tracker.on_done(done(Axis.J3, 1, MotionOutcome.SUPERSEDED, Reason.HOST_REQUEST), 4.5)
+    assert [m.label for m in tracker.take_failures()] == ["j3#1"]
+
+
+# ---- a teleop script on the simulated clock (BenchClient on a LockstepBench) ----
+@pytest.fixture
+def arm_bench():
+    bench = LockstepBench(seed=5)
+    executed: list[str] = []                 # every command the controller executed, by name
+    handler = bench.controller.link._handler
+
+    def counting(msg, urgent, now):
+        executed.append(msg.spec.name)
+        return handler(msg, urgent, now)
+    bench.controller.link._handler = counting
+    yield bench, executed
+    bench.close()
+
+
+def bench_script(bench, script: str) -> tuple[int, str, str, dict[str, int]]:
+    """Run a teleop script: (exit status, output, errors, the session's motion counts)."""
+    client = BenchClient(bench)
+    client.connect()
+    out, err = io.StringIO(), io.StringIO()
+    status, session = run_script(client, script.splitlines(), out, err=err, wall_time=client.wall_time)
+    session.close()
+    return status, out.getvalue(), err.getvalue(), session.tracker.counts()
+
+
+def test_a_motion_replaced_by_a_newer_one_ends_superseded_as_expected_and_the_script_succeeds(arm_bench):
+    bench, _ = arm_bench
+    status, out, err, counts = bench_script(bench, "enable\nmoveby j2 5\nmoveby j2 5\nwait all\n")
+    assert status == EXIT_OK, out + err
+    assert "j2#1 (line 2: moveby j2 5) was replaced by this moveby j2 5; it ends SUPERSEDED, as expected" in out
+    assert re.search(r"^! j2#1 SUPERSEDED at ", out, re.M) and re.search(r"^! j2#2 DONE at ", out, re.M), out
+    assert counts == {"started": 2, "done": 1, "failed": 0, "replaced": 1, "running": 0}
+
+
+def test_home_all_in_a_script_waits_for_every_homing_the_reply_names(arm_bench):
+    bench, _ = arm_bench
+    status, out, err, _ = bench_script(bench, "enable\nhome all\nwait all 60\n")
+    assert status == EXIT_OK, out + err
+    assert "ok   motion all started: one end per axis follows (j1#1, j2#1, j3#1, j4#1, gripper#1, mount#1)" in out
+    assert len(re.findall(r"^! \w+#1 DONE at .*\(line 2: home all", out, re.M)) == 6, out
+    assert "ok   wait all: 6 motion(s) ended" in out
+
+
+def test_a_refused_move_names_the_limit_and_its_value_with_no_parameter_read(arm_bench):
+    bench, executed = arm_bench
+    status, out, err, _ = bench_script(bench, "enable\nhome j1\nwait j1 60\nmove j1 100\n")
+    assert status == EXIT_FAILED, out + err
+    assert "FAIL Move: rejected: SOFT_LIMIT (28)" in out
+    assert "j1: target 100 deg is beyond j1_max_deg = 85 deg (soft limits j1_min_deg .. j1_max_deg)" in out, out
+    status, out, err, _ = bench_script(bench, "move j1 4 20\n")
+    assert status == EXIT_FAILED and "FAIL Move: rejected: OUT_OF_RANGE" in out, out + err
+    assert "j1: speed 20 deg/s is above its highest, j1_speed_dps = 3 deg/s" in out, out
+    assert "ParamGet" not in executed, executed
 
 
 # ---- over a real pty, with `aspod sim` ----
@@ -215,7 +296,7 @@ def test_a_move_beyond_a_soft_limit_is_refused_with_its_reason_and_remedy(sim, t
     assert status == EXIT_FAILED, out + err
     assert "FAIL Move: rejected: SOFT_LIMIT (28)" in out
     assert "the target lies beyond the joint's soft limit" in out and "remedy: choose a target inside the limits" in out
-    assert "j1: target 100 deg, soft limits -55 .. 85 deg (parameters j1_min_deg, j1_max_deg)" in out
+    assert "j1: target 100 deg is beyond j1_max_deg = 85 deg (soft limits j1_min_deg .. j1_max_deg)" in out
     assert "> status" not in out                                  # the script stopped there
     assert "error: line 3: 'move j1 100' failed; stopping" in err
     assert "motion j1#" not in out                                # nothing started
@@ -282,3 +363,13 @@ def test_the_gripper_stops_at_an_estop_too(sim):
     # the shorted armature (dynamic braking) stops the jaws within about 0.4 s
     after = [msg.gripper_pos for now, msg in samples if estop_s + 0.6 <= now <= estop_s + 1.8]
     assert after and max(after) - min(after) < 0.1, after
+
+
+def test_params_shows_every_parameter_with_its_unit_range_and_description(arm_bench):
+    bench, executed = arm_bench
+    status, out, err, _ = bench_script(bench, "params\n")
+    assert status == EXIT_OK, out + err
+    assert re.search(r"^  j1_speed_dps +3 deg/s +\[0\.1 \.\. 30\] +j1 ", out, re.M), out
+    assert re.search(r"^  supply_min_v +22 V +\[0 \.\. 60\] +supply below this is a fault \(nominal 28 V\)$", out,
+                     re.M), out
+    assert executed.count("ParamList") == len(bench.controller.params.order)

@@ -20,7 +20,7 @@ from typing import Optional
 
 import numpy as np
 
-from protocol.messages import MESSAGES as M
+from protocol.messages import MESSAGES as M, started_motions
 from protocol.reasons import Reason
 from protocol.states import Axis, GripAction, MotionOutcome
 from timebase import RealClock
@@ -99,10 +99,9 @@ class PickAndPlace:
             self._call(M["ParamSet"]("gravity_m_s2", 0.0), "set gravity_m_s2 0 (orbit)")
         self._call(M["Enable"](), "enable")
         start = self.bench.clock.now()
-        self._call(M["Home"](int(Axis.ALL)), "home all")
-        # `home all` answers for all axes at once; each axis's MotionDone carries its own id
-        started = {int(a): self.bench.controller.arm.channels[int(a)].motion_id for a in AXIS_BY_NAME.values()}
-        self._wait_motions(started, "home all")
+        # `home all` answers with the id of every axis's homing; each axis's MotionDone carries its own
+        reply = self._call(M["Home"](int(Axis.ALL)), "home all")
+        self._wait_motions(started_motions(reply), "home all")
         self.homing_s = self.bench.clock.now() - start
 
     def run_step(self, step: Step) -> StepResult:

@@ -1,16 +1,11 @@
 """The motions a teleop session started, matched with their MotionDone events.
 
-A motion command (move, moveby, jog, home, grip) answers MotionAccepted with the axis and the
-motion's id; its end comes later as a MotionDone event with the same axis and id. Two cases
-need care:
-
-* `home all` is answered with axis `all` and id 0: each axis then ends its own homing with
-  its own id. Such a motion is matched to the first end on its axis whose id is above every id
-  seen on that axis before the command was sent (and whose uptime is not older than the
-  newest the host had seen), so an older end, even one held over from an earlier session,
-  is not taken for it.
-* A motion that a newer one replaces on the same axis gets no MotionDone from the controller;
-  when the newer one is accepted (or ends), the older is marked replaced, not failed.
+A motion command (move, moveby, jog, home, grip) answers MotionAccepted with the id of every
+motion it started, by axis (`home all`: one per axis); each ends later with a MotionDone event
+with the same axis and id. A motion that a newer command replaces on the same axis ends
+SUPERSEDED: when the newer one is accepted (or ends) the older is marked replaced, and its
+SUPERSEDED, whenever it comes, is the end expected of it, not a failure: the new motion's end
+decides.
 
 The tracker is fed from the link's pump thread (`on_done`) and read from the main thread;
 it has its own lock. Events may arrive before the reply that names their motion, so every
@@ -23,7 +18,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Optional
 
-from protocol.messages import SCHEMA
+from protocol.messages import SCHEMA, started_motions
 from protocol.reasons import Reason, reason_name
 from protocol.schema import Message
 from protocol.states import MotionOutcome
@@ -47,41 +42,42 @@ class Motion:
     """One accepted motion command on one axis, until its end."""
 
     axis: int
-    motion_id: int                 # 0 until known (home all)
+    motion_id: int
     kind: str                      # the request's message name: Move, MoveBy, Jog, Home, Grip
     line_no: int
     text: str
     started_s: float
-    floor_id: int = 0              # id unknown: its end is the first on this axis above this id ...
-    floor_uptime_ms: int = 0       # ... and not older than this controller uptime
     end: Optional[Message] = None  # its MotionDone
     ended_s: Optional[float] = None
-    replaced_by: Optional[str] = None
+    replaced_by: Optional[str] = None    # what replaced it: it ends SUPERSEDED, as expected
     accounted: bool = False        # a failure already counted
 
     @property
     def label(self) -> str:
-        return f"{axis_word(self.axis)}#{self.motion_id or '?'}"
+        return f"{axis_word(self.axis)}#{self.motion_id}"
 
     @property
     def running(self) -> bool:
         return self.end is None and self.replaced_by is None
 
     @property
+    def superseded(self) -> bool:
+        """Replaced by a newer motion of ours on its axis: its SUPERSEDED end (come or still to come) is expected."""
+        return self.replaced_by is not None and (self.end is None or self.end.outcome == MotionOutcome.SUPERSEDED)
+
+    @property
     def ok(self) -> bool:
-        """Ended as asked: DONE (a jog: STOPPED on request, its only normal end)."""
+        """Ended as asked: DONE (a jog: STOPPED on request, its only normal end), or replaced by a newer one."""
+        if self.superseded:
+            return True
         if self.end is None:
-            return self.replaced_by is not None
+            return False
         outcome = self.end.outcome
         return outcome == MotionOutcome.DONE or (self.kind == "Jog" and outcome == MotionOutcome.STOPPED
                                                  and self.end.reason == Reason.HOST_REQUEST)
 
     def matches(self, end: Message) -> bool:
-        if end.axis != self.axis or self.end is not None:
-            return False
-        if self.motion_id:
-            return end.motion_id == self.motion_id
-        return end.motion_id > self.floor_id and end.uptime_ms >= self.floor_uptime_ms
+        return end.axis == self.axis and self.end is None and end.motion_id == self.motion_id
 
 
 class MotionTracker:
@@ -89,24 +85,16 @@ class MotionTracker:
         self._lock = threading.Lock()
         self.motions: list[Motion] = []
         self._ends: deque[tuple[Message, float]] = deque(maxlen=_KEPT_ENDS)
-        self._max_id: dict[int, int] = {}
-        self._uptime_ms = 0
         self._in_flight = 0                       # motion commands sent and not yet answered
         self._held: list[tuple[Message, float]] = []   # unmatched ends that one of those may claim
 
     # ---- pump thread ----
-    def note_uptime(self, uptime_ms: int) -> None:
-        with self._lock:
-            self._uptime_ms = max(self._uptime_ms, uptime_ms)
-
     def on_done(self, end: Message, now: float) -> tuple[Optional[Motion], list[Motion], bool]:
         """Record a MotionDone: (the motion of ours it ends or None, older ones of ours it shows were replaced,
         whether to print it now: an end no motion of ours claims is held while a motion command is
         unanswered, since its reply may name it)."""
         with self._lock:
             self._ends.append((end, now))
-            self._max_id[end.axis] = max(self._max_id.get(end.axis, 0), end.motion_id)
-            self._uptime_ms = max(self._uptime_ms, end.uptime_ms)
             mine = next((m for m in self.motions if m.matches(end)), None)
             if mine is not None:
                 self._finish(mine, end, now)
@@ -117,13 +105,11 @@ class MotionTracker:
             return mine, replaced, True
 
     # ---- main thread ----
-    def sending(self) -> tuple[dict[int, int], int]:
-        """Call before sending a motion command: what the host knows then (for `home all`).
-
-        `started` or `refused` must follow."""
+    def sending(self) -> None:
+        """Call before sending a motion command (ends that come before its reply are held); `started` or
+        `refused` must follow."""
         with self._lock:
             self._in_flight += 1
-            return dict(self._max_id), self._uptime_ms
 
     def refused(self) -> list[tuple[Message, Optional[Motion]]]:
         """The motion command was not accepted; returns the held ends to print now."""
@@ -131,23 +117,18 @@ class MotionTracker:
             self._in_flight -= 1
             return self._release([])
 
-    def started(self, step: Step, reply: Message, before: tuple[dict[int, int], int], now: float
+    def started(self, step: Step, reply: Message, now: float
                 ) -> tuple[list[Motion], list[Motion], list[tuple[Message, Optional[Motion]]]]:
-        """Register the motions an accepted command started: (them, older motions of ours they replaced,
-        held ends to print now, with the motion each ends)."""
-        max_id, uptime_ms = before
+        """Register the motions an accepted command started, as its MotionAccepted names them: (them, older
+        motions of ours they replaced, held ends to print now, with the motion each ends)."""
         kind = step.message.spec.name
         with self._lock:
             self._in_flight -= 1
-            if reply.axis == AXIS_ALL:
-                new = [Motion(int(a), 0, kind, step.line_no, step.text, now, max_id.get(int(a), 0), uptime_ms)
-                       for a in AXES]
-            else:
-                new = [Motion(reply.axis, reply.motion_id, kind, step.line_no, step.text, now)]
-                self._max_id[reply.axis] = max(self._max_id.get(reply.axis, 0), reply.motion_id)
+            new = [Motion(axis, motion_id, kind, step.line_no, step.text, now)
+                   for axis, motion_id in started_motions(reply).items()]
             replaced = []
             for motion in new:
-                replaced += self._replace_older(motion.axis, motion.motion_id or None, "this " + step.text)
+                replaced += self._replace_older(motion.axis, motion.motion_id, "this " + step.text)
             self.motions += new
             for end, at in self._ends:        # ends that came before the reply
                 for motion in new:
@@ -170,9 +151,9 @@ class MotionTracker:
     def counts(self) -> dict[str, int]:
         with self._lock:
             ended = [m for m in self.motions if m.end is not None]
-            return {"started": len(self.motions), "done": sum(m.ok for m in ended),
+            return {"started": len(self.motions), "done": sum(m.ok and not m.superseded for m in ended),
                     "failed": sum(not m.ok for m in ended),
-                    "replaced": sum(m.end is None and m.replaced_by is not None for m in self.motions),
+                    "replaced": sum(m.superseded for m in self.motions),
                     "running": sum(m.running for m in self.motions)}
 
     # ---- helpers (lock held) ----
@@ -189,14 +170,17 @@ class MotionTracker:
         return out
 
     def _finish(self, motion: Motion, end: Message, now: float) -> None:
+        """`end` ends `motion`. A SUPERSEDED that comes before the reply naming its replacement (a motion command
+        is unanswered) is taken as replaced by that command; with none in flight, another host replaced it."""
         motion.end, motion.ended_s = end, now
-        motion.motion_id = motion.motion_id or end.motion_id
-        motion.replaced_by = None
+        if end.outcome != MotionOutcome.SUPERSEDED:
+            motion.replaced_by = None
+        elif motion.replaced_by is None and self._in_flight:
+            motion.replaced_by = "a newer motion command"
 
-    def _replace_older(self, axis: int, newer_id: Optional[int], by: str) -> list[Motion]:
-        """Our running motions on `axis` older than `newer_id` (None: every one) were replaced."""
-        older = [m for m in self.motions if m.running and m.axis == axis
-                 and (newer_id is None or (m.motion_id and m.motion_id < newer_id))]
+    def _replace_older(self, axis: int, newer_id: int, by: str) -> list[Motion]:
+        """Our running motions on `axis` older than `newer_id` were replaced."""
+        older = [m for m in self.motions if m.running and m.axis == axis and m.motion_id < newer_id]
         for motion in older:
             motion.replaced_by = by
         return older
@@ -210,8 +194,7 @@ def position_text(axis: int, position: float) -> str:
 def started_text(motions: list[Motion]) -> str:
     if len(motions) == 1:
         return f"motion {motions[0].label} started"
-    axes = ", ".join(axis_word(m.axis) for m in motions)
-    return f"motion {axis_word(int(AXIS_ALL))} started: one end per axis follows ({axes})"
+    return f"motion {axis_word(int(AXIS_ALL))} started: one end per axis follows ({', '.join(m.label for m in motions)})"
 
 
 def end_lines(end: Message, motion: Optional[Motion]) -> list[str]:
@@ -233,8 +216,20 @@ def end_lines(end: Message, motion: Optional[Motion]) -> list[str]:
 
 
 def replaced_lines(replaced: list[Motion]) -> list[str]:
-    return [f"! {m.label} (line {m.line_no}: {m.text}) was replaced by {m.replaced_by}; "
-            "the controller reports no end for a replaced motion" for m in replaced]
+    return [f"! {m.label} (line {m.line_no}: {m.text}) was replaced by {m.replaced_by}; it ends SUPERSEDED, "
+            "as expected, and the newer motion's end decides" for m in replaced]
+
+
+def limit_text(request: Message, refusal: Message) -> str:
+    """The limit a motion command was refused for, from its MotionAccepted: SOFT_LIMIT names a soft limit (deg),
+    OUT_OF_RANGE the axis's speed (deg/s), each with the parameter that sets it."""
+    axis, limit, value, asked = axis_word(request.axis), refusal.limit, refusal.limit_value, refusal.asked
+    if refusal.result == Reason.SOFT_LIMIT and request.spec.name == "Jog":
+        return f"{axis}: at {asked:g} deg, against {limit} = {value:g} deg; jog the other way"
+    if refusal.result == Reason.SOFT_LIMIT:
+        return (f"{axis}: target {asked:g} deg is beyond {limit} = {value:g} deg "
+                f"(soft limits {axis}_min_deg .. {axis}_max_deg)")
+    return f"{axis}: speed {asked:g} deg/s is above its highest, {limit} = {value:g} deg/s"
 
 
 def failure_text(motion: Motion) -> str:

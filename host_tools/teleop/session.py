@@ -50,7 +50,7 @@ from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 from host_tools.teleop.box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop.format import (INDENT, Console, failure_lines, format_message, format_outcome,
                                       latency, link_down_lines, report_lines)
-from host_tools.teleop.motion import (MotionTracker, axis_word, end_lines, failure_text, replaced_lines,
+from host_tools.teleop.motion import (MotionTracker, axis_word, end_lines, failure_text, limit_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop.watch import TelemetryCache, arm_block, watch
 from host_tools.teleop.words import (LOCAL_COMMANDS, Step, TeleopError, all_words, build_message, check_script,
@@ -117,7 +117,6 @@ class Session:
     # ---- from the pump thread ----
     def _on_telemetry(self, msg: Message, now: float) -> None:
         self.telemetry.on_telemetry(msg, now)
-        self.tracker.note_uptime(msg.uptime_ms)
         aligned = self._aligned
         if aligned is not None and msg.spec.name == "TelemetryTracker":
             aligned.feed(msg)
@@ -160,14 +159,15 @@ class Session:
         message = step.build(self.wall_time)
         self.sent += 1
         is_motion = message.spec.reply == "MotionAccepted"
-        before = self.tracker.sending() if is_motion else None
+        if is_motion:
+            self.tracker.sending()
         handle = self.client.call(message)
         if handle.ok and handle.latency_s is not None:
             self.latencies_s.append(handle.latency_s)
         if not is_motion:
             lines = [self._ok_line(handle)] if handle.ok else self._failure_lines(message, step, handle)
         elif handle.ok:
-            motions, replaced, held = self.tracker.started(step, handle.reply, before, self.client.clock.now())
+            motions, replaced, held = self.tracker.started(step, handle.reply, self.client.clock.now())
             lines = replaced_lines(replaced) + [f"ok   {started_text(motions)}{latency(handle)}"]
             lines += [line for end, mine in held for line in end_lines(end, mine)]
         else:
@@ -227,26 +227,11 @@ class Session:
             return self._box_hints(msg, handle)
         if handle.reply is None or msg.spec.reply != "MotionAccepted":
             return []
-        if handle.reason == Reason.SOFT_LIMIT and any(f.name == "axis" for f in msg.spec.fields):
-            name = axis_word(msg.axis)
-            limits = [self.client.call(SCHEMA["ParamGet"].type(f"{name}_{side}_deg"), 5.0) for side in ("min", "max")]
-            if all(h.ok for h in limits):
-                lo, hi = (h.reply.value for h in limits)
-                asked = (f"target {msg.target:g} deg, " if msg.spec.name == "Move" else
-                         f"by {msg.distance:g} deg, " if msg.spec.name == "MoveBy" else "")
-                return [f"{INDENT}{name}: {asked}soft limits {lo:g} .. {hi:g} deg "
-                        f"(parameters {name}_min_deg, {name}_max_deg)"]
+        limit = [f"{INDENT}{limit_text(msg, handle.reply)}"] if handle.reply.limit else []
         if handle.reason == Reason.OUT_OF_RANGE:
             hints = [f"{INDENT}{f.name}: {f.doc}" for f in msg.spec.fields if f.name == "axis"]
-            speed = getattr(msg, "speed", 0.0)
-            if speed and hints:
-                name = axis_word(msg.axis)
-                top = self.client.call(SCHEMA["ParamGet"].type(f"{name}_speed_dps"), 5.0)
-                if top.ok and abs(speed) > top.reply.value:
-                    hints.append(f"{INDENT}{name}: speed {abs(speed):g} deg/s is above its highest, "
-                                 f"{name}_speed_dps = {top.reply.value:g} deg/s")
-            return hints + [f"{INDENT}see `help {step.word}`"]
-        return []
+            return hints + limit + [f"{INDENT}see `help {step.word}`"]
+        return limit
 
     def _box_hints(self, msg: Message, handle) -> list[str]:
         """A refused `switch`: the dials against the interlock's low setting, and the box as it still stands."""
@@ -432,7 +417,7 @@ def expected_lines(step: Step, handle, lines: list[str]) -> tuple[bool, list[str
 
 
 def list_params(client, console: Console) -> bool:
-    """Every parameter, read one by one with ParamList."""
+    """Every parameter, read one by one with ParamList: value, unit, range and what it does."""
     index, count = 0, 1
     while index < count:
         handle = client.call(SCHEMA["ParamList"].type(index))
@@ -441,7 +426,8 @@ def list_params(client, console: Console) -> bool:
             return False
         reply = handle.reply
         count = reply.count
-        console.line(f"  {reply.name:<16} {reply.value:>12.6g}   [{reply.min:g} .. {reply.max:g}]")
+        console.line(f"  {reply.name:<16} {reply.value:>12.6g} {reply.unit:<10} [{reply.min:g} .. {reply.max:g}]  "
+                     f"{reply.description}")
         index += 1
     return True
 
