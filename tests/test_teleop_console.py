@@ -23,7 +23,7 @@ from timebase import RealClock
 from host_tools.teleop import format as teleop_format
 from host_tools.teleop import words as teleop_words
 from host_tools.teleop.console import (TeleopCompleter, TeleopConsole, fit, follow_width,
-                                       history_path, open_history, params_lines, prompt_text)
+                                       history_path, open_history, prompt_text)
 from host_tools.teleop.watch import TelemetryCache
 
 PARAMS = ["j1_max_deg", "j1_min_deg", "j1_speed_dps", "trk_dial_low_pct"]
@@ -42,7 +42,7 @@ class FakeClient:
 
     def call(self, msg, timeout_s: float = 30.0):
         if msg.spec.name == "ParamList":
-            reply = SCHEMA["ParamValue"].type(0, PARAMS[msg.index], 1.0, 0.0, 2.0, msg.index, len(PARAMS))
+            reply = SCHEMA["ParamValue"].type(0, PARAMS[msg.index], 1.0, 0.0, 2.0, msg.index, len(PARAMS), "", "")
             return SimpleNamespace(ok=True, reply=reply, latency_s=0.001)
         raise AssertionError(f"unexpected {msg.spec.name}")
 
@@ -111,13 +111,16 @@ def test_output_follows_the_terminal_width():
     assert fit("short", 80) == ["short"]
 
 
-def test_params_show_unit_and_description_when_the_reply_has_them():
-    plain = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1)
-    assert params_lines([plain], 80) == ["  j1_speed_dps                3        [0.1 .. 10]"]
-    rich = SimpleNamespace(name="j1_speed_dps", value=3.0, min=0.1, max=10.0, unit="deg/s",
-                           description="the joint's default cruise speed")
-    assert params_lines([rich], 80) == ["  j1_speed_dps                3 deg/s  [0.1 .. 10]",
-                                        "      the joint's default cruise speed"]
+def test_params_show_unit_range_and_description_wrapped_below_when_the_line_is_too_wide():
+    plain = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1, "", "")
+    assert teleop_format.param_lines(plain, 80) == ["  j1_speed_dps                3            [0.1 .. 10]"]
+    rich = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1, "deg/s",
+                                     "the joint's default cruise speed")
+    assert teleop_format.param_lines(rich, 100) == [
+        "  j1_speed_dps                3 deg/s      [0.1 .. 10]  the joint's default cruise speed"]
+    assert teleop_format.param_lines(rich, 80) == ["  j1_speed_dps                3 deg/s      [0.1 .. 10]",
+                                                   "      the joint's default cruise speed"]
+    assert teleop_format.param_lines(rich) == teleop_format.param_lines(rich, 200)     # scripts: one line
 
 
 def _run_console(client, typed, during=None):

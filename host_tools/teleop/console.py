@@ -197,18 +197,6 @@ def follow_width(columns: int) -> int:
     return width
 
 
-def params_lines(replies: list, width: int) -> list[str]:
-    """Each parameter: name, value, unit, range, and its description wrapped below (when ParamValue has them)."""
-    lines = []
-    for r in replies:
-        unit = getattr(r, "unit", "") or ""
-        doc = getattr(r, "description", "") or getattr(r, "doc", "") or ""
-        lines.append(f"  {r.name:<16} {r.value:>12.6g} {unit:<6} [{r.min:g} .. {r.max:g}]".rstrip())
-        if doc:
-            lines += textwrap.wrap(doc, width, initial_indent=" " * 6, subsequent_indent=" " * 6)
-    return lines
-
-
 def _key_bindings(on_key: Callable[[object], None], on_ctrl_c: Optional[Callable[[object], None]] = None
                   ) -> KeyBindings:
     keys = KeyBindings()
@@ -397,7 +385,7 @@ class TeleopConsole:
                 handle = self.client.call(SCHEMA["ParamList"].type(0), 5.0)
                 self.console.line(format_outcome(handle))
                 return False
-            self.console.lines(params_lines(self.params.replies, teleop_format.WIDTH))
+            self.console.lines([line for r in self.params.replies for line in teleop_format.param_lines(r, teleop_format.WIDTH)])
             return True
         if step.waits_for_motion:
             return self.wait_motions(step)

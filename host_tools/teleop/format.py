@@ -54,6 +54,17 @@ def _isatty(out: TextIO) -> bool:
         return False
 
 
+def param_lines(reply: Message, width: Optional[int] = None) -> list[str]:
+    """A ParamValue as `params` lists it: name, value, unit, range and what it does, on one line; where
+    that line is wider than `width`, the description goes wrapped below it."""
+    head = f"  {reply.name:<16} {reply.value:>12.6g} {reply.unit:<10} [{reply.min:g} .. {reply.max:g}]"
+    one = f"{head}  {reply.description}".rstrip()
+    if width is None or len(one) <= width or not reply.description:
+        return [one]
+    return [head.rstrip()] + textwrap.wrap(reply.description, width, initial_indent=" " * 6,
+                                           subsequent_indent=" " * 6)
+
+
 def wrap(text: str, indent: str = INDENT) -> list[str]:
     return textwrap.wrap(text, WIDTH, initial_indent=indent, subsequent_indent=indent + "  ") or [indent]
 

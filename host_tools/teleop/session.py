@@ -49,7 +49,7 @@ from host_tools.datetimes import utc_text
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 from host_tools.teleop.box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop.format import (INDENT, Console, failure_lines, format_message, format_outcome,
-                                      latency, link_down_lines, report_lines)
+                                      latency, param_lines, link_down_lines, report_lines)
 from host_tools.teleop.motion import (MotionTracker, axis_word, end_lines, failure_text, limit_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop.watch import TelemetryCache, arm_block, watch
@@ -426,8 +426,7 @@ def list_params(client, console: Console) -> bool:
             return False
         reply = handle.reply
         count = reply.count
-        console.line(f"  {reply.name:<16} {reply.value:>12.6g} {reply.unit:<10} [{reply.min:g} .. {reply.max:g}]  "
-                     f"{reply.description}")
+        console.lines(param_lines(reply))
         index += 1
     return True
 
