@@ -126,14 +126,13 @@ from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 from protocol.reasons import Reason
-from protocol.states import SWITCH_POSITIONS, Switch, SwitchPosition, TempSide, TrackerAxis, TrackerWarning
+from protocol.states import (AZ, EL, SWITCH_POSITIONS, TRACKER_AXES, Switch, SwitchPosition, TempSide, TrackerAxis,
+                             TrackerWarning)
 
 from firmware_py import ephemeris
 from firmware_py.params import ParamSpec, ParamStore
 from protocol.units import DEG
 
-AXES = ("az", "el")
-AZ, EL = 0, 1
 ADC_COUNTS = 1023                # the dial's 10-bit ADC: 0..1023
 EPHEMERIS_PERIOD_S = 1.0         # sun position and rates recomputed this often, extrapolated in between
 FF_CLOSE_DEG_S = 0.02 / 60.0     # feed-forward: a relay closes above this commanded rate
@@ -403,7 +402,7 @@ class TrackerController:
 
     def _refuse_high(self, ks: list[int], what: str) -> tuple[Reason, str]:
         self.refusals += 1
-        dials = ", ".join(f"{AXES[k]} {self.box.dial_pct(k):.1f} %" for k in ks)
+        dials = ", ".join(f"{TRACKER_AXES[k]} {self.box.dial_pct(k):.1f} %" for k in ks)
         return Reason.DIAL_NOT_LOW, (f"{what} needs the dial low (<= {self.params['trk_dial_low_pct']:g} %): "
                                      f"dial {dials}")
 
@@ -645,7 +644,7 @@ class TrackerController:
             "motor_supply_v": _finite(inputs.motor_supply_v),
             "sun_az": sun[0] if sun else 0.0, "sun_el": sun[1] if sun else 0.0,
         }
-        for k, (name, ax) in enumerate(zip(AXES, self.axes)):
+        for k, (name, ax) in enumerate(zip(TRACKER_AXES, self.axes)):
             out.update({
                 f"mode_{name}": int(box.mode[k]), f"direction_{name}": int(box.direction[k]),
                 f"speed_{name}": int(box.speed[k]), f"dial_{name}": box.dial_pct(k),

@@ -8,7 +8,7 @@ that picks the direction (CW or CCW) through relays and sets the speed with a di
 step 7). The control box is the controller's business (firmware_py); this module is
 everything behind the HAL bus's TRACKER_CMD, TRACKER_SENSE and TRACKER_POS.
 
-Conventions. Per axis (`AXES` = "az", "el") the positive direction is called CW: azimuth
+Conventions. Per axis (`TRACKER_AXES` = "az", "el", protocol/states.py) the positive direction is called CW: azimuth
 increasing (north through east, clockwise seen from above, the way the sun moves in the
 northern hemisphere) and elevation increasing (up; ASSUMED naming, the report only says
 "CW or CCW"). Angles are the axes' mechanical angles in degrees, as the potentiometers on
@@ -146,10 +146,9 @@ import numpy as np
 
 from hil_sim.sun import (DEFAULT_START, DEFAULT_TABLE_STEP_S, TUCSON, CloudSchedule, DateTimeLike, Site, SunTable,
                          as_clouds, to_utc)
+from protocol.states import AZ, EL, TRACKER_AXES
 from protocol.units import DEG
 
-AXES = ("az", "el")
-AZ, EL = 0, 1
 _NOISE_PER_STEP = 7          # 4 cells, 2 potentiometers, 1 supply
 _NOISE_BATCH = 7 * 128
 
@@ -424,7 +423,7 @@ class TrackerPlant:
             if value is None:
                 continue
             if not (isinstance(value, Real) and self._stop_ccw[k] <= value <= self._stop_cw[k]):
-                raise ValueError(f"{AXES[k]} angle must be within its stops {self._stop_ccw[k]}..{self._stop_cw[k]}"
+                raise ValueError(f"{TRACKER_AXES[k]} angle must be within its stops {self._stop_ccw[k]}..{self._stop_cw[k]}"
                                  f" deg, got {value!r}")
             self.angle_deg[k] = float(value)
             self._w[k] = 0.0
@@ -623,5 +622,5 @@ def _shaft(w: float, p_i: float, q: float, m: float, kt: float, p: TrackerParams
     return w2, p_i - q * w2
 
 
-__all__ = ["AXES", "AZ", "EL", "SAFE_COMMAND", "TRACKER_PARAMS", "TrackerAxisParams", "TrackerCommand",
+__all__ = ["AZ", "EL", "SAFE_COMMAND", "TRACKER_PARAMS", "TrackerAxisParams", "TrackerCommand",
            "TrackerParams", "TrackerPlant", "wrap180"]

@@ -157,6 +157,13 @@ class TrackerAxis(enum.IntEnum):
     BOTH = 2
 
 
+# The tracker's axes by index (AZ, EL) and by name, in that order: the suffixes of its per-axis
+# HAL signals and telemetry fields (relay_az ... duty_el). Declared here once; both ends of the
+# bus import them.
+TRACKER_AXES = ("az", "el")
+AZ, EL = 0, 1
+
+
 class TempSide(enum.IntEnum):
     """Which edge of the control box's allowed temperature range a warning is about."""
 
