@@ -116,7 +116,7 @@ class GripAction(enum.IntEnum):
     CLOSE = 1
 
 
-# ---- the solar tracker's control box (firmware_py/tracker.py) ----
+# ---- the solar tracker's control box (firmware_py/tracker/) ----
 
 class Switch(enum.IntEnum):
     """The switches of the solar tracker's control box (report, "Control Box" and its operating instructions)."""
