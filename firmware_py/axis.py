@@ -39,6 +39,7 @@ from typing import Callable, Optional
 
 from firmware_py import profiles
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
+from firmware_py.homing import Homing
 from firmware_py.profiles import DEFAULT_JOINT_ACC_RAD_S2, REPORT_JOINT_SPEED_RAD_S, Profile
 from protocol.states import AxisMode, MotionOutcome
 
@@ -232,10 +233,6 @@ _SOFT_LIMIT = int(AxisError.SOFT_LIMIT)
 _CURRENT_LIMITED = int(AxisError.CURRENT_LIMITED)
 STAGES = ("estimator", "controller", "output")
 
-# homing phases: first tick (is the switch already closed?), leave the switch, seek it, back off
-_START, _CLEAR, _SEEK, _BACKOFF = 0, 1, 2, 3
-
-
 @dataclass
 class StageTimes:
     """Execution time per pipeline stage: max and total seconds over `ticks` timed ticks."""
@@ -285,8 +282,7 @@ class Axis:
         self._stall = Debounce()    # high duty, yet not moving
         self._trip = Debounce()     # current above the trip level
         self._settle_since: Optional[float] = None
-        self._home_phase = _SEEK
-        self._home_start_rad = 0.0
+        self._homing = Homing(self)
         self._stopping_for = MotionOutcome.STOPPED
         self._open = Debounce()     # driven, yet no current
 
@@ -432,9 +428,7 @@ class Axis:
             return refusal
         if self.config.moves_need_home:
             self.homed = False
-        self._home_start_rad = self.estimator.pos_rad
-        self._home_phase = _START
-        self._start_seek(now, self.config.home_dir)
+        self._homing.begin(now)
         self.motion_id += 1
         self.outcome = MotionOutcome.RUNNING
         self._err &= ~_SOFT_LIMIT
@@ -554,7 +548,11 @@ class Axis:
         mode = self.mode
         c = self.config
         if mode is _HOMING:
-            return self._homing_step(now, pos_sp, vel_sp, acc_sp, pos, home_switch)
+            setpoint = self._homing.step(now, pos_sp, vel_sp, acc_sp, pos, home_switch)
+            if setpoint is None:       # no switch within home_max_travel_rad
+                self._fault(AxisError.HOMING_FAILED, now)
+                return pos_sp, vel_sp, acc_sp
+            return setpoint
         if self._limits_on():
             lo, hi = self._lo_rad, self._hi_rad
             if mode is _JOGGING:
@@ -576,38 +574,6 @@ class Axis:
                 self._hold(self.target_rad)
                 self.outcome = self._stopping_for if self._stopping_for is not MotionOutcome.DONE else (
                     MotionOutcome.DONE if settled else MotionOutcome.NOT_SETTLED)
-        return pos_sp, vel_sp, acc_sp
-
-    def _homing_step(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float,
-                     home_switch: bool) -> tuple[float, float, float]:
-        c = self.config
-        phase = self._home_phase
-        if phase == _BACKOFF:
-            if now - self._profile_t0 >= self._profile.duration_s:
-                self._hold(self._profile.end_pos_rad)
-                self.outcome = MotionOutcome.DONE
-        elif abs(pos - self._home_start_rad) > c.home_max_travel_rad:
-            self._fault(AxisError.HOMING_FAILED, now)
-        elif phase == _START:
-            self._home_phase = _SEEK
-            if home_switch:   # already on the switch: move off it first, then come back to it
-                self._home_phase = _CLEAR
-                self._start_seek(now, -c.home_dir, pos_sp, vel_sp)
-                return self._profile.sample(0.0)
-        elif phase == _CLEAR:
-            if not home_switch:
-                self._start_seek(now, c.home_dir, pos_sp, vel_sp)
-                self._home_phase = _SEEK
-                return self._profile.sample(0.0)
-        elif home_switch:   # found it: this is home_pos_rad; stop and back off from the switch
-            shift = self._rezero(c.home_pos_rad)
-            self.homed = True
-            back = c.home_pos_rad - c.home_dir * c.home_backoff_rad
-            self._profile = profiles.trapezoid(pos_sp + shift, back, c.vel_limit_rad_s, c.acc_limit_rad_s2, vel_sp)
-            self._profile_t0 = now
-            self.target_rad = back
-            self._home_phase = _BACKOFF
-            return self._profile.sample(0.0)
         return pos_sp, vel_sp, acc_sp
 
     # ---- helpers ----
@@ -707,13 +673,3 @@ class Axis:
         self._err &= ~_SOFT_LIMIT
         self.motion_id += 1
         self.outcome = MotionOutcome.RUNNING
-
-    def _start_seek(self, now: float, direction: int, pos_sp: Optional[float] = None,
-                    vel_sp: float = 0.0) -> None:
-        if pos_sp is None:
-            pos_sp, vel_sp, _ = self._setpoint(now)
-        self._profile = profiles.jog(pos_sp, direction * self.config.home_vel_rad_s, self.config.acc_limit_rad_s2,
-                                     vel_sp)
-        self._profile_t0 = now
-        self.mode = AxisMode.HOMING
-        self.target_rad = math.nan

@@ -19,7 +19,7 @@ Tasks (period):
   hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
   health      10 ms     boot check, HAL staleness, supply and temperature limits
   arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py)
-  tracker     10 ms     the solar tracker's control box and relay logic, TRACKER_CMD (firmware_py/tracker.py)
+  tracker     10 ms     the solar tracker's control box and relay logic, TRACKER_CMD (firmware_py/tracker/)
   telemetry   1/rate    TelemetryStatus and TelemetryJoints frames; while the tracker's box is in use (main or
                         sensor power on), TelemetryTracker (at most 10 Hz) half a period after them, so the three
                         never queue at once (the link keeps two telemetry frames queued, not three)
@@ -45,14 +45,13 @@ from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 
 from firmware_py import arm_config
-from firmware_py import tracker as tracker_config
 from firmware_py.arm import ArmController, Measured, MotionStart
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
 from timebase.scheduler import Scheduler
 from firmware_py.supervisor import FAULT_REASON, Supervisor
-from firmware_py.tracker import TrackerController
+from firmware_py.tracker.task import TrackerController, parameter_table as tracker_parameter_table
 from firmware_py.uart import PacedUart
 
 TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
@@ -115,7 +114,7 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
         ParamSpec("temp_warn_c", 5.0, 0, 40, "degC",
                   "warn (TemperatureWarning, TEMP_LOW/TEMP_HIGH) within this of temp_min_c or temp_max_c"),
-    ] + arm_config.parameter_table() + tracker_config.parameter_table()
+    ] + arm_config.parameter_table() + tracker_parameter_table()
 
 
 class Controller:

@@ -1,6 +1,6 @@
 """The controller's own ephemeris: where the sun is, and how fast it moves, at a site and a UTC instant.
 
-The solar tracker's feed-forward (`firmware_py/tracker.py`) needs the sun's azimuth and
+The solar tracker's feed-forward (`firmware_py/tracker/logic.py`) needs the sun's azimuth and
 elevation rates, and telemetry reports the sun's position and the pointing error. A
 controller cannot carry pvlib, so this is the NOAA solar position algorithm, in plain
 floats: the equations of NOAA's Solar Calculator spreadsheets (NOAA Global Monitoring

@@ -12,7 +12,7 @@ The solar tracker's frames: TRACKER_SENSE (photocells) and TRACKER_POS (angles, 
 switches, 90 VDC bus) land in `HalInputs` with the `now` they arrived (`sense_s`,
 `pos_s`; None until the first, so a plant without the tracker leaves them None);
 `send_tracker_command` sends TRACKER_CMD. What a stale tracker input means is the
-tracker's business (`firmware_py/tracker.py`), not the supervisor's: the tracker frames
+tracker's business (`firmware_py/tracker/`), not the supervisor's: the tracker frames
 never make the HAL stale.
 
 This module knows the bus only through `protocol.hal` (the DBC) and python-can's

@@ -1,66 +1,6 @@
 """The plant's end of the HAL bus: a scheduler task that plays the I/O hardware.
 
-Each `step(now)` (one plant tick):
-
-1. reads every waiting frame: CTRL_OUTPUTS goes to `plant.commanded`, MOTOR_CMD to
-   `plant.motor_commands`, each stamped `now` (both expire: 0.1 s and 20 ms by default,
-   see `hil_sim.plant`);
-2. integrates the plant over the time that passed since the last step (on a paced or
-   lock-step clock exactly one period; on the wall clock whatever passed, clamped to
-   `max_dt_s`, because a real-time run can stall; clamps are counted), with the commands
-   as they stand at `now` (the safe state once expired);
-3. sends MOTOR_FB (every step), DIGITAL_IN (when any switch changed since the last one
-   sent, and at least every `digital_every_n` steps) and ANALOG_IN (every
-   `analog_every_n` steps);
-4. with `tracker=True`, every `tracker_every_n` steps (10 ms, the DBC's cycle of
-   TRACKER_SENSE and TRACKER_POS), at tick `tracker_phase` modulo that (5: half-way between
-   two ANALOG_IN ticks, so the slow work of the two does not pile into one tick): steps
-   `plant.tracker` over the time gone since its last step with the TRACKER_CMD as it
-   stands (`plant.tracker_commands`, read in 1. like the others; the safe state once
-   expired, 0.1 s), then sends TRACKER_SENSE and TRACKER_POS;
-5. sends PLANT_SYNC last, with the tick, the tick's length and whether the plant runs in
-   lock-step (`lockstep`: it then integrates each tick only once the controller has
-   answered the last one with CTRL_SYNC: `protocol.lockstep`, docs/hal_bus.md). Every
-   frame of the tick is on the bus before it, so a controller that follows PLANT_SYNC
-   has the whole tick in hand.
-
-The tracker is off by default: an arm-only node sends exactly what it sent before and pays
-nothing for the tracker. With it on (measured as below, median, best of 3 runs of 30,000
-ticks): the tracker's ticks cost about 30 us more (its step 5 us, the two frames packed
-and sent the rest), the others about 1 us more (reading TRACKER_CMD every 10th tick, the
-bookkeeping): about 4 us a tick on average, a tenth of the arm node's 38 us.
-
-The slow frames go out at the periods declared in the DBC (GenMsgCycleTime, 10 ms), not
-every tick: at 1 kHz every classic 8-byte frame costs about 11-13 % of a 1 Mbit/s bus.
-A switch change goes out in the tick it happens. Measured values saturate at the DBC's
-declared ranges, as a real ADC would; encoder counts wrap at 32 bits, as a hardware
-counter does (the controller unwraps by difference).
-
-Cost. The simulation runs at 1 kHz in lock-step and aims at 20x real time: about 50 us of
-wall time per simulated millisecond for plant, bus and controller together. So:
-
-* cantools takes 12-15 us to encode a many-signal frame such as MOTOR_FB and 4-6 us to
-  decode MOTOR_CMD. The frames this node sends, and MOTOR_CMD, are packed and unpacked by
-  `FrameLayout` instead: the layout is read once from the same DBC declaration through
-  cantools (start bit, length, sign, scale, offset, range), and a frame then costs 1-2.5
-  us, byte for byte what `HalCodec` gives (tests/test_plant_node.py checks both ways).
-  CTRL_OUTPUTS (every 10 ms) and anything unexpected go through `HalCodec.decode`.
-* python-can's virtual bus deep-copies every frame; `_Frame` makes that copy 3 us cheaper.
-* `dt_s` is rounded to the nanosecond, so that float noise in `now` does not change the
-  step length: the motor bank recomputes its per-step constants (16 us, twice the step
-  itself) whenever it changes. (In real-time runs the clock's jitter changes it every tick:
-  about 31 us per arm step there, affordable at 1x.)
-* Plain Python floats and lists per channel, no numpy per element; signal orders and
-  ranges resolved once.
-
-Measured (time.perf_counter around each `step`, a MOTOR_CMD to read every tick and a
-CTRL_OUTPUTS every 10th, all six channels driven, the other end drained outside the
-timing; 20,000 steps, best of 5 runs) on the shared 2-core development machine: median
-48 us per step, p99 about 90 us. Of the median: ArmPlant.step 13 us (7.8 us when timed
-alone, caches warm), the rest of Plant.step 8, reading the bus 9 (two `recv` calls, one
-of which finds the queue empty, 2.3 us unpacking), sending PLANT_SYNC 6 and MOTOR_FB 10
-(values 3, pack and send 7; python-can's virtual `send` alone is about 4-5 us a frame),
-DIGITAL_IN and ANALOG_IN 1-2 on average.
+Design: docs/hal_bus.md#the-plants-node
 """
 from __future__ import annotations
 

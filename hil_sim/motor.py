@@ -1,53 +1,6 @@
 """Brushed DC motors behind gear trains, stepped together as one bank of channels.
 
-Each channel is a permanent-magnet DC motor (armature resistance R, inductance L,
-torque constant Kt, back-EMF constant Ke, rotor inertia, Coulomb + viscous friction
-with a separate breakaway level) driving an output shaft through its gear head and
-any external stages (sprockets, chain, lead screw). Everything is expressed at the
-OUTPUT shaft: angle `pos_rad`, speed `vel_rad_s`, torques in N m at the output.
-
-Per step, per channel, with the output-side constants
-
-    kt_out = eta * N * Kt     [N m/A]      ke_out = N * Ke        [V s/rad]
-    J = N**2 * J_rotor + J_out + J_load    b = N**2 * b_motor + b_out
-    f_kin = N * c_motor + c_out            f_break = N * s_motor + s_out   (Coulomb, breakaway)
-
-the step solves, implicitly in the new current i' and speed w',
-
-    L_eff/h * (i' - i) = u - R i' - ke_out w'                      (armature)
-    J/h * (w' - w)     = kt_out i' - b w' - tau_load - f           (shaft)
-
-where u = duty * supply_v (average bridge voltage; a synchronous bridge, so the current
-may reverse and regenerate) and f is the friction + brake torque. Integration choices:
-
-* L_eff/h = R / expm1(R h / L) instead of L/h ("exponential fitting"): at a constant
-  shaft speed the current update is then the exact RL response over the step, whatever
-  L/R is against h, and the coupled update stays implicit, so it is unconditionally
-  stable (electrical time constants here are 0.2-1 ms against a 1 ms step).
-* Friction is a constraint, not a force law: the step first asks what torque would keep
-  the shaft still this step. If that fits within the breakaway torque (plus the brake's
-  holding torque when the brake is applied) the shaft is stuck and w' is exactly 0;
-  otherwise it slides with the kinetic Coulomb torque (plus the slipping brake) opposing
-  the motion. A moving shaft whose velocity would reverse within the step stops instead.
-  So there is no chatter at zero speed and a held shaft stays exactly still.
-* Position is advanced with the new speed (semi-implicit Euler). Hard end stops clamp
-  the position and zero the speed (an inelastic stop); the torque the stop absorbs is
-  reported in `stop_torque_nm` (a gripper's grip force comes from it).
-* `tau_load` and `J_load` (gravity and the arm's inertia) are supplied per step and held
-  over the step: the caller substeps if its steps are long (`hil_sim.arm` does, 1 ms).
-
-`enable` False opens the bridge: the freewheel diodes clamp the winding to the supply,
-so the current dies in well under 0.1 ms and is taken as zero at once; the shaft coasts
-with no back-EMF braking. `enable` True with duty 0 shorts the winding (dynamic braking).
-The gear efficiency scales the motor's torque in both directions of power flow (a
-constant-efficiency simplification: a back-driven train is modelled as easier to hold
-than a real one would be, which is the conservative side for the controller).
-
-Cost. The step loops over channels in plain Python floats. A numpy version of the same
-step (one array op per line, about 25 ops) was measured on this machine at 18 us for
-six channels against 2 us for this loop: with a handful of channels numpy's per-call
-overhead (0.25-2 us per op) dominates, and it would only pay from some 60 channels on.
-Arrays appear at the edges: the state properties return numpy arrays.
+Design: docs/arm.md#the-motors
 """
 from __future__ import annotations
 

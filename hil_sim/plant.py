@@ -1,56 +1,6 @@
 """The plant: supply bus, control-box temperature and the arm, with expiring commands and faults.
 
-`Plant` owns an `ArmPlant` (`hil_sim.arm`: the six motor channels J1, J2, J3, J4, gripper,
-mount with their loads) and the two things around it: the supply and the control box.
-The plant knows nothing of buses or clocks: `step(dt_s, ...)` integrates it with the
-outputs it is given, and its measured values are sampled once per step (supply and
-temperature with noise from the injected generator), so the same seed and the same
-sequence of steps give the same numbers however often they are read.
-
-Per step:
-
-1. What each channel gets. A channel is driven (its bridge switching at `duty`) only if
-   the global command enables outputs AND its own command enables it (and it has no
-   `open_circuit` fault). Its brake is applied if the global command says brake_all OR
-   its own command says brake (OR it has a `stuck_brake` fault). The caller gives the
-   commands as they stand: `ExpiringOutputs` (the global CTRL_OUTPUTS) and
-   `ExpiringMotorCommands` (MOTOR_CMD) (hil_sim/commands.py) read as the safe state (off, braked)
-   once expired.
-2. The arm is stepped with the supply voltage of the previous step (the bus a millisecond
-   ago; an explicit one-step lag, stable because the bus's source resistance is far below
-   the motors' armature resistance).
-3. Supply: load current = electronics (`idle_current_a`, plus `enabled_current_a` while
-   outputs are enabled: gate drivers and bridge supplies) + what the bridges draw,
-   `ArmPlant.supply_current_a()` (sum of duty * armature current; negative while a motor
-   regenerates, which lifts the bus by I * R: the supply is taken to absorb it). The bus
-   sags by that current times `supply_source_ohm`.
-4. Box temperature: a first-order lag toward ambient + heat * thermal resistance. The heat
-   is what stays in the box: the electronics (bus voltage * electronics current) and the
-   drive stages' conduction losses (`drive_on_resistance_ohm` * i^2 per channel). The
-   motors' own copper and friction losses are outside the box, in the arm. Switching
-   losses are neglected.
-
-Sensors (read after a step): `supply_v`, `temp_c` (noisy), `encoder_counts`,
-`currents_a` and `switches()` (exact: quantisation is the encoders' only error). The
-encoder counts go through the fault model (`encoder_dropout`, `encoder_glitch`).
-
-Faults: `inject(name, channel=None)`, `clear(name, channel=None)`, `faults`; the table
-of names, effects and what a controller should see is `hil_sim.faults.FAULT_TABLE`.
-`FAULTS` (kept for existing callers) lists the plant-wide faults, the ones that take no
-channel; `CHANNEL_FAULTS` the others.
-
-The solar tracker. `Plant` also owns `tracker`, a `hil_sim.tracker.TrackerPlant` (two
-axes, 90 VDC motors, relays, brakes, limits, photocells, the sun at `site` from the
-simulated date-time `start`, with `clouds`), and `tracker_commands`, the expiring
-TRACKER_CMD (`ExpiringTrackerCommands`, 0.1 s). `Plant.step` does not step it: the
-tracker is slow and runs at its own 10 ms rate, stepped by whoever drives it
-(`PlantNode(..., tracker=True)` every 10th tick with the time gone since its last step, or
-`plant.tracker.step(dt_s, cmd)` directly), so an arm-only run pays nothing for it. Its
-simulated date-time is `start` + the time it has been stepped through
-(`plant.tracker.utc`). Building it costs microseconds: the sun is computed (and pvlib
-imported) only when the photocells are first powered or the sun is asked for. Its noise
-comes from a generator spawned from the plant's (`rng.spawn`), so the arm's noise stream
-is the same with or without it.
+Design: docs/plant.md
 """
 from __future__ import annotations
 

@@ -1,53 +1,6 @@
 """The sun for the solar tracker: position, clear-sky beam and clouds, at a site and a date-time.
 
-Position: the NREL Solar Position Algorithm (Reda and Andreas, "Solar position algorithm
-for solar radiation applications", Solar Energy 76 (2004) 577-589, corrected 2008;
-uncertainty +-0.0003 deg), as implemented by pvlib (`pvlib.solarposition.spa_python`,
-numpy). Elevation is the apparent one (refraction at the site's pressure and temperature),
-since that is the direction the photocells see the sun in; azimuth is measured from north
-through east (clockwise seen from above), in degrees.
-
-Direct normal irradiance (DNI) and diffuse horizontal irradiance (DHI) for a clear sky:
-pvlib's Ineichen and Perez model (Ineichen and Perez, Solar Energy 73 (2002) 151-157,
-`pvlib.clearsky.ineichen`) with the monthly Linke turbidity climatology pvlib ships
-(`lookup_linke_turbidity`, SoDa/Remund et al. 2003) and the absolute air mass at the
-site's pressure. At Tucson at noon in June it gives a DNI of about 940 W/m^2.
-
-Clouds are a disturbance injected by the caller: a schedule of passages (start, duration,
-attenuation), each removing `attenuation` of the direct beam while it lasts (overlapping
-passages multiply their transmissions), parsed from a spec such as
-"12:00+300s@0.9,14:30+10m@0.5" (`parse_clouds`, format below). Edges are instantaneous,
-and the diffuse light is left as it is (ASSUMED: a simple worst case for the tracker: the
-sensors lose the beam at once; what a cloud scatters into the diffuse field is the same on
-both cells of a pair and cancels in their difference anyway).
-
-Cost. pandas and pvlib take about 1 s to import and 20-30 ms per 2000 instants, far too
-slow per simulation step. So `SunTable` computes, vectorised, the sun over a whole local
-day (midnight to midnight in the site's standard time, so that a day's run needs one) at
-`step_s` (10 s by default: 8641 instants, about 70 ms), on first need only (the import
-too: a plant whose photocells stay unpowered never imports pvlib; `SunTable.preload`
-does it ahead of a real-time run), keeps the days in a process-wide cache (tests build
-many plants on the same day), and interpolates linearly per step in plain floats
-(azimuth unwrapped within the day): about 0.5 us per call. The
-linear interpolation over 10 s is within 1e-4 deg of the SPA at Tucson on the June
-solstice, where the azimuth turns fastest (tests/test_tracker_plant.py), while the sun is
-above the horizon; within a minute of sunrise and sunset the apparent elevation is off by
-up to 0.4 deg there, where the SPA's refraction correction switches on (the beam is nil
-then anyway).
-
-Time. Nothing here reads the OS clock: every instant is given, as a timezone-aware
-`datetime` or a POSIX timestamp (seconds since 1970-01-01 UTC); naive datetimes are
-refused (ValueError), since they do not say which time zone they are in.
-
-Clouds spec ("--clouds"): comma-separated passages ``TIME+DURATION@ATTENUATION``:
-
-* TIME: ``HH:MM`` or ``HH:MM:SS``, the site's local standard time (no daylight saving) on the
-  local date of the run's start; or ``YYYY-MM-DDTHH:MM[:SS]`` (local standard time) for
-  another day.
-* DURATION: a number and a unit, ``s``, ``m`` (or ``min``) or ``h``: ``300s``, ``5m``, ``1.5h``; > 0.
-* ATTENUATION: the fraction of the direct beam removed, 0..1: ``@0.9`` leaves 10 %.
-
-Example: ``"12:00+300s@0.9, 14:30+10m@0.5"``. An empty spec means no clouds.
+Design: docs/tracker.md#the-simulated-sun
 """
 from __future__ import annotations
 

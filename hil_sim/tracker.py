@@ -1,138 +1,6 @@
 """The solar tracker's plant: two axes, their 90 VDC motors, relays, brakes, limits and photocells.
 
-The report ("SOLAR TRACKER" and the operating instructions after it, seed/000_54a4d1d9271955c2.txt)
-describes two independent directional systems, azimuth and elevation, each "a mounted gear
-train apparatus, a 90-VDC motor and a pair of solar photovoltaic cells", and a control box
-that picks the direction (CW or CCW) through relays and sets the speed with a dial on a
-"90 VDC adjustable speed controller" whose speed switch has a Brake position (operating
-step 7). The control box is the controller's business (firmware_py); this module is
-everything behind the HAL bus's TRACKER_CMD, TRACKER_SENSE and TRACKER_POS.
-
-Conventions. Per axis (`AXES` = "az", "el") the positive direction is called CW: azimuth
-increasing (north through east, clockwise seen from above, the way the sun moves in the
-northern hemisphere) and elevation increasing (up; ASSUMED naming, the report only says
-"CW or CCW"). Angles are the axes' mechanical angles in degrees, as the potentiometers on
-the gear trains read them; azimuth is not wrapped (its travel is 45-315 deg). Pointing
-error per axis = sun angle - tracker angle (azimuth wrapped to +-180 deg): positive when
-the sun is CW of the focal axis.
-
-Step (`TrackerPlant.step(dt_s, cmd)`, `cmd` a `TrackerCommand`; the node calls it every 10 ms,
-a stand-alone run may use any step):
-
-1. Relays. Per axis a CW and a CCW relay. A command asking for both closes neither
-   (both coils off) and is counted in `both_relays_refused` (per step). The relays are
-   interlocked (the usual reversing wiring: each coil is fed through a normally-closed
-   contact of the other relay), so a coil is energised only while the other relay's
-   contact is open: a direct reversal waits for the release of one before the other
-   starts to pick up, and the two contacts of an axis are never closed together whatever
-   the timing (`both_closed_s` would accumulate any overlap: it stays 0). A contact closes
-   `relay_operate_s` after its coil is energised and opens `relay_release_s` after it is
-   de-energised (a command undone sooner changes nothing). Contact times are resolved
-   inside the step: the armature gets the fraction of the step each contact was closed.
-   An armature going from idle to driven (a contact closing, the brake released or motor
-   power switched on, whichever comes last) with a duty above `low_duty` is counted in
-   `high_duty_starts` (the report: "ALWAYS keep the speed dial on low when starting
-   operation ... and when switching direction").
-2. Drive. The armature sees duty x bus voltage (the speed controller's average output) in
-   the direction of the closed contact, for the part of the step it is closed; with motor
-   power off or no contact closed the armature is open and the motor coasts. The speed
-   controller is a one-quadrant drive per direction (an SCR or chopper drive behind
-   reversing relays): it cannot sink current, so a motor turning faster than the duty asks
-   coasts down instead of regenerating. A limit switch cuts its own direction (ASSUMED,
-   the usual wiring: each switch in series with its direction's motor lead): the axis
-   coasts a little past it (about 0.18 deg from full speed, less with the brake) and can be
-   driven back; the controller sees the switch in TRACKER_POS.
-3. Brake (`brake_<ax>` = the speed switch at Brake, report step 7): the armature leaves the
-   drive for a braking resistor, whatever the relays and the duty say (dynamic braking,
-   as adjustable-speed drives of this class do it): the motor stops within about 0.1 s
-   (0.011 deg of axis travel from full speed) and cannot be driven. At standstill the
-   gear train holds the axis (ASSUMED self-locking, as a worm final stage is; no
-   external torques, wind or unbalance, are modelled, so nothing would turn it anyway).
-4. Motor and gears (per axis, at the motor shaft): the armature and shaft equations of
-   `hil_sim.motor` (implicit; the current with the exact RL response over the step; Kt =
-   Ke), friction as a constraint (breakaway, then Coulomb + viscous): a stopped shaft
-   stays exactly still. The axis angle advances by the motor angle / `gear_ratio`. Hard
-   stops past the limit switches clamp the angle (the motor then stalls at duty x V / R).
-   The steady speed is proportional to duty above a small friction dead band:
-   w = (duty V - R c / Kt) / (Ke + R b / Kt) (c Coulomb, b viscous friction; the dead band
-   ends at duty 0.012), so duty 0.5 gives 49.4 % of the top speed and duty 0.1 gives 8.9 %
-   (`TrackerParams.steady_speed_deg_s`). The motor reaches its speed within about 30 ms
-   (mechanical time constant J R / (Kt Ke) 11 ms, electrical L / R 5 ms).
-5. Supply: the 90 VDC bus sags by its source resistance x the drives' input current
-   (duty x armature current, the previous step's: a one-step lag as in `hil_sim.plant`);
-   0 V with motor power off.
-6. Photocells (only with sensor power on; exactly 0 V with it off). Per axis two cells whose
-   normals lie +-`cell_tilt_deg` (45) from the focal axis in that axis's plane (cell a on
-   the CW side), so the pair is at a right angle with its bisector along the focal axis
-   (protocol/hal.dbc; the report's figure 1). Each cell gives `cell_v_per_w_m2` x (DNI x
-   max(0, cos incidence) + `cell_diffuse_view` x DHI) + noise, clipped at 0: a cell
-   loaded so that its current, hence the voltage across its load, is linear in
-   irradiance. With the focal axis f, the axis's unit direction of increasing angle e and
-   the sun's direction s, cos incidence = cos45 (f.s) +- sin45 (e.s), and the difference
-   a - b = sqrt(2) k DNI (e.s): for azimuth sqrt(2) k DNI cos(sun elevation) sin(az error),
-   for elevation about sqrt(2) k DNI sin(el error). So its sign says on which side the
-   sun is (> 0: CW of the focal axis), it is zero at alignment and proportional to the
-   error near it. The azimuth pair's gain falls as cos(sun elevation): that is the
-   geometry of an azimuth-elevation mount (near the zenith an azimuth error moves the beam
-   little). Clouds (`hil_sim.sun`) and the `clouds` fault scale the DNI.
-7. Sensors sampled after the step: `cells_v`, `angles_measured_deg` (potentiometers, with
-   noise), `limits`, `motor_supply_v` (with noise). The noise comes from the generator the
-   tracker is given, always 7 deviates a step (whatever is powered): the same seed and
-   the same commands give the same numbers.
-
-Numbers (`TrackerParams`). The report gives only the 90 V; every other value is ASSUMED,
-for the reason given:
-
-* Motor: a 1/8 hp, 1750 rpm, 90 VDC permanent-magnet motor, the class a "90 VDC adjustable
-  speed controller" drives: R 8 ohm, L 40 mH, Kt = Ke 0.43 V s/rad, rotor 2.5e-4 kg m^2,
-  friction 0.06 N m + 2e-4 N m s/rad. That makes the catalogue figures come out: 0.51 N m
-  (1/8 hp) at 1750 rpm with 1.4 A, no-load 1960 rpm and 0.23 A at 90 V.
-* Gears: 20,000:1 in all (e.g. a 200:1 parallel-shaft gearmotor, a common catalogue ratio
-  for 90 VDC gearmotors, on a 100:1 self-locking worm wheel): full duty gives 35.2 deg/min
-  (0.59 deg/s), so a manual move from the stow position to the sun (operating steps 3-6)
-  takes a minute or two. The sun needs at most 1.50 deg/min in azimuth on the design day
-  (the June solstice at Tucson, at transit: 15 deg/h x cos(declination) / sin(zenith
-  distance) = 15 x 0.917 / 0.153 = 90 deg/h; computed with the SPA in
-  tests/test_tracker_plant.py), 4.3 % of the top speed, and 0.21 deg/min in elevation.
-  The ratio is chosen so that the plant shows what the report's operating step 10 warns
-  of: "If the speedpot setting is too low the solar trackers will be lagging the sun
-  constantly trying to catch up. However, if it is set too high the solar tracker will
-  constantly be fluctuating from leading then lagging". Around the sun's rate the dial
-  lags at midday; from about 70 % up the axis runs so fast that it overshoots the
-  controller's deadband before the filtered photocell difference and the relays can stop
-  it, and hunts (measured in tests/test_tracker_day.py and `make bench`). With a slower
-  train (160,000:1 tried: 4.4 deg/min at full duty) the overshoot stays inside the
-  deadband at any dial and the tracker never hunts. Both axes have the same train (the
-  report describes two alike directional systems).
-* Relays: operate 15 ms, release 5 ms: the maxima in a general-purpose power relay's data
-  sheet (Omron G2R: operate time 15 ms max., release time 5 ms max.), used as fixed times
-  (the worst case is the one a controller must live with). A direct reversal therefore
-  takes 20 ms.
-* Brake: the braking resistor equals the armature's 8 ohm (halving the braking current
-  against a dead short: 5.5 A peak from full speed); time constant 22 ms.
-* Travel: azimuth limit switches at 50 and 310 deg, hard stops at 45 and 315 deg (the sun
-  rises at 61.6 deg and sets at 298.4 deg on the June solstice at Tucson, the extremes of
-  the year); elevation switches at -2 and 85 deg, hard stops at -5 and 88 deg (the sun
-  peaks at 81.2 deg). Start: stowed facing east, horizontal (az 90, el 0).
-* Photocells: 0.5 V at 1000 W/m^2 at normal incidence (a small silicon cell into a load
-  resistor, kept well under its 0.6 V open-circuit voltage to stay linear): about 0.33 V
-  per cell aligned at noon, a difference of about 12 mV per degree of elevation error (in
-  azimuth, times cos(sun elevation): 2 mV per degree at the June noon); 1 mV rms noise
-  (TRACKER_SENSE carries 1 mV per count); diffuse view factor 0.5 (a cell tilted 45 deg
-  from a sky-facing axis sees about half the sky).
-* Potentiometers: 0.02 deg rms noise (two counts of TRACKER_POS).
-* 90 VDC bus: 0.5 ohm source resistance, 0.05 V rms noise.
-* Not modelled: the speed controller's current limit and IR compensation, wind and
-  unbalance torques, backlash, the sun's finite disc (0.53 deg), cell temperature.
-
-Cost. Plain Python floats per axis, no numpy or pandas per step; the sun is a table lookup
-(`hil_sim.sun.SunTable`, computed on first need: about 70 ms for a local day, plus about
-1 s to import pvlib once per process). Measured on the shared 2-core development machine
-(tests/test_tracker_plant.py prints it): 4.5-7 us a step with the sensors on and both
-axes driven (best of 5 and mean), 3.5 us with the sensors off and the relays open. A
-whole day at 10 ms steps is 8.64 million steps, 40-60 s; daylight only (05:19-19:32 MST
-at the solstice) 23-36 s; at 50 ms steps (relay and motor timing are resolved inside a
-step, so a coarser step changes little but the controller's own rate) 8-12 s.
+Design: docs/tracker.md#the-plant-in-detail
 """
 from __future__ import annotations
 
@@ -146,10 +14,9 @@ import numpy as np
 
 from hil_sim.sun import (DEFAULT_START, DEFAULT_TABLE_STEP_S, TUCSON, CloudSchedule, DateTimeLike, Site, SunTable,
                          as_clouds, to_utc)
+from protocol.states import AZ, EL, TRACKER_AXES
 from protocol.units import DEG
 
-AXES = ("az", "el")
-AZ, EL = 0, 1
 _NOISE_PER_STEP = 7          # 4 cells, 2 potentiometers, 1 supply
 _NOISE_BATCH = 7 * 128
 
@@ -424,7 +291,7 @@ class TrackerPlant:
             if value is None:
                 continue
             if not (isinstance(value, Real) and self._stop_ccw[k] <= value <= self._stop_cw[k]):
-                raise ValueError(f"{AXES[k]} angle must be within its stops {self._stop_ccw[k]}..{self._stop_cw[k]}"
+                raise ValueError(f"{TRACKER_AXES[k]} angle must be within its stops {self._stop_ccw[k]}..{self._stop_cw[k]}"
                                  f" deg, got {value!r}")
             self.angle_deg[k] = float(value)
             self._w[k] = 0.0
@@ -623,5 +490,5 @@ def _shaft(w: float, p_i: float, q: float, m: float, kt: float, p: TrackerParams
     return w2, p_i - q * w2
 
 
-__all__ = ["AXES", "AZ", "EL", "SAFE_COMMAND", "TRACKER_PARAMS", "TrackerAxisParams", "TrackerCommand",
+__all__ = ["AZ", "EL", "SAFE_COMMAND", "TRACKER_PARAMS", "TrackerAxisParams", "TrackerCommand",
            "TrackerParams", "TrackerPlant", "wrap180"]

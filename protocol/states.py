@@ -116,7 +116,7 @@ class GripAction(enum.IntEnum):
     CLOSE = 1
 
 
-# ---- the solar tracker's control box (firmware_py/tracker.py) ----
+# ---- the solar tracker's control box (firmware_py/tracker/) ----
 
 class Switch(enum.IntEnum):
     """The switches of the solar tracker's control box (report, "Control Box" and its operating instructions)."""
@@ -155,6 +155,13 @@ class TrackerAxis(enum.IntEnum):
     AZ = 0
     EL = 1
     BOTH = 2
+
+
+# The tracker's axes by index (AZ, EL) and by name, in that order: the suffixes of its per-axis
+# HAL signals and telemetry fields (relay_az ... duty_el). Declared here once; both ends of the
+# bus import them.
+TRACKER_AXES = ("az", "el")
+AZ, EL = 0, 1
 
 
 class TempSide(enum.IntEnum):

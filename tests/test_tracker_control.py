@@ -1,6 +1,6 @@
 """The solar tracker's controller: relay logic, interlocks, temperature warning, ephemeris, feed-forward, the bus.
 
-Unit tests drive `firmware_py.tracker.TrackerController` through a tiny stand-in HAL
+Unit tests drive `firmware_py.tracker.task.TrackerController` through a tiny stand-in HAL
 (`StandIn`: the inputs as `ControllerHal` keeps them, the TRACKER_CMD frames it would send).
 The tracker closed around its plant through a day (lag, hunting, the feed-forward, clouds) is
 tested in tests/test_tracker_day.py. The bus tests run the whole controller on a
@@ -17,7 +17,9 @@ from datetime import datetime, timedelta, timezone
 
 import pytest
 
-from firmware_py import tracker as T
+from firmware_py.tracker import task as T
+from firmware_py.tracker.box import TempWatch, quantize_dial
+from firmware_py.tracker.logic import DRIVE, FF_CLOSE_DEG_S, FF_ERROR_FILTER
 from firmware_py.ephemeris import sun_position, sun_rates, wrap180
 from firmware_py.hal import HalInputs
 from firmware_py.params import ParamStore
@@ -119,7 +121,7 @@ def test_sensor_mode_closes_beyond_the_deadband_and_opens_inside_the_hysteresis(
         out = tick(tracker, hal, now, diff_az_mv=diff_mv)
         assert relays(out, 0) == expected, (diff_mv, out)
         assert relays(out, 1) == 0                                   # el's cells read 0 difference
-        assert out.duty_az == (pytest.approx(T.quantize_dial(40.0) / 1023) if expected else 0.0)
+        assert out.duty_az == (pytest.approx(quantize_dial(40.0) / 1023) if expected else 0.0)
         assert not out.brake_az and out.motor_power and out.sensor_power
 
 
@@ -163,7 +165,7 @@ def test_manual_mode_drives_by_the_direction_switch_at_the_dial():
     tracker, hal, _ = running(mode=P.MANUAL, dial=30.0, trk_dwell_s=0.2)
     out = tick(tracker, hal, 0.0, diff_az_mv=-50.0)                    # the cells do not matter in manual
     assert (relays(out, 0), relays(out, 1)) == (1, 1)
-    assert out.duty_az == out.duty_el == pytest.approx(T.quantize_dial(30.0) / 1023)
+    assert out.duty_az == out.duty_el == pytest.approx(quantize_dial(30.0) / 1023)
     assert tracker.switch(Switch.DIRECTION, P.CCW, AZ)[0] is Reason.DIAL_NOT_LOW     # dial high: refused
     assert tracker.dial(2.0, AZ)[0] is Reason.OK
     assert tracker.switch(Switch.DIRECTION, P.CCW, AZ) == (Reason.OK, "")
@@ -171,7 +173,7 @@ def test_manual_mode_drives_by_the_direction_switch_at_the_dial():
     assert relays(tick(tracker, hal, 0.1), 0) == 0
     out = tick(tracker, hal, 0.25)
     assert relays(out, 0) == -1 and relays(out, 1) == 1                # ... to CCW after the dwell; el unchanged
-    assert out.duty_az == pytest.approx(T.quantize_dial(2.0) / 1023)
+    assert out.duty_az == pytest.approx(quantize_dial(2.0) / 1023)
 
 
 def test_speed_switch_at_brake_and_main_power_off_stop_everything_at_once():
@@ -307,7 +309,7 @@ def test_the_dial_reads_as_a_ten_bit_adc():
     for bad in (-0.1, 100.1, math.nan, math.inf):
         assert tracker.dial(bad)[0] is Reason.OUT_OF_RANGE
     assert tracker.box.dial_counts == [128, 1023]
-    assert len({T.quantize_dial(p / 100) for p in range(10001)}) == 1024          # every count reachable
+    assert len({quantize_dial(p / 100) for p in range(10001)}) == 1024          # every count reachable
     tracker.switch(Switch.MODE, P.MANUAL)
     for switch in (Switch.SENSOR, Switch.MAIN):
         tracker.switch(switch, P.ON)
@@ -330,7 +332,7 @@ def test_parameters_that_would_break_the_hysteresis_are_refused():
 # ---- the temperature warning -------------------------------------------------------------------------------------
 
 def test_temperature_warning_near_each_limit_once_per_crossing():
-    watch = T.TempWatch()
+    watch = TempWatch()
     seen = []
     for temp in (20.0, 39.9, 40.0, 40.3, 44.0, 46.0, 39.8, 39.6, 39.4, 39.8, 40.0, math.nan, 20.0,
                  -4.9, -5.0, -6.0, -4.6, -4.4):
@@ -401,8 +403,8 @@ def test_ephemeris_follows_the_plants_spa_over_a_day_at_tucson():
 
 def test_the_firmwares_drive_model_matches_the_plants_numbers():
     for duty in (0.02, 0.05, 0.1, 0.3, 0.5, 1.0):
-        assert T.DRIVE.speed_deg_s(duty) == pytest.approx(TRACKER_PARAMS.steady_speed_deg_s(duty), rel=1e-9)
-        assert T.DRIVE.duty_for(T.DRIVE.speed_deg_s(duty)) == pytest.approx(duty)
+        assert DRIVE.speed_deg_s(duty) == pytest.approx(TRACKER_PARAMS.steady_speed_deg_s(duty), rel=1e-9)
+        assert DRIVE.duty_for(DRIVE.speed_deg_s(duty)) == pytest.approx(duty)
 
 
 def test_feed_forward_sets_the_duty_from_the_suns_rate_and_the_dial_caps_it():
@@ -412,25 +414,25 @@ def test_feed_forward_sets_the_duty_from_the_suns_rate_and_the_dial_caps_it():
     out = tick(tracker, hal, 0.0, angles=(180.0, 81.0))
     rate_az, rate_el = tracker.sun_rates()
     assert rate_az == pytest.approx(1.50 / 60, abs=0.001) and tracker.ff_active
-    assert relays(out, 0) == 1 and out.duty_az == pytest.approx(T.DRIVE.duty_for(rate_az, 90.0))
-    assert T.DRIVE.speed_deg_s(out.duty_az) == pytest.approx(rate_az)      # the speed the sun needs
-    assert abs(rate_el) < T.FF_CLOSE_DEG_S and relays(out, 1) == 0  # el: standstill
+    assert relays(out, 0) == 1 and out.duty_az == pytest.approx(DRIVE.duty_for(rate_az, 90.0))
+    assert DRIVE.speed_deg_s(out.duty_az) == pytest.approx(rate_az)      # the speed the sun needs
+    assert abs(rate_el) < FF_CLOSE_DEG_S and relays(out, 1) == 0  # el: standstill
     # the photocells say the sun is ahead (CW) by atan(4 mV / 0.66 V) / cos(81 deg) = 2.2 deg of azimuth
     out = tick(tracker, hal, 0.01, diff_az_mv=4.0, angles=(180.0, 81.0))
     error = math.degrees(math.atan(0.004 / 0.66)) / math.cos(math.radians(81.0))
-    filtered = error * -math.expm1(-0.01 / (T.FF_ERROR_FILTER * 30.0))          # its low-pass, one step on
+    filtered = error * -math.expm1(-0.01 / (FF_ERROR_FILTER * 30.0))          # its low-pass, one step on
     correction = filtered / 30.0
     assert tracker.axes[0].rate_cmd_dps == pytest.approx(rate_az + correction, rel=1e-6)
-    assert out.duty_az > T.quantize_dial(3.0) / 1023
+    assert out.duty_az > quantize_dial(3.0) / 1023
     assert tracker.dial(3.0, AZ)[0] is Reason.OK
     out = tick(tracker, hal, 0.02, diff_az_mv=4.0, angles=(180.0, 81.0))
-    assert out.duty_az == pytest.approx(T.quantize_dial(3.0) / 1023)       # capped by the dial
+    assert out.duty_az == pytest.approx(quantize_dial(3.0) / 1023)       # capped by the dial
 
 
 def test_feed_forward_without_a_clock_falls_back_to_the_relay_logic_and_says_so():
     tracker, hal, _ = running(dial=40.0, trk_ff=1)
     out = tick(tracker, hal, 0.0, diff_az_mv=5.0)
-    assert relays(out, 0) == 1 and out.duty_az == pytest.approx(T.quantize_dial(40.0) / 1023)
+    assert relays(out, 0) == 1 and out.duty_az == pytest.approx(quantize_dial(40.0) / 1023)
     assert tracker.warnings & TrackerWarning.FF_FALLBACK and tracker.warnings & TrackerWarning.NO_CLOCK
     assert not tracker.ff_active
     night = datetime(2026, 6, 21, 23, 0, tzinfo=MST).timestamp()

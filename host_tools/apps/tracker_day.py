@@ -1,6 +1,6 @@
 """`aspod tracker-day`: the solar tracker through a simulated day at the site, faster than real time.
 
-What runs. The tracker's firmware (`firmware_py.tracker.TrackerController`: the control box,
+What runs. The tracker's firmware (`firmware_py.tracker.task.TrackerController`: the control box,
 the report's relay logic or the sun-rate feed-forward, unchanged) and its plant
 (`hil_sim.tracker.TrackerPlant`: the sun, clouds, photocells, relays, 90 VDC motors and
 gear trains), both every 10 ms (TRACKER_CMD's cycle), from when the sun climbs above
@@ -47,7 +47,7 @@ from typing import Optional, Sequence, TextIO
 
 import numpy as np
 
-from firmware_py import tracker as firmware
+from firmware_py.tracker import task as firmware
 from firmware_py.hal import HalInputs
 from firmware_py.params import ParamStore
 from hil_sim.sun import TUCSON, Site, as_clouds, solar_position

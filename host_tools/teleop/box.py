@@ -29,6 +29,7 @@ from typing import Optional
 from protocol.messages import SCHEMA
 from protocol.schema import Message
 from protocol.states import TRACKER_WARNING_DOCS, TrackerWarning
+from protocol.units import DEG
 
 from host_tools.teleop.format import INDENT, format_value, wrap
 
@@ -71,10 +72,9 @@ def pointing_error_deg(msg: Message, axis: Optional[str] = None) -> Optional[flo
         return None
     if axis is not None:
         return abs(getattr(msg, f"error_{axis}"))
-    rad = math.pi / 180.0
-    az_t, el_t, az_s, el_s = (v * rad for v in (msg.angle_az, msg.angle_el, msg.sun_az, msg.sun_el))
+    az_t, el_t, az_s, el_s = (v * DEG for v in (msg.angle_az, msg.angle_el, msg.sun_az, msg.sun_el))
     c = math.cos(el_t) * math.cos(el_s) * math.cos(az_s - az_t) + math.sin(el_t) * math.sin(el_s)
-    return math.acos(max(-1.0, min(1.0, c))) / rad
+    return math.acos(max(-1.0, min(1.0, c))) / DEG
 
 
 def _utc(seconds: int) -> str:
