@@ -18,11 +18,7 @@ delays it by up to that frame's wire time. The last case (115200 with telemetry 
 from __future__ import annotations
 
 import math
-import os
 import secrets
-import select
-import subprocess
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +31,8 @@ from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import MsgClass
 from timebase import RealClock
+
+from host_tools.worlds.child import Child, ChildError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 START_TIMEOUT_S = 30.0
@@ -114,14 +112,16 @@ class SimProcess:
     def __init__(self, baud: int, telemetry_hz: int, key_path: Path, clock: RealClock, paced: bool = True) -> None:
         self.clock = clock
         self._stderr = tempfile.TemporaryFile()
-        cmd = [sys.executable, "-m", "host_tools.cli.main", "sim", "--pty", "--baud", str(baud),
-               "--telemetry-hz", str(telemetry_hz), "--key-file", str(key_path)] + ([] if paced else ["--no-pacing"])
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                     stderr=self._stderr, cwd=REPO_ROOT)
+        self.child = Child(["sim", "--pty", "--baud", str(baud), "--telemetry-hz", str(telemetry_hz),
+                            "--key-file", str(key_path)] + ([] if paced else ["--no-pacing"]), stderr=self._stderr)
+        self.proc = self.child.proc
         self._buf = b""
         try:
             link = self._line(START_TIMEOUT_S)
             key = self._line(START_TIMEOUT_S)
+        except ChildError as exc:
+            self.close()
+            raise BenchSetupError(f"{exc}; stderr: {self.stderr()!r}") from None
         except BaseException:
             self.close()
             raise
@@ -131,35 +131,14 @@ class SimProcess:
         self.url = link.split(" ", 1)[1]
 
     def _line(self, timeout_s: float) -> str:
-        deadline = self.clock.now() + timeout_s
-        fd = self.proc.stdout.fileno()
-        while b"\n" not in self._buf:
-            left = deadline - self.clock.now()
-            if left <= 0:
-                raise BenchSetupError(f"aspod sim printed no line in {timeout_s:.0f} s; stderr: {self.stderr()!r}")
-            ready, _, _ = select.select([fd], [], [], min(left, 0.5))
-            if ready:
-                data = os.read(fd, 4096)
-                if not data:
-                    raise BenchSetupError(f"aspod sim exited (status {self.proc.poll()}); stderr: {self.stderr()!r}")
-                self._buf += data
-        line, self._buf = self._buf.split(b"\n", 1)
-        return line.decode(errors="replace").strip()
+        return self.child.line(timeout_s).strip()
 
     def stderr(self) -> str:
         self._stderr.seek(0)
         return self._stderr.read().decode(errors="replace").strip()[-2000:]
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout=STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=STOP_TIMEOUT_S)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        self.child.stop(timeout_s=STOP_TIMEOUT_S)
 
 
 # ---------------------------------------------------------------- one case

@@ -43,6 +43,7 @@ from hil_sim.arm import gripper_position_m
 from host_tools.apps import pick_place
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M, started_motions
+from host_tools.worlds.settings import PlantSettings
 from protocol.reasons import Reason
 from protocol.states import Axis, MotionOutcome
 
@@ -117,7 +118,7 @@ class Tracker:
 
     def __init__(self, gravity: str, seed: int = SEED) -> None:
         self.gravity = gravity
-        self.bench = LockstepBench(seed=seed, gravity=gravity)
+        self.bench = LockstepBench(seed=seed, plant=PlantSettings(gravity=gravity))
         self.plant = self.bench.world.plant
         self.controller = self.bench.controller
         self._seen = 0

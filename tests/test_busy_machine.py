@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import os
 import re
-import selectors
 import signal
 import subprocess
 import sys
 
 import pytest
+
+from host_tools.worlds.child import Child
 
 pytestmark = pytest.mark.pty
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -46,41 +47,18 @@ def hogs():
         proc.wait()
 
 
-def first_lines(proc: subprocess.Popen, count: int, timeout_s: float = 120.0) -> list[str]:
-    lines, buffer = [], bytearray()
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        while len(lines) < count:
-            if not sel.select(timeout_s):
-                raise AssertionError(f"aspod sim printed nothing for {timeout_s} s (so far {lines})")
-            byte = proc.stdout.read(1)
-            if not byte:
-                raise AssertionError(f"aspod sim exited: {proc.stderr.read().decode()}")
-            buffer += byte
-            if byte == b"\n":
-                lines.append(buffer.decode().strip())
-                buffer.clear()
-    return lines
-
-
 @pytest.mark.parametrize("mode", [(), ("--hal", "udp_multicast")], ids=["one-process", "lockstep-processes"])
 def test_a_session_of_arm_moves_on_a_busy_machine_ends_every_motion_done_without_a_fault(mode, hogs, tmp_path):
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
-    sim = subprocess.Popen(ASPOD + ["sim", "--pty", "--params", str(tmp_path / "params.json"), *mode],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, bufsize=0)
+    sim = Child(["sim", "--pty", "--params", str(tmp_path / "params.json"), *mode], env=env)
     try:
-        link, _key = first_lines(sim, 2)
+        link = sim.ready("ASPOD-LINK ", timeout_s=120.0)
         url = link.split(" ", 1)[1]
         done = subprocess.run(ASPOD + ["teleop", url, "--connect-timeout", "60"], input=SCRIPT.encode(),
                               capture_output=True, env=env, timeout=900)
     finally:
-        sim.send_signal(signal.SIGTERM)
-        try:
-            _, err = sim.communicate(timeout=60)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            _, err = sim.communicate()
-    out, err = done.stdout.decode(), err.decode()
+        _, err = sim.stop(signal.SIGTERM, timeout_s=60)
+    out = done.stdout.decode()
     assert done.returncode == 0, out + done.stderr.decode() + err
     ends = re.findall(r"! (\w+)#\d+ (\w+) at ", out)
     assert len(ends) == MOTIONS and {outcome for _, outcome in ends} == {"DONE"}, out

@@ -104,8 +104,8 @@ def test_a_damaged_small_parameter_file_is_reported_and_the_defaults_stay(env, t
         assert done.returncode == 0, done.stderr.decode()
         assert "value=10.00" in done.stdout.decode()
     finally:
-        sim.stop()
-    assert f"parameters: {params}: Expecting property name" in sim.proc.stderr.read().decode()
+        _, err = sim.stop()
+    assert f"parameters: {params}: Expecting property name" in err
 
 
 # ---- teleop scripts: checked whole, fast, before anything is sent -------------------------------------------

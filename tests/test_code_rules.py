@@ -77,3 +77,27 @@ def test_no_unused_imports_or_undefined_names():
     done = subprocess.run([sys.executable, "-m", "pyflakes", *PACKAGES, "tests", "bench"], cwd=ROOT,
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_only_the_cli_reads_argparse():
+    """Commands turn their Namespace into settings at the edge (host_tools/cli/settings.py); below cli/, nothing
+    imports argparse or names a Namespace."""
+    offenders = []
+    for package in PACKAGES:
+        for path in (ROOT / package).rglob("*.py"):
+            if path.is_relative_to(ROOT / "host_tools" / "cli"):
+                continue
+            text = path.read_text()
+            if "argparse" in our_and_std_imports(path) or "Namespace" in text:
+                offenders.append(str(path.relative_to(ROOT)))
+    assert offenders == []
+
+
+def our_and_std_imports(path: Path) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module.split(".")[0])
+    return found

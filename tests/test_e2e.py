@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import os
 import re
-import selectors
 import signal
 import subprocess
 import sys
@@ -16,6 +15,7 @@ import pytest
 import serial
 
 from host_tools.client.live import HostClient
+from host_tools.worlds.child import DEVNULL, PIPE, Child, ChildError
 from protocol import auth
 from protocol.errors import LinkError
 from protocol.messages import MESSAGES as M
@@ -28,20 +28,12 @@ ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 SESSION = "ping\nstatus\nestop\nreset\nquit\n"
 
 
-def read_line(proc: subprocess.Popen, timeout_s: float = 30.0, stream=None) -> str:
-    """One line from an unbuffered pipe (stdout by default), waiting at most `timeout_s` for each byte."""
-    stream = stream or proc.stdout
-    line = bytearray()
-    with selectors.DefaultSelector() as sel:
-        sel.register(stream, selectors.EVENT_READ)
-        while not line.endswith(b"\n"):
-            if not sel.select(timeout_s):
-                raise AssertionError(f"no output from {proc.args[3]} (so far: {bytes(line)!r})")
-            byte = stream.read(1)
-            if not byte:
-                raise AssertionError(f"{proc.args[3]} exited (so far: {bytes(line)!r})")
-            line += byte
-    return line.decode().rstrip("\n")
+def read_line(child: Child, timeout_s: float = 30.0, stream=None) -> str:
+    """One line from the child's stdout (or stream="stderr"), waiting at most `timeout_s` for each byte."""
+    try:
+        return child.line(timeout_s, stream)
+    except ChildError as exc:
+        raise AssertionError(str(exc)) from None
 
 
 @pytest.fixture
@@ -53,9 +45,9 @@ def env(tmp_path):
 class Sim:
     def __init__(self, env: dict, *args: str) -> None:
         self.env = env
-        self.proc = subprocess.Popen(ASPOD + ["sim", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     env=env, bufsize=0)   # unbuffered: select() sees every line
-        link, key = read_line(self.proc), read_line(self.proc)
+        self.child = Child(["sim", *args], env=env)
+        self.proc = self.child.proc
+        link, key = read_line(self.child), read_line(self.child)
         assert link.startswith("ASPOD-LINK "), link
         assert key.startswith("ASPOD-KEY "), key
         self.url = link.split(" ", 1)[1]
@@ -67,26 +59,21 @@ class Sim:
 
     def teleop_started(self, script: str) -> subprocess.Popen:
         """`aspod teleop` running `script` in the background, once it has printed its first Pong."""
-        host = subprocess.Popen(ASPOD + ["teleop", self.url], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, env=self.env, bufsize=0)
-        host.stdin.write(script.encode())
-        host.stdin.close()
+        host = Child(["teleop", self.url], stdin=PIPE, env=self.env)
+        host.proc.stdin.write(script.encode())
+        host.proc.stdin.close()
         while "ok   Pong" not in read_line(host):
             pass
-        return host
+        return host.proc
 
     def client(self) -> HostClient:
         client = HostClient(self.url, auth.load_key(self.key_path))
         client.connect()
         return client
 
-    def stop(self) -> None:
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+    def stop(self) -> tuple[int, str]:
+        """SIGTERM (then SIGKILL after 10 s); (exit status, the rest of its stderr)."""
+        return self.child.stop(signal.SIGTERM, timeout_s=10)
 
 
 @pytest.fixture
@@ -185,13 +172,13 @@ def test_killing_the_host_sends_the_controller_to_its_safe_state_within_the_time
     wall = RealClock()
     sim = sim_factory("--pty", "--link-timeout", "1.0")
     started = wall.now()
-    host = subprocess.Popen(ASPOD + ["teleop", sim.url], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, env=sim.env, bufsize=0)
+    teleop = Child(["teleop", sim.url], stdin=PIPE, stderr=DEVNULL, env=sim.env)
+    host = teleop.proc
     host.stdin.write(b"enable\nping\nwait 600\n")
     host.stdin.close()
     pong_uptime_ms = None
     while pong_uptime_ms is None:
-        line = read_line(host)
+        line = read_line(teleop)
         found = re.search(r"Pong token=0 uptime_ms=(\d+)", line)
         if found:
             pong_uptime_ms = int(found.group(1))
@@ -199,7 +186,7 @@ def test_killing_the_host_sends_the_controller_to_its_safe_state_within_the_time
     killed = wall.now()
     host.wait(timeout=10)
     while True:                                   # the simulator logs every state change on stderr
-        line = read_line(sim.proc, 30.0, sim.proc.stderr)
+        line = read_line(sim.child, 30.0, "stderr")
         found = re.search(r"uptime (\d+) ms: ENABLED -> FAULT \(LINK_TIMEOUT\), faults LINK_LOST", line)
         if found:
             break
@@ -272,9 +259,9 @@ def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the
         assert following.call(M["Ping"](7)).ok
     finally:
         following.close()
-    sim.stop()
-    assert re.search(rb"aspod sim: refused a TCP connection from 127\.0\.0\.1:\d+: a live authenticated session "
-                     rb"holds the line", sim.proc.stderr.read())
+    _, err = sim.stop()
+    assert re.search(r"aspod sim: refused a TCP connection from 127\.0\.0\.1:\d+: a live authenticated session "
+                     r"holds the line", err)
 
 
 def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):

@@ -16,6 +16,7 @@ from firmware_py.controller import ControllerConfig
 from timebase.scheduler import Scheduler
 from firmware_py.uart import PacedUart
 from host_tools.worlds.ports import BufferPort
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from protocol.hal import BusView, HalCodec
@@ -69,7 +70,7 @@ class Pair:
         self.leader = LockstepLeader(self.plant_bus, PacedClock(self.wall, math.inf, start_s=first_tick * 0.001),
                                      0.001, reoffer=lambda: self.node.resend_sync())
         self.leader.controller_tick = first_tick      # its first tick is free, as tick 0 is
-        self.node = build_plant_node(self.leader.tap, seed, tracker=False, lockstep=True)
+        self.node = build_plant_node(self.leader.tap, seed, settings=PlantSettings(tracker=False), lockstep=True)
         self.node.tick = first_tick
         self.plant = Scheduler(self.leader, stopwatch=self.leader.now)
         self.plant.add("plant", self.node.step, period_s=self.node.period_s)

@@ -13,6 +13,7 @@ import pytest
 
 from timebase.scheduler import run_live
 from host_tools.worlds.ports import BufferPort
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
 from protocol.host_link import HostLink
 from protocol.link import LinkState
@@ -31,7 +32,7 @@ class LiveRig:
         self.wall = SimClock(50.0)
         self.port = BufferPort(notifies=False)
         self.world = World(PacedClock(self.wall), self.port, KEY, link_clock=self.wall, deterministic=True,
-                           tracker=False)
+                           plant=PlantSettings(tracker=False))
         self.events: list = []
         rng = random.Random(7)
         self.host = HostLink(KEY, nonce_source=lambda: rng.randbytes(16),

@@ -13,14 +13,13 @@ import copy
 import io
 import os
 import re
-import signal
 import subprocess
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
 import pytest
-from test_teleop_arm import ASPOD, read_line
+from test_teleop_arm import ASPOD
 
 from hil_sim.sun import MST
 from hil_sim.tracker import TrackerCommand
@@ -30,6 +29,8 @@ from host_tools.client.bench import BenchClient
 from host_tools.teleop.box import AXIS_HEADER
 from host_tools.teleop.words import Step, check_script
 from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.child import Child
+from host_tools.worlds.settings import PlantSettings
 from protocol.states import ControllerState, SwitchPosition as P
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -90,7 +91,7 @@ class Run:
 
 @pytest.fixture(scope="module")
 def run():
-    bench = LockstepBench(seed=3, start=START)
+    bench = LockstepBench(seed=3, plant=PlantSettings(start=START))
     client = BenchClient(bench)
     client.connect()
     tracker, plant = bench.world.plant.tracker, bench.world.plant
@@ -229,24 +230,18 @@ def test_the_doc_shows_the_script_and_the_panel_as_they_are():
 @pytest.mark.pty
 def test_the_procedure_over_a_real_pty_against_aspod_sim(tmp_path):
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
-    errors = (tmp_path / "sim.err").open("w+b")
-    sim = subprocess.Popen(ASPOD + ["sim", "--pty", "--params", str(tmp_path / "params.json"), "--sun-start",
-                                    "2026-03-20T06:50-07:00"], stdout=subprocess.PIPE, stderr=errors, env=env,
-                           bufsize=0)
+    errors = (tmp_path / "sim.err").open("w+b")      # a file, not a pipe: nobody reads it during the run
+    sim = Child(["sim", "--pty", "--params", str(tmp_path / "params.json"), "--sun-start", "2026-03-20T06:50-07:00"],
+                env=env, stderr=errors)
     try:
-        url = read_line(sim).split(" ", 1)[1]
-        read_line(sim)                                                   # ASPOD-KEY
+        url = sim.ready("ASPOD-LINK ").split(" ", 1)[1]
+        sim.ready("ASPOD-KEY ")
         done = subprocess.run(ASPOD + ["teleop", url, "--script", str(SCRIPT), "--summary"], capture_output=True,
                               env=env, timeout=900)
         out, err = done.stdout.decode(), done.stderr.decode()
         assert done.returncode == EXIT_OK, out + err
     finally:
-        sim.send_signal(signal.SIGINT)
-        try:
-            sim.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()
+        sim.stop(timeout_s=30)
         errors.seek(0)
         sim_err = errors.read().decode(errors="replace")
         errors.close()

@@ -11,6 +11,7 @@ import pytest
 from firmware_py.axis import AxisError
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.settings import PlantSettings
 from protocol.hal import BusView, HalCodec
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -32,7 +33,7 @@ def stalled_bench(stall_s: float, at_s: float) -> LockstepBench:
     bus's queue for the controller), so the time passes one plant tick at a time.
     """
     clock = WallLike()
-    bench = LockstepBench(clock=clock, tracker=False)
+    bench = LockstepBench(clock=clock, plant=PlantSettings(tracker=False))
     plant = bench.world.plant_node
     stalls = [at_s]
 
@@ -96,7 +97,7 @@ def test_a_late_loop_while_idle_or_below_the_limit_warns_and_faults_nothing():
 
 
 def test_a_simulated_world_never_judges_lateness():
-    bench = LockstepBench(tracker=False)
+    bench = LockstepBench(plant=PlantSettings(tracker=False))
     assert not bench.controller.arm.judge_lateness
     bench = stalled_bench(0.01, at_s=0.5)
     assert bench.controller.arm.judge_lateness
@@ -119,7 +120,7 @@ class LoseFeedback(BusView):
 
 
 def test_stale_encoder_counts_fault_by_their_own_parameter_and_say_how_old():
-    bench = LockstepBench(tracker=False)
+    bench = LockstepBench(plant=PlantSettings(tracker=False))
     hal = bench.controller.hal
     hal.bus = LoseFeedback(hal.bus)
     assert bench.connect() and bench.call(M["Enable"]()).ok
@@ -149,7 +150,7 @@ def test_ticks_the_loop_missed_widen_the_glitch_check_instead_of_faulting():
 
 
 def test_stale_currents_fault_by_current_stale_s_when_it_is_the_tighter_limit():
-    bench = LockstepBench(tracker=False)
+    bench = LockstepBench(plant=PlantSettings(tracker=False))
     hal = bench.controller.hal
     hal.bus = LoseFeedback(hal.bus)
     assert bench.connect() and bench.call(M["Enable"]()).ok

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import selectors
 import signal
 import subprocess
 import sys
@@ -29,6 +28,7 @@ import pytest
 
 from host_tools.worlds import nodes
 from host_tools.client.live import HostClient
+from host_tools.worlds.child import Child, ChildError
 from protocol import auth
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -76,54 +76,24 @@ def params_file(tmp_path) -> Path:
     return path
 
 
-class Proc:
-    """A subprocess with unbuffered stdout/stderr pipes, read line by line with a bound per line."""
+class Proc(Child):
+    """`aspod ...` with unbuffered stdout/stderr pipes, read line by line with a bound per line."""
 
     def __init__(self, args: list[str], env: dict) -> None:
-        self.args = args
-        self.proc = subprocess.Popen(ASPOD + args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, env=env, bufsize=0)
-        self.seen: list[str] = []     # stderr lines read so far
+        super().__init__(args, env=env)
 
-    def line(self, stream=None, timeout_s: float = WAIT_S) -> str:
-        stream = stream or self.proc.stdout
-        data = bytearray()
-        with selectors.DefaultSelector() as sel:
-            sel.register(stream, selectors.EVENT_READ)
-            while not data.endswith(b"\n"):
-                if not sel.select(timeout_s):
-                    raise AssertionError(f"aspod {self.args[0]}: nothing for {timeout_s} s (so far {bytes(data)!r}; "
-                                         f"stderr so far {self.seen})")
-                byte = stream.read(1)
-                if not byte:
-                    raise AssertionError(f"aspod {self.args[0]} closed its output (so far {bytes(data)!r}; "
-                                         f"stderr so far {self.seen})")
-                data += byte
-        return data.decode().rstrip("\n")
+    def line(self, timeout_s: float = WAIT_S, stream=None) -> str:
+        try:
+            return super().line(timeout_s, stream)
+        except ChildError as exc:
+            raise AssertionError(str(exc)) from None
 
     def wait_stderr(self, pattern: str, timeout_s: float = WAIT_S) -> re.Match:
-        """Read stderr until a line matches `pattern` (lines read are kept in `seen`)."""
-        for old in self.seen:
-            found = re.search(pattern, old)
-            if found:
-                return found
-        while True:
-            text = self.line(self.proc.stderr, timeout_s)
-            self.seen.append(text)
-            found = re.search(pattern, text)
-            if found:
-                return found
+        return super().wait_stderr(pattern, timeout_s)
 
     def stop(self, sig: int = signal.SIGTERM) -> tuple[int, str]:
-        """Signal it, wait (then kill), return (exit status, the rest of its stderr)."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-        try:
-            _, err = self.proc.communicate(timeout=WAIT_S)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            _, err = self.proc.communicate()
-        return self.proc.returncode, err.decode(errors="replace")
+        """Signal it, wait (then SIGTERM, then SIGKILL), return (exit status, the rest of its stderr)."""
+        return super().stop(sig, timeout_s=WAIT_S)
 
 
 @pytest.fixture
@@ -136,9 +106,7 @@ def procs(env):
         return started[-1]
     yield start
     for proc in reversed(started):
-        if proc.proc.poll() is None:
-            proc.proc.kill()
-        proc.proc.communicate()
+        proc.stop(signal.SIGKILL)
 
 
 @pytest.fixture
@@ -312,7 +280,7 @@ def _running(pid: int) -> bool:
      "port 70000 is not a whole number in 1..65535"),
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "port"], "is not KEY=VALUE"),
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--gravity", "moon"],
-     "'moon' is not one of earth, orbit"),
+     "invalid choice: 'moon' (choose from 'earth', 'orbit')"),
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--payload-kg", "-1"], "outside"),
 ])
 def test_bad_bus_arguments_exit_2_with_a_reason(env, args, message):

@@ -1,6 +1,7 @@
 """`aspod sim` and `aspod plant` with the solar tracker: --sun-start, --clouds, --no-tracker.
 
-The options are resolved (`plant_cli.tracker_options`) and the sun's start printed (`sun_line`)
+The options become `PlantSettings` (`cli/settings.py`), `now` is resolved (`resolve_sun`) and the sun's start
+printed (`sun_line`)
 without a subprocess; bad values are refused by the real command line (exit 2, a reason, nothing
 started); the real `aspod sim` (in one process, and with the plant as its child over
 udp_multicast, `--hal`) is started once each to see that the options reach the plant.
@@ -19,7 +20,9 @@ from test_separate_processes import ASPOD, WAIT_S, Proc, link_of
 from host_tools.worlds.ports import BufferPort
 from hil_sim.sun import MST
 from host_tools.cli.main import build_parser
-from host_tools.cli.plant import sun_line, tracker_child_args, tracker_options
+from host_tools.cli.plant import resolve_sun, sun_line
+from host_tools.cli.settings import plant_settings
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
 from timebase import RealClock, SimClock
 
@@ -34,35 +37,39 @@ def options(*argv: str) -> argparse.Namespace:
 
 def test_a_start_with_its_offset_and_clouds_on_that_day():
     args = options("--sun-start", EQUINOX, "--clouds", "07:00+5m@0.5, 2026-03-21T07:00+1h@0.9")
-    sun = tracker_options(args)
-    assert sun["tracker"] and sun["start"] == datetime(2026, 3, 20, 6, 50, tzinfo=MST)
-    passages = sun["clouds"]
+    plant = plant_settings(args)
+    assert plant.tracker and plant.start == datetime(2026, 3, 20, 6, 50, tzinfo=MST)
+    assert resolve_sun(plant) is plant
+    passages = plant.passages()
     assert [p.start for p in passages] == [datetime(2026, 3, 20, 7, 0, tzinfo=MST),
                                            datetime(2026, 3, 21, 7, 0, tzinfo=MST)]
     assert [(p.duration_s, p.attenuation) for p in passages] == [(300.0, 0.5), (3600.0, 0.9)]
-    world = World(SimClock(), BufferPort(), b"k" * 32, **sun)
+    world = World(SimClock(), BufferPort(), b"k" * 32, plant=plant)
     try:
         tracker = world.plant.tracker
         assert tracker.start_utc == datetime(2026, 3, 20, 13, 50, tzinfo=timezone.utc)
-        line = sun_line("aspod sim", sun, tracker)
+        line = sun_line("aspod sim", plant, tracker)
         assert line.startswith("aspod sim: the sun starts at 2026-03-20T06:50:00-07:00 (2026-03-20T13:50:00Z) at "
                                "Tucson, azimuth 92.52 deg, elevation 4.13 deg"), line
         assert "clouds 07:00:00+300s@0.5, 07:00:00+3600s@0.9" in line
         assert "`clock 2026-03-20T06:50:00-07:00`" in line
     finally:
         world.close()
-    assert tracker_child_args(args) == ["--sun-start", EQUINOX, "--clouds", "07:00+5m@0.5, 2026-03-21T07:00+1h@0.9"]
+    assert plant.to_argv() == ["--gravity", "earth", "--payload-kg", "0.0", "--sun-start", "2026-03-20T13:50:00+00:00",
+                               "--clouds", "07:00+5m@0.5, 2026-03-21T07:00+1h@0.9"]
 
 
 def test_now_is_the_wall_clock_and_no_tracker_is_no_tracker():
     before = RealClock.wall_time()
-    sun = tracker_options(options())
+    unresolved = plant_settings(options())
+    assert unresolved.start is None and unresolved.to_argv() == ["--gravity", "earth", "--payload-kg", "0.0"]
+    plant = resolve_sun(unresolved)
     after = RealClock.wall_time()
-    assert before - 1.0 <= sun["start"].timestamp() <= after and sun["clouds"] == ()
-    assert "now" in sun_line("aspod sim", sun, from_now=True) and "`clock now`" in sun_line("p", sun, from_now=True)
-    args = options("--no-tracker")
-    assert tracker_options(args) == {"tracker": False} and tracker_child_args(args) == ["--no-tracker"]
-    assert sun_line("aspod plant", {"tracker": False}) == "aspod plant: no solar tracker (--no-tracker)"
+    assert before - 1.0 <= plant.start.timestamp() <= after and plant.passages() == ()
+    assert "now" in sun_line("aspod sim", plant, from_now=True) and "`clock now`" in sun_line("p", plant, from_now=True)
+    none = plant_settings(options("--no-tracker"))
+    assert none == PlantSettings(tracker=False) and none.to_argv()[-1] == "--no-tracker"
+    assert sun_line("aspod plant", none) == "aspod plant: no solar tracker (--no-tracker)"
 
 
 @pytest.mark.parametrize("argv, message", [

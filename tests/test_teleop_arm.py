@@ -11,7 +11,6 @@ import io
 import json
 import os
 import re
-import selectors
 import signal
 import subprocess
 import sys
@@ -26,6 +25,7 @@ from host_tools.teleop.session import run_script
 from host_tools.teleop.motion import MotionTracker
 from host_tools.teleop.words import parse_line
 from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.child import DEVNULL, Child
 from protocol import auth
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
@@ -38,26 +38,14 @@ HOME = "reset\nenable\nhome all\nwait all 60\n"
 END = re.compile(r"^! (\w+)#(\d+) (\w+) at (-?[\d.]+) (deg|mm) \(line (\d+): ([^,]+)", re.M)
 
 
-def read_line(proc: subprocess.Popen, timeout_s: float = 30.0) -> str:
-    line = bytearray()
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        while not line.endswith(b"\n"):
-            assert sel.select(timeout_s), f"no output from aspod sim (so far: {bytes(line)!r})"
-            byte = proc.stdout.read(1)
-            assert byte, f"aspod sim exited (so far: {bytes(line)!r})"
-            line += byte
-    return line.decode().rstrip("\n")
-
-
 class ArmSim:
     def __init__(self, tmp: Path) -> None:
         self.env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "config")}
         self.params = tmp / "params.json"
-        self.proc = subprocess.Popen(ASPOD + ["sim", "--pty", "--telemetry-hz", "10", "--params", str(self.params)],
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=self.env, bufsize=0)
-        self.url = read_line(self.proc).split(" ", 1)[1]
-        self.key_path = Path(read_line(self.proc).split(" ", 1)[1])
+        self.child = Child(["sim", "--pty", "--telemetry-hz", "10", "--params", str(self.params)],
+                           stderr=DEVNULL, env=self.env)
+        self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1]
+        self.key_path = Path(self.child.ready("ASPOD-KEY ").split(" ", 1)[1])
         self.homed = False
         self.runs: dict[str, str] = {}   # outputs kept for later tests
 
@@ -75,12 +63,7 @@ class ArmSim:
             self.homed = True
 
     def stop(self) -> None:
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+        self.child.stop(signal.SIGTERM, timeout_s=10)
 
 
 # ---- the motion tracker, without a link ----

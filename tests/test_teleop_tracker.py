@@ -22,6 +22,7 @@ from host_tools.teleop.box import AXIS_HEADER, box_block, box_state_text, pointi
 from host_tools.datetimes import parse_when, split_seconds
 from host_tools.teleop.words import completions, help_text, parse_line
 from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.settings import PlantSettings
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.states import SwitchPosition as P, TrackerWarning
@@ -192,7 +193,7 @@ def test_box_state_replies_read_in_one_line():
 
 @pytest.fixture
 def session():
-    bench = LockstepBench(seed=4, start=EQUINOX)
+    bench = LockstepBench(seed=4, plant=PlantSettings(start=EQUINOX))
     client = BenchClient(bench)
     client.connect()
     out = io.StringIO()

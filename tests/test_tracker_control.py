@@ -29,6 +29,7 @@ from hil_sim.tracker import TRACKER_PARAMS, TrackerCommand
 from host_tools.teleop import session as teleop
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M
+from host_tools.worlds.settings import PlantSettings
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault, Switch, SwitchPosition as P, TempSide, TrackerAxis, TrackerWarning
 
@@ -446,7 +447,7 @@ def test_feed_forward_without_a_clock_falls_back_to_the_relay_logic_and_says_so(
 @pytest.fixture
 def plain_bench():
     """A world whose plant has no tracker, so TRACKER_SENSE and TRACKER_POS never arrive."""
-    bench = LockstepBench(seed=5, tracker=False)
+    bench = LockstepBench(seed=5, plant=PlantSettings(tracker=False))
     assert bench.connect()
     yield bench
     bench.close()
@@ -517,7 +518,7 @@ def test_a_temperature_warning_once_per_crossing_and_no_fault():
 @pytest.mark.parametrize("ambient_c, side, beyond_c", [(-7.0, TempSide.COLD, -12.0), (42.0, TempSide.HOT, 47.0)])
 def test_near_a_temperature_limit_a_warning_and_beyond_it_the_safe_state(ambient_c, side, beyond_c):
     bench = LockstepBench(seed=7, plant_params=PlantParams(ambient_c=ambient_c),
-                          start=datetime(2026, 6, 21, 10, 0, tzinfo=MST))
+                          plant=PlantSettings(start=datetime(2026, 6, 21, 10, 0, tzinfo=MST)))
     try:
         assert bench.connect()
         box_on(bench, mode="manual")
@@ -540,7 +541,7 @@ def test_near_a_temperature_limit_a_warning_and_beyond_it_the_safe_state(ambient
 @pytest.fixture
 def tracker_bench():
     """A LockstepBench whose plant runs the tracker, from 10:00 MST on the June solstice at Tucson."""
-    bench = LockstepBench(seed=2, start=datetime(2026, 6, 21, 10, 0, tzinfo=MST))
+    bench = LockstepBench(seed=2, plant=PlantSettings(start=datetime(2026, 6, 21, 10, 0, tzinfo=MST)))
     assert bench.connect()
     yield bench
     bench.close()

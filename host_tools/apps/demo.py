@@ -12,10 +12,8 @@ both ends.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import selectors
-import subprocess
+from dataclasses import dataclass
 import sys
 
 from protocol import auth
@@ -26,6 +24,7 @@ from host_tools.apps import pick_place
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.teleop.session import run_script
+from host_tools.worlds.child import Child, ChildError
 
 SCRIPT = """\
 # a short session: link check, enable, e-stop while enabled, recover
@@ -47,28 +46,30 @@ link
 START_TIMEOUT_S = 30.0
 
 
-def _read_line(proc: subprocess.Popen) -> str:
-    with selectors.DefaultSelector() as sel:
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        if not sel.select(START_TIMEOUT_S):
-            raise LinkError(Reason.NO_SESSION, "the simulator printed nothing")
-    return proc.stdout.readline().decode().strip()
+@dataclass(frozen=True)
+class DemoSettings:
+    """`aspod demo`: gravity and seed of the pick-and-place; `json` output; `link`: the link demo at `baud`."""
+    gravity: str = "earth"
+    seed: int = 0
+    json: bool = False
+    link: bool = False
+    baud: int = 115200
 
 
-def run_demo(args: argparse.Namespace) -> int:
-    if args.link:
-        return run_link_demo(args)
-    if args.json:
-        report = pick_place.run(args.gravity, args.seed)
+def run_demo(settings: DemoSettings) -> int:
+    if settings.link:
+        return run_link_demo(settings)
+    if settings.json:
+        report = pick_place.run(settings.gravity, settings.seed)
         print(json.dumps(report, indent=1))
         return EXIT_OK if report["within_spec"] else EXIT_FAILED
-    print(f"pick and place, gravity {args.gravity}, on the simulated clock (spec: within "
+    print(f"pick and place, gravity {settings.gravity}, on the simulated clock (spec: within "
           f"{pick_place.SPEC_M * 100:.0f} cm at the gripper)", flush=True)
 
     def progress(result: pick_place.StepResult) -> None:
         print(f"  {result.name:<16} error {result.position_error_m * 1000:7.3f} mm   "
               f"({result.sim_time_s:6.2f} s simulated)", flush=True)
-    report = pick_place.run(args.gravity, args.seed, progress)
+    report = pick_place.run(settings.gravity, settings.seed, progress)
     if report["error"]:
         print(f"aspod demo: {report['error']}", file=sys.stderr)
     worst = report["max_position_error_m"]
@@ -79,21 +80,26 @@ def run_demo(args: argparse.Namespace) -> int:
     return EXIT_OK if report["within_spec"] else EXIT_FAILED
 
 
-def run_link_demo(args: argparse.Namespace) -> int:
-    sim = subprocess.Popen([sys.executable, "-m", "host_tools.cli.main", "sim", "--pty", "--baud", str(args.baud)],
-                           stdout=subprocess.PIPE, bufsize=0)
+def run_link_demo(settings: DemoSettings) -> int:
     try:
-        link_line, key_line = _read_line(sim), _read_line(sim)
+        sim = Child(["sim", "--pty", "--baud", str(settings.baud)], stderr=None)
+    except OSError as exc:
+        raise LinkError(Reason.NO_SESSION, f"the simulator did not start: {exc}") from None
+    try:
+        try:
+            link_line, key_line = sim.line(START_TIMEOUT_S), sim.line(START_TIMEOUT_S)
+        except ChildError as exc:
+            raise LinkError(Reason.NO_SESSION, f"the simulator printed nothing: {exc}") from None
         print(link_line)
         print(key_line)
         if not link_line.startswith("ASPOD-LINK ") or not key_line.startswith("ASPOD-KEY "):
             print("aspod demo: the simulator did not announce its port and key", file=sys.stderr)
             return EXIT_LINK
         url, key_path = link_line.split(" ", 1)[1], key_line.split(" ", 1)[1]
-        client = HostClient(url, auth.load_key(key_path), baud=args.baud)
+        client = HostClient(url, auth.load_key(key_path), baud=settings.baud)
         try:
             client.connect()
-            print(f"link up over {url} at {args.baud} baud (8N1 wire time emulated)\n", flush=True)
+            print(f"link up over {url} at {settings.baud} baud (8N1 wire time emulated)\n", flush=True)
             status, session = run_script(client, SCRIPT.splitlines(), sys.stdout)
             print("\n--- summary ---")
             print(session.summary())
@@ -102,9 +108,4 @@ def run_link_demo(args: argparse.Namespace) -> int:
         finally:
             client.close()
     finally:
-        sim.terminate()
-        try:
-            sim.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()
+        sim.stop()

@@ -27,6 +27,7 @@ from timebase import RealClock
 
 from host_tools.apps.kinematics import DEMO_SCENE, Scene, Step, steps
 from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.settings import PlantSettings
 
 AXIS_BY_NAME = {a.name.lower(): a for a in Axis if a is not Axis.ALL}
 SPEC_M = 0.01                     # the report's positioning spec: within 1 cm
@@ -53,7 +54,7 @@ class PickAndPlace:
     def __init__(self, gravity: str = "earth", seed: int = 0, scene: Scene = DEMO_SCENE) -> None:
         self.scene = scene
         self.gravity = gravity
-        self.bench = LockstepBench(seed=seed, gravity=gravity)
+        self.bench = LockstepBench(seed=seed, plant=PlantSettings(gravity=gravity))
         self.plant = self.bench.world.plant
         self.results: list[StepResult] = []
         self.homing_s = math.nan

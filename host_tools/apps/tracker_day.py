@@ -432,50 +432,19 @@ def parse_param(text: str) -> tuple[str, float]:
         raise ValueError(f"--param {text!r}: {value!r} is not a number") from None
 
 
-def settings_from_args(args) -> DaySettings:
-    """DaySettings from `aspod tracker-day`'s arguments; ValueError with the reason for anything wrong."""
-    settings = DaySettings(mode=args.mode, dial_pct=parse_dial(args.dial), day=parse_date(args.date),
-                           clouds=args.clouds, seed=args.seed,
-                           start=parse_clock(args.start) if args.start else None,
-                           end=parse_clock(args.end) if args.end else None,
-                           params=tuple(parse_param(p) for p in args.param or ()))
-    table = firmware.parameter_table()
-    names = {spec.name for spec in table}
-    ranges = ParamStore(table)      # each value against its declared range, before the day's sun is computed
-    for name, value in settings.params:
-        if name not in names:
-            raise ValueError(f"--param {name}: the tracker has no such parameter; it has {', '.join(sorted(names))}")
-        reason, detail = ranges.set(name, value)
-        if reason is not Reason.OK:
-            raise ValueError(f"--param {detail}")
-    if args.plot is not None:
-        check_plot_path(args.plot)
-    return settings
-
-
-def check_plot_path(path) -> None:
-    """A PNG path whose folder exists, checked before a run rather than after it."""
-    from pathlib import Path
-    path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"--plot {path}: the plot is a PNG file; name it *.png")
-    if not path.parent.is_dir():
-        raise ValueError(f"--plot {path}: no folder {path.parent}")
-
-
-def run_tracker_day(args) -> int:
+def run_tracker_day(settings: DaySettings, *, as_json: bool = False, plot: Optional[str] = None) -> int:
+    """`aspod tracker-day`: the day, its summary on stdout (or one JSON object), the plot if asked."""
     import json
-    settings = settings_from_args(args)
     progress = sys.stderr if sys.stderr.isatty() else None
     result = run_day(settings, progress)
     summary = result.summary()
-    if args.plot is not None:
-        plot_days([result], str(args.plot))
-        summary["plot"] = str(args.plot)
-    if args.json:
+    if plot is not None:
+        plot_days([result], str(plot))
+        summary["plot"] = str(plot)
+    if as_json:
         print(json.dumps(summary, indent=1))
     else:
         print_summary(summary)
-        if args.plot is not None:
-            print(f"  plot             {args.plot}")
+        if plot is not None:
+            print(f"  plot             {plot}")
     return 0

@@ -17,6 +17,7 @@ from host_tools.datetimes import parse_when
 from host_tools.exit_codes import EXIT_USAGE
 from host_tools.teleop.session import run_script
 from host_tools.teleop.words import read_script
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
 
 
@@ -35,7 +36,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         start = parse_when(args.sun_start, "--sun-start", posix=False)
         if start is None:
             raise ValueError("--sun-start: a simulated run needs a date-time, not `now`")
-        bench = LockstepBench(seed=args.seed, start=start, clouds=args.clouds)
+        bench = LockstepBench(seed=args.seed, plant=PlantSettings(start=start, clouds=args.clouds))
     except (OSError, ValueError) as exc:     # TeleopError included
         print(f"bench_script: {exc}", file=sys.stderr)
         return EXIT_USAGE

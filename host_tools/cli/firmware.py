@@ -24,10 +24,8 @@ lock-step watch takes it to the safe state) and is stopped when the controller s
 """
 from __future__ import annotations
 
-import argparse
-import math
+import logging
 import signal
-import sys
 from typing import Any, Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
@@ -43,39 +41,43 @@ from protocol.states import Fault
 from timebase import RealClock
 
 from host_tools.worlds import nodes
-from host_tools.cli.plant import PlantProcess, bus_options, describe_exit, tracker_child_args, tracker_options
+from host_tools.cli.plant import PlantProcess
+from host_tools.cli.settings import (BusSettings, ControllerSettings, FirmwareSettings, PlantRunSettings, PortSettings,
+                                     SimSettings)
+from host_tools.worlds.child import describe_exit
 from host_tools.teleop.format import describe_report
 
 PLANT_WATCH_S = 0.1
+log = logging.getLogger("aspod")
 
 
-def open_port(args: argparse.Namespace, prog: str) -> Port:
+def open_port(settings: PortSettings, prog: str) -> Port:
     """The controller's side of the line; a TCP port says on stderr when it refuses a newcomer."""
-    if args.tcp is not None:
-        port = TcpServerPort(args.tcp)
-        port.on_refused = lambda peer: print(f"{prog}: refused a TCP connection from {peer}: a live "
-                                             "authenticated session holds the line", file=sys.stderr, flush=True)
+    if settings.tcp is not None:
+        port = TcpServerPort(settings.tcp)
+        port.on_refused = lambda peer: log.warning(f"{prog}: refused a TCP connection from {peer}: a live "
+                                                   "authenticated session holds the line")
         return port
-    if args.port is not None:
-        return DevicePort(args.port, args.baud)
+    if settings.device is not None:
+        return DevicePort(settings.device, settings.baud)
     return PtyPort()
 
 
-def controller_config(args: argparse.Namespace):
-    """(psk, key path, params path, ControllerConfig) from the link options, as `aspod sim` takes them."""
-    if args.key_file is not None:
-        psk, key_path = auth.load_key(args.key_file, "--key-file"), args.key_file
+def controller_config(settings: ControllerSettings):
+    """(psk, key path, params path, ControllerConfig) from the controller's settings."""
+    if settings.key_file is not None:
+        psk, key_path = auth.load_key(settings.key_file, "--key-file"), settings.key_file
     else:
         psk, key_path = auth.load_or_create_dev_key()
-    params_path = args.params if args.params is not None else auth.default_key_path().with_name("params.json")
+    params_path = settings.params if settings.params is not None else auth.default_key_path().with_name("params.json")
     check_params_file(params_path)
-    timeout_s = args.link_timeout if args.link_timeout is not None else LinkConfig.link_timeout_s
+    timeout_s = settings.link_timeout_s if settings.link_timeout_s is not None else LinkConfig.link_timeout_s
     link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
-    boot_timeout_s = getattr(args, "boot_timeout", None)
-    extra = {"boot_timeout_s": boot_timeout_s} if boot_timeout_s is not None else {}
-    loop_hz = getattr(args, "loop_hz", None)
-    if loop_hz is not None:
-        extra["arm_period_s"] = 1.0 / loop_hz
+    extra: dict[str, Any] = {}
+    if settings.boot_timeout_s is not None:
+        extra["boot_timeout_s"] = settings.boot_timeout_s
+    if settings.loop_hz is not None:
+        extra["arm_period_s"] = 1.0 / settings.loop_hz
     return psk, key_path, params_path, ControllerConfig(link=link, params_path=params_path, **extra)
 
 
@@ -90,17 +92,16 @@ def check_params_file(path) -> None:
             raise ValueError(f"--params {exc}") from None
 
 
-def apply_command_line(controller: Controller, args: argparse.Namespace, prog: str) -> None:
+def apply_command_line(controller: Controller, settings: ControllerSettings, prog: str) -> None:
     """Report parameter-file problems; what the command line says wins over the saved set.
 
     `--gravity orbit` (aspod sim) also tells the controller: its gravity feed-forward goes to 0.
     """
     params = controller.params
     for problem in params.load_problems:
-        print(f"{prog}: parameters: {problem}", file=sys.stderr, flush=True)
-    gravity = 0.0 if getattr(args, "gravity", "earth") == "orbit" else None
-    for name, value in (("link_timeout_s", args.link_timeout), ("telemetry_hz", args.telemetry_hz),
-                        ("gravity_m_s2", gravity)):
+        log.warning(f"{prog}: parameters: {problem}")
+    for name, value in (("link_timeout_s", settings.link_timeout_s), ("telemetry_hz", settings.telemetry_hz),
+                        ("gravity_m_s2", settings.gravity_m_s2)):
         if value is not None:
             reason, detail = params.set(name, value)
             if reason is not Reason.OK:
@@ -108,7 +109,7 @@ def apply_command_line(controller: Controller, args: argparse.Namespace, prog: s
     controller.telemetry_hz = int(params["telemetry_hz"])
 
 
-def run_controller(args: argparse.Namespace, prog: str, interface: str, channel: str, options: dict[str, Any],
+def run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
                    plant: Optional[PlantProcess] = None, timing: str = "lockstep") -> int:
     """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
 
@@ -117,18 +118,19 @@ def run_controller(args: argparse.Namespace, prog: str, interface: str, channel:
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
     signal.signal(signal.SIGINT, lambda signum, frame: stopping.append(signum))
-    psk, key_path, params_path, config = controller_config(args)
-    bus = nodes.open_bus(interface, channel, node=nodes.CONTROLLER, **options)
+    psk, key_path, params_path, config = controller_config(settings)
+    bus = nodes.open_bus(bus_settings.interface, bus_settings.channel, node=nodes.CONTROLLER, **bus_settings.kwargs)
     wall = RealClock()
     follower = LockstepFollower(bus, wall) if timing == "lockstep" else None
     uart = None
     controller: Optional[Controller] = None
+    baud, paced = port_settings.baud, port_settings.paced
     try:
-        port = open_port(args, prog)
-        uart = PacedUart(port, args.baud, not args.no_pacing)
+        port = open_port(port_settings, prog)
+        uart = PacedUart(port, baud, paced)
         controller = nodes.build_controller(psk, uart, follower.tap if follower else bus, config)
         params = controller.params
-        apply_command_line(controller, args, prog)
+        apply_command_line(controller, settings, prog)
         scheduler = Scheduler(follower or wall)
         link_scheduler = Scheduler(wall)
         controller.attach(scheduler, link_scheduler)
@@ -137,17 +139,15 @@ def run_controller(args: argparse.Namespace, prog: str, interface: str, channel:
             link_scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
-        print(f"{prog}: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "
-              f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; "
-              f"HAL on {nodes.describe_bus(interface, channel, options)}, timing {timing}; Ctrl-C stops",
-              file=sys.stderr, flush=True)
+        log.info(f"{prog}: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
+                 f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; "
+                 f"HAL on {bus_settings.describe()}, timing {timing}; Ctrl-C stops")
         run_live(scheduler, link_scheduler, lambda: bool(stopping))
     finally:
         if plant is not None:
-            status = plant.stop()
-            if not plant.reported and status is not None and status not in (0, -signal.SIGTERM):
-                print(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}",
-                      file=sys.stderr, flush=True)
+            status, _ = plant.stop()
+            if not plant.reported and status not in (0, -signal.SIGINT, -signal.SIGTERM):
+                log.warning(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}")
         bus.shutdown()
         if uart is not None:
             uart.close()
@@ -156,18 +156,18 @@ def run_controller(args: argparse.Namespace, prog: str, interface: str, channel:
             if follower is not None:
                 counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs,
                                 rtf=f"{follower.timing().rtf_total:.2f}")
-            print(f"{prog}: HAL counters {nodes.format_counters(counters)}", file=sys.stderr, flush=True)
+            log.info(f"{prog}: HAL counters {nodes.format_counters(counters)}")
     return 0
 
 
 def log_states(controller: Controller, prog: str) -> None:
     """State changes, fault reports and timing warnings on stderr, as they happen."""
     def log_state(new, old, reason, now) -> None:
-        print(f"{prog}: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
-              f"faults {Fault(controller.supervisor.faults).name or 'none'}", file=sys.stderr, flush=True)
+        log.info(f"{prog}: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
+                 f"faults {Fault(controller.supervisor.faults).name or 'none'}")
 
     def log_report(msg) -> None:
-        print(f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}", file=sys.stderr, flush=True)
+        log.info(f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}")
     controller.state_listeners.append(log_state)
     controller.report_listeners.append(log_report)
 
@@ -180,37 +180,33 @@ def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callabl
             return now + PLANT_WATCH_S
         if not stopping and not plant.stopped:
             plant.reported = True
-            print(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}; the HAL has gone "
-                  "quiet, the controller's lock-step watch takes it to the safe state", file=sys.stderr, flush=True)
+            log.warning(f"{prog}: the plant process (pid {plant.pid}) ended: {describe_exit(status)}; the HAL has "
+                        "gone quiet, the controller's lock-step watch takes it to the safe state")
         return None
     return step
 
 
-def run_firmware(args: argparse.Namespace) -> int:
+def run_firmware(settings: FirmwareSettings) -> int:
     """`aspod firmware --interface X --channel Y ...`."""
-    return run_controller(args, "aspod firmware", args.interface, args.channel, bus_options(args),
-                          timing=args.timing)
+    return run_controller(settings.port, settings.controller, "aspod firmware", settings.bus, timing=settings.timing)
 
 
-def run_sim_over_hal(args: argparse.Namespace) -> int:
+def run_sim_over_hal(settings: SimSettings) -> int:
     """`aspod sim --hal INTERFACE [--hal-channel CH]`: `aspod plant` as a child, the controller here."""
-    interface = nodes.check_interface(args.hal, between_processes=True)
-    options = nodes.parse_bus_args(args.hal_arg or (), interface, "--hal-arg")
-    channel = args.hal_channel
+    interface = nodes.check_interface(settings.hal, between_processes=True)
+    options = dict(settings.hal_options)
+    channel = settings.hal_channel
     if channel is None:
         if interface != "udp_multicast":
             raise ValueError(f"--hal {interface} needs --hal-channel (the {interface} channel to use)")
         channel, port = nodes.fresh_udp_multicast()   # private to this run
         options.setdefault("port", port)
-    tracker_options(args, warm=False)                           # bad tracker options fail here too
+    bus = BusSettings(interface, channel, tuple(options.items()))
     nodes.open_bus(interface, channel, **options).shutdown()   # fail here, before a child is started
-    plant = PlantProcess(interface, channel, options, seed=args.seed,
-                         extra_args=("--gravity", args.gravity, "--payload-kg", str(args.payload_kg),
-                                     "--timing", "lockstep", "--speed", "max" if args.speed == math.inf else repr(args.speed),
-                                     *tracker_child_args(args)))
-    print(f"aspod sim: plant process {plant.pid} ready on {nodes.describe_bus(interface, channel, options)}",
-          file=sys.stderr, flush=True)
+    plant = PlantProcess(PlantRunSettings(bus=bus, plant=settings.plant, seed=settings.seed, timing="lockstep",
+                                          speed=settings.speed))
+    log.info(f"aspod sim: plant process {plant.pid} ready on {bus.describe()}")
     try:
-        return run_controller(args, "aspod sim", interface, channel, options, plant, timing="lockstep")
+        return run_controller(settings.port, settings.controller, "aspod sim", bus, plant, timing="lockstep")
     finally:
         plant.stop()

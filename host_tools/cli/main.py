@@ -9,11 +9,19 @@
     aspod demo [--json] [--gravity earth|orbit]
     aspod tracker-day [--mode relay|feedforward] [--dial X] [--date YYYY-MM-DD] [--clouds SPEC] [--json] [--plot F]
 
+    aspod completion bash|zsh
+    aspod --version;  -v / -q / --log-file PATH before or after the command
+
+Each command turns its Namespace, once, into frozen settings (host_tools/cli/settings.py); nothing
+below cli/ sees argparse. Diagnostics go through the `aspod` logger (stderr, bare messages at INFO);
+results and ready lines go to stdout.
+
 Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused, unreachable or lost.
 """
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 from pathlib import Path
@@ -23,7 +31,7 @@ from firmware_py.uart import BAUD_RATES
 from protocol import auth
 from protocol.errors import KeyFileError, LinkError, shown
 
-from host_tools.exit_codes import EXIT_LINK, EXIT_USAGE
+from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 
 
 SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces: 0 .. 4294967295
@@ -101,13 +109,6 @@ def _interface(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _gravity(text: str) -> str:
-    from host_tools.worlds import nodes
-    if text not in nodes.GRAVITY_MODES:
-        raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(nodes.GRAVITY_MODES)}")
-    return text
-
-
 def add_bus_args(parser: argparse.ArgumentParser) -> None:
     """The HAL bus: a python-can interface and channel, opened for CAN FD."""
     parser.add_argument("--interface", type=_interface, required=True,
@@ -147,19 +148,21 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
 
 def add_arm_args(parser: argparse.ArgumentParser) -> None:
     """The plant's arm: gravity and payload."""
-    parser.add_argument("--gravity", type=_gravity, default="earth",
-                        help="the arm's gravity: earth or orbit (default earth)")
+    from host_tools.worlds.settings import GRAVITY_MODES
+    parser.add_argument("--gravity", choices=GRAVITY_MODES, default="earth",
+                        help="the arm's gravity (default earth)")
     parser.add_argument("--payload-kg", type=bounded(float, 0.0, 1000.0), default=0.0, metavar="M",
                         help="mass carried at the gripper tip, kg (default 0)")
 
 
 def _sun_start(text: str):
-    from host_tools.datetimes import parse_when
+    """`now` (resolved when the plant is built: cli/plant.py `resolve_sun`), else POSIX seconds."""
+    from host_tools.datetimes import NOW, parse_when
     try:
-        parse_when(text, "sun start", posix=False)    # resolved when the plant is built (plant_cli)
+        seconds = parse_when(text, "sun start", posix=False)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
+    return NOW if seconds is None else seconds
 
 
 def _clouds(text: str) -> str:
@@ -167,7 +170,7 @@ def _clouds(text: str) -> str:
 
     from hil_sim.sun import parse_clouds
     try:
-        parse_clouds(text, date(2026, 1, 1), -7.0)     # the form only; the day is the start's (plant_cli)
+        parse_clouds(text, date(2026, 1, 1), -7.0)     # the form only; the day is the start's (PlantSettings)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
@@ -186,11 +189,82 @@ def add_tracker_args(parser: argparse.ArgumentParser) -> None:
                         help="a plant without the solar tracker (the arm, mount and gripper only)")
 
 
+EXIT_CODES_TEXT = (f"exit status: {EXIT_OK} ok, {EXIT_FAILED} a command failed, {EXIT_USAGE} bad usage or input, "
+                   f"{EXIT_LINK} link refused, unreachable or lost, 130 interrupted")
+EXAMPLES = {
+    None: ["aspod sim --pty", "aspod teleop /dev/pts/5 --script benches/tracker_procedure.txt", "aspod demo",
+           "aspod completion bash > ~/.local/share/bash-completion/completions/aspod"],
+    "sim": ["aspod sim --pty", "aspod sim --tcp 0 --sun-start 2026-03-20T06:50-07:00 --clouds '12:00+300s@0.9'",
+            "aspod sim --hal udp_multicast --pty"],
+    "plant": ["aspod plant --interface udp_multicast --channel 239.74.163.2 --gravity orbit"],
+    "firmware": ["aspod firmware --interface udp_multicast --channel 239.74.163.2 --pty"],
+    "teleop": ["aspod teleop /dev/pts/5", "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary"],
+    "demo": ["aspod demo", "aspod demo --json --gravity orbit", "aspod demo --link"],
+    "tracker-day": ["aspod tracker-day --mode feedforward --date 2026-12-21 --plot day.png"],
+    "completion": ["aspod completion bash > ~/.local/share/bash-completion/completions/aspod",
+                   "aspod completion zsh > ~/.zfunc/_aspod"],
+}
+SHELLS = ("bash", "zsh")
+
+
+def _epilog(command: Optional[str]) -> str:
+    lines = "\n".join(f"  {example}" for example in EXAMPLES[command])
+    return f"examples:\n{lines}\n\n{EXIT_CODES_TEXT}"
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return version("aspod")
+    except PackageNotFoundError:     # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+def add_logging_args(parser: argparse.ArgumentParser) -> None:
+    """-v, -q, --log-file: before the command or after it (`aspod -v sim`, `aspod sim -v`)."""
+    group = parser.add_argument_group("logging")
+    group.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                       help="more diagnostics on stderr (repeatable: -vv for debug)")
+    group.add_argument("-q", "--quiet", action="count", default=argparse.SUPPRESS,
+                       help="fewer diagnostics on stderr: -q warnings and errors only, -qq errors only")
+    group.add_argument("--log-file", type=Path, default=argparse.SUPPRESS, metavar="PATH",
+                       help="also write the diagnostics, time-stamped, to PATH (appended)")
+
+
+def setup_logging(verbose: int = 0, quiet: int = 0, log_file: Optional[Path] = None) -> None:
+    """The `aspod` logger: diagnostics on stderr as bare messages (INFO by default, so the lines that scripts
+    and tests read stay as they were), and to `log_file` with time and level."""
+    level = min(max(logging.INFO - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
+    log = logging.getLogger("aspod")
+    for handler in list(log.handlers):
+        log.removeHandler(handler)
+        handler.close()
+    log.setLevel(level)
+    log.propagate = False
+    stderr = logging.StreamHandler(sys.stderr)
+    stderr.setFormatter(logging.Formatter("%(message)s"))
+    log.addHandler(stderr)
+    if log_file is not None:
+        to_file = logging.FileHandler(log_file, encoding="utf-8")
+        to_file.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+        log.addHandler(to_file)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator")
+    from host_tools.worlds.settings import GRAVITY_MODES
+    formatter = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator", epilog=_epilog(None),
+                                     formatter_class=formatter)
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    add_logging_args(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    sim = sub.add_parser("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
+    def add_command(name: str, **kwargs) -> argparse.ArgumentParser:
+        command = sub.add_parser(name, epilog=_epilog(name), formatter_class=formatter, **kwargs)
+        add_logging_args(command)
+        return command
+
+    sim = add_command("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
     add_controller_args(sim)
     add_seed_arg(sim, "the plant's noise")
     sim.add_argument("--hal", type=_interface, metavar="INTERFACE",
@@ -206,7 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_arm_args(sim)
     add_tracker_args(sim)
 
-    plant = sub.add_parser("plant", help="run only the plant, in real time, on a python-can interface; "
+    plant = add_command("plant", help="run only the plant, in real time, on a python-can interface; "
                                          "prints an ASPOD-PLANT ready line")
     add_bus_args(plant)
     add_seed_arg(plant, "the plant's noise")
@@ -220,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "the loop around a controller that does not speak lock-step)")
     add_speed_arg(plant, "the plant")
 
-    firmware = sub.add_parser("firmware", help="run only the controller, its HAL on a python-can interface; "
+    firmware = add_command("firmware", help="run only the controller, its HAL on a python-can interface; "
                                                "prints ASPOD-LINK and ASPOD-KEY lines")
     add_bus_args(firmware)
     add_controller_args(firmware)
@@ -230,7 +304,7 @@ def build_parser() -> argparse.ArgumentParser:
                                          "(aspod plant --timing lockstep); realtime: the wall clock, as on real "
                                          "hardware, with the staleness limits and loop deadlines as parameters")
 
-    teleop = sub.add_parser("teleop", help="console to a controller: interactive, or a script")
+    teleop = add_command("teleop", help="console to a controller: interactive, or a script")
     teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")
     add_link_args(teleop)
     teleop.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE and exit")
@@ -238,16 +312,16 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--connect-timeout", type=bounded(float, 0.1, 600), default=10.0, metavar="S")
     teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
 
-    demo = sub.add_parser("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
+    demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")
     demo.add_argument("--json", action="store_true", help="print one JSON object (steps, errors, times)")
-    demo.add_argument("--gravity", type=_gravity, default="earth", help="earth (default) or orbit")
+    demo.add_argument("--gravity", choices=GRAVITY_MODES, default="earth", help="the arm's gravity (default earth)")
     add_seed_arg(demo, "the plant's noise and the link's nonces")
     demo.add_argument("--link", action="store_true",
                       help="instead: start `aspod sim --pty` and run a scripted teleop session over the pty")
     demo.add_argument("--baud", type=_baud, default=115200, help="line rate for --link")
 
-    day = sub.add_parser("tracker-day", help="the solar tracker through a simulated day at Tucson, on the "
+    day = add_command("tracker-day", help="the solar tracker through a simulated day at Tucson, on the "
                                              "simulated clock; pointing error, lag and relay switchings")
     day.add_argument("--mode", choices=("relay", "feedforward"), default="relay",
                      help="relay: the report's relay logic (default); feedforward: the sun-rate feed-forward")
@@ -269,6 +343,12 @@ def build_parser() -> argparse.ArgumentParser:
     day.add_argument("--json", action="store_true", help="print one JSON object")
     day.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
                      help="write the pointing error and the lag over the day to this PNG")
+
+    completion = add_command("completion", help="print a shell completion script (bash or zsh)",
+                             description="print a completion script for aspod: bash (source it, or put it in "
+                                         "~/.local/share/bash-completion/completions/aspod) or zsh (put it as "
+                                         "_aspod in a folder on $fpath)")
+    completion.add_argument("shell", choices=SHELLS)
     return parser
 
 
@@ -283,39 +363,52 @@ def host_key(path: Optional[Path]) -> bytes:
     return auth.load_key(default, "development key")
 
 
+def run_command(args: argparse.Namespace) -> int:
+    """Turn the Namespace into the command's settings (host_tools/cli/settings.py), then run the command."""
+    from host_tools.cli import settings
+    if args.command == "sim":
+        from host_tools.cli.sim import run_sim
+        return run_sim(settings.sim_settings(args))
+    if args.command == "plant":
+        from host_tools.cli.plant import run_plant
+        return run_plant(settings.plant_run_settings(args))
+    if args.command == "firmware":
+        from host_tools.cli.firmware import run_firmware
+        return run_firmware(settings.firmware_settings(args))
+    if args.command == "teleop":
+        from host_tools.cli.teleop import run_teleop
+        return run_teleop(settings.teleop_settings(args), host_key(args.key_file))
+    if args.command == "demo":
+        from host_tools.apps.demo import run_demo
+        return run_demo(settings.demo_settings(args))
+    if args.command == "tracker-day":
+        from host_tools.apps.tracker_day import run_tracker_day
+        return run_tracker_day(settings.day_settings(args), as_json=args.json,
+                               plot=None if args.plot is None else str(args.plot))
+    if args.command == "completion":
+        import shtab
+        print(shtab.complete(build_parser(), shell=args.shell))
+        return EXIT_OK
+    return EXIT_USAGE
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))
+    log = logging.getLogger("aspod")
     try:
-        if args.command == "sim":
-            from host_tools.cli.sim import run_sim
-            return run_sim(args)
-        if args.command == "plant":
-            from host_tools.cli.plant import run_plant
-            return run_plant(args)
-        if args.command == "firmware":
-            from host_tools.cli.firmware import run_firmware
-            return run_firmware(args)
-        if args.command == "teleop":
-            from host_tools.cli.teleop import run_teleop
-            return run_teleop(args, host_key(args.key_file))
-        if args.command == "demo":
-            from host_tools.apps.demo import run_demo
-            return run_demo(args)
-        if args.command == "tracker-day":
-            from host_tools.apps.tracker_day import run_tracker_day
-            return run_tracker_day(args)
+        return run_command(args)
     except (KeyFileError, ValueError) as exc:   # bad key file, or settings out of their bounds
-        print(f"aspod: {exc}", file=sys.stderr)
+        log.error(f"aspod: {exc}")
         return EXIT_USAGE
     except OSError as exc:                      # a port that cannot be opened or bound
-        print(f"aspod: {exc}", file=sys.stderr)
+        log.error(f"aspod: {exc}")
         return EXIT_LINK
     except LinkError as exc:
-        print(f"aspod: link: {exc}", file=sys.stderr)
+        log.error(f"aspod: link: {exc}")
         return EXIT_LINK
     except KeyboardInterrupt:
         return 130
-    return EXIT_USAGE
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ if needed) the per-user development key that the host tools also default to.
 
 The plant carries the solar tracker unless --no-tracker; its sun starts at --sun-start
 (`now` by default: the real sun at Tucson, which `clock now` at teleop matches) with
---clouds; where it starts is said on stderr (host_tools/cli/plant.py `tracker_options`).
+--clouds; where it starts is said on stderr (host_tools/cli/plant.py `resolve_sun`, `sun_line`).
 
 With --hal INTERFACE the plant runs as a separate process (`aspod plant`) and the two
 meet on that python-can interface: see host_tools/cli/firmware.py and
@@ -20,36 +20,38 @@ docs/separate_processes.md.
 """
 from __future__ import annotations
 
-import argparse
+import logging
 import signal
-import sys
 
 from timebase import PacedClock, RealClock
 
-from host_tools.cli.firmware import (apply_command_line, controller_config, log_states, open_port,
-                                    run_sim_over_hal)
-from host_tools.cli.plant import sun_from_now, sun_line, tracker_options
+from host_tools.cli.firmware import apply_command_line, controller_config, log_states, open_port, run_sim_over_hal
+from host_tools.cli.plant import resolve_sun, sun_line
+from host_tools.cli.settings import SimSettings
 from host_tools.worlds.world import World
 
+log = logging.getLogger("aspod")
 
-def run_sim(args: argparse.Namespace) -> int:
-    if getattr(args, "hal", None) is not None:   # plant in a process of its own, on a real python-can interface
-        return run_sim_over_hal(args)
-    psk, key_path, params_path, config = controller_config(args)
-    sun = tracker_options(args)
-    port = open_port(args, "aspod sim")
+
+def run_sim(settings: SimSettings) -> int:
+    if settings.hal is not None:   # plant in a process of its own, on a real python-can interface
+        return run_sim_over_hal(settings)
+    psk, key_path, params_path, config = controller_config(settings.controller)
+    from_now = settings.plant.tracker and settings.plant.start is None
+    plant = resolve_sun(settings.plant)
+    port = open_port(settings.port, "aspod sim")
     wall = RealClock()
-    world = World(PacedClock(wall, args.speed), port, psk, seed=args.seed, baud=args.baud, paced=not args.no_pacing,
-                  controller_config=config, gravity=args.gravity, payload_kg=args.payload_kg, link_clock=wall, **sun)
+    baud, paced = settings.port.baud, settings.port.paced
+    world = World(PacedClock(wall, settings.speed), port, psk, seed=settings.seed, baud=baud, paced=paced,
+                  controller_config=config, plant=plant, link_clock=wall)
     params = world.controller.params
-    apply_command_line(world.controller, args, "aspod sim")
+    apply_command_line(world.controller, settings.controller, "aspod sim")
     log_states(world.controller, "aspod sim")
     print(f"ASPOD-LINK {port.url}", flush=True)
     print(f"ASPOD-KEY {key_path}", flush=True)
-    print(f"aspod sim: controller up at {args.baud} baud{' (unpaced)' if args.no_pacing else ''}, "
-          f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops",
-          file=sys.stderr, flush=True)
-    print(sun_line("aspod sim", sun, world.plant.tracker, from_now=sun_from_now(args)), file=sys.stderr, flush=True)
+    log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
+             f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
+    log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
     stopping = []
 
     def stop(signum, frame):

@@ -1,9 +1,10 @@
 """The `aspod teleop` command: connect, then a script or an interactive console."""
 from __future__ import annotations
 
-import argparse
+import logging
 import sys
 
+from host_tools.cli.settings import TeleopSettings
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_USAGE
 from host_tools.teleop.console import interactive_console
@@ -11,24 +12,27 @@ from host_tools.teleop.session import TeleopError, check_script, run_script
 from host_tools.teleop.words import read_script
 
 
-def run_teleop(args: argparse.Namespace, psk: bytes) -> int:
+log = logging.getLogger("aspod")
+
+
+def run_teleop(args: TeleopSettings, psk: bytes) -> int:
     lines = None
     if args.script is not None or not sys.stdin.isatty():
         try:
             lines = read_script(args.script, sys.stdin.buffer)
         except TeleopError as exc:
-            print(f"aspod teleop: {exc}", file=sys.stderr)
+            log.error(f"aspod teleop: {exc}")
             return EXIT_USAGE
     if lines is not None:
         _steps, problems = check_script(lines)
         if problems:
             for problem in problems:
-                print(f"aspod teleop: error: {problem}", file=sys.stderr)
-            print("aspod teleop: script not run: nothing was sent", file=sys.stderr)
+                log.error(f"aspod teleop: error: {problem}")
+            log.error("aspod teleop: script not run: nothing was sent")
             return EXIT_USAGE
     client = HostClient(args.url, psk, baud=args.baud)
     try:
-        client.connect(args.connect_timeout)
+        client.connect(args.connect_timeout_s)
         info = client.link.controller_info
         print(f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
               f"controller link timeout {info.link_timeout_ms} ms", flush=True)

@@ -34,13 +34,13 @@ import numpy as np
 from firmware_py.controller import Controller, ControllerConfig
 from firmware_py.hal import ControllerHal
 from firmware_py.uart import PacedUart
-from hil_sim.arm_params import GRAVITY_M_S2
 from hil_sim.hal_node import PlantNode
 from hil_sim.plant import Plant, PlantParams
-from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
 from protocol.errors import shown
 from protocol.hal import BusView, HalCodec
+
+from host_tools.worlds.settings import PlantSettings
 
 PLANT = "PLANT"            # node names as the DBC declares them (BU_)
 CONTROLLER = "CONTROLLER"
@@ -53,7 +53,6 @@ ECHOES_OWN_FRAMES = frozenset({"udp_multicast"})
 # python-can's default port for udp_multicast.
 UDP_MULTICAST_DEFAULT_PORT = 43113
 
-GRAVITY_MODES = tuple(GRAVITY_M_S2)     # "earth", "orbit"
 PLANT_PERIOD_S = 0.001                  # the plant's tick (1 kHz)
 
 
@@ -187,34 +186,26 @@ def describe_bus(interface: str, channel: str, options: Optional[dict[str, Any]]
 
 # ---- the plant ----
 
-def check_arm_settings(gravity: str, payload_kg: float) -> None:
-    if gravity not in GRAVITY_M_S2:
-        raise ValueError(f"unknown gravity {gravity!r}; known: {', '.join(GRAVITY_MODES)}")
-    if not (np.isfinite(payload_kg) and payload_kg >= 0):
-        raise ValueError(f"payload_kg must be finite and >= 0, got {payload_kg}")
-
-
-def build_plant(seed: int = 0, params: Optional[PlantParams] = None, *, gravity: str = "earth",
-                payload_kg: float = 0.0, start: DateTimeLike = DEFAULT_START, clouds=None) -> Plant:
-    """The plant, its noise seeded with `seed`; the arm under `gravity` with `payload_kg`; the solar
-    tracker's sun from `start` (an aware datetime or POSIX seconds) with `clouds` (`hil_sim.sun`)."""
-    check_arm_settings(gravity, payload_kg)
+def build_plant(seed: int = 0, params: Optional[PlantParams] = None,
+                settings: PlantSettings = PlantSettings()) -> Plant:
+    """The plant, its noise seeded with `seed`; the arm, the tracker, its sun and clouds as `settings` say
+    (its start resolved: `PlantSettings.with_start`)."""
     rng = np.random.default_rng(seed)
-    return Plant(params or PlantParams(), rng, gravity=gravity, payload_kg=payload_kg, start=start, clouds=clouds)
+    return Plant(params or PlantParams(), rng, gravity=settings.gravity, payload_kg=settings.payload_kg,
+                 start=settings.plant_start(), clouds=settings.clouds)
 
 
-def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParams] = None, *,
-                     gravity: str = "earth", payload_kg: float = 0.0, period_s: float = PLANT_PERIOD_S,
-                     tracker: bool = True, start: DateTimeLike = DEFAULT_START, clouds=None,
+def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParams] = None,
+                     settings: PlantSettings = PlantSettings(), *, period_s: float = PLANT_PERIOD_S,
                      lockstep: bool = False) -> PlantNode:
     """The plant on `bus`; add its `step` to a scheduler (`scheduler.add("plant", node.step, period_s=node.period_s)`).
 
-    `tracker` puts the solar tracker on the bus too (TRACKER_CMD in, TRACKER_SENSE and
+    `settings.tracker` puts the solar tracker on the bus too (TRACKER_CMD in, TRACKER_SENSE and
     TRACKER_POS out every 10 ms); without it the plant is the arm, mount and gripper alone.
     `lockstep` says so in PLANT_SYNC (the plant's clock does the waiting: `protocol.lockstep`).
     """
-    plant = build_plant(seed, params, gravity=gravity, payload_kg=payload_kg, start=start, clouds=clouds)
-    return PlantNode(bus, plant, period_s, tracker=tracker, lockstep=lockstep)
+    plant = build_plant(seed, params, settings)
+    return PlantNode(bus, plant, period_s, tracker=settings.tracker, lockstep=lockstep)
 
 
 # ---- the controller ----

@@ -19,7 +19,6 @@ from timebase.scheduler import Scheduler, poll_tick, run_live
 from firmware_py.uart import PacedUart, Port
 from host_tools.worlds.ports import BufferPort
 from hil_sim.plant import PlantParams
-from hil_sim.sun import DEFAULT_START, DateTimeLike
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
@@ -27,6 +26,7 @@ from timebase import Clock, PacedClock, RealClock, SimClock
 
 from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.nodes import build_controller, build_plant_node
+from host_tools.worlds.settings import PlantSettings
 
 
 def seeded_nonces(seed: int) -> Callable[[], bytes]:
@@ -45,12 +45,10 @@ class World:
     def __init__(self, clock: Clock, port: Port, psk: bytes, *, seed: int = 0, baud: int = 115200,
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
-                 gravity: str = "earth", payload_kg: float = 0.0, tracker: bool = True,
-                 start: DateTimeLike = DEFAULT_START, clouds=None, link_clock: Optional[Clock] = None) -> None:
+                 plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None) -> None:
         self.clock = clock
         self.plant_bus, self.controller_bus = open_local_pair()
-        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, gravity=gravity, payload_kg=payload_kg,
-                                           tracker=tracker, start=start, clouds=clouds)
+        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, plant)
         self.plant = self.plant_node.plant
         stopwatch = clock.now if deterministic else RealClock.precise_now
         self.scheduler = Scheduler(clock, stopwatch=stopwatch)
@@ -96,16 +94,14 @@ class LockstepBench:
                  host_config: Optional[LinkConfig] = None,
                  to_controller: Callable[[bytes], bytes] = lambda b: b,
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
-                 gravity: str = "earth", payload_kg: float = 0.0,
-                 plant_params: Optional[PlantParams] = None, tracker: bool = True,
-                 start: DateTimeLike = DEFAULT_START, clouds=None, sleeping_line: bool = True,
+                 plant_params: Optional[PlantParams] = None, plant: PlantSettings = PlantSettings(),
+                 sleeping_line: bool = True,
                  clock: Optional[SimClock] = None) -> None:
         self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
-                           controller_config=controller_config, deterministic=True, gravity=gravity,
-                           payload_kg=payload_kg, plant_params=plant_params, tracker=tracker, start=start,
-                           clouds=clouds)
+                           controller_config=controller_config, deterministic=True, plant_params=plant_params,
+                           plant=plant)
         self.events: list = []
         self.telemetry: list = []
         self.host = HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 1),

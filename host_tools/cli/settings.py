@@ -1,0 +1,240 @@
+"""Typed settings at the edge: each command turns its argparse.Namespace, once, into frozen values.
+
+Nothing below `cli/` sees a Namespace. The types the worlds and apps use live with them
+(`host_tools.worlds.settings.PlantSettings`, `host_tools.apps.demo.DemoSettings`,
+`host_tools.apps.tracker_day.DaySettings`); the ones only commands use live here.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Optional
+
+from hil_sim.sun import TUCSON, as_clouds, to_utc
+from timebase import RealClock
+
+from host_tools.cli.main import TIMINGS
+from host_tools.worlds import nodes
+from host_tools.worlds.settings import PlantSettings
+
+if TYPE_CHECKING:
+    from host_tools.apps.demo import DemoSettings
+    from host_tools.apps.tracker_day import DaySettings
+
+
+def _speed_argv(speed: float) -> str:
+    return "max" if speed == math.inf else repr(speed)
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """A python-can bus: interface, channel and further keywords (bitrate, data_bitrate, port, ...)."""
+    interface: str
+    channel: str
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        nodes.check_interface(self.interface, between_processes=True)
+        object.__setattr__(self, "options", tuple(sorted(dict(self.options).items())))
+
+    @property
+    def kwargs(self) -> dict[str, Any]:
+        return dict(self.options)
+
+    def describe(self) -> str:
+        return nodes.describe_bus(self.interface, self.channel, self.kwargs)
+
+    def to_argv(self) -> list[str]:
+        argv = ["--interface", self.interface, "--channel", self.channel]
+        for key, value in self.options:
+            if key in ("bitrate", "data_bitrate"):
+                argv += [f"--{key.replace('_', '-')}", str(value)]
+            else:
+                argv += ["--bus-arg", f"{key}={value}"]
+        return argv
+
+
+@dataclass(frozen=True)
+class PortSettings:
+    """The controller's end of the serial line: a pty (the default), a TCP port or a device; baud, pacing."""
+    tcp: Optional[int] = None
+    device: Optional[str] = None
+    baud: int = 115200
+    paced: bool = True
+
+    def __post_init__(self) -> None:
+        if self.tcp is not None and self.device is not None:
+            raise ValueError("--tcp and --port: one line only")
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """The controller's key, parameter file and the settings the command line gives it (None: saved/default)."""
+    key_file: Optional[Path] = None
+    params: Optional[Path] = None
+    link_timeout_s: Optional[float] = None
+    telemetry_hz: Optional[int] = None
+    loop_hz: Optional[float] = None
+    boot_timeout_s: Optional[float] = None
+    gravity_m_s2: Optional[float] = None     # `--gravity orbit` (aspod sim): the feed-forward goes to 0
+
+
+@dataclass(frozen=True)
+class TeleopSettings:
+    """`aspod teleop`: where, at what rate, and a script (None: standard input or the console)."""
+    url: str
+    baud: int = 115200
+    script: Optional[Path] = None
+    keep_going: bool = False
+    connect_timeout_s: float = 10.0
+    summary: bool = False
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """`aspod sim`: one process, or with `hal` the plant as a child `aspod plant`."""
+    port: PortSettings
+    controller: ControllerSettings
+    plant: PlantSettings
+    seed: int = 0
+    speed: float = 1.0
+    hal: Optional[str] = None
+    hal_channel: Optional[str] = None
+    hal_options: tuple[tuple[str, Any], ...] = ()
+
+
+@dataclass(frozen=True)
+class FirmwareSettings:
+    """`aspod firmware`: the controller alone, its HAL on `bus`."""
+    bus: BusSettings
+    port: PortSettings
+    controller: ControllerSettings
+    timing: str = "lockstep"
+
+
+@dataclass(frozen=True)
+class PlantRunSettings:
+    """`aspod plant`: the plant alone on `bus`."""
+    bus: BusSettings
+    plant: PlantSettings = field(default_factory=PlantSettings)
+    seed: int = 0
+    timing: str = "lockstep"
+    speed: float = 1.0
+    stop_on_stdin_eof: bool = False
+
+    def __post_init__(self) -> None:
+        if self.timing not in TIMINGS:
+            raise ValueError(f"timing {self.timing!r} is not one of {', '.join(TIMINGS)}")
+
+    def to_argv(self) -> list[str]:
+        """The `aspod plant` command line for these settings (a child plant: `aspod sim --hal`)."""
+        return [*self.bus.to_argv(), "--seed", str(self.seed), *self.plant.to_argv(), "--timing", self.timing,
+                "--speed", _speed_argv(self.speed), *(["--stop-on-stdin-eof"] if self.stop_on_stdin_eof else [])]
+
+
+# ---- from the Namespace ----
+
+def plant_settings(args: argparse.Namespace) -> PlantSettings:
+    """--gravity, --payload-kg, --no-tracker, --sun-start (parsed by its argparse type: None for `now`), --clouds.
+
+    With `now`, the clouds are checked against today's date (the start is resolved when the plant is built).
+    """
+    if args.no_tracker:
+        given = [name for name, value in (("--sun-start", args.sun_start), ("--clouds", args.clouds))
+                 if value is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} set the solar tracker's sun, but --no-tracker leaves the "
+                             "tracker out: drop one or the other")
+        return PlantSettings(gravity=args.gravity, payload_kg=args.payload_kg, tracker=False)
+    start = None if args.sun_start in (None, "now") else to_utc(args.sun_start)
+    if start is None:
+        as_clouds(args.clouds, to_utc(RealClock.wall_time()), TUCSON)
+    return PlantSettings(gravity=args.gravity, payload_kg=args.payload_kg, start=start, clouds=args.clouds)
+
+
+def port_settings(args: argparse.Namespace) -> PortSettings:
+    return PortSettings(tcp=args.tcp, device=args.port, baud=args.baud, paced=not args.no_pacing)
+
+
+def controller_settings(args: argparse.Namespace) -> ControllerSettings:
+    gravity = getattr(args, "gravity", "earth")      # aspod sim has --gravity, aspod firmware has not
+    return ControllerSettings(key_file=args.key_file, params=args.params, link_timeout_s=args.link_timeout,
+                              telemetry_hz=args.telemetry_hz, loop_hz=args.loop_hz,
+                              boot_timeout_s=getattr(args, "boot_timeout", None),
+                              gravity_m_s2=0.0 if gravity == "orbit" else None)
+
+
+def bus_settings(args: argparse.Namespace) -> BusSettings:
+    """--interface, --channel, --bitrate, --data-bitrate, --bus-arg."""
+    options = nodes.parse_bus_args(args.bus_arg or (), args.interface)
+    if args.bitrate is not None:
+        options["bitrate"] = args.bitrate
+    if args.data_bitrate is not None:
+        options["data_bitrate"] = args.data_bitrate
+    return BusSettings(args.interface, args.channel, tuple(options.items()))
+
+
+def sim_settings(args: argparse.Namespace) -> SimSettings:
+    hal_options: dict[str, Any] = {}
+    if args.hal is not None:
+        hal_options = nodes.parse_bus_args(args.hal_arg or (), args.hal, "--hal-arg")
+    return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
+                       seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
+                       hal_options=tuple(hal_options.items()))
+
+
+def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
+    return FirmwareSettings(bus=bus_settings(args), port=port_settings(args), controller=controller_settings(args),
+                            timing=args.timing)
+
+
+def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
+    return PlantRunSettings(bus=bus_settings(args), plant=plant_settings(args), seed=args.seed, timing=args.timing,
+                            speed=args.speed, stop_on_stdin_eof=args.stop_on_stdin_eof)
+
+
+def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
+    return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
+                          connect_timeout_s=args.connect_timeout, summary=args.summary)
+
+
+def demo_settings(args: argparse.Namespace) -> "DemoSettings":
+    from host_tools.apps.demo import DemoSettings
+    return DemoSettings(gravity=args.gravity, seed=args.seed, json=args.json, link=args.link, baud=args.baud)
+
+
+def day_settings(args: argparse.Namespace) -> "DaySettings":
+    """DaySettings from `aspod tracker-day`'s arguments; ValueError with the reason for anything wrong."""
+    from firmware_py.params import ParamStore
+    from firmware_py.tracker import parameter_table
+    from protocol.reasons import Reason
+
+    from host_tools.apps.tracker_day import DaySettings, parse_clock, parse_date, parse_dial, parse_param
+    settings = DaySettings(mode=args.mode, dial_pct=parse_dial(args.dial), day=parse_date(args.date),
+                           clouds=args.clouds, seed=args.seed,
+                           start=parse_clock(args.start) if args.start else None,
+                           end=parse_clock(args.end) if args.end else None,
+                           params=tuple(parse_param(p) for p in args.param or ()))
+    table = parameter_table()
+    names = {spec.name for spec in table}
+    ranges = ParamStore(table)      # each value against its declared range, before the day's sun is computed
+    for name, value in settings.params:
+        if name not in names:
+            raise ValueError(f"--param {name}: the tracker has no such parameter; it has {', '.join(sorted(names))}")
+        reason, detail = ranges.set(name, value)
+        if reason is not Reason.OK:
+            raise ValueError(f"--param {detail}")
+    if args.plot is not None:
+        check_plot_path(args.plot)
+    return settings
+
+
+def check_plot_path(path) -> None:
+    """A PNG path whose folder exists, checked before a run rather than after it."""
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise ValueError(f"--plot {path}: the plot is a PNG file; name it *.png")
+    if not path.parent.is_dir():
+        raise ValueError(f"--plot {path}: no folder {path.parent}")
