@@ -7,6 +7,8 @@ import io
 import threading
 from types import SimpleNamespace
 
+import pytest
+
 from prompt_toolkit.application import create_app_session
 from prompt_toolkit.data_structures import Size
 from prompt_toolkit.document import Document
@@ -98,13 +100,18 @@ def test_prompt_shows_the_state_faults_and_moving_axes():
     assert prompt_text(client, cache).startswith("aspod LINK ")
 
 
+@pytest.fixture(autouse=True)
+def _widths_restored():
+    """The console sets teleop's output widths for the process (follow_width); other tests' scripts expect 96."""
+    widths = teleop_format.WIDTH, teleop_words.HELP_WIDTH
+    yield
+    teleop_format.WIDTH, teleop_words.HELP_WIDTH = widths
+
+
 def test_output_follows_the_terminal_width():
-    try:
-        assert follow_width(80) == 79 and teleop_format.WIDTH == 79 and teleop_words.HELP_WIDTH == 79
-        assert max(map(len, teleop_words.help_text().split("\n"))) <= 79
-        assert follow_width(200) == 96
-    finally:
-        follow_width(97)
+    assert follow_width(80) == 79 and teleop_format.WIDTH == 79 and teleop_words.HELP_WIDTH == 79
+    assert max(map(len, teleop_words.help_text().split("\n"))) <= 79
+    assert follow_width(200) == 96
     long = "ok   motion all started: one end per axis follows (j1, j2, j3, j4, gripper, mount) (15.8 ms)"
     lines = fit(long, 80)
     assert all(len(x) <= 79 for x in lines) and lines[1].startswith("     ")
