@@ -27,7 +27,7 @@ class Dropper:
 def session(sleeping_line: bool) -> tuple:
     """Handshake, telemetry, commands and events over a line that loses frames (retransmissions both
     ways), the host gone past the link timeout (the watchdog), back again (a new session), a reset."""
-    up, down = Dropper(6), Dropper(5)     # chosen so that both ends lose reliable frames and send them again
+    up, down = Dropper(6), Dropper(7)     # chosen so that both ends lose reliable frames and send them again
     config = ControllerConfig(link=LinkConfig(link_timeout_s=0.5, heartbeat_s=0.1))
     b = LockstepBench(seed=4, controller_config=config, to_controller=up, to_host=down, sleeping_line=sleeping_line)
     try:

@@ -208,7 +208,7 @@ def demo_settings(args: argparse.Namespace) -> "DemoSettings":
 def day_settings(args: argparse.Namespace) -> "DaySettings":
     """DaySettings from `aspod tracker-day`'s arguments; ValueError with the reason for anything wrong."""
     from firmware_py.params import ParamStore
-    from firmware_py.tracker import parameter_table
+    from firmware_py.tracker.task import parameter_table
     from protocol.reasons import Reason
 
     from host_tools.apps.tracker_day import DaySettings, parse_clock, parse_date, parse_dial, parse_param
