@@ -194,7 +194,7 @@ def position_text(axis: int, position: float) -> str:
 def started_text(motions: list[Motion]) -> str:
     if len(motions) == 1:
         return f"motion {motions[0].label} started"
-    return f"motion {axis_word(int(AXIS_ALL))} started: one end per axis follows ({', '.join(m.label for m in motions)})"
+    return f"motion {axis_word(int(AXIS_ALL))} started, one end each: {' '.join(m.label for m in motions)}"
 
 
 def end_lines(end: Message, motion: Optional[Motion]) -> list[str]:
