@@ -56,7 +56,7 @@ from firmware_py.tracker import TrackerController
 from firmware_py.uart import PacedUart
 
 M = {name: spec.type for name, spec in SCHEMA.by_name.items()}
-TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
+TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker turns at most 35.2 deg/min (full duty): 10 Hz is a sample per 0.06 deg
 TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
 LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often (controller time)
 RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world has run this far above rtf_warn ...
