@@ -57,9 +57,18 @@ def virtual_can():
 # ---- the CPU hogs apart from the real-time tests ----------------------------------------------------------------
 
 def pytest_collection_modifyitems(items):
+    """`pty` implies `realtime`. Order: the CPU-hog tests first, the simulated tests, the real-time
+    tests last. xdist (`--dist load`) hands each worker a run of consecutive tests to start with,
+    so the hog tests start on one worker while the others run simulated tests instead of waiting
+    for the lock. (`--dist loadgroup` would be the tool, but pytest-xdist 3.8 marks a group by
+    renaming `item._nodeid`, which pytest 9 no longer reads: the groups are silently ignored.)"""
     for item in items:
         if item.get_closest_marker("pty") and not item.get_closest_marker("realtime"):
             item.add_marker(pytest.mark.realtime)
+
+    def rank(item) -> int:
+        return 0 if item.get_closest_marker("cpu_hog") else 2 if item.get_closest_marker("realtime") else 1
+    items.sort(key=rank)
 
 
 @pytest.fixture(scope="session")

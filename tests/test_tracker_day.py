@@ -31,13 +31,10 @@ def day(mode="relay", dial=40.0, start=(10, 0), minutes=20, **kw):
                                end=time(end_min // 60, end_min % 60), **kw))
 
 
-# The tests that read the same runs go to one worker under pytest-xdist (`--dist loadgroup`).
-SHARES_DAYS = pytest.mark.xdist_group("tracker_day")
-
-
 @pytest.fixture(scope="module")
 def shared_day():
-    """`day(...)` for runs several tests read: each distinct run computed once per module (tests only read it).
+    """`day(...)` for runs several tests read: each distinct run computed once per module and worker
+    (tests only read it).
 
     The repeatability test calls `day` itself: it needs runs of its own.
     """
@@ -53,7 +50,6 @@ def shared_day():
 
 # ---- the report's behaviour ---------------------------------------------------------------------------------------
 
-@SHARES_DAYS
 def test_at_a_good_dial_the_relay_logic_tracks_within_its_deadband_and_never_reverses(shared_day):
     r = shared_day(dial=40.0).summary()
     assert r["rms_pointing_error_deg"] < 0.15 and r["max_pointing_error_deg"] < 0.25   # measured 0.105, 0.19
@@ -69,7 +65,6 @@ def test_a_dial_too_low_lags_the_sun_constantly_trying_to_catch_up():
     assert r["axes"]["az"]["motor_on_fraction"] > 0.9                      # running all the time, in vain
 
 
-@SHARES_DAYS
 def test_a_dial_too_high_hunts_between_leading_and_lagging(shared_day):
     good = shared_day(dial=40.0).summary()
     high = day(dial=100.0).summary()
@@ -79,7 +74,6 @@ def test_a_dial_too_high_hunts_between_leading_and_lagging(shared_day):
     assert high["rms_pointing_error_deg"] > good["rms_pointing_error_deg"]
 
 
-@SHARES_DAYS
 def test_the_feed_forward_neither_lags_nor_hunts(shared_day):
     relay = shared_day(dial=40.0).summary()
     ff = shared_day(mode="feedforward", dial=100.0).summary()
