@@ -15,8 +15,9 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/aspod demo
 
+# One pytest-xdist worker per core; tests/conftest.py orders the tests and keeps the CPU hogs apart.
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist load
 
 bench: $(STAMP)
 	$(BIN)/python -m bench

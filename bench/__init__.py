@@ -1,1 +1,1 @@
-"""Benchmarks of issue 2: codec throughput beside pymavlink, and command round trip over a real pty."""
+"""Benchmarks: the codec beside pymavlink, command round trips over a real pty, real time, lock-step speed, tracking."""

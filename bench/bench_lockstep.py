@@ -1,8 +1,8 @@
 """Lock-step speed: simulated seconds per wall second of the whole world at 1 kHz, beside its parts.
 
-The issue's goal: "simulated seconds per wall second with all seven motor channels and the
-loops at 1 kHz; at least 20x real time on this 2-core machine (PX4's lock-step SITL reaches
-6-10x on desktops; ArduPilot's autotest runs at 8x by default)". The world has eight motor
+The goal: simulated seconds per wall second with every motor channel and the loops at 1 kHz,
+at least 20x real time on a 2-core machine (PX4's lock-step SITL reaches 6-10x on desktops;
+ArduPilot's autotest runs at 8x by default). The world has eight motor
 channels: the arm's six at 1 kHz (J1-J4, gripper, mount) and the solar tracker's two 90 VDC
 motors (azimuth, elevation), whose relay logic runs at 100 Hz (the DBC's 10 ms cycle).
 
@@ -62,9 +62,9 @@ SEGMENT_S = 2.5                # the host sends a new set of motion commands thi
 TELEMETRY_HZ = 10
 SEED = 0
 PERIOD_S = 0.001               # every loop of the world: 1 kHz
-GOAL_X = 20.0                  # the issue: at least 20x real time
-PX4_X = (6.0, 10.0)            # PX4 lock-step SITL on desktops (the issue's figure)
-ARDUPILOT_X = 8.0              # ArduPilot autotest's default speed-up (the issue's figure)
+GOAL_X = 20.0                  # the goal: at least 20x real time
+PX4_X = (6.0, 10.0)            # PX4 lock-step SITL on desktops
+ARDUPILOT_X = 8.0              # ArduPilot autotest's default speed-up
 ARM_CHANNELS = 6               # J1-J4, gripper, mount: 1 kHz
 TRACKER_CHANNELS = 2           # the solar tracker's azimuth and elevation motors: 100 Hz
 TRACKER_DIAL_PCT = 50.0        # the moving world's dials (manual mode: about 17 deg/min)
@@ -381,7 +381,7 @@ def report(res: LockstepResults) -> str:
         ok = x >= GOAL_X
         lines += [f"  world, all moving: {x:.1f}x real time; goal >= {GOAL_X:g}x: ratio {x / GOAL_X:.2f}  "
                   f"{'PASS' if ok else 'FAIL'}",
-                  f"  beside the issue's citations: PX4 lock-step SITL {PX4_X[0]:g}-{PX4_X[1]:g}x (ratio "
+                  f"  beside PX4 lock-step SITL {PX4_X[0]:g}-{PX4_X[1]:g}x (ratio "
                   f"{x / PX4_X[1]:.2f}-{x / PX4_X[0]:.2f}), ArduPilot autotest {ARDUPILOT_X:g}x (ratio "
                   f"{x / ARDUPILOT_X:.2f})",
                   f"  budget at {GOAL_X:g}x: {1e3 / GOAL_X:.0f} us of wall time per simulated ms; this world takes "

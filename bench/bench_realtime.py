@@ -28,7 +28,7 @@ CLOCK_MONOTONIC on Linux; their offset is measured and removed anyway):
 * missed deadline: a run that starts more than one full period (1 ms) after its deadline;
 * `>2 ms`: periods longer than two nominal periods (at least one whole tick without a run).
 
-The goal (issue): the world's jitter p99 within 1.5x the bare loop's, and no more missed
+The goal: the world's jitter p99 within 1.5x the bare loop's, and no more missed
 deadlines than the bare loop. Under the table, to explain the figures:
 
 * the CPU other processes used during each row, in cores, and this process's scheduling
@@ -66,7 +66,7 @@ FULL_S = 60.0
 QUICK_S = 5.0
 FULL_ROUNDS = 6                # the run is split into this many bare / world / bare alternations
 QUICK_ROUNDS = 1
-TELEMETRY_HZ = 20              # the host asks for this rate (the issue: 10 Hz or more)
+TELEMETRY_HZ = 20              # the host asks for this rate (the goal: 10 Hz or more)
 COMMAND_PERIOD_S = 0.1         # the host sends one command this often
 BAUD = 115200
 ATTACH_TIMEOUT_S = 30.0        # host connected and telemetry set, or the world row fails

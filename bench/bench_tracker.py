@@ -1,11 +1,10 @@
 """Solar tracker through a clear day: the report's relay logic at several dial settings against the feed-forward.
 
-The issue's asks: "with the dial too low the tracker lags the sun; too high, it hunts between
-leading and lagging. Show both as figures and as a PNG plot of pointing error over a
-simulated day"; "at the best dial setting: RMS and maximum pointing error over a simulated
-clear day, and the number of relay switchings"; "feed-forward mode against the best relay
-setting on the same day. Goal: RMS pointing error at most 0.2 degrees and at least 3x lower
-than the best relay setting, with fewer relay switchings".
+The goal: show, as figures and as a PNG plot of pointing error over a simulated day, that with
+the dial too low the tracker lags the sun and too high it hunts between leading and lagging;
+at the best dial, the RMS and maximum pointing error over a clear day and the number of relay
+switchings; against that, the feed-forward on the same day, with an RMS pointing error of at
+most 0.2 deg and at least 3x lower, and fewer relay switchings.
 
 How. `host_tools.apps.tracker_day.run_day` (what `aspod tracker-day` runs: the tracker's firmware
 and plant every 10 ms, from when the sun climbs above 5 deg to when it sinks below it), on

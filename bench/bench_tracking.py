@@ -1,7 +1,7 @@
 """Tracking: positioning error at the gripper after each move, and the settle time, per joint, Earth against orbit.
 
-The issue's goal: "positioning error at the gripper after each move and the settle time,
-per joint, Earth against orbit". The report's specification: the gripper within 1 cm
+The goal: the positioning error at the gripper after each move and the settle time, per
+joint, Earth against orbit. The report's specification: the gripper within 1 cm
 (0.39 in) of where it was sent.
 
 For each gravity (Earth 9.81 m/s^2, orbit 0), a fresh `host_tools.worlds.world.LockstepBench`

@@ -33,8 +33,8 @@ from typing import Callable, Optional
 
 from protocol.framing import MAX_ENCODED
 from protocol.link import LinkEndpoint
-
 from timebase.scheduler import poll_tick
+
 from firmware_py.uart import PacedUart
 
 

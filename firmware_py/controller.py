@@ -43,22 +43,22 @@ from protocol.schema import Direction, Message, MsgClass
 from protocol.states import ARM_AXES, Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
 from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
+from timebase.scheduler import Scheduler
 
 from firmware_py import arm_config
 from firmware_py.arm import ArmController, Measured, MotionStart
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamSpec, ParamStore
-from timebase.scheduler import Scheduler
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker.task import TrackerController, parameter_table as tracker_parameter_table
 from firmware_py.uart import PacedUart
 
-TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker moves at most 4.4 deg/min: 10 Hz shows every relay change
 TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
 LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often (controller time)
 RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world has run this far above rtf_warn ...
 RTF_CLEAR_AFTER_S = 10.0          # ... for this long (controller time): one warning per slow spell, not a flutter
+TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker turns at most 35.2 deg/min (full duty): 10 Hz is a sample per 0.06 deg
 _HANDLERS: dict[str, Callable] = {}
 
 

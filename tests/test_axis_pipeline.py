@@ -520,6 +520,7 @@ def time_updates(make_axis, n: int, repeats: int = 3) -> tuple[float, Axis]:
     return best, axis
 
 
+@pytest.mark.realtime          # a wall-clock figure: never beside the CPU-hog test (conftest)
 def test_per_tick_cost_of_one_axis():
     """Estimator + controller + output for one axis-tick; printed for the record."""
     joint = Joint(gravity_m_s2=9.81)

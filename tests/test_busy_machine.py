@@ -19,7 +19,7 @@ import pytest
 
 from host_tools.worlds.child import Child
 
-pytestmark = pytest.mark.pty
+pytestmark = [pytest.mark.pty, pytest.mark.cpu_hog]   # never beside another real-time test (conftest)
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 # Relative moves (no homing needed), three joints at once, out and back: 6 motion ends in all.
 SCRIPT = """\

@@ -1,7 +1,10 @@
 """The controller skeleton in a lock-step world: supervisor, safe state, faults, telemetry."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from firmware_py.controller import ControllerConfig
+from hil_sim.plant import PlantParams
 from host_tools.worlds.world import LockstepBench
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
@@ -82,12 +85,18 @@ def test_supply_sag_faults_and_reset_is_refused_while_it_lasts(bench):
 
 
 def test_over_temperature_reaches_the_safe_state():
-    bench = LockstepBench(seed=4)
+    # The default box (time constant 300 s) would cross 45 C about 242 s after the fault; this one
+    # has a tenth of its thermal capacity (30 s, everything else the same), so it heats ten times
+    # faster and the bound is a tenth of 400 s.
+    scale = 10.0
+    default = PlantParams()
+    bench = LockstepBench(seed=4, plant_params=replace(
+        default, thermal_capacity_j_per_c=default.thermal_capacity_j_per_c / scale))
     try:
         assert bench.connect()
         bench.call(M["SetTelemetryRate"](1))
         bench.world.plant.inject("over_temperature")
-        assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 400)
+        assert bench.wait_until(lambda: bench.controller.supervisor.state is ControllerState.FAULT, 400 / scale)
         assert bench.controller.supervisor.faults & Fault.OVER_TEMPERATURE
         assert bench.world.plant.temp_c > 44.5
     finally:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import statistics
+from dataclasses import replace
 from pathlib import Path
 
 import can
@@ -315,11 +316,17 @@ def test_over_temperature_fault_passes_45_c_within_300_s(virtual_can):
     # Default box (time constant 300 s) starting at 22 C; the fault puts ambient at 60 C.
     # First-order prediction of the crossing: about 242 s. The controller must see > 45 C
     # within 300 simulated seconds, and not implausibly early (the box has thermal mass).
+    # A first-order lag's crossing time is proportional to its time constant, so the plant
+    # simulated is the default box with a tenth of its thermal capacity (time constant 30 s,
+    # everything else the same), run for 30 s, and its times are scaled back by 10.
     p = PlantParams()
-    rig = Rig(virtual_can(), p, plant_period_s=0.02, ctrl_period_s=0.05)
+    scale = 10.0
+    fast = replace(p, thermal_capacity_j_per_c=p.thermal_capacity_j_per_c / scale)
+    assert fast.thermal_time_constant_s * scale == p.thermal_time_constant_s
+    rig = Rig(virtual_can(), fast, plant_period_s=0.02, ctrl_period_s=0.05)
     rig.plant.inject("over_temperature")
-    rig.run_for(300.0)
-    crossing_s = next(now for now, _, temp_c in rig.seen if temp_c > 45.0)
+    rig.run_for(300.0 / scale)
+    crossing_s = scale * next(now for now, _, temp_c in rig.seen if temp_c > 45.0)
     heat_w = (p.supply_nominal_v - p.idle_current_a * p.supply_source_ohm) * p.idle_current_a
     target_c = p.over_temperature_ambient_c + heat_w * p.thermal_resistance_c_per_w
     predicted_s = -p.thermal_time_constant_s * math.log((target_c - 45.0) / (target_c - p.ambient_c))

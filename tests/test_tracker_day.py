@@ -31,10 +31,27 @@ def day(mode="relay", dial=40.0, start=(10, 0), minutes=20, **kw):
                                end=time(end_min // 60, end_min % 60), **kw))
 
 
+@pytest.fixture(scope="module")
+def shared_day():
+    """`day(...)` for runs several tests read: each distinct run computed once per module and worker
+    (tests only read it).
+
+    The repeatability test calls `day` itself: it needs runs of its own.
+    """
+    runs = {}
+
+    def get(**kw):
+        key = tuple(sorted(kw.items()))
+        if key not in runs:
+            runs[key] = day(**kw)
+        return runs[key]
+    return get
+
+
 # ---- the report's behaviour ---------------------------------------------------------------------------------------
 
-def test_at_a_good_dial_the_relay_logic_tracks_within_its_deadband_and_never_reverses():
-    r = day(dial=40.0).summary()
+def test_at_a_good_dial_the_relay_logic_tracks_within_its_deadband_and_never_reverses(shared_day):
+    r = shared_day(dial=40.0).summary()
     assert r["rms_pointing_error_deg"] < 0.15 and r["max_pointing_error_deg"] < 0.25   # measured 0.105, 0.19
     assert r["reversals"] == 0 and r["mean_lag_deg"] > 0.0
     assert r["both_relays_refused"] == 0
@@ -48,8 +65,8 @@ def test_a_dial_too_low_lags_the_sun_constantly_trying_to_catch_up():
     assert r["axes"]["az"]["motor_on_fraction"] > 0.9                      # running all the time, in vain
 
 
-def test_a_dial_too_high_hunts_between_leading_and_lagging():
-    good = day(dial=40.0).summary()
+def test_a_dial_too_high_hunts_between_leading_and_lagging(shared_day):
+    good = shared_day(dial=40.0).summary()
     high = day(dial=100.0).summary()
     assert high["reversals"] > 100                                # measured about 1,000 in 20 minutes
     assert high["relay_switchings"] > 10 * good["relay_switchings"]
@@ -57,9 +74,9 @@ def test_a_dial_too_high_hunts_between_leading_and_lagging():
     assert high["rms_pointing_error_deg"] > good["rms_pointing_error_deg"]
 
 
-def test_the_feed_forward_neither_lags_nor_hunts():
-    relay = day(dial=40.0).summary()
-    ff = day(mode="feedforward", dial=100.0).summary()
+def test_the_feed_forward_neither_lags_nor_hunts(shared_day):
+    relay = shared_day(dial=40.0).summary()
+    ff = shared_day(mode="feedforward", dial=100.0).summary()
     assert ff["rms_pointing_error_deg"] < 0.01 and ff["max_pointing_error_deg"] < 0.03   # measured 0.0024, 0.0054
     assert ff["rms_pointing_error_deg"] * 3 < relay["rms_pointing_error_deg"]
     assert ff["reversals"] == 0 and ff["relay_switchings"] < relay["relay_switchings"]
