@@ -529,6 +529,10 @@ class Controller:
             self._box_changed(now)
         return self._box_state(reason)
 
+    @handles("GetBoxState")
+    def _get_box_state(self, msg: Message, now: float) -> Message:
+        return self._box_state(Reason.OK)
+
     @handles("SetClock")
     def _set_clock(self, msg: Message, now: float) -> Message:
         self.tracker.set_clock(msg.utc_s + msg.utc_ms / 1000.0, now)

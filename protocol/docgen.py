@@ -6,7 +6,7 @@ when the committed file differs from what this prints.
 """
 from __future__ import annotations
 
-from protocol import framing
+from protocol import auth, framing
 from protocol.controller_link import (HELLO_REANSWER_S, MAX_PENDING_SESSIONS, MAX_UNDELIVERED_EVENTS, MAX_WAITING_HELLOS,
                                       PENDING_MIN_LIFE_S)
 from protocol.host_link import SENT_TAGS
@@ -198,6 +198,57 @@ seen are remembered with their replies, and a number not among them is taken as 
 window ({LinkConfig.window} in flight, at most {REPLY_CACHE_SIZE}) keeps every resend within the cache.
 """
 
+CLIENT = f"""## What a client needs besides the tables
+
+Written by hand for a client written from this document alone (an independent one was, and these are
+the points it had to guess); the code is cited.
+
+**Keys** (`protocol/auth.py`). The key file is hex (whitespace and `#` comment lines ignored),
+{auth.KEY_BYTES} bytes (at least {auth.MIN_KEY_BYTES}). Every key is a full 32-byte HMAC-SHA256:
+`key = HMAC-SHA256(psk, label)`, where the label is plain bytes concatenated: `aspod/v1/handshake/h2c`
+and `.../c2h` for the handshake frames, `aspod/v1/session/h2c` + host_nonce + controller_nonce (and
+`c2h`) for a session; `h2c` signs what the host sends, `c2h` what the controller sends. A frame's tag
+is HMAC-SHA256 with that key, truncated to {framing.TAG_SIZE} bytes.
+
+**Counters.** Each direction of a session starts afresh with its new keys: the first frame may carry
+any counter (0 will do), each later one a larger one, little-endian in its {framing.COUNTER_SIZE} bytes. The
+handshake frames (`Hello`, `HelloReply`, and a `Nak` signed with the handshake key) are not
+counter-checked (a replayed `Hello` is defeated by the nonces, `protocol_security.md`); the controller's
+handshake counter runs on for its whole life, so its `HelloReply` counters are not 1 in each session.
+
+**`seq` and `ack` of LINK frames.** `Hello`, `HelloReply`, `Heartbeat`, `Ack` and `Nak` carry `seq` 0,
+and a receiver ignores it. The `ack` field of a session frame is the last number its sender received in
+order from the peer's reliable stream: the host acknowledges events, the controller commands (urgent
+requests are answered, not acknowledged). A handshake frame belongs to no session and carries
+{NOTHING_RECEIVED_ACK}. The host answers every event with an `Ack` frame (or any session frame, which
+carries the ack) at once; the controller resends an event after its retransmission timeout (initially
+{LinkConfig.initial_rto_s:g} s, then from the measured round trip, RFC 6298).
+
+**The schema hash** in `Hello` and `HelloReply` is a `u64`: the number shown in the header of this
+document, packed little-endian like every field.
+
+**Timing.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s until a `HelloReply` comes;
+both ends send a `Heartbeat` when they have sent nothing for {LinkConfig.heartbeat_s:g} s; the
+controller takes its safe state (LINK_LOST) after {LinkConfig.link_timeout_s:g} s without a valid frame
+(the parameter `link_timeout_s`). There is no goodbye: a host that leaves is a lost link, and the next
+host finds the controller in FAULT with LINK_LOST latched and sends `Reset` before `Enable`.
+
+**Motion ids are per axis**: each axis numbers its motions from 1, so a `MotionDone` is matched on
+`axis` and `motion_id` together. `Home` with axis all starts one motion per axis, named in
+`MotionAccepted`'s `<axis>_motion_id` fields.
+
+**Events carried over.** A new session first gets `EventsCarriedOver(count)` when events of an earlier
+session were sent but never acknowledged (the host that left may or may not have seen them; the
+`StateChanged` to LINK_LOST was typically sent into the silence): the next `count` events are those.
+
+**The control box** is read with `GetBoxState` (any time) and is also in `TelemetryTracker` while main
+or sensor power is on. `BoxSwitch` and `BoxDial` take an `axis` (TrackerAxis) always on the wire; the
+main and sensor switches are one for both axes, so they take `BOTH` only (another value is refused
+`OUT_OF_RANGE`). The dial is read through a 10-bit ADC: a percentage is rounded to the nearest of
+1023 counts (50 % reads back 50.049 %). The dial counts as low at or below the parameter
+`trk_dial_low_pct` (default 5 %), read with `ParamGet`.
+"""
+
 LINE_TIMING = """## Line timing
 
 The controller's serial side emulates the wire time of an 8N1 line (10 bits a byte) at
@@ -231,7 +282,7 @@ def field_enums() -> set:
 
 
 def render() -> str:
-    out = [INTRO, RULES, LINE_TIMING, "## Messages", "", FIELD_TYPES]
+    out = [INTRO, RULES, CLIENT, LINE_TIMING, "## Messages", "", FIELD_TYPES]
     out += ["| id | message | class | direction | reply | teleop | meaning |", "|---|---|---|---|---|---|---|"]
     specs = sorted(SCHEMA.by_id.values(), key=lambda s: s.id)
     for s in specs:

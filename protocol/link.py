@@ -28,7 +28,7 @@ from protocol import auth
 from protocol.errors import ParseError
 from protocol.framing import COUNTER_MAX, Frame, FrameReceiver, encode_signed
 from protocol.messages import SCHEMA
-from protocol.reliable import REPLY_CACHE_SIZE
+from protocol.reliable import NOTHING_RECEIVED_ACK, REPLY_CACHE_SIZE
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass, Schema
 
@@ -355,7 +355,9 @@ class LinkEndpoint:
             key, counter = self.session.keys.tx, self.session.tx_counter
         else:
             return None
-        wire, tag = encode_signed(out.cls, out.seq, self._ack_value(), out.msg_id, out.payload, key, counter)
+        # a handshake frame belongs to no session: it acknowledges nothing (the new session's numbers start afresh)
+        ack = NOTHING_RECEIVED_ACK if out.handshake else self._ack_value()
+        wire, tag = encode_signed(out.cls, out.seq, ack, out.msg_id, out.payload, key, counter)
         if not out.handshake:
             self._sent_in_session(tag)
             if out.cls != MsgClass.TELEMETRY and self._next_heartbeat_s is not None:

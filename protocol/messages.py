@@ -223,6 +223,10 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 "read through a 10-bit ADC, so quantized to 100/1023 %. Never interlocked.",
                 (Field("percent", "f32", "dial setting", "%", (0.0, 100.0)), _tracker_axis()),
                 reply="BoxState", teleop="dial"),
+    MessageSpec("GetBoxState", 0x53, MsgClass.COMMAND, H,
+                "Reads the control box: its switches and dials as BoxState (result OK), whether or not the box "
+                "is powered (TelemetryTracker comes only while main or sensor power is on).",
+                reply="BoxState", teleop="boxstate"),
     MessageSpec("SetClock", 0x52, MsgClass.COMMAND, H,
                 "Sets the controller's UTC date-time, carried on by its own clock; the tracker's ephemeris (sun "
                 "angles, the feed-forward) needs it. At teleop: `clock $(date +%s)` from a shell, or the seconds "
@@ -271,7 +275,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("detail", "text200", "OK: the parameter file written; SAVE_FAILED: the reason, then the path "
                        "(cut to 200 characters, ending in ...)"))),
     MessageSpec("BoxState", 0x85, MsgClass.COMMAND, C,
-                "Answers BoxSwitch and BoxDial: OK or the reason the command was refused, and the control box "
+                "Answers BoxSwitch, BoxDial and GetBoxState: OK or the reason the command was refused, and the control box "
                 "as it now stands (unchanged after a refusal).",
                 (_result(),) + _BOX_FIELDS),
     MessageSpec("MotionAccepted", 0x84, MsgClass.COMMAND, C,

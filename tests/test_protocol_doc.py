@@ -49,3 +49,33 @@ def test_the_document_states_the_rules_with_the_constants_of_the_code():
     for nak in ("UNKNOWN_MESSAGE", "WRONG_DIRECTION", "SEQUENCE_GAP", "REPLAY"):
         assert f"`{nak}`" in flat
     assert "Only a reply uses up a sequence number" in flat
+
+
+def test_a_handshake_frame_acknowledges_nothing_and_the_box_reads_without_power():
+    """Two points of "What a client needs besides the tables", held by the controller: a HelloReply
+    carries NOTHING_RECEIVED_ACK even after an earlier session's commands; GetBoxState reads the box
+    while it is unpowered (no TelemetryTracker then)."""
+    from protocol.framing import FrameReceiver
+    from host_tools.worlds.world import LockstepBench
+    to_host = bytearray()
+
+    def tap(data: bytes) -> bytes:
+        to_host.extend(data)
+        return data
+    bench = LockstepBench(seed=2, to_host=tap)
+    try:
+        assert "What a client needs besides the tables" in docgen.render()
+        for _ in range(2):                          # a second session after the first one's commands
+            assert bench.connect()
+            for _ in range(3):
+                assert bench.call(SCHEMA["Ping"].type(7)).ok
+        box = bench.call(SCHEMA["GetBoxState"].type()).reply
+        assert box.spec.name == "BoxState" and box.result == Reason.OK and box.main == 0
+        assert not [t for t in bench.telemetry if t.spec.name == "TelemetryTracker"]
+    finally:
+        bench.close()
+    frames = [f for f in FrameReceiver().feed(bytes(to_host)) if not isinstance(f, Exception)]
+    replies = [f for f in frames if f.msg_id == SCHEMA["HelloReply"].id]
+    assert len(replies) == 2 and {f.ack for f in replies} == {NOTHING_RECEIVED_ACK}
+    session_frames = [f for f in frames if f.msg_id == SCHEMA["Pong"].id]
+    assert max(f.ack for f in session_frames) < NOTHING_RECEIVED_ACK       # session frames do acknowledge
