@@ -105,7 +105,7 @@ def test_help_and_completion_cover_the_new_words():
     assert completions("wait aligned ", 13, "") == ["az", "el"]
     assert completions("watch ", 6, "") == ["box"]
     assert completions("clock n", 6, "n") == ["now"]
-    assert completions("b", 0, "b") == ["box"]
+    assert completions("b", 0, "b") == ["box", "boxstate"]
 
 
 # ---- the panel --------------------------------------------------------------------------------------------------
