@@ -27,8 +27,9 @@ def parse_plant(argv: list[str]) -> PlantRunSettings:
                                         start=datetime(2026, 3, 20, 13, 50, 7, tzinfo=timezone.utc),
                                         clouds="12:00+300s@0.9,14:30+10m@0.5"),
                      seed=4294967295, timing="realtime", speed=math.inf, stop_on_stdin_eof=True),
-    PlantRunSettings(BUS, PlantSettings(tracker=False, payload_kg=0.1), seed=7, speed=0.37),
-    PlantRunSettings(BusSettings("udp_multicast", "239.1.2.3"), PlantSettings(start=None, clouds="12:00+5m@0.5")),
+    PlantRunSettings(BUS, PlantSettings(tracker=False, payload_kg=0.1), seed=7, speed=0.37, verbosity=2),
+    PlantRunSettings(BusSettings("udp_multicast", "239.1.2.3"), PlantSettings(start=None, clouds="12:00+5m@0.5"),
+                     verbosity=-1),
 ])
 def test_plant_settings_to_argv_and_back_through_the_plant_parser_are_equal(settings):
     assert parse_plant(settings.to_argv()) == settings

@@ -203,8 +203,9 @@ def run_sim_over_hal(settings: SimSettings) -> int:
         options.setdefault("port", port)
     bus = BusSettings(interface, channel, tuple(options.items()))
     nodes.open_bus(interface, channel, **options).shutdown()   # fail here, before a child is started
+    verbosity = (logging.INFO - log.getEffectiveLevel()) // 10       # the child logs as this process does
     plant = PlantProcess(PlantRunSettings(bus=bus, plant=settings.plant, seed=settings.seed, timing="lockstep",
-                                          speed=settings.speed))
+                                          speed=settings.speed, verbosity=verbosity))
     log.info(f"aspod sim: plant process {plant.pid} ready on {bus.describe()}")
     try:
         return run_controller(settings.port, settings.controller, "aspod sim", bus, plant, timing="lockstep")

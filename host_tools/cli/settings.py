@@ -123,6 +123,7 @@ class PlantRunSettings:
     timing: str = "lockstep"
     speed: float = 1.0
     stop_on_stdin_eof: bool = False
+    verbosity: int = 0          # -v counts +1, -q -1: a child plant logs as its parent does
 
     def __post_init__(self) -> None:
         if self.timing not in TIMINGS:
@@ -130,8 +131,10 @@ class PlantRunSettings:
 
     def to_argv(self) -> list[str]:
         """The `aspod plant` command line for these settings (a child plant: `aspod sim --hal`)."""
+        loudness = ["-v"] * self.verbosity if self.verbosity > 0 else ["-q"] * -self.verbosity
         return [*self.bus.to_argv(), "--seed", str(self.seed), *self.plant.to_argv(), "--timing", self.timing,
-                "--speed", _speed_argv(self.speed), *(["--stop-on-stdin-eof"] if self.stop_on_stdin_eof else [])]
+                "--speed", _speed_argv(self.speed), *(["--stop-on-stdin-eof"] if self.stop_on_stdin_eof else []),
+                *loudness]
 
 
 # ---- from the Namespace ----
@@ -192,7 +195,8 @@ def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
 
 def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
     return PlantRunSettings(bus=bus_settings(args), plant=plant_settings(args), seed=args.seed, timing=args.timing,
-                            speed=args.speed, stop_on_stdin_eof=args.stop_on_stdin_eof)
+                            speed=args.speed, stop_on_stdin_eof=args.stop_on_stdin_eof,
+                            verbosity=getattr(args, "verbose", 0) - getattr(args, "quiet", 0))
 
 
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
