@@ -23,7 +23,8 @@ while True:
 
 
 def test_ready_line_then_sigint_stops_a_well_behaved_child():
-    child = Child(["import sys, signal; print('READY x', flush=True); print('bye', file=sys.stderr, flush=True); "
+    # its stderr line before its ready line: a SIGINT right after the ready line must not beat it
+    child = Child(["import sys, signal; print('bye', file=sys.stderr, flush=True); print('READY x', flush=True); "
                    "signal.pause()"], command=PY)
     assert child.ready("READY") == "READY x"
     status, err = child.stop(timeout_s=60)
