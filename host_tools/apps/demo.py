@@ -13,8 +13,9 @@ both ends.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+import logging
 import sys
+from dataclasses import dataclass
 
 from protocol import auth
 from protocol.errors import LinkError
@@ -25,6 +26,8 @@ from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.teleop.session import run_script
 from host_tools.worlds.child import Child, ChildError
+
+log = logging.getLogger("aspod")
 
 SCRIPT = """\
 # a short session: link check, enable, e-stop while enabled, recover
@@ -71,7 +74,7 @@ def run_demo(settings: DemoSettings) -> int:
               f"({result.sim_time_s:6.2f} s simulated)", flush=True)
     report = pick_place.run(settings.gravity, settings.seed, progress)
     if report["error"]:
-        print(f"aspod demo: {report['error']}", file=sys.stderr)
+        log.error(f"aspod demo: {report['error']}")
     worst = report["max_position_error_m"]
     print(f"max position error {'-' if worst is None else f'{worst * 1000:.3f}'} mm; "
           f"{report['sim_time_s']:.1f} s simulated in {report['wall_time_s']:.1f} s wall "
@@ -93,7 +96,7 @@ def run_link_demo(settings: DemoSettings) -> int:
         print(link_line)
         print(key_line)
         if not link_line.startswith("ASPOD-LINK ") or not key_line.startswith("ASPOD-KEY "):
-            print("aspod demo: the simulator did not announce its port and key", file=sys.stderr)
+            log.error("aspod demo: the simulator did not announce its port and key")
             return EXIT_LINK
         url, key_path = link_line.split(" ", 1)[1], key_line.split(" ", 1)[1]
         client = HostClient(url, auth.load_key(key_path), baud=settings.baud)
