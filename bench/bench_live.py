@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Optional
 
 from host_tools.apps.kinematics import DEMO_SCENE, steps
+from host_tools.worlds.child import Child, ChildError
 from timebase import RealClock
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -47,34 +48,26 @@ class LiveError(RuntimeError):
 
 
 class Sim:
-    """`aspod sim` as a subprocess; its stderr lines kept with the wall time they were read."""
+    """`aspod sim` as a child process (`Child`); its stderr lines kept with the wall time they were read."""
 
     def __init__(self, *args: str, home: Path) -> None:
         self.env = {**os.environ, "XDG_CONFIG_HOME": str(home / "config")}
         self.clock = RealClock()
-        self.proc = subprocess.Popen(ASPOD + ["sim", "--pty", "--params", str(home / "params.json"), *args],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=self.env, cwd=REPO_ROOT)
         self.lines: list[tuple[float, str]] = []
         self._seen = threading.Condition()
-        threading.Thread(target=self._read_stderr, daemon=True).start()
-        link = self._stdout_line()
-        self._stdout_line()                                  # ASPOD-KEY
-        if not link.startswith("ASPOD-LINK "):
+        self.child = Child(["sim", "--pty", "--params", str(home / "params.json"), *args], env=self.env)
+        self.child.follow_stderr(self._stderr_line)
+        try:
+            self.url = self.child.ready("ASPOD-LINK ", timeout_s=120.0).split(" ", 1)[1]
+            self.child.ready("ASPOD-KEY ")
+        except ChildError as exc:
             self.close()
-            raise LiveError(f"aspod sim said {link!r}; stderr: {self.stderr()}")
-        self.url = link.split(" ", 1)[1]
+            raise LiveError(f"{exc}; stderr: {self.stderr()}") from None
 
-    def _stdout_line(self) -> str:
-        line = self.proc.stdout.readline().decode().strip()
-        if not line:
-            raise LiveError(f"aspod sim exited: {self.stderr()}")
-        return line
-
-    def _read_stderr(self) -> None:
-        for raw in self.proc.stderr:
-            with self._seen:
-                self.lines.append((self.clock.now(), raw.decode(errors="replace").rstrip()))
-                self._seen.notify_all()
+    def _stderr_line(self, text: str) -> None:
+        with self._seen:
+            self.lines.append((self.clock.now(), text))
+            self._seen.notify_all()
 
     def stderr(self) -> str:
         return "\n".join(text for _, text in self.lines)
@@ -99,13 +92,7 @@ class Sim:
                               cwd=REPO_ROOT)
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        self.child.stop(signal.SIGTERM, timeout_s=30.0)
 
 
 class Hogs:

@@ -55,3 +55,14 @@ def test_a_child_that_ends_before_its_line_or_says_something_else_is_an_error():
 
 def test_describe_exit():
     assert describe_exit(0) == "exit status 0" and describe_exit(-9) == "killed by SIGKILL"
+
+
+def test_follow_stderr_hands_each_line_over_as_it_comes_and_stop_still_ends_the_child():
+    got: list[str] = []
+    child = Child(["import sys, signal\nfor k in range(3): print(f'line {k}', file=sys.stderr, flush=True)\n"
+                   "print('READY', flush=True)\nsignal.pause()"], command=PY)
+    child.follow_stderr(got.append)
+    child.ready("READY")
+    status, rest = child.stop(signal.SIGTERM, timeout_s=60)
+    assert status == -signal.SIGTERM and rest == ""
+    assert got == ["line 0", "line 1", "line 2"]

@@ -20,7 +20,8 @@ import selectors
 import signal
 import subprocess
 import sys
-from typing import IO, Mapping, Optional, Sequence
+import threading
+from typing import IO, Callable, Mapping, Optional, Sequence
 
 ASPOD = (sys.executable, "-m", "host_tools.cli.main")
 PIPE, DEVNULL = subprocess.PIPE, subprocess.DEVNULL
@@ -64,6 +65,7 @@ class Child:
         self.pid = self.proc.pid
         self.seen: list[str] = []       # stderr lines read so far
         self.stopped = False            # the parent asked it to stop
+        self._follower: Optional[threading.Thread] = None
 
     def _stream(self, stream) -> IO[bytes]:
         if stream is None or stream == "stdout":
@@ -116,6 +118,20 @@ class Child:
             if found:
                 return found
 
+    def follow_stderr(self, on_line: Callable[[str], None]) -> None:
+        """From now on hand every stderr line to `on_line` as it is written, from a thread of its own (a
+        parent that watches a long run's stderr as it goes); `stop` then returns "" for the rest, which
+        `on_line` has had."""
+        if self.proc.stderr is None:
+            raise ValueError(f"{self.name}: its stderr is not a pipe")
+        stderr = self.proc.stderr
+
+        def follow() -> None:
+            for raw in iter(stderr.readline, b""):
+                on_line(raw.decode(errors="replace").rstrip("\n"))
+        self._follower = threading.Thread(target=follow, name=f"{self.name} stderr", daemon=True)
+        self._follower.start()
+
     def exit_status(self) -> Optional[int]:
         """None while it runs; its exit status (negative: killed by that signal) once it has ended."""
         return self.proc.poll()
@@ -133,11 +149,16 @@ class Child:
             if self.proc.poll() is None:
                 self.proc.send_signal(sig)
             try:
-                _, err = self.proc.communicate(timeout=timeout_s)
+                if self._follower is not None:          # its stderr is the follower's to read
+                    self.proc.wait(timeout=timeout_s)
+                else:
+                    _, err = self.proc.communicate(timeout=timeout_s)
                 break
             except subprocess.TimeoutExpired as exc:    # (after SIGKILL: a grandchild still holds the pipe)
                 err = exc.stderr or err
         self.proc.wait()
+        if self._follower is not None:
+            self._follower.join(EOF_EXIT_WAIT_S)
         for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if stream is not None and not stream.closed:
                 stream.close()
