@@ -70,6 +70,9 @@ def test_completion_offers_parameters_switch_positions_and_only_the_axes_a_motio
     assert c.options("expect DIAL_NOT_LOW switch mode ") == ["manual", "sensor"]
     done = list(c.get_completions(Document("switch sensor o"), None))
     assert [(x.text, x.start_position) for x in done] == [("off", -1), ("on", -1)]
+    described = TeleopCompleter(lambda: PARAMS, lambda name: "deg  upper soft limit" if name == "j1_max_deg" else "")
+    menu = {x.text: x.display_meta_text for x in described.get_completions(Document("set j1_m"), None)}
+    assert menu == {"j1_max_deg": "deg  upper soft limit", "j1_min_deg": ""}
 
 
 def test_history_is_per_user_and_never_fails(tmp_path):

@@ -109,6 +109,13 @@ class ParamNames:
     def names(self) -> list[str]:
         return [r.name for r in self.replies]
 
+    def meta(self, name: str) -> str:
+        """`unit  description` of a parameter, "" for another word or before the list has come."""
+        for reply in self.replies:
+            if reply.name == name:
+                return f"{reply.unit}  {reply.description}".strip()
+        return ""
+
     def start(self) -> None:
         if self._thread is None:
             self._thread = threading.Thread(target=self.read, name="aspod-param-names", daemon=True)
@@ -130,8 +137,10 @@ class TeleopCompleter(Completer):
     """words.completions, with what the console knows besides: parameter names, each switch's own positions,
     and no axis a motion command is refused for."""
 
-    def __init__(self, param_names: Callable[[], list[str]] = lambda: []) -> None:
+    def __init__(self, param_names: Callable[[], list[str]] = lambda: [],
+                 param_meta: Callable[[str], str] = lambda name: "") -> None:
         self.param_names = param_names
+        self.param_meta = param_meta      # a parameter's unit and description, shown beside it in the menu
 
     def options(self, line: str) -> list[str]:
         begin = len(line) - len(line.split(" ")[-1])
@@ -163,7 +172,7 @@ class TeleopCompleter(Completer):
         line = document.text_before_cursor
         text = line[len(line) - len(line.split(" ")[-1]):]
         for option in self.options(line):
-            yield Completion(option, start_position=-len(text))
+            yield Completion(option, start_position=-len(text), display_meta=self.param_meta(option))
 
 
 def prompt_text(client, cache: TelemetryCache, running: Callable[[], list] = lambda: []) -> str:
@@ -297,7 +306,7 @@ class TeleopConsole:
         self.params = ParamNames(client)
         self.prompt: PromptSession = PromptSession(
             history=history if history is not None else open_history(),
-            completer=TeleopCompleter(lambda: self.params.names), complete_while_typing=False,
+            completer=TeleopCompleter(lambda: self.params.names, self.params.meta), complete_while_typing=False,
             refresh_interval=PROMPT_REFRESH_S)
         self.session = Session(client, self.proxy, all_events=True)
         self.session.event_prefix = ""          # prompt_toolkit prints above the prompt: no need to step off it
