@@ -81,10 +81,8 @@ def add_speed_arg(parser: argparse.ArgumentParser, what: str) -> None:
                              "as the work allows; late, it slows down rather than jumps (docs/realtime.md)")
 
 
-TIMINGS = ("lockstep", "realtime")
-
-
 def add_timing_arg(parser: argparse.ArgumentParser, default: str, what: str) -> None:
+    from host_tools.worlds.settings import TIMINGS
     parser.add_argument("--timing", choices=TIMINGS, default=default,
                         help=f"{what} (default {default}; docs/realtime.md)")
 

@@ -15,9 +15,8 @@ from typing import TYPE_CHECKING, Any, Optional
 from hil_sim.sun import TUCSON, as_clouds, to_utc
 from timebase import RealClock
 
-from host_tools.cli.main import TIMINGS
 from host_tools.worlds import nodes
-from host_tools.worlds.settings import PlantSettings
+from host_tools.worlds.settings import PlantSettings, TIMINGS
 
 if TYPE_CHECKING:
     from host_tools.apps.demo import DemoSettings

@@ -16,6 +16,7 @@ from hil_sim.arm_params import GRAVITY_M_S2
 from hil_sim.sun import DEFAULT_START, TUCSON, CloudPassage, DateTimeLike, as_clouds, to_utc
 
 GRAVITY_MODES = tuple(GRAVITY_M_S2)     # "earth", "orbit"
+TIMINGS = ("lockstep", "realtime")      # how a plant or controller in its own process keeps time (docs/realtime.md)
 Clouds = Union[str, Sequence[CloudPassage], None]
 
 
