@@ -9,6 +9,8 @@ Its numbers are of the elbow's order (DESIGN.md: 6:1 sprockets behind a gear hea
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from dataclasses import dataclass
 from typing import Optional
 
@@ -21,7 +23,7 @@ from firmware_py import profiles
 from firmware_py.axis import Axis, AxisConfig, AxisError, Refusal, motor_gains
 from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import (COUNT_MODULUS, EstimatorConfig, EstimatorFlag, KalmanEstimator,
-                                   SteadyStateEstimator, make_kalman_filter, unwrap_delta)
+                                   SteadyStateEstimator, make_kalman_filter, steady_state_gain, unwrap_delta)
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
 from timebase import RealClock
 
@@ -220,6 +222,36 @@ def test_steady_state_filter_matches_filterpy(rad_per_count):
                              abs(fast.pos_rad - ref_wide.pos_rad) / rad_per_count)
     assert worst_steady < 1e-9
     assert worst_late < 1e-6
+
+
+@pytest.mark.parametrize("rad_per_count", [Joint().rad_per_count, 1e-3])
+def test_the_steady_state_gain_is_filterpys_own_limit_to_the_bit(rad_per_count):
+    """steady_state_gain iterates filterpy's predict/update without importing it: the same gain and
+    covariance, bit for bit, as iterating filterpy's KalmanFilter itself, and the same Q."""
+    from filterpy.common import Q_continuous_white_noise
+    cfg = estimator_config(rad_per_count=rad_per_count)
+    assert np.array_equal(cfg.matrices()[2], Q_continuous_white_noise(dim=2, dt=cfg.dt_s,
+                                                                      spectral_density=cfg.q_rad2_s3))
+    kf, last = make_kalman_filter(cfg), None
+    while True:
+        kf.predict()
+        kf.update(np.array([[0.0]]))
+        gain = kf.K[:, 0].copy()
+        if last is not None and np.all(np.abs(gain - last) <= 1e-13 * np.abs(gain)):
+            break
+        last = gain
+    k_pos, k_vel, p = steady_state_gain(cfg)
+    assert (k_pos, k_vel) == (float(gain[0]), float(gain[1])) and np.array_equal(p, kf.P)
+
+
+def test_running_a_controller_does_not_import_filterpy():
+    """It pulls in scipy.stats: 1.2-1.9 s of CPU at every start of `aspod sim`, plant or firmware."""
+    code = ("import sys; import host_tools.worlds.world, host_tools.cli.firmware, host_tools.cli.sim; "
+            "from host_tools.worlds.world import LockstepBench; LockstepBench().close(); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'filterpy' or m.startswith('scipy.stats')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
 
 
 def test_filterpy_reference_has_the_documented_noise_model():
