@@ -1,6 +1,6 @@
 """A teleop session on the simulated clock: `BenchClient` makes a `LockstepBench` look like `HostClient`.
 
-`Session` and `run_script` (teleop.py) talk to a client: `call(msg)`, `wait_for(predicate,
+`Session` and `run_script` (teleop/session.py) talk to a client: `call(msg)`, `wait_for(predicate,
 timeout_s)`, `clock` (`now`, `sleep`), `link`, `io_error`, `telemetry_listeners`,
 `event_listeners`. `HostClient` provides them over a real port in real time, with a pump
 thread; `BenchClient` provides them on a `LockstepBench`, in one thread: waiting runs the whole

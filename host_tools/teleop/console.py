@@ -394,7 +394,8 @@ class TeleopConsole:
                 handle = self.client.call(SCHEMA["ParamList"].type(0), 5.0)
                 self.console.line(format_outcome(handle))
                 return False
-            self.console.lines([line for r in self.params.replies for line in teleop_format.param_lines(r, teleop_format.WIDTH)])
+            self.console.lines([line for reply in self.params.replies
+                                for line in teleop_format.param_lines(reply, teleop_format.WIDTH)])
             return True
         if step.waits_for_motion:
             return self.wait_motions(step)

@@ -12,7 +12,7 @@
 Axes, units and modes come from the TelemetryJoints declaration; the state and faults from
 TelemetryStatus. On a terminal the block is redrawn in place at up to 10 Hz; on a pipe or a
 file the last reading is printed once at the end. `watch box` shows the solar tracker's control
-box the same way (teleop_box.py).
+box the same way (teleop/box.py).
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ few local words act on the console itself; `wait` names its axes from the declar
 Every check runs before anything is sent, so a bad line changes nothing.
 
 Besides the declared commands: `box` and `watch box` (the solar tracker's control box,
-teleop_box.py), `wait aligned [az|el] DEG [TIMEOUT]` (until the tracker points at the sun),
+teleop/box.py), `wait aligned [az|el] DEG [TIMEOUT]` (until the tracker points at the sun),
 `expect REASON COMMAND` (a script line that passes only if COMMAND is refused with exactly
 REASON) and `clock now` / `clock YYYY-MM-DDTHH:MM[:SS]+HH:MM` besides POSIX seconds.
 """
