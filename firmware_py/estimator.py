@@ -41,6 +41,7 @@ permanent offset keeps flagging on every sample, as it should, until the caller 
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional
@@ -133,15 +134,22 @@ def initial_covariance(config: EstimatorConfig) -> np.ndarray:
     return np.diag([config.r_rad2, config.max_vel_rad_s ** 2])
 
 
-def steady_state_gain(config: EstimatorConfig, max_iter: int = 200_000, rtol: float = 1e-13) -> tuple[
-        float, float, np.ndarray]:
+def steady_state_gain(config: EstimatorConfig) -> tuple[float, float, np.ndarray]:
     """Kalman gain (k_pos, k_vel) and posterior covariance P at steady state.
 
     Iterates the reference filter's predict/update on the model until the gain stops changing:
     filterpy's `KalmanFilter.predict` and `update` (Joseph form) with the same numpy operations in the
     same order, so the fast filter is by construction the limit of the reference one, to the bit
-    (tests/test_axis_pipeline.py), without importing filterpy.
+    (tests/test_axis_pipeline.py), without importing filterpy. The iteration takes some thousand
+    steps (about 60 ms), so each process does it once per distinct configuration.
     """
+    k_pos, k_vel, p = _steady_state_gain(config)
+    return k_pos, k_vel, p.copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _steady_state_gain(config: EstimatorConfig, max_iter: int = 200_000, rtol: float = 1e-13) -> tuple[
+        float, float, np.ndarray]:
     f, h, q, r = config.matrices()
     p = initial_covariance(config)
     identity = np.eye(2)
