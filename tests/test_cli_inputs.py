@@ -55,17 +55,22 @@ WHY = {"/dev/zero": "a character device, not a regular file", "/dev/urandom": "a
        "too-large": "larger than"}
 
 
-@pytest.mark.parametrize("kind", KINDS + ("/dev/urandom",))
-@pytest.mark.parametrize("command, option, limit", [
+FILE_OPTIONS = [
     (("teleop", NOWHERE), "--key-file", auth.KEY_FILE_LIMIT),
     (("sim", "--tcp", "0"), "--key-file", auth.KEY_FILE_LIMIT),
     (("sim", "--tcp", "0"), "--params", PARAMS_FILE_LIMIT),
     (("teleop", NOWHERE), "--script", SCRIPT_LIMIT),
-])
+]
+
+
+# Every kind for every option, and one more endless device (/dev/urandom) where a key or a script is read.
+FILE_CASES = [(command, option, limit, kind) for command, option, limit in FILE_OPTIONS
+              for kind in KINDS + (() if option == "--params" else ("/dev/urandom",))]
+
+
+@pytest.mark.parametrize("command, option, limit, kind", FILE_CASES)
 def test_a_file_input_that_is_not_a_small_regular_file_exits_2_naming_the_option_and_the_file(
         dev_env, tmp_path, kind, command, option, limit):
-    if kind == "/dev/urandom" and command[0] == "sim" and option == "--params":
-        pytest.skip("one endless device per option is enough")
     path = special_file(kind, tmp_path, limit)
     done = aspod(dev_env, *command, option, path)
     err = done.stderr.decode()

@@ -2,8 +2,8 @@
 
 Real time (homing alone takes about 7 s), so the moves are small (2-3 deg at the default
 3 deg/s) and run side by side; bounds are generous and the tests assert behaviour, not speed.
-The tests share one simulator (module scope) and run in file order; each one that needs the
-arm homed homes it itself if an earlier test did not.
+The tests that run on one pytest worker share one simulator (module scope); each one that needs
+the arm homed homes it itself if an earlier test there did not, and none reads another's results.
 """
 from __future__ import annotations
 
@@ -47,7 +47,6 @@ class ArmSim:
         self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1]
         self.key_path = Path(self.child.ready("ASPOD-KEY ").split(" ", 1)[1])
         self.homed = False
-        self.runs: dict[str, str] = {}   # outputs kept for later tests
 
     def teleop(self, script: str, tmp: Path, *args: str) -> tuple[int, str, str]:
         path = tmp / "script.txt"
@@ -231,9 +230,9 @@ status
 
 
 @pytest.mark.pty
+@pytest.mark.long
 def test_a_script_homes_the_arm_moves_every_joint_grips_and_saves_a_parameter(sim, tmp_path):
     status, out, err = sim.teleop(SESSION, tmp_path, "--summary")
-    sim.runs["session"] = out
     assert status == EXIT_OK, out + err
     sim.homed = True
     assert re.search(r"^ok   motion all started, one end each: j1#\d+ j2#\d+ j3#\d+ j4#\d+ gripper#\d+ mount#\d+ ",
@@ -250,6 +249,7 @@ def test_a_script_homes_the_arm_moves_every_joint_grips_and_saves_a_parameter(si
     assert outcome == "DONE" and abs(pos - (home_end + 3.0)) < 0.1, by_axis["mount"]
     grip = by_axis["gripper"]
     assert [g[1] for g in grip] == ["DONE"] * 3 and [g[4] for g in grip] == ["home all", "grip close", "grip open"]
+    assert 0.0 <= grip[1][2] <= 60.0, grip                              # a sane opening after closing
     assert abs(grip[2][2] - 50.3) < 1.0                                 # open at its open switch again
     assert out.count("ok   wait all: 6 motion(s) ended") == 2
     assert "ok   wait gripper: 1 motion(s) ended" in out
@@ -265,15 +265,7 @@ def test_a_script_homes_the_arm_moves_every_joint_grips_and_saves_a_parameter(si
 
 
 @pytest.mark.pty
-def test_the_gripper_reports_a_sane_opening_after_closing(sim):
-    out = sim.runs.get("session")
-    if out is None:
-        pytest.skip("needs the session of the test above")
-    closed = [e for e in ends(out)["gripper"] if e[4] == "grip close"]
-    assert closed and 0.0 <= closed[0][2] <= 60.0, closed
-
-
-@pytest.mark.pty
+@pytest.mark.long
 def test_a_move_beyond_a_soft_limit_is_refused_with_its_reason_and_remedy(sim, tmp_path):
     sim.ensure_homed(tmp_path)
     status, out, err = sim.teleop("reset\nenable\nmove j1 100\nstatus\n", tmp_path)
@@ -306,7 +298,6 @@ def test_estop_in_the_middle_of_a_move_stops_every_motor_until_reset_and_enable(
         text = out.getvalue()
         moving = next(k for k, (_now, msg) in enumerate(samples) if msg.j1_mode == AxisMode.MOVING)
         estop_s = next(now for now, msg in samples[moving:] if msg.j1_mode == AxisMode.IDLE)
-        sim.runs["estop"] = (estop_s, list(samples))
         # the motions were cut short: each ends DISABLED (CANCELLED, with its doc and remedy) and fails the script
         assert status == EXIT_FAILED, text + err.getvalue()
         by_axis = ends(text)
@@ -323,6 +314,9 @@ def test_estop_in_the_middle_of_a_move_stops_every_motor_until_reset_and_enable(
             assert all(getattr(msg, f"{a}_current") == 0.0 for a in AXES)
             for axis in JOINTS:
                 assert abs(getattr(msg, f"{axis}_pos") - first[axis]) < 0.01, (axis, first, msg)
+        # the gripper too: the shorted armature (dynamic braking) stops the jaws within about 0.4 s
+        jaws = [msg.gripper_pos for now, msg in samples if estop_s + 0.6 <= now <= estop_s + 1.8]
+        assert jaws and max(jaws) - min(jaws) < 0.1, jaws
         # while the e-stop is latched, motion is refused with its reason
         status, _session = run_script(client, ["moveby j1 1"], out := io.StringIO(), err=io.StringIO())
         assert status == EXIT_FAILED and "FAIL MoveBy: rejected: ESTOP (18)" in out.getvalue()
@@ -339,16 +333,6 @@ def test_estop_in_the_middle_of_a_move_stops_every_motor_until_reset_and_enable(
         assert "state=ENABLED" in text
     finally:
         client.close()
-
-
-@pytest.mark.pty
-def test_the_gripper_stops_at_an_estop_too(sim):
-    if "estop" not in sim.runs:
-        pytest.skip("needs the e-stop test above")
-    estop_s, samples = sim.runs["estop"]
-    # the shorted armature (dynamic braking) stops the jaws within about 0.4 s
-    after = [msg.gripper_pos for now, msg in samples if estop_s + 0.6 <= now <= estop_s + 1.8]
-    assert after and max(after) - min(after) < 0.1, after
 
 
 def test_params_shows_every_parameter_with_its_unit_range_and_description(arm_bench):
