@@ -6,6 +6,10 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test bench docs clean
 
+# Python writes its bytecode caches (__pycache__, ignored by git) even where the environment says
+# not to: every `aspod` child of the tests and benches would otherwise compile the package anew.
+unexport PYTHONDONTWRITEBYTECODE
+
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
@@ -15,7 +19,7 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/aspod demo
 
-# One pytest-xdist worker per core; tests/conftest.py orders the tests and keeps the CPU hogs apart.
+# pytest-xdist, a worker per core and one more; tests/conftest.py orders the tests and keeps the CPU hogs apart.
 test: $(STAMP)
 	$(BIN)/python -m pytest -n auto --dist load
 

@@ -56,9 +56,17 @@ def virtual_can():
 
 # ---- the CPU hogs apart from the real-time tests ----------------------------------------------------------------
 
+def pytest_xdist_auto_num_workers(config) -> int:
+    """`-n auto`: one worker more than the cores. The real-time tests spend much of their time
+    waiting on the wall clock (a subprocess's reply, a timeout running out); the extra worker
+    fills those waits with simulated tests instead of leaving a core idle."""
+    return len(os.sched_getaffinity(0)) + 1
+
+
 def pytest_collection_modifyitems(items):
     """`pty` implies `realtime`. Order: the CPU-hog tests first, the simulated tests, the real-time
-    tests last. xdist (`--dist load`) hands each worker a run of consecutive tests to start with,
+    tests last, the `long` ones first within each group so that none starts near the end and ends
+    the run alone. xdist (`--dist load`) hands each worker a run of consecutive tests to start with,
     so the hog tests start on one worker while the others run simulated tests instead of waiting
     for the lock. (`--dist loadgroup` would be the tool, but pytest-xdist 3.8 marks a group by
     renaming `item._nodeid`, which pytest 9 no longer reads: the groups are silently ignored.)"""
@@ -66,8 +74,9 @@ def pytest_collection_modifyitems(items):
         if item.get_closest_marker("pty") and not item.get_closest_marker("realtime"):
             item.add_marker(pytest.mark.realtime)
 
-    def rank(item) -> int:
-        return 0 if item.get_closest_marker("cpu_hog") else 2 if item.get_closest_marker("realtime") else 1
+    def rank(item) -> tuple[int, bool]:
+        group = 0 if item.get_closest_marker("cpu_hog") else 2 if item.get_closest_marker("realtime") else 1
+        return group, item.get_closest_marker("long") is None
     items.sort(key=rank)
 
 

@@ -276,6 +276,7 @@ def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
     assert "retry limit" not in out + err
 
 
+@pytest.mark.long
 def test_a_second_host_on_the_pty_is_named_as_the_trouble_and_exits_3(sim_factory):
     """Two hosts on one pty steal each other's frames; the one whose session was replaced says so."""
     sim = sim_factory("--pty")

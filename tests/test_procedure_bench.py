@@ -228,6 +228,7 @@ def test_the_doc_shows_the_script_and_the_panel_as_they_are():
 # ---- over a real pty -----------------------------------------------------------------------------------------
 
 @pytest.mark.pty
+@pytest.mark.long
 def test_the_procedure_over_a_real_pty_against_aspod_sim(tmp_path):
     env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
     errors = (tmp_path / "sim.err").open("w+b")      # a file, not a pipe: nobody reads it during the run

@@ -547,6 +547,7 @@ def tracker_bench():
     bench.close()
 
 
+@pytest.mark.long
 def test_over_the_bus_the_tracker_closes_on_the_sun_and_the_feed_forward_holds_it(tracker_bench):
     bench = tracker_bench
     tracker = bench.world.plant.tracker
