@@ -205,7 +205,7 @@ class PlantRow(Row):
         self.clock = SimClock()
         self.bus = LocalBus(LocalChannel())       # the world's kind of bus, with nobody else on it
         self.node = build_plant_node(self.bus, seed)
-        self.scheduler = Scheduler(self.clock, stopwatch=self.clock.now)
+        self.scheduler = Scheduler(self.clock, stopwatch=None)
         self.scheduler.add("plant", self.node.step, period_s=self.node.period_s)
         if driven:
             # No controller: the commands go straight into the plant's command holders, as the node's
@@ -242,7 +242,7 @@ class BareRow(Row):
 
     def __init__(self) -> None:
         self.clock = SimClock()
-        self.scheduler = Scheduler(self.clock, stopwatch=self.clock.now)
+        self.scheduler = Scheduler(self.clock, stopwatch=None)
         self.scheduler.add("empty", lambda now: now, period_s=PERIOD_S)
 
     def advance(self, duration_s: float) -> None:

@@ -131,3 +131,27 @@ def test_a_periodic_grid_is_counted_never_summed():
     sched.wake("loop", 20.0003)
     sched.run_until(20.0053)
     assert starts[-6:] == [20.0003 + n * 0.001 for n in range(6)]
+
+
+def test_without_a_stopwatch_tasks_run_the_same_and_take_no_time():
+    """`stopwatch=None` (a simulated clock): the same runs at the same times, missed periods still counted,
+    execution time 0 and the stopwatch never read."""
+    runs = {}
+    for stopwatch in ("clock", None):
+        clock = SimClock()
+        sched = Scheduler(clock, stopwatch=clock.now if stopwatch else None)
+        log = []
+
+        def late_task(now, log=log, clock=clock):
+            log.append(round(now, 6))
+            clock.sleep_until(now + 0.003)        # runs 3 ms: the next period is missed
+            return now
+        sched.add("loop", late_task, period_s=0.002, tolerance_s=0.0005)
+        sched.run_until(0.02)
+        stats = sched.tasks["loop"].stats
+        runs[stopwatch] = (log, stats.runs, stats.overruns, stats.skipped, round(stats.late_max_s, 9))
+        if stopwatch is None:
+            assert stats.exec_total_s == 0.0 and stats.exec_max_s == 0.0 and stats.exec_p99_s <= 1e-6
+        else:
+            assert stats.exec_max_s == pytest.approx(0.003)
+    assert runs["clock"] == runs[None] and runs[None][3] > 0       # periods skipped alike

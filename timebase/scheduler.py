@@ -9,10 +9,10 @@ never summed, so it stays on n * period however long the run. A periodic task th
 than a whole period behind skips the periods it missed (counted in `skipped`) rather
 than running back to back to catch up. Tasks due at the same time run by `priority`
 (lower first), then in the order their wake-ups were scheduled. Execution time
-is measured with a separate stopwatch (real CPU time by default, injectable so a
-lock-step run can stay byte-for-byte deterministic), and lateness against the
+is measured with a separate stopwatch (the wall clock's by default, injectable), or not at
+all (`stopwatch=None`: on a simulated clock a task takes no time, so there is nothing to
+measure and a lock-step run stays byte-for-byte deterministic); lateness against the
 requested wake time is counted as an overrun when it exceeds the task's tolerance.
-Tasks due at the same time run in the order their wake-ups were scheduled.
 """
 from __future__ import annotations
 
@@ -111,7 +111,7 @@ class Task:
 class Scheduler:
     """Runs tasks in wake-time order on an injected clock."""
 
-    def __init__(self, clock: Clock, stopwatch: Callable[[], float] = RealClock.precise_now) -> None:
+    def __init__(self, clock: Clock, stopwatch: Optional[Callable[[], float]] = RealClock.precise_now) -> None:
         self.clock = clock
         self._stopwatch = stopwatch
         self._heap: list[tuple[float, int, int, Task]] = []
@@ -177,9 +177,13 @@ class Scheduler:
                 break
             heappop(heap)
             task.wake_s = None
-            start = stopwatch()
-            next_wake = task.fn(now)
-            exec_s = stopwatch() - start
+            if stopwatch is None:
+                next_wake = task.fn(now)
+                exec_s = 0.0
+            else:
+                start = stopwatch()
+                next_wake = task.fn(now)
+                exec_s = stopwatch() - start
             late_s = now - wake
             task.stats.record(exec_s, late_s, late_s > task.tolerance_s)
             ran += 1

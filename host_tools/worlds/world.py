@@ -50,8 +50,8 @@ class World:
         self.plant_bus, self.controller_bus = open_local_pair()
         self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, plant)
         self.plant = self.plant_node.plant
-        stopwatch = clock.now if deterministic else RealClock.precise_now
-        self.scheduler = Scheduler(clock, stopwatch=stopwatch)
+        # deterministic: on a simulated clock a task takes no time; nothing to measure
+        self.scheduler = Scheduler(clock, stopwatch=None if deterministic else RealClock.precise_now)
         self.scheduler.add("plant", self.plant_node.step, period_s=self.plant_node.period_s)
         self.uart = PacedUart(port, baud, paced)
         self.controller = build_controller(psk, self.uart, self.controller_bus, controller_config,
