@@ -11,13 +11,19 @@ done in it):
 
 * **world, all moving** (the figure the goal is about): a `host_tools.worlds.world.LockstepBench`
   as tests and `aspod demo` build it (plant, controller and a `HostLink` over the in-memory
-  line, 115200 baud paced, every loop at 1 kHz, the scheduler's deterministic stopwatch),
+  line, 115200 baud paced, every loop at 1 kHz, no stopwatch on the simulated clock),
   connected, telemetry at 10 Hz, enabled; every 2.5 simulated seconds the host sends, through
   the protocol, a Jog to each of J1-J4 and the mount (signed speeds within the 3 deg/s limit,
   the sign flipping each time) and a Grip (close, then open); the tracker's control box is in
   manual mode with both dials at 50 %, and at each segment the host turns the dials low, flips
   the direction switch and turns them up again (changing direction needs the dial low): all
   eight channels driven.
+* **the same world, code before issue 12**: the first row as the code of commit 2d3728d runs it
+  (packed CAN frames between the in-process nodes, the arm plant as per-concept classes, a
+  stopwatch read around every task on the simulated clock), in a child process built from that
+  commit's tree (`git archive` from this clone's history; bench/world_child.py drives it), so
+  the old and the new code meet the same machine in the same run. Its final joint angles are
+  compared with the first row's, to the bit.
 * **world, holding**: the same world, connected and enabled, no motion commands (the loops
   hold every joint where it is; the control box stays off).
 * **world, all moving, timed per task**: the first row again, with the scheduler's stopwatch
@@ -37,11 +43,23 @@ from the rest of the machine falls on them alike; the CPU that other processes u
 each row is printed beside it (`bench.bench_realtime.CpuMeter`). Wall time is
 `RealClock.precise_now()` around each row's turn; the simulated time is exact. Given the
 seed, every row simulates exactly the same thing on every run; only the wall times move.
+
+Then the first two rows again with one process spinning on a core the whole time (the issue's
+"another process using a core"), and the moving world in one and in two child processes at once:
+the simulated seconds per wall second summed over them, a campaign's throughput.
 """
 from __future__ import annotations
 
+import io
+import json
 import math
+import os
+import subprocess
+import sys
+import tarfile
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Optional
 
 from bench.bench_realtime import CpuMeter
@@ -72,6 +90,14 @@ TRACKER_DIAL_PCT = 50.0        # the moving world's dials (manual mode: about 17
 JOG_DPS = {Axis.J1: 1.0, Axis.J2: 2.0, Axis.J3: 2.5, Axis.J4: 3.0, Axis.MOUNT: 1.5}
 DRIVE_DUTY = 0.3               # the driven plant row: this duty on every channel, open loop,
 DRIVE_FLIP_S = 0.5             # its sign flipping this often
+
+
+# The tick path before issue 12 made it faster (packed CAN frames between the in-process nodes,
+# the arm plant as per-concept classes, the scheduler's stopwatch on the simulated clock): measured
+# in the same run, from its own tree (`git archive`), in a child process.
+BEFORE_COMMIT = "2d3728d"
+REPO = Path(__file__).resolve().parent.parent
+CHILD_SCRIPT = Path(__file__).resolve().parent / "world_child.py"
 
 
 class BenchSetupError(RuntimeError):
@@ -194,6 +220,89 @@ class WorldRow(Row):
         self.bench.close()
 
 
+def tree_of_commit(commit: str, into: Path) -> Path:
+    """This project's files at `commit`, written under `into` (from this clone's history)."""
+    done = subprocess.run(["git", "-C", str(REPO), "archive", "--format=tar", commit], capture_output=True)
+    if done.returncode != 0:
+        raise BenchSetupError(f"commit {commit} is not in this clone's history: "
+                              f"{done.stderr.decode(errors='replace').strip()}")
+    with tarfile.open(fileobj=io.BytesIO(done.stdout)) as tar:
+        tar.extractall(into, filter="data")
+    return into
+
+
+class ChildWorld:
+    """The moving world in a process of its own (bench/world_child.py), built from the tree `tree`."""
+
+    def __init__(self, tree: Path, seed: int = SEED) -> None:
+        env = {**os.environ, "PYTHONPATH": str(tree)}
+        self.proc = subprocess.Popen([sys.executable, str(CHILD_SCRIPT), str(seed)], cwd=tree, env=env,
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        if self._line() != "ready":
+            raise BenchSetupError(f"the world in a child process did not start (exit {self.proc.wait()})")
+
+    def _line(self) -> str:
+        assert self.proc.stdout is not None
+        return self.proc.stdout.readline().strip()
+
+    def advance(self, duration_s: float) -> float:
+        """Run `duration_s` simulated seconds there; the wall seconds it took, as the child measured them."""
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(f"{duration_s!r}\n")
+        self.proc.stdin.flush()
+        answer = self._line()
+        try:
+            return float(answer)
+        except ValueError:
+            raise BenchSetupError(f"the world in a child process stopped (exit {self.proc.wait()})") from None
+
+    def finish(self) -> dict:
+        """End the child: its check ('' if the world did what it should) and the arm's final angles."""
+        try:
+            out, _ = self.proc.communicate("end\n", timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            return {"error": "the world in a child process did not end", "pos_rad": []}
+        try:
+            return json.loads(out.strip().splitlines()[-1])
+        except (ValueError, IndexError):
+            return {"error": f"the world in a child process ended without its result (exit {self.proc.returncode})",
+                    "pos_rad": []}
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+class BeforeRow(Row):
+    """The moving world as the code of BEFORE_COMMIT runs it, in a child process (timed by the caller)."""
+
+    label = f"the same world, code before issue 12 ({BEFORE_COMMIT})"
+
+    def __init__(self, seed: int = SEED) -> None:
+        self._tmp = tempfile.TemporaryDirectory(prefix="aspod-before-")
+        try:
+            self.child = ChildWorld(tree_of_commit(BEFORE_COMMIT, Path(self._tmp.name)), seed)
+        except BaseException:
+            self._tmp.cleanup()
+            raise
+        self.pid = self.child.proc.pid
+        self.result: Optional[dict] = None
+
+    def advance(self, duration_s: float) -> None:
+        self.child.advance(duration_s)
+
+    def check(self) -> str:
+        self.result = self.child.finish()
+        return self.result["error"]
+
+    def close(self) -> None:
+        self.child.close()
+        self._tmp.cleanup()
+
+
 class PlantRow(Row):
     """PlantNode + Plant at 1 kHz on an in-process bus nobody else joins; optionally its arm channels driven."""
 
@@ -276,27 +385,31 @@ class LockstepResults:
     split_row: Optional[RowResult] = None
     telemetry_frames: int = 0
     same_motion: Optional[bool] = None     # the timed world moved exactly as the main one
+    same_as_before: Optional[bool] = None  # the main world ended exactly where the code before issue 12 did
     duration_s: float = 0.0
     rounds: int = 0
+    hogs: int = 0                          # processes spinning on a core each during the run
 
     @property
     def main(self) -> RowResult:
         return self.rows[0]
+
+    def row(self, label: str) -> RowResult:
+        return next(r for r in self.rows if r.label == label)
 
     @property
     def error(self) -> str:
         return "; ".join(f"{r.label}: {r.error}" for r in self.rows if r.error)
 
 
-def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optional[int] = None) -> LockstepResults:
-    duration = duration_s if duration_s is not None else (QUICK_S if quick else FULL_S)
-    rounds = rounds or (QUICK_ROUNDS if quick else FULL_ROUNDS)
-    share = duration / rounds
-    out = LockstepResults(duration_s=duration, rounds=rounds)
-    clock = RealClock()
-    builders = [
-        ("world, all 8 channels moving, telemetry 10 Hz", lambda: WorldRow(
-            "world, all 8 channels moving, telemetry 10 Hz", moving=True, timed_tasks=False)),
+MAIN_LABEL = "world, all 8 channels moving, telemetry 10 Hz"
+
+
+def all_rows() -> list[tuple[str, type | object]]:
+    """(label, builder) of every row, the main one first and the code before issue 12 second."""
+    return [
+        (MAIN_LABEL, lambda: WorldRow(MAIN_LABEL, moving=True, timed_tasks=False)),
+        (BeforeRow.label, BeforeRow),
         ("world, enabled, holding, telemetry 10 Hz", lambda: WorldRow(
             "world, enabled, holding, telemetry 10 Hz", moving=False, timed_tasks=False)),
         ("world, all moving, timed per task", lambda: WorldRow(
@@ -305,18 +418,34 @@ def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optiona
         (PlantRow.DRIVEN_LABEL, lambda: PlantRow(driven=True)),
         (BareRow.label, BareRow),
     ]
+
+
+def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optional[int] = None,
+        builders: Optional[list] = None, hogs: int = 0) -> LockstepResults:
+    """Build the rows, let them take turns for `rounds` rounds, check them. With `hogs`, that many
+    processes spin on a core each for the whole run (the machine made busy on purpose)."""
+    duration = duration_s if duration_s is not None else (QUICK_S if quick else FULL_S)
+    rounds = rounds or (QUICK_ROUNDS if quick else FULL_ROUNDS)
+    share = duration / rounds
+    out = LockstepResults(duration_s=duration, rounds=rounds, hogs=hogs)
+    clock = RealClock()
     rows: list[Optional[Row]] = []
     meters: list[CpuMeter] = []
-    for label, build in builders:
-        result = RowResult(label)
-        out.rows.append(result)
-        meters.append(CpuMeter(clock))
-        try:
-            rows.append(build())
-        except Exception as exc:   # reported in its row
-            result.error = f"{type(exc).__name__}: {exc}"
-            rows.append(None)
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(hogs)]
     try:
+        for label, build in builders if builders is not None else all_rows():
+            result = RowResult(label)
+            out.rows.append(result)
+            meter = CpuMeter(clock)
+            meters.append(meter)
+            try:
+                row = build()
+            except Exception as exc:   # reported in its row
+                result.error = f"{type(exc).__name__}: {exc}"
+                row = None
+            if isinstance(row, BeforeRow):
+                meter.child_pids = (row.pid,)         # its CPU is the row's own, not another process's
+            rows.append(row)
         for _ in range(rounds):
             for row, result, meter in zip(rows, out.rows, meters):
                 if row is None or result.error:
@@ -335,29 +464,70 @@ def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optiona
             result.cpu_others = meter.others()
             if row is not None and not result.error:
                 result.error = row.check()
-        main, timed = rows[0], rows[2]
-        if isinstance(timed, WorldRow) and not out.rows[2].error:
+        by_label = {r.label: row for r, row in zip(out.rows, rows)}
+        main, timed = by_label.get(MAIN_LABEL), by_label.get("world, all moving, timed per task")
+        before = by_label.get(BeforeRow.label)
+        if isinstance(timed, WorldRow) and not out.row(timed.label).error:
             out.split = timed.task_split()
-            out.split_row = out.rows[2]
+            out.split_row = out.row(timed.label)
         if isinstance(main, WorldRow):
             out.telemetry_frames = main.telemetry_frames()
+            angles = [float(x).hex() for x in main.bench.world.plant.arm.pos_rad]
             if isinstance(timed, WorldRow):
-                ours, theirs = main.bench.world.plant.arm.pos_rad, timed.bench.world.plant.arm.pos_rad
-                out.same_motion = bool((ours == theirs).all())
+                out.same_motion = angles == [float(x).hex() for x in timed.bench.world.plant.arm.pos_rad]
+            if isinstance(before, BeforeRow) and before.result is not None and before.result["pos_rad"]:
+                out.same_as_before = angles == before.result["pos_rad"]
     finally:
         for row in rows:
             if row is not None:
                 row.close()
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
     return out
+
+
+def parallel_worlds(workers: int, duration_s: float, seed: int = SEED) -> tuple[float, str]:
+    """Simulated seconds per wall second summed over `workers` worlds, each in its own process,
+    running `duration_s` at the same time (a campaign's throughput); and an error, '' if none."""
+    worlds: list[ChildWorld] = []
+    try:
+        worlds = [ChildWorld(REPO, seed + k) for k in range(workers)]
+        for world in worlds:                   # all start together: each is told before any answers
+            assert world.proc.stdin is not None
+            world.proc.stdin.write(f"{duration_s!r}\n")
+            world.proc.stdin.flush()
+        t0 = RealClock.precise_now()
+        answers = [world._line() for world in worlds]
+        wall_s = RealClock.precise_now() - t0
+        errors = [world.finish()["error"] for world in worlds]
+        if not all(_is_number(a) for a in answers):
+            return math.nan, "a world in a child process stopped"
+        return workers * duration_s / wall_s, "; ".join(e for e in errors if e)
+    except BenchSetupError as exc:
+        return math.nan, str(exc)
+    finally:
+        for world in worlds:
+            world.close()
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 # ---------------------------------------------------------------- report
 
 def report(res: LockstepResults) -> str:
     main = res.main
+    load = (f"; {res.hogs} other process{'es' if res.hogs > 1 else ''} spinning on a core" if res.hogs else
+            "; the machine as it is")
     lines = [f"Lock-step speed: simulated seconds per wall second, every loop at 1 kHz on the simulated clock; "
              f"{res.duration_s:g} simulated s per row, rows taking turns in {res.rounds} round"
-             f"{'s' if res.rounds > 1 else ''}",
+             f"{'s' if res.rounds > 1 else ''}{load}",
              f"  motor channels: {ARM_CHANNELS + TRACKER_CHANNELS}: the arm's {ARM_CHANNELS} (J1-J4, gripper, mount) "
              f"at 1 kHz and the solar tracker's {TRACKER_CHANNELS} (relay logic at 100 Hz, the DBC's 10 ms cycle)",
              "",
@@ -387,7 +557,20 @@ def report(res: LockstepResults) -> str:
                   f"  budget at {GOAL_X:g}x: {1e3 / GOAL_X:.0f} us of wall time per simulated ms; this world takes "
                   f"{main.us_per_sim_ms:.0f} us",
                   f"  goal {'met' if ok else 'NOT met'}"]
-        idle, driven = res.rows[3], res.rows[4]
+        labels = {r.label for r in res.rows}
+        if BeforeRow.label in labels:
+            before = res.row(BeforeRow.label)
+            if before.wall_s > 0 and not before.error:
+                lines.append(f"  against the code before issue 12 ({BEFORE_COMMIT}), the same world in the same run: "
+                             f"{before.x_real_time:.1f}x, so {x / before.x_real_time:.2f} times as fast")
+            if res.same_as_before is not None:
+                lines.append("  and the same simulation to the bit: final joint angles identical to the old code's"
+                             if res.same_as_before else
+                             "  NOTE: the world ended with other joint angles than the old code's (it should not)")
+        if PlantRow.IDLE_LABEL in labels and PlantRow.DRIVEN_LABEL in labels:
+            idle, driven = res.row(PlantRow.IDLE_LABEL), res.row(PlantRow.DRIVEN_LABEL)
+        else:
+            idle = driven = RowResult("")
         if driven.wall_s > 0 and not driven.error and idle.wall_s > 0 and not idle.error:
             lines.append(f"  the plant alone runs at {idle.x_real_time:.1f}x idle and {driven.x_real_time:.1f}x with "
                          f"its channels driven ({idle.us_per_sim_ms:.0f} and {driven.us_per_sim_ms:.0f} us per "
@@ -424,12 +607,39 @@ def report(res: LockstepResults) -> str:
     return "\n".join(lines)
 
 
+BUSY_GOAL_X = 20.0             # with another process using a core
+IDLE_GOAL_X = 30.0             # on an idle machine
+PARALLEL_GOAL = 1.8            # two worlds in two processes: at least this many times one's throughput
+
+
 def main(quick: bool = False) -> LockstepResults:
+    """Every row on the machine as it is; then the main world and the old code's with one process
+    spinning on a core; then worlds in parallel processes (a campaign's throughput)."""
     results = run(quick)
     print(report(results), flush=True)
+    pair = [(label, build) for label, build in all_rows() if label in (MAIN_LABEL, BeforeRow.label)]
+    busy = run(quick, builders=pair, hogs=1)
+    print()
+    print(report(busy), flush=True)
+    quiet, loaded = results.main, busy.main
+    print()
+    print(f"  goals: {quiet.x_real_time:.1f}x with {quiet.cpu_others:.2f} cores used by other processes "
+          f"(goal >= {IDLE_GOAL_X:g}x on an idle machine: ratio {quiet.x_real_time / IDLE_GOAL_X:.2f}); "
+          f"{loaded.x_real_time:.1f}x beside a process spinning on a core (others {loaded.cpu_others:.2f} cores; "
+          f"goal >= {BUSY_GOAL_X:g}x: ratio {loaded.x_real_time / BUSY_GOAL_X:.2f})")
+    duration = QUICK_S if quick else FULL_S
+    one, err_one = parallel_worlds(1, duration)
+    two, err_two = parallel_worlds(2, duration)
+    print(f"  campaign throughput, the moving world in child processes, {duration:g} simulated s each: "
+          f"1 process {one:.1f} simulated s per wall s, 2 processes {two:.1f} together: "
+          f"{two / one:.2f}x one (goal >= {PARALLEL_GOAL:g}x)")
+    for err in (err_one, err_two):
+        if err:
+            print(f"  NOTE parallel worlds: {err}")
+    if busy.error or err_one or err_two:
+        results.rows.append(RowResult("busy or parallel runs", error=busy.error or err_one or err_two))
     return results
 
 
 if __name__ == "__main__":
-    import sys
     main(quick="--quick" in sys.argv[1:])
