@@ -45,12 +45,24 @@ class DropFrames(BusView):
         self.bus.send(msg, timeout)
 
 
+_open_pairs: list["Pair"] = []
+
+
+@pytest.fixture(autouse=True)
+def _close_pairs():
+    """Every Pair a test made has its bus shut down after it."""
+    yield
+    while _open_pairs:
+        _open_pairs.pop().close()
+
+
 class Pair:
     """A lock-step plant (as fast as it goes) and controller, stepped in turn in one thread."""
 
     def __init__(self, seed: int = 1, controller: bool = True, first_tick: int = 0) -> None:
         self.wall = SimClock(1000.0)
         self.plant_bus, self._controller_end = open_local_pair()
+        _open_pairs.append(self)
         self.start_plant(seed, first_tick)
         self.control = None
         if controller:
@@ -93,6 +105,10 @@ class Pair:
 
     def execute(self, msg):
         return self.controller._execute(msg, False, self.wall.now())
+
+    def close(self) -> None:
+        self.plant_bus.shutdown()
+        self._controller_end.shutdown()
 
 
 def test_the_controller_runs_each_tick_on_the_plant_tick_before_it_and_nothing_runs_ahead():
