@@ -96,9 +96,8 @@ class HalCodec:
 
     def layout(self, name: str, order: Optional[Sequence[str]] = None) -> "FrameLayout":
         """A fast packer/unpacker of `name` with its signals in `order` (default: as declared)."""
-        if order is None:
-            order = tuple(s.name for s in self._spec(name).message.signals)
-        return FrameLayout(self, name, order)
+        declared = self._spec(name).message.signals
+        return FrameLayout(self, name, tuple(s.name for s in declared) if order is None else order)
 
     def is_fd(self, name: str) -> bool:
         return self._spec(name).is_fd
@@ -380,10 +379,10 @@ class HalEndpoint:
     A node registers what it listens to with `on_frame(name, handler, order)`: `poll(now)`
     then reads the waiting frames (at most `max_frames_per_poll`, so a flooded bus cannot
     starve a cooperative scheduler; the rest wait for the next call) and calls
-    `handler(values, now)` for each. With `order` the values come as a list in that order,
-    unpacked by a `FrameLayout` (the fast path, for frames that come every tick); without,
-    as the dict `HalCodec.decode` gives. Declared frames nobody listens to (the node's own
-    echo, say) are read and ignored. Undeclared IDs, frames that break their declaration and
+    `handler(values, now)` for each, the values a list in `order` (by default as declared)
+    unpacked by a `FrameLayout`; `send_frame(layout, values)` packs one. Declared frames
+    nobody listens to (the node's own echo, say) are read and ignored. Undeclared IDs,
+    frames that break their declaration and
     frames a handler refuses (ValueError) are counted in `bad_frames`; a `can.CanError`
     from the bus is counted in `bus_errors`, never raised: a node that cannot talk lets the
     other side's expiry rules take it to the safe state.
@@ -399,22 +398,17 @@ class HalEndpoint:
         self.bus_errors = 0
         self.last_bus_error: Optional[can.CanError] = None
         self.sent_by_name: dict[str, int] = {}
-        self._fast: dict[int, tuple[FrameLayout, Handler]] = {}
-        self._slow: dict[str, Handler] = {}
+        self._listeners: dict[int, tuple[FrameLayout, Handler]] = {}
 
-    def on_frame(self, name: str, handler: Handler, order: Optional[Sequence[str]] = None) -> Optional[FrameLayout]:
-        """Listen to frames `name`; returns the layout when `order` asks for the fast path."""
-        self.codec.frame_id(name)        # raises for an undeclared name
-        if order is None:
-            self._slow[name] = handler
-            return None
-        layout = self.codec.layout(name, order)
-        self._fast[layout.frame_id] = (layout, handler)
+    def on_frame(self, name: str, handler: Handler, order: Optional[Sequence[str]] = None) -> FrameLayout:
+        """Listen to frames `name`, their values in `order` (default: as declared); returns the layout."""
+        layout = self.codec.layout(name, order)      # raises for an undeclared name
+        self._listeners[layout.frame_id] = (layout, handler)
         return layout
 
     def poll(self, now: float) -> int:
         """Read and dispatch the waiting frames; return how many were read (bad ones included)."""
-        bus, fast, slow, decode = self.bus, self._fast, self._slow, self.codec.decode
+        bus, listeners, decode = self.bus, self._listeners, self.codec.decode
         read = 0
         for _ in range(self.max_frames_per_poll):
             try:
@@ -426,26 +420,16 @@ class HalEndpoint:
                 break
             read += 1
             try:
-                entry = fast.get(msg.arbitration_id)
+                entry = listeners.get(msg.arbitration_id)
                 if entry is not None and not (msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame):
                     layout, handler = entry
                     handler(layout.unpack(msg.data), now)
-                    continue
-                decoded = decode(msg)
-                if decoded is None:
+                elif decode(msg) is None:       # not ours; a declared frame nobody listens to passes
                     self.bad_frames += 1
-                    continue
-                handler = slow.get(decoded[0])
-                if handler is not None:
-                    handler(decoded[1], now)
             except ValueError:      # HalDecodeError, or values the handler refuses
                 self.bad_frames += 1
         self.frames_received += read
         return read
-
-    def send(self, name: str, **signals: Union[int, float]) -> bool:
-        """Encode (through cantools) and send one frame; False (and counted) if the bus refused it."""
-        return self._transmit(name, self.codec.encode(name, **signals))
 
     def send_frame(self, layout: FrameLayout, values: Sequence) -> bool:
         """Pack (fast path) and send one frame; False (and counted) if the bus refused it."""
