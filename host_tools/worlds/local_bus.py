@@ -1,11 +1,7 @@
 """A python-can bus for the one-process, one-thread lock-step world: `open_local_pair()`.
 
 The plant and the controller still meet only through `can.BusABC`, frame by frame as the DBC
-declares them; only the carrier is cheaper than python-can's `virtual` interface. Opened with
-`carries_values=True` (as `World` opens it) it also carries `protocol.value_frame.ValueFrame`s:
-the HAL nodes then hand each other the values the receiver would have unpacked from the bytes,
-to the bit, without packing them (`HalEndpoint.send_frame`); a raw `can.Message` sent onto it
-(a test's bad frame, say) still arrives as it was, in order with the rest.
+declares them; only the carrier is cheaper than python-can's `virtual` interface.
 That one serves buses in one process across threads, so each frame costs it: a deep copy
 per receiver, a receive timestamp from the OS clock, a `queue.Queue` put and get (a lock
 and a condition each), and `BusABC.recv`'s timeout loop; an empty poll raises and catches
@@ -31,6 +27,13 @@ it leaves out:
 Per frame it costs a deque append and a popleft (well under 1 us); an empty poll about
 0.1 us. Use python-can's `virtual` (or any real interface) where threads or processes
 share a bus.
+
+Opened with `carries_values=True` (as `World` opens it) it also carries
+`protocol.value_frame.ValueFrame`s: the HAL nodes then hand each other the values the receiver
+would have unpacked from the bytes, to the bit, without packing them (`HalEndpoint.send_frame`).
+They travel as frames do (in order, through the filters, counted alike), and a raw
+`can.Message` sent onto the bus (a test's bad frame, say) still arrives as it was, in order
+with the rest.
 """
 from __future__ import annotations
 
