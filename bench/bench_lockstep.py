@@ -312,7 +312,7 @@ class PlantRow(Row):
     def __init__(self, driven: bool = False, seed: int = SEED) -> None:
         self.label = self.DRIVEN_LABEL if driven else self.IDLE_LABEL
         self.clock = SimClock()
-        self.bus = LocalBus(LocalChannel())       # the world's kind of bus, with nobody else on it
+        self.bus = LocalBus(LocalChannel(), carries_values=True)   # the world's kind of bus, with nobody else on it
         self.node = build_plant_node(self.bus, seed)
         self.scheduler = Scheduler(self.clock, stopwatch=None)
         self.scheduler.add("plant", self.node.step, period_s=self.node.period_s)

@@ -26,7 +26,7 @@ from typing import Optional
 
 import can
 
-from protocol.hal import HalCodec, HalEndpoint, SignalValues
+from protocol.hal import HalCodec, HalEndpoint
 from protocol.states import ARM_CHANNELS
 
 _N = len(ARM_CHANNELS)
@@ -80,7 +80,7 @@ class ControllerHal(HalEndpoint):
         self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
         self.motor_alive = 0     # value the next MOTOR_CMD frame will carry
         self.on_frame("PLANT_SYNC", self._on_sync, ("tick", "lockstep", "period_us"))
-        self.on_frame("ANALOG_IN", self._on_analog)
+        self.on_frame("ANALOG_IN", self._on_analog, ("supply_v", "controller_temp_c"))
         self.on_frame("MOTOR_FB", self._on_feedback, _FB_ORDER)
         self.on_frame("DIGITAL_IN", self._on_switches, _SWITCH_ORDER)
         self._motor_cmd = self.codec.layout("MOTOR_CMD", _CMD_ORDER)
@@ -89,14 +89,14 @@ class ControllerHal(HalEndpoint):
         self.on_frame("TRACKER_SENSE", self._on_tracker_sense, _SENSE_ORDER)
         self.on_frame("TRACKER_POS", self._on_tracker_pos, _POS_ORDER)
         self._tracker_cmd = self.codec.layout("TRACKER_CMD", _TRACKER_CMD_ORDER)
+        self._outputs = self.codec.layout("CTRL_OUTPUTS", ("outputs_enabled", "brake_all", "alive"))
 
     def _on_sync(self, values: list, now: float) -> None:
         self.inputs.tick = values[0]
         self.inputs.tick_s = now
 
-    def _on_analog(self, values: SignalValues, now: float) -> None:
-        self.inputs.supply_v = float(values["supply_v"])
-        self.inputs.temp_c = float(values["controller_temp_c"])
+    def _on_analog(self, values: list, now: float) -> None:
+        self.inputs.supply_v, self.inputs.temp_c = values
         self.inputs.updated_s = now
 
     def _on_feedback(self, values: list, now: float) -> None:
@@ -161,5 +161,5 @@ class ControllerHal(HalEndpoint):
         `bus_errors`, not raised: the plant will expire the last command, which is
         the safe outcome, and the supervisor can watch the counter.
         """
-        self.send("CTRL_OUTPUTS", outputs_enabled=int(bool(enabled)), brake_all=int(bool(brake)), alive=self.alive)
+        self.send_frame(self._outputs, (1 if enabled else 0, 1 if brake else 0, self.alive))
         self.alive = (self.alive + 1) & 0xFF

@@ -60,8 +60,8 @@ class PlantNode(HalEndpoint):
             v[:n], v[n:2 * n], v[2 * n:3 * n], v[3 * n], now),
             (*(f"duty_{ch}" for ch in ARM_CHANNELS), *(f"enable_{ch}" for ch in ARM_CHANNELS),
              *(f"brake_{ch}" for ch in ARM_CHANNELS), "alive"))
-        self.on_frame("CTRL_OUTPUTS", lambda v, now: plant.commanded.command(
-            bool(v["outputs_enabled"]), bool(v["brake_all"]), int(v["alive"]), now))
+        self.on_frame("CTRL_OUTPUTS", lambda v, now: plant.commanded.command(v[0], v[1], v[2], now),
+                      ("outputs_enabled", "brake_all", "alive"))
         self._sync = codec.layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
         self.lockstep = bool(lockstep)
         self._period_us = round(period_s * 1e6)

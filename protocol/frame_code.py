@@ -15,12 +15,18 @@ ValueError, OverflowError or `struct.error`) where a value needs a closer look, 
 layout's own table-driven code then says exactly what is wrong (or, for a value that is
 fine after all, gives the bytes). `source` keeps the code of each, for reading.
 
+A third function, `roundtrip`, gives what `unpack(pack(values))` gives without the bytes: the
+one-process world's nodes hand each other values that way (`protocol.value_frame`). It is
+written from the same expressions as the other two (`_raw`, `_physical`), so it computes the
+very same numbers; `roundtrip_source` says why the result is the one the bytes would give.
+
 `Field` is what the generator needs of a signal; `FrameLayout` builds the list from
 the DBC through cantools.
 """
 from __future__ import annotations
 
 import math
+import operator
 import struct
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
@@ -52,6 +58,15 @@ class Field:
             return -(1 << (self.length - 1)), (1 << (self.length - 1)) - 1
         return 0, (1 << self.length) - 1
 
+    def accepted_ints(self) -> tuple[int, int]:
+        """The integers an identity signal packs: inside its encode range (where declared) and its raw range."""
+        lo, hi = self.raw_span()
+        if math.isfinite(self.encode_lo):
+            lo = max(lo, math.ceil(self.encode_lo))
+        if math.isfinite(self.encode_hi):
+            hi = min(hi, math.floor(self.encode_hi))
+        return lo, hi
+
     def decodes_inside(self) -> bool:
         """True if every raw value decodes inside [decode_lo, decode_hi] (no check needed on unpack).
 
@@ -76,6 +91,23 @@ def _compile(source: str, name: str, namespace: dict) -> Callable:
 
 def _check(var: str, lo: float, hi: float) -> str:
     return f"{_literal(lo)} <= {var} <= {_literal(hi)}"
+
+
+def _raw(var: str, f: Field) -> str:
+    """The raw integer `pack` computes from a scaled signal's physical value."""
+    shifted = f"({var} - {_literal(f.offset)})" if f.offset else var     # x - 0 is x, to the bit
+    return f"round({shifted} / {_literal(f.scale)})"
+
+
+def _physical(raw: str, f: Field) -> str:
+    """The physical value `unpack` computes from a scaled signal's raw integer."""
+    # + 0 changes nothing unless raw * scale is -0.0, which only a negative scale gives
+    plus = f" + {_literal(f.offset)}" if f.offset or f.scale < 0 else ""
+    return f"{raw} * {_literal(f.scale)}{plus}"
+
+
+def _unpack_names(names: Sequence[str], source: str) -> str:
+    return f"    {', '.join(names)}{',' if len(names) == 1 else ''} = {source}"
 
 
 # struct format codes of the whole-byte integer fields, by (bits, signed)
@@ -130,7 +162,7 @@ def pack_source(fields: Sequence[Field], length: int, check_all: bool) -> tuple[
     raw values are shifted into one integer). `check_all`: every value against its encode range
     (else none: struct refuses what does not fit a full-range layout)."""
     names = [f"v{i}" for i in range(len(fields))]
-    lines = ["def fn(values, round=round):", f"    {', '.join(names)}{',' if len(names) == 1 else ''} = values"]
+    lines = ["def fn(values, round=round):", _unpack_names(names, "values")]
     if check_all:
         lines.append("    if not (" + " and ".join(_check(n, f.encode_lo, f.encode_hi)
                                              for n, f in zip(names, fields)) + "):")
@@ -142,8 +174,7 @@ def pack_source(fields: Sequence[Field], length: int, check_all: bool) -> tuple[
         elif f.identity:
             raws.append(f"round({n})" if check_all else n)
         else:
-            shifted = f"({n} - {_literal(f.offset)})" if f.offset else n     # x - 0 is x, to the bit
-            raws.append(f"round({shifted} / {_literal(f.scale)})")
+            raws.append(_raw(n, f))
     plan = struct_plan(fields, length)
     if plan is not None:
         fmt, items = plan
@@ -199,15 +230,57 @@ def unpack_source(fields: Sequence[Field], length: int) -> tuple[str, Optional[s
     checks = []
     for n, r, f in zip(names, raws, fields):
         if not f.identity:
-            # + 0 changes nothing unless raw * scale is -0.0, which only a negative scale gives
-            plus = f" + {_literal(f.offset)}" if f.offset or f.scale < 0 else ""
-            lines.append(f"    {n} = {r} * {_literal(f.scale)}{plus}")
+            lines.append(f"    {n} = {_physical(r, f)}")
         if not f.decodes_inside():
             checks.append(_check(n if not f.identity else r, f.decode_lo, f.decode_hi))
     if checks:
         lines += ["    if not (" + " and ".join(checks) + "):", "        return None"]
     lines.append(f"    return [{', '.join(n if not f.identity else r for n, r, f in zip(names, raws, fields))}]")
     return "\n".join(lines) + "\n", fmt
+
+
+def roundtrip_source(fields: Sequence[Field]) -> str:
+    """Source of `fn(values) -> list | None`: the list `unpack(pack(values))` gives, without the bytes.
+
+    Why it is that list, to the bit and the type: for each signal `fn` computes the raw integer
+    with pack's own expression (`_raw`: `round((v - offset) / scale)`; an identity signal's value
+    is its raw integer) and the physical value from it with unpack's own (`_physical`). The bytes
+    hold each raw integer as it is when it fits its field (fields do not overlap: cantools
+    refuses that), and unpack reads it back as the same `int`. So `fn` checks just that: each
+    scaled value inside its encode range (pack's check), each raw value an exact `int`
+    (`operator.index`: a bool or a numpy integer gives its int; a float for an identity signal
+    is refused, pack would round it) inside what its field holds (an identity signal's also
+    inside its encode range), each physical value inside what unpack accepts. Where a check
+    fails it returns None (or raises TypeError, ValueError, ArithmeticError for what is not a
+    number); the caller then takes the bytes, and with them pack's and unpack's own errors.
+    Checking more than pack does (a layout whose pack leaves ranges to `struct`) only declines.
+    """
+    names = [f"v{i}" for i in range(len(fields))]
+    lines = ["def fn(values, round=round, index=index):", _unpack_names(names, "values")]
+    scaled = [(n, f) for n, f in zip(names, fields) if not f.identity]
+    if scaled:
+        lines += ["    if not (" + " and ".join(_check(n, f.encode_lo, f.encode_hi) for n, f in scaled) + "):",
+                  "        return None"]
+    raw_checks, decode_checks, results = [], [], []
+    for i, (n, f) in enumerate(zip(names, fields)):
+        r = f"r{i}"
+        if f.identity:
+            lines.append(f"    {r} = index({n})")
+            raw_checks.append(_check(r, *f.accepted_ints()))
+            result = r
+        else:
+            lines.append(f"    {r} = index({_raw(n, f)})")
+            raw_checks.append(_check(r, *f.raw_span()))
+            result = f"p{i}"
+        if not f.decodes_inside():
+            decode_checks.append(_check(result, f.decode_lo, f.decode_hi))
+        results.append(result)
+    lines += ["    if not (" + " and ".join(raw_checks) + "):", "        return None"]
+    lines += [f"    p{i} = {_physical(f'r{i}', f)}" for i, f in enumerate(fields) if not f.identity]
+    if decode_checks:
+        lines += ["    if not (" + " and ".join(decode_checks) + "):", "        return None"]
+    lines.append(f"    return [{', '.join(results)}]")
+    return "\n".join(lines) + "\n"
 
 
 def compile_pack(name: str, fields: Sequence[Field], length: int, check_all: bool) -> tuple[Callable, str]:
@@ -218,3 +291,8 @@ def compile_pack(name: str, fields: Sequence[Field], length: int, check_all: boo
 def compile_unpack(name: str, fields: Sequence[Field], length: int) -> tuple[Callable, str]:
     source, fmt = unpack_source(fields, length)
     return _compile(source, name, {"_U": struct.Struct(fmt).unpack} if fmt else {}), source
+
+
+def compile_roundtrip(name: str, fields: Sequence[Field]) -> tuple[Callable, str]:
+    source = roundtrip_source(fields)
+    return _compile(source, name, {"index": operator.index}), source

@@ -25,7 +25,8 @@ import can
 import cantools
 from cantools.database.can import Database, Message as DbcMessage
 
-from protocol.frame_code import STRUCT_CODES, Field, compile_pack, compile_unpack
+from protocol.frame_code import STRUCT_CODES, Field, compile_pack, compile_roundtrip, compile_unpack
+from protocol.value_frame import ValueFrame
 
 DBC_PATH = Path(__file__).with_name("hal.dbc")
 
@@ -48,6 +49,12 @@ class HalDecodeError(ValueError):
 def _default_database() -> Database:
     # Parsed once per process and never mutated; every HalCodec() without a path shares it.
     return cantools.database.load_file(DBC_PATH, database_format="dbc", strict=True)
+
+
+@functools.lru_cache(maxsize=1)
+def default_codec() -> "HalCodec":
+    """The codec of `hal.dbc`, one per process: nodes built without a codec share it, and so its layouts."""
+    return HalCodec()
 
 
 @dataclass(frozen=True)
@@ -74,6 +81,7 @@ class HalCodec:
             self.database = cantools.database.load_file(dbc_path, database_format="dbc", strict=True)
         self._by_name: dict[str, _Spec] = {}
         self._by_id: dict[int, _Spec] = {}
+        self._layouts: dict[tuple[str, tuple[str, ...]], FrameLayout] = {}
         for message in self.database.messages:
             if message.is_extended_frame:
                 raise ValueError(f"{message.name}: the HAL bus uses standard 11-bit IDs")
@@ -95,10 +103,15 @@ class HalCodec:
         return tuple(s.name for s in sorted(self._by_name.values(), key=lambda s: s.frame_id))
 
     def layout(self, name: str, order: Optional[Sequence[str]] = None) -> "FrameLayout":
-        """A fast packer/unpacker of `name` with its signals in `order` (default: as declared)."""
-        if order is None:
-            order = tuple(s.name for s in self._spec(name).message.signals)
-        return FrameLayout(self, name, order)
+        """A fast packer/unpacker of `name` with its signals in `order` (default: as declared).
+
+        One per name and order: every caller of this codec gets the same object (a `ValueFrame`'s
+        receiver knows it by that)."""
+        key = (name, tuple(s.name for s in self._spec(name).message.signals) if order is None else tuple(order))
+        layout = self._layouts.get(key)
+        if layout is None:
+            layout = self._layouts[key] = FrameLayout(self, *key)
+        return layout
 
     def is_fd(self, name: str) -> bool:
         return self._spec(name).is_fd
@@ -277,6 +290,7 @@ class FrameLayout:
         self._fast_pack, self.pack_source = compile_pack(
             name, code_fields, self.length, check_all=not (self._full_range and self._struct is not None))
         self._fast_unpack, self.unpack_source = compile_unpack(name, code_fields, self.length)
+        self._roundtrip, self.roundtrip_source = compile_roundtrip(name, code_fields)
 
     def pack(self, values: Sequence) -> bytes:
         """Frame bytes for physical `values` in `order`; HalEncodeError if one is out of range."""
@@ -322,6 +336,15 @@ class FrameLayout:
                     f"{self.name} (0x{self.frame_id:03X}): {signal_name}={value} outside its declared range")
             values.append(value)
         return values
+
+    def roundtrip(self, values: Sequence) -> Optional[list]:
+        """What `unpack(pack(values))` gives, to the bit and the type, computed without the bytes; None
+        where that takes the bytes after all (a value `pack` refuses, or one of a kind not proven
+        here: `protocol.frame_code.roundtrip_source`). For a carrier that hands values over."""
+        try:
+            return self._roundtrip(values)
+        except (TypeError, ValueError, ArithmeticError):
+            return None
 
     def message(self, values: Sequence) -> can.Message:
         return HalFrame.data_frame(self.frame_id, self.pack(values), self.is_fd)
@@ -380,18 +403,23 @@ class HalEndpoint:
     A node registers what it listens to with `on_frame(name, handler, order)`: `poll(now)`
     then reads the waiting frames (at most `max_frames_per_poll`, so a flooded bus cannot
     starve a cooperative scheduler; the rest wait for the next call) and calls
-    `handler(values, now)` for each. With `order` the values come as a list in that order,
-    unpacked by a `FrameLayout` (the fast path, for frames that come every tick); without,
-    as the dict `HalCodec.decode` gives. Declared frames nobody listens to (the node's own
-    echo, say) are read and ignored. Undeclared IDs, frames that break their declaration and
-    frames a handler refuses (ValueError) are counted in `bad_frames`; a `can.CanError`
-    from the bus is counted in `bus_errors`, never raised: a node that cannot talk lets the
-    other side's expiry rules take it to the safe state.
+    `handler(values, now)` for each, the values a list in `order` (by default as declared)
+    unpacked by a `FrameLayout`; `send_frame(layout, values)` packs one. Declared frames
+    nobody listens to (the node's own echo, say) are read and ignored. Undeclared IDs,
+    frames that break their declaration and frames a handler refuses (ValueError) are
+    counted in `bad_frames`; a `can.CanError` from the bus is counted in `bus_errors`, never
+    raised: a node that cannot talk lets the other side's expiry rules take it to the safe
+    state.
+
+    On a bus whose `carries_values` is True (the one-process world's), `send_frame` hands the
+    receiver its values instead of bytes (`protocol.value_frame`), and `poll` passes on the
+    values of such a frame as they came; everything else, and every count, is as with bytes.
     """
 
     def __init__(self, bus: can.BusABC, codec: Optional[HalCodec] = None, max_frames_per_poll: int = 256) -> None:
         self.bus = bus
-        self.codec = codec if codec is not None else HalCodec()
+        self.codec = codec if codec is not None else default_codec()
+        self.carries_values = getattr(bus, "carries_values", False) is True
         self.max_frames_per_poll = max_frames_per_poll
         self.frames_received = 0
         self.frames_sent = 0
@@ -399,22 +427,17 @@ class HalEndpoint:
         self.bus_errors = 0
         self.last_bus_error: Optional[can.CanError] = None
         self.sent_by_name: dict[str, int] = {}
-        self._fast: dict[int, tuple[FrameLayout, Handler]] = {}
-        self._slow: dict[str, Handler] = {}
+        self._listeners: dict[int, tuple[FrameLayout, Handler]] = {}
 
-    def on_frame(self, name: str, handler: Handler, order: Optional[Sequence[str]] = None) -> Optional[FrameLayout]:
-        """Listen to frames `name`; returns the layout when `order` asks for the fast path."""
-        self.codec.frame_id(name)        # raises for an undeclared name
-        if order is None:
-            self._slow[name] = handler
-            return None
-        layout = self.codec.layout(name, order)
-        self._fast[layout.frame_id] = (layout, handler)
+    def on_frame(self, name: str, handler: Handler, order: Optional[Sequence[str]] = None) -> FrameLayout:
+        """Listen to frames `name`, their values in `order` (default: as declared); returns the layout."""
+        layout = self.codec.layout(name, order)      # raises for an undeclared name
+        self._listeners[layout.frame_id] = (layout, handler)
         return layout
 
     def poll(self, now: float) -> int:
         """Read and dispatch the waiting frames; return how many were read (bad ones included)."""
-        bus, fast, slow, decode = self.bus, self._fast, self._slow, self.codec.decode
+        bus, listeners, decode = self.bus, self._listeners, self.codec.decode
         read = 0
         for _ in range(self.max_frames_per_poll):
             try:
@@ -426,32 +449,32 @@ class HalEndpoint:
                 break
             read += 1
             try:
-                entry = fast.get(msg.arbitration_id)
+                entry = listeners.get(msg.arbitration_id)
                 if entry is not None and not (msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame):
                     layout, handler = entry
-                    handler(layout.unpack(msg.data), now)
-                    continue
-                decoded = decode(msg)
-                if decoded is None:
+                    if msg.__class__ is ValueFrame and msg.layout is layout:
+                        handler(msg.values, now)
+                    else:
+                        handler(layout.unpack(msg.data), now)
+                elif decode(msg) is None:       # not ours; a declared frame nobody listens to passes
                     self.bad_frames += 1
-                    continue
-                handler = slow.get(decoded[0])
-                if handler is not None:
-                    handler(decoded[1], now)
             except ValueError:      # HalDecodeError, or values the handler refuses
                 self.bad_frames += 1
         self.frames_received += read
         return read
 
-    def send(self, name: str, **signals: Union[int, float]) -> bool:
-        """Encode (through cantools) and send one frame; False (and counted) if the bus refused it."""
-        return self._transmit(name, self.codec.encode(name, **signals))
-
     def send_frame(self, layout: FrameLayout, values: Sequence) -> bool:
-        """Pack (fast path) and send one frame; False (and counted) if the bus refused it."""
+        """Pack (fast path) and send one frame; False (and counted) if the bus refused it.
+
+        On a bus that carries values, what the receiver would unpack goes instead, where
+        `layout.roundtrip` vouches for it (`ValueFrame`); `values` must then stay as they are."""
+        if self.carries_values:
+            carried = layout.roundtrip(values)
+            if carried is not None:
+                return self._transmit(layout.name, ValueFrame(layout, values, carried))
         return self._transmit(layout.name, layout.message(values))
 
-    def _transmit(self, name: str, msg: can.Message) -> bool:
+    def _transmit(self, name: str, msg: Union[can.Message, ValueFrame]) -> bool:
         try:
             self.bus.send(msg, timeout=0)
         except can.CanError as exc:

@@ -6,7 +6,7 @@ import pytest
 
 from firmware_py.hal import ControllerHal
 from host_tools.worlds.local_bus import LocalBus, LocalChannel, open_local_pair
-from protocol.hal import HalCodec
+from protocol.hal import HalCodec, HalEndpoint
 
 CODEC = HalCodec()
 
@@ -78,3 +78,21 @@ def test_a_hal_node_reads_the_declared_frames_through_it():
     finally:
         plant_end.shutdown()
         controller_end.shutdown()
+
+
+def test_value_frames_pass_filters_by_id_and_each_receiver_gets_its_own_values():
+    channel = LocalChannel()
+    a, b, c = (LocalBus(channel, carries_values=True) for _ in range(3))
+    c.set_filters([{"can_id": CODEC.frame_id("ANALOG_IN"), "can_mask": 0x7FF, "extended": False}])
+    try:
+        sender = HalEndpoint(a)
+        assert sender.send_frame(CODEC.layout("PLANT_SYNC"), (1, 0, 1000))
+        assert sender.send_frame(CODEC.layout("ANALOG_IN"), (27.5, 31.0))
+        got_b = [b.recv(0), b.recv(0)]
+        got_c = c.recv(0)
+        assert [f.layout.name for f in got_b] == ["PLANT_SYNC", "ANALOG_IN"] and got_c.layout.name == "ANALOG_IN"
+        assert got_c is not got_b[1] and got_c.values == got_b[1].values and got_c.values is not got_b[1].values
+        assert b.recv(0) is None and c.recv(0) is None
+    finally:
+        for bus in (a, b, c):
+            bus.shutdown()

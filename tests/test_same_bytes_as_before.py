@@ -21,10 +21,11 @@ import json
 import sys
 from datetime import datetime
 from pathlib import Path
+from typing import Callable
 
 from hil_sim.sun import MST
 from host_tools.worlds.settings import PlantSettings
-from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.world import LockstepBench, World
 from protocol.messages import MESSAGES as M
 from protocol.states import Axis, GripAction, Switch, SwitchPosition, TrackerAxis
 
@@ -36,8 +37,11 @@ SEGMENTS = 3
 JOG_DPS = {Axis.J1: 1.0, Axis.J2: 2.0, Axis.J3: 2.5, Axis.J4: 3.0, Axis.MOUNT: 1.5}
 
 
-def run_session() -> dict:
-    """The session of the module docstring: bytes to the host per simulated second, the plant at the end."""
+def run_session(direct_values: bool = True, watch: Callable[[World], None] = lambda world: None) -> dict:
+    """The session of the module docstring: bytes to the host per simulated second, the plant at the end.
+
+    `direct_values` as `World` takes it; `watch(world)` is shown the world before the session starts
+    (tests/test_direct_values.py runs the session both ways and records what the nodes receive)."""
     received: list[tuple[float, bytes]] = []
     bench: LockstepBench
 
@@ -45,7 +49,8 @@ def run_session() -> dict:
         received.append((bench.clock.now(), data))
         return data
 
-    bench = LockstepBench(seed=SEED, to_host=tap, plant=PlantSettings(start=SUN_START))
+    bench = LockstepBench(seed=SEED, to_host=tap, plant=PlantSettings(start=SUN_START), direct_values=direct_values)
+    watch(bench.world)
     try:
         assert bench.connect()
         both = int(TrackerAxis.BOTH)

@@ -1,7 +1,10 @@
 """The simulator's world: a plant and a controller meeting on a python-can bus, one scheduler.
 
 The bus is a private `host_tools.worlds.local_bus` pair: a `can.BusABC` for one process and one
-thread, much cheaper per frame than python-can's `virtual` interface (see that module).
+thread, much cheaper per frame than python-can's `virtual` interface (see that module). On it the
+two nodes hand each other their frames' values directly, exactly what they would unpack from the
+bytes (`protocol.value_frame`); `direct_values=False` makes them pack every frame, as they do
+between processes (tests/test_direct_values.py runs a world both ways and compares).
 
 Used by `aspod sim` (a pty or TCP port; the world on a `PacedClock`, simulated time paced to
 the wall clock, and the link on the wall clock itself: `link_clock`, `run`) and by tests and
@@ -40,14 +43,16 @@ class World:
 
     With `link_clock` (the wall clock, when `clock` is a `PacedClock`), the controller's comms
     task runs on a second scheduler on it (`link_scheduler`): `run(should_stop)` runs both.
+    `direct_values`: the nodes hand each other values, not packed frames (see the module docstring).
     """
 
     def __init__(self, clock: Clock, port: Port, psk: bytes, *, seed: int = 0, baud: int = 115200,
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
-                 plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None) -> None:
+                 plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None,
+                 direct_values: bool = True) -> None:
         self.clock = clock
-        self.plant_bus, self.controller_bus = open_local_pair()
+        self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
         self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, plant)
         self.plant = self.plant_node.plant
         # deterministic: on a simulated clock a task takes no time; nothing to measure
@@ -79,6 +84,8 @@ class LockstepBench:
     controller pass through `to_controller` and `to_host` (callables bytes -> bytes,
     e.g. a lossy link emulator).
 
+    `direct_values` as in `World`.
+
     The host and the controller's comms task poll the line every `step_s` and 1 ms. With
     `sleeping_line` (the default) the line says when bytes move, and both skip the polls
     that would find nothing (most of them): the same polls do the same work, to the byte
@@ -95,13 +102,13 @@ class LockstepBench:
                  to_controller: Callable[[bytes], bytes] = lambda b: b,
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
                  plant_params: Optional[PlantParams] = None, plant: PlantSettings = PlantSettings(),
-                 sleeping_line: bool = True,
-                 clock: Optional[SimClock] = None) -> None:
+                 sleeping_line: bool = True, clock: Optional[SimClock] = None,
+                 direct_values: bool = True) -> None:
         self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, plant_params=plant_params,
-                           plant=plant)
+                           plant=plant, direct_values=direct_values)
         self.events: list = []
         self.telemetry: list = []
         self.host = HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 1),
