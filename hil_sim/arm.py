@@ -36,6 +36,7 @@ import numpy as np
 
 from hil_sim.arm_params import (ARM_PLANT_PARAMS, GRAVITY_M_S2, GRIPPER, J1, J2, J3, J4,
                                 MOUNT, ArmGeometry, ArmPlantParams, MountParams)
+from hil_sim.arm_tick import GripperCut, LoadConstants
 from hil_sim.motor import TWO_PI, DcMotorBank
 
 
@@ -75,6 +76,10 @@ class LoadModel:
         self._at_base = 0.0 + a.link1_kg * r0 * r0 + a.shoulder_hw_kg * r0 * r0
         self._base = m.mobile_arm_kg * r0 * r0 / 3.0
         self._wheels = m.guide_wheels_kg * r0 * r0
+        # The same constants, flat, for the fused tick (hil_sim.arm_tick.gravity_and_inertia).
+        self.tick_constants = LoadConstants(self._l2, self._l3, self._cg, self._tip, g, self._k1, self._k2, self._k3,
+                                            self._rod2, self._rod3, self._turned, self._i3, self._i4, *self._masses,
+                                            r0, self._reach, self._at_base, self._base, self._wheels)
 
     def pose(self, q1: float, q2: float, q3: float):
         """Arm-plane points (x, z) from J1: elbow, wrist, turned-part cg, tip; and cos a1..a3."""
@@ -281,6 +286,25 @@ class ArmPlant:
             self.motors.step(h, duty, supply_v, en, brake, self._load_nm, self._inertia)
             self._update_loads()
 
+    def applied(self, duty: list, enable: list) -> None:
+        """Note what a step made outside `step` applied (the fused tick): `supply_current_a` reads it."""
+        self._duty, self._enable = duty, enable
+
+    def load_lists(self) -> tuple[list[float], list[float]]:
+        """The live lists of gravity torques and load inertias per channel (changed in place, never replaced)."""
+        return self._load_nm, self._inertia
+
+    def gripper_cut(self) -> GripperCut:
+        """Whether the gripper's end switches cut its motor, and where they trip (screw angle, rad)."""
+        return GripperCut(self.params.gripper.switches_cut_power, self._closed_switch_rad, self._open_switch_rad)
+
+    def load_model(self) -> LoadModel:
+        """The mass model for the present payload and gravity (built again when either has changed)."""
+        model = self._loads
+        if model.payload_kg != self.payload_kg or model.g_m_s2 != self.g_m_s2:
+            model = self._loads = LoadModel(self.params.geometry, self.params.mount, self.payload_kg, self.g_m_s2)
+        return model
+
     def _gripper_switches_cut(self, duty: list, enable: list) -> list:
         """The end switch ahead of the jaws' travel opens the motor circuit (if so fitted)."""
         if not (enable[GRIPPER] and self.params.gripper.switches_cut_power):
@@ -293,11 +317,8 @@ class ArmPlant:
         return enable
 
     def _update_loads(self) -> None:
-        model = self._loads
-        if model.payload_kg != self.payload_kg or model.g_m_s2 != self.g_m_s2:
-            model = self._loads = LoadModel(self.params.geometry, self.params.mount, self.payload_kg, self.g_m_s2)
         q = self.motors.positions()
-        model.update(q[0], q[1], q[2], self._load_nm, self._inertia)
+        self.load_model().update(q[0], q[1], q[2], self._load_nm, self._inertia)
 
     # -- measured and true values --
     @property

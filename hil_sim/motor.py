@@ -159,10 +159,13 @@ class DcMotorBank:
         self.inertia_kg_m2 = np.array([d.inertia_kg_m2 for d in drives])
         self._stop_lo = [d.stop_lo_rad for d in drives]
         self._stop_hi = [d.stop_hi_rad for d in drives]
+        # The state, as lists changed in place and never replaced: a fused tick (hil_sim.arm_tick)
+        # holds them and steps them directly.
         self._pos = [0.0] * self.n
         self._vel = [0.0] * self.n
         self._i = [0.0] * self.n
         self._stop_t = [0.0] * self.n
+        self.state_writes = 0      # how often `set_state` overwrote the state (readers that sample per step compare it)
         self._h = 0.0
         self._coef: list[tuple] = []
 
@@ -173,7 +176,8 @@ class DcMotorBank:
                 value = [float(v) for v in value]
                 if len(value) != self.n or not all(math.isfinite(v) for v in value):
                     raise ValueError(f"state needs {self.n} finite values, got {value}")
-                setattr(self, name, value)
+                getattr(self, name)[:] = value
+        self.state_writes += 1
 
     def set_stops(self, channel: int, lo_rad: float, hi_rad: float) -> None:
         """Move one channel's hard stops (they may not cross)."""
@@ -193,8 +197,20 @@ class DcMotorBank:
     def stops_rad(self, channel: int) -> tuple[float, float]:
         return self._stop_lo[channel], self._stop_hi[channel]
 
-    def _set_step(self, h: float) -> None:
-        """Per-channel constants for step length `h` (recomputed only when `h` changes)."""
+    def state_lists(self) -> tuple[list[float], list[float], list[float], list[float]]:
+        """The live state lists: position, speed, current, stop torque (changed in place, never replaced)."""
+        return self._pos, self._vel, self._i, self._stop_t
+
+    def stop_lists(self) -> tuple[list[float], list[float]]:
+        """The live lists of the hard stops, low and high (`set_stops` changes them in place)."""
+        return self._stop_lo, self._stop_hi
+
+    def step_coefficients(self, h: float) -> list[tuple[float, ...]]:
+        """Per-channel constants of a step of length `h`, as `step` uses them.
+
+        Per channel: (L_eff/h, 1/(L_eff/h + R), ke_out/(L_eff/h + R), inertia, kt_out, viscous,
+        Coulomb, breakaway minus Coulomb, brake holding torque), all at the output shaft.
+        """
         coef = []
         for d in self.drives:
             r, l_h = d.motor.r_ohm, d.motor.l_h
@@ -203,7 +219,11 @@ class DcMotorBank:
             inv_aer = 1.0 / (a_e + r)
             coef.append((a_e, inv_aer, d.ke_out_v_s_rad * inv_aer, d.inertia_kg_m2, d.kt_out_nm_a,
                          d.viscous_nm_s_rad, d.coulomb_nm, d.stiction_nm - d.coulomb_nm, d.brake_hold_nm))
-        self._coef = coef
+        return coef
+
+    def _set_step(self, h: float) -> None:
+        """Per-channel constants for step length `h` (recomputed only when `h` changes)."""
+        self._coef = self.step_coefficients(h)
         self._h = h
 
     def step(self, dt_s: float, duty, supply_v: float, enable, brake,
@@ -253,14 +273,7 @@ class DcMotorBank:
                 w = (s + kinetic) / (m + visc + kt * q)
             else:
                 w = 0.0
-            x = pos[k] + dt_s * w
-            t = 0.0
-            if x <= lo_stops[k]:
-                x, w = lo_stops[k], 0.0
-                t = s if s < 0.0 else 0.0
-            elif x >= hi_stops[k]:
-                x, w = hi_stops[k], 0.0
-                t = s if s > 0.0 else 0.0
+            x, w, t = hard_stop(pos[k] + dt_s * w, w, s, lo_stops[k], hi_stops[k])
             pos[k], vel[k], cur[k], stop_t[k] = x, w, p - q * w, t
 
     @property
@@ -291,6 +304,19 @@ class DcMotorBank:
                 d = d if d < 1.0 else 1.0
                 total += (d if d > -1.0 else -1.0) * e * i
         return total
+
+
+def hard_stop(x: float, w: float, s: float, lo: float, hi: float) -> tuple[float, float, float]:
+    """An inelastic hard stop: (position, speed, torque the stop absorbs) after a step.
+
+    A position `x` [rad] at or past the stop `lo` or `hi` is clamped to it and the speed `w`
+    [rad/s] zeroed; the stop takes the torque `s` [N m] that pushed into it (< 0 into the lower).
+    """
+    if x <= lo:
+        return lo, 0.0, s if s < 0.0 else 0.0
+    if x >= hi:
+        return hi, 0.0, s if s > 0.0 else 0.0
+    return x, w, 0.0
 
 
 def _floats(values) -> list:

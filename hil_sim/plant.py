@@ -13,6 +13,7 @@ import numpy as np
 
 from hil_sim.arm import ArmPlant
 from hil_sim.arm_params import ARM_PLANT_PARAMS, ArmPlantParams
+from hil_sim.arm_tick import ArmTick, ChannelFaults, Sensors
 from hil_sim.commands import N_CHANNELS, ExpiringMotorCommands, ExpiringOutputs, ExpiringTrackerCommands
 from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
 from hil_sim.motor import TWO_PI
@@ -104,12 +105,16 @@ class Plant:
     `hil_sim.sun.DEFAULT_START`, the June solstice 2026 at 06:00 MST); `site` defaults to
     Tucson; `clouds` is None, a spec string ("12:00+300s@0.9,14:30+10m@0.5",
     `hil_sim.sun.parse_clouds`) or `CloudPassage` items.
+
+    `fused_arm_tick` (default True): the arm's channels are stepped by the fused tick
+    (`hil_sim.arm_tick`); False: by the per-concept classes (`ArmPlant`, `DcMotorBank`), the
+    reference it is tested against. Both give the same results, to the bit.
     """
 
     def __init__(self, params: PlantParams, rng: np.random.Generator, *,
                  arm_params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
                  payload_kg: float = 0.0, site: Site = TUCSON, start: DateTimeLike = DEFAULT_START,
-                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS) -> None:
+                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS, fused_arm_tick: bool = True) -> None:
         self.params = params
         self._rng = rng
         self._noise: list[float] = []
@@ -123,13 +128,21 @@ class Plant:
         self._home_rad = [c.home_rad for c in ch]
         self._limit_lo_rad = [c.limit_lo_rad for c in ch]
         self._limit_hi_rad = [c.limit_hi_rad for c in ch]
-        # Faults: active keys ("jam:j2"), and per-channel state the step reads.
+        # Faults: active keys ("jam:j2"), and per-channel state the step reads (lists changed in place).
         self._faults: set[str] = set()
         self._open_circuit = [False] * n
         self._stuck_brake = [False] * n
-        self._frozen_count: list[Optional[int]] = [None] * n   # encoder_dropout: the count shown
         self._count_offset = [0] * n                            # encoder_glitch
+        self._dropped_out = [False] * n                         # encoder_dropout: the count shown is
+        self._frozen_count = [0] * n                            # this one
         self._jam_saved_stops: dict[int, tuple[float, float]] = {}
+        # The fused tick steps the arm's lists and reads these (None: the classes step the arm).
+        self._arm_tick: Optional[ArmTick] = None
+        if fused_arm_tick:
+            sensors = Sensors(self._pos0, self._counts_per_rad, self._home_rad, self._limit_lo_rad, self._limit_hi_rad)
+            faults = ChannelFaults(self._open_circuit, self._stuck_brake, self._count_offset, self._dropped_out,
+                                   self._frozen_count)
+            self._arm_tick = ArmTick(self.arm, sensors, faults)
         # What the bus last commanded (the node feeds them); `step` applies what it is given.
         self.commanded = ExpiringOutputs(params.output_timeout_s)
         self.motor_commands = ExpiringMotorCommands(params.motor_cmd_timeout_s, n)
@@ -148,6 +161,11 @@ class Plant:
         self.currents_a = [0.0] * n   # armature currents (current sense, exact)
         self._decay_dt_s, self._decay = math.nan, 1.0   # the temperature's decay factor for that step length
         self.step(0.0, outputs_enabled=False, brake=True)
+
+    @property
+    def fused_arm_tick(self) -> bool:
+        """True if the arm's channels are stepped by the fused tick, False if by the classes."""
+        return self._arm_tick is not None
 
     # -- faults -------------------------------------------------------------------------------
     @property
@@ -190,7 +208,9 @@ class Plant:
             self._stuck_brake[k] = on
         elif name == "encoder_dropout":
             # Freeze what the encoder interface shows now; cleared, it shows the true count again.
-            self._frozen_count[k] = self.encoder_counts[k] if on else None
+            if on:
+                self._frozen_count[k] = self.encoder_counts[k]
+            self._dropped_out[k] = on
         elif name == "encoder_glitch":
             self._count_offset[k] = self.params.encoder_glitch_counts if on else 0
         elif name == "jam":
@@ -203,6 +223,8 @@ class Plant:
                 motors.set_stops(k, *self._jam_saved_stops.pop(k))
         else:  # pragma: no cover - the table and this method must agree
             raise AssertionError(f"fault {name!r} is declared but not implemented")
+        if self._arm_tick is not None:
+            self._arm_tick.sample()     # the counts show an encoder fault at once, as the classes' do
 
     @property
     def ambient_c(self) -> float:
@@ -233,16 +255,15 @@ class Plant:
         elif not len(duty) == len(enable) == len(channel_brake) == N_CHANNELS:
             raise ValueError(f"duty, enable and channel_brake need {N_CHANNELS} entries each")
         p = self.params
-        arm = self.arm
         outputs_enabled = self.outputs_enabled = bool(outputs_enabled)
         brake = self.brake = bool(brake)
-        driven = [outputs_enabled and bool(e) and not o for e, o in zip(enable, self._open_circuit)]
-        braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
-        self.channel_duty, self.channel_driven, self.channel_braked = list(duty), driven, braked
-        arm.step(dt_s, duty, driven, braked, self.supply_true_v)
-        currents = self.currents_a = arm.motors.currents()
+        if self._arm_tick is None:
+            bridges_a = self._step_arm_by_classes(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
+        else:
+            bridges_a = self._step_arm_fused(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
+        currents = self.currents_a
         electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
-        self.current_a = electronics_a + arm.supply_current_a()
+        self.current_a = electronics_a + bridges_a
         self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
         # Heat left in the box: electronics, and the bridges' conduction losses.
         heat_w = self.supply_true_v * electronics_a + p.drive_on_resistance_ohm * sum([i * i for i in currents])
@@ -262,6 +283,29 @@ class Plant:
         self._supply_v = self.supply_true_v + self._noise[at] * p.supply_noise_v
         self._temp_c = self.temp_true_c + self._noise[at + 1] * p.temp_noise_c
 
+    def _step_arm_by_classes(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Sequence[float],
+                             enable: Sequence[bool], channel_brake: Sequence[bool]) -> float:
+        """The arm's step through `ArmPlant` and its motor bank; returns the bridges' supply current."""
+        arm = self.arm
+        driven = [outputs_enabled and bool(e) and not o for e, o in zip(enable, self._open_circuit)]
+        braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
+        self.channel_duty, self.channel_driven, self.channel_braked = list(duty), driven, braked
+        arm.step(dt_s, duty, driven, braked, self.supply_true_v)
+        self.currents_a = arm.motors.currents()
+        return arm.supply_current_a()
+
+    def _step_arm_fused(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Sequence[float],
+                        enable: Sequence[bool], channel_brake: Sequence[bool]) -> float:
+        """The arm's step as one function (`hil_sim.arm_tick`); returns the bridges' supply current."""
+        tick = self._arm_tick
+        bridges_a = tick.step(dt_s, outputs_enabled, brake, duty, enable, channel_brake, self.supply_true_v)
+        readouts = tick.readouts
+        self.channel_duty = list(duty)
+        self.channel_driven, self.channel_braked = list(readouts.driven), list(readouts.braked)
+        self.arm.applied(self.channel_duty, self.channel_driven)
+        self.currents_a = list(tick.state.current_a)
+        return bridges_a
+
     # -- sensors --------------------------------------------------------------------------------
     @property
     def supply_v(self) -> float:
@@ -278,17 +322,24 @@ class Plant:
         """What each channel's encoder interface shows: quadrature counts since power-on.
 
         The true count (as `ArmPlant.encoder_counts`, unbounded Python ints) plus any
-        glitch offset, or the frozen value while the encoder has dropped out.
+        glitch offset, or the frozen value while the encoder has dropped out. The fused tick
+        samples counts and switches at its end (and again after a fault or a move by hand);
+        the classes compute them here: the same values.
         """
+        if self._arm_tick is not None:
+            return list(self._arm_tick.sampled().counts)
         counts = [math.floor((x - x0) * k) + off for x, x0, k, off
                   in zip(self.arm.motors.positions(), self._pos0, self._counts_per_rad, self._count_offset)]
-        frozen = self._frozen_count
-        if frozen.count(None) != N_CHANNELS:
-            counts = [c if f is None else f for c, f in zip(counts, frozen)]
+        dropped = self._dropped_out
+        if True in dropped:
+            counts = [f if d else c for c, d, f in zip(counts, dropped, self._frozen_count)]
         return counts
 
     def switches(self) -> tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]:
         """(home, limit_lo, limit_hi) per channel, True = closed (as `ArmPlant`'s switch arrays)."""
+        if self._arm_tick is not None:
+            readouts = self._arm_tick.sampled()
+            return tuple(readouts.home), tuple(readouts.limit_lo), tuple(readouts.limit_hi)
         pos = self.arm.motors.positions()
         return (tuple([x >= h for x, h in zip(pos, self._home_rad)]),
                 tuple([x <= lo for x, lo in zip(pos, self._limit_lo_rad)]),

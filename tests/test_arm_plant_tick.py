@@ -1,0 +1,251 @@
+"""The arm plant's fused tick (hil_sim/arm_tick.py) gives the per-concept classes' results, to the bit.
+
+Two plants with the same seed are given the same commands: one steps its arm with the fused
+tick (the default), the other with `ArmPlant` and its `DcMotorBank` (`fused_arm_tick=False`,
+the reference). After every step, every readout the plant's node sends and the arm's
+internal state must be equal: floats compared as `float.hex`, the rest by `repr` (a bool is
+not an int), never approximately.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hil_sim.arm_params import GRIPPER, J1, MOUNT
+from hil_sim.commands import N_CHANNELS
+from hil_sim.faults import CHANNEL_FAULTS, FAULTS_BY_NAME
+from hil_sim.plant import Plant, PlantParams
+
+N = N_CHANNELS
+DT = 0.001
+SEED = 3
+ALL_ON = [True] * N
+ALL_OFF = [False] * N
+
+
+def hexes(values) -> list[str]:
+    return [float(v).hex() for v in values]
+
+
+def snapshot(plant: Plant) -> dict:
+    """Everything the plant's node reads, and the state behind it."""
+    arm = plant.arm
+    pos, vel, current, stop_torque = arm.motors.state_lists()
+    load_nm, load_inertia = arm.load_lists()
+    return {
+        "encoder_counts": repr(plant.encoder_counts),
+        "currents_a": hexes(plant.currents_a),
+        "switches": repr(plant.switches()),
+        "supply_v": float(plant.supply_v).hex(),
+        "temp_c": float(plant.temp_c).hex(),
+        "channel_driven": repr(plant.channel_driven),
+        "channel_braked": repr(plant.channel_braked),
+        "channel_duty": hexes(plant.channel_duty),
+        "pos_rad": hexes(pos), "vel_rad_s": hexes(vel), "current_a": hexes(current),
+        "stop_torque_nm": hexes(stop_torque), "load_torque_nm": hexes(load_nm),
+        "load_inertia_kg_m2": hexes(load_inertia), "stops_rad": repr([arm.motors.stops_rad(k) for k in range(N)]),
+        "supply": hexes([plant.current_a, plant.supply_true_v, plant.temp_true_c, arm.supply_current_a()]),
+        "grip_force_n": float(arm.grip_force_n).hex(),
+    }
+
+
+class Twins:
+    """A fused plant and a reference one, stepped alike and compared after every step."""
+
+    def __init__(self, **options) -> None:
+        self.fused = Plant(PlantParams(), np.random.default_rng(SEED), **options)
+        self.classes = Plant(PlantParams(), np.random.default_rng(SEED), fused_arm_tick=False, **options)
+        self.steps = 0
+        self.check()
+
+    @property
+    def both(self) -> tuple[Plant, Plant]:
+        return self.fused, self.classes
+
+    def check(self) -> None:
+        assert snapshot(self.fused) == snapshot(self.classes), f"after {self.steps} steps"
+
+    def step(self, dt_s: float, enabled: bool, brake_all: bool, duty=None, enable=None, brake=None, n: int = 1) -> None:
+        for _ in range(n):
+            for plant in self.both:   # each its own copies: nothing shared between the two
+                if duty is None:
+                    plant.step(dt_s, enabled, brake_all)
+                else:
+                    plant.step(dt_s, enabled, brake_all, list(duty), list(enable), list(brake))
+            self.steps += 1
+            self.check()
+
+    def drive(self, duty: list, n: int, brake=ALL_OFF) -> None:
+        """Every channel enabled at `duty`, outputs on, brakes as given, `n` steps of 1 ms."""
+        self.step(DT, True, False, duty, ALL_ON, brake, n=n)
+
+    def fault(self, name: str, channel, on: bool) -> None:
+        for plant in self.both:
+            (plant.inject if on else plant.clear)(name, channel)
+        self.check()
+
+    def move_by_hand(self, channel: int, pos_rad: float) -> None:
+        for plant in self.both:
+            plant.arm.set_joint_state(channel, pos_rad)
+        self.check()
+
+
+def only(channel: int, value, rest=0.0) -> list:
+    out = [rest] * N
+    out[channel] = value
+    return out
+
+
+def test_the_plant_steps_its_arm_with_the_fused_tick_unless_told_otherwise():
+    twins = Twins()
+    assert twins.fused.fused_arm_tick and not twins.classes.fused_arm_tick
+
+
+# ---- any commands, faults and step lengths -------------------------------------------------------
+DUTY = st.one_of(st.floats(-1.5, 1.5), st.sampled_from([0.0, -0.0, 1.0, -1.0, math.nan, math.inf, -math.inf]))
+CHANNEL_BOOLS = st.lists(st.sampled_from([False, True, 0, 1]), min_size=N, max_size=N)   # as a decoder may give them
+COMMAND = st.tuples(
+    st.sampled_from([DT, DT, DT, 0.0, 0.0025, 0.0004]),    # 2.5 ms: three substeps; 0: no motion
+    st.booleans(), st.booleans(),                           # outputs enabled, brake all
+    st.one_of(st.none(), st.tuples(st.lists(DUTY, min_size=N, max_size=N), CHANNEL_BOOLS, CHANNEL_BOOLS)))
+FAULT_CHANGE = st.tuples(st.sampled_from(sorted(FAULTS_BY_NAME)), st.integers(0, N - 1), st.booleans())
+SEGMENT = st.tuples(COMMAND, st.integers(1, 120), st.lists(FAULT_CHANGE, max_size=2))
+
+
+@settings(max_examples=30, deadline=None)
+@given(gravity=st.sampled_from(["earth", "orbit"]), payload_kg=st.sampled_from([0.0, 0.3, 2.0]),
+       segments=st.lists(SEGMENT, min_size=1, max_size=10))
+def test_any_commands_faults_and_step_lengths_give_the_classes_results(gravity, payload_kg, segments):
+    """Duties of both signs, out of range and NaN; enable and brake per channel and global; the
+    safe command (no per-channel one); faults injected and cleared before each segment."""
+    twins = Twins(gravity=gravity, payload_kg=payload_kg)
+    for (dt_s, enabled, brake_all, per_channel), steps, faults in segments:
+        for name, channel, on in faults:
+            twins.fault(name, channel if FAULTS_BY_NAME[name].per_channel else None, on)
+        duty, enable, brake = per_channel or (None, None, None)
+        twins.step(dt_s, enabled, brake_all, duty, enable, brake, n=steps)
+
+
+def test_step_lengths_split_into_substeps_alike():
+    twins = Twins()
+    duty = [0.9, -0.7, 0.5, -1.0, -0.6, 1.0]
+    # 0.1 + 0.2 s: 300.00000000000006 steps of 1 ms, split into 300 (a step length's float noise is no substep)
+    for dt_s in (DT, 0.0025, 0.0, 0.1, 0.0007, DT, 0.0, 0.1 + 0.2, DT):
+        twins.step(dt_s, True, False, duty, ALL_ON, ALL_OFF, n=5)
+
+
+# ---- the joints into their switches and stops ---------------------------------------------------
+def test_from_power_on_every_channel_through_its_home_flag():
+    twins = Twins()
+    twins.drive([1.0] * N, n=1600)                       # the gripper's home is its open switch, 25 mm away
+    assert all(twins.fused.switches()[0])
+
+
+@pytest.mark.parametrize("gravity, payload_kg", [("earth", 0.0), ("earth", 2.0), ("orbit", 1.0)])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_every_joint_through_its_limit_switch_into_its_hard_stop_and_stalled_there(gravity, payload_kg, sign):
+    twins = Twins(gravity=gravity, payload_kg=payload_kg)
+    lead = twins.fused.arm.params.gripper.lead_m_per_rad
+    for k, channel in enumerate(twins.fused.arm.params.channels):
+        if k == GRIPPER:                     # its switches cut its motor: 1 mm short of the one ahead
+            start = channel.limit_hi_rad - 0.001 / lead if sign > 0 else channel.limit_lo_rad + 0.001 / lead
+        else:                                # 0.03 rad short of the limit switch ahead
+            start = channel.limit_hi_rad - 0.03 if sign > 0 else channel.limit_lo_rad + 0.03
+        twins.move_by_hand(k, start)
+    twins.drive([sign] * N, n=700)
+    motors = twins.fused.arm.motors
+    for k, x in enumerate(motors.positions()):
+        if k != GRIPPER:                     # the gripper stops at its switch, short of its stop
+            assert x == motors.stops_rad(k)[1 if sign > 0 else 0]
+    twins.drive([-0.005 * sign] * N, n=50)   # pulled back too weakly to break away: friction holds
+    twins.drive([-0.5 * sign] * N, n=300)    # and back out, brakes released
+    twins.drive([0.0] * N, n=100, brake=ALL_ON)
+
+
+@pytest.mark.parametrize("switch", ["home_rad", "limit_lo_rad", "limit_hi_rad"])
+def test_every_channel_exactly_on_a_switch_edge_and_driven_across_it(switch):
+    """A switch closes at its edge (>= or <=): placed there exactly, then driven both ways."""
+    twins = Twins(gravity="orbit")
+    for k, channel in enumerate(twins.fused.arm.params.channels):
+        twins.move_by_hand(k, getattr(channel, switch))
+    twins.step(DT, True, False, [0.0] * N, ALL_ON, ALL_OFF)
+    for duty in (0.3, -0.3):
+        for k, channel in enumerate(twins.fused.arm.params.channels):
+            twins.move_by_hand(k, getattr(channel, switch))
+        twins.drive([duty] * N, n=30)
+
+
+def test_the_gripper_closes_on_an_object_grips_it_and_opens_to_its_switch():
+    twins = Twins()
+    for plant in twins.both:
+        plant.arm.set_object(0.02)
+    close = only(GRIPPER, -1.0)
+    twins.drive(close, n=600)                            # 25.4 mm to 20 mm at about 16 mm/s, then it grips
+    assert twins.fused.arm.grip_force_n > 0.0
+    twins.drive(only(GRIPPER, -0.3), n=200)              # hold at a lower duty
+    twins.drive(only(GRIPPER, 1.0), n=2000)              # open to the open switch, which cuts the motor
+    assert twins.fused.switches()[2][GRIPPER]
+    for plant in twins.both:
+        plant.arm.set_object(None)
+    twins.drive(close, n=3300)                           # to the closed switch
+    assert twins.fused.switches()[1][GRIPPER]
+    # Not driven and braked: the gripper has no brake, so its armature is shorted (dynamic braking).
+    twins.drive(only(GRIPPER, 1.0), n=100)
+    twins.step(DT, True, False, only(GRIPPER, 1.0), only(GRIPPER, False, True), ALL_ON, n=50)
+
+
+# ---- faults ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("fault", CHANNEL_FAULTS)
+def test_each_channel_fault_on_each_channel_alike(fault):
+    twins = Twins(payload_kg=1.0)
+    for k in range(N):
+        duty = only(k, 0.8, rest=0.2)
+        twins.drive(duty, n=60)
+        twins.fault(fault, k, True)
+        twins.drive(duty, n=60)
+        twins.drive([-d for d in duty], n=60)
+        twins.step(DT, True, False, duty, ALL_OFF, ALL_OFF, n=30)     # not driven, brakes released
+        twins.fault(fault, k, False)
+        twins.drive(duty, n=40)
+
+
+@pytest.mark.parametrize("fault", ["supply_sag", "over_temperature"])
+def test_the_plant_wide_faults_alike_under_full_load(fault):
+    twins = Twins()
+    twins.drive([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], n=100)
+    twins.fault(fault, None, True)
+    twins.drive([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], n=200)
+    twins.fault(fault, None, False)
+    twins.drive([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], n=100)
+
+
+def test_a_move_by_hand_or_an_encoder_fault_shows_at_once_without_a_step():
+    """The classes compute counts and switches when read; the fused tick samples them: both the same."""
+    twins = Twins()
+    twins.drive([0.5] * N, n=50)
+    twins.move_by_hand(J1, 0.2)                          # across the home flag
+    twins.fault("encoder_glitch", MOUNT, True)
+    twins.fault("encoder_dropout", MOUNT, True)
+    twins.move_by_hand(MOUNT, 0.3)                       # a dropped-out encoder does not count it
+    twins.fault("encoder_glitch", MOUNT, False)
+    twins.fault("encoder_dropout", MOUNT, False)
+    twins.drive([0.5] * N, n=10)
+
+
+# ---- configuration between steps ------------------------------------------------------------------
+def test_payload_gravity_and_the_safe_command_changed_between_steps():
+    twins = Twins()
+    duty = [0.4, 0.4, -0.4, 0.4, -0.4, 0.4]
+    twins.drive(duty, n=100)
+    for change in (lambda arm: arm.set_payload(1.5), lambda arm: arm.set_gravity("orbit"),
+                   lambda arm: arm.set_payload(0.0), lambda arm: arm.set_gravity("earth")):
+        for plant in twins.both:
+            change(plant.arm)
+        twins.check()
+        twins.drive(duty, n=100)
+        twins.step(DT, True, False, n=50)               # the safe command: every channel off and braked
+        twins.step(DT, False, False, duty, ALL_ON, ALL_OFF, n=50)   # outputs disabled
