@@ -124,13 +124,15 @@ class ArmController:
     `fused_joints` (the default): the joints' hot state lives in a `JointBank` and each tick runs through
     `joints_tick` (firmware_py/joints_tick.py), the `Axis` objects its facade; False: each joint's
     `Axis.update` as the reference, the same to the bit. A `stopwatch` (per-stage times) needs the reference.
+    `compiled_joints`: the fused tick compiled by numba (firmware_py/joints_compiled.py), the same to the bit.
     """
 
     def __init__(self, hal: ControllerHal, params: ParamStore, dt_s: float = 0.001,
                  on_fault: FaultSink = lambda fault, reason, now, measured: None,
                  on_motion_done: MotionSink = lambda *args: None,
                  stopwatch: Optional[Callable[[], float]] = None,
-                 on_late: LateSink = lambda late_s, now: False, fused_joints: bool = True) -> None:
+                 on_late: LateSink = lambda late_s, now: False, fused_joints: bool = True,
+                 compiled_joints: bool = False) -> None:
         if fused_joints and stopwatch is not None:
             raise ValueError("per-stage times (stopwatch) are taken in Axis.update: fused_joints=False")
         self.hal = hal
@@ -145,7 +147,7 @@ class ArmController:
         self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick
         values = params.values()
         self.joints: dict[str, Axis] = {}
-        self.bank = JointBank(len(DRIVES)) if fused_joints else None
+        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints) if fused_joints else None
         for index, drive in enumerate(DRIVES):
             gravity = (lambda k: (lambda pos: self._tau[k]))(index) if index < 3 else None
             k = ARM_CHANNELS.index(drive.name)
@@ -297,9 +299,10 @@ class ArmController:
                     duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
         else:
             split, g = self._rows_before_gripper, GRIPPER_INDEX
-            bank.run(0, split, now, fb_s, counts, currents, home, self._tau, duty)
+            bank.take_inputs(fb_s, counts, currents, home, self._tau)
+            bank.run(0, split, now, duty)
             duty[g] = self.gripper.update(now, counts[g], currents[g], inputs.limit_lo[g], inputs.limit_hi[g])
-            bank.run(split, bank.size, now, fb_s, counts, currents, home, self._tau, duty)
+            bank.run(split, bank.size, now, duty)
         allowed = self.outputs_allowed
         brake = [channel.brake or not allowed for channel in channels]
         self.hal.send_motor_command(duty if allowed else [0.0] * len(duty), [not b for b in brake], brake)

@@ -1,11 +1,12 @@
 """The joints' fused tick (firmware_py/joints_tick.py) against `Axis.update`, to the bit.
 
-Two levels. Whole lock-step worlds run twice through the same scripted session, once with the
-fused joints (the default) and once with `fused_joints=False` (each joint's `Axis.update`, the
-reference), and must send the same duties, enables and brakes on every tick, the same bytes to
-the host, and end with every joint's state the same, floats compared by `float.hex`. And one joint
-in a bank of its own beside a plain `Axis`, on a small test plant with inputs the world cannot make
-(a current that is not a number, counts that jump or stop), compared after every tick.
+Two levels. Whole lock-step worlds run through the same scripted session with the fused joints
+(the default), with them compiled by numba (firmware_py/joints_compiled.py; when numba is
+installed) and with `fused_joints=False` (each joint's `Axis.update`, the reference), and must send
+the same duties, enables and brakes on every tick, the same bytes to the host, and end with every
+joint's state the same, floats compared by `float.hex`. And one joint in a bank of its own (plain or
+compiled) beside a plain `Axis`, on a small test plant with inputs the world cannot make (a current
+that is not a number, counts that jump or stop), compared after every tick.
 
 Each session also says what it went through (modes, error bits, fault reasons, motion outcomes,
 counts across the 32-bit wrap, ticks handed back), so a session that stopped covering its case
@@ -13,18 +14,22 @@ fails instead of passing on nothing.
 """
 from __future__ import annotations
 
+import importlib.util
 import math
 import random
+import sys
 from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import pytest
 
 from firmware_py import joints_tick as jt
+from firmware_py.arm import ArmController
 from firmware_py.axis import Axis, AxisError, Refusal
 from firmware_py.controller import ControllerConfig
 from firmware_py.estimator import COUNT_MODULUS
 from firmware_py.joint_bank import BankedAxis, JointBank
+from firmware_py.joints_compiled import ENVIRONMENT_SWITCH, compiled_joints_tick
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -33,6 +38,11 @@ from protocol.states import Axis as AxisId, AxisMode, ControllerState, MotionOut
 from test_axis_pipeline import DT_S, Joint, make_config
 
 JOINTS = ("j1", "j2", "j3", "j4", "mount")
+PATHS = ("reference", "fused", "compiled")     # the joints' tick: Axis.update, joints_tick, joints_tick compiled
+HAVE_NUMBA = importlib.util.find_spec("numba") is not None
+PATHS_HERE = PATHS if HAVE_NUMBA else PATHS[:2]
+COMPILED = [False, pytest.param(True, marks=pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed "
+                                                                "(the compiled joints are optional)"))]
 
 
 def hexed(value) -> object:
@@ -83,13 +93,15 @@ class LoseMotorFeedback:
         return result
 
 
-def run_world(session: Callable[[LockstepBench], dict], seed: int, fused: bool) -> WorldRun:
+def run_world(session: Callable[[LockstepBench], dict], seed: int, path: str) -> WorldRun:
+    """`session` on a world whose joints run on `path`: "reference" (Axis.update), "fused" or "compiled"."""
     run = WorldRun()
 
     def tap(data: bytes) -> bytes:
         run.wire.extend(data)
         return data
-    bench = LockstepBench(seed=seed, to_host=tap, controller_config=ControllerConfig(fused_joints=fused))
+    config = ControllerConfig(fused_joints=path != "reference", compiled_joints=path == "compiled")
+    bench = LockstepBench(seed=seed, to_host=tap, controller_config=config)
     arm = bench.controller.arm
     hal = arm.hal
     send = hal.send_motor_command
@@ -261,27 +273,17 @@ SESSIONS = {
 }
 
 
-@pytest.fixture(scope="module", params=list(SESSIONS))
-def twin_runs(request) -> tuple[Session, WorldRun, WorldRun]:
-    """A session run with the fused joints and with Axis.update."""
-    session = SESSIONS[request.param]
-    seed = 20 + list(SESSIONS).index(request.param)
-    return session, run_world(session.script, seed, fused=True), run_world(session.script, seed, fused=False)
+def assert_same(run: WorldRun, reference: WorldRun) -> None:
+    assert len(run.commands) == len(reference.commands) > 2000
+    first = next((k for k, (a, b) in enumerate(zip(run.commands, reference.commands)) if a != b), None)
+    assert first is None, f"MOTOR_CMD {first}: {run.commands[first]}, reference {reference.commands[first]}"
+    assert run.per_tick == reference.per_tick
+    assert run.wire == reference.wire
+    assert run.joints == reference.joints
+    assert run.seen == reference.seen
 
 
-def test_the_fused_joints_send_the_same_duties_and_bytes_as_axis_update(twin_runs):
-    _, fused, reference = twin_runs
-    assert len(fused.commands) == len(reference.commands) > 2000
-    first = next((k for k, (a, b) in enumerate(zip(fused.commands, reference.commands)) if a != b), None)
-    assert first is None, f"MOTOR_CMD {first}: fused {fused.commands[first]}, reference {reference.commands[first]}"
-    assert fused.per_tick == reference.per_tick
-    assert fused.wire == reference.wire
-    assert fused.joints == reference.joints
-    assert fused.seen == reference.seen
-
-
-def test_each_session_goes_through_its_cases(twin_runs):
-    session, run, reference = twin_runs
+def assert_went_through(session: Session, run: WorldRun) -> None:
     modes = {AxisMode(mode) for tick in run.per_tick for mode, _ in tick}
     bits = AxisError.NONE
     for tick in run.per_tick:
@@ -292,24 +294,40 @@ def test_each_session_goes_through_its_cases(twin_runs):
     assert session.outcomes <= {outcome for ends in run.seen["ends"].values() for outcome, _ in ends}
     assert session.reasons <= set(run.seen["faults"])
     assert run.wrapped or not session.wrapped
-    assert reference.handed_back is None
     assert 0 < run.handed_back < session.handed_back * len(JOINTS) * len(run.per_tick)
+
+
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.long) if name in ("moving", "homing") else name
+                                  for name in SESSIONS])
+def test_a_session_on_the_fused_joints_is_the_same_to_the_bit(name):
+    """The session on each path of the joints (compiled: if numba is installed): the same MOTOR_CMDs, modes and
+    error bits at every tick, bytes to the host and joints' end states as on Axis.update; and it went through its
+    cases, handing back only the rare ticks (the compiled function exactly the ones the plain one does)."""
+    session = SESSIONS[name]
+    seed = 20 + list(SESSIONS).index(name)
+    runs = {path: run_world(session.script, seed, path) for path in PATHS_HERE}
+    reference = runs.pop("reference")
+    assert reference.handed_back is None
+    for path, run in runs.items():
+        assert_same(run, reference)
+        assert run.handed_back == runs["fused"].handed_back, path
+    assert_went_through(session, runs["fused"])
 
 
 # ---------------------------------------------------------------- one joint beside a plain Axis
 class Twin:
     """One joint twice on the test plant of tests/test_axis_pipeline.py: a plain `Axis` (the reference) and a
-    `BankedAxis` alone in a bank, each on its own copy of the plant, given the same inputs the arm loop's way (a
-    count and a current from one MOTOR_FB arriving at `fb_s`), compared after every tick."""
+    `BankedAxis` alone in a bank (`compiled`: numba's), each on its own copy of the plant, given the same inputs
+    the arm loop's way (a count and a current from one MOTOR_FB arriving at `fb_s`), compared after every tick."""
 
-    def __init__(self, joint: Joint, **overrides) -> None:
+    def __init__(self, joint: Joint, compiled: bool = False, **overrides) -> None:
         self.overrides = {"vel_limit_rad_s": 0.5, "acc_limit_rad_s2": 2.0, **overrides}
         config = make_config(joint, **self.overrides)
         self.plants = (replace(joint), replace(joint))
         self.tau = [0.0]                              # the gravity torque, refreshed before each tick (as the arm)
         gravity = (lambda pos: self.tau[0]) if joint.gravity_m_s2 else None
         self.faults: tuple[list, list] = ([], [])
-        self.bank = JointBank(1)
+        self.bank = JointBank(1, 1, compiled)
         self.axes = (Axis(config, gravity_nm=gravity, on_fault=lambda bits, now: self.faults[0].append((bits, now))),
                      BankedAxis(self.bank, 0, 0, config, gravity_nm=gravity,
                                 on_fault=lambda bits, now: self.faults[1].append((bits, now))))
@@ -348,7 +366,8 @@ class Twin:
                     duty = axis.update(self.now, count, self.fb_s, i_a, self.fb_s, plant.home_switch)
                 else:
                     out = [math.nan]
-                    self.bank.run(0, 1, self.now, self.fb_s, [count], [i_a], [plant.home_switch], self.tau, out)
+                    self.bank.take_inputs(self.fb_s, [count], [i_a], [plant.home_switch], self.tau)
+                    self.bank.run(0, 1, self.now, out)
                     duty = out[0]
                 duties.append(duty.hex())
                 plant.step(duty, axis.brake)
@@ -365,8 +384,9 @@ class Twin:
         return 1.0 - self.bank.handed_back / max(self.ticks, 1)
 
 
-def test_holding_moving_jogging_and_soft_limits_with_gravity_are_the_same():
-    twin = Twin(Joint(gravity_m_s2=9.81))
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_holding_moving_jogging_and_soft_limits_with_gravity_are_the_same(compiled):
+    twin = Twin(Joint(gravity_m_s2=9.81), compiled)
     twin.run(0.05)                                                   # idle
     twin.command("set_zero", 0.0)
     twin.start("enable", twin.now)
@@ -394,8 +414,9 @@ def test_holding_moving_jogging_and_soft_limits_with_gravity_are_the_same():
 
 
 @pytest.mark.parametrize("start_rad", [0.2, -0.1])
-def test_homing_from_off_and_from_on_the_switch_is_the_same(start_rad):
-    twin = Twin(Joint(angle_rad=start_rad, switch_below_rad=0.0))
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_homing_from_off_and_from_on_the_switch_is_the_same(start_rad, compiled):
+    twin = Twin(Joint(angle_rad=start_rad, switch_below_rad=0.0), compiled)
     twin.start("enable", twin.now)
     twin.start("home", twin.now)
     twin.run(30.0, until=lambda axis: axis.mode is AxisMode.HOLDING)
@@ -403,8 +424,9 @@ def test_homing_from_off_and_from_on_the_switch_is_the_same(start_rad):
     assert twin.fused_share > 0.99
 
 
-def test_homing_that_finds_no_switch_fails_the_same():
-    twin = Twin(Joint(), home_max_travel_rad=0.05)
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_homing_that_finds_no_switch_fails_the_same(compiled):
+    twin = Twin(Joint(), compiled, home_max_travel_rad=0.05)
     twin.start("enable", twin.now)
     twin.start("home", twin.now)
     twin.run(10.0, until=lambda axis: axis.mode is AxisMode.FAULT)
@@ -413,12 +435,13 @@ def test_homing_that_finds_no_switch_fails_the_same():
 
 @pytest.mark.parametrize("case", ["stall", "following_error", "over_current", "open_circuit", "current_nan",
                                   "current_stale", "encoder_stale", "encoder_glitch"])
-def test_each_fault_is_raised_on_the_same_tick(case):
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_each_fault_is_raised_on_the_same_tick(case, compiled):
     overrides = {"stall": {"following_error_rad": 10.0}, "following_error": {"stall_time_s": 10.0},
                  "over_current": {"i_trip_a": 1.0, "i_trip_s": 0.02}}.get(case, {})
     if case == "current_stale":      # counts stay fresh longer than currents
         overrides = {"estimator": replace(make_config(Joint()).estimator, stale_ticks=50)}
-    twin = Twin(Joint(count_offset=COUNT_MODULUS - 50), **overrides)   # counts cross the 32-bit wrap moving down
+    twin = Twin(Joint(count_offset=COUNT_MODULUS - 50), compiled, **overrides)   # moving down across the wrap
     twin.start("enable", twin.now)
     twin.start("move_by", -0.5, twin.now)
     twin.run(0.3)
@@ -444,11 +467,12 @@ def test_each_fault_is_raised_on_the_same_tick(case):
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_random_commands_and_input_trouble_are_the_same(seed):
+@pytest.mark.parametrize("compiled", COMPILED)
+def test_random_commands_and_input_trouble_are_the_same(seed, compiled):
     """Commands at random times; now and then feedback that stops for a few ticks, counts that jump, a current that
     is zero, not a number or too high, a jam; after a fault, reset and enable again."""
     rng = random.Random(seed)
-    twin = Twin(Joint(gravity_m_s2=9.81 * rng.random(), count_offset=rng.randrange(COUNT_MODULUS)),
+    twin = Twin(Joint(gravity_m_s2=9.81 * rng.random(), count_offset=rng.randrange(COUNT_MODULUS)), compiled,
                 stall_time_s=0.2 + rng.random(), i_trip_a=3.0 + 3 * rng.random(), following_error_rad=0.2)
     twin.command("set_zero", rng.uniform(-0.5, 0.5))
     modes = set()
@@ -484,12 +508,13 @@ def test_random_commands_and_input_trouble_are_the_same(seed):
 
 
 def test_a_handed_back_joint_is_left_as_it_was_and_the_joints_before_it_are_done():
-    bank = JointBank(2)
+    bank = JointBank(2, 2)
     axes = [BankedAxis(bank, k, k, make_config(Joint())) for k in range(2)]
     for axis in axes:
         axis.enable(0.0)
     counts, currents, home, out = [0, 0], [0.0, 0.0], [False, False], [0.0, 0.0]
-    bank.run(0, 2, 0.0, 0.0, counts, currents, home, [], out)
+    bank.take_inputs(0.0, counts, currents, home, [])
+    bank.run(0, 2, 0.0, out)
     before = [[list(group[k]) for group in (bank.state, bank.int_state)] for k in range(2)]
     out = [math.nan, math.nan]
     counts[1] = 100_000                                              # joint 1's count jumps: a glitch
@@ -499,3 +524,24 @@ def test_a_handed_back_joint_is_left_as_it_was_and_the_joints_before_it_are_done
     assert [list(group[1]) for group in (bank.state, bank.int_state)] == before[1]
     assert [list(group[0]) for group in (bank.state, bank.int_state)] != before[0]
     assert math.isnan(out[1]) and not math.isnan(out[0])
+
+
+# ---------------------------------------------------------------- the switches
+def test_the_compiled_joints_are_asked_for_by_the_environment_and_need_numba(monkeypatch):
+    monkeypatch.delenv(ENVIRONMENT_SWITCH, raising=False)
+    assert not ControllerConfig().compiled_joints
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
+    assert ControllerConfig().compiled_joints
+    monkeypatch.setitem(sys.modules, "numba", None)              # as if it were not installed
+    compiled_joints_tick.cache_clear()
+    try:
+        with pytest.raises(RuntimeError, match="need numba: pip install numba"):
+            JointBank(1, 1, compiled=True)
+        JointBank(1, 1)                                          # the plain function needs nothing
+    finally:
+        compiled_joints_tick.cache_clear()
+
+
+def test_stage_times_need_the_reference_path():
+    with pytest.raises(ValueError, match="fused_joints=False"):        # refused before the HAL is looked at
+        ArmController(None, None, stopwatch=lambda: 0.0)
