@@ -4,7 +4,7 @@ A `JointBank` holds, for each joint, the numbers `joints_tick` (firmware_py/join
 writes, one row per joint in each of its groups. `BankedAxis` is an `Axis` whose hot attributes live
 in the bank: each is a descriptor onto its joint's row, so the commands, modes, faults and homing of
 `Axis` (and `Axis.update` itself, for the ticks `joints_tick` hands back) work on the very numbers
-the fused function uses; nothing is copied per tick. `BankedEstimator` and `BankedDebounce` do the
+the fused function uses; no state is copied per tick. `BankedEstimator` and `BankedDebounce` do the
 same for the estimator and the debounced fault checks.
 
 `JointBank.run` is one tick of a span of joints: `joints_tick` for as many as it can take, and
@@ -23,10 +23,10 @@ import numpy as np
 from protocol.states import AxisMode
 
 from firmware_py import joints_tick as jt
-from firmware_py.joints_compiled import compiled_joints_tick
 from firmware_py.axis import Axis, AxisConfig, AxisError, Debounce
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from firmware_py.homing import Homing
+from firmware_py.joints_compiled import compiled_joints_tick
 from firmware_py.profiles import Profile
 
 _MODES = tuple(AxisMode)

@@ -84,7 +84,7 @@ PROFILE_COLUMNS = SEGMENTS + SEGMENT_COLUMNS * MAX_SEGMENTS
 IDLE, MOVING, JOGGING, HOMING, HOLDING, FAULT = (int(AxisMode.IDLE), int(AxisMode.MOVING), int(AxisMode.JOGGING),
                                                  int(AxisMode.HOMING), int(AxisMode.HOLDING), int(AxisMode.FAULT))
 CURRENT_LIMITED = int(AxisError.CURRENT_LIMITED)
-HOME_START, HOME_CLEAR, HOME_SEEK, HOME_BACKOFF = homing.START, homing.CLEAR, homing.SEEK, homing.BACKOFF
+HOME_START, HOME_CLEAR, HOME_BACKOFF = homing.START, homing.CLEAR, homing.BACKOFF    # else: seeking the switch
 NONE = math.nan           # a `since` or an arrival time that is not there
 
 
