@@ -38,9 +38,12 @@ from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
 from firmware_py.axis import Axis, AxisError, LimitBreach, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal
+from firmware_py.joint_bank import BankedAxis, JointBank
 from firmware_py.params import ParamStore
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
+# the joints' rows (DRIVES order) run in channel order, as the reference loop runs them
+assert [ARM_CHANNELS.index(drive.name) for drive in DRIVES] == sorted(ARM_CHANNELS.index(d.name) for d in DRIVES)
 # The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
 LIMIT_PARAMETER = {"min": "{axis}_min_deg", "max": "{axis}_max_deg", "speed": "{axis}_speed_dps",
                    "acceleration": "{axis}_acc_dps2"}
@@ -116,13 +119,22 @@ def fault_of(bits: int) -> tuple[Fault, Reason]:
 
 
 class ArmController:
-    """The five joint axes and the gripper, in HAL channel order."""
+    """The five joint axes and the gripper, in HAL channel order.
+
+    `fused_joints` (the default): the joints' hot state lives in a `JointBank` and each tick runs through
+    `joints_tick` (firmware_py/joints_tick.py), the `Axis` objects its facade; False: each joint's
+    `Axis.update` as the reference, the same to the bit. A `stopwatch` (per-stage times) needs the reference.
+    `compiled_joints`: the fused tick compiled by numba (firmware_py/joints_compiled.py), the same to the bit.
+    """
 
     def __init__(self, hal: ControllerHal, params: ParamStore, dt_s: float = 0.001,
                  on_fault: FaultSink = lambda fault, reason, now, measured: None,
                  on_motion_done: MotionSink = lambda *args: None,
                  stopwatch: Optional[Callable[[], float]] = None,
-                 on_late: LateSink = lambda late_s, now: False) -> None:
+                 on_late: LateSink = lambda late_s, now: False, fused_joints: bool = True,
+                 compiled_joints: bool = False) -> None:
+        if fused_joints and stopwatch is not None:
+            raise ValueError("per-stage times (stopwatch) are taken in Axis.update: fused_joints=False")
         self.hal = hal
         self.params = params
         self.dt_s = dt_s
@@ -135,12 +147,17 @@ class ArmController:
         self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick
         values = params.values()
         self.joints: dict[str, Axis] = {}
+        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints) if fused_joints else None
         for index, drive in enumerate(DRIVES):
             gravity = (lambda k: (lambda pos: self._tau[k]))(index) if index < 3 else None
             k = ARM_CHANNELS.index(drive.name)
-            self.joints[drive.name] = Axis(arm_config.axis_config(drive, values, dt_s), gravity_nm=gravity,
-                                           stopwatch=stopwatch,
-                                           on_fault=(lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k))
+            config = arm_config.axis_config(drive, values, dt_s)
+            on_axis_fault = (lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k)
+            self.joints[drive.name] = (
+                Axis(config, gravity_nm=gravity, stopwatch=stopwatch, on_fault=on_axis_fault) if self.bank is None
+                else BankedAxis(self.bank, index, k, config, gravity_nm=gravity, on_fault=on_axis_fault))
+        # the bank's rows run in channel order, the gripper's channel between two spans of them
+        self._rows_before_gripper = sum(ARM_CHANNELS.index(drive.name) < GRIPPER_INDEX for drive in DRIVES)
         self.gripper = Gripper(GRIPPER, on_fault=self._gripper_fault)
         self._apply_gripper_params()
         # HAL channel order; the gripper sits at GRIPPER_INDEX
@@ -273,11 +290,19 @@ class ArmController:
         counts, currents, home = inputs.counts, inputs.currents_a, inputs.home
         duty = self._duty
         channels = self.channels
-        for k, channel in enumerate(channels):
-            if k == GRIPPER_INDEX:
-                duty[k] = channel.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
-            else:
-                duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
+        bank = self.bank
+        if bank is None:
+            for k, channel in enumerate(channels):
+                if k == GRIPPER_INDEX:
+                    duty[k] = channel.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
+                else:
+                    duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
+        else:
+            split, g = self._rows_before_gripper, GRIPPER_INDEX
+            bank.take_inputs(fb_s, counts, currents, home, self._tau)
+            bank.run(0, split, now, duty)
+            duty[g] = self.gripper.update(now, counts[g], currents[g], inputs.limit_lo[g], inputs.limit_hi[g])
+            bank.run(split, bank.size, now, duty)
         allowed = self.outputs_allowed
         brake = [channel.brake or not allowed for channel in channels]
         self.hal.send_motor_command(duty if allowed else [0.0] * len(duty), [not b for b in brake], brake)

@@ -1,7 +1,9 @@
 """One motor axis as a declared pipeline: encoder -> estimator -> controller -> PWM.
 
 `Axis.update(now, count, count_s, i_a, i_s, home_switch)` runs one tick and returns the duty to
-send; it does no bus I/O. Inputs carry the `now` at which they arrived (`count_s`, `i_s`), so the
+send; it does no bus I/O. The arm loop runs the same tick for all five joints through
+`firmware_py/joints_tick.py` (the same operations, tested to the bit against this one): a change
+to the tick here needs the same change there. Inputs carry the `now` at which they arrived (`count_s`, `i_s`), so the
 axis knows how stale they are (ODrive's MotorControl style): an encoder count that has not
 changed its arrival time is "no new sample" for the estimator, which flags STALE after a few
 ticks; a current reading older than `current_stale_s` while driving is a fault.

@@ -49,6 +49,7 @@ from firmware_py import arm_config
 from firmware_py.arm import ArmController, Measured, MotionStart
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
+from firmware_py.joints_compiled import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker.task import TrackerController, parameter_table as tracker_parameter_table
@@ -84,6 +85,9 @@ class ControllerConfig:
     health_period_s: float = 0.01
     boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
     params_path: Optional[Path] = None  # where parameters persist; None: defaults only, save refused
+    fused_joints: bool = True         # the joints' hot path fused (firmware_py/joints_tick.py); False: Axis.update
+    # ... and compiled by numba (firmware_py/joints_compiled.py); default: the environment, ASPOD_COMPILED_JOINTS=1
+    compiled_joints: bool = field(default_factory=compiled_by_default)
 
     def __post_init__(self) -> None:
         for name in ("comms_period_s", "hal_period_s", "arm_period_s", "health_period_s", "boot_timeout_s"):
@@ -129,7 +133,8 @@ class Controller:
                                  check=lambda name, value: (self.arm.check_param(name, value)
                                                             or self.tracker.check_param(name, value)))
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
-                                 on_motion_done=self._motion_done, stopwatch=stopwatch, on_late=self._loop_late)
+                                 on_motion_done=self._motion_done, stopwatch=stopwatch, on_late=self._loop_late,
+                                 fused_joints=self.config.fused_joints, compiled_joints=self.config.compiled_joints)
         self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
                                          allowed=lambda: self.supervisor.outputs_allowed)
         self._tracker_telemetry_due = False      # the telemetry task's next run sends TelemetryTracker
