@@ -42,6 +42,7 @@ from firmware_py.joint_bank import BankedAxis, JointBank
 from firmware_py.params import ParamStore
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
+_NO_TORQUE = [0.0, 0.0, 0.0]          # J1..J3 holding torques without gravity
 # the joints' rows (DRIVES order) run in channel order, as the reference loop runs them
 assert [ARM_CHANNELS.index(drive.name) for drive in DRIVES] == sorted(ARM_CHANNELS.index(d.name) for d in DRIVES)
 # The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
@@ -287,6 +288,8 @@ class ArmController:
         if g:
             self._tau[:] = MASSES.holding_torques_nm(joints["j1"].pos_rad, joints["j2"].pos_rad,
                                                      joints["j3"].pos_rad, g, self.params["payload_kg"])
+        elif self._tau != _NO_TORQUE:
+            self._tau[:] = _NO_TORQUE        # gravity set to 0 while running (orbit): no feed-forward left over
         counts, currents, home = inputs.counts, inputs.currents_a, inputs.home
         duty = self._duty
         channels = self.channels

@@ -286,3 +286,20 @@ def test_the_gripper_opening_survives_the_32_bit_count_wrap_and_stops_at_an_esto
     assert abs(opening - moving) < 0.003
     bench.run_for(1.0)
     assert arm.gripper_opening_m == pytest.approx(opening, abs=1e-5)      # dynamically braked, not coasting
+
+
+def test_gravity_set_to_zero_while_running_leaves_no_feed_forward_behind(bench):
+    """The joints' gravity feed-forward follows `gravity_m_s2` both ways: set to 0 at run time (the
+    arm in orbit) it is 0 at the next tick, not the last Earth torques."""
+    assert bench.call(M["Enable"]()).ok
+    bench.run_for(0.2)
+    joints = bench.controller.arm.joints
+    earth = [joints[name]._gravity_nm(0.0) for name in ("j1", "j2", "j3")]
+    assert any(abs(t) > 0.01 for t in earth), earth
+    assert bench.call(M["ParamSet"]("gravity_m_s2", 0.0)).ok
+    bench.run_for(0.01)
+    assert [joints[name]._gravity_nm(0.0) for name in ("j1", "j2", "j3")] == [0.0, 0.0, 0.0]
+    assert bench.call(M["ParamSet"]("gravity_m_s2", 9.80665)).ok
+    bench.run_for(0.01)
+    again = [joints[name]._gravity_nm(0.0) for name in ("j1", "j2", "j3")]
+    assert again == pytest.approx(earth, rel=0.05, abs=1e-3) and again != [0.0, 0.0, 0.0]   # and back
