@@ -301,10 +301,10 @@ class ArmController:
                 else:
                     duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
         else:
-            split, g = self._rows_before_gripper, GRIPPER_INDEX
+            split, k = self._rows_before_gripper, GRIPPER_INDEX
             bank.take_inputs(fb_s, counts, currents, home, self._tau)
             bank.run(0, split, now, duty)
-            duty[g] = self.gripper.update(now, counts[g], currents[g], inputs.limit_lo[g], inputs.limit_hi[g])
+            duty[k] = self.gripper.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
             bank.run(split, bank.size, now, duty)
         allowed = self.outputs_allowed
         brake = [channel.brake or not allowed for channel in channels]
