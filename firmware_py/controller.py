@@ -49,7 +49,7 @@ from firmware_py import arm_config
 from firmware_py.arm import ArmController, Measured, MotionStart
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
-from firmware_py.joints_compiled import compiled_by_default
+from kernels import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker.task import TrackerController, parameter_table as tracker_parameter_table
@@ -86,7 +86,7 @@ class ControllerConfig:
     boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
     params_path: Optional[Path] = None  # where parameters persist; None: defaults only, save refused
     fused_joints: bool = True         # the joints' hot path fused (firmware_py/joints_tick.py); False: Axis.update
-    # ... and compiled by numba (firmware_py/joints_compiled.py); default: the environment, ASPOD_COMPILED_JOINTS=1
+    # ... and compiled by numba (firmware_py/joints_compiled.py); default: the environment, ASPOD_COMPILED=1 (kernels/)
     compiled_joints: bool = field(default_factory=compiled_by_default)
 
     def __post_init__(self) -> None:

@@ -9,13 +9,14 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ["timebase", "protocol", "firmware_py", "hil_sim", "host_tools"]
+PACKAGES = ["kernels", "timebase", "protocol", "firmware_py", "hil_sim", "host_tools"]
 MAY_IMPORT = {
+    "kernels": set(),
     "timebase": set(),
     "protocol": {"timebase"},
-    "firmware_py": {"protocol", "timebase"},
-    "hil_sim": {"protocol", "timebase"},
-    "host_tools": {"protocol", "timebase", "firmware_py", "hil_sim"},
+    "firmware_py": {"kernels", "protocol", "timebase"},
+    "hil_sim": {"kernels", "protocol", "timebase"},
+    "host_tools": {"kernels", "protocol", "timebase", "firmware_py", "hil_sim"},
 }
 
 

@@ -1,0 +1,44 @@
+"""The switch for the compiled kernels: the hot functions compiled by numba, optional.
+
+Two functions carry the world's 1 kHz work: the controller's joints' tick
+(firmware_py/joints_tick.py) and the arm plant's tick (hil_sim/arm_tick.py). Each is plain Python
+over flat rows of numbers, and each can run compiled by numba's `njit`, without fastmath: IEEE
+arithmetic in the source's order, so the compiled results are the plain function's to the bit
+(tests/test_joints_tick.py, tests/test_arm_plant_tick.py run both). The machine code is cached
+beside each module (`cache=True`), so only the first process compiles it (a few seconds).
+
+The switch: `ASPOD_COMPILED=1` in the environment turns both on, so that a bench, a simulator or a
+test session picks it up unchanged; `ControllerConfig.compiled_joints` and the plant's
+`compiled_arm_tick` take it as their default. numba is not a dependency of the package (the extra
+`compiled` installs it): without it the switch stays off and everything runs as plain Python;
+turned on without numba, building the controller or the plant says so. `NUMBA_DISABLE_JIT=1` runs
+the same arrays through the plain functions (slow: numpy scalars), for debugging.
+
+This package sits below every other (tests/test_code_rules.py) and imports none of them.
+"""
+from __future__ import annotations
+
+import os
+from typing import Callable, TypeVar
+
+ENVIRONMENT_SWITCH = "ASPOD_COMPILED"
+
+F = TypeVar("F", bound=Callable)
+
+
+def compiled_by_default() -> bool:
+    """Whether the environment asks for the compiled kernels (`ASPOD_COMPILED=1`)."""
+    return os.environ.get(ENVIRONMENT_SWITCH, "") == "1"
+
+
+def compile_kernel(function: F, what: str) -> F:
+    """`function` compiled by numba (`njit(cache=True)`, no fastmath); RuntimeError naming `what` without numba."""
+    try:
+        import numba
+    except ImportError as exc:
+        raise RuntimeError(f"the compiled {what} ({ENVIRONMENT_SWITCH}=1) need numba: "
+                           "pip install 'aspod[compiled]' (or numba)") from exc
+    return numba.njit(cache=True)(function)
+
+
+__all__ = ["ENVIRONMENT_SWITCH", "compile_kernel", "compiled_by_default"]
