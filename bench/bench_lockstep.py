@@ -24,6 +24,11 @@ done in it):
   commit's tree (`git archive` from this clone's history; bench/world_child.py drives it), so
   the old and the new code meet the same machine in the same run. Its final joint angles are
   compared with the first row's, to the bit.
+* **the same world, kernels as plain Python**: the first row runs the compiled kernels
+  (kernels/__init__.py: the joints' tick and the arm plant's tick compiled by numba) when numba is
+  installed; this one runs the same functions as plain Python. Its final joint angles are
+  compared with the first row's, to the bit. (Without numba there is no such row: the first row is
+  plain Python, and the report says so.)
 * **world, holding**: the same world, connected and enabled, no motion commands (the loops
   hold every joint where it is; the control box stays off).
 * **world, all moving, timed per task**: the first row again, with the scheduler's stopwatch
@@ -50,6 +55,7 @@ the simulated seconds per wall second summed over them, a campaign's throughput.
 """
 from __future__ import annotations
 
+import importlib.util
 import io
 import json
 import math
@@ -62,6 +68,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
+import kernels
 from bench.bench_realtime import CpuMeter
 from timebase.scheduler import Scheduler
 from host_tools.worlds.local_bus import LocalBus, LocalChannel
@@ -125,10 +132,12 @@ class Row:
 class WorldRow(Row):
     """A LockstepBench, connected, telemetry at 10 Hz, enabled; moving or holding."""
 
-    def __init__(self, label: str, moving: bool, timed_tasks: bool, seed: int = SEED) -> None:
+    def __init__(self, label: str, moving: bool, timed_tasks: bool, seed: int = SEED,
+                 compiled: Optional[bool] = None) -> None:
         self.label = label
         self.moving = moving
-        self.bench = LockstepBench(seed=seed)
+        with kernels.switched(compiled):      # None: as the environment says (a child world's parent sets it)
+            self.bench = LockstepBench(seed=seed)
         self.handles: list = []
         self.segments = 0
         self.not_driven: list[str] = []      # segment ends at which some channel was not driven
@@ -234,8 +243,8 @@ def tree_of_commit(commit: str, into: Path) -> Path:
 class ChildWorld:
     """The moving world in a process of its own (bench/world_child.py), built from the tree `tree`."""
 
-    def __init__(self, tree: Path, seed: int = SEED) -> None:
-        env = {**os.environ, "PYTHONPATH": str(tree)}
+    def __init__(self, tree: Path, seed: int = SEED, compiled: bool = False) -> None:
+        env = {**os.environ, "PYTHONPATH": str(tree), kernels.ENVIRONMENT_SWITCH: "1" if compiled else "0"}
         self.proc = subprocess.Popen([sys.executable, str(CHILD_SCRIPT), str(seed)], cwd=tree, env=env,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         if self._line() != "ready":
@@ -309,11 +318,12 @@ class PlantRow(Row):
     IDLE_LABEL = "plant alone (PlantNode + Plant, own bus)"
     DRIVEN_LABEL = "plant alone, its 6 arm channels driven open loop"
 
-    def __init__(self, driven: bool = False, seed: int = SEED) -> None:
+    def __init__(self, driven: bool = False, seed: int = SEED, compiled: Optional[bool] = None) -> None:
         self.label = self.DRIVEN_LABEL if driven else self.IDLE_LABEL
         self.clock = SimClock()
         self.bus = LocalBus(LocalChannel(), carries_values=True)   # the world's kind of bus, with nobody else on it
-        self.node = build_plant_node(self.bus, seed)
+        with kernels.switched(compiled):
+            self.node = build_plant_node(self.bus, seed)
         self.scheduler = Scheduler(self.clock, stopwatch=None)
         self.scheduler.add("plant", self.node.step, period_s=self.node.period_s)
         if driven:
@@ -386,6 +396,7 @@ class LockstepResults:
     telemetry_frames: int = 0
     same_motion: Optional[bool] = None     # the timed world moved exactly as the main one
     same_as_before: Optional[bool] = None  # the main world ended exactly where the code before issue 12 did
+    same_as_plain: Optional[bool] = None   # the compiled kernels' world ended exactly where the plain one did
     duration_s: float = 0.0
     rounds: int = 0
     hogs: int = 0                          # processes spinning on a core each during the run
@@ -402,22 +413,28 @@ class LockstepResults:
         return "; ".join(f"{r.label}: {r.error}" for r in self.rows if r.error)
 
 
+# The compiled kernels (kernels/__init__.py) when numba is installed: the world as fast as it goes.
+COMPILED = importlib.util.find_spec("numba") is not None
 MAIN_LABEL = "world, all 8 channels moving, telemetry 10 Hz"
+PLAIN_LABEL = "the same world, kernels as plain Python"
 
 
 def all_rows() -> list[tuple[str, type | object]]:
     """(label, builder) of every row, the main one first and the code before issue 12 second."""
-    return [
-        (MAIN_LABEL, lambda: WorldRow(MAIN_LABEL, moving=True, timed_tasks=False)),
+    rows = [
+        (MAIN_LABEL, lambda: WorldRow(MAIN_LABEL, moving=True, timed_tasks=False, compiled=COMPILED)),
         (BeforeRow.label, BeforeRow),
         ("world, enabled, holding, telemetry 10 Hz", lambda: WorldRow(
-            "world, enabled, holding, telemetry 10 Hz", moving=False, timed_tasks=False)),
+            "world, enabled, holding, telemetry 10 Hz", moving=False, timed_tasks=False, compiled=COMPILED)),
         ("world, all moving, timed per task", lambda: WorldRow(
-            "world, all moving, timed per task", moving=True, timed_tasks=True)),
-        (PlantRow.IDLE_LABEL, PlantRow),
-        (PlantRow.DRIVEN_LABEL, lambda: PlantRow(driven=True)),
+            "world, all moving, timed per task", moving=True, timed_tasks=True, compiled=COMPILED)),
+        (PlantRow.IDLE_LABEL, lambda: PlantRow(compiled=COMPILED)),
+        (PlantRow.DRIVEN_LABEL, lambda: PlantRow(driven=True, compiled=COMPILED)),
         (BareRow.label, BareRow),
     ]
+    if COMPILED:       # what the kernels buy: the main world with them as plain Python
+        rows.insert(2, (PLAIN_LABEL, lambda: WorldRow(PLAIN_LABEL, moving=True, timed_tasks=False, compiled=False)))
+    return rows
 
 
 def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optional[int] = None,
@@ -466,7 +483,7 @@ def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optiona
                 result.error = row.check()
         by_label = {r.label: row for r, row in zip(out.rows, rows)}
         main, timed = by_label.get(MAIN_LABEL), by_label.get("world, all moving, timed per task")
-        before = by_label.get(BeforeRow.label)
+        before, plain = by_label.get(BeforeRow.label), by_label.get(PLAIN_LABEL)
         if isinstance(timed, WorldRow) and not out.row(timed.label).error:
             out.split = timed.task_split()
             out.split_row = out.row(timed.label)
@@ -475,6 +492,8 @@ def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optiona
             angles = [float(x).hex() for x in main.bench.world.plant.arm.pos_rad]
             if isinstance(timed, WorldRow):
                 out.same_motion = angles == [float(x).hex() for x in timed.bench.world.plant.arm.pos_rad]
+            if isinstance(plain, WorldRow):
+                out.same_as_plain = angles == [float(x).hex() for x in plain.bench.world.plant.arm.pos_rad]
             if isinstance(before, BeforeRow) and before.result is not None and before.result["pos_rad"]:
                 out.same_as_before = angles == before.result["pos_rad"]
     finally:
@@ -492,7 +511,7 @@ def parallel_worlds(workers: int, duration_s: float, seed: int = SEED) -> tuple[
     running `duration_s` at the same time (a campaign's throughput); and an error, '' if none."""
     worlds: list[ChildWorld] = []
     try:
-        worlds = [ChildWorld(REPO, seed + k) for k in range(workers)]
+        worlds = [ChildWorld(REPO, seed + k, COMPILED) for k in range(workers)]
         for world in worlds:                   # all start together: each is told before any answers
             assert world.proc.stdin is not None
             world.proc.stdin.write(f"{duration_s!r}\n")
@@ -567,6 +586,18 @@ def report(res: LockstepResults) -> str:
                 lines.append("  and the same simulation to the bit: final joint angles identical to the old code's"
                              if res.same_as_before else
                              "  NOTE: the world ended with other joint angles than the old code's (it should not)")
+        if PLAIN_LABEL in labels:
+            plain = res.row(PLAIN_LABEL)
+            if plain.wall_s > 0 and not plain.error:
+                lines.append(f"  the compiled kernels (numba): {x / plain.x_real_time:.2f} times the world with them as "
+                             f"plain Python ({plain.x_real_time:.1f}x)")
+            if res.same_as_plain is not None:
+                lines.append("  and the same simulation to the bit: final joint angles identical to the plain kernels'"
+                             if res.same_as_plain else
+                             "  NOTE: the compiled kernels' world ended with other joint angles than the plain one's "
+                             "(it should not)")
+        elif not COMPILED:
+            lines.append("  numba is not installed: the kernels ran as plain Python (pip install 'aspod[compiled]')")
         if PlantRow.IDLE_LABEL in labels and PlantRow.DRIVEN_LABEL in labels:
             idle, driven = res.row(PlantRow.IDLE_LABEL), res.row(PlantRow.DRIVEN_LABEL)
         else:

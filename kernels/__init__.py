@@ -18,8 +18,9 @@ This package sits below every other (tests/test_code_rules.py) and imports none 
 """
 from __future__ import annotations
 
+import contextlib
 import os
-from typing import Callable, TypeVar
+from typing import Callable, Iterator, Optional, TypeVar
 
 ENVIRONMENT_SWITCH = "ASPOD_COMPILED"
 
@@ -29,6 +30,23 @@ F = TypeVar("F", bound=Callable)
 def compiled_by_default() -> bool:
     """Whether the environment asks for the compiled kernels (`ASPOD_COMPILED=1`)."""
     return os.environ.get(ENVIRONMENT_SWITCH, "") == "1"
+
+
+@contextlib.contextmanager
+def switched(on: Optional[bool]) -> Iterator[None]:
+    """Within: the switch set to `on` (None: left as the environment has it), for what is built there."""
+    if on is None:
+        yield
+        return
+    before = os.environ.get(ENVIRONMENT_SWITCH)
+    os.environ[ENVIRONMENT_SWITCH] = "1" if on else "0"
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[ENVIRONMENT_SWITCH]
+        else:
+            os.environ[ENVIRONMENT_SWITCH] = before
 
 
 def compile_kernel(function: F, what: str) -> F:
@@ -41,4 +59,4 @@ def compile_kernel(function: F, what: str) -> F:
     return numba.njit(cache=True)(function)
 
 
-__all__ = ["ENVIRONMENT_SWITCH", "compile_kernel", "compiled_by_default"]
+__all__ = ["ENVIRONMENT_SWITCH", "compile_kernel", "compiled_by_default", "switched"]
