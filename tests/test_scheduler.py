@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from timebase.scheduler import Scheduler, poll_tick
+from timebase.scheduler import Scheduler, TaskStats, poll_tick
 from timebase import SimClock
 
 
@@ -155,3 +155,12 @@ def test_without_a_stopwatch_tasks_run_the_same_and_take_no_time():
         else:
             assert stats.exec_max_s == pytest.approx(0.003)
     assert runs["clock"] == runs[None] and runs[None][3] > 0       # periods skipped alike
+
+
+def test_an_untimed_run_is_recorded_as_a_run_that_took_no_time():
+    timed, untimed = TaskStats(), TaskStats()
+    for late_s, overrun in [(0.0, False), (0.002, True), (0.001, False)]:
+        timed.record(0.0, late_s, overrun)
+        untimed.record_untimed(late_s, overrun)
+    assert untimed == timed and untimed._hist == timed._hist and untimed.exec_p99_s == timed.exec_p99_s
+    assert (untimed.runs, untimed.overruns, untimed.late_max_s) == (3, 1, 0.002)

@@ -53,6 +53,15 @@ class TaskStats:
         bucket = int(exec_s * 1e6).bit_length()
         self._hist[bucket if bucket < _HIST_BUCKETS else _HIST_BUCKETS - 1] += 1
 
+    def record_untimed(self, late_s: float, overrun: bool) -> None:
+        """`record` of a run on a simulated clock, where execution takes no time (exec_s 0)."""
+        self.runs += 1
+        if late_s > self.late_max_s:
+            self.late_max_s = late_s
+        if overrun:
+            self.overruns += 1
+        self._hist[0] += 1
+
     @property
     def exec_p99_s(self) -> float:
         """Upper bound of the bucket holding the 99th percentile (within a factor of 2)."""
@@ -177,15 +186,14 @@ class Scheduler:
                 break
             heappop(heap)
             task.wake_s = None
+            late_s = now - wake
             if stopwatch is None:
                 next_wake = task.fn(now)
-                exec_s = 0.0
+                task.stats.record_untimed(late_s, late_s > task.tolerance_s)
             else:
                 start = stopwatch()
                 next_wake = task.fn(now)
-                exec_s = stopwatch() - start
-            late_s = now - wake
-            task.stats.record(exec_s, late_s, late_s > task.tolerance_s)
+                task.stats.record(stopwatch() - start, late_s, late_s > task.tolerance_s)
             ran += 1
             now = clock_now()
             if tasks.get(task.name) is not task:
