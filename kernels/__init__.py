@@ -19,7 +19,7 @@ This package sits below every other (tests/test_code_rules.py) and imports none 
 from __future__ import annotations
 
 import os
-from typing import Callable, TypeVar
+from typing import Callable, Sequence, TypeVar
 
 ENVIRONMENT_SWITCH = "ASPOD_COMPILED"
 
@@ -31,13 +31,21 @@ def compiled_by_default() -> bool:
     return os.environ.get(ENVIRONMENT_SWITCH, "") == "1"
 
 
-def compile_kernel(function: F, what: str) -> F:
-    """`function` compiled by numba (`njit(cache=True)`, no fastmath); RuntimeError naming `what` without numba."""
+def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = ()) -> F:
+    """`function` compiled by numba (`njit(cache=True)`, no fastmath); RuntimeError naming `what` without numba.
+
+    `helpers`: the plain functions `function` calls, compiled into it where it calls them and left
+    as they are for Python callers (numba's `register_jitable`). Keep them in `function`'s file:
+    numba's cache is refreshed when that file changes, not when another one does.
+    """
     try:
         import numba
+        from numba.extending import register_jitable
     except ImportError as exc:
         raise RuntimeError(f"the compiled {what} ({ENVIRONMENT_SWITCH}=1) need numba: "
                            "pip install 'aspod[compiled]' (or numba)") from exc
+    for helper in helpers:
+        register_jitable(helper)
     return numba.njit(cache=True)(function)
 
 
