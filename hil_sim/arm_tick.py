@@ -307,6 +307,7 @@ class ArmTick:
         stop_lo, stop_hi = motors.stop_lists()
         rows = [pos, vel, cur, stop_t, load_nm, load_inertia, stop_lo, stop_hi]
         table = [[0.0] * n for _ in range(DRIVE_ROWS)] + [list(row) for row in sensors]
+        assert len(rows) == STATE_ROWS and len(table) == TABLE_ROWS
         flags = [[False] * n for _ in range(FLAG_ROWS)]
         flags[BRAKED] = [True] * n
         count_rows = [[0] * n for _ in range(COUNT_ROWS)]
@@ -385,7 +386,7 @@ class ArmTick:
         return drawn
 
     def gating(self) -> tuple[list[bool], list[bool]]:
-        """What each channel got at the last tick: (driven, braked), lists of the caller's own."""
+        """What each channel got at the last tick: (driven, braked), lists for the caller to keep (once a tick)."""
         driven, braked = self._flags_out[:2]
         return (driven, braked) if self.compiled else (list(driven), list(braked))
 
