@@ -291,8 +291,13 @@ class ArmPlant:
         self._duty, self._enable = duty, enable
 
     def load_lists(self) -> tuple[list[float], list[float]]:
-        """The live lists of gravity torques and load inertias per channel (changed in place, never replaced)."""
+        """The live rows of gravity torques and load inertias per channel (changed in place, never replaced)."""
         return self._load_nm, self._inertia
+
+    def keep_loads_in(self, load_nm: np.ndarray, inertia: np.ndarray) -> None:
+        """Keep the gravity torques and load inertias from now on in these float64 rows (a compiled tick's)."""
+        load_nm[:], inertia[:] = self._load_nm, self._inertia
+        self._load_nm, self._inertia = load_nm, inertia
 
     def gripper_cut(self) -> GripperCut:
         """Whether the gripper's end switches cut its motor, and where they trip (screw angle, rad)."""
@@ -369,7 +374,7 @@ class ArmPlant:
 
     def static_torques_nm(self) -> tuple[float, float, float]:
         """Gravity holding torques at J1, J2, J3 in the present pose and mode."""
-        return tuple(self._load_nm[:3])
+        return tuple([float(t) for t in self._load_nm[:3]])
 
     @property
     def load_inertia_kg_m2(self) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The arm plant's tick as one function over flat per-channel lists: drives, loads, readouts.
+"""The arm plant's tick as one function over flat per-channel rows: drives, loads, readouts.
 
 Design: docs/plant.md#the-arm-plants-tick
 
@@ -6,56 +6,74 @@ Design: docs/plant.md#the-arm-plants-tick
 do (`hil_sim.arm.ArmPlant`, `hil_sim.motor.DcMotorBank`, `hil_sim.arm.LoadModel` and the
 plant's own gating, supply current, encoders and switches), with the very same
 floating-point operations in the same order: its results are those of the classes to the
-bit (tests/test_arm_plant_tick.py). It takes only numbers and sequences of numbers
-(lists now; numpy arrays for a compiled kernel later): the hot state lives in the lists
-the classes own, changed in place, and the constants come in precomputed. `ArmTick` binds
-it to one plant's lists and keeps the per-step-length constants.
+bit (tests/test_arm_plant_tick.py). It takes only numbers and groups of per-channel rows,
+each row indexed by channel and each group's rows named by the constants below:
+
+- `command` (floats): the per-channel command, DUTY, ENABLE, BRAKE (0 or 1);
+- `state` (floats): the hot state at the output shaft, stepped in place;
+- `table` (floats): the drive constants for the step length in use, and the sensors';
+- `flags` (bools): the faults that are flags, and the readouts that are switches;
+- `counts` (ints): the encoder faults' counts, and the counts read out;
+- `constants`: one row of numbers, the mass model's (`LoadConstants`), then the gripper's.
+
+A group is a list of lists, or a 2-D numpy array for the kernel compiled by numba
+(hil_sim/arm_tick_compiled.py): numba's per-call cost grows with the number of arrays it is
+handed, so a tick takes these six. `ArmTick` holds the groups of one plant and keeps the
+per-step-length constants; the classes keep their state in its `state` rows (lists shared,
+or array rows adopted: `DcMotorBank.keep_state_in`), so both see one state.
 """
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple, Sequence
+import struct
+from typing import TYPE_CHECKING, NamedTuple, Optional, Sequence
+
+import numpy as np
 
 from hil_sim.arm_params import GRIPPER, J1, J2, J3, J4, MOUNT
-from hil_sim.motor import hard_stop
 
 if TYPE_CHECKING:  # pragma: no cover
-    from hil_sim.arm import ArmPlant
+    from hil_sim.arm import ArmPlant, LoadModel
 
-
-class ArmState(NamedTuple):
-    """The hot state, per channel at the output shaft; the lists of `DcMotorBank` and `ArmPlant`."""
-
-    pos_rad: list[float]
-    vel_rad_s: list[float]
-    current_a: list[float]
-    stop_torque_nm: list[float]      # absorbed by a hard stop in the last step (< 0: the lower one)
-    load_torque_nm: list[float]      # gravity's pull (the holding torque), held over a step
-    load_inertia_kg_m2: list[float]  # the arm's pose-dependent inertia on top of the drive's own
-    stop_lo_rad: list[float]         # hard stops (a jam closes both on the shaft, an object moves the gripper's)
-    stop_hi_rad: list[float]
-
-
-class DriveTable(NamedTuple):
-    """Per-channel drive constants for one step length h (`DcMotorBank.step_coefficients`)."""
-
-    l_eff_per_h: list[float]         # L_eff / h = R / expm1(R h / L) [ohm]
-    inv_l_eff_r: list[float]         # 1 / (L_eff/h + R) [1/ohm]
-    emf_per_rad_s: list[float]       # ke_out / (L_eff/h + R) [A s/rad]
-    inertia_kg_m2: list[float]       # rotor through the train plus the fixed output parts
-    kt_nm_a: list[float]             # output torque per amp, gear losses included
-    viscous_nm_s_rad: list[float]
-    coulomb_nm: list[float]          # kinetic friction
-    breakaway_extra_nm: list[float]  # breakaway minus kinetic friction
-    brake_hold_nm: list[float]       # 0: no brake (braked and not driven shorts the armature instead)
-
-
-class GripperCut(NamedTuple):
-    """The gripper's end switches, which open its motor circuit for travel toward their end."""
-
-    cuts_power: bool
-    closed_rad: float
-    open_rad: float
+# command: what the plant's node hands a step, per channel
+DUTY, ENABLE, BRAKE = range(3)
+COMMAND_ROWS = 3
+# state: the hot state, per channel at the output shaft
+(POS_RAD, VEL_RAD_S, CURRENT_A,
+ STOP_TORQUE_NM,      # absorbed by a hard stop in the last step (< 0: the lower one)
+ LOAD_TORQUE_NM,      # gravity's pull (the holding torque), held over a step
+ LOAD_INERTIA_KG_M2,  # the arm's pose-dependent inertia on top of the drive's own
+ STOP_LO_RAD,         # hard stops (a jam closes both on the shaft, an object moves the gripper's)
+ STOP_HI_RAD) = range(8)
+STATE_ROWS = 8
+# table: the drive constants for one step length h (`DcMotorBank.step_coefficients`), then the sensors'
+(L_EFF_PER_H,         # L_eff / h = R / expm1(R h / L) [ohm]
+ INV_L_EFF_R,         # 1 / (L_eff/h + R) [1/ohm]
+ EMF_PER_RAD_S,       # ke_out / (L_eff/h + R) [A s/rad]
+ INERTIA_KG_M2,       # rotor through the train plus the fixed output parts
+ KT_NM_A,             # output torque per amp, gear losses included
+ VISCOUS_NM_S_RAD,
+ COULOMB_NM,          # kinetic friction
+ BREAKAWAY_EXTRA_NM,  # breakaway minus kinetic friction
+ BRAKE_HOLD_NM,       # 0: no brake (braked and not driven shorts the armature instead)
+ POS0_RAD,            # the angle at power-on (the encoders count from 0 there)
+ COUNTS_PER_RAD,
+ HOME_RAD,            # home flag: closed at and above
+ LIMIT_LO_RAD,        # closed at and below
+ LIMIT_HI_RAD) = range(14)  # closed at and above
+DRIVE_ROWS = 9
+TABLE_ROWS = 14
+# flags: the plant's faults that are flags (`Plant.inject`, hil_sim/faults.py), then the readouts that are
+(OPEN_CIRCUIT, STUCK_BRAKE,
+ DROPPED_OUT,         # encoder_dropout: the count shows FROZEN_COUNT
+ DRIVEN, BRAKED,      # what each channel got: its bridge switching, its brake on
+ HOME, LIMIT_LO, LIMIT_HI) = range(8)
+FLAG_ROWS = 8
+# counts: the encoder faults' counts, then the counts read out
+(COUNT_OFFSET,        # encoder_glitch: added to the count
+ FROZEN_COUNT,
+ COUNTS) = range(3)
+COUNT_ROWS = 3
 
 
 class LoadConstants(NamedTuple):
@@ -85,6 +103,25 @@ class LoadConstants(NamedTuple):
     at_base_kg_m2: float             # link I and the shoulder hardware about the shaft
     mobile_arm_kg_m2: float
     guide_wheels_kg_m2: float
+    # Squares are written x ** square: C's pow(x, 2.0), as CPython computes x ** 2 (and the classes do),
+    # which is not always x * x (the last bit differs for about one value in a thousand). Given as a
+    # number, not a literal, so that the compiled kernel calls pow too: numba turns x ** 2 into x * x.
+    square: float = 2.0
+
+
+# constants: the mass model's, then the gripper's end switches (screw angle, rad), which open its motor
+# circuit for travel toward their end (-inf, +inf if they cut nothing)
+LOAD_CONSTANTS = len(LoadConstants._fields)
+GRIPPER_CLOSED_RAD, GRIPPER_OPEN_RAD = LOAD_CONSTANTS, LOAD_CONSTANTS + 1
+CONSTANTS = LOAD_CONSTANTS + 2
+
+
+class GripperCut(NamedTuple):
+    """The gripper's end switches, which open its motor circuit for travel toward their end."""
+
+    cuts_power: bool
+    closed_rad: float
+    open_rad: float
 
 
 class Sensors(NamedTuple):
@@ -98,42 +135,34 @@ class Sensors(NamedTuple):
 
 
 class ChannelFaults(NamedTuple):
-    """The plant's per-channel faults, as `Plant.inject` sets them (hil_sim/faults.py)."""
+    """The plant's per-channel faults, as `Plant.inject` sets them (rows of `ArmTick`'s flags and counts)."""
 
-    open_circuit: list[bool]
-    stuck_brake: list[bool]
-    count_offset: list[int]          # encoder_glitch: added to the count
-    dropped_out: list[bool]          # encoder_dropout: the count shows `frozen_count`
-    frozen_count: list[int]
-
-
-class Readouts(NamedTuple):
-    """What a tick leaves for the plant's node: the channels' gating, counts and switches."""
-
-    driven: list[bool]
-    braked: list[bool]
-    counts: list[int]
-    home: list[bool]
-    limit_lo: list[bool]
-    limit_hi: list[bool]
+    open_circuit: Sequence[bool]
+    stuck_brake: Sequence[bool]
+    count_offset: Sequence[int]      # encoder_glitch: added to the count
+    dropped_out: Sequence[bool]      # encoder_dropout: the count shows `frozen_count`
+    frozen_count: Sequence[int]
 
 
 def arm_plant_tick(h_s: float, substeps: int, supply_v: float, outputs_enabled: bool, brake_all: bool,
-                   duty: Sequence[float], enable: Sequence[bool], brake: Sequence[bool],
-                   state: ArmState, drive: DriveTable, gripper: GripperCut, loads: LoadConstants,
-                   sensors: Sensors, faults: ChannelFaults, out: Readouts) -> float:
-    """Advance the arm `substeps` steps of `h_s` seconds; sample the readouts; return the bridges' current.
+                   command, state, table, flags, counts, constants) -> tuple[float, float]:
+    """Advance the arm `substeps` steps of `h_s` seconds; sample the readouts; return what the bridges draw.
 
-    `outputs_enabled`, `brake_all` are the global command, `duty`, `enable`, `brake` the
-    per-channel one (order `ARM_CHANNELS`); `supply_v` the bus voltage the bridges switch
-    (the last step's). `state` is stepped in place; `out` receives the readouts. Returns the
-    current the bridges draw from the supply [A] (< 0 while motors regenerate).
+    `outputs_enabled`, `brake_all` are the global command, `command` the per-channel one;
+    `supply_v` the bus voltage the bridges switch (the last step's). `state` is stepped in
+    place; the readouts go to `flags` and `counts`. Returns the current the bridges draw from
+    the supply [A] (< 0 while motors regenerate) and the sum of the squared armature currents
+    [A^2] (the bridges' conduction losses per ohm).
     """
-    pos, vel, cur, stop_t, load_nm, load_j, stop_lo, stop_hi = state
-    l_eff_h, inv_l_eff_r, emf_per_w, drive_j, kt, visc, coulomb, breakaway_extra, hold = drive
-    open_circuit, stuck_brake = faults.open_circuit, faults.stuck_brake
-    cuts_power, closed_rad, open_rad = gripper
-    driven, braked = out.driven, out.braked
+    duty, enable, brake = command[DUTY], command[ENABLE], command[BRAKE]
+    pos, vel, cur, stop_t = state[POS_RAD], state[VEL_RAD_S], state[CURRENT_A], state[STOP_TORQUE_NM]
+    load_nm, load_j = state[LOAD_TORQUE_NM], state[LOAD_INERTIA_KG_M2]
+    stop_lo, stop_hi = state[STOP_LO_RAD], state[STOP_HI_RAD]
+    l_eff_h, inv_l_eff_r, emf_per_w = table[L_EFF_PER_H], table[INV_L_EFF_R], table[EMF_PER_RAD_S]
+    drive_j, kt, visc = table[INERTIA_KG_M2], table[KT_NM_A], table[VISCOUS_NM_S_RAD]
+    coulomb, breakaway_extra, hold = table[COULOMB_NM], table[BREAKAWAY_EXTRA_NM], table[BRAKE_HOLD_NM]
+    open_circuit, stuck_brake, driven, braked = flags[OPEN_CIRCUIT], flags[STUCK_BRAKE], flags[DRIVEN], flags[BRAKED]
+    closed_rad, open_rad = constants[GRIPPER_CLOSED_RAD], constants[GRIPPER_OPEN_RAD]
     n = len(pos)
     # What each channel gets: its bridge switches only if outputs are enabled, its own command
     # enables it and its circuit is whole; its brake is on if either command or a stuck brake says so.
@@ -144,7 +173,7 @@ def arm_plant_tick(h_s: float, substeps: int, supply_v: float, outputs_enabled: 
     for _ in range(substeps):
         # The gripper's end switch ahead of the jaws' travel opens its motor circuit.
         d, x = duty[GRIPPER], pos[GRIPPER]
-        gripper_on = driven[GRIPPER] and not (cuts_power and ((d < 0 and x <= closed_rad) or (d > 0 and x >= open_rad)))
+        gripper_on = driven[GRIPPER] and not ((d < 0 and x <= closed_rad) or (d > 0 and x >= open_rad))
         for k in range(n):
             # Armature, implicit in the new current i' and speed w' (docs/arm.md, the motors):
             #   L_eff/h (i' - i) = u - R i' - ke_out w'   ->   i' = p - q w'
@@ -172,30 +201,41 @@ def arm_plant_tick(h_s: float, substeps: int, supply_v: float, outputs_enabled: 
                 w = (s + kinetic) / (m + visc[k] + kt[k] * q)
             else:
                 w = 0.0                                            # held by friction (and brake): exactly still
-            # Position by semi-implicit Euler; a hard stop clamps it and takes the torque pushing into it.
-            x, w, t = hard_stop(pos[k] + h_s * w, w, s, stop_lo[k], stop_hi[k])
+            # Position by semi-implicit Euler; an inelastic hard stop clamps it, stops the shaft and
+            # takes the torque that pushed into it (`hil_sim.motor.hard_stop`).
+            x = pos[k] + h_s * w
+            if x <= stop_lo[k]:
+                x, w, t = stop_lo[k], 0.0, (s if s < 0.0 else 0.0)
+            elif x >= stop_hi[k]:
+                x, w, t = stop_hi[k], 0.0, (s if s > 0.0 else 0.0)
+            else:
+                t = 0.0
             pos[k], vel[k], cur[k], stop_t[k] = x, w, p - q * w, t
-        gravity_and_inertia(pos[J1], pos[J2], pos[J3], loads, load_nm, load_j)
-    # The bridges' draw from the supply (lossless switches): sum of clipped duty * i over driven channels.
+        gravity_and_inertia(pos[J1], pos[J2], pos[J3], constants, load_nm, load_j)
+    # The bridges' draw from the supply (lossless switches): sum of clipped duty * i over driven channels;
+    # and their conduction losses per ohm, sum of i^2 over all channels.
     bridges_a = 0.0
+    squares = 0.0
     for k in range(n):
+        i = cur[k]
         if driven[k]:
             d = duty[k]
             d = d if d < 1.0 else 1.0                              # NaN reads as 1 here
-            bridges_a += (d if d > -1.0 else -1.0) * cur[k]
-    sample_readouts(pos, sensors, faults, out)
-    return bridges_a
+            bridges_a += (d if d > -1.0 else -1.0) * i
+        squares += i * i
+    sample_readouts(pos, table, flags, counts)
+    return bridges_a, squares
 
 
-def gravity_and_inertia(q1: float, q2: float, q3: float, constants: LoadConstants,
-                        load_nm: list[float], load_inertia: list[float]) -> None:
+def gravity_and_inertia(q1: float, q2: float, q3: float, constants, load_nm, load_inertia) -> None:
     """The lumped mass model at joint angles q1..q3 [rad]: holding torques and inertias, in place.
 
     Gravity torques into `load_nm` (J1-J3), the inertias each channel turns, the other joints
     frozen, into `load_inertia` (J1-J4, mount); hil_sim/arm.py's module docstring gives the model.
+    `constants`: the `LoadConstants`, then the gripper's two.
     """
     (l2, l3, cg, tip, g, k1, k2, k3, rod2, rod3, turned, i3, i4, link2_kg, elbow_kg, link3_kg, fixed_kg, turned_kg, p,
-     r0, reach, at_base, mobile_arm, guide_wheels) = constants
+     r0, reach, at_base, mobile_arm, guide_wheels, two, _, _) = constants
     # The arm plane, from J1: elbow e, wrist w, turned part's cg r, tip t; absolute angles a1..a3.
     c1, s1 = math.cos(q1), math.sin(q1)
     a2 = q1 + q2
@@ -210,11 +250,11 @@ def gravity_and_inertia(q1: float, q2: float, q3: float, constants: LoadConstant
     t2 = g * k2 * c2 + t3
     load_nm[J1], load_nm[J2], load_nm[J3] = g * k1 * c1 + t2, t2, t3
     # Inertias [kg m^2]: rods m L^2/12 about their centres plus m d^2 (parallel axes), points m d^2 (p: payload).
-    span = (wx - ex) ** 2 + (wz - ez) ** 2                         # link III's length squared
+    span = (wx - ex) ** two + (wz - ez) ** two                     # link III's length squared
     i2 = (rod3 + link3_kg * span / 4.0 + fixed_kg * span + turned
-          + turned_kg * ((rx - ex) ** 2 + (rz - ez) ** 2) + p * ((tx - ex) ** 2 + (tz - ez) ** 2))
+          + turned_kg * ((rx - ex) ** two + (rz - ez) ** two) + p * ((tx - ex) ** two + (tz - ez) ** two))
     i1 = (rod2 + link2_kg * (ex * ex + ez * ez) / 4.0 + elbow_kg * (ex * ex + ez * ez)
-          + rod3 + link3_kg * ((ex + wx) ** 2 + (ez + wz) ** 2) / 4.0
+          + rod3 + link3_kg * ((ex + wx) ** two + (ez + wz) ** two) / 4.0
           + fixed_kg * (wx * wx + wz * wz)
           + turned + turned_kg * (rx * rx + rz * rz) + p * (tx * tx + tz * tz))
     load_inertia[J1], load_inertia[J2], load_inertia[J3], load_inertia[J4] = i1, i2, i3, i4
@@ -224,49 +264,95 @@ def gravity_and_inertia(q1: float, q2: float, q3: float, constants: LoadConstant
     total = (at_base + link2_kg * r2 * r2 + elbow_kg * re * re + link3_kg * r3 * r3 + fixed_kg * rw * rw
              + turned_kg * rr * rr + p * rt * rt)
     # Rods about a vertical axis through their centre: m (L cos a)^2 / 12.
-    total += (link2_kg * (l2 * c1) ** 2 + link3_kg * (l3 * c2) ** 2) / 12.0
+    total += (link2_kg * (l2 * c1) ** two + link3_kg * (l3 * c2) ** two) / 12.0
     total += turned * c3 * c3
     load_inertia[MOUNT] = total + mobile_arm + guide_wheels
 
 
-def sample_readouts(pos: Sequence[float], sensors: Sensors, faults: ChannelFaults, out: Readouts) -> None:
+def sample_readouts(pos, table, flags, counts) -> None:
     """Encoder counts (x4 quadrature, floor, since power-on, through the encoder faults) and switches."""
-    pos0, counts_per_rad, home_rad, limit_lo_rad, limit_hi_rad = sensors
-    _, _, count_offset, dropped_out, frozen_count = faults
-    _, _, counts, home, limit_lo, limit_hi = out
+    pos0, counts_per_rad = table[POS0_RAD], table[COUNTS_PER_RAD]
+    home_rad, limit_lo_rad, limit_hi_rad = table[HOME_RAD], table[LIMIT_LO_RAD], table[LIMIT_HI_RAD]
+    dropped_out, home, limit_lo, limit_hi = flags[DROPPED_OUT], flags[HOME], flags[LIMIT_LO], flags[LIMIT_HI]
+    count_offset, frozen_count, count = counts[COUNT_OFFSET], counts[FROZEN_COUNT], counts[COUNTS]
     for k in range(len(pos)):
         x = pos[k]
-        counts[k] = (frozen_count[k] if dropped_out[k]
-                     else math.floor((x - pos0[k]) * counts_per_rad[k]) + count_offset[k])
+        count[k] = (frozen_count[k] if dropped_out[k]     # math.floor gives an int, compiled too
+                    else math.floor((x - pos0[k]) * counts_per_rad[k]) + count_offset[k])
         home[k] = x >= home_rad[k]
         limit_lo[k] = x <= limit_lo_rad[k]
         limit_hi[k] = x >= limit_hi_rad[k]
 
 
 class ArmTick:
-    """`arm_plant_tick` bound to one `ArmPlant`'s lists and its plant's sensors and faults.
+    """`arm_plant_tick` bound to one `ArmPlant` and its plant's sensors; the groups of rows it steps.
+
+    Plain (`compiled=False`): the groups are lists of lists, `state`'s rows the very lists the
+    classes own. Compiled: 2-D numpy arrays, the classes' state adopted into `state`'s rows, and
+    the tick compiled by numba (RuntimeError without it). `faults` are the rows the plant sets.
 
     Keeps the drive constants for the step length in use and the readouts the last tick
-    sampled (`sampled()` samples again if the arm's state was overwritten since: a joint
-    moved by hand). After changing an encoder fault, call `sample()`.
+    sampled, handed out as Python values (`gating`, `counts`, `switches`, `currents`); counts
+    and switches are sampled again if the arm's state was overwritten since (a joint moved by
+    hand). After changing an encoder fault, call `sample()`.
     """
 
-    def __init__(self, arm: ArmPlant, sensors: Sensors, faults: ChannelFaults) -> None:
+    def __init__(self, arm: ArmPlant, sensors: Sensors, compiled: bool = False) -> None:
         motors = arm.motors
         self._arm, self._motors = arm, motors
-        self.state = ArmState(*motors.state_lists(), *arm.load_lists(), *motors.stop_lists())
-        self.sensors, self.faults = sensors, faults
-        self.gripper = arm.gripper_cut()
+        self.compiled = compiled
         n = motors.n
-        self.readouts = Readouts([False] * n, [True] * n, [0] * n, [False] * n, [False] * n, [False] * n)
+        pos, vel, cur, stop_t = motors.state_lists()
+        load_nm, load_inertia = arm.load_lists()
+        stop_lo, stop_hi = motors.stop_lists()
+        rows = [pos, vel, cur, stop_t, load_nm, load_inertia, stop_lo, stop_hi]
+        table = [[0.0] * n for _ in range(DRIVE_ROWS)] + [list(row) for row in sensors]
+        assert len(rows) == STATE_ROWS and len(table) == TABLE_ROWS
+        flags = [[False] * n for _ in range(FLAG_ROWS)]
+        flags[BRAKED] = [True] * n
+        count_rows = [[0] * n for _ in range(COUNT_ROWS)]
+        if compiled:
+            from hil_sim.arm_tick_compiled import compiled_arm_plant_tick
+            self._tick = compiled_arm_plant_tick()
+            self.command = np.zeros((COMMAND_ROWS, n))
+            # A tick's command goes in as one pack of its numbers (half the time numpy takes to copy a list in).
+            self._pack_command = struct.Struct(f"{COMMAND_ROWS * n}d").pack_into
+            self.state = np.array(rows, dtype=np.float64)
+            motors.keep_state_in(*(self.state[r] for r in (POS_RAD, VEL_RAD_S, CURRENT_A, STOP_TORQUE_NM,
+                                                             STOP_LO_RAD, STOP_HI_RAD)))
+            arm.keep_loads_in(self.state[LOAD_TORQUE_NM], self.state[LOAD_INERTIA_KG_M2])
+            self.table = np.array(table, dtype=np.float64)
+            self.flags = np.array(flags, dtype=np.bool_)
+            self.counts = np.array(count_rows, dtype=np.int64)
+            self.constants = np.zeros(CONSTANTS)
+        else:
+            self._tick = arm_plant_tick
+            self.command = [[0.0] * n, [False] * n, [True] * n]
+            self.state, self.table, self.flags, self.counts = rows, table, flags, count_rows
+            self.constants = [0.0] * CONSTANTS
+        f, c = self.flags, self.counts
+        self.faults = ChannelFaults(f[OPEN_CIRCUIT], f[STUCK_BRAKE], c[COUNT_OFFSET], f[DROPPED_OUT], c[FROZEN_COUNT])
+        # The flag readouts as lists of Python bools: the live rows (plain), or converted after each tick.
+        self._flags_out: list = f[DRIVEN:]         # DRIVEN, BRAKED, HOME, LIMIT_LO, LIMIT_HI
+        cut = arm.gripper_cut()
+        closed_rad, open_rad = (cut.closed_rad, cut.open_rad) if cut.cuts_power else (-math.inf, math.inf)
+        self.constants[GRIPPER_CLOSED_RAD], self.constants[GRIPPER_OPEN_RAD] = closed_rad, open_rad
+        self._model: Optional[LoadModel] = None
         self._max_substep_s = arm.params.max_substep_s
         self._dt_s = math.nan
-        self._substeps, self._h_s = 0, self._max_substep_s
-        self._drive = self._drive_table(self._h_s)
+        self._substeps, self._h_s = 0, math.nan
+        self._set_drive(self._max_substep_s)
         self.sample()
 
-    def _drive_table(self, h_s: float) -> DriveTable:
-        return DriveTable(*map(list, zip(*self._motors.step_coefficients(h_s))))
+    def _set_drive(self, h_s: float) -> None:
+        """The drive rows of `table` for step length `h_s`."""
+        self._h_s = h_s
+        self.table[:DRIVE_ROWS] = [list(row) for row in zip(*self._motors.step_coefficients(h_s))]
+
+    def _set_loads(self, model: LoadModel) -> None:
+        """The mass model's constants into `constants` (again when the payload or gravity has changed)."""
+        self._model = model
+        self.constants[:LOAD_CONSTANTS] = model.tick_constants
 
     def _set_step_length(self, dt_s: float) -> None:
         """Split `dt_s` into equal substeps no longer than `max_substep_s`, as `ArmPlant.step` does."""
@@ -277,30 +363,59 @@ class ArmTick:
         self._substeps = max(1, math.ceil(dt_s / self._max_substep_s - 1e-9))
         h_s = dt_s / self._substeps
         if h_s != self._h_s:
-            self._h_s, self._drive = h_s, self._drive_table(h_s)
+            self._set_drive(h_s)
 
     def step(self, dt_s: float, outputs_enabled: bool, brake_all: bool, duty: Sequence[float],
-             enable: Sequence[bool], brake: Sequence[bool], supply_v: float) -> float:
-        """One tick of `dt_s` seconds (see `arm_plant_tick`); returns the bridges' supply current [A]."""
+             enable: Sequence[bool], brake: Sequence[bool], supply_v: float) -> tuple[float, float]:
+        """One tick of `dt_s` seconds (see `arm_plant_tick`): the bridges' supply current [A], the sum of i^2."""
         if dt_s != self._dt_s:
             self._set_step_length(dt_s)
-        bridges_a = arm_plant_tick(self._h_s, self._substeps, supply_v, outputs_enabled, brake_all, duty, enable,
-                                   brake, self.state, self._drive, self.gripper,
-                                   self._arm.load_model().tick_constants, self.sensors, self.faults, self.readouts)
+        model = self._arm.load_model()
+        if model is not self._model:
+            self._set_loads(model)
+        if self.compiled:
+            command = self.command
+            self._pack_command(command, 0, *duty, *enable, *brake)
+        else:
+            command = [duty, enable, brake]
+        drawn = self._tick(self._h_s, self._substeps, supply_v, outputs_enabled, brake_all, command, self.state,
+                           self.table, self.flags, self.counts, self.constants)
+        if self.compiled:
+            self._flags_out = self.flags[DRIVEN:].tolist()
         self._sampled_writes = self._motors.state_writes
-        return bridges_a
+        return drawn
+
+    def gating(self) -> tuple[list[bool], list[bool]]:
+        """What each channel got at the last tick: (driven, braked), lists for the caller to keep (once a tick)."""
+        driven, braked = self._flags_out[:2]
+        return (driven, braked) if self.compiled else (list(driven), list(braked))
+
+    def currents(self) -> list[float]:
+        """The armature currents, a list of the caller's own."""
+        current = self.state[CURRENT_A]
+        return current.tolist() if self.compiled else list(current)
+
+    def encoder_counts(self) -> list[int]:
+        """What each channel's encoder interface shows (Python ints), a list of the caller's own."""
+        if self._motors.state_writes != self._sampled_writes:
+            self.sample()
+        count = self.counts[COUNTS]
+        return count.tolist() if self.compiled else list(count)
+
+    def switches(self) -> tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]:
+        """(home, limit_lo, limit_hi) per channel, True = closed."""
+        if self._motors.state_writes != self._sampled_writes:
+            self.sample()
+        _, _, home, limit_lo, limit_hi = self._flags_out
+        return tuple(home), tuple(limit_lo), tuple(limit_hi)
 
     def sample(self) -> None:
         """Sample the counts and switches from the state as it is (outside a tick)."""
-        sample_readouts(self.state.pos_rad, self.sensors, self.faults, self.readouts)
+        sample_readouts(self.state[POS_RAD], self.table, self.flags, self.counts)
+        if self.compiled:
+            self._flags_out = self.flags[DRIVEN:].tolist()
         self._sampled_writes = self._motors.state_writes
 
-    def sampled(self) -> Readouts:
-        """The readouts, sampled again first if the arm's state was overwritten since the last sample."""
-        if self._motors.state_writes != self._sampled_writes:
-            self.sample()
-        return self.readouts
 
-
-__all__ = ["ArmState", "ArmTick", "ChannelFaults", "DriveTable", "GripperCut", "LoadConstants", "Readouts",
-           "Sensors", "arm_plant_tick", "gravity_and_inertia", "sample_readouts"]
+__all__ = ["ArmTick", "ChannelFaults", "GripperCut", "LoadConstants", "Sensors", "arm_plant_tick",
+           "gravity_and_inertia", "sample_readouts"]

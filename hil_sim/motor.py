@@ -160,11 +160,12 @@ class DcMotorBank:
         self._stop_lo = [d.stop_lo_rad for d in drives]
         self._stop_hi = [d.stop_hi_rad for d in drives]
         # The state, as lists changed in place and never replaced: a fused tick (hil_sim.arm_tick)
-        # holds them and steps them directly.
+        # holds them and steps them directly (or rows of its arrays, `keep_state_in`).
         self._pos = [0.0] * self.n
         self._vel = [0.0] * self.n
         self._i = [0.0] * self.n
         self._stop_t = [0.0] * self.n
+        self._as_list = list       # a row's values as a list of Python floats
         self.state_writes = 0      # how often `set_state` overwrote the state (readers that sample per step compare it)
         self._h = 0.0
         self._coef: list[tuple] = []
@@ -188,22 +189,35 @@ class DcMotorBank:
 
     def positions(self) -> list[float]:
         """Output shaft angles as a list of floats (cheaper than `pos_rad` for a few channels)."""
-        return list(self._pos)
+        return self._as_list(self._pos)
 
     def currents(self) -> list[float]:
         """Armature currents as a list of floats (cheaper than `i_a` for a few channels)."""
-        return list(self._i)
+        return self._as_list(self._i)
 
     def stops_rad(self, channel: int) -> tuple[float, float]:
-        return self._stop_lo[channel], self._stop_hi[channel]
+        return float(self._stop_lo[channel]), float(self._stop_hi[channel])
 
     def state_lists(self) -> tuple[list[float], list[float], list[float], list[float]]:
-        """The live state lists: position, speed, current, stop torque (changed in place, never replaced)."""
+        """The live state rows: position, speed, current, stop torque (changed in place, never replaced)."""
         return self._pos, self._vel, self._i, self._stop_t
 
     def stop_lists(self) -> tuple[list[float], list[float]]:
-        """The live lists of the hard stops, low and high (`set_stops` changes them in place)."""
+        """The live rows of the hard stops, low and high (`set_stops` changes them in place)."""
         return self._stop_lo, self._stop_hi
+
+    def keep_state_in(self, pos: np.ndarray, vel: np.ndarray, i: np.ndarray, stop_torque: np.ndarray,
+                      stop_lo: np.ndarray, stop_hi: np.ndarray) -> None:
+        """Keep the state and the stops from now on in these float64 rows (a compiled tick's arrays), values kept.
+
+        Everything here reads and writes them as it did the lists; what it hands out stays Python
+        floats. Stepping the bank itself (`step`) works on them too, with numpy's slower scalars.
+        """
+        for name, row in (("_pos", pos), ("_vel", vel), ("_i", i), ("_stop_t", stop_torque), ("_stop_lo", stop_lo),
+                          ("_stop_hi", stop_hi)):
+            row[:] = getattr(self, name)
+            setattr(self, name, row)
+        self._as_list = np.ndarray.tolist
 
     def step_coefficients(self, h: float) -> list[tuple[float, ...]]:
         """Per-channel constants of a step of length `h`, as `step` uses them.
@@ -299,7 +313,7 @@ class DcMotorBank:
         enabled adds 0 (its term, 0 * i, would add nothing either: the sum never is -0.0).
         """
         total = 0.0
-        for d, e, i in zip(_floats(duty), _floats(enable), self._i):
+        for d, e, i in zip(_floats(duty), _floats(enable), self._as_list(self._i)):
             if e:
                 d = d if d < 1.0 else 1.0
                 total += (d if d > -1.0 else -1.0) * e * i

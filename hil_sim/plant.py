@@ -13,12 +13,13 @@ import numpy as np
 
 from hil_sim.arm import ArmPlant
 from hil_sim.arm_params import ARM_PLANT_PARAMS, ArmPlantParams
-from hil_sim.arm_tick import ArmTick, ChannelFaults, Sensors
+from hil_sim.arm_tick import ArmTick, Sensors
 from hil_sim.commands import N_CHANNELS, ExpiringMotorCommands, ExpiringOutputs, ExpiringTrackerCommands
 from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
 from hil_sim.motor import TWO_PI
 from hil_sim.sun import DEFAULT_START, TUCSON, DateTimeLike, Site
 from hil_sim.tracker import TRACKER_PARAMS, TrackerParams, TrackerPlant
+from kernels import compiled_by_default
 
 # The plant-wide faults (no channel). Per-channel ones: CHANNEL_FAULTS; all: hil_sim.faults.
 FAULTS = PLANT_FAULTS
@@ -109,12 +110,16 @@ class Plant:
     `fused_arm_tick` (default True): the arm's channels are stepped by the fused tick
     (`hil_sim.arm_tick`); False: by the per-concept classes (`ArmPlant`, `DcMotorBank`), the
     reference it is tested against. Both give the same results, to the bit.
+    `compiled_arm_tick`: the fused tick compiled by numba (hil_sim/arm_tick_compiled.py), the
+    same to the bit; None (default) takes `kernels.compiled_by_default()` (`ASPOD_COMPILED=1`).
+    Asked for without numba: RuntimeError. Without the fused tick it changes nothing.
     """
 
     def __init__(self, params: PlantParams, rng: np.random.Generator, *,
                  arm_params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
                  payload_kg: float = 0.0, site: Site = TUCSON, start: DateTimeLike = DEFAULT_START,
-                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS, fused_arm_tick: bool = True) -> None:
+                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS, fused_arm_tick: bool = True,
+                 compiled_arm_tick: Optional[bool] = None) -> None:
         self.params = params
         self._rng = rng
         self._noise: list[float] = []
@@ -128,21 +133,25 @@ class Plant:
         self._home_rad = [c.home_rad for c in ch]
         self._limit_lo_rad = [c.limit_lo_rad for c in ch]
         self._limit_hi_rad = [c.limit_hi_rad for c in ch]
-        # Faults: active keys ("jam:j2"), and per-channel state the step reads (lists changed in place).
-        self._faults: set[str] = set()
-        self._open_circuit = [False] * n
-        self._stuck_brake = [False] * n
-        self._count_offset = [0] * n                            # encoder_glitch
-        self._dropped_out = [False] * n                         # encoder_dropout: the count shown is
-        self._frozen_count = [0] * n                            # this one
-        self._jam_saved_stops: dict[int, tuple[float, float]] = {}
-        # The fused tick steps the arm's lists and reads these (None: the classes step the arm).
+        # The fused tick steps the arm's state rows (None: the classes step the arm).
         self._arm_tick: Optional[ArmTick] = None
         if fused_arm_tick:
             sensors = Sensors(self._pos0, self._counts_per_rad, self._home_rad, self._limit_lo_rad, self._limit_hi_rad)
-            faults = ChannelFaults(self._open_circuit, self._stuck_brake, self._count_offset, self._dropped_out,
-                                   self._frozen_count)
-            self._arm_tick = ArmTick(self.arm, sensors, faults)
+            compiled = compiled_by_default() if compiled_arm_tick is None else bool(compiled_arm_tick)
+            self._arm_tick = ArmTick(self.arm, sensors, compiled=compiled)
+        # Faults: active keys ("jam:j2"), and per-channel state the step reads (rows changed in place:
+        # the fused tick's own, read by it).
+        self._faults: set[str] = set()
+        if self._arm_tick is None:
+            self._open_circuit = [False] * n
+            self._stuck_brake = [False] * n
+            self._count_offset = [0] * n                        # encoder_glitch
+            self._dropped_out = [False] * n                     # encoder_dropout: the count shown is
+            self._frozen_count = [0] * n                        # this one
+        else:
+            (self._open_circuit, self._stuck_brake, self._count_offset, self._dropped_out,
+             self._frozen_count) = self._arm_tick.faults
+        self._jam_saved_stops: dict[int, tuple[float, float]] = {}
         # What the bus last commanded (the node feeds them); `step` applies what it is given.
         self.commanded = ExpiringOutputs(params.output_timeout_s)
         self.motor_commands = ExpiringMotorCommands(params.motor_cmd_timeout_s, n)
@@ -166,6 +175,11 @@ class Plant:
     def fused_arm_tick(self) -> bool:
         """True if the arm's channels are stepped by the fused tick, False if by the classes."""
         return self._arm_tick is not None
+
+    @property
+    def compiled_arm_tick(self) -> bool:
+        """True if the fused tick runs compiled by numba."""
+        return self._arm_tick is not None and self._arm_tick.compiled
 
     # -- faults -------------------------------------------------------------------------------
     @property
@@ -258,15 +272,14 @@ class Plant:
         outputs_enabled = self.outputs_enabled = bool(outputs_enabled)
         brake = self.brake = bool(brake)
         if self._arm_tick is None:
-            bridges_a = self._step_arm_by_classes(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
+            bridges_a, squares = self._step_arm_by_classes(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
         else:
-            bridges_a = self._step_arm_fused(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
-        currents = self.currents_a
+            bridges_a, squares = self._step_arm_fused(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
         electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
         self.current_a = electronics_a + bridges_a
         self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
-        # Heat left in the box: electronics, and the bridges' conduction losses.
-        heat_w = self.supply_true_v * electronics_a + p.drive_on_resistance_ohm * sum([i * i for i in currents])
+        # Heat left in the box: electronics, and the bridges' conduction losses (i^2 R per channel).
+        heat_w = self.supply_true_v * electronics_a + p.drive_on_resistance_ohm * squares
         # First-order lag toward ambient + P * Rth, integrated exactly for a step with constant input
         # (stable for any dt_s).
         target_c = self.ambient_c + heat_w * p.thermal_resistance_c_per_w
@@ -284,27 +297,29 @@ class Plant:
         self._temp_c = self.temp_true_c + self._noise[at + 1] * p.temp_noise_c
 
     def _step_arm_by_classes(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Sequence[float],
-                             enable: Sequence[bool], channel_brake: Sequence[bool]) -> float:
-        """The arm's step through `ArmPlant` and its motor bank; returns the bridges' supply current."""
+                             enable: Sequence[bool], channel_brake: Sequence[bool]) -> tuple[float, float]:
+        """The arm's step through `ArmPlant` and its motor bank: the bridges' supply current, the sum of i^2."""
         arm = self.arm
         driven = [outputs_enabled and bool(e) and not o for e, o in zip(enable, self._open_circuit)]
         braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
         self.channel_duty, self.channel_driven, self.channel_braked = list(duty), driven, braked
         arm.step(dt_s, duty, driven, braked, self.supply_true_v)
-        self.currents_a = arm.motors.currents()
-        return arm.supply_current_a()
+        currents = self.currents_a = arm.motors.currents()
+        squares = 0.0
+        for i in currents:              # in order, one rounding per term (as the fused tick; not math.fsum)
+            squares += i * i
+        return arm.supply_current_a(), squares
 
     def _step_arm_fused(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Sequence[float],
-                        enable: Sequence[bool], channel_brake: Sequence[bool]) -> float:
-        """The arm's step as one function (`hil_sim.arm_tick`); returns the bridges' supply current."""
+                        enable: Sequence[bool], channel_brake: Sequence[bool]) -> tuple[float, float]:
+        """The arm's step as one function (`hil_sim.arm_tick`): the bridges' supply current, the sum of i^2."""
         tick = self._arm_tick
-        bridges_a = tick.step(dt_s, outputs_enabled, brake, duty, enable, channel_brake, self.supply_true_v)
-        readouts = tick.readouts
+        drawn = tick.step(dt_s, outputs_enabled, brake, duty, enable, channel_brake, self.supply_true_v)
         self.channel_duty = list(duty)
-        self.channel_driven, self.channel_braked = list(readouts.driven), list(readouts.braked)
+        self.channel_driven, self.channel_braked = tick.gating()
         self.arm.applied(self.channel_duty, self.channel_driven)
-        self.currents_a = list(tick.state.current_a)
-        return bridges_a
+        self.currents_a = tick.currents()
+        return drawn
 
     # -- sensors --------------------------------------------------------------------------------
     @property
@@ -327,7 +342,7 @@ class Plant:
         the classes compute them here: the same values.
         """
         if self._arm_tick is not None:
-            return list(self._arm_tick.sampled().counts)
+            return self._arm_tick.encoder_counts()
         counts = [math.floor((x - x0) * k) + off for x, x0, k, off
                   in zip(self.arm.motors.positions(), self._pos0, self._counts_per_rad, self._count_offset)]
         dropped = self._dropped_out
@@ -338,8 +353,7 @@ class Plant:
     def switches(self) -> tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]:
         """(home, limit_lo, limit_hi) per channel, True = closed (as `ArmPlant`'s switch arrays)."""
         if self._arm_tick is not None:
-            readouts = self._arm_tick.sampled()
-            return tuple(readouts.home), tuple(readouts.limit_lo), tuple(readouts.limit_hi)
+            return self._arm_tick.switches()
         pos = self.arm.motors.positions()
         return (tuple([x >= h for x, h in zip(pos, self._home_rad)]),
                 tuple([x <= lo for x, lo in zip(pos, self._limit_lo_rad)]),

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from typing import Callable, Iterator, Optional, TypeVar
+from typing import Callable, Iterator, Optional, Sequence, TypeVar
 
 ENVIRONMENT_SWITCH = "ASPOD_COMPILED"
 
@@ -49,13 +49,21 @@ def switched(on: Optional[bool]) -> Iterator[None]:
             os.environ[ENVIRONMENT_SWITCH] = before
 
 
-def compile_kernel(function: F, what: str) -> F:
-    """`function` compiled by numba (`njit(cache=True)`, no fastmath); RuntimeError naming `what` without numba."""
+def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = ()) -> F:
+    """`function` compiled by numba (`njit(cache=True)`, no fastmath); RuntimeError naming `what` without numba.
+
+    `helpers`: the plain functions `function` calls, compiled into it where it calls them and left
+    as they are for Python callers (numba's `register_jitable`). Keep them in `function`'s file:
+    numba's cache is refreshed when that file changes, not when another one does.
+    """
     try:
         import numba
+        from numba.extending import register_jitable
     except ImportError as exc:
         raise RuntimeError(f"the compiled {what} ({ENVIRONMENT_SWITCH}=1) need numba: "
                            "pip install 'aspod[compiled]' (or numba)") from exc
+    for helper in helpers:
+        register_jitable(helper)
     return numba.njit(cache=True)(function)
 
 

@@ -1,14 +1,18 @@
 """The arm plant's fused tick (hil_sim/arm_tick.py) gives the per-concept classes' results, to the bit.
 
 Two plants with the same seed are given the same commands: one steps its arm with the fused
-tick (the default), the other with `ArmPlant` and its `DcMotorBank` (`fused_arm_tick=False`,
-the reference). After every step, every readout the plant's node sends and the arm's
-internal state must be equal: floats compared as `float.hex`, the rest by `repr` (a bool is
-not an int), never approximately.
+tick (the default), plain Python or compiled by numba (every test runs both), the other with
+`ArmPlant` and its `DcMotorBank` (`fused_arm_tick=False`, the reference). After every step,
+every readout the plant's node sends and the arm's internal state must be equal: floats
+compared as `float.hex`, the rest by `repr` (a bool is not an int, a numpy scalar is not a
+Python number), never approximately.
 """
 from __future__ import annotations
 
+import importlib.util
 import math
+import struct
+import sys
 
 import numpy as np
 import pytest
@@ -16,15 +20,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hil_sim.arm_params import GRIPPER, J1, MOUNT
+from hil_sim.arm_tick_compiled import compiled_arm_plant_tick
 from hil_sim.commands import N_CHANNELS
 from hil_sim.faults import CHANNEL_FAULTS, FAULTS_BY_NAME
 from hil_sim.plant import Plant, PlantParams
+from kernels import ENVIRONMENT_SWITCH
 
 N = N_CHANNELS
 DT = 0.001
 SEED = 3
 ALL_ON = [True] * N
 ALL_OFF = [False] * N
+HAVE_NUMBA = importlib.util.find_spec("numba") is not None
+# The twins' `compiled`: the fused tick plain, and compiled by numba.
+COMPILED = [False, pytest.param(True, marks=pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed "
+                                                                "(the compiled arm plant is optional)"))]
+both_ways = pytest.mark.parametrize("compiled", COMPILED)
 
 
 def hexes(values) -> list[str]:
@@ -32,32 +43,38 @@ def hexes(values) -> list[str]:
 
 
 def snapshot(plant: Plant) -> dict:
-    """Everything the plant's node reads, and the state behind it."""
+    """Everything the plant's node reads, and the state behind it; floats as their bits (`bits`)."""
     arm = plant.arm
-    pos, vel, current, stop_torque = arm.motors.state_lists()
-    load_nm, load_inertia = arm.load_lists()
+    motors = arm.motors
+    stops = [motors.stops_rad(k) for k in range(N)]
+    # What the plant and its arm hand out: Python floats (never numpy's).
+    values = [*plant.currents_a, *plant.channel_duty, *motors.positions(), *motors.currents(), *arm.static_torques_nm(),
+              *(x for pair in stops for x in pair), arm.supply_current_a(), arm.grip_force_n, plant.current_a,
+              plant.supply_v, plant.temp_c, plant.supply_true_v, plant.temp_true_c]
     return {
-        "encoder_counts": repr(plant.encoder_counts),
-        "currents_a": hexes(plant.currents_a),
-        "switches": repr(plant.switches()),
-        "supply_v": float(plant.supply_v).hex(),
-        "temp_c": float(plant.temp_c).hex(),
-        "channel_driven": repr(plant.channel_driven),
-        "channel_braked": repr(plant.channel_braked),
-        "channel_duty": hexes(plant.channel_duty),
-        "pos_rad": hexes(pos), "vel_rad_s": hexes(vel), "current_a": hexes(current),
-        "stop_torque_nm": hexes(stop_torque), "load_torque_nm": hexes(load_nm),
-        "load_inertia_kg_m2": hexes(load_inertia), "stops_rad": repr([arm.motors.stops_rad(k) for k in range(N)]),
-        "supply": hexes([plant.current_a, plant.supply_true_v, plant.temp_true_c, arm.supply_current_a()]),
-        "grip_force_n": float(arm.grip_force_n).hex(),
+        "readouts": repr((plant.encoder_counts, plant.switches(), plant.channel_driven, plant.channel_braked)),
+        "kinds": set(map(type, values)),
+        "values": bits(values),
+        "state": bits([x for row in (*motors.state_lists(), *arm.load_lists()) for x in row]),
     }
+
+
+def bits(values) -> bytes:
+    """The floats' bits, all of them (as `float.hex` shows them, and a NaN's payload too), at one go."""
+    return struct.pack(f"{len(values)}d", *values)
+
+
+def readable(snap: dict) -> dict:
+    """A snapshot with its floats as `float.hex`, for an assertion's message."""
+    return {key: hexes(struct.unpack(f"{len(value) // 8}d", value)) if isinstance(value, bytes) else value
+            for key, value in snap.items()}
 
 
 class Twins:
     """A fused plant and a reference one, stepped alike and compared after every step."""
 
-    def __init__(self, **options) -> None:
-        self.fused = Plant(PlantParams(), np.random.default_rng(SEED), **options)
+    def __init__(self, compiled: bool, **options) -> None:
+        self.fused = Plant(PlantParams(), np.random.default_rng(SEED), compiled_arm_tick=compiled, **options)
         self.classes = Plant(PlantParams(), np.random.default_rng(SEED), fused_arm_tick=False, **options)
         self.steps = 0
         self.check()
@@ -67,7 +84,10 @@ class Twins:
         return self.fused, self.classes
 
     def check(self) -> None:
-        assert snapshot(self.fused) == snapshot(self.classes), f"after {self.steps} steps"
+        fused, classes = snapshot(self.fused), snapshot(self.classes)
+        if fused != classes:
+            assert readable(fused) == readable(classes), f"after {self.steps} steps"
+            assert fused == classes, f"after {self.steps} steps: a NaN's payload differs"
 
     def step(self, dt_s: float, enabled: bool, brake_all: bool, duty=None, enable=None, brake=None, n: int = 1) -> None:
         for _ in range(n):
@@ -100,9 +120,11 @@ def only(channel: int, value, rest=0.0) -> list:
     return out
 
 
-def test_the_plant_steps_its_arm_with_the_fused_tick_unless_told_otherwise():
-    twins = Twins()
+@both_ways
+def test_the_plant_steps_its_arm_with_the_fused_tick_unless_told_otherwise(compiled):
+    twins = Twins(compiled)
     assert twins.fused.fused_arm_tick and not twins.classes.fused_arm_tick
+    assert twins.fused.compiled_arm_tick is compiled and not twins.classes.compiled_arm_tick
 
 
 # ---- any commands, faults and step lengths -------------------------------------------------------
@@ -116,13 +138,15 @@ FAULT_CHANGE = st.tuples(st.sampled_from(sorted(FAULTS_BY_NAME)), st.integers(0,
 SEGMENT = st.tuples(COMMAND, st.integers(1, 120), st.lists(FAULT_CHANGE, max_size=2))
 
 
+@both_ways
 @settings(max_examples=30, deadline=None)
 @given(gravity=st.sampled_from(["earth", "orbit"]), payload_kg=st.sampled_from([0.0, 0.3, 2.0]),
        segments=st.lists(SEGMENT, min_size=1, max_size=10))
-def test_any_commands_faults_and_step_lengths_give_the_classes_results(gravity, payload_kg, segments):
+def test_any_commands_faults_and_step_lengths_give_the_classes_results(compiled, gravity, payload_kg,
+                                                                         segments):
     """Duties of both signs, out of range and NaN; enable and brake per channel and global; the
     safe command (no per-channel one); faults injected and cleared before each segment."""
-    twins = Twins(gravity=gravity, payload_kg=payload_kg)
+    twins = Twins(compiled, gravity=gravity, payload_kg=payload_kg)
     for (dt_s, enabled, brake_all, per_channel), steps, faults in segments:
         for name, channel, on in faults:
             twins.fault(name, channel if FAULTS_BY_NAME[name].per_channel else None, on)
@@ -130,8 +154,9 @@ def test_any_commands_faults_and_step_lengths_give_the_classes_results(gravity, 
         twins.step(dt_s, enabled, brake_all, duty, enable, brake, n=steps)
 
 
-def test_step_lengths_split_into_substeps_alike():
-    twins = Twins()
+@both_ways
+def test_step_lengths_split_into_substeps_alike(compiled):
+    twins = Twins(compiled)
     duty = [0.9, -0.7, 0.5, -1.0, -0.6, 1.0]
     # 0.1 + 0.2 s: 300.00000000000006 steps of 1 ms, split into 300 (a step length's float noise is no substep)
     for dt_s in (DT, 0.0025, 0.0, 0.1, 0.0007, DT, 0.0, 0.1 + 0.2, DT):
@@ -139,16 +164,19 @@ def test_step_lengths_split_into_substeps_alike():
 
 
 # ---- the joints into their switches and stops ---------------------------------------------------
-def test_from_power_on_every_channel_through_its_home_flag():
-    twins = Twins()
+@both_ways
+def test_from_power_on_every_channel_through_its_home_flag(compiled):
+    twins = Twins(compiled)
     twins.drive([1.0] * N, n=1600)                       # the gripper's home is its open switch, 25 mm away
     assert all(twins.fused.switches()[0])
 
 
+@both_ways
 @pytest.mark.parametrize("gravity, payload_kg", [("earth", 0.0), ("earth", 2.0), ("orbit", 1.0)])
 @pytest.mark.parametrize("sign", [1.0, -1.0])
-def test_every_joint_through_its_limit_switch_into_its_hard_stop_and_stalled_there(gravity, payload_kg, sign):
-    twins = Twins(gravity=gravity, payload_kg=payload_kg)
+def test_every_joint_through_its_limit_switch_into_its_hard_stop_and_stalled_there(compiled, gravity, payload_kg,
+                                                                                     sign):
+    twins = Twins(compiled, gravity=gravity, payload_kg=payload_kg)
     lead = twins.fused.arm.params.gripper.lead_m_per_rad
     for k, channel in enumerate(twins.fused.arm.params.channels):
         if k == GRIPPER:                     # its switches cut its motor: 1 mm short of the one ahead
@@ -166,10 +194,11 @@ def test_every_joint_through_its_limit_switch_into_its_hard_stop_and_stalled_the
     twins.drive([0.0] * N, n=100, brake=ALL_ON)
 
 
+@both_ways
 @pytest.mark.parametrize("switch", ["home_rad", "limit_lo_rad", "limit_hi_rad"])
-def test_every_channel_exactly_on_a_switch_edge_and_driven_across_it(switch):
+def test_every_channel_exactly_on_a_switch_edge_and_driven_across_it(compiled, switch):
     """A switch closes at its edge (>= or <=): placed there exactly, then driven both ways."""
-    twins = Twins(gravity="orbit")
+    twins = Twins(compiled, gravity="orbit")
     for k, channel in enumerate(twins.fused.arm.params.channels):
         twins.move_by_hand(k, getattr(channel, switch))
     twins.step(DT, True, False, [0.0] * N, ALL_ON, ALL_OFF)
@@ -179,8 +208,9 @@ def test_every_channel_exactly_on_a_switch_edge_and_driven_across_it(switch):
         twins.drive([duty] * N, n=30)
 
 
-def test_the_gripper_closes_on_an_object_grips_it_and_opens_to_its_switch():
-    twins = Twins()
+@both_ways
+def test_the_gripper_closes_on_an_object_grips_it_and_opens_to_its_switch(compiled):
+    twins = Twins(compiled)
     for plant in twins.both:
         plant.arm.set_object(0.02)
     close = only(GRIPPER, -1.0)
@@ -199,9 +229,10 @@ def test_the_gripper_closes_on_an_object_grips_it_and_opens_to_its_switch():
 
 
 # ---- faults ---------------------------------------------------------------------------------------
+@both_ways
 @pytest.mark.parametrize("fault", CHANNEL_FAULTS)
-def test_each_channel_fault_on_each_channel_alike(fault):
-    twins = Twins(payload_kg=1.0)
+def test_each_channel_fault_on_each_channel_alike(compiled, fault):
+    twins = Twins(compiled, payload_kg=1.0)
     for k in range(N):
         duty = only(k, 0.8, rest=0.2)
         twins.drive(duty, n=60)
@@ -213,9 +244,10 @@ def test_each_channel_fault_on_each_channel_alike(fault):
         twins.drive(duty, n=40)
 
 
+@both_ways
 @pytest.mark.parametrize("fault", ["supply_sag", "over_temperature"])
-def test_the_plant_wide_faults_alike_under_full_load(fault):
-    twins = Twins()
+def test_the_plant_wide_faults_alike_under_full_load(compiled, fault):
+    twins = Twins(compiled)
     twins.drive([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], n=100)
     twins.fault(fault, None, True)
     twins.drive([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], n=200)
@@ -223,9 +255,10 @@ def test_the_plant_wide_faults_alike_under_full_load(fault):
     twins.drive([1.0, -1.0, 1.0, -1.0, -1.0, 1.0], n=100)
 
 
-def test_a_move_by_hand_or_an_encoder_fault_shows_at_once_without_a_step():
+@both_ways
+def test_a_move_by_hand_or_an_encoder_fault_shows_at_once_without_a_step(compiled):
     """The classes compute counts and switches when read; the fused tick samples them: both the same."""
-    twins = Twins()
+    twins = Twins(compiled)
     twins.drive([0.5] * N, n=50)
     twins.move_by_hand(J1, 0.2)                          # across the home flag
     twins.fault("encoder_glitch", MOUNT, True)
@@ -237,8 +270,9 @@ def test_a_move_by_hand_or_an_encoder_fault_shows_at_once_without_a_step():
 
 
 # ---- configuration between steps ------------------------------------------------------------------
-def test_payload_gravity_and_the_safe_command_changed_between_steps():
-    twins = Twins()
+@both_ways
+def test_payload_gravity_and_the_safe_command_changed_between_steps(compiled):
+    twins = Twins(compiled)
     duty = [0.4, 0.4, -0.4, 0.4, -0.4, 0.4]
     twins.drive(duty, n=100)
     for change in (lambda arm: arm.set_payload(1.5), lambda arm: arm.set_gravity("orbit"),
@@ -249,3 +283,29 @@ def test_payload_gravity_and_the_safe_command_changed_between_steps():
         twins.drive(duty, n=100)
         twins.step(DT, True, False, n=50)               # the safe command: every channel off and braked
         twins.step(DT, False, False, duty, ALL_ON, ALL_OFF, n=50)   # outputs disabled
+
+
+# ---- the switch: compiled by default with ASPOD_COMPILED=1, and not without numba ----------------------
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed (the compiled arm plant is optional)")
+def test_the_compiled_arm_tick_is_asked_for_by_the_environment(monkeypatch):
+    monkeypatch.delenv(ENVIRONMENT_SWITCH, raising=False)
+    assert not Plant(PlantParams(), np.random.default_rng(0)).compiled_arm_tick
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
+    assert Plant(PlantParams(), np.random.default_rng(0)).compiled_arm_tick
+    assert not Plant(PlantParams(), np.random.default_rng(0), compiled_arm_tick=False).compiled_arm_tick
+    assert not Plant(PlantParams(), np.random.default_rng(0), fused_arm_tick=False).compiled_arm_tick
+
+
+def test_the_compiled_arm_tick_needs_numba(monkeypatch):
+    monkeypatch.setitem(sys.modules, "numba", None)              # as if it were not installed
+    compiled_arm_plant_tick.cache_clear()
+    try:
+        with pytest.raises(RuntimeError, match="the compiled arm plant .* need numba: pip install"):
+            Plant(PlantParams(), np.random.default_rng(0), compiled_arm_tick=True)
+        monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
+        with pytest.raises(RuntimeError, match="need numba"):
+            Plant(PlantParams(), np.random.default_rng(0))         # asked for by the environment
+        Plant(PlantParams(), np.random.default_rng(0), compiled_arm_tick=False)   # the plain tick needs nothing
+        Plant(PlantParams(), np.random.default_rng(0), fused_arm_tick=False)      # nor do the classes
+    finally:
+        compiled_arm_plant_tick.cache_clear()

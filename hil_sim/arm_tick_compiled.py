@@ -1,0 +1,22 @@
+"""The arm plant's tick compiled by numba: optional, behind the switch of the `kernels` package.
+
+`compiled_arm_plant_tick()` is `arm_plant_tick` (hil_sim/arm_tick.py) compiled without fastmath,
+with the two functions it calls (`gravity_and_inertia`, `sample_readouts`) compiled into it, so
+its results are the same to the bit as the plain function's and the per-concept classes'
+(tests/test_arm_plant_tick.py runs all three). It runs over the numpy arrays of an
+`ArmTick(compiled=True)`. `ASPOD_COMPILED=1` (kernels/__init__.py) makes it the plant's default
+(`Plant(compiled_arm_tick=None)`).
+"""
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+from hil_sim.arm_tick import arm_plant_tick, gravity_and_inertia, sample_readouts
+from kernels import compile_kernel
+
+
+@functools.lru_cache(maxsize=1)
+def compiled_arm_plant_tick() -> Callable[..., tuple[float, float]]:
+    """`arm_plant_tick` compiled by numba (RuntimeError if numba is not installed)."""
+    return compile_kernel(arm_plant_tick, "arm plant", helpers=(gravity_and_inertia, sample_readouts))
