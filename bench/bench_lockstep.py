@@ -66,7 +66,7 @@ import tarfile
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import kernels
 from bench.bench_realtime import CpuMeter
@@ -540,6 +540,15 @@ def _is_number(text: str) -> bool:
 
 # ---------------------------------------------------------------- report
 
+def _beside(row: RowResult, same: Optional[bool], whose: str, speed: Callable[[RowResult], str]) -> list[str]:
+    """The main world beside another row: `speed(row)` if the row ran, and whether it ended at `whose` angles."""
+    lines = [speed(row)] if row.wall_s > 0 and not row.error else []
+    if same is not None:
+        lines.append(f"  and the same simulation to the bit: final joint angles identical to {whose}" if same else
+                     f"  NOTE: the world ended with other joint angles than {whose} (it should not)")
+    return lines
+
+
 def report(res: LockstepResults) -> str:
     main = res.main
     load = (f"; {res.hogs} other process{'es' if res.hogs > 1 else ''} spinning on a core" if res.hogs else
@@ -578,24 +587,13 @@ def report(res: LockstepResults) -> str:
                   f"  goal {'met' if ok else 'NOT met'}"]
         labels = {r.label for r in res.rows}
         if BeforeRow.label in labels:
-            before = res.row(BeforeRow.label)
-            if before.wall_s > 0 and not before.error:
-                lines.append(f"  against the code before issue 12 ({BEFORE_COMMIT}), the same world in the same run: "
-                             f"{before.x_real_time:.1f}x, so {x / before.x_real_time:.2f} times as fast")
-            if res.same_as_before is not None:
-                lines.append("  and the same simulation to the bit: final joint angles identical to the old code's"
-                             if res.same_as_before else
-                             "  NOTE: the world ended with other joint angles than the old code's (it should not)")
+            lines += _beside(res.row(BeforeRow.label), res.same_as_before, "the old code's", lambda before: (
+                f"  against the code before issue 12 ({BEFORE_COMMIT}), the same world in the same run: "
+                f"{before.x_real_time:.1f}x, so {x / before.x_real_time:.2f} times as fast"))
         if PLAIN_LABEL in labels:
-            plain = res.row(PLAIN_LABEL)
-            if plain.wall_s > 0 and not plain.error:
-                lines.append(f"  the compiled kernels (numba): {x / plain.x_real_time:.2f} times the world with them as "
-                             f"plain Python ({plain.x_real_time:.1f}x)")
-            if res.same_as_plain is not None:
-                lines.append("  and the same simulation to the bit: final joint angles identical to the plain kernels'"
-                             if res.same_as_plain else
-                             "  NOTE: the compiled kernels' world ended with other joint angles than the plain one's "
-                             "(it should not)")
+            lines += _beside(res.row(PLAIN_LABEL), res.same_as_plain, "the plain kernels'", lambda plain: (
+                f"  the compiled kernels (numba): {x / plain.x_real_time:.2f} times the world with them as "
+                f"plain Python ({plain.x_real_time:.1f}x)"))
         elif not COMPILED:
             lines.append("  numba is not installed: the kernels ran as plain Python (pip install 'aspod[compiled]')")
         if PlantRow.IDLE_LABEL in labels and PlantRow.DRIVEN_LABEL in labels:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import os
 import random
 import sys
 from dataclasses import dataclass, field, replace
@@ -30,7 +31,7 @@ from firmware_py.controller import ControllerConfig
 from firmware_py.estimator import COUNT_MODULUS
 from firmware_py.joint_bank import BankedAxis, JointBank
 from firmware_py.joints_compiled import compiled_joints_tick
-from kernels import ENVIRONMENT_SWITCH
+from kernels import ENVIRONMENT_SWITCH, switched
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -546,3 +547,16 @@ def test_the_compiled_joints_are_asked_for_by_the_environment_and_need_numba(mon
 def test_stage_times_need_the_reference_path():
     with pytest.raises(ValueError, match="fused_joints=False"):        # refused before the HAL is looked at
         ArmController(None, None, stopwatch=lambda: 0.0)
+
+
+def test_switched_sets_the_switch_for_what_is_built_inside_and_puts_it_back(monkeypatch):
+    monkeypatch.setenv(ENVIRONMENT_SWITCH, "0")
+    with switched(True):
+        assert ControllerConfig().compiled_joints
+    assert not ControllerConfig().compiled_joints and os.environ[ENVIRONMENT_SWITCH] == "0"
+    monkeypatch.delenv(ENVIRONMENT_SWITCH)
+    with switched(False):
+        assert not ControllerConfig().compiled_joints
+    with switched(None):                                         # None: the environment as it is
+        assert ENVIRONMENT_SWITCH not in os.environ
+    assert ENVIRONMENT_SWITCH not in os.environ
