@@ -199,6 +199,10 @@ EXAMPLES = {
     "teleop": ["aspod teleop /dev/pts/5", "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary"],
     "demo": ["aspod demo", "aspod demo --json --gravity orbit", "aspod demo --link"],
     "tracker-day": ["aspod tracker-day --mode feedforward --date 2026-12-21 --plot day.png"],
+    "log": ["aspod log session.pcapng", "aspod log session.pcapng --class command --class event",
+            "aspod log session.pcapng --stats", "aspod log session.pcapng --message TelemetryJoints --csv joints.csv",
+            "aspod log session.pcapng --plot session.png --key-file link.key"],
+    "wireshark": ["aspod wireshark -o aspod.lua && tshark -X lua_script:aspod.lua -r session.pcapng"],
     "completion": ["aspod completion bash > ~/.local/share/bash-completion/completions/aspod",
                    "aspod completion zsh > ~/.zfunc/_aspod"],
 }
@@ -342,6 +346,26 @@ def build_parser() -> argparse.ArgumentParser:
     day.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
                      help="write the pointing error and the lag over the day to this PNG")
 
+    log_cmd = add_command("log", help="decode a session capture (pcapng): every frame, counts, a table or a plot")
+    log_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture written by --record or aspod proxy")
+    log_cmd.add_argument("--class", dest="cls", action="append", metavar="CLASS",
+                         help="only frames of this class (link, command, urgent, telemetry, event); repeatable")
+    log_cmd.add_argument("--message", action="append", metavar="NAME",
+                         help="only this message (e.g. TelemetryJoints); repeatable")
+    log_cmd.add_argument("--link", action="append", metavar="NAME", help="only frames of this link; repeatable")
+    log_cmd.add_argument("--errors", action="store_true", help="only frames that failed to decode or verify")
+    log_cmd.add_argument("--stats", action="store_true",
+                         help="counts instead: frames, errors, round trips, retransmissions, losses per class")
+    log_cmd.add_argument("--csv", type=Path, metavar="FILE.csv", help="write the decoded messages as CSV (- for stdout)")
+    log_cmd.add_argument("--plot", type=Path, metavar="FILE.png",
+                         help="plot joint positions and currents, the tracker's pointing error and link health")
+    log_cmd.add_argument("--key-file", type=Path, default=None,
+                         help="pre-shared key file (hex): verify every frame's MAC (without it MACs are not checked)")
+
+    wireshark = add_command("wireshark", help="write the Wireshark Lua dissector for this protocol's captures")
+    wireshark.add_argument("--output", "-o", type=Path, default=None, metavar="FILE.lua",
+                           help="where to write it (default: standard output)")
+
     completion = add_command("completion", help="print a shell completion script (bash or zsh)",
                              description="print a completion script for aspod: bash (source it, or put it in "
                                          "~/.local/share/bash-completion/completions/aspod) or zsh (put it as "
@@ -383,6 +407,12 @@ def run_command(args: argparse.Namespace) -> int:
         from host_tools.apps.tracker_day import run_tracker_day
         return run_tracker_day(settings.day_settings(args), as_json=args.json,
                                plot=None if args.plot is None else str(args.plot))
+    if args.command == "log":
+        from host_tools.cli.log import run_log
+        return run_log(settings.log_settings(args))
+    if args.command == "wireshark":
+        from host_tools.cli.wireshark import run_wireshark
+        return run_wireshark(args.output)
     if args.command == "completion":
         import shtab
         print(shtab.complete(build_parser(), shell=args.shell))

@@ -92,6 +92,20 @@ class TeleopSettings:
 
 
 @dataclass(frozen=True)
+class LogSettings:
+    """`aspod log`: which capture, which frames, and what to make of them."""
+    capture: Path
+    classes: tuple[str, ...] = ()        # MsgClass names; empty: every class
+    messages: tuple[str, ...] = ()       # message names; empty: every message
+    links: tuple[str, ...] = ()          # link names; empty: every link
+    errors_only: bool = False
+    stats: bool = False
+    csv: Optional[Path] = None
+    plot: Optional[Path] = None
+    key_file: Optional[Path] = None
+
+
+@dataclass(frozen=True)
 class SimSettings:
     """`aspod sim`: one process, or with `hal` the plant as a child `aspod plant`."""
     port: PortSettings
@@ -241,3 +255,25 @@ def check_plot_path(path) -> None:
         raise ValueError(f"--plot {path}: the plot is a PNG file; name it *.png")
     if not path.parent.is_dir():
         raise ValueError(f"--plot {path}: no folder {path.parent}")
+
+
+def log_settings(args: argparse.Namespace) -> LogSettings:
+    from protocol.messages import SCHEMA
+    from protocol.schema import MsgClass
+    classes = tuple(c.upper() for c in args.cls or ())
+    for name in classes:
+        if name not in MsgClass.__members__:
+            raise ValueError(f"--class {name.lower()}: not a message class; one of "
+                             f"{', '.join(m.lower() for m in MsgClass.__members__)}")
+    by_lower = {name.lower(): name for name in SCHEMA.by_name}
+    messages = []
+    for name in args.message or ():
+        if name.lower() not in by_lower:
+            raise ValueError(f"--message {name}: no such message (see docs/protocol.md)")
+        messages.append(by_lower[name.lower()])
+    if args.plot is not None:
+        check_plot_path(args.plot)
+    if args.csv is not None and str(args.csv) != "-" and not Path(args.csv).parent.is_dir():
+        raise ValueError(f"--csv {args.csv}: no folder {Path(args.csv).parent}")
+    return LogSettings(args.capture, classes, tuple(messages), tuple(args.link or ()), args.errors, args.stats,
+                       args.csv, args.plot, args.key_file)

@@ -1,0 +1,20 @@
+"""`aspod wireshark`: write the Lua dissector for session captures (host_tools/sessions/wireshark.py)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+from host_tools.exit_codes import EXIT_OK
+from host_tools.sessions.wireshark import generate_dissector
+
+
+def run_wireshark(output: Optional[Path]) -> int:
+    text = generate_dissector()
+    if output is None:
+        sys.stdout.write(text)
+    else:
+        output.write_text(text)
+        print(f"wrote {output}: open captures with  tshark -X lua_script:{output} -r FILE.pcapng  "
+              f"or copy it into Wireshark's personal Lua plugins folder")
+    return EXIT_OK

@@ -1,0 +1,1 @@
+"""Sessions you can see: captures (pcapng), their decoding, counts and exports, the Wireshark dissector."""

@@ -1,0 +1,199 @@
+"""A session's capture: every frame that crossed a link, both ways, in a pcapng file.
+
+One packet per frame, as it was on the wire: the COBS segment between two 0x00 delimiters, so a
+frame that a bit error broke is kept exactly as it came (the decoder says what is wrong with it).
+Each link is a pcapng interface named after it ("link", or "radio" and "optical"); the packet's
+direction is the host's view: outbound is host -> controller, inbound is controller -> host.
+
+The section comment holds what a reader needs to make sense of the rest, as one line of JSON
+after the word `aspod-session`: the format's version, the protocol version and schema hash the
+frames were written with, which clock the timestamps come from (`simulated`: seconds since the
+world started; `wall`: the Unix epoch), and the recording tool's settings and seed (what
+`aspod replay` needs to build the same world).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO, Optional
+
+from protocol.framing import MAX_ENCODED
+from protocol.messages import PROTOCOL_VERSION, SCHEMA
+from protocol.schema import Direction
+from host_tools.sessions.pcapng import INBOUND, OUTBOUND, CaptureError, Packet, PcapngReader, PcapngWriter
+
+FORMAT_VERSION = 1
+MARK = "aspod-session "
+DIRECTION_FLAG = {Direction.TO_CONTROLLER: OUTBOUND, Direction.TO_HOST: INBOUND}
+FLAG_DIRECTION = {flag: direction for direction, flag in DIRECTION_FLAG.items()}
+CLOCKS = ("simulated", "wall")
+
+
+@dataclass
+class SessionInfo:
+    """What the section comment says about a capture."""
+
+    clock: str = "wall"
+    tool: str = ""
+    settings: dict[str, Any] = field(default_factory=dict)
+    seed: Optional[int] = None
+    protocol_version: int = PROTOCOL_VERSION
+    schema_hash: int = SCHEMA.hash
+
+    def to_comment(self) -> str:
+        return MARK + json.dumps({"format": FORMAT_VERSION, "protocol_version": self.protocol_version,
+                                  "schema_hash": f"{self.schema_hash:016x}", "clock": self.clock,
+                                  "tool": self.tool, "seed": self.seed, "settings": self.settings},
+                                 sort_keys=True)
+
+    @classmethod
+    def from_comment(cls, comment: str) -> "SessionInfo":
+        """Raises ValueError with the reason when the comment is not an aspod session's."""
+        if not comment.startswith(MARK):
+            raise ValueError("the capture's section comment does not describe an aspod session")
+        try:
+            doc = json.loads(comment[len(MARK):])
+            if doc.get("format") != FORMAT_VERSION:
+                raise ValueError(f"capture format {doc.get('format')!r}; this version reads {FORMAT_VERSION}")
+            info = cls(clock=str(doc["clock"]), tool=str(doc.get("tool", "")), settings=dict(doc.get("settings") or {}),
+                       seed=doc.get("seed"), protocol_version=int(doc["protocol_version"]),
+                       schema_hash=int(str(doc["schema_hash"]), 16))
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"the session description does not parse: {exc}") from None
+        if info.clock not in CLOCKS:
+            raise ValueError(f"clock {info.clock!r} is not one of {', '.join(CLOCKS)}")
+        return info
+
+    @property
+    def same_schema(self) -> bool:
+        return self.protocol_version == PROTOCOL_VERSION and self.schema_hash == SCHEMA.hash
+
+    def schema_mismatch(self) -> str:
+        """Empty when this build speaks the capture's protocol, else why not."""
+        if self.same_schema:
+            return ""
+        return (f"the capture was written with protocol v{self.protocol_version}, schema {self.schema_hash:016x}; "
+                f"this build speaks v{PROTOCOL_VERSION}, schema {SCHEMA.hash:016x}: messages may decode wrongly")
+
+
+class SegmentTap:
+    """Cuts one direction's byte stream into wire segments, as a receiver would, for the capture.
+
+    Holds at most one frame's worth between feeds. A run of bytes longer than any frame is
+    handed on cut to that length, flagged `overlong` with its true length, and the rest of it
+    up to the next delimiter is only counted.
+    """
+
+    def __init__(self) -> None:
+        self._pending = bytearray()
+        self._overlong = 0         # > 0: inside an over-long segment, this many bytes so far
+
+    def feed(self, data: bytes) -> list[tuple[bytes, int]]:
+        """The segments `data` completes: (captured bytes, true length)."""
+        out: list[tuple[bytes, int]] = []
+        start = 0
+        while True:
+            end = data.find(b"\x00", start)
+            piece = data[start:] if end < 0 else data[start:end]
+            if self._overlong:
+                self._overlong += len(piece)
+            elif len(self._pending) + len(piece) > MAX_ENCODED:
+                self._overlong = len(self._pending) + len(piece)
+                self._pending += piece[:MAX_ENCODED - len(self._pending)]
+            else:
+                self._pending += piece
+            if end < 0:
+                return out
+            if self._pending:
+                out.append((bytes(self._pending), self._overlong or len(self._pending)))
+            self._pending.clear()
+            self._overlong = 0
+            start = end + 1
+
+
+class CaptureWriter:
+    """Writes a session's capture as it happens: `write(link, direction, data, time_s)` for every read or write.
+
+    Bytes are cut into frames per link and direction (`SegmentTap`); each frame is written with
+    the time its closing delimiter was seen. The file is flushed after every frame, so a session
+    that ends abruptly leaves a capture that reads up to its last frame.
+    """
+
+    def __init__(self, stream: BinaryIO, info: SessionInfo, links: tuple[str, ...] = ("link",)) -> None:
+        self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=f"aspod {info.tool}".strip())
+        self._stream = stream
+        self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}") for name in links}
+        self._taps = {(name, d): SegmentTap() for name in links for d in DIRECTION_FLAG}
+        self.frames = 0
+
+    @classmethod
+    def create(cls, path: Path, info: SessionInfo, links: tuple[str, ...] = ("link",)) -> "CaptureWriter":
+        return cls(open(path, "wb"), info, links)
+
+    def write(self, link: str, direction: Direction, data: bytes, time_s: float, comment: str = "") -> None:
+        if not data:
+            return
+        iface = self._links[link]
+        for segment, length in self._taps[(link, direction)].feed(data):
+            self._pcap.write_packet(iface, time_s, segment, DIRECTION_FLAG[direction], comment, length)
+            self.frames += 1
+        self._stream.flush()
+
+    def close(self) -> None:
+        self._stream.close()
+
+
+@dataclass
+class CapturedFrame:
+    """One packet of a session capture: when, on which link, which way, and its wire bytes."""
+
+    time_s: float
+    link: str
+    direction: Direction
+    data: bytes
+    original_length: int
+    comment: str
+    offset: int
+
+    @property
+    def truncated(self) -> bool:
+        return self.original_length != len(self.data)
+
+
+@dataclass
+class SessionCapture:
+    """A capture read back: its description, its frames, and, if it broke, where and why."""
+
+    info: Optional[SessionInfo]
+    frames: list[CapturedFrame]
+    error: Optional[CaptureError]
+    warnings: list[str]
+    size: int
+
+    @classmethod
+    def read(cls, path: Path) -> "SessionCapture":
+        """Never raises for bad content; a missing or unreadable file raises OSError."""
+        pcap = PcapngReader.read(path)
+        warnings: list[str] = []
+        info: Optional[SessionInfo] = None
+        if pcap.interfaces or pcap.comment:
+            try:
+                info = SessionInfo.from_comment(pcap.comment)
+            except ValueError as exc:
+                warnings.append(f"{exc}; decoding it as this build's protocol")
+            else:
+                if mismatch := info.schema_mismatch():
+                    warnings.append(mismatch)
+        frames = [_frame(pcap, p) for p in pcap.packets]
+        for p in pcap.packets:
+            if p.direction not in FLAG_DIRECTION:
+                warnings.append(f"packet at byte {p.offset} has no direction; taken as controller -> host")
+                break
+        return cls(info, frames, pcap.error, warnings, pcap.size)
+
+
+def _frame(pcap: PcapngReader, packet: Packet) -> CapturedFrame:
+    name = pcap.interfaces[packet.interface].name or f"if{packet.interface}"
+    return CapturedFrame(packet.time_s, name, FLAG_DIRECTION.get(packet.direction, Direction.TO_HOST), packet.data,
+                         packet.original_length, packet.comment, packet.offset)

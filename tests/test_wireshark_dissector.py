@@ -1,0 +1,94 @@
+"""The generated Lua dissector, run by the real tshark over a real session's capture, reads what `aspod log` reads.
+
+Skipped, saying so, where tshark is not installed (`.ci/run` installs it where apt-get can).
+"""
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+
+import pytest
+
+from protocol.messages import SCHEMA
+from protocol.schema import MsgClass
+from host_tools.cli.main import main
+from host_tools.sessions.capture import SessionCapture
+from host_tools.sessions.decode import SessionDecoder
+from host_tools.sessions.wireshark import generate_dissector
+from tests.test_session_capture import PSK, record_session
+
+TSHARK = shutil.which("tshark")
+needs_tshark = pytest.mark.skipif(TSHARK is None, reason="tshark is not installed (apt-get install tshark); "
+                                                         "the dissector was not run")
+FIELDS = ["frame.number", "aspod.message", "aspod.class", "aspod.seq", "aspod.ack", "aspod.crc_good",
+          "aspod.counter", "aspod.pong.token", "aspod.telemetryjoints.j2_pos", "aspod.telemetryjoints.j2_mode",
+          "aspod.hello.schema_hash", "_ws.expert.message"]
+
+
+def tshark_fields(lua, capture) -> list[dict[str, str]]:
+    cmd = [TSHARK, "-n", "-X", f"lua_script:{lua}", "-r", str(capture), "-T", "fields", "-E", "occurrence=f"]
+    for name in FIELDS:
+        cmd += ["-e", name]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "Lua" not in done.stderr and "error" not in done.stderr.lower(), done.stderr
+    return [dict(zip(FIELDS, line.split("\t"))) for line in done.stdout.splitlines()]
+
+
+@pytest.fixture(scope="module")
+def capture_and_dissector(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("wireshark")
+    capture = folder / "session.pcapng"
+    record_session(capture, seconds=0.5)
+    lua = folder / "aspod.lua"
+    assert main(["wireshark", "-o", str(lua)]) == 0
+    return capture, lua
+
+
+def test_the_dissector_is_generated_from_the_declaration():
+    text = generate_dissector()
+    assert f"{SCHEMA.hash:016x}" in text
+    for spec in SCHEMA.by_id.values():
+        for field in spec.fields:
+            assert f'"aspod.{spec.name.lower()}.{field.name}"' in text
+
+
+@needs_tshark
+def test_tshark_with_the_dissector_decodes_every_frame_as_aspod_log_does(capture_and_dissector):
+    capture_path, lua = capture_and_dissector
+    rows = tshark_fields(lua, capture_path)
+    capture = SessionCapture.read(capture_path)
+    decoder = SessionDecoder(PSK)
+    ours = [decoder.decode(f.data, f.time_s, f.link, f.direction) for f in capture.frames]
+    assert len(rows) == len(ours) > 20
+    for row, d in zip(rows, ours):
+        assert row["aspod.message"] == d.name
+        assert row["aspod.class"] == str(d.frame.cls)
+        assert (int(row["aspod.seq"]), int(row["aspod.ack"])) == (d.frame.seq, d.frame.ack)
+        assert row["aspod.crc_good"] in ("1", "True")
+        assert int(row["aspod.counter"]) == d.frame.counter
+        if d.name == "Pong":
+            assert int(row["aspod.pong.token"]) == d.message.token
+        if d.name == "TelemetryJoints":
+            assert math.isclose(float(row["aspod.telemetryjoints.j2_pos"]), d.message.j2_pos, rel_tol=1e-6,
+                                abs_tol=1e-6)
+            assert int(row["aspod.telemetryjoints.j2_mode"]) == d.message.j2_mode
+        if d.name == "Hello":
+            assert int(row["aspod.hello.schema_hash"]) == SCHEMA.hash
+    assert {d.frame.cls for d in ours} >= {MsgClass.LINK, MsgClass.COMMAND, MsgClass.TELEMETRY}
+
+
+@needs_tshark
+def test_tshark_marks_a_corrupted_frame_and_goes_on(capture_and_dissector, tmp_path):
+    capture_path, lua = capture_and_dissector
+    capture = SessionCapture.read(capture_path)
+    data = bytearray(capture_path.read_bytes())
+    victim = capture.frames[5]
+    data[victim.offset + 28 + 3] ^= 0x40      # a byte inside the sixth frame's wire bytes (past the EPB header)
+    broken = tmp_path / "broken.pcapng"
+    broken.write_bytes(bytes(data))
+    rows = tshark_fields(lua, broken)
+    assert len(rows) == len(capture.frames)
+    assert rows[5]["_ws.expert.message"] != "" or rows[5]["aspod.crc_good"] in ("0", "False")
+    assert all(r["aspod.crc_good"] in ("1", "True") for i, r in enumerate(rows) if i != 5)
