@@ -44,7 +44,7 @@ def run_log(settings: LogSettings) -> int:
         return EXIT_USAGE
     psk = None if settings.key_file is None else auth.load_key(settings.key_file, "--key-file")
     frames = decode_capture(capture, psk)
-    origin = 0.0 if capture.info is not None and capture.info.clock == "simulated" else (
+    origin = 0.0 if capture.info is not None and capture.info.clock in ("simulated", "paced") else (
         frames[0].time_s if frames else 0.0)
     shown = [d for d in frames if wanted(settings, d)]
     out = sys.stdout

@@ -281,6 +281,12 @@ def build_parser() -> argparse.ArgumentParser:
                        "runs")
     add_arm_args(sim)
     add_tracker_args(sim)
+    sim.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                     help="capture every frame on the controller's line, both ways, stamped with the world's time "
+                          "(aspod log, Wireshark with aspod wireshark's dissector, aspod replay)")
+    sim.add_argument("--can-log", type=Path, metavar="FILE",
+                     help="write every HAL bus frame through python-can's Logger (.blf, .asc, .log, .csv, .trc, "
+                          ".txt), for cantools decode, can.viewer, cantools plot")
 
     plant = add_command("plant", help="run only the plant, in real time, on a python-can interface; "
                                          "prints an ASPOD-PLANT ready line")
@@ -313,6 +319,8 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--keep-going", action="store_true", help="in a script, go on after a failed command")
     teleop.add_argument("--connect-timeout", type=bounded(float, 0.1, 600), default=10.0, metavar="S")
     teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
+    teleop.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                        help="capture every frame both ways, as this host sent and received them (aspod log)")
 
     demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")

@@ -89,6 +89,7 @@ class TeleopSettings:
     keep_going: bool = False
     connect_timeout_s: float = 10.0
     summary: bool = False
+    record: Optional[Path] = None        # a session capture (pcapng) of every frame both ways
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,8 @@ class SimSettings:
     hal: Optional[str] = None
     hal_channel: Optional[str] = None
     hal_options: tuple[tuple[str, Any], ...] = ()
+    record: Optional[Path] = None        # a session capture (pcapng) of the controller's line
+    can_log: Optional[Path] = None       # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
 
 
 @dataclass(frozen=True)
@@ -194,11 +197,18 @@ def bus_settings(args: argparse.Namespace) -> BusSettings:
 
 def sim_settings(args: argparse.Namespace) -> SimSettings:
     hal_options: dict[str, Any] = {}
+    if args.hal is not None and args.can_log is not None:
+        raise ValueError(f"--can-log with --hal: the HAL bus is a real python-can bus then; log it with python-can "
+                         f"itself: python -m can.logger -i {args.hal} -c CHANNEL -f {args.can_log}")
+    if args.hal is not None and args.record is not None:
+        raise ValueError("--record with --hal is not built yet: record in the one-process world (without --hal), "
+                         "or with aspod teleop --record")
     if args.hal is not None:
         hal_options = nodes.parse_bus_args(args.hal_arg or (), args.hal, "--hal-arg")
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
-                       hal_options=tuple(hal_options.items()))
+                       hal_options=tuple(hal_options.items()), record=record_path(args.record),
+                       can_log=can_log_path(args.can_log))
 
 
 def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
@@ -214,7 +224,8 @@ def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
 
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
-                          connect_timeout_s=args.connect_timeout, summary=args.summary)
+                          connect_timeout_s=args.connect_timeout, summary=args.summary,
+                          record=record_path(args.record))
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":
@@ -246,6 +257,31 @@ def day_settings(args: argparse.Namespace) -> "DaySettings":
     if args.plot is not None:
         check_plot_path(args.plot)
     return settings
+
+
+def record_path(path: Optional[Path]) -> Optional[Path]:
+    """A capture to write: its folder must exist and it must not be a folder (checked before anything runs)."""
+    if path is None:
+        return None
+    path = Path(path)
+    if path.is_dir() or not path.parent.is_dir():
+        raise ValueError(f"--record {path}: " + ("a folder, not a file" if path.is_dir() else f"no folder {path.parent}"))
+    return path
+
+
+CAN_LOG_SUFFIXES = (".asc", ".blf", ".csv", ".log", ".trc", ".txt")
+
+
+def can_log_path(path: Optional[Path]) -> Optional[Path]:
+    """A python-can log file: a suffix its `Logger` writes and a folder that exists."""
+    if path is None:
+        return None
+    path = Path(path)
+    if path.suffix.lower() not in CAN_LOG_SUFFIXES:
+        raise ValueError(f"--can-log {path}: python-can writes {', '.join(CAN_LOG_SUFFIXES)}; name the file so")
+    if not path.parent.is_dir():
+        raise ValueError(f"--can-log {path}: no folder {path.parent}")
+    return path
 
 
 def check_plot_path(path) -> None:

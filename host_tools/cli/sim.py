@@ -28,9 +28,18 @@ from timebase import PacedClock, RealClock
 from host_tools.cli.firmware import apply_command_line, controller_config, log_states, open_port, run_sim_over_hal
 from host_tools.cli.plant import resolve_sun, sun_line
 from host_tools.cli.settings import SimSettings
+from host_tools.sessions.capture import CaptureWriter, SessionInfo
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
 
 log = logging.getLogger("aspod")
+
+
+def session_info(settings: SimSettings, plant: PlantSettings, world: World) -> SessionInfo:
+    """What `aspod replay` needs to build this world again: the plant, every parameter's value, the seed."""
+    return SessionInfo(clock="paced", tool="aspod sim", seed=settings.seed, settings={
+        "plant": plant.to_dict(), "params": world.controller.params.values(), "speed": settings.speed,
+        "baud": settings.port.baud, "paced": settings.port.paced})
 
 
 def run_sim(settings: SimSettings) -> int:
@@ -46,6 +55,12 @@ def run_sim(settings: SimSettings) -> int:
                   controller_config=config, plant=plant, link_clock=wall)
     params = world.controller.params
     apply_command_line(world.controller, settings.controller, "aspod sim")
+    if settings.record is not None:
+        world.record_link(CaptureWriter.create(settings.record, session_info(settings, plant, world)))
+        log.info(f"aspod sim: recording the link to {settings.record} (aspod log {settings.record})")
+    if settings.can_log is not None:
+        world.log_hal_bus(settings.can_log)
+        log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
     log_states(world.controller, "aspod sim")
     print(f"ASPOD-LINK {port.url}", flush=True)
     print(f"ASPOD-KEY {key_path}", flush=True)

@@ -7,6 +7,7 @@ import sys
 from host_tools.cli.settings import TeleopSettings
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_USAGE
+from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.console import interactive_console
 from host_tools.teleop.session import TeleopError, check_script, run_script
 from host_tools.teleop.words import read_script
@@ -30,7 +31,16 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
                 log.error(f"aspod teleop: error: {problem}")
             log.error("aspod teleop: script not run: nothing was sent")
             return EXIT_USAGE
-    client = HostClient(args.url, psk, baud=args.baud)
+    capture = None
+    if args.record is not None:
+        capture = CaptureWriter.create(args.record, SessionInfo(clock="wall", tool="aspod teleop",
+                                                                settings={"url": args.url, "baud": args.baud}))
+    try:
+        client = HostClient(args.url, psk, baud=args.baud, capture=capture)
+    except BaseException:
+        if capture is not None:
+            capture.close()
+        raise
     try:
         client.connect(args.connect_timeout_s)
         info = client.link.controller_info

@@ -16,8 +16,10 @@ from protocol.errors import LinkError
 from protocol.host_link import CommandHandle, HostLink
 from protocol.link import LinkConfig, LinkState
 from protocol.reasons import Reason
-from protocol.schema import Message
+from protocol.schema import Direction, Message
 from timebase import Clock, RealClock
+
+from host_tools.sessions.capture import CaptureWriter
 
 READ_SIZE = 4096
 READ_TIMEOUT_S = 0.001
@@ -25,8 +27,9 @@ READ_TIMEOUT_S = 0.001
 
 class HostClient:
     def __init__(self, url: str, psk: bytes, *, baud: int = 115200, config: Optional[LinkConfig] = None,
-                 clock: Optional[Clock] = None) -> None:
+                 clock: Optional[Clock] = None, capture: Optional[CaptureWriter] = None) -> None:
         self.clock = clock or RealClock()
+        self.capture = capture      # every byte both ways, stamped with the wall clock's Unix time
         self.url = url
         try:
             self.serial = serial.serial_for_url(url, baudrate=baud, timeout=READ_TIMEOUT_S, write_timeout=2.0)
@@ -65,6 +68,8 @@ class HostClient:
                 with self._cond:
                     now = self.clock.now()
                     if data:
+                        if self.capture is not None:
+                            self.capture.write("link", Direction.TO_HOST, data, RealClock.wall_time())
                         self.link.feed(data, now)
                     self.link.poll(now)
                     self._flush(now)
@@ -81,6 +86,8 @@ class HostClient:
         out = self.link.take_all(now)
         if out:
             self.serial.write(out)
+            if self.capture is not None:
+                self.capture.write("link", Direction.TO_CONTROLLER, out, RealClock.wall_time())
 
     def _telemetry(self, msg: Message, now: float) -> None:
         for listener in self.telemetry_listeners:
@@ -156,3 +163,5 @@ class HostClient:
             except (serial.SerialException, OSError):
                 pass                          # the port is gone already: nothing more can be sent
         self.serial.close()
+        if self.capture is not None:
+            self.capture.close()

@@ -8,7 +8,8 @@ direction is the host's view: outbound is host -> controller, inbound is control
 The section comment holds what a reader needs to make sense of the rest, as one line of JSON
 after the word `aspod-session`: the format's version, the protocol version and schema hash the
 frames were written with, which clock the timestamps come from (`simulated`: seconds since the
-world started; `wall`: the Unix epoch), and the recording tool's settings and seed (what
+world started, on a simulated clock; `paced`: the same, on a world paced to the wall clock, as
+`aspod sim` runs; `wall`: the Unix epoch), and the recording tool's settings and seed (what
 `aspod replay` needs to build the same world).
 """
 from __future__ import annotations
@@ -27,7 +28,7 @@ FORMAT_VERSION = 1
 MARK = "aspod-session "
 DIRECTION_FLAG = {Direction.TO_CONTROLLER: OUTBOUND, Direction.TO_HOST: INBOUND}
 FLAG_DIRECTION = {flag: direction for direction, flag in DIRECTION_FLAG.items()}
-CLOCKS = ("simulated", "wall")
+CLOCKS = ("simulated", "paced", "wall")
 
 
 @dataclass

@@ -15,7 +15,12 @@ import os
 import socket
 import termios
 import tty
-from typing import Callable, Optional
+from typing import TYPE_CHECKING, Callable, Optional
+
+from protocol.schema import Direction
+
+if TYPE_CHECKING:
+    from host_tools.sessions.capture import CaptureWriter
 
 
 
@@ -228,3 +233,40 @@ class BufferPort:
 
     def close(self) -> None:
         pass
+
+
+class RecordedPort:
+    """Any port above, with every byte the controller reads and writes kept in a session capture.
+
+    Seen from the controller's end: what it reads went host -> controller, what it writes the
+    other way (only the bytes the port took). Each frame is stamped with `clock`'s time when its
+    closing delimiter passed. The port's other attributes (`url`, `generation`, `live_session`)
+    are the wrapped port's.
+    """
+
+    def __init__(self, port, capture: "CaptureWriter", clock, link: str = "link") -> None:
+        self.__dict__.update(_port=port, _capture=capture, _clock=clock, _link=link)
+
+    def read(self, max_bytes: int) -> bytes:
+        data = self._port.read(max_bytes)
+        if data:
+            self._capture.write(self._link, Direction.TO_CONTROLLER, data, self._clock.now())
+        return data
+
+    def write(self, data: bytes) -> int:
+        written = self._port.write(data)
+        if written:
+            self._capture.write(self._link, Direction.TO_HOST, bytes(data[:written]), self._clock.now())
+        return written
+
+    def close(self) -> None:
+        try:
+            self._port.close()
+        finally:
+            self._capture.close()
+
+    def __getattr__(self, name: str):
+        return getattr(self._port, name)
+
+    def __setattr__(self, name: str, value) -> None:
+        setattr(self._port, name, value)

@@ -83,3 +83,27 @@ class PlantSettings:
                 raise ValueError("clouds given as passages have no command-line form; give them as a spec")
             argv += ["--clouds", self.clouds]
         return argv
+
+    def to_dict(self) -> dict:
+        """These settings as JSON values (a session capture keeps them): `from_dict` gives them back."""
+        if self.clouds is not None and not isinstance(self.clouds, str):
+            raise ValueError("clouds given as passages have no written form; give them as a spec")
+        return {"gravity": self.gravity, "payload_kg": self.payload_kg, "tracker": self.tracker,
+                "start": None if self.start is None else self.start.isoformat(), "clouds": self.clouds}
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "PlantSettings":
+        """ValueError naming what is wrong, for values that did not come from `to_dict`."""
+        known = {"gravity", "payload_kg", "tracker", "start", "clouds"}
+        if not isinstance(values, dict) or set(values) - known:
+            raise ValueError(f"plant settings must be a mapping of {', '.join(sorted(known))}")
+        values = dict(values)
+        if values.get("start") is not None:
+            try:
+                values["start"] = datetime.fromisoformat(str(values["start"]))
+            except ValueError:
+                raise ValueError(f"plant start {values['start']!r} is not an ISO date-time") from None
+        try:
+            return cls(**values)
+        except TypeError as exc:
+            raise ValueError(f"plant settings: {exc}") from None

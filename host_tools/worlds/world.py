@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import math
 import random
+from pathlib import Path
 from typing import Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
 from timebase.scheduler import Scheduler, poll_tick, run_live
 from firmware_py.uart import PacedUart, Port
-from host_tools.worlds.ports import BufferPort
+from host_tools.sessions.capture import CaptureWriter
+from host_tools.worlds.can_log import HalBusLog
+from host_tools.worlds.ports import BufferPort, RecordedPort
 from hil_sim.plant import PlantParams
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
@@ -52,6 +55,7 @@ class World:
                  plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None,
                  direct_values: bool = True) -> None:
         self.clock = clock
+        self.hal_log: Optional[HalBusLog] = None
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
         self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, plant)
         self.plant = self.plant_node.plant
@@ -64,6 +68,15 @@ class World:
         self.link_scheduler = Scheduler(link_clock) if link_clock is not None else self.scheduler
         self.controller.attach(self.scheduler, self.link_scheduler)
 
+    def log_hal_bus(self, path: Path) -> HalBusLog:
+        """Write every HAL frame from now on to `path` through python-can's Logger (`close` stops it)."""
+        self.hal_log = HalBusLog(path, self.clock, {"plant": self.plant_bus, "controller": self.controller_bus})
+        return self.hal_log
+
+    def record_link(self, capture: CaptureWriter) -> None:
+        """Keep every byte of the controller's line in `capture`, stamped with the world's time."""
+        self.uart.port = RecordedPort(self.uart.port, capture, self.clock)
+
     def run(self, should_stop: Callable[[], bool]) -> None:
         """Run the world (and its link, on its own clock) until `should_stop()`."""
         if isinstance(self.clock, PacedClock):
@@ -71,6 +84,8 @@ class World:
         run_live(self.scheduler, self.link_scheduler, should_stop)
 
     def close(self) -> None:
+        if self.hal_log is not None:
+            self.hal_log.stop()
         self.plant_bus.shutdown()
         self.controller_bus.shutdown()
         self.uart.close()
