@@ -16,6 +16,8 @@ import json
 import logging
 import sys
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
 
 from protocol import auth
 from protocol.errors import LinkError
@@ -57,13 +59,14 @@ class DemoSettings:
     json: bool = False
     link: bool = False
     baud: int = 115200
+    record: Optional[Path] = None     # the session's capture (on the simulated clock: aspod replay re-runs it exactly)
 
 
 def run_demo(settings: DemoSettings) -> int:
     if settings.link:
         return run_link_demo(settings)
     if settings.json:
-        report = pick_place.run(settings.gravity, settings.seed)
+        report = pick_place.run(settings.gravity, settings.seed, record=settings.record)
         print(json.dumps(report, indent=1))
         return EXIT_OK if report["within_spec"] else EXIT_FAILED
     print(f"pick and place, gravity {settings.gravity}, on the simulated clock (spec: within "
@@ -72,7 +75,7 @@ def run_demo(settings: DemoSettings) -> int:
     def progress(result: pick_place.StepResult) -> None:
         print(f"  {result.name:<16} error {result.position_error_m * 1000:7.3f} mm   "
               f"({result.sim_time_s:6.2f} s simulated)", flush=True)
-    report = pick_place.run(settings.gravity, settings.seed, progress)
+    report = pick_place.run(settings.gravity, settings.seed, progress, record=settings.record)
     if report["error"]:
         log.error(f"aspod demo: {report['error']}")
     worst = report["max_position_error_m"]

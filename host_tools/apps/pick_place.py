@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -26,6 +27,7 @@ from protocol.states import Axis, GripAction, MotionOutcome
 from timebase import RealClock
 
 from host_tools.apps.kinematics import DEMO_SCENE, Scene, Step, steps
+from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.worlds.world import LockstepBench
 from host_tools.worlds.settings import PlantSettings
 
@@ -137,17 +139,17 @@ class PickAndPlace:
         close = step.action == "close"
         arm = self.plant.arm
         if close:
-            arm.set_object(self.scene.debris_width_m)       # the jaws are around the debris now
+            self.bench.act("set_object", self.scene.debris_width_m)     # the jaws are around the debris now
         reply = self._call(M["Grip"](int(GripAction.CLOSE if close else GripAction.OPEN)), f"{step.name}: grip")
         outcomes = self._wait_motions({int(Axis.GRIPPER): reply.motion_id}, step.name)
         if close:
             if not self.bench.controller.arm.gripper.gripped or arm.grip_force_n <= 0:
                 raise DemoFailed(f"{step.name}: the gripper closed without gripping the debris")
-            arm.set_payload(step.held_kg)
+            self.bench.act("set_payload", step.held_kg)
             self._call(M["ParamSet"]("payload_kg", step.held_kg), "tell the controller the payload")
         else:
-            arm.set_object(None)
-            arm.set_payload(0.0)
+            self.bench.act("set_object", None)
+            self.bench.act("set_payload", 0.0)
             self._call(M["ParamSet"]("payload_kg", 0.0), "tell the controller the payload")
         return outcomes
 
@@ -155,10 +157,13 @@ class PickAndPlace:
         self.bench.close()
 
 
-def run(gravity: str = "earth", seed: int = 0, progress=None) -> dict:
-    """Run the whole demo; return the report (see `aspod demo --json`)."""
+def run(gravity: str = "earth", seed: int = 0, progress=None, record: Optional[Path] = None) -> dict:
+    """Run the whole demo; return the report (see `aspod demo --json`). With `record`, the session's capture."""
     wall0 = RealClock.precise_now()
     demo = PickAndPlace(gravity, seed)
+    if record is not None:
+        demo.bench.record(CaptureWriter.create(record, SessionInfo(
+            clock="simulated", tool="aspod demo", seed=seed, settings=demo.bench.settings())))
     error: Optional[str] = None
     try:
         demo.prepare()

@@ -21,6 +21,15 @@ from host_tools.cli.settings import LogSettings
 log = logging.getLogger("aspod.log")
 
 
+def read_capture(path: Path, prog: str) -> SessionCapture | None:
+    """The capture at `path`, or None when the file cannot be read (said on stderr)."""
+    try:
+        return SessionCapture.read(path)
+    except OSError as exc:
+        log.error(f"{prog}: cannot read {path}: {exc.strerror or exc}")
+        return None
+
+
 def decode_capture(capture: SessionCapture, psk: bytes | None) -> list[DecodedFrame]:
     decoder = SessionDecoder(psk)
     return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
@@ -37,10 +46,8 @@ def wanted(settings: LogSettings, d: DecodedFrame) -> bool:
 
 
 def run_log(settings: LogSettings) -> int:
-    try:
-        capture = SessionCapture.read(settings.capture)
-    except OSError as exc:
-        log.error(f"aspod log: cannot read {settings.capture}: {exc.strerror or exc}")
+    capture = read_capture(settings.capture, "aspod log")
+    if capture is None:
         return EXIT_USAGE
     psk = None if settings.key_file is None else auth.load_key(settings.key_file, "--key-file")
     frames = decode_capture(capture, psk)

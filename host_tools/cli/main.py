@@ -202,6 +202,8 @@ EXAMPLES = {
     "log": ["aspod log session.pcapng", "aspod log session.pcapng --class command --class event",
             "aspod log session.pcapng --stats", "aspod log session.pcapng --message TelemetryJoints --csv joints.csv",
             "aspod log session.pcapng --plot session.png --key-file link.key"],
+    "replay": ["aspod demo --record demo.pcapng && aspod replay demo.pcapng",
+               "aspod replay sim.pcapng --param j1_kp=40 --output replayed.pcapng"],
     "wireshark": ["aspod wireshark -o aspod.lua && tshark -X lua_script:aspod.lua -r session.pcapng"],
     "completion": ["aspod completion bash > ~/.local/share/bash-completion/completions/aspod",
                    "aspod completion zsh > ~/.zfunc/_aspod"],
@@ -330,6 +332,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--link", action="store_true",
                       help="instead: start `aspod sim --pty` and run a scripted teleop session over the pty")
     demo.add_argument("--baud", type=_baud, default=115200, help="line rate for --link")
+    demo.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                      help="capture the session (on the simulated clock: aspod replay re-runs it to the bit)")
 
     day = add_command("tracker-day", help="the solar tracker through a simulated day at Tucson, on the "
                                              "simulated clock; pointing error, lag and relay switchings")
@@ -369,6 +373,18 @@ def build_parser() -> argparse.ArgumentParser:
                          help="plot joint positions and currents, the tracker's pointing error and link health")
     log_cmd.add_argument("--key-file", type=Path, default=None,
                          help="pre-shared key file (hex): verify every frame's MAC (without it MACs are not checked)")
+
+    replay_cmd = add_command("replay", help="re-simulate a recorded session (aspod sim/demo --record) and report "
+                                            "the first divergence")
+    replay_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture from aspod sim or aspod demo --record")
+    replay_cmd.add_argument("--param", action="append", metavar="NAME=VALUE",
+                            help="change a controller parameter for the replay (repeatable): what would differ?")
+    replay_cmd.add_argument("--key-file", type=Path, default=None,
+                            help="the recording's pre-shared key: verify its MACs, and with it a simulated-clock "
+                                 "replay is compared byte for byte too")
+    replay_cmd.add_argument("--json", action="store_true", help="print one JSON object")
+    replay_cmd.add_argument("--output", type=Path, default=None, metavar="FILE.pcapng",
+                            help="also write the replay's own capture")
 
     wireshark = add_command("wireshark", help="write the Wireshark Lua dissector for this protocol's captures")
     wireshark.add_argument("--output", "-o", type=Path, default=None, metavar="FILE.lua",
@@ -418,6 +434,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "log":
         from host_tools.cli.log import run_log
         return run_log(settings.log_settings(args))
+    if args.command == "replay":
+        from host_tools.cli.replay import run_replay
+        return run_replay(settings.replay_settings(args))
     if args.command == "wireshark":
         from host_tools.cli.wireshark import run_wireshark
         return run_wireshark(args.output)

@@ -107,6 +107,16 @@ class LogSettings:
 
 
 @dataclass(frozen=True)
+class ReplaySettings:
+    """`aspod replay`: the capture, parameters changed for the replay, and what to write."""
+    capture: Path
+    params: tuple[tuple[str, float], ...] = ()
+    key_file: Optional[Path] = None
+    json: bool = False
+    output: Optional[Path] = None
+
+
+@dataclass(frozen=True)
 class SimSettings:
     """`aspod sim`: one process, or with `hal` the plant as a child `aspod plant`."""
     port: PortSettings
@@ -230,7 +240,10 @@ def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":
     from host_tools.apps.demo import DemoSettings
-    return DemoSettings(gravity=args.gravity, seed=args.seed, json=args.json, link=args.link, baud=args.baud)
+    if args.link and args.record is not None:
+        raise ValueError("--record with --link: record with the teleop session instead (aspod teleop --record)")
+    return DemoSettings(gravity=args.gravity, seed=args.seed, json=args.json, link=args.link, baud=args.baud,
+                        record=record_path(args.record))
 
 
 def day_settings(args: argparse.Namespace) -> "DaySettings":
@@ -313,3 +326,12 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
         raise ValueError(f"--csv {args.csv}: no folder {Path(args.csv).parent}")
     return LogSettings(args.capture, classes, tuple(messages), tuple(args.link or ()), args.errors, args.stats,
                        args.csv, args.plot, args.key_file)
+
+
+def replay_settings(args: argparse.Namespace) -> ReplaySettings:
+    from host_tools.apps.replay import parse_params
+    output = args.output
+    if output is not None and not Path(output).parent.is_dir():
+        raise ValueError(f"--output {output}: no folder {Path(output).parent}")
+    return ReplaySettings(args.capture, tuple(parse_params(tuple(args.param or ())).items()), args.key_file,
+                          args.json, output)

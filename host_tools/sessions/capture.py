@@ -4,6 +4,8 @@ One packet per frame, as it was on the wire: the COBS segment between two 0x00 d
 frame that a bit error broke is kept exactly as it came (the decoder says what is wrong with it).
 Each link is a pcapng interface named after it ("link", or "radio" and "optical"); the packet's
 direction is the host's view: outbound is host -> controller, inbound is controller -> host.
+What a bench did to the plant outside the link (`LockstepBench.act`) is kept as world events:
+JSON objects on an interface named `world`, link type USER1.
 
 The section comment holds what a reader needs to make sense of the rest, as one line of JSON
 after the word `aspod-session`: the format's version, the protocol version and schema hash the
@@ -22,13 +24,15 @@ from typing import Any, BinaryIO, Optional
 from protocol.framing import MAX_ENCODED
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
-from host_tools.sessions.pcapng import INBOUND, OUTBOUND, CaptureError, Packet, PcapngReader, PcapngWriter
+from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, OUTBOUND, CaptureError, Packet, PcapngReader,
+                                       PcapngWriter)
 
 FORMAT_VERSION = 1
 MARK = "aspod-session "
 DIRECTION_FLAG = {Direction.TO_CONTROLLER: OUTBOUND, Direction.TO_HOST: INBOUND}
 FLAG_DIRECTION = {flag: direction for direction, flag in DIRECTION_FLAG.items()}
 CLOCKS = ("simulated", "paced", "wall")
+WORLD = "world"       # the interface of world events: JSON objects, link type USER1 (Wireshark shows them as data)
 
 
 @dataclass
@@ -127,6 +131,7 @@ class CaptureWriter:
         self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}") for name in links}
         self._taps = {(name, d): SegmentTap() for name in links for d in DIRECTION_FLAG}
         self.frames = 0
+        self._world: Optional[int] = None
 
     @classmethod
     def create(cls, path: Path, info: SessionInfo, links: tuple[str, ...] = ("link",)) -> "CaptureWriter":
@@ -139,6 +144,13 @@ class CaptureWriter:
         for segment, length in self._taps[(link, direction)].feed(data):
             self._pcap.write_packet(iface, time_s, segment, DIRECTION_FLAG[direction], comment, length)
             self.frames += 1
+        self._stream.flush()
+
+    def note(self, event: dict[str, Any], time_s: float) -> None:
+        """A world event (something done to the plant outside the link), as JSON on the `world` interface."""
+        if self._world is None:
+            self._world = self._pcap.add_interface(WORLD, "events in the world outside the link", LINKTYPE_USER1)
+        self._pcap.write_packet(self._world, time_s, json.dumps(event, sort_keys=True).encode())
         self._stream.flush()
 
     def close(self) -> None:
@@ -171,11 +183,16 @@ class SessionCapture:
     error: Optional[CaptureError]
     warnings: list[str]
     size: int
+    world_events: list[tuple[float, dict, int]] = field(default_factory=list)   # (time, event, offset)
 
     @classmethod
     def read(cls, path: Path) -> "SessionCapture":
         """Never raises for bad content; a missing or unreadable file raises OSError."""
-        pcap = PcapngReader.read(path)
+        return cls.parse(Path(path).read_bytes())
+
+    @classmethod
+    def parse(cls, data: bytes) -> "SessionCapture":
+        pcap = PcapngReader.parse(data)
         warnings: list[str] = []
         info: Optional[SessionInfo] = None
         if pcap.interfaces or pcap.comment:
@@ -186,12 +203,24 @@ class SessionCapture:
             else:
                 if mismatch := info.schema_mismatch():
                     warnings.append(mismatch)
-        frames = [_frame(pcap, p) for p in pcap.packets]
+        world = {i for i, iface in enumerate(pcap.interfaces) if iface.name == WORLD and iface.linktype == LINKTYPE_USER1}
+        frames = [_frame(pcap, p) for p in pcap.packets if p.interface not in world]
+        events = []
+        for p in pcap.packets:
+            if p.interface in world:
+                try:
+                    event = json.loads(p.data)
+                    if not isinstance(event, dict):
+                        raise ValueError("not a JSON object")
+                except ValueError as exc:
+                    warnings.append(f"world event at byte {p.offset} does not parse ({exc}); left out")
+                    continue
+                events.append((p.time_s, event, p.offset))
         for p in pcap.packets:
             if p.direction not in FLAG_DIRECTION:
                 warnings.append(f"packet at byte {p.offset} has no direction; taken as controller -> host")
                 break
-        return cls(info, frames, pcap.error, warnings, pcap.size)
+        return cls(info, frames, pcap.error, warnings, pcap.size, events)
 
 
 def _frame(pcap: PcapngReader, packet: Packet) -> CapturedFrame:

@@ -25,6 +25,7 @@ SHB_USERAPPL = 4
 IF_NAME, IF_DESCRIPTION, IF_TSRESOL = 2, 3, 9
 EPB_FLAGS = 2
 LINKTYPE_USER0 = 147          # "reserved for private use" (tcpdump.org link-layer types): our frames
+LINKTYPE_USER1 = 148          # the same, for a session's world events (JSON)
 NANOSECONDS = 9
 
 INBOUND, OUTBOUND = 1, 2      # epb_flags direction bits
@@ -131,8 +132,11 @@ class PcapngReader:
 
     @classmethod
     def read(cls, path: Path) -> "PcapngReader":
+        return cls.parse(Path(path).read_bytes())
+
+    @classmethod
+    def parse(cls, data: bytes) -> "PcapngReader":
         reader = cls()
-        data = Path(path).read_bytes()
         reader.size = len(data)
         try:
             for _ in reader._blocks(data):

@@ -22,12 +22,14 @@ from firmware_py.controller import Controller, ControllerConfig
 from timebase.scheduler import Scheduler, poll_tick, run_live
 from firmware_py.uart import PacedUart, Port
 from host_tools.sessions.capture import CaptureWriter
+from host_tools.worlds import plant_actions
 from host_tools.worlds.can_log import HalBusLog
 from host_tools.worlds.ports import BufferPort, RecordedPort
 from hil_sim.plant import PlantParams
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
+from protocol.schema import Direction
 from timebase import Clock, PacedClock, RealClock, SimClock
 
 from host_tools.worlds.local_bus import open_local_pair
@@ -131,6 +133,8 @@ class LockstepBench:
                              on_event=lambda m, now: self.events.append(m))
         self.to_controller = to_controller
         self.to_host = to_host
+        self.plant_settings = plant
+        self._capture: Optional[CaptureWriter] = None
         self.step_s = step_s
         self._host_alive = True
         self._host_running = False
@@ -191,6 +195,33 @@ class LockstepBench:
         timer = self.host.next_timer_s() if self._host_alive else math.inf
         return poll_tick(now, self.step_s, min(timer, now + self.MAX_IDLE_S))
 
+    def record(self, capture: CaptureWriter) -> None:
+        """Keep the line's bytes in `capture`, stamped with the simulated time, as the controller's end sees them
+        (what it received, after `to_controller`; what it sent, before `to_host`), as `aspod sim --record` does."""
+        to_controller, to_host, now = self.to_controller, self.to_host, self.clock.now
+
+        def received(data: bytes) -> bytes:
+            data = to_controller(data)
+            capture.write("link", Direction.TO_CONTROLLER, data, now())
+            return data
+
+        def sent(data: bytes) -> bytes:
+            capture.write("link", Direction.TO_HOST, data, now())
+            return to_host(data)
+        self.to_controller, self.to_host = received, sent
+        self._capture = capture
+
+    def act(self, name: str, *args) -> None:
+        """Do a plant action by name (host_tools/worlds/plant_actions.py); recorded as a world event."""
+        plant_actions.act(self.world.plant, name, *args)
+        if self._capture is not None:
+            self._capture.note({"action": name, "args": list(args)}, self.clock.now())
+
+    def settings(self) -> dict:
+        """What `aspod replay` needs to build this world again (a capture's settings): the plant and every
+        controller parameter's value now."""
+        return {"plant": self.plant_settings.to_dict(), "params": self.controller.params.values()}
+
     def run_for(self, duration_s: float) -> None:
         self.world.scheduler.run_until(self.clock.now() + duration_s)
 
@@ -216,3 +247,5 @@ class LockstepBench:
 
     def close(self) -> None:
         self.world.close()
+        if self._capture is not None:
+            self._capture.close()

@@ -1,0 +1,438 @@
+"""`aspod replay FILE`: a recorded session re-simulated, and where it first diverges.
+
+The capture's section comment holds the world it was recorded against (the plant's settings,
+every controller parameter, the seed). Replay builds that world again as a `LockstepBench` on the
+simulated clock, and a fresh host runs the recorded host's commands at their recorded times: the
+first transmission of each COMMAND and URGENT request, and a new handshake where the recording
+has one. (Frames are not replayed as bytes: a live session's keys come from fresh nonces, so the
+recorded bytes would not verify; and a replay of the bytes would prove nothing about the
+controller.) The replayed world is captured too, and the two captures are compared as the
+controller's output: the reply to each request, the events in order, and the telemetry frame by
+frame (matched by `uptime_ms`).
+
+* A recording on the **simulated clock** (`aspod demo --record`, `LockstepBench.record`) must
+  replay exactly: every reply, event and telemetry frame equal to the bit, at the same time.
+  With the same key (the bench's, unless `--key-file`) the controller's bytes are the same too,
+  and the report says how many frames were identical byte for byte.
+* A recording made in **real time** (`aspod sim --record`, clock `paced`) is compared within
+  tolerances (`Tolerances`): a command reached the real controller some fraction of a
+  millisecond into its loop, which replay cannot know, so values may differ by what a
+  millisecond moves. Fields that measure the host machine rather than the controller (loop
+  execution times, the real-time factor, link statistics) are not compared.
+
+The result names the first divergence: when, which message, which field, recorded and
+re-simulated values.
+"""
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from protocol.link import LinkState
+from protocol.reasons import Reason
+from protocol.schema import Direction, Message, MsgClass
+from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.decode import DecodedFrame, SessionDecoder, format_value
+from host_tools.worlds.settings import PlantSettings
+from host_tools.worlds.world import LockstepBench
+
+BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
+SUBMIT_EARLY_S = 1e-6
+SAMPLER_PRIORITY = 100     # after every task of the world at the same moment
+UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
+TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
+# What measures the host machine or the link's own traffic, not the controller's behaviour: compared
+# only on the simulated clock, where they too are deterministic.
+HOST_DEPENDENT = frozenset({
+    "loop_max_us", "loop_p99_us", "overruns", "tx_backlog_bytes", "timing", "rtf_recent", "lag_ms", "rtf_total",
+    "arm_exec_max_us", "arm_exec_p99_us", "arm_late_max_us", "arm_overruns", "frames_rx", "frames_tx",
+    "link_errors", "bytes_rx", "bytes_tx", "crc_errors", "auth_errors", "rejected", "naks_tx", "naks_rx",
+    "retransmits", "srtt_us", "utc_s"})
+
+
+class ReplayError(ValueError):
+    """The capture cannot be replayed (no world described in it, a broken file, ...)."""
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """How far a real-time recording may differ from its replay, per field unit (absolute), else relative."""
+    time_ms: float = 25.0          # an event's or a reply's uptime_ms
+    shift_ms: float = 10.0         # telemetry: what the replay showed this long before or after the same uptime
+    by_unit: tuple[tuple[str, float], ...] = (("deg", 0.1), ("deg/s", 0.5), ("mm", 0.2), ("mm/s", 1.0),
+                                              ("A", 0.25), ("V", 0.1), ("degC", 0.1), ("%", 0.5))
+    relative: float = 0.02
+
+    def allows(self, unit: str, recorded: float, replayed: float) -> bool:
+        if unit == "ms":
+            return abs(recorded - replayed) <= self.time_ms
+        limit = dict(self.by_unit).get(unit, self.relative * max(abs(recorded), 1.0))
+        return abs(recorded - replayed) <= limit
+
+
+@dataclass
+class Divergence:
+    time_s: float
+    message: str
+    field: str
+    recorded: Any
+    replayed: Any
+
+    def describe(self) -> str:
+        return (f"first divergence at {self.time_s:.3f} s: {self.message}.{self.field}: recorded "
+                f"{_shown(self.recorded)}, re-simulated {_shown(self.replayed)}")
+
+
+def _shown(value: Any) -> str:
+    return value if isinstance(value, str) else format_value(value)
+
+
+@dataclass
+class ReplayReport:
+    exact: bool                             # compared to the bit (simulated clock) or within tolerances
+    commands: int = 0
+    replies: int = 0
+    events: int = 0
+    telemetry: int = 0
+    telemetry_unmatched: int = 0            # real time only: recorded telemetry with no replayed uptime_ms
+    identical_bytes: int = 0
+    controller_frames: int = 0
+    divergence: Optional[Divergence] = None
+    replayed: Optional[SessionCapture] = None
+    replayed_bytes: bytes = b""             # the replay's own capture, as a file would hold it
+
+    @property
+    def matches(self) -> bool:
+        return self.divergence is None
+
+    def describe(self) -> str:
+        how = "to the bit" if self.exact else "within tolerances"
+        lines = [f"replayed {self.commands} commands; compared {how}: {self.replies} replies, {self.events} events, "
+                 f"{self.telemetry} telemetry frames"
+                 + (f" ({self.telemetry_unmatched} recorded telemetry frames had no replayed frame of the same "
+                    f"uptime)" if self.telemetry_unmatched else "")]
+        if self.exact and self.controller_frames:
+            lines.append(f"controller frames identical byte for byte: {self.identical_bytes} of "
+                         f"{self.controller_frames}")
+        lines.append("match" if self.matches else self.divergence.describe())
+        return "\n".join(lines)
+
+
+@dataclass
+class _Output:
+    """The controller's side of a session: replies by request, events in order, telemetry by uptime."""
+    replies: dict[tuple[int, int, int], DecodedFrame] = field(default_factory=dict)
+    events: list[DecodedFrame] = field(default_factory=list)
+    telemetry: dict[tuple[str, int], DecodedFrame] = field(default_factory=dict)
+    segments: list[bytes] = field(default_factory=list)
+
+
+@dataclass
+class _Action:
+    time_s: float
+    message: Optional[Message]              # None: a new handshake (or a world event, below)
+    world_event: Optional[dict] = None      # something done to the plant outside the link
+    offset: int = 0                         # where it is in the capture: actions at one time keep this order
+    request: Optional[tuple[int, int, int]] = None     # a command's (session, class, seq): its reply's key
+
+
+def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action], _Output]:
+    """The host's actions and the controller's output in a decoded session (`offsets`: each frame's in the file)."""
+    actions: list[_Action] = []
+    out = _Output()
+    session = 0
+    seen_requests: set[tuple[int, int, int]] = set()
+    seen_events: set[tuple[int, int]] = set()
+    hello_pending = False
+    for d, offset in zip(frames, offsets):
+        if d.frame is None or d.message is None:
+            continue
+        cls, seq, name = d.frame.cls, d.frame.seq, d.name
+        if d.direction is Direction.TO_CONTROLLER:
+            if name == "Hello":
+                if not hello_pending:
+                    actions.append(_Action(d.time_s, None, offset=offset))
+                hello_pending = True
+            elif cls in (MsgClass.COMMAND, MsgClass.URGENT) and (session, cls, seq) not in seen_requests:
+                seen_requests.add((session, cls, seq))
+                actions.append(_Action(d.time_s, d.message, offset=offset, request=(session, cls, seq)))
+            continue
+        out.segments.append(d.frame.signed + d.frame.tag)
+        if name == "HelloReply" and d.message.result == Reason.OK:
+            session += 1
+            hello_pending = False
+        elif cls in (MsgClass.COMMAND, MsgClass.URGENT):
+            out.replies.setdefault((session, cls, seq), d)
+        elif cls == MsgClass.EVENT and (session, seq) not in seen_events:
+            seen_events.add((session, seq))
+            out.events.append(d)
+        elif cls == MsgClass.TELEMETRY and "uptime_ms" in d.fields():
+            out.telemetry.setdefault((name, d.message.uptime_ms), d)
+    return actions, out
+
+
+def _decode(capture: SessionCapture, psk: Optional[bytes]) -> list[DecodedFrame]:
+    decoder = SessionDecoder(psk)
+    return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
+
+
+def world_of(info: Optional[SessionInfo]) -> tuple[PlantSettings, dict[str, float], int]:
+    """The plant settings, parameters and seed a capture was recorded with; ReplayError if it does not say."""
+    if info is None:
+        raise ReplayError("the capture does not describe its session (not written by aspod)")
+    if "plant" not in info.settings or "params" not in info.settings:
+        raise ReplayError(f"the capture was recorded by {info.tool or 'a tool'} without the world it ran against; "
+                          "record with aspod sim --record or aspod demo --record")
+    if not info.same_schema:
+        raise ReplayError(info.schema_mismatch())
+    plant = PlantSettings.from_dict(info.settings["plant"])
+    params = info.settings["params"]
+    if not isinstance(params, dict) or not all(isinstance(v, (int, float)) for v in params.values()):
+        raise ReplayError("the capture's parameters are not a mapping of names to numbers")
+    return plant, {str(k): float(v) for k, v in params.items()}, int(info.seed or 0)
+
+
+def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
+           tolerances: Tolerances = Tolerances()) -> ReplayReport:
+    """Re-run `capture`'s host commands against a fresh world; compare; `params` override the recorded ones.
+
+    A real-time recording is replayed twice: the first run measures when the replayed controller answered each
+    command, and the second moves each command by the difference from the recorded answer, so that each runs
+    when the real controller ran it (it reached the real one after the line's and the host machine's delays,
+    which the recording stamps only at the port)."""
+    if capture.error is not None:
+        raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
+    plant, recorded_params, seed = world_of(capture.info)
+    key = psk if psk is not None else BENCH_KEY
+    actions, recorded = _split(_decode(capture, psk), [f.offset for f in capture.frames])
+    host_commands = sum(a.message is not None for a in actions)
+    actions = sorted(actions + [_Action(t, None, event, offset) for t, event, offset in capture.world_events],
+                     key=lambda a: (a.time_s, a.offset))
+    if not host_commands:
+        raise ReplayError("the capture holds no host commands to replay")
+    exact = capture.info.clock == "simulated"
+    world = _World(key, seed, plant, {**recorded_params, **(params or {})},
+                   end_s=max(f.time_s for f in capture.frames) + TAIL_S)
+    data, samples = world.run(actions)
+    replayed_capture = SessionCapture.parse(data)
+    _, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
+    if not exact:
+        shift = round(tolerances.shift_ms)
+        wanted = frozenset(u + k for _, u in recorded.telemetry for k in range(-shift, shift + 1))
+        data, samples = world.run(_aligned(actions, recorded, replayed), wanted)
+        replayed_capture = SessionCapture.parse(data)
+        _, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
+    report = ReplayReport(exact=exact, commands=host_commands, replayed=replayed_capture, replayed_bytes=data)
+    _compare(recorded, replayed, samples, report, tolerances, world.end_s - TAIL_S)
+    return report
+
+
+@dataclass
+class _World:
+    """How to build the recorded world again, and run a list of actions against it."""
+    key: bytes
+    seed: int
+    plant: PlantSettings
+    params: dict[str, float]
+    end_s: float
+
+    def run(self, actions: list[_Action], sample: frozenset[int] = frozenset()) -> tuple[bytes, dict]:
+        """The replayed session's capture (pcapng bytes), and at every uptime (ms) in `sample` the telemetry the
+        controller would have sent then: {(message name, uptime_ms): message}."""
+        bench = LockstepBench(self.key, seed=self.seed, plant=self.plant)
+        samples: dict[tuple[str, int], Message] = {}
+        if sample:
+            bench.world.scheduler.add("replay-sampler", _sampler(bench, sample, samples), period_s=0.001,
+                                      priority=SAMPLER_PRIORITY)
+        store = bench.controller.params
+        for name, value in self.params.items():
+            reason, detail = store.set(name, value)
+            if reason is not Reason.OK:
+                bench.close()
+                raise ReplayError(f"parameter {detail}")
+        bench.controller.telemetry_hz = int(store["telemetry_hz"])
+        stream = io.BytesIO()
+        stream.close = lambda: None          # keep it readable after the bench closes the capture
+        bench.record(CaptureWriter(stream, SessionInfo(clock="simulated", tool="aspod replay", seed=self.seed,
+                                                       settings=bench.settings())))
+        try:
+            for action in actions:
+                _do(bench, action)
+            bench.run_for(max(0.0, self.end_s - bench.clock.now()))
+        finally:
+            bench.close()
+        return stream.getvalue(), samples
+
+
+def _sampler(bench: LockstepBench, wanted: frozenset[int], into: dict):
+    """A task that keeps the controller's telemetry, as it would compose it, at each uptime in `wanted`."""
+    controller = bench.controller
+
+    def step(now: float) -> float:
+        uptime = controller.uptime_ms(now)
+        if uptime in wanted:
+            for message in (controller.telemetry(now), controller.joint_telemetry(now)):
+                into[(message.spec.name, uptime)] = message
+            if controller.tracker.in_use:
+                into[("TelemetryTracker", uptime)] = controller.tracker_telemetry(now)
+        return now + 0.001
+    return step
+
+
+def _do(bench: LockstepBench, action: _Action) -> None:
+    if action.world_event is not None:   # done after the world's tasks at its time, as the bench did
+        bench.run_for(max(0.0, action.time_s - bench.clock.now()))
+        try:
+            bench.act(str(action.world_event.get("action")), *action.world_event.get("args", ()))
+        except ValueError as exc:
+            raise ReplayError(f"world event at {action.time_s:.3f} s: {exc}") from None
+        return
+    # The host writes at its first poll after a submission: submit just before the recorded write (a
+    # capture's times are whole nanoseconds; SUBMIT_EARLY_S is well above that and below a poll).
+    due = action.time_s - SUBMIT_EARLY_S
+    if due > bench.clock.now():
+        bench.run_for(due - bench.clock.now())
+    if action.message is None:
+        bench.host.connect(bench.clock.now())
+        return
+    if bench.host.state is not LinkState.UP:   # in real time the handshake may end a moment later here
+        bench.wait_until(lambda: bench.host.state is LinkState.UP, UP_WAIT_S)
+    bench.host.submit(action.message, bench.clock.now())
+
+
+def _aligned(actions: list[_Action], recorded: _Output, replayed: _Output) -> list[_Action]:
+    """`actions` with each command moved by (recorded answer's time - replayed answer's time), in the same order."""
+    out, floor = [], 0.0
+    for action in actions:
+        shift = 0.0
+        if action.request is not None and action.request in recorded.replies and action.request in replayed.replies:
+            shift = recorded.replies[action.request].time_s - replayed.replies[action.request].time_s
+        moved = max(floor, action.time_s + shift)
+        out.append(dataclasses.replace(action, time_s=moved))
+        floor = moved
+    return out
+
+
+def _compare(recorded: _Output, replayed: _Output, samples: dict, report: ReplayReport, tol: Tolerances,
+             recorded_end_s: float) -> None:
+    found: list[Divergence] = []
+    for key, d in recorded.replies.items():
+        report.replies += 1
+        found += _differ(d, replayed.replies.get(key), report.exact, tol)
+    unused = list(replayed.events)
+    for index, d in enumerate(recorded.events):
+        report.events += 1
+        if report.exact:
+            found += _differ(d, replayed.events[index] if index < len(replayed.events) else None, True, tol)
+            continue
+        # in real time, events a few milliseconds apart may come in another order: take the replayed one that fits
+        near = [e for e in unused if e.name == d.name and abs(_uptime(e) - _uptime(d)) <= tol.time_ms]
+        fits = next((e for e in near if not _differ(d, e, False, tol)), None)
+        if fits is None:
+            found += _differ(d, near[0] if near else None, False, tol)
+        else:
+            unused.remove(fits)
+    extra = replayed.events[len(recorded.events):] if report.exact else unused
+    extra = [e for e in extra if e.time_s <= recorded_end_s]      # after the recording ended, nothing was seen
+    if extra:
+        found.append(Divergence(extra[0].time_s, extra[0].name, "(event)", "(none)", "sent"))
+    for key, d in recorded.telemetry.items():
+        report.telemetry += 1
+        if report.exact:
+            found += _differ(d, replayed.telemetry.get(key), True, tol)
+            continue
+        # in real time: what the replayed controller showed within shift_ms of that uptime
+        name, uptime = key
+        around = [samples[(name, u)] for u in range(uptime - round(tol.shift_ms), uptime + round(tol.shift_ms) + 1)
+                  if (name, u) in samples]
+        found += _differ_sampled(d, samples.get(key), around, tol)
+    if report.exact:
+        report.controller_frames = len(recorded.segments)
+        report.identical_bytes = sum(a == b for a, b in zip(recorded.segments, replayed.segments))
+    if found:
+        report.divergence = min(found, key=lambda dv: dv.time_s)
+
+
+def _uptime(d: DecodedFrame) -> float:
+    return float(d.fields().get("uptime_ms", d.time_s * 1e3))
+
+
+def _differ(recorded: DecodedFrame, replayed: Optional[DecodedFrame], exact: bool,
+            tol: Tolerances) -> list[Divergence]:
+    """The first field in which `replayed` differs from `recorded` (a list of at most one)."""
+    if replayed is None:
+        return [Divergence(recorded.time_s, recorded.name, "(frame)", "sent", "(none)")]
+    if replayed.name != recorded.name:
+        return [Divergence(recorded.time_s, recorded.name, "(message)", recorded.name, replayed.name)]
+    if exact and replayed.time_s != recorded.time_s:
+        return [Divergence(recorded.time_s, recorded.name, "(time)", f"{recorded.time_s:.6f} s",
+                           f"{replayed.time_s:.6f} s")]
+    mine, theirs = recorded.fields(), replayed.fields()
+    for spec_field in recorded.message.spec.fields:
+        name = spec_field.name
+        a, b = mine[name], theirs[name]
+        if exact:
+            same = a == b or (isinstance(a, float) and math.isnan(a) and math.isnan(b))
+        elif name in HOST_DEPENDENT:
+            continue
+        else:
+            same = _close(spec_field, a, b, tol)
+        if not same:
+            return [Divergence(recorded.time_s, recorded.name, name, a, b)]
+    return []
+
+
+def _close(spec_field, a: Any, b: Any, tol: Tolerances) -> bool:
+    if isinstance(a, float) or spec_field.unit == "ms":
+        return tol.allows(spec_field.unit, float(a), float(b))
+    return a == b
+
+
+def _bits_seen(spec_field, value: Any, values: list[Any]) -> bool:
+    """A bit field (an integer without an enum: homed axes, faults, warnings, error bits) whose every bit the replay
+    showed within the window: bits that change within milliseconds of each other (axes reaching their home
+    switches) may never all stand together in the replay as they did in the recording."""
+    if spec_field.enum is not None or not isinstance(value, int) or isinstance(value, bool):
+        return False
+    set_seen = clear_seen = 0
+    for v in values:
+        set_seen |= v
+        clear_seen |= ~v
+    return value & ~set_seen == 0 and ~value & ~clear_seen == 0
+
+
+def _differ_sampled(recorded: DecodedFrame, at: Optional[Message], around: list[Message],
+                    tol: Tolerances) -> list[Divergence]:
+    """Real time: each field of a recorded telemetry frame must match what the replayed controller showed at some
+    moment within `shift_ms` of the same uptime (`around`); a command that reached the real controller a
+    millisecond later moves a transient, a switch reached or a mode changed, by as much."""
+    if not around:
+        return [Divergence(recorded.time_s, recorded.name, "(frame)", "sent", "(no such telemetry)")]
+    for spec_field in recorded.message.spec.fields:
+        name = spec_field.name
+        if name in HOST_DEPENDENT or name == "uptime_ms":
+            continue
+        a = recorded.fields()[name]
+        values = [m.as_dict()[name] for m in around]
+        if not any(_close(spec_field, a, b, tol) for b in values) and not _bits_seen(spec_field, a, values):
+            shown = (at or around[len(around) // 2]).as_dict()[name]
+            return [Divergence(recorded.time_s, recorded.name, name, a, shown)]
+    return []
+
+
+def parse_params(pairs: tuple[str, ...]) -> dict[str, float]:
+    """`NAME=VALUE` pairs; ValueError naming a malformed one."""
+    out: dict[str, float] = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--param {pair}: write NAME=VALUE with a number") from None
+    return out
+

@@ -1,0 +1,129 @@
+"""`aspod replay`: a recorded session re-simulated; a simulated-clock recording to the bit and byte for byte, a
+real-time one within tolerances; a changed parameter makes it diverge, and the first divergence is named."""
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from protocol.messages import MESSAGES as M
+from protocol.states import Axis
+from host_tools.apps.replay import ReplayError, Tolerances, parse_params, replay
+from host_tools.cli.main import main
+from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.decode import SessionDecoder
+from host_tools.worlds.world import LockstepBench
+from tests import test_e2e
+
+ASPOD = test_e2e.ASPOD
+env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
+
+
+def record_bench_session(path: Path, seed: int = 2) -> None:
+    """A session on the simulated clock, as `aspod demo --record` makes one: commands, motion, a payload put in
+    the gripper (a world event), telemetry at 20 Hz."""
+    bench = LockstepBench(seed=seed)
+    bench.record(CaptureWriter.create(path, SessionInfo(clock="simulated", tool="test", seed=seed,
+                                                        settings=bench.settings())))
+    assert bench.connect()
+    for msg in (M["SetTelemetryRate"](20), M["Enable"](), M["MoveBy"](int(Axis.J1), 2.0, 2.0),
+                M["Jog"](int(Axis.J2), -1.5)):
+        assert bench.call(msg).ok
+    bench.run_for(0.7)
+    bench.act("set_payload", 0.4)
+    bench.run_for(0.5)
+    assert bench.call(M["Stop"]()).ok
+    bench.run_for(0.3)
+    bench.close()
+
+
+@pytest.fixture(scope="module")
+def bench_capture(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("replay") / "bench.pcapng"
+    record_bench_session(path)
+    return path
+
+
+def test_a_simulated_clock_recording_replays_to_the_bit_and_byte_for_byte(bench_capture):
+    capture = SessionCapture.read(bench_capture)
+    assert [e["action"] for _, e, _ in capture.world_events] == ["set_payload"]
+    report = replay(capture)
+    assert report.matches, report.describe()
+    assert report.exact and report.commands == 5 and report.replies == 5
+    assert report.telemetry > 40 and report.events >= 2
+    assert report.identical_bytes == report.controller_frames > 50
+
+
+def test_a_changed_parameter_diverges_and_the_first_divergence_is_named(bench_capture):
+    report = replay(SessionCapture.read(bench_capture), params={"j1_kp": 2.0})
+    assert not report.matches
+    d = report.divergence
+    # nothing can differ before j1 is driven: the gain acts on its motion only
+    capture = SessionCapture.read(bench_capture)
+    decoder = SessionDecoder(None)
+    moved_s = next(f.time_s for f in capture.frames
+                   if decoder.decode(f.data, f.time_s, f.link, f.direction).name == "MoveBy")
+    assert d.time_s > moved_s and d.recorded != d.replayed
+    assert "first divergence at" in report.describe() and f"{d.message}.{d.field}" in report.describe()
+
+
+def test_a_world_event_left_out_is_a_divergence(bench_capture, tmp_path):
+    capture = SessionCapture.read(bench_capture)
+    capture.world_events.clear()                     # as if the payload had never been put in the gripper
+    report = replay(capture)
+    assert not report.matches
+    assert report.divergence.time_s >= 0.7
+
+
+def test_replay_refuses_what_it_cannot_replay(bench_capture, tmp_path):
+    broken = tmp_path / "cut.pcapng"
+    broken.write_bytes(bench_capture.read_bytes()[:-10])
+    with pytest.raises(ReplayError, match="breaks at byte"):
+        replay(SessionCapture.read(broken))
+    host_only = tmp_path / "host.pcapng"
+    CaptureWriter.create(host_only, SessionInfo(clock="wall", tool="aspod teleop")).close()
+    with pytest.raises(ReplayError, match="without the world"):
+        replay(SessionCapture.read(host_only))
+    with pytest.raises(ReplayError, match="no_such_param"):
+        replay(SessionCapture.read(bench_capture), params={"no_such_param": 1.0})
+    with pytest.raises(ValueError, match="NAME=VALUE"):
+        parse_params(("j1_kp",))
+
+
+def test_aspod_replay_command_json_and_exit_status(bench_capture, tmp_path, capsys):
+    out = tmp_path / "replayed.pcapng"
+    assert main(["replay", str(bench_capture), "--json", "--output", str(out)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["match"] is True and doc["exact"] is True and doc["divergence"] is None
+    assert SessionCapture.read(out).info.tool == "aspod replay"
+    assert main(["replay", str(bench_capture), "--param", "j1_kp=2"]) == 1
+    assert "first divergence at" in capsys.readouterr().out
+    assert main(["replay", str(tmp_path / "none.pcapng")]) == 2
+
+
+def test_tolerances_by_unit():
+    tol = Tolerances()
+    assert tol.allows("deg", 10.0, 10.09) and not tol.allows("deg", 10.0, 10.2)
+    assert tol.allows("ms", 1000, 1020) and not tol.allows("ms", 1000, 1030)
+    assert tol.allows("", 100.0, 101.5) and not tol.allows("", 100.0, 103.0)
+
+
+@pytest.mark.pty
+def test_a_real_time_sim_recording_replays_within_tolerances_and_a_changed_gain_diverges(sim_factory, tmp_path):
+    capture = tmp_path / "sim.pcapng"
+    sim = sim_factory("--pty", "--record", str(capture), "--seed", "9", "--no-tracker")
+    script = "ping\nenable\ntelemetry 20\nmoveby j1 3 3\nwait\njog j2 -2\nping\nstop\nstatus\nquit\n"
+    done = sim.teleop(script)
+    assert done.returncode == 0, done.stderr.decode()
+    sim.stop()
+    recorded = SessionCapture.read(capture)
+    report = replay(recorded)
+    assert report.matches, report.describe()
+    assert not report.exact and report.commands == 8 and report.telemetry > 10
+    changed = replay(recorded, params={"j1_acc_dps2": 1.0})
+    assert not changed.matches and changed.divergence.message in ("TelemetryJoints", "MotionDone")
+    shown = subprocess.run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], capture_output=True,
+                           text=True, timeout=120)
+    assert shown.returncode == 1 and "first divergence at" in shown.stdout
