@@ -1,4 +1,7 @@
-"""The command channel over a lossy line: exactly once, in order, one outcome each."""
+"""The command channel over a lossy line: exactly once, in order, one outcome each.
+
+The line is the impairment model `aspod proxy` and the lock-step world use (host_tools/sessions/impairment.py):
+bit errors, drops, duplicates, latency, fades."""
 from __future__ import annotations
 
 import math
@@ -6,7 +9,7 @@ import random
 
 import pytest
 
-from host_tools.worlds.link_emulator import LineFaults, LossyLine
+from host_tools.sessions.impairment import Impairment, ImpairedLink
 from protocol.controller_link import ControllerLink
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
@@ -18,9 +21,9 @@ KEY = bytes(range(32))
 
 
 class LossyPair:
-    """Host and controller links joined by two lossy lines, on simulated time (1 ms steps)."""
+    """Host and controller links joined by an impaired link, on simulated time (1 ms steps)."""
 
-    def __init__(self, faults: LineFaults, seed: int, latency_steps: int = 3) -> None:
+    def __init__(self, spec: Impairment, seed: int, latency_ms: float = 3.0) -> None:
         rng = random.Random(seed)
         self.executed: list[int] = []
         self.events: list = []
@@ -28,10 +31,8 @@ class LossyPair:
                                          nonce_source=lambda: rng.randbytes(16))
         self.host = HostLink(KEY, LinkConfig(), nonce_source=lambda: rng.randbytes(16),
                              on_event=lambda m, now: self.events.append(m))
-        self.up = LossyLine(faults, random.Random(seed + 1))
-        self.down = LossyLine(faults, random.Random(seed + 2))
-        self.latency = latency_steps
-        self.in_flight: list[tuple[int, str, bytes]] = []
+        self.link = ImpairedLink(Impairment(**{**spec.__dict__, "seed": seed, "latency_ms": latency_ms}))
+        self.up, self.down = self.link.to_controller, self.link.to_host
         self.step_no = 0
 
     def _execute(self, msg, urgent, now):
@@ -47,7 +48,7 @@ class LossyPair:
         or a timer due (`next_timer_s`, as the comms task sleeps on it); at most `max_steps` at a time."""
         if self.host.tx_backlog or self.controller.tx_backlog:
             return
-        due = [arrival for arrival, _, _ in self.in_flight]
+        due = [math.ceil(self.link.next_due_s() / 0.001 - 1e-9)] if self.link.next_due_s() != math.inf else []
         for end in (self.host, self.controller):
             timer = end.next_timer_s()
             if timer != math.inf:
@@ -57,17 +58,17 @@ class LossyPair:
 
     def step(self) -> None:
         self.step_no += 1
-        now = self.now
-        due = [x for x in self.in_flight if x[0] <= self.step_no]
-        self.in_flight = [x for x in self.in_flight if x[0] > self.step_no]
-        for _, where, data in due:
-            (self.controller if where == "c" else self.host).feed(data, now)
-        self.host.poll(now)
-        self.controller.poll(now)
-        while (frame := self.host.take_frame(now)) is not None:
-            self.in_flight.append((self.step_no + self.latency, "c", self.up.transfer(frame)))
-        while (frame := self.controller.take_frame(now)) is not None:
-            self.in_flight.append((self.step_no + self.latency, "h", self.down.transfer(frame)))
+        now = self.now + 1e-9      # what is due at this step arrives in it
+        for line, end in ((self.up, self.controller), (self.down, self.host)):
+            data = line.receive(now)
+            if data:
+                end.feed(data, self.now)
+        self.host.poll(self.now)
+        self.controller.poll(self.now)
+        while (frame := self.host.take_frame(self.now)) is not None:
+            self.up.send(frame, self.now)
+        while (frame := self.controller.take_frame(self.now)) is not None:
+            self.down.send(frame, self.now)
 
 
 def run_commands(pair: LossyPair, count: int, window: int = 6, max_steps: int = 20_000_000) -> list:
@@ -112,16 +113,16 @@ def check_exactly_once(pair: LossyPair, handles: list) -> dict:
 
 
 def test_ten_thousand_commands_over_a_lossy_fading_line_run_exactly_once_in_order():
-    faults = LineFaults(bit_error_rate=2e-4, drop_rate=0.03, duplicate_rate=0.03,
-                        fade_start_rate=0.0005, fade_end_rate=0.002)
+    faults = Impairment(ber=2e-4, drop=0.03, dup=0.03, fade_every_s=20.0, fade_s=0.5)
     pair = LossyPair(faults, seed=11)
     handles = run_commands(pair, 10_000)
     outcomes = check_exactly_once(pair, handles)
     # the line really was bad, and the channel really worked through it
-    assert pair.up.bits_flipped + pair.down.bits_flipped > 100
-    assert pair.up.dropped + pair.down.dropped > 100
-    assert pair.up.duplicated + pair.down.duplicated > 100
-    assert pair.up.faded + pair.down.faded > 0
+    up, down = pair.up.stats, pair.down.stats
+    assert up.bits_flipped + down.bits_flipped > 100
+    assert up.dropped + down.dropped > 100
+    assert up.duplicated + down.duplicated > 100
+    assert up.faded + down.faded > 0
     assert pair.host.stats.retransmits > 100
     assert pair.controller.stats.replays > 0          # duplicates were caught by the counter check
     assert pair.controller.stats.stale_duplicates == 0  # every resend was still in the reply cache
@@ -131,13 +132,12 @@ def test_ten_thousand_commands_over_a_lossy_fading_line_run_exactly_once_in_orde
 
 
 def test_a_long_fade_suspends_the_link_and_fails_outstanding_commands_visibly():
-    pair = LossyPair(LineFaults(), seed=3)
+    pair = LossyPair(Impairment(fades=((0.5, 1e6),)), seed=3)      # the line goes dead at 0.5 s, for good
     pair.host.connect(pair.now)
     while pair.host.state is not LinkState.UP:
         pair.step()
-    for _ in range(200):
+    while pair.now < 0.5:
         pair.step()
-    pair.up.faults = LineFaults(fade_start_rate=1.0, fade_end_rate=0.0)   # the line goes dead
     handles = [pair.host.submit(Ping(i), pair.now) for i in range(3)]
     for _ in range(60_000):
         pair.step()
@@ -153,8 +153,7 @@ def test_a_long_fade_suspends_the_link_and_fails_outstanding_commands_visibly():
 
 
 def test_events_arrive_once_and_in_order_over_a_lossy_line():
-    faults = LineFaults(bit_error_rate=1e-4, drop_rate=0.05, duplicate_rate=0.05)
-    pair = LossyPair(faults, seed=5)
+    pair = LossyPair(Impairment(ber=1e-4, drop=0.05, dup=0.05), seed=5)
     pair.host.connect(pair.now)
     while pair.host.state is not LinkState.UP or pair.controller.session is None:
         pair.step()
@@ -169,26 +168,23 @@ def test_events_arrive_once_and_in_order_over_a_lossy_line():
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_exactly_once_holds_for_other_seeds(seed):
-    faults = LineFaults(bit_error_rate=5e-4, drop_rate=0.1, duplicate_rate=0.1,
-                        fade_start_rate=0.002, fade_end_rate=0.01)
+    faults = Impairment(ber=5e-4, drop=0.1, dup=0.1, fade_every_s=5.0, fade_s=0.5)
     pair = LossyPair(faults, seed=seed)
     check_exactly_once(pair, run_commands(pair, 500))
 
 
 def test_events_survive_a_fade_longer_than_the_retry_limit():
-    pair = LossyPair(LineFaults(), seed=9)
+    pair = LossyPair(Impairment(fades=((1.0, 40.0),)), seed=9)    # 40 s: the event sender gives up several times
     pair.host.connect(pair.now)
     while pair.host.state is not LinkState.UP or pair.controller.session is None:
         pair.step()
-    dead = LineFaults(fade_start_rate=1.0, fade_end_rate=0.0)
-    pair.up.faults = pair.down.faults = dead
+    while pair.now < 1.0:
+        pair.step()
     for i in range(5):
         pair.controller.send_event(StateChanged(1, 1, 0, 0, i))
-    for _ in range(40_000):                     # 40 s: the event sender gives up several times
+    for _ in range(40_000):
         pair.step()
     assert pair.controller.stats.event_resumes > 0
-    pair.up.faults = pair.down.faults = LineFaults()
-    pair.up.fading = pair.down.fading = False
     for _ in range(20_000):
         pair.step()
     assert [e.uptime_ms for e in pair.events] == list(range(5))

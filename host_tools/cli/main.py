@@ -202,6 +202,8 @@ EXAMPLES = {
     "log": ["aspod log session.pcapng", "aspod log session.pcapng --class command --class event",
             "aspod log session.pcapng --stats", "aspod log session.pcapng --message TelemetryJoints --csv joints.csv",
             "aspod log session.pcapng --plot session.png --key-file link.key"],
+    "proxy": ["aspod proxy --controller /dev/pts/5", "aspod proxy --controller socket://127.0.0.1:5000 --host tcp:6000 "
+              "--impair 'radio,seed=7' --record radio.pcapng"],
     "replay": ["aspod demo --record demo.pcapng && aspod replay demo.pcapng",
                "aspod replay sim.pcapng --param j1_kp=40 --output replayed.pcapng"],
     "wireshark": ["aspod wireshark -o aspod.lua && tshark -X lua_script:aspod.lua -r session.pcapng"],
@@ -374,6 +376,25 @@ def build_parser() -> argparse.ArgumentParser:
     log_cmd.add_argument("--key-file", type=Path, default=None,
                          help="pre-shared key file (hex): verify every frame's MAC (without it MACs are not checked)")
 
+    proxy = add_command("proxy", help="a man in the middle between host and controller: impairs, shows and records "
+                                      "the link; prints ASPOD-LINK for the host")
+    proxy.add_argument("--host", default="pty", metavar="ENDPOINT",
+                       help="where the host connects: pty (a new pseudo-terminal, the default), tcp:PORT (tcp:0 picks "
+                            "one), or a device or pyserial URL")
+    proxy.add_argument("--controller", required=True, metavar="ENDPOINT",
+                       help="the controller: the port aspod sim announced (/dev/pts/N, socket://127.0.0.1:PORT), a "
+                            "device, a pyserial URL, or pty / tcp:PORT for a controller that connects itself")
+    proxy.add_argument("--impair", default="clean", metavar="SPEC",
+                       help="the link: a preset (clean, radio, optical) and/or key=value pairs: baud, latency_ms, "
+                            "jitter_ms, ber, drop, dup, fade_every_s, fade_s, block_every_s, block_s, fade=START+S, "
+                            "block=START+S, seed (e.g. 'radio,fade=60+30')")
+    proxy.add_argument("--seed", type=int, default=None, help="the impairment's seed (overrides seed= in --impair)")
+    proxy.add_argument("--baud", type=_baud, default=115200, help="line rate of a device endpoint (default 115200)")
+    proxy.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                       help="capture every frame both ways as sent, each lost or damaged one with a comment")
+    proxy.add_argument("--key-file", type=Path, default=None, help="verify MACs in the live view with this key")
+    proxy.add_argument("--no-view", action="store_true", help="no live view (the summary at the end only)")
+
     replay_cmd = add_command("replay", help="re-simulate a recorded session (aspod sim/demo --record) and report "
                                             "the first divergence")
     replay_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture from aspod sim or aspod demo --record")
@@ -434,6 +455,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "log":
         from host_tools.cli.log import run_log
         return run_log(settings.log_settings(args))
+    if args.command == "proxy":
+        from host_tools.cli.proxy import run_proxy
+        return run_proxy(settings.proxy_settings(args))
     if args.command == "replay":
         from host_tools.cli.replay import run_replay
         return run_replay(settings.replay_settings(args))

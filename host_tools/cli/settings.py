@@ -20,6 +20,7 @@ from host_tools.worlds.settings import PlantSettings, TIMINGS
 
 if TYPE_CHECKING:
     from host_tools.apps.demo import DemoSettings
+    from host_tools.sessions.impairment import Impairment
     from host_tools.apps.tracker_day import DaySettings
 
 
@@ -104,6 +105,18 @@ class LogSettings:
     csv: Optional[Path] = None
     plot: Optional[Path] = None
     key_file: Optional[Path] = None
+
+
+@dataclass(frozen=True)
+class ProxySettings:
+    """`aspod proxy`: its two endpoints, the link's impairment, the capture and the live view."""
+    host: str
+    controller: str
+    impairment: "Impairment"
+    baud: int = 115200
+    record: Optional[Path] = None
+    key_file: Optional[Path] = None
+    view: bool = True
 
 
 @dataclass(frozen=True)
@@ -335,3 +348,14 @@ def replay_settings(args: argparse.Namespace) -> ReplaySettings:
         raise ValueError(f"--output {output}: no folder {Path(output).parent}")
     return ReplaySettings(args.capture, tuple(parse_params(tuple(args.param or ())).items()), args.key_file,
                           args.json, output)
+
+
+def proxy_settings(args: argparse.Namespace) -> ProxySettings:
+    from host_tools.sessions.impairment import Impairment
+    impairment = Impairment.parse(args.impair)
+    if args.seed is not None:
+        impairment = impairment.with_seed(args.seed)
+    if args.host == args.controller and args.host != "pty":
+        raise ValueError(f"--host and --controller are both {args.host}: the two sides must differ")
+    return ProxySettings(args.host, args.controller, impairment, args.baud, record_path(args.record),
+                         args.key_file, not args.no_view)

@@ -22,6 +22,7 @@ from firmware_py.controller import Controller, ControllerConfig
 from timebase.scheduler import Scheduler, poll_tick, run_live
 from firmware_py.uart import PacedUart, Port
 from host_tools.sessions.capture import CaptureWriter
+from host_tools.sessions.impairment import ImpairedLine, ImpairedLink, Impairment
 from host_tools.worlds import plant_actions
 from host_tools.worlds.can_log import HalBusLog
 from host_tools.worlds.ports import BufferPort, RecordedPort
@@ -120,7 +121,7 @@ class LockstepBench:
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
                  plant_params: Optional[PlantParams] = None, plant: PlantSettings = PlantSettings(),
                  sleeping_line: bool = True, clock: Optional[SimClock] = None,
-                 direct_values: bool = True) -> None:
+                 direct_values: bool = True, impairment: Optional[Impairment] = None) -> None:
         self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
@@ -140,6 +141,10 @@ class LockstepBench:
         self._host_running = False
         self._host_last_s: Optional[float] = None
         self.world.scheduler.add("host", self._host_step)
+        # An impaired line (aspod proxy's model) between them: bytes go in when written and come out when due.
+        self.line = None if impairment is None else ImpairedLink(impairment)
+        if self.line is not None:
+            self.world.scheduler.add("line", self._line_step, math.inf)
         # The host runs when bytes reach it, when its link has work, and when its timers are due.
         self.sleeping_line = sleeping_line
         if sleeping_line:
@@ -180,11 +185,19 @@ class LockstepBench:
                 if self.port.outbox:
                     data = self.to_host(bytes(self.port.outbox))
                     self.port.outbox.clear()
+                    if self.line is not None:
+                        self._into_line(self.line.to_host, data, now)
+                    elif data:
+                        self.host.feed(data, now)
+                if self.line is not None:
+                    data = self.line.to_host.receive(now)
                     if data:
                         self.host.feed(data, now)
                 self.host.poll(now)
                 out = self.host.take_all(now)
-                if out:
+                if out and self.line is not None:
+                    self._into_line(self.line.to_controller, out, now)
+                elif out:
                     self.port.deliver(self.to_controller(out))
             finally:
                 self._host_running = False
@@ -221,6 +234,19 @@ class LockstepBench:
         """What `aspod replay` needs to build this world again (a capture's settings): the plant and every
         controller parameter's value now."""
         return {"plant": self.plant_settings.to_dict(), "params": self.controller.params.values()}
+
+    def _into_line(self, line: ImpairedLine, data: bytes, now: float) -> None:
+        line.send(data, now)
+        self.world.scheduler.wake("line", line.next_due_s())
+
+    def _line_step(self, now: float) -> float:
+        """Bytes the impaired line delivers now: to the controller's port, or to the host (woken for them)."""
+        data = self.line.to_controller.receive(now)
+        if data:
+            self.port.deliver(self.to_controller(data))
+        if self.line.to_host.next_due_s() <= now:
+            self.world.scheduler.wake("host", now)
+        return self.line.next_due_s()
 
     def run_for(self, duration_s: float) -> None:
         self.world.scheduler.run_until(self.clock.now() + duration_s)

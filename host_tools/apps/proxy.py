@@ -1,0 +1,150 @@
+"""`aspod proxy`: a man in the middle between a host and a controller, impairing, showing and capturing the link.
+
+Each side is any endpoint a serial line can be here (`open_endpoint`): `pty` (a new pseudo-terminal pair:
+the other program opens the path the proxy prints), `tcp:PORT` (the proxy listens; `tcp:0` picks a free
+port), or a device or pyserial URL the proxy opens itself (`/dev/ttyUSB0`, `/dev/pts/5`,
+`socket://127.0.0.1:5000`, `rfc2217://...`). The usual set-up: the controller's side is the port
+`aspod sim` announced, the host's side a new pty that teleop opens.
+
+Every frame either way goes through one `ImpairedLink` (host_tools/sessions/impairment.py: pacing,
+latency and jitter, bit errors, drops, duplicates, fades, blockages, seeded), the model the lock-step
+world uses too. The live view prints each frame decoded (`SessionDecoder`: class, sequence numbers,
+message and fields, the MAC verdict with the key) with what the link did to it; the capture keeps
+every frame as it was sent, each lost or damaged one with a comment saying what befell it.
+
+When an endpoint the proxy opened goes away (the controller exits, the device is unplugged), it says
+which and stops with EXIT_LINK. A host that closes its pty or TCP connection is not an error: the
+next one may come.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable, Optional, TextIO
+
+from protocol.schema import Direction
+from timebase import Clock, RealClock
+
+from host_tools.sessions.capture import CaptureWriter
+from host_tools.sessions.decode import SessionDecoder, describe
+from host_tools.sessions.impairment import Fate, ImpairedLink
+from host_tools.worlds.ports import DevicePort, PtyPort, TcpServerPort
+
+log = logging.getLogger("aspod")
+READ_SIZE = 4096
+IDLE_S = 0.0005            # the loop's sleep when nothing is due sooner: the latency the proxy itself adds
+
+
+class EndpointGone(Exception):
+    """An endpoint the proxy opened failed: `side` says which."""
+
+    def __init__(self, side: str, url: str, reason: str) -> None:
+        super().__init__(f"the {side} side ({url}) is gone: {reason}")
+        self.side = side
+
+
+def open_endpoint(spec: str, baud: int):
+    """`pty`, `tcp:PORT` or a device / pyserial URL: the port object (read, write, close, url)."""
+    if spec == "pty":
+        return PtyPort()
+    if spec.startswith("tcp:"):
+        try:
+            port = int(spec[4:])
+        except ValueError:
+            raise ValueError(f"{spec}: write tcp:PORT with a port number (tcp:0 picks a free one)") from None
+        if not 0 <= port <= 65535:
+            raise ValueError(f"{spec}: a TCP port is within 0..65535")
+        return TcpServerPort(port)
+    import serial
+    try:
+        return DevicePort(spec, baud)
+    except (serial.SerialException, ValueError) as exc:
+        raise OSError(f"cannot open {spec}: {exc}") from None
+
+
+@dataclass
+class _Side:
+    name: str            # "host" or "controller"
+    port: object
+    outgoing: bytearray = field(default_factory=bytearray)   # delivered by the link, not yet taken by the port
+
+
+class Proxy:
+    """Forwards both ways through `link`; `step()` does what is due now, `run(should_stop)` loops."""
+
+    def __init__(self, host_port, controller_port, link: ImpairedLink, *, clock: Optional[Clock] = None,
+                 view: Optional[TextIO] = None, capture: Optional[CaptureWriter] = None,
+                 psk: Optional[bytes] = None) -> None:
+        self.clock = clock or RealClock()
+        self.origin = self.clock.now()
+        self.link = link
+        self.host = _Side("host", host_port)
+        self.controller = _Side("controller", controller_port)
+        self.view = view
+        self.capture = capture
+        self.decoder = SessionDecoder(psk)
+        self.frames = 0
+
+    def _read(self, side: _Side) -> bytes:
+        try:
+            return side.port.read(READ_SIZE)
+        except OSError as exc:
+            raise EndpointGone(side.name, side.port.url, str(exc) or type(exc).__name__) from None
+
+    def _write(self, side: _Side) -> None:
+        if not side.outgoing:
+            return
+        try:
+            written = side.port.write(bytes(side.outgoing))
+        except OSError as exc:
+            raise EndpointGone(side.name, side.port.url, str(exc) or type(exc).__name__) from None
+        del side.outgoing[:written]
+
+    def step(self) -> float:
+        """Move what is there and what is due; returns the time (link time) when something is next due."""
+        t = self.clock.now() - self.origin
+        for source, line, direction in ((self.host, self.link.to_controller, Direction.TO_CONTROLLER),
+                                        (self.controller, self.link.to_host, Direction.TO_HOST)):
+            data = self._read(source)
+            if data:
+                for fate in line.send(data, t):
+                    self._show(fate, direction, t)
+        for line, target in ((self.link.to_controller, self.controller), (self.link.to_host, self.host)):
+            target.outgoing += line.receive(t)
+            self._write(target)
+        return self.link.next_due_s()
+
+    def _show(self, fate: Fate, direction: Direction, t: float) -> None:
+        self.frames += 1
+        note = fate.describe()
+        if self.capture is not None:
+            self.capture.write("link", direction, fate.sent, RealClock.wall_time(), comment=note)
+        if self.view is not None:
+            segment = fate.sent.strip(b"\x00")
+            decoded = self.decoder.decode(segment, t, "link", direction)
+            print(describe(decoded) + (f"  [{note}]" if note else ""), file=self.view, flush=True)
+
+    def run(self, should_stop: Callable[[], bool]) -> None:
+        while not should_stop():
+            due = self.step()
+            now = self.clock.now() - self.origin
+            self.clock.sleep(max(0.0, min(IDLE_S, due - now)))
+
+    def summary(self) -> str:
+        lines = []
+        for name, line in (("host -> controller", self.link.to_controller), ("controller -> host", self.link.to_host)):
+            s = line.stats
+            lines.append(f"{name}: {s.frames} frames ({s.bytes_in} B in, {s.bytes_out} B out); lost: {s.dropped} "
+                         f"dropped, {s.faded} in fades, {s.blocked} in blockages; {s.duplicated} duplicated; "
+                         f"{s.bits_flipped} bits flipped")
+        return "\n".join(lines)
+
+    def close(self) -> None:
+        for side in (self.host, self.controller):
+            try:
+                side.port.close()
+            except OSError:
+                pass
+        if self.capture is not None:
+            self.capture.close()
+

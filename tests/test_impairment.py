@@ -1,0 +1,103 @@
+"""The link's impairment model (host_tools/sessions/impairment.py): parsed by name, seeded, the same fates for the
+same frames, outages shared by both directions, order kept; and the lock-step world through it."""
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from protocol.framing import encode_frame
+from protocol.messages import MESSAGES as M, SCHEMA
+from protocol.states import Axis
+from host_tools.sessions.impairment import BLOCKAGE, FADE, Impairment, ImpairedLink
+from host_tools.worlds.world import LockstepBench
+
+
+def frames(n: int, size: int = 20) -> list[bytes]:
+    return [encode_frame(1, i, 0, SCHEMA["Ping"].id, i.to_bytes(4, "little")) + bytes(size) for i in range(n)]
+
+
+def run_line(spec: Impairment, sends: list[tuple[float, bytes]], until_s: float = 1e4) -> tuple[list, bytes]:
+    link = ImpairedLink(spec)
+    fates = [f for t, data in sends for f in link.to_controller.send(data, t)]
+    return fates, link.to_controller.receive(until_s)
+
+
+def test_presets_and_pairs_parse_and_bad_words_are_named():
+    radio = Impairment.parse("radio,seed=4,fade=60+30")
+    assert (radio.name, radio.seed, radio.latency_ms, radio.fades) == ("radio", 4, 20.0, ((60.0, 30.0),))
+    custom = Impairment.parse("ber=1e-5, drop=0.01, block=5+2, baud=9600")
+    assert (custom.ber, custom.drop, custom.blocks, custom.baud) == (1e-5, 0.01, ((5.0, 2.0),), 9600)
+    for bad, words in (("sunny", "no impairment preset"), ("drop=2", "probability"), ("drop=x", "drop=NUMBER"),
+                       ("fade=30", "START+DURATION"), ("warp=9", "no such impairment"), ("", "empty"),
+                       ("fade_every_s=10", "fade_s"), ("fade=5+0", "duration > 0"), ("latency_ms=-1", ">= 0")):
+        with pytest.raises(ValueError, match=re.escape(words)):
+            Impairment.parse(bad)
+
+
+def test_the_same_seed_and_frames_meet_the_same_fates_and_another_seed_others():
+    spec = Impairment.parse("ber=2e-3,drop=0.1,dup=0.1,latency_ms=5,jitter_ms=5,fade_every_s=2,fade_s=0.3,seed=9")
+    sends = [(i * 0.01, f) for i, f in enumerate(frames(500))]
+    first, out1 = run_line(spec, sends)
+    second, out2 = run_line(spec, sends)
+    assert [(f.lost, f.bits_flipped, f.duplicated, f.due_s) for f in first] == \
+        [(f.lost, f.bits_flipped, f.duplicated, f.due_s) for f in second]
+    assert out1 == out2
+    other, _ = run_line(spec.with_seed(10), sends)
+    assert [f.lost for f in other] != [f.lost for f in first]
+    lost = {f.lost for f in first}
+    assert {"drop", FADE} <= lost and any(f.bits_flipped for f in first) and any(f.duplicated for f in first)
+
+
+def test_chunking_does_not_change_a_frames_fate():
+    spec = Impairment.parse("ber=1e-3,drop=0.2,seed=3")
+    stream = b"".join(frames(100))
+    whole, out_whole = run_line(spec, [(0.0, stream)])
+    bytewise, out_bytes = run_line(spec, [(0.0, stream[i:i + 7]) for i in range(0, len(stream), 7)])
+    assert [f.sent for f in whole] == [f.sent for f in bytewise] and out_whole == out_bytes
+
+
+def test_outages_are_the_links_and_take_both_directions():
+    link = ImpairedLink(Impairment.parse("fade=1+0.5,block=3+1"))
+    assert link.outages.at(1.2) == FADE and link.outages.at(3.5) == BLOCKAGE and link.outages.at(2.0) is None
+    up = link.to_controller.send(frames(1)[0], 1.2)
+    down = link.to_host.send(frames(1)[0], 1.2)
+    assert up[0].lost == down[0].lost == FADE
+    random_outages = ImpairedLink(Impairment.parse("fade_every_s=10,fade_s=2,seed=1")).outages.windows(1000)
+    assert 60 < len(random_outages) < 140 and all(w[1] > w[0] for w in random_outages)
+    assert random_outages == ImpairedLink(Impairment.parse("fade_every_s=10,fade_s=2,seed=1")).outages.windows(1000)
+
+
+def test_latency_jitter_and_pacing_keep_order_and_take_the_wire_time():
+    spec = Impairment.parse("latency_ms=10,jitter_ms=30,baud=9600,seed=2")
+    link = ImpairedLink(spec)
+    sent = frames(20)
+    fates = [link.to_controller.send(f, i * 0.001)[0] for i, f in enumerate(sent)]
+    dues = [f.due_s for f in fates]
+    assert dues == sorted(dues)                                   # never overtakes
+    assert all(d >= i * 0.001 + 0.010 for i, d in enumerate(dues))
+    assert dues[-1] - dues[0] >= sum(len(f.delivered) for f in fates[1:]) * 10 / 9600 - 1e-9   # the rate
+    assert link.to_controller.receive(dues[0] - 1e-6) == b""
+    assert link.to_controller.receive(dues[-1]) == b"".join(f.sent for f in fates)
+
+
+def test_a_lockstep_world_through_a_bad_radio_runs_every_command_once():
+    spec = Impairment.parse("radio,ber=3e-4,drop=0.05,dup=0.05,fade=3+1.5,seed=5")
+    bench = LockstepBench(seed=1, impairment=spec)
+    try:
+        assert bench.connect(timeout_s=10)
+        assert bench.call(M["Enable"]()).ok
+        handles = [bench.host.submit(M["MoveBy"](int(Axis.J1), 0.1, 1.0), bench.clock.now()) for _ in range(10)]
+        handles += [bench.host.submit(M["Ping"](i), bench.clock.now()) for i in range(30)]
+        assert bench.wait_until(lambda: all(h.done for h in handles), 60)
+        assert all(h.ok for h in handles), [h.describe() for h in handles if not h.ok]
+        assert bench.controller.link.commands_executed == 41          # exactly once, through drops and doubles
+        stats = (bench.line.to_controller.stats, bench.line.to_host.stats)
+        assert sum(s.dropped + s.duplicated for s in stats) > 0 and sum(s.bits_flipped for s in stats) > 0
+        assert [h.reply.token for h in handles[10:]] == list(range(30))
+        before = bench.line.to_host.stats.faded
+        bench.run_for(max(0.0, 4.6 - bench.clock.now()))             # through the fade at 3 s
+        assert bench.line.to_host.stats.faded > before or bench.clock.now() > 4.5
+        assert bench.call(M["Ping"](99)).reply.token == 99            # and on the other side of it
+    finally:
+        bench.close()

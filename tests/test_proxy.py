@@ -1,0 +1,89 @@
+"""`aspod proxy` between a real `aspod sim` and a real `aspod teleop`, over real ptys: impairments on, the live view
+decoded, the capture read by `aspod log` and by tshark with the dissector; an endpoint that goes away is named."""
+from __future__ import annotations
+
+import re
+import shutil
+import signal
+import subprocess
+import threading
+
+import pytest
+
+from protocol import auth
+from host_tools.sessions.capture import SessionCapture
+from host_tools.sessions.decode import MAC_OK, SessionDecoder
+from host_tools.worlds.child import Child
+from tests import test_e2e
+from tests.test_wireshark_dissector import tshark_fields
+
+pytestmark = pytest.mark.pty
+ASPOD = test_e2e.ASPOD
+env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
+read_line = test_e2e.read_line
+
+
+def start_proxy(env, controller_url: str, *args: str) -> tuple[Child, str, list[bytes]]:
+    """The proxy, the URL it offers the host, and its live view as it comes (read by a thread, so that a full pipe
+    never stops it)."""
+    proxy = Child(["proxy", "--controller", controller_url, *args], env=env)
+    line = read_line(proxy)
+    assert line.startswith("ASPOD-LINK "), line
+    view: list[bytes] = []
+    threading.Thread(target=lambda: view.extend(iter(proxy.proc.stdout.readline, b"")), daemon=True).start()
+    return proxy, line.split(" ", 1)[1], view
+
+
+def test_a_teleop_session_through_an_impaired_proxy_is_seen_live_and_captured(sim_factory, env, tmp_path):
+    sim = sim_factory("--pty", "--no-tracker")
+    capture = tmp_path / "proxy.pcapng"
+    proxy, url, view_lines = start_proxy(env, sim.url, "--impair", "ber=3e-4,drop=0.03,latency_ms=5,jitter_ms=5,seed=3",
+                             "--record", str(capture), "--key-file", str(sim.key_path))
+    script = "ping 1\nenable\ntelemetry 20\n" + "".join(f"ping {n}\n" for n in range(2, 40)) + "status\nquit\n"
+    done = subprocess.run(ASPOD + ["teleop", url, "--summary"], input=script.encode(), capture_output=True, env=env,
+                          timeout=180)
+    out = done.stdout.decode()
+    assert done.returncode == 0, done.stderr.decode() + out
+    assert out.count("ok   Pong") == 39
+    status, err = proxy.stop(signal.SIGINT, timeout_s=10)
+    assert status == 0, err
+    view = b"".join(view_lines).decode()
+    assert "host -> controller:" in err and "controller -> host:" in err       # the summary
+    # the live view: decoded frames with verified MACs, and what the line did to some of them
+    assert re.search(r"H>C COMMAND +seq=\d+ +ack=\d+ +Ping\(token=2\)  mac=ok", view), view[:2000]
+    assert "[lost (drop)]" in view or "bit(s) flipped]" in view
+
+    psk = auth.load_key(sim.key_path)
+    recorded = SessionCapture.read(capture)
+    assert recorded.error is None and recorded.info.tool == "aspod proxy"
+    decoder = SessionDecoder(psk)
+    decoded = [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in recorded.frames]
+    assert sum(d.name == "Ping" for d in decoded) >= 39                      # as sent, retransmissions too
+    assert all(d.mac == MAC_OK for d in decoded if d.frame is not None)      # the capture holds frames as sent
+    assert any(f.comment for f in recorded.frames)                           # each impaired one says how
+    log = subprocess.run(ASPOD + ["log", str(capture), "--stats"], capture_output=True, text=True, timeout=60)
+    assert log.returncode == 0 and "round trip COMMAND" in log.stdout
+
+    if shutil.which("tshark"):
+        lua = tmp_path / "aspod.lua"
+        subprocess.run(ASPOD + ["wireshark", "-o", str(lua)], check=True, capture_output=True, timeout=60)
+        rows = tshark_fields(lua, capture)
+        assert [r["aspod.message"] for r in rows] == [d.name for d in decoded]
+
+
+def test_a_proxy_whose_controller_goes_away_says_which_and_exits_nonzero(sim_factory, env):
+    sim = sim_factory("--pty", "--no-tracker")
+    proxy, _, _ = start_proxy(env, sim.url, "--no-view")
+    sim.stop()
+    status = proxy.proc.wait(timeout=30)
+    err = proxy.proc.stderr.read().decode()
+    assert status == 3, err
+    assert "controller side" in err and sim.url in err and "Traceback" not in err
+
+
+def test_proxy_refuses_bad_arguments_by_name(env):
+    for args, words in ((["--controller", "tcp:99999"], "within 0..65535"),
+                        (["--controller", "/dev/null", "--impair", "sunny"], "no impairment preset"),
+                        (["--controller", "/no/such/device"], "/no/such/device")):
+        done = subprocess.run(ASPOD + ["proxy", *args], capture_output=True, text=True, env=env, timeout=60)
+        assert done.returncode in (2, 3) and words in done.stderr and "Traceback" not in done.stderr
