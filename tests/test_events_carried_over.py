@@ -165,6 +165,6 @@ def test_a_host_client_that_closes_sends_what_its_link_still_has_queued():
     client.link.poll(client.clock.now())
     assert client.link.tx_backlog == 1       # here a Hello; after an event, its Ack
     written = bytearray()
-    client.serial.write = lambda data: written.extend(data) or len(data)
+    client.line.serial.write = lambda data: written.extend(data) or len(data)
     client.close()
     assert client.link.tx_backlog == 0 and decoded(bytes(written))[0][0].msg_id == SCHEMA["Hello"].id

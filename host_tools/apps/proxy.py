@@ -28,7 +28,6 @@ from timebase import Clock, RealClock
 from host_tools.sessions.capture import CaptureWriter
 from host_tools.sessions.decode import SessionDecoder, describe
 from host_tools.sessions.impairment import Fate, ImpairedLink
-from host_tools.worlds.ports import DevicePort, PtyPort, TcpServerPort
 
 log = logging.getLogger("aspod")
 READ_SIZE = 4096
@@ -41,25 +40,6 @@ class EndpointGone(Exception):
     def __init__(self, side: str, url: str, reason: str) -> None:
         super().__init__(f"the {side} side ({url}) is gone: {reason}")
         self.side = side
-
-
-def open_endpoint(spec: str, baud: int):
-    """`pty`, `tcp:PORT` or a device / pyserial URL: the port object (read, write, close, url)."""
-    if spec == "pty":
-        return PtyPort()
-    if spec.startswith("tcp:"):
-        try:
-            port = int(spec[4:])
-        except ValueError:
-            raise ValueError(f"{spec}: write tcp:PORT with a port number (tcp:0 picks a free one)") from None
-        if not 0 <= port <= 65535:
-            raise ValueError(f"{spec}: a TCP port is within 0..65535")
-        return TcpServerPort(port)
-    import serial
-    try:
-        return DevicePort(spec, baud)
-    except (serial.SerialException, ValueError) as exc:
-        raise OSError(f"cannot open {spec}: {exc}") from None
 
 
 @dataclass

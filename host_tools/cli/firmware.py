@@ -32,7 +32,7 @@ from firmware_py.controller import Controller, ControllerConfig
 from firmware_py.params import PARAMS_FILE_LIMIT
 from timebase.scheduler import Scheduler, run_live
 from firmware_py.uart import PacedUart, Port
-from host_tools.worlds.ports import DevicePort, PtyPort, TcpServerPort
+from host_tools.worlds.ports import DevicePort, PtyPort, RedundantPort, TcpServerPort, open_endpoint
 from protocol import auth, files
 from protocol.link import LinkConfig
 from protocol.lockstep import LockstepFollower
@@ -52,7 +52,18 @@ log = logging.getLogger("aspod")
 
 
 def open_port(settings: PortSettings, prog: str) -> Port:
-    """The controller's side of the line; a TCP port says on stderr when it refuses a newcomer."""
+    """The controller's side of the line; a TCP port says on stderr when it refuses a newcomer. With several
+    links, all of them as one redundant line (`RedundantPort`)."""
+    if settings.links:
+        ports = {}
+        try:
+            for name, endpoint in settings.links:
+                ports[name] = open_endpoint(endpoint, settings.baud)
+        except BaseException:
+            for port in ports.values():
+                port.close()
+            raise
+        return RedundantPort(ports, RealClock())
     if settings.tcp is not None:
         port = TcpServerPort(settings.tcp)
         port.on_refused = lambda peer: log.warning(f"{prog}: refused a TCP connection from {peer}: a live "

@@ -131,6 +131,10 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--tcp", type=bounded(int, 0, 65535), metavar="PORT",
                        help="serve TCP on 127.0.0.1:PORT (0 picks a free port)")
     where.add_argument("--port", metavar="DEVICE", help="use a real serial device (or any pyserial URL)")
+    where.add_argument("--link", action="append", metavar="NAME=ENDPOINT",
+                       help="one of several redundant links (repeatable): ENDPOINT is pty, tcp:PORT or a device; "
+                            "every frame goes out on each, the first copy in is kept (docs/sessions.md), e.g. "
+                            "--link radio=pty --link optical=tcp:0")
     add_link_args(parser)
     parser.add_argument("--no-pacing", action="store_true", help="do not emulate wire time (as fast as the port goes)")
     parser.add_argument("--loop-hz", type=bounded(float, 50.0, 5000.0), default=1000.0, metavar="HZ",

@@ -7,11 +7,12 @@ import signal
 import sys
 
 from protocol import auth
-from host_tools.apps.proxy import EndpointGone, Proxy, open_endpoint
+from host_tools.apps.proxy import EndpointGone, Proxy
 from host_tools.cli.settings import ProxySettings
 from host_tools.exit_codes import EXIT_LINK, EXIT_OK
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.sessions.impairment import ImpairedLink
+from host_tools.worlds.ports import open_endpoint
 
 log = logging.getLogger("aspod")
 

@@ -63,10 +63,14 @@ class PortSettings:
     device: Optional[str] = None
     baud: int = 115200
     paced: bool = True
+    links: tuple[tuple[str, str], ...] = ()     # (name, endpoint): several redundant links instead of one line
 
     def __post_init__(self) -> None:
         if self.tcp is not None and self.device is not None:
             raise ValueError("--tcp and --port: one line only")
+        names = [name for name, _ in self.links]
+        if len(set(names)) != len(names):
+            raise ValueError(f"--link: each link needs a name of its own, got {', '.join(names)}")
 
 
 @dataclass(frozen=True)
@@ -197,7 +201,13 @@ def plant_settings(args: argparse.Namespace) -> PlantSettings:
 
 
 def port_settings(args: argparse.Namespace) -> PortSettings:
-    return PortSettings(tcp=args.tcp, device=args.port, baud=args.baud, paced=not args.no_pacing)
+    links = []
+    for item in getattr(args, "link", None) or ():
+        name, sep, endpoint = item.partition("=")
+        if not sep or not name or not endpoint or not name.isidentifier():
+            raise ValueError(f"--link {item}: write NAME=ENDPOINT, e.g. radio=pty or optical=tcp:0")
+        links.append((name, endpoint))
+    return PortSettings(tcp=args.tcp, device=args.port, baud=args.baud, paced=not args.no_pacing, links=tuple(links))
 
 
 def controller_settings(args: argparse.Namespace) -> ControllerSettings:

@@ -1,8 +1,7 @@
-"""A live host: `HostLink` over any pyserial URL, pumped by a background thread.
+"""A live host: `HostLink` over any pyserial URL (or several redundant ones), pumped by a background thread.
 
-The pump reads with a size and a short timeout (pyserial's `socket://` reports
-`in_waiting` only as 0 or 1, so `read(in_waiting)` would starve), feeds the link,
-runs its timers and writes what it queued. Callers `call()` a command and wait for
+The pump reads the line (`client/lines.py`: one port, or several joined frame by frame) with a short
+timeout, feeds the link, runs its timers and writes what it queued. Callers `call()` a command and wait for
 its single outcome; telemetry and events are kept and handed to listeners.
 """
 from __future__ import annotations
@@ -19,10 +18,9 @@ from protocol.reasons import Reason
 from protocol.schema import Direction, Message
 from timebase import Clock, RealClock
 
+from host_tools.client.lines import open_lines
 from host_tools.sessions.capture import CaptureWriter
 
-READ_SIZE = 4096
-READ_TIMEOUT_S = 0.001
 
 
 class HostClient:
@@ -32,9 +30,9 @@ class HostClient:
         self.capture = capture      # every byte both ways, stamped with the wall clock's Unix time
         self.url = url
         try:
-            self.serial = serial.serial_for_url(url, baudrate=baud, timeout=READ_TIMEOUT_S, write_timeout=2.0)
-        except (serial.SerialException, ValueError) as exc:
-            raise LinkError(Reason.NO_SESSION, f"cannot open {url}: {exc}") from exc
+            self.line = open_lines(url, baud, self.clock)
+        except ValueError as exc:
+            raise LinkError(Reason.NO_SESSION, str(exc)) from exc
         self.event_listeners: list[Callable[[Message, float], None]] = []
         self.telemetry_listeners: list[Callable[[Message, float], None]] = []
         self.events: list[Message] = []
@@ -46,25 +44,10 @@ class HostClient:
         self._thread.start()
 
     # ---- pump thread ----
-    def _read(self) -> bytes:
-        """Up to the first byte waits `READ_TIMEOUT_S`; the rest is whatever is already there.
-
-        pyserial's `read(size)` waits out its whole timeout unless `size` bytes come, so
-        read one byte, then what `in_waiting` reports (for `socket://` that is 0 or 1, so
-        keep going while it says more is there).
-        """
-        data = self.serial.read(1)
-        while data and len(data) < READ_SIZE:
-            waiting = self.serial.in_waiting
-            if not waiting:
-                break
-            data += self.serial.read(min(waiting, READ_SIZE - len(data)))
-        return data
-
     def _pump(self) -> None:
         while not self._stop:
             try:
-                data = self._read()
+                data = self.line.read()
                 with self._cond:
                     now = self.clock.now()
                     if data:
@@ -85,7 +68,7 @@ class HostClient:
         """Write what the link queued (called with the lock held)."""
         out = self.link.take_all(now)
         if out:
-            self.serial.write(out)
+            self.line.write(out)
             if self.capture is not None:
                 self.capture.write("link", Direction.TO_CONTROLLER, out, RealClock.wall_time())
 
@@ -159,9 +142,9 @@ class HostClient:
         with self._cond:
             try:
                 self._flush(self.clock.now())
-                self.serial.reset_input_buffer()
+                self.line.reset_input_buffer()
             except (serial.SerialException, OSError):
                 pass                          # the port is gone already: nothing more can be sent
-        self.serial.close()
+        self.line.close()
         if self.capture is not None:
             self.capture.close()

@@ -441,6 +441,9 @@ def link_report(client) -> str:
              f"retransmits {s.retransmits}, telemetry lost {s.telemetry_lost}"]
     if link.peer_stats is not None:
         lines.append(f"  controller (its heartbeat {peer_age(client)}): " + format_message(link.peer_stats))
+    line = getattr(client, "line", None)
+    for path in (line.health() if line is not None else ()):     # redundant links: each path's share
+        lines.append(f"  path {path}")
     return "\n".join(lines)
 
 

@@ -18,6 +18,7 @@ import tty
 from typing import TYPE_CHECKING, Callable, Optional
 
 from protocol.schema import Direction
+from host_tools.sessions.redundancy import FrameMerger
 
 if TYPE_CHECKING:
     from host_tools.sessions.capture import CaptureWriter
@@ -270,3 +271,89 @@ class RecordedPort:
 
     def __setattr__(self, name: str, value) -> None:
         setattr(self._port, name, value)
+
+
+def open_endpoint(spec: str, baud: int):
+    """`pty` (a new pseudo-terminal pair), `tcp:PORT` (listen; tcp:0 picks a port) or a device / pyserial URL
+    (opened here): the port (read, write, close, url). ValueError or OSError naming `spec` if it cannot be."""
+    if spec == "pty":
+        return PtyPort()
+    if spec.startswith("tcp:"):
+        try:
+            port = int(spec[4:])
+        except ValueError:
+            raise ValueError(f"{spec}: write tcp:PORT with a port number (tcp:0 picks a free one)") from None
+        if not 0 <= port <= 65535:
+            raise ValueError(f"{spec}: a TCP port is within 0..65535")
+        return TcpServerPort(port)
+    import serial
+    try:
+        return DevicePort(spec, baud)
+    except (serial.SerialException, ValueError) as exc:
+        raise OSError(f"cannot open {spec}: {exc}") from None
+
+
+class RedundantPort:
+    """Several ports as one line (the report's redundant links): every byte written goes to all of them, and
+    what they bring is joined frame by frame, the first copy of each frame kept (`FrameMerger`).
+
+    A port that cannot take its bytes now keeps them (at most `BACKLOG` bytes; beyond that the oldest are
+    lost, as on a line nobody reads) and is offered them again at the next write or read. `url` names every
+    link: `radio=/dev/pts/3,optical=socket://127.0.0.1:40123`, which the host tools take as it is.
+    """
+
+    BACKLOG = 64 * 1024
+
+    def __init__(self, ports: dict[str, object], clock) -> None:
+        self.ports = dict(ports)
+        self.merger = FrameMerger(list(self.ports))
+        self._clock = clock
+        self._out = {name: bytearray() for name in self.ports}
+        self._generations = {name: getattr(port, "generation", 0) for name, port in self.ports.items()}
+        self._ready = bytearray()
+        self.lost_bytes = {name: 0 for name in self.ports}
+        self.url = ",".join(f"{name}={port.url}" for name, port in self.ports.items())
+
+    @property
+    def live_session(self):
+        return next(p.live_session for p in self.ports.values() if hasattr(p, "live_session"))
+
+    @live_session.setter
+    def live_session(self, value) -> None:
+        for port in self.ports.values():
+            if hasattr(port, "live_session"):
+                port.live_session = value
+
+    def read(self, max_bytes: int) -> bytes:
+        now = self._clock.now()
+        for name, port in self.ports.items():
+            data = port.read(4096)
+            generation = getattr(port, "generation", 0)
+            if generation != self._generations[name]:       # another client on that link: its half frame goes
+                self._generations[name] = generation
+                self.merger.reset(name)
+            if data:
+                self._ready += self.merger.feed(name, data, now)
+        self._flush()
+        out = bytes(self._ready[:max_bytes])
+        del self._ready[:max_bytes]
+        return out
+
+    def write(self, data: bytes) -> int:
+        for name in self.ports:
+            self._out[name] += data
+        self._flush()
+        return len(data)
+
+    def _flush(self) -> None:
+        for name, port in self.ports.items():
+            pending = self._out[name]
+            if pending:
+                del pending[:port.write(bytes(pending))]
+            if len(pending) > self.BACKLOG:
+                self.lost_bytes[name] += len(pending) - self.BACKLOG
+                del pending[:len(pending) - self.BACKLOG]
+
+    def close(self) -> None:
+        for port in self.ports.values():
+            port.close()

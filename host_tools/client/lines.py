@@ -1,0 +1,159 @@
+"""The host's end of the serial line: one pyserial port, or several redundant ones as one.
+
+`open_lines(url)` reads the address as `aspod sim` prints it: a single pyserial URL or device
+(`/dev/pts/5`, `socket://127.0.0.1:5000`), or several links, comma-separated, each optionally named
+(`radio=/dev/pts/3,optical=socket://127.0.0.1:40123`). With several, every frame is written on each and
+what they bring is joined frame by frame, the first copy kept (host_tools/sessions/redundancy.py); `health`
+says what each path has carried.
+"""
+from __future__ import annotations
+
+import selectors
+
+import serial
+
+from protocol.errors import LinkError
+from protocol.reasons import Reason
+from timebase import Clock
+from host_tools.sessions.redundancy import FrameMerger
+
+READ_SIZE = 4096
+READ_TIMEOUT_S = 0.001
+
+
+def parse_links(url: str) -> list[tuple[str, str]]:
+    """[(name, url)] of a (possibly comma-separated, possibly named) link address."""
+    items = [item.strip() for item in url.split(",")]
+    if len(items) == 1:
+        return [("link", items[0])]
+    links = []
+    for n, item in enumerate(items):
+        name, sep, rest = item.partition("=")
+        if sep and name.isidentifier() and "://" not in name:
+            links.append((name, rest))
+        else:
+            links.append((f"link{n}", item))
+    if any(not u for _, u in links) or len({n for n, _ in links}) != len(links):
+        raise ValueError(f"{url}: links are NAME=URL or URL, comma-separated, each name once")
+    return links
+
+
+def _open(url: str, baud: int, timeout: float) -> serial.SerialBase:
+    try:
+        return serial.serial_for_url(url, baudrate=baud, timeout=timeout, write_timeout=2.0)
+    except (serial.SerialException, ValueError) as exc:
+        raise LinkError(Reason.NO_SESSION, f"cannot open {url}: {exc}") from exc
+
+
+class SerialLine:
+    """One pyserial port."""
+
+    def __init__(self, url: str, baud: int) -> None:
+        self.url = url
+        self.serial = _open(url, baud, READ_TIMEOUT_S)
+
+    def read(self) -> bytes:
+        """Up to the first byte waits `READ_TIMEOUT_S`; the rest is whatever is already there.
+
+        pyserial's `read(size)` waits out its whole timeout unless `size` bytes come, so read one byte,
+        then what `in_waiting` reports (for `socket://` that is 0 or 1, so keep going while it says more
+        is there)."""
+        data = self.serial.read(1)
+        while data and len(data) < READ_SIZE:
+            waiting = self.serial.in_waiting
+            if not waiting:
+                break
+            data += self.serial.read(min(waiting, READ_SIZE - len(data)))
+        return data
+
+    def write(self, data: bytes) -> None:
+        self.serial.write(data)
+
+    def reset_input_buffer(self) -> None:
+        self.serial.reset_input_buffer()
+
+    def health(self) -> list[str]:
+        return []
+
+    def close(self) -> None:
+        self.serial.close()
+
+
+class RedundantLines:
+    """Several pyserial ports as one line: each frame written on all, the first copy of each frame read kept.
+
+    A link that fails (its device gone, its socket closed) is dropped from the set and said in `health`;
+    the line fails only when the last one does.
+    """
+
+    def __init__(self, links: list[tuple[str, str]], baud: int, clock: Clock) -> None:
+        self.url = ",".join(f"{name}={url}" for name, url in links)
+        self._clock = clock
+        self.ports: dict[str, serial.SerialBase] = {}
+        try:
+            for name, url in links:
+                self.ports[name] = _open(url, baud, 0)
+        except LinkError:
+            self.close()
+            raise
+        self.merger = FrameMerger([name for name, _ in links])
+        self.failed: dict[str, str] = {}
+        self._selector = selectors.DefaultSelector()
+        for name, port in self.ports.items():
+            self._selector.register(port.fileno(), selectors.EVENT_READ, name)
+
+    def _fail(self, name: str, exc: Exception) -> None:
+        self.failed[name] = str(exc) or type(exc).__name__
+        port = self.ports.pop(name)
+        try:
+            self._selector.unregister(port.fileno())
+            port.close()
+        except (OSError, ValueError, KeyError):
+            pass
+        if not self.ports:
+            raise serial.SerialException("every link failed: " + "; ".join(f"{n}: {e}" for n, e in self.failed.items()))
+
+    def read(self) -> bytes:
+        out = bytearray()
+        for key, _ in self._selector.select(READ_TIMEOUT_S):
+            name = key.data
+            try:
+                data = self.ports[name].read(READ_SIZE)
+                if not data:        # ready but empty: the other end has gone
+                    raise serial.SerialException("the other end closed the link")
+            except (serial.SerialException, OSError) as exc:
+                self._fail(name, exc)
+                continue
+            out += self.merger.feed(name, data, self._clock.now())
+        return bytes(out)
+
+    def write(self, data: bytes) -> None:
+        for name, port in list(self.ports.items()):
+            try:
+                port.write(data)
+            except (serial.SerialException, OSError) as exc:
+                self._fail(name, exc)
+
+    def reset_input_buffer(self) -> None:
+        for port in self.ports.values():
+            port.reset_input_buffer()
+
+    def health(self) -> list[str]:
+        now = self._clock.now()
+        return [self.merger.paths[name].describe(now) + (f"; FAILED: {self.failed[name]}" if name in self.failed
+                                                         else "") for name in self.merger.paths]
+
+    def close(self) -> None:
+        for port in self.ports.values():
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass
+
+
+def open_lines(url: str, baud: int, clock: Clock) -> "SerialLine | RedundantLines":
+    links = parse_links(url)
+    if len(links) == 1:
+        return SerialLine(links[0][1], baud)
+    return RedundantLines(links, baud, clock)
+

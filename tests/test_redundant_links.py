@@ -1,0 +1,86 @@
+"""The report's two links: `aspod sim --link radio=pty --link optical=tcp:0`, a host on both, each link through
+an `aspod proxy` that takes it out for a while (a fade on the radio, a blockage on the optical link, at other
+times): every command runs exactly once and none is lost. Plus the merger alone: copies dropped, nothing else."""
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from protocol import auth
+from protocol.framing import encode_frame
+from protocol.messages import MESSAGES as M, SCHEMA
+from host_tools.client.lines import parse_links
+from host_tools.client.live import HostClient
+from host_tools.sessions.redundancy import MEMORY, FrameMerger
+from tests import test_e2e
+from tests.test_proxy import start_proxy
+
+env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
+
+
+def test_the_merger_keeps_the_first_copy_of_each_frame_and_cuts_each_path_on_its_own():
+    frames = [encode_frame(1, i, 0, SCHEMA["Ping"].id, i.to_bytes(4, "little")) for i in range(6)]
+    merger = FrameMerger(["radio", "optical"])
+    a = merger.feed("radio", b"".join(frames[:3]) + frames[3][:5], 0.0)    # radio stops inside frame 3
+    b = merger.feed("optical", b"".join(frames[:5]), 0.1)                  # optical brings 0-4
+    c = merger.feed("radio", frames[3][5:] + frames[4] + frames[5], 0.2)  # radio finishes 3, brings 4, 5
+    assert a == b"".join(frames[:3]) and b == b"".join(frames[3:5]) and c == frames[5]
+    radio, optical = merger.paths["radio"], merger.paths["optical"]
+    assert (radio.frames, radio.first, radio.copies) == (6, 4, 2)
+    assert (optical.frames, optical.first, optical.copies) == (5, 2, 3)
+    damaged = bytearray(frames[0])
+    damaged[3] ^= 0x10
+    assert merger.feed("optical", bytes(damaged), 0.3) == bytes(damaged)   # not a copy: the link layer judges it
+
+
+def test_the_merger_forgets_old_frames_so_its_memory_stays_bounded():
+    merger = FrameMerger(["a"])
+    frames = [encode_frame(1, i % 65536, 0, SCHEMA["Ping"].id, i.to_bytes(4, "little")) for i in range(3 * MEMORY)]
+    for frame in frames:
+        merger.feed("a", frame, 0.0)
+    assert len(merger._seen) == MEMORY
+    assert merger.feed("a", frames[0], 1.0) == frames[0]       # long gone from memory: passed on, for the link
+
+
+def test_link_addresses_parse_as_the_simulator_prints_them():
+    assert parse_links("/dev/pts/3") == [("link", "/dev/pts/3")]
+    assert parse_links("radio=/dev/pts/3,optical=socket://127.0.0.1:4000") == [
+        ("radio", "/dev/pts/3"), ("optical", "socket://127.0.0.1:4000")]
+    assert parse_links("/dev/pts/3,/dev/pts/4") == [("link0", "/dev/pts/3"), ("link1", "/dev/pts/4")]
+    with pytest.raises(ValueError):
+        parse_links("a=/dev/pts/3,a=/dev/pts/4")
+
+
+@pytest.mark.pty
+def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim_factory, env):
+    sim = sim_factory("--link", "radio=pty", "--link", "optical=tcp:0", "--no-tracker")
+    links = dict(parse_links(sim.url))
+    assert set(links) == {"radio", "optical"}
+    radio, radio_url, _ = start_proxy(env, links["radio"], "--no-view", "--impair", "radio,fade=1.5+2.5,seed=1")
+    optical, optical_url, _ = start_proxy(env, links["optical"], "--no-view", "--impair",
+                                          "optical,block=5+2,seed=2")
+    client = HostClient(f"radio={radio_url},optical={optical_url}", auth.load_key(sim.key_path))
+    try:
+        client.connect()
+        # at least 600 commands, and on until both outages are over (8 s after the proxies started, at most)
+        started = client.clock.now()
+        handles = []
+        while len(handles) < 600 or client.clock.now() - started < 8.0:
+            handles.append(client.call(M["Ping"](len(handles)), timeout_s=60))
+        count = len(handles)
+        assert all(h.ok for h in handles), [h.describe() for h in handles if not h.ok][:3]
+        assert [h.reply.token for h in handles] == list(range(count))
+        status = client.call(M["GetStatus"]()).reply
+        assert status.commands_executed == count       # none twice (GetStatus is counted once it has answered)
+        health = client.line.health()
+    finally:
+        client.close()
+    assert len(health) == 2 and all("copies dropped" in line for line in health)
+    lost = {}
+    for name, proxy in (("radio", radio), ("optical", optical)):
+        status, err = proxy.stop()
+        assert status == 0, err
+        lost[name] = [int(n) for n in re.findall(r"(\d+) in fades, (\d+) in blockages", err)[0]]
+    # the outages really took frames: the radio's in its fade, the optical link's in its blockage
+    assert lost["radio"][0] > 0 and lost["optical"][1] > 0, lost
