@@ -1,6 +1,6 @@
-"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day and live sessions under load, in that order.
+"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load and sessions (proxy, capture decoding, two links), in that order.
 
-    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live]
+    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|sessions]
 
 These print figures and ratios beside a peer measured in the same run; they are not
 pass/fail tests. The exit status is 0 when every benchmark produced its figures
@@ -18,7 +18,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true",
                         help="fewer frames and pings, 5 s loops instead of 60 s, 5 simulated s of lock-step "
                              "instead of 20, shorter tracking moves and no pick-and-place: a smoke run")
-    parser.add_argument("--only", choices=("codec", "rtt", "realtime", "lockstep", "tracking", "tracker", "live"),
+    parser.add_argument("--only", choices=("codec", "rtt", "realtime", "lockstep", "tracking", "tracker", "live",
+                                                  "sessions"),
                         help="run one benchmark only")
     return parser
 
@@ -69,6 +70,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.only in (None, "live"):
         from bench import bench_live
         if bench_live.main(quick=args.quick).error:
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "sessions"):
+        from bench import bench_sessions
+        if bench_sessions.main(quick=args.quick).error:
             status = 1
     return status
 

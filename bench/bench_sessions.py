@@ -1,0 +1,309 @@
+"""Sessions: the proxy's cost, the capture decoder's speed beside tshark's, and two links through outages.
+
+1. **Proxy overhead.** Ping round trips from a `HostClient` to `aspod sim --pty` at 115200 baud, directly and
+   through `aspod proxy` (impairment `clean`), in the same run: the added latency at p50 and p99 per round
+   trip (two frames, one each way). Then the most frames per second the proxy forwards: a writer floods
+   the host side of a proxy between two ptys with 40-byte frames, unpaced, and a reader counts what comes
+   out of the other side, beside the same flood over a bare pty pair.
+2. **Decoding a capture.** A capture of a lock-step session (telemetry at 50 Hz, pings) decoded by
+   `aspod log` (a subprocess, its start-up included) and in process (`SessionDecoder`), beside `tshark` with
+   the generated dissector on the same file (`-T fields -e aspod.message`), when tshark is installed.
+3. **Two links through outages.** `aspod sim --link radio=pty --link optical=tcp:0`, an `aspod proxy` on each:
+   the radio fades for 30 s, later the optical link is blocked for 10 s (quick: 4 s and 2 s). A host on both
+   sends pings one after another throughout: commands lost (goal 0), executed twice (goal 0: the
+   controller's own count against the host's), and the round trip outside the outages and during each. With
+   every frame on both links there is no switch-over: the "failover time" is what an outage adds to a round
+   trip, shown as the p50 and p99 during it beside the p50 outside.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import serial
+
+from protocol import auth
+from protocol.messages import MESSAGES as M
+from timebase import RealClock
+from host_tools.client.lines import parse_links
+from host_tools.client.live import HostClient
+from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.decode import SessionDecoder
+from host_tools.sessions.wireshark import generate_dissector
+from host_tools.worlds.child import Child
+from host_tools.worlds.world import LockstepBench
+
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+
+
+def pct(samples: list[float], q: float) -> float:
+    ordered = sorted(samples)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+@dataclass
+class SessionsResult:
+    lines: list[str] = field(default_factory=list)
+    error: Optional[str] = None
+
+
+class _Env:
+    """A private config folder (the development key) for the children of one benchmark."""
+
+    def __init__(self, folder: Path) -> None:
+        self.env = {**os.environ, "XDG_CONFIG_HOME": str(folder / "config")}
+        self.children: list[Child] = []
+
+    def start(self, args: list[str]) -> tuple[Child, str]:
+        child = Child(args, env=self.env)
+        self.children.append(child)
+        line = child.ready("ASPOD-LINK ", 30.0)
+        return child, line.split(" ", 1)[1]
+
+    def key(self) -> bytes:
+        return auth.load_key(Path(self.env["XDG_CONFIG_HOME"]) / "aspod" / "dev.key")
+
+    def close(self) -> None:
+        for child in self.children:
+            child.stop(timeout_s=5)
+        self.children.clear()
+
+
+def _pings(url: str, key: bytes, count: int) -> list[float]:
+    client = HostClient(url, key)
+    try:
+        client.connect(20)
+        for i in range(20):
+            client.call(M["Ping"](i))
+        return [client.call(M["Ping"](i)).latency_s for i in range(count)]
+    finally:
+        client.close()
+
+
+def proxy_overhead(folder: Path, quick: bool) -> list[str]:
+    env = _Env(folder)
+    try:
+        _, sim_url = env.start(["sim", "--pty", "--no-tracker", "--telemetry-hz", "0"])
+        key = env.key()
+        count = 100 if quick else 400
+        direct = _pings(sim_url, key, count)
+        _, proxy_url = env.start(["proxy", "--controller", sim_url, "--no-view"])
+        proxied = _pings(proxy_url, key, count)
+    finally:
+        env.close()
+    lines = ["proxy overhead (Ping round trip at 115200 baud, two frames, one each way):"]
+    for label, samples in (("direct to aspod sim", direct), ("through aspod proxy", proxied)):
+        lines.append(f"  {label:<22} p50 {pct(samples, 0.5) * 1e3:6.2f} ms  p99 {pct(samples, 0.99) * 1e3:6.2f} ms"
+                     f"  (n={len(samples)})")
+    lines.append(f"  added by the proxy:    p50 {(pct(proxied, 0.5) - pct(direct, 0.5)) * 1e3:+6.2f} ms  "
+                 f"p99 {(pct(proxied, 0.99) - pct(direct, 0.99)) * 1e3:+6.2f} ms per round trip")
+    return lines + _throughput(folder, quick)
+
+
+FLOOD_FRAME = b"\x00" + b"\x01" * 38 + b"\x00"     # 40 bytes between and with its delimiters
+
+
+def _flood(write, read, seconds: float) -> float:
+    """Frames per second carried from `write(bytes)` to `read() -> bytes`, 40-byte frames written as fast as the
+    writer takes them for `seconds`."""
+    received = [0]
+    stop = threading.Event()
+
+    def reader() -> None:
+        while not stop.is_set():
+            received[0] += read().count(b"\x00")
+    thread = threading.Thread(target=reader, daemon=True)
+    thread.start()
+    clock = RealClock()
+    start = clock.now()
+    burst = FLOOD_FRAME * 50
+    while clock.now() - start < seconds:
+        write(burst)
+    elapsed = clock.now() - start
+    stop.set()
+    thread.join(2)
+    return received[0] / 2 / elapsed
+
+
+def _throughput(folder: Path, quick: bool) -> list[str]:
+    import select
+    import tty
+    seconds = 2.0 if quick else 5.0
+    master, slave = os.openpty()
+    tty.setraw(slave)
+
+    def read_master() -> bytes:
+        ready, _, _ = select.select([master], [], [], 0.05)
+        return os.read(master, 65536) if ready else b""
+
+    def write_slave(data: bytes) -> None:
+        select.select([], [slave], [], 1.0)
+        try:
+            os.write(slave, data)
+        except BlockingIOError:
+            pass
+    try:
+        os.set_blocking(slave, False)
+        bare = _flood(write_slave, read_master, seconds)
+    finally:
+        os.close(master)
+        os.close(slave)
+    env = _Env(folder)
+    try:
+        proxy, host_url = env.start(["proxy", "--host", "pty", "--controller", "pty", "--no-view"])
+        writer = serial.serial_for_url(host_url, timeout=0, write_timeout=1.0)
+        reader = serial.serial_for_url(_controller_pty(proxy), timeout=0.05)
+
+        def write(data: bytes) -> None:
+            try:
+                writer.write(data)
+            except serial.SerialTimeoutException:
+                pass
+        try:
+            through = _flood(write, lambda: reader.read(65536), seconds)
+        finally:
+            writer.close()
+            reader.close()
+    finally:
+        env.close()
+    return [f"  most frames forwarded: {through:,.0f} frames/s through the proxy (40 B each, unpaced, pty to pty), "
+            f"beside {bare:,.0f} frames/s over a bare pty pair ({through / bare:.2f}x)"]
+
+
+def _controller_pty(proxy: Child) -> str:
+    found = proxy.wait_stderr(r"<-> (\S+) \(controller\)", 30.0)
+    return found.group(1)
+
+
+def decode_speed(folder: Path, quick: bool) -> list[str]:
+    capture = folder / "decode.pcapng"
+    bench = LockstepBench(seed=3)
+    bench.record(CaptureWriter.create(capture, SessionInfo(clock="simulated", tool="bench", seed=3,
+                                                           settings=bench.settings())))
+    bench.connect()
+    bench.call(M["SetTelemetryRate"](50))
+    seconds = 20 if quick else 60
+    for i in range(seconds):
+        bench.call(M["Ping"](i))
+        bench.run_for(1.0)
+    bench.close()
+    frames = len(SessionCapture.read(capture).frames)
+    clock = RealClock()
+    start = clock.now()
+    recorded = SessionCapture.read(capture)
+    decoder = SessionDecoder(None)
+    for f in recorded.frames:
+        decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+    in_process = clock.now() - start
+    start = clock.now()
+    done = subprocess.run(ASPOD + ["log", str(capture)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          timeout=600)
+    command = clock.now() - start
+    if done.returncode != 0:
+        raise RuntimeError(f"aspod log failed: {done.stderr.decode()[-500:]}")
+    lines = [f"decoding a capture of {frames:,} frames ({capture.stat().st_size / 1e6:.1f} MB):",
+             f"  aspod log (subprocess, start-up included) {command:6.2f} s  {frames / command:9,.0f} frames/s",
+             f"  SessionDecoder in process                 {in_process:6.2f} s  {frames / in_process:9,.0f} frames/s"]
+    tshark = shutil.which("tshark")
+    if tshark is None:
+        return lines + ["  tshark: not installed, no figure beside (apt-get install tshark)"]
+    lua = folder / "aspod.lua"
+    lua.write_text(generate_dissector())
+    start = clock.now()
+    done = subprocess.run([tshark, "-n", "-X", f"lua_script:{lua}", "-r", str(capture), "-T", "fields",
+                           "-e", "aspod.message"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, timeout=600)
+    took = clock.now() - start
+    decoded = done.stdout.count(b"\n")
+    lines.append(f"  tshark + generated dissector              {took:6.2f} s  {frames / took:9,.0f} frames/s "
+                 f"({decoded:,} frames listed); aspod log is {took / command:.1f}x as fast")
+    return lines
+
+
+def two_links(folder: Path, quick: bool) -> list[str]:
+    fade_at, fade_s, block_at, block_s = (3.0, 4.0, 10.0, 2.0) if quick else (5.0, 30.0, 45.0, 10.0)
+    end_s = block_at + block_s + 3.0
+    env = _Env(folder)
+    try:
+        _, sim_url = env.start(["sim", "--link", "radio=pty", "--link", "optical=tcp:0", "--no-tracker"])
+        links = dict(parse_links(sim_url))
+        clock = RealClock()
+        radio, radio_url = env.start(["proxy", "--controller", links["radio"], "--no-view", "--impair",
+                                      f"radio,fade={fade_at}+{fade_s},seed=1"])
+        origin_radio = clock.now()
+        optical, optical_url = env.start(["proxy", "--controller", links["optical"], "--no-view", "--impair",
+                                          f"optical,block={block_at}+{block_s},seed=2"])
+        origin_optical = clock.now()
+        client = HostClient(f"radio={radio_url},optical={optical_url}", env.key())
+        samples: list[tuple[float, float]] = []
+        failed = 0
+        try:
+            client.connect(20)
+            token = 0
+            while clock.now() - origin_radio < end_s:
+                sent = clock.now()
+                handle = client.call(M["Ping"](token & 0xFFFFFFFF), timeout_s=120)
+                token += 1
+                if handle.ok and handle.reply.token == (token - 1) & 0xFFFFFFFF:
+                    samples.append((sent, handle.latency_s))
+                else:
+                    failed += 1
+            executed = client.call(M["GetStatus"]()).reply.commands_executed
+        finally:
+            client.close()
+        summaries = {name: proxy.stop(timeout_s=5)[1] for name, proxy in (("radio", radio), ("optical", optical))}
+    finally:
+        env.close()
+    outside = [rtt for t, rtt in samples if not (fade_at <= t - origin_radio < fade_at + fade_s
+                                                 or block_at <= t - origin_optical < block_at + block_s)]
+    in_fade = [rtt for t, rtt in samples if fade_at <= t - origin_radio < fade_at + fade_s]
+    in_block = [rtt for t, rtt in samples if block_at <= t - origin_optical < block_at + block_s]
+    lost = {name: re.findall(r"(\d+) in fades, (\d+) in blockages", text) for name, text in summaries.items()}
+    lines = [f"two links, every frame on both: radio fades {fade_s:g} s from {fade_at:g} s, optical blocked "
+             f"{block_s:g} s from {block_at:g} s; {token} pings one after another",
+             f"  commands lost (no answer): {failed} (goal 0); executed twice: {executed - token} (goal 0; the "
+             f"controller counted {executed}, the host sent {token})",
+             f"  frames the outages took: radio {sum(int(a) + int(b) for a, b in lost['radio'])}, "
+             f"optical {sum(int(a) + int(b) for a, b in lost['optical'])}"]
+    for label, part in (("outside the outages", outside), ("during the radio's fade", in_fade),
+                        ("during the optical blockage", in_block)):
+        if part:
+            lines.append(f"  round trip {label:<28} p50 {pct(part, 0.5) * 1e3:6.2f} ms  p99 "
+                         f"{pct(part, 0.99) * 1e3:6.2f} ms  max {max(part) * 1e3:6.2f} ms  (n={len(part)})")
+    if in_fade and in_block and outside:
+        base = statistics.median(outside)
+        lines.append(f"  failover time (what an outage adds to a round trip): fade p50 "
+                     f"{(pct(in_fade, 0.5) - base) * 1e3:+.2f} ms, p99 {(pct(in_fade, 0.99) - base) * 1e3:+.2f} ms; "
+                     f"blockage p50 {(pct(in_block, 0.5) - base) * 1e3:+.2f} ms, p99 "
+                     f"{(pct(in_block, 0.99) - base) * 1e3:+.2f} ms")
+    return lines
+
+
+def main(quick: bool = False) -> SessionsResult:
+    result = SessionsResult()
+    print("sessions: proxy overhead, capture decoding, two links through outages", flush=True)
+    with tempfile.TemporaryDirectory(prefix="aspod-bench-sessions-") as tmp:
+        folder = Path(tmp)
+        for part in (proxy_overhead, decode_speed, two_links):
+            try:
+                lines = part(folder, quick)
+            except Exception as exc:       # a part that cannot run: say which and why, go on with the others
+                result.error = f"{part.__name__}: {type(exc).__name__}: {exc}"
+                lines = [f"{part.__name__}: could not run: {type(exc).__name__}: {exc}"]
+            for line in lines:
+                print(line, flush=True)
+            result.lines += lines
+    return result
+
+
+if __name__ == "__main__":
+    sys.exit(1 if main(quick="--quick" in sys.argv).error else 0)
+
