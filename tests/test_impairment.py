@@ -101,3 +101,45 @@ def test_a_lockstep_world_through_a_bad_radio_runs_every_command_once():
         assert bench.call(M["Ping"](99)).reply.token == 99            # and on the other side of it
     finally:
         bench.close()
+
+
+class _Pipe:
+    """An in-memory endpoint: what the test puts in `inbox` the proxy reads; what it writes lands in `outbox`."""
+    url = "memory"
+
+    def __init__(self) -> None:
+        self.inbox, self.outbox = bytearray(), bytearray()
+
+    def read(self, max_bytes: int) -> bytes:
+        data = bytes(self.inbox[:max_bytes])
+        del self.inbox[:max_bytes]
+        return data
+
+    def write(self, data: bytes) -> int:
+        self.outbox += data
+        return len(data)
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_proxy_and_the_lockstep_line_give_the_same_frames_the_same_fates():
+    """One model, one seed: the frames a proxy forwards meet the fates the lock-step world's line gives them."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    spec = Impairment.parse("radio,ber=1e-3,drop=0.1,dup=0.1,fade=0.3+0.2,seed=21")
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(spec), clock=clock)
+    reference = ImpairedLink(spec)
+    for frame in frames(80):
+        clock.advance_by(0.01)
+        host.inbox += frame
+        proxy.step()
+        reference.to_controller.send(frame, clock.now())
+    clock.advance_by(10.0)
+    proxy.step()
+    expected = reference.to_controller.receive(clock.now())
+    assert bytes(controller.outbox) == expected and expected
+    assert proxy.link.to_controller.stats == reference.to_controller.stats
+    assert reference.to_controller.stats.faded > 0 and reference.to_controller.stats.dropped > 0
