@@ -77,8 +77,12 @@ def run_log(settings: LogSettings) -> int:
         plot_session(shown, str(settings.plot), origin, title=Path(settings.capture).name)
         print(f"# plot written to {settings.plot}", file=out)
     if not (settings.stats or settings.csv is not None or settings.plot is not None):
-        for d in shown:
-            print(describe(d, origin), file=out)
+        lines = [(d.time_s, describe(d, origin)) for d in shown]
+        if not (settings.classes or settings.messages or settings.links or settings.errors_only):
+            lines += [(t, f"{t - origin:12.6f} world    {event.get('action')}"
+                          f"({', '.join(map(str, event.get('args', [])))})") for t, event, _ in capture.world_events]
+        for _, line in sorted(lines, key=lambda item: item[0]):      # stable: frames and events in file order
+            print(line, file=out)
     if capture.error is not None:
         log.error(f"aspod log: {settings.capture}: the capture breaks {capture.error} "
                   f"(decoded the {len(capture.frames)} frames before it)")

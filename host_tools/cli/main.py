@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
+import signal
 import sys
 from pathlib import Path
 from typing import Optional, Sequence
@@ -481,6 +483,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     log = logging.getLogger("aspod")
     try:
         return run_command(args)
+    except BrokenPipeError:                     # `aspod log ... | head`: the reader has all it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # no second complaint at exit
+        return 128 + signal.SIGPIPE
     except (KeyFileError, ValueError) as exc:   # bad key file, or settings out of their bounds
         log.error(f"aspod: {exc}")
         return EXIT_USAGE

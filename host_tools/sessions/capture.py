@@ -217,7 +217,7 @@ class SessionCapture:
                     continue
                 events.append((p.time_s, event, p.offset))
         for p in pcap.packets:
-            if p.direction not in FLAG_DIRECTION:
+            if p.interface not in world and p.direction not in FLAG_DIRECTION:
                 warnings.append(f"packet at byte {p.offset} has no direction; taken as controller -> host")
                 break
         return cls(info, frames, pcap.error, warnings, pcap.size, events)
