@@ -42,6 +42,7 @@ from host_tools.worlds.world import LockstepBench
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
 SUBMIT_EARLY_S = 1e-6
 SAMPLER_PRIORITY = 100     # after every task of the world at the same moment
+MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
 TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
 # What measures the host machine or the link's own traffic, not the controller's behaviour: compared
@@ -105,13 +106,15 @@ class ReplayReport:
     divergence: Optional[Divergence] = None
     replayed: Optional[SessionCapture] = None
     replayed_bytes: bytes = b""             # the replay's own capture, as a file would hold it
+    uncertainty_ms: float = 0.0             # real time: how uncertain the recording's command times are
 
     @property
     def matches(self) -> bool:
         return self.divergence is None
 
     def describe(self) -> str:
-        how = "to the bit" if self.exact else "within tolerances"
+        how = "to the bit" if self.exact else (f"within tolerances (the recording's command times uncertain by "
+                                                 f"{self.uncertainty_ms:.1f} ms)")
         lines = [f"replayed {self.commands} commands; compared {how}: {self.replies} replies, {self.events} events, "
                  f"{self.telemetry} telemetry frames"
                  + (f" ({self.telemetry_unmatched} recorded telemetry frames had no replayed frame of the same "
@@ -220,16 +223,38 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
                    end_s=max(f.time_s for f in capture.frames) + TAIL_S)
     data, samples = world.run(actions)
     replayed_capture = SessionCapture.parse(data)
-    _, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
+    replayed_actions, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
+    uncertainty_ms = 0.0
     if not exact:
+        uncertainty_ms = _uncertainty_ms(actions, recorded, replayed_actions, replayed)
+        tolerances = dataclasses.replace(tolerances, time_ms=tolerances.time_ms + uncertainty_ms,
+                                         shift_ms=tolerances.shift_ms + uncertainty_ms)
         shift = round(tolerances.shift_ms)
         wanted = frozenset(u + k for _, u in recorded.telemetry for k in range(-shift, shift + 1))
         data, samples = world.run(_aligned(actions, recorded, replayed), wanted)
         replayed_capture = SessionCapture.parse(data)
         _, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
-    report = ReplayReport(exact=exact, commands=host_commands, replayed=replayed_capture, replayed_bytes=data)
+    report = ReplayReport(exact=exact, commands=host_commands, replayed=replayed_capture, replayed_bytes=data,
+                          uncertainty_ms=uncertainty_ms)
     _compare(recorded, replayed, samples, report, tolerances, world.end_s - TAIL_S)
     return report
+
+
+def _uncertainty_ms(actions: list[_Action], recorded: _Output, replayed_actions: list[_Action],
+                    replayed: _Output) -> float:
+    """How uncertain the recording is about when the real controller ran its commands, in ms: the most by which a
+    recorded answer came later after its request than the replay's did (at most MAX_UNCERTAINTY_MS). The real
+    controller ran the command somewhere in that time; on an idle machine it is a millisecond or two, on a
+    loaded one it can be tens, and the comparison's time windows widen by it."""
+    asked = {a.request: a.time_s for a in replayed_actions if a.request is not None}
+    worst = 0.0
+    for action in actions:
+        key = action.request
+        if key in recorded.replies and key in replayed.replies and key in asked:
+            real = recorded.replies[key].time_s - action.time_s
+            replay_latency = replayed.replies[key].time_s - asked[key]
+            worst = max(worst, real - replay_latency)
+    return min(MAX_UNCERTAINTY_MS, worst * 1e3)
 
 
 @dataclass
