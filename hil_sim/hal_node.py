@@ -8,7 +8,6 @@ from typing import Optional
 
 import can
 
-from hil_sim.commands import N_CHANNELS
 from hil_sim.plant import Plant
 from hil_sim.tracker import TrackerCommand
 from protocol.hal import HalCodec, HalEndpoint
@@ -55,11 +54,10 @@ class PlantNode(HalEndpoint):
         self._supply_range_v = codec.limits("ANALOG_IN", "supply_v")
         self._temp_range_c = codec.limits("ANALOG_IN", "controller_temp_c")
         self._current_range_a = codec.limits("MOTOR_FB", f"current_{ARM_CHANNELS[0]}")
-        n = N_CHANNELS
-        self.on_frame("MOTOR_CMD", lambda v, now: plant.motor_commands.command(
-            v[:n], v[n:2 * n], v[2 * n:3 * n], v[3 * n], now),
-            (*(f"duty_{ch}" for ch in ARM_CHANNELS), *(f"enable_{ch}" for ch in ARM_CHANNELS),
-             *(f"brake_{ch}" for ch in ARM_CHANNELS), "alive"))
+        # MOTOR_CMD's values in the order its holder keeps them (and the arm plant's tick takes them)
+        self.on_frame("MOTOR_CMD", plant.motor_commands.receive,
+                      (*(f"duty_{ch}" for ch in ARM_CHANNELS), *(f"enable_{ch}" for ch in ARM_CHANNELS),
+                       *(f"brake_{ch}" for ch in ARM_CHANNELS), "alive"))
         self.on_frame("CTRL_OUTPUTS", lambda v, now: plant.commanded.command(v[0], v[1], v[2], now),
                       ("outputs_enabled", "brake_all", "alive"))
         self._sync = codec.layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
@@ -116,8 +114,7 @@ class PlantNode(HalEndpoint):
         self._last_now = now
         plant = self.plant
         enabled, brake = plant.commanded.current(now)
-        duty, enable, channel_brake = plant.motor_commands.current(now)
-        plant.step(dt_s, enabled, brake, duty, enable, channel_brake)
+        plant.tick(dt_s, enabled, brake, plant.motor_commands.current_values(now))
         tick = self.tick
         wire_tick = tick & 0xFFFF_FFFF
         lo, hi = self._current_range_a
