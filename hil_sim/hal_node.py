@@ -93,6 +93,7 @@ class PlantNode(HalEndpoint):
             self._motor_supply_range_v = codec.limits("TRACKER_POS", "motor_supply_v")
         self.tick = 0            # index of the next step; PLANT_SYNC carries it modulo 2**32
         self._last_now: Optional[float] = None
+        self._rounded_steps: dict[float, float] = {}     # now - last now: the step length, to the nanosecond
         self.dt_clamps = 0       # steps whose elapsed time exceeded max_dt_s (stalls)
         self._last_switches: Optional[tuple] = None
         self._digital_tick = 0   # tick of the last DIGITAL_IN sent
@@ -104,8 +105,14 @@ class PlantNode(HalEndpoint):
             dt_s = 0.0
         else:
             # To the nanosecond: float noise in `now` (0.0010000000000000009 s) must not change the
-            # step length, or the motor bank recomputes its per-step constants (16 us).
-            dt_s = round(now - self._last_now, 9)
+            # step length, or the motor bank recomputes its per-step constants (16 us). The noise takes
+            # a handful of values: each rounded once (round(x, 9) takes 0.3 us, a look-up 0.04).
+            elapsed = now - self._last_now
+            dt_s = self._rounded_steps.get(elapsed)
+            if dt_s is None:
+                if len(self._rounded_steps) >= 256:
+                    self._rounded_steps.clear()
+                dt_s = self._rounded_steps[elapsed] = round(elapsed, 9)
             if dt_s < 0.0:
                 dt_s = 0.0
             elif dt_s > self.max_dt_s:
@@ -118,10 +125,8 @@ class PlantNode(HalEndpoint):
         tick = self.tick
         wire_tick = tick & 0xFFFF_FFFF
         lo, hi = self._current_range_a
-        self.send_frame(self._motor_fb, (
-            wire_tick,
-            *[((c + _HALF) & 0xFFFF_FFFF) - _HALF for c in plant.encoder_counts],
-            *[lo if i < lo else hi if i > hi else i for i in plant.currents_a]))
+        self.send_frame(self._motor_fb, (wire_tick, *_wrapped_to_int32(plant.encoder_counts),
+                                         *_saturated(plant.currents_a, lo, hi)))
         switches = plant.switches()
         if switches != self._last_switches or tick - self._digital_tick >= self.digital_every_n:
             if self.send_frame(self._digital, (*switches[0], *switches[1], *switches[2], wire_tick)):
@@ -162,3 +167,20 @@ class PlantNode(HalEndpoint):
 def _saturate(value: float, limits: tuple[float, float]) -> float:
     low, high = limits
     return low if value < low else high if value > high else value
+
+
+def _wrapped_to_int32(counts: list[int]) -> list[int]:
+    """The counts as MOTOR_FB's signed 32-bit fields carry them (wrapped around; as they are, mostly)."""
+    if -_HALF <= min(counts) and max(counts) < _HALF:
+        return counts
+    return [((c + _HALF) & 0xFFFF_FFFF) - _HALF for c in counts]
+
+
+def _saturated(values: list[float], low: float, high: float) -> list[float]:
+    """Each value saturated at [low, high] (NaN as it is); the list itself if none needs it.
+
+    min and max skip a NaN after the first item, and a NaN first fails the check: the whole list is
+    then gone through, as it is when a value is outside."""
+    if low <= min(values) and max(values) <= high:
+        return values
+    return [low if v < low else high if v > high else v for v in values]
