@@ -175,6 +175,7 @@ class HalCodec:
 
 
 _new_message = can.Message.__new__
+_new_value_frame = object.__new__
 
 
 class HalFrame(can.Message):
@@ -213,6 +214,10 @@ class HalFrame(can.Message):
                            is_error_frame=self.is_error_frame, channel=copy.deepcopy(self.channel, memo),
                            dlc=self.dlc, data=bytearray(self.data), is_fd=self.is_fd, is_rx=self.is_rx,
                            bitrate_switch=self.bitrate_switch, error_state_indicator=self.error_state_indicator)
+
+
+# What the generated roundtrip raises for a value that is not a number (FrameLayout.roundtrip: None).
+ROUNDTRIP_DECLINES = (TypeError, ValueError, ArithmeticError)
 
 
 class FrameLayout:
@@ -290,7 +295,8 @@ class FrameLayout:
         self._fast_pack, self.pack_source = compile_pack(
             name, code_fields, self.length, check_all=not (self._full_range and self._struct is not None))
         self._fast_unpack, self.unpack_source = compile_unpack(name, code_fields, self.length)
-        self._roundtrip, self.roundtrip_source = compile_roundtrip(name, code_fields)
+        # The generated function itself: None, or one of `ROUNDTRIP_DECLINES` raised, where `roundtrip` says None.
+        self.roundtrip_or_raise, self.roundtrip_source = compile_roundtrip(name, code_fields)
 
     def pack(self, values: Sequence) -> bytes:
         """Frame bytes for physical `values` in `order`; HalEncodeError if one is out of range."""
@@ -342,8 +348,8 @@ class FrameLayout:
         where that takes the bytes after all (a value `pack` refuses, or one of a kind not proven
         here: `protocol.frame_code.roundtrip_source`). For a carrier that hands values over."""
         try:
-            return self._roundtrip(values)
-        except (TypeError, ValueError, ArithmeticError):
+            return self.roundtrip_or_raise(values)
+        except ROUNDTRIP_DECLINES:
             return None
 
     def message(self, values: Sequence) -> can.Message:
@@ -473,8 +479,19 @@ class HalEndpoint:
 
         On a bus that carries values, what the receiver would unpack goes instead, where
         `layout.roundtrip` vouches for it (`ValueFrame`); `values` must then stay as they are."""
-        carried = layout.roundtrip(values) if self.carries_values else None
-        msg = layout.message(values) if carried is None else ValueFrame(layout, values, carried)
+        carried = None
+        if self.carries_values:
+            try:
+                carried = layout.roundtrip_or_raise(values)     # layout.roundtrip(values), one call fewer
+            except ROUNDTRIP_DECLINES:
+                pass
+        if carried is None:
+            msg = layout.message(values)
+        else:
+            # ValueFrame(layout, values, carried) with its slots filled here: a Python __init__'s call
+            # would be most of what building it costs, on a path that runs for every frame.
+            msg = _new_value_frame(ValueFrame)
+            msg.arbitration_id, msg.layout, msg.sent, msg.values = layout.frame_id, layout, values, carried
         try:
             self.bus.send(msg, 0)
         except can.CanError as exc:
