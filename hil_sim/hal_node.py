@@ -101,24 +101,7 @@ class PlantNode(HalEndpoint):
     def step(self, now: float) -> float:
         """Read commands, integrate, publish; return the next wake time."""
         self.poll(now)
-        if self._last_now is None:
-            dt_s = 0.0
-        else:
-            # To the nanosecond: float noise in `now` (0.0010000000000000009 s) must not change the
-            # step length, or the motor bank recomputes its per-step constants (16 us). The noise takes
-            # a handful of values: each rounded once (round(x, 9) takes 0.3 us, a look-up 0.04).
-            elapsed = now - self._last_now
-            dt_s = self._rounded_steps.get(elapsed)
-            if dt_s is None:
-                if len(self._rounded_steps) >= 256:
-                    self._rounded_steps.clear()
-                dt_s = self._rounded_steps[elapsed] = round(elapsed, 9)
-            if dt_s < 0.0:
-                dt_s = 0.0
-            elif dt_s > self.max_dt_s:
-                dt_s = self.max_dt_s
-                self.dt_clamps += 1
-        self._last_now = now
+        dt_s = self._step_length(now)
         plant = self.plant
         enabled, brake = plant.commanded.current(now)
         plant.tick(dt_s, enabled, brake, plant.motor_commands.current_values(now))
@@ -142,6 +125,27 @@ class PlantNode(HalEndpoint):
         self.send_frame(self._sync, (wire_tick, int(self.lockstep), self._period_us))
         self.tick = tick + 1
         return now + self.period_s
+
+    def _step_length(self, now: float) -> float:
+        """The time since the last step, to the nanosecond, within [0, max_dt_s] (0 at the first)."""
+        last, self._last_now = self._last_now, now
+        if last is None:
+            return 0.0
+        # To the nanosecond: float noise in `now` (0.0010000000000000009 s) must not change the step
+        # length, or the motor bank recomputes its per-step constants (16 us). The noise takes a
+        # handful of values: each is rounded once (round(x, 9) takes 0.3 us, a look-up 0.04).
+        elapsed = now - last
+        dt_s = self._rounded_steps.get(elapsed)
+        if dt_s is None:
+            if len(self._rounded_steps) >= 256:
+                self._rounded_steps.clear()
+            dt_s = self._rounded_steps[elapsed] = round(elapsed, 9)
+        if dt_s < 0.0:
+            return 0.0
+        if dt_s > self.max_dt_s:
+            self.dt_clamps += 1
+            return self.max_dt_s
+        return dt_s
 
     def resend_sync(self) -> None:
         """Send the last PLANT_SYNC again (lock-step: the controller's answer is overdue)."""
