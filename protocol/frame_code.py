@@ -287,7 +287,8 @@ def roundtrip_source(fields: Sequence[Field]) -> str:
     integer as `round`, as a float, and so the same physical value); anything else (an int's
     quotient is a float too; a numpy float is not) goes through `round` and `index`. And a check
     that those bounds already imply (the raw value inside its field, the physical value inside
-    what unpack accepts) is left out.
+    what unpack accepts) is left out. (And the single bits, exact ints by then, are checked
+    together: `not (r1 | r2 | ...) >> 1`.)
     """
     names = [f"v{i}" for i in range(len(fields))]
     lines = ["def fn(values, round=round, index=index, type=type, float=float):", _unpack_names(names, "values")]
@@ -295,12 +296,15 @@ def roundtrip_source(fields: Sequence[Field]) -> str:
     if scaled:
         lines += ["    if not (" + " and ".join(_check(n, f.encode_lo, f.encode_hi) for n, f in scaled) + "):",
                   "        return None"]
-    raw_checks, decode_checks, results = [], [], []
+    raw_checks, decode_checks, results, bits = [], [], [], []
     for i, (n, f) in enumerate(zip(names, fields)):
         r = f"r{i}"
         if f.identity:
             lines.append(f"    {r} = index({n})")
-            raw_checks.append(_check(r, *f.accepted_ints()))
+            if f.accepted_ints() == (0, 1):
+                bits.append(r)
+            else:
+                raw_checks.append(_check(r, *f.accepted_ints()))
             result = r
         else:
             bounds = _raw_bounds(f)
@@ -317,6 +321,11 @@ def roundtrip_source(fields: Sequence[Field]) -> str:
                                            and bounds[1] <= raw_hi and _decodes_inside(f, *bounds)):
             decode_checks.append(_check(result, f.decode_lo, f.decode_hi))
         results.append(result)
+    if len(bits) > 1:
+        # Ints all 0 or 1: their bitwise or is (a negative int's is negative, one of 2 or more has a higher bit).
+        raw_checks.append(f"not ({' | '.join(bits)}) >> 1")
+    else:
+        raw_checks += [_check(r, 0, 1) for r in bits]
     if raw_checks:
         lines += ["    if not (" + " and ".join(raw_checks) + "):", "        return None"]
     lines += [f"    p{i} = {_physical(f'r{i}', f)}" for i, f in enumerate(fields) if not f.identity]
