@@ -324,15 +324,14 @@ class ArmTick:
             self.flags = np.array(flags, dtype=np.bool_)
             self.counts = np.array(count_rows, dtype=np.int64)
             self.constants = np.zeros(CONSTANTS)
+            # The scalars' types as `step` passes them: h_s, substeps, supply_v, outputs_enabled, brake_all.
+            self._tick = machine_code_for(compiled_arm_plant_tick(), 0.001, 1, 28.0, True, False, self.command,
+                                          self.state, self.table, self.flags, self.counts, self.constants)
         else:
             self._tick = arm_plant_tick
             self.command = [[0.0] * n, [False] * n, [True] * n]
             self.state, self.table, self.flags, self.counts = rows, table, flags, count_rows
             self.constants = [0.0] * CONSTANTS
-        if compiled:
-            # The scalars' types as `step` passes them: h_s, substeps, supply_v, outputs_enabled, brake_all.
-            self._tick = machine_code_for(compiled_arm_plant_tick(), 0.001, 1, 28.0, True, False, self.command,
-                                          self.state, self.table, self.flags, self.counts, self.constants)
         f, c = self.flags, self.counts
         self.faults = ChannelFaults(f[OPEN_CIRCUIT], f[STUCK_BRAKE], c[COUNT_OFFSET], f[DROPPED_OUT], c[FROZEN_COUNT])
         # The flag readouts as lists of Python bools (`_flag_lists`): the live rows (plain), or converted when

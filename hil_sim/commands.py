@@ -92,7 +92,7 @@ class ExpiringMotorCommands(_Expiring[Sequence]):
 
     Held as one flat sequence in MOTOR_CMD's order, the rows the arm plant's tick takes
     (`hil_sim.arm_tick`: the duties, the enables, the brakes): `current_values` hands it out
-    as it is, once a tick; `current` as three lists. Neither is the caller's to modify.
+    as it is, once a tick (not the caller's to modify); `current` as three new lists.
     """
 
     def __init__(self, timeout_s: float, n_channels: int = N_CHANNELS) -> None:
