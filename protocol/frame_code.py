@@ -299,6 +299,7 @@ def roundtrip_source(fields: Sequence[Field]) -> str:
     raw_checks, decode_checks, results, bits = [], [], [], []
     for i, (n, f) in enumerate(zip(names, fields)):
         r = f"r{i}"
+        decodes_inside = f.decodes_inside()
         if f.identity:
             lines.append(f"    {r} = index({n})")
             if f.accepted_ints() == (0, 1):
@@ -313,12 +314,14 @@ def roundtrip_source(fields: Sequence[Field]) -> str:
                 lines.append(f"    {r} = index({_raw(n, f)})")
             else:
                 lines.append(f"    x{i} = {_quotient(n, f)}")
-                lines.append(f"    {r} = x{i} + {ROUNDER!r} - {ROUNDER!r} if type(x{i}) is float else index(round(x{i}))")
-            if bounds is None or not raw_lo <= bounds[0] <= bounds[1] <= raw_hi:
+                lines.append(f"    {r} = x{i} + {ROUNDER!r} - {ROUNDER!r} if type(x{i}) is float "
+                             f"else index(round(x{i}))")
+            if bounds is not None and raw_lo <= bounds[0] and bounds[1] <= raw_hi:
+                decodes_inside = decodes_inside or _decodes_inside(f, *bounds)     # and the raw value fits
+            else:
                 raw_checks.append(_check(r, raw_lo, raw_hi))
             result = f"p{i}"
-        if not f.decodes_inside() and not (not f.identity and bounds is not None and raw_lo <= bounds[0]
-                                           and bounds[1] <= raw_hi and _decodes_inside(f, *bounds)):
+        if not decodes_inside:
             decode_checks.append(_check(result, f.decode_lo, f.decode_hi))
         results.append(result)
     if len(bits) > 1:
