@@ -428,6 +428,18 @@ class ArmTick:
         _, _, home, limit_lo, limit_hi = self._flag_lists()
         return tuple(home), tuple(limit_lo), tuple(limit_hi)
 
+    def readouts(self) -> tuple[list[int], list[float], tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]]:
+        """(`encoder_counts()`, `currents()`, `switches()`) at one go: what the plant's node sends each tick."""
+        if self._motors.state_writes != self._sampled_writes:
+            self.sample()
+        _, _, home, limit_lo, limit_hi = self._flag_lists()
+        count, current = self.counts[COUNTS], self.state[CURRENT_A]
+        if self.compiled:
+            count, current = count.tolist(), current.tolist()
+        else:
+            count, current = list(count), list(current)
+        return count, current, (tuple(home), tuple(limit_lo), tuple(limit_hi))
+
     def sample(self) -> None:
         """Sample the counts and switches from the state as it is (outside a tick)."""
         sample_readouts(self.state[POS_RAD], self.table, self.flags, self.counts)

@@ -107,10 +107,9 @@ class PlantNode(HalEndpoint):
         plant.tick(dt_s, enabled, brake, plant.motor_commands.current_values(now))
         tick = self.tick
         wire_tick = tick & 0xFFFF_FFFF
+        counts, currents, switches = plant.readouts()
         lo, hi = self._current_range_a
-        self.send_frame(self._motor_fb, (wire_tick, *_wrapped_to_int32(plant.encoder_counts),
-                                         *_saturated(plant.currents_a, lo, hi)))
-        switches = plant.switches()
+        self.send_frame(self._motor_fb, (wire_tick, *_wrapped_to_int32(counts), *_saturated(currents, lo, hi)))
         if switches != self._last_switches or tick - self._digital_tick >= self.digital_every_n:
             if self.send_frame(self._digital, (*switches[0], *switches[1], *switches[2], wire_tick)):
                 self._last_switches = switches

@@ -376,6 +376,12 @@ class Plant:
                 tuple([x <= lo for x, lo in zip(pos, self._limit_lo_rad)]),
                 tuple([x >= hi for x, hi in zip(pos, self._limit_hi_rad)]))
 
+    def readouts(self) -> tuple[list[int], list[float], tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]]:
+        """(`encoder_counts`, `currents_a`, `switches()`) at one go: what the node sends each tick."""
+        if self._arm_tick is not None:
+            return self._arm_tick.readouts()
+        return self.encoder_counts, self.currents_a, self.switches()
+
 
 def _spawn(rng: np.random.Generator) -> np.random.Generator:
     """An independent child generator; the parent's stream is left as it was (numpy's `Generator.spawn`)."""
