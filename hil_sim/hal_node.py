@@ -144,6 +144,8 @@ class PlantNode(HalEndpoint):
         if dt_s > self.max_dt_s:
             self.dt_clamps += 1
             return self.max_dt_s
+        if dt_s != dt_s:        # NaN: `Plant.tick` takes no step it could not take (as `Plant.step` says)
+            raise ValueError(f"dt_s must be finite and >= 0, got {dt_s}")
         return dt_s
 
     def resend_sync(self) -> None:
