@@ -30,7 +30,7 @@ opening, and the torque the stop absorbs gives the grip force.
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -224,6 +224,7 @@ class ArmPlant:
         self._inertia = [0.0] * len(ch)
         self._duty = [0.0] * len(ch)
         self._enable = [False] * len(ch)
+        self._applied: Callable[[], tuple[list, list]] = lambda: (self._duty, self._enable)
         self.payload_kg = 0.0
         self.g_m_s2 = GRAVITY_M_S2["earth"]
         self._loads = LoadModel(params.geometry, params.mount, self.payload_kg, self.g_m_s2)
@@ -286,9 +287,10 @@ class ArmPlant:
             self.motors.step(h, duty, supply_v, en, brake, self._load_nm, self._inertia)
             self._update_loads()
 
-    def applied(self, duty: list, enable: list) -> None:
-        """Note what a step made outside `step` applied (the fused tick): `supply_current_a` reads it."""
-        self._duty, self._enable = duty, enable
+    def applied_by(self, source: Callable[[], tuple[list, list]]) -> None:
+        """Steps made outside `step` (the fused tick): `supply_current_a` reads what they applied, (duty,
+        enable), from `source()` from now on."""
+        self._applied = source
 
     def load_lists(self) -> tuple[list[float], list[float]]:
         """The live rows of gravity torques and load inertias per channel (changed in place, never replaced)."""
@@ -387,7 +389,7 @@ class ArmPlant:
 
     def supply_current_a(self) -> float:
         """Current the motor bridges draw from the supply at the last step (A, < 0 regenerates)."""
-        return self.motors.supply_current_a(self._duty, self._enable)
+        return self.motors.supply_current_a(*self._applied())
 
 
 def _as_list(values) -> list:

@@ -301,7 +301,7 @@ class ArmTick:
         motors = arm.motors
         self._arm, self._motors = arm, motors
         self.compiled = compiled
-        n = motors.n
+        n = self._n = motors.n
         pos, vel, cur, stop_t = motors.state_lists()
         load_nm, load_inertia = arm.load_lists()
         stop_lo, stop_hi = motors.stop_lists()
@@ -312,8 +312,7 @@ class ArmTick:
         flags[BRAKED] = [True] * n
         count_rows = [[0] * n for _ in range(COUNT_ROWS)]
         if compiled:
-            from hil_sim.arm_tick_compiled import compiled_arm_plant_tick
-            self._tick = compiled_arm_plant_tick()
+            from hil_sim.arm_tick_compiled import compiled_arm_plant_tick, machine_code_for
             self.command = np.zeros((COMMAND_ROWS, n))
             # A tick's command goes in as one pack of its numbers (half the time numpy takes to copy a list in).
             self._pack_command = struct.Struct(f"{COMMAND_ROWS * n}d").pack_into
@@ -325,6 +324,9 @@ class ArmTick:
             self.flags = np.array(flags, dtype=np.bool_)
             self.counts = np.array(count_rows, dtype=np.int64)
             self.constants = np.zeros(CONSTANTS)
+            # The scalars' types as `step` passes them: h_s, substeps, supply_v, outputs_enabled, brake_all.
+            self._tick = machine_code_for(compiled_arm_plant_tick(), 0.001, 1, 28.0, True, False, self.command,
+                                          self.state, self.table, self.flags, self.counts, self.constants)
         else:
             self._tick = arm_plant_tick
             self.command = [[0.0] * n, [False] * n, [True] * n]
@@ -332,8 +334,9 @@ class ArmTick:
             self.constants = [0.0] * CONSTANTS
         f, c = self.flags, self.counts
         self.faults = ChannelFaults(f[OPEN_CIRCUIT], f[STUCK_BRAKE], c[COUNT_OFFSET], f[DROPPED_OUT], c[FROZEN_COUNT])
-        # The flag readouts as lists of Python bools: the live rows (plain), or converted after each tick.
-        self._flags_out: list = f[DRIVEN:]         # DRIVEN, BRAKED, HOME, LIMIT_LO, LIMIT_HI
+        # The flag readouts as lists of Python bools (`_flag_lists`): the live rows (plain), or converted when
+        # first asked for after a tick.
+        self._flags_out: Optional[list] = None
         cut = arm.gripper_cut()
         closed_rad, open_rad = (cut.closed_rad, cut.open_rad) if cut.cuts_power else (-math.inf, math.inf)
         self.constants[GRIPPER_CLOSED_RAD], self.constants[GRIPPER_OPEN_RAD] = closed_rad, open_rad
@@ -341,6 +344,7 @@ class ArmTick:
         self._max_substep_s = arm.params.max_substep_s
         self._dt_s = math.nan
         self._substeps, self._h_s = 0, math.nan
+        self._given: Sequence = [0.0] * n         # the command of the last tick, as given
         self._set_drive(self._max_substep_s)
         self.sample()
 
@@ -365,30 +369,45 @@ class ArmTick:
         if h_s != self._h_s:
             self._set_drive(h_s)
 
-    def step(self, dt_s: float, outputs_enabled: bool, brake_all: bool, duty: Sequence[float],
-             enable: Sequence[bool], brake: Sequence[bool], supply_v: float) -> tuple[float, float]:
-        """One tick of `dt_s` seconds (see `arm_plant_tick`): the bridges' supply current [A], the sum of i^2."""
+    def step(self, dt_s: float, outputs_enabled: bool, brake_all: bool, command: Sequence,
+             supply_v: float) -> tuple[float, float]:
+        """One tick of `dt_s` seconds (see `arm_plant_tick`): the bridges' supply current [A], the sum of i^2.
+
+        `command`: the rows of `command` in one sequence, the n duties, the n enables, the n brakes
+        (MOTOR_CMD's order: `ExpiringMotorCommands.current_values`)."""
         if dt_s != self._dt_s:
             self._set_step_length(dt_s)
         model = self._arm.load_model()
         if model is not self._model:
             self._set_loads(model)
         if self.compiled:
-            command = self.command
-            self._pack_command(command, 0, *duty, *enable, *brake)
+            self._pack_command(self.command, 0, *command)
         else:
-            command = [duty, enable, brake]
-        drawn = self._tick(self._h_s, self._substeps, supply_v, outputs_enabled, brake_all, command, self.state,
+            n = self._n
+            duty, enable, brake = self.command
+            duty[:], enable[:], brake[:] = command[:n], command[n:2 * n], command[2 * n:3 * n]
+        drawn = self._tick(self._h_s, self._substeps, supply_v, outputs_enabled, brake_all, self.command, self.state,
                            self.table, self.flags, self.counts, self.constants)
-        if self.compiled:
-            self._flags_out = self.flags[DRIVEN:].tolist()
+        self._given = command
+        self._flags_out = None
         self._sampled_writes = self._motors.state_writes
         return drawn
 
+    def _flag_lists(self) -> list[list[bool]]:
+        """The flag readouts (DRIVEN, BRAKED, HOME, LIMIT_LO, LIMIT_HI) as lists of Python bools, once a tick."""
+        if self._flags_out is None:
+            f = self.flags
+            self._flags_out = f[DRIVEN:].tolist() if self.compiled else f[DRIVEN:]
+        return self._flags_out
+
+    def duty(self) -> list:
+        """The duties the last tick was given, as given (a list of the caller's own)."""
+        return list(self._given[:self._n])
+
     def gating(self) -> tuple[list[bool], list[bool]]:
-        """What each channel got at the last tick: (driven, braked), lists for the caller to keep (once a tick)."""
-        driven, braked = self._flags_out[:2]
-        return (driven, braked) if self.compiled else (list(driven), list(braked))
+        """What each channel got at the last tick: (driven, braked), lists of the caller's own."""
+        driven, braked = self._flag_lists()[:2]
+        return list(driven), list(braked)
 
     def currents(self) -> list[float]:
         """The armature currents, a list of the caller's own."""
@@ -406,14 +425,25 @@ class ArmTick:
         """(home, limit_lo, limit_hi) per channel, True = closed."""
         if self._motors.state_writes != self._sampled_writes:
             self.sample()
-        _, _, home, limit_lo, limit_hi = self._flags_out
+        _, _, home, limit_lo, limit_hi = self._flag_lists()
         return tuple(home), tuple(limit_lo), tuple(limit_hi)
+
+    def readouts(self) -> tuple[list[int], list[float], tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]]:
+        """(`encoder_counts()`, `currents()`, `switches()`) at one go: what the plant's node sends each tick."""
+        if self._motors.state_writes != self._sampled_writes:
+            self.sample()
+        _, _, home, limit_lo, limit_hi = self._flag_lists()
+        count, current = self.counts[COUNTS], self.state[CURRENT_A]
+        if self.compiled:
+            count, current = count.tolist(), current.tolist()
+        else:
+            count, current = list(count), list(current)
+        return count, current, (tuple(home), tuple(limit_lo), tuple(limit_hi))
 
     def sample(self) -> None:
         """Sample the counts and switches from the state as it is (outside a tick)."""
         sample_readouts(self.state[POS_RAD], self.table, self.flags, self.counts)
-        if self.compiled:
-            self._flags_out = self.flags[DRIVEN:].tolist()
+        self._flags_out = None
         self._sampled_writes = self._motors.state_writes
 
 

@@ -30,7 +30,7 @@ class _Expiring(Generic[T]):
         if not (timeout_s > 0 and math.isfinite(timeout_s)):
             raise ValueError(f"timeout_s must be finite and > 0, got {timeout_s}")
         self.timeout_s = timeout_s
-        self.safe = safe
+        self._safe = safe
         self._commanded = safe
         self._refreshed_s: Optional[float] = None
         self._last_alive: Optional[int] = None
@@ -47,13 +47,18 @@ class _Expiring(Generic[T]):
         self._refreshed_s = now
         return True
 
+    @property
+    def safe(self) -> T:
+        """What `current` reads while no command is fresh."""
+        return self._safe
+
     def current(self, now: float) -> T:
         """The command to apply at `now` (`safe` if none is fresh)."""
         if self._refreshed_s is None or now - self._refreshed_s > self.timeout_s:
             if not self.expired:
                 self.expiries += 1
                 self.expired = True
-            return self.safe
+            return self._safe
         self.expired = False
         return self._commanded
 
@@ -78,18 +83,37 @@ class ExpiringOutputs(_Expiring[tuple[bool, bool]]):
 MotorCommand = tuple[list, list, list]   # (duty, enable, brake), one entry per channel
 
 
-class ExpiringMotorCommands(_Expiring[MotorCommand]):
+class ExpiringMotorCommands(_Expiring[Sequence]):
     """The per-channel motor command (MOTOR_CMD): (duty, enable, brake) lists, order `ARM_CHANNELS`.
 
     One frame carries every channel, so their commands are refreshed, and expire,
     together. Expired (and before the first command) every channel reads as duty 0,
-    disabled, brake applied. The lists returned by `current` are the plant's own: do not
-    modify them.
+    disabled, brake applied.
+
+    Held as one flat sequence in MOTOR_CMD's order, the rows the arm plant's tick takes
+    (`hil_sim.arm_tick`: the duties, the enables, the brakes): `current_values` hands it out
+    as it is, once a tick (not the caller's to modify); `current` as three new lists.
     """
 
     def __init__(self, timeout_s: float, n_channels: int = N_CHANNELS) -> None:
         self.n_channels = n_channels
-        super().__init__(timeout_s, ([0.0] * n_channels, [False] * n_channels, [True] * n_channels))
+        super().__init__(timeout_s, [0.0] * n_channels + [False] * n_channels + [True] * n_channels)
+
+    @property
+    def safe(self) -> MotorCommand:
+        return self._split(self._safe)
+
+    def current_values(self, now: float) -> Sequence:
+        """The command to apply at `now` as one sequence: n duties, n enables, n brakes."""
+        return _Expiring.current(self, now)
+
+    def current(self, now: float) -> MotorCommand:
+        """The command to apply at `now`: (duty, enable, brake) lists."""
+        return self._split(self.current_values(now))
+
+    def _split(self, values: Sequence) -> MotorCommand:
+        n = self.n_channels
+        return list(values[:n]), list(values[n:2 * n]), list(values[2 * n:3 * n])
 
     def command(self, duty: Sequence[float], enable: Sequence[bool], brake: Sequence[bool],
                 alive: int, now: float) -> bool:
@@ -101,14 +125,27 @@ class ExpiringMotorCommands(_Expiring[MotorCommand]):
         if len(duty) != n or len(enable) != n or len(brake) != n:
             raise ValueError(f"a motor command needs {n} duties, enables and brakes, got "
                              f"{len(duty)}, {len(enable)}, {len(brake)}")
-        try:
-            in_range = all([-1.0 <= d <= 1.0 for d in duty])     # NaN is not
-        except TypeError:
-            in_range = False
-        if not in_range:
-            raise ValueError(f"duty must be numbers in [-1, 1], got {list(duty)}")
         # Copies (the caller may reuse its lists); enable and brake are read for truth by `Plant.step`.
-        return self._refresh((list(duty), list(enable), list(brake)), alive, now)
+        return self.receive([*duty, *enable, *brake, alive], now)
+
+    def receive(self, values: list, now: float) -> bool:
+        """Record MOTOR_CMD's values as the frame lists them (n duties, n enables, n brakes, alive); False
+        if a repeat. The list becomes the holder's (a received frame's values are the receiver's own).
+
+        ValueError (nothing recorded) for the wrong number of values or a duty not in [-1, 1]."""
+        n = self.n_channels
+        if len(values) != 3 * n + 1:
+            raise ValueError(f"a motor command needs {n} duties, enables and brakes and `alive`, got "
+                             f"{len(values)} values")
+        for d in values[:n]:
+            try:
+                in_range = -1.0 <= d <= 1.0      # NaN is not
+            except TypeError:
+                in_range = False
+            if not in_range:
+                raise ValueError(f"duty must be numbers in [-1, 1], got {values[:n]}")
+        alive = values.pop()
+        return self._refresh(values, alive, now)
 
 
 class ExpiringTrackerCommands(_Expiring[TrackerCommand]):

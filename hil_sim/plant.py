@@ -138,7 +138,8 @@ class Plant:
         if fused_arm_tick:
             sensors = Sensors(self._pos0, self._counts_per_rad, self._home_rad, self._limit_lo_rad, self._limit_hi_rad)
             compiled = compiled_by_default() if compiled_arm_tick is None else bool(compiled_arm_tick)
-            self._arm_tick = ArmTick(self.arm, sensors, compiled=compiled)
+            tick = self._arm_tick = ArmTick(self.arm, sensors, compiled=compiled)
+            self.arm.applied_by(lambda: (tick.duty(), tick.gating()[0]))
         # Faults: active keys ("jam:j2"), and per-channel state the step reads (rows changed in place:
         # the fused tick's own, read by it).
         self._faults: set[str] = set()
@@ -155,19 +156,17 @@ class Plant:
         # What the bus last commanded (the node feeds them); `step` applies what it is given.
         self.commanded = ExpiringOutputs(params.output_timeout_s)
         self.motor_commands = ExpiringMotorCommands(params.motor_cmd_timeout_s, n)
-        # As applied by the last step.
+        # As applied by the last step (and `channel_duty`, `channel_driven`, `channel_braked`).
         self.outputs_enabled = False
         self.brake = True
-        self.channel_duty = [0.0] * n
-        self.channel_driven = [False] * n
-        self.channel_braked = [True] * n
+        self._gating = ([0.0] * n, [False] * n, [True] * n)     # the classes': duty, driven, braked
         # The solar tracker, with a generator of its own so that the arm's noise stream does not change.
         self.tracker = TrackerPlant(tracker_params, _spawn(rng), site=site, start=start, clouds=clouds)
         self.tracker_commands = ExpiringTrackerCommands(params.tracker_cmd_timeout_s)
         self.temp_true_c = params.ambient_c  # box starts at ambient (just powered on)
         self.supply_true_v = params.supply_nominal_v
         self.current_a = 0.0          # total drawn from the supply at the last step
-        self.currents_a = [0.0] * n   # armature currents (current sense, exact)
+        self._currents_a = [0.0] * n  # the classes': armature currents
         self._decay_dt_s, self._decay = math.nan, 1.0   # the temperature's decay factor for that step length
         self.step(0.0, outputs_enabled=False, brake=True)
 
@@ -268,13 +267,19 @@ class Plant:
             raise ValueError("give duty, enable and channel_brake together, or none of them")
         elif not len(duty) == len(enable) == len(channel_brake) == N_CHANNELS:
             raise ValueError(f"duty, enable and channel_brake need {N_CHANNELS} entries each")
+        self.tick(dt_s, outputs_enabled, brake, [*duty, *enable, *channel_brake])
+
+    def tick(self, dt_s: float, outputs_enabled: bool, brake: bool, command: Sequence) -> None:
+        """`step` as the plant's node takes it once a tick, without the checks: `dt_s` finite and >= 0,
+        `command` the per-channel command in one sequence, the duties, the enables, the brakes (as
+        `ExpiringMotorCommands.current_values` hands it out; not to be changed after)."""
         p = self.params
         outputs_enabled = self.outputs_enabled = bool(outputs_enabled)
         brake = self.brake = bool(brake)
         if self._arm_tick is None:
-            bridges_a, squares = self._step_arm_by_classes(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
+            bridges_a, squares = self._step_arm_by_classes(dt_s, outputs_enabled, brake, command)
         else:
-            bridges_a, squares = self._step_arm_fused(dt_s, outputs_enabled, brake, duty, enable, channel_brake)
+            bridges_a, squares = self._arm_tick.step(dt_s, outputs_enabled, brake, command, self.supply_true_v)
         electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
         self.current_a = electronics_a + bridges_a
         self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
@@ -296,30 +301,42 @@ class Plant:
         self._supply_v = self.supply_true_v + self._noise[at] * p.supply_noise_v
         self._temp_c = self.temp_true_c + self._noise[at + 1] * p.temp_noise_c
 
-    def _step_arm_by_classes(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Sequence[float],
-                             enable: Sequence[bool], channel_brake: Sequence[bool]) -> tuple[float, float]:
+    def _step_arm_by_classes(self, dt_s: float, outputs_enabled: bool, brake: bool,
+                             command: Sequence) -> tuple[float, float]:
         """The arm's step through `ArmPlant` and its motor bank: the bridges' supply current, the sum of i^2."""
+        n = N_CHANNELS
+        duty, enable, channel_brake = command[:n], command[n:2 * n], command[2 * n:3 * n]
         arm = self.arm
         driven = [outputs_enabled and bool(e) and not o for e, o in zip(enable, self._open_circuit)]
         braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
-        self.channel_duty, self.channel_driven, self.channel_braked = list(duty), driven, braked
+        self._gating = list(duty), driven, braked
         arm.step(dt_s, duty, driven, braked, self.supply_true_v)
-        currents = self.currents_a = arm.motors.currents()
+        currents = self._currents_a = arm.motors.currents()
         squares = 0.0
         for i in currents:              # in order, one rounding per term (as the fused tick; not math.fsum)
             squares += i * i
         return arm.supply_current_a(), squares
 
-    def _step_arm_fused(self, dt_s: float, outputs_enabled: bool, brake: bool, duty: Sequence[float],
-                        enable: Sequence[bool], channel_brake: Sequence[bool]) -> tuple[float, float]:
-        """The arm's step as one function (`hil_sim.arm_tick`): the bridges' supply current, the sum of i^2."""
-        tick = self._arm_tick
-        drawn = tick.step(dt_s, outputs_enabled, brake, duty, enable, channel_brake, self.supply_true_v)
-        self.channel_duty = list(duty)
-        self.channel_driven, self.channel_braked = tick.gating()
-        self.arm.applied(self.channel_duty, self.channel_driven)
-        self.currents_a = tick.currents()
-        return drawn
+    # -- what the last step applied --------------------------------------------------------------
+    @property
+    def channel_duty(self) -> list:
+        """Each channel's duty at the last step, as commanded (a list of the caller's own)."""
+        return self._arm_tick.duty() if self._arm_tick is not None else list(self._gating[0])
+
+    @property
+    def channel_driven(self) -> list[bool]:
+        """Whether each channel's bridge switched at the last step (a list of the caller's own)."""
+        return self._arm_tick.gating()[0] if self._arm_tick is not None else list(self._gating[1])
+
+    @property
+    def channel_braked(self) -> list[bool]:
+        """Whether each channel's brake was on at the last step (a list of the caller's own)."""
+        return self._arm_tick.gating()[1] if self._arm_tick is not None else list(self._gating[2])
+
+    @property
+    def currents_a(self) -> list[float]:
+        """The armature currents at the last step (current sense, exact; a list of the caller's own)."""
+        return self._arm_tick.currents() if self._arm_tick is not None else list(self._currents_a)
 
     # -- sensors --------------------------------------------------------------------------------
     @property
@@ -358,6 +375,12 @@ class Plant:
         return (tuple([x >= h for x, h in zip(pos, self._home_rad)]),
                 tuple([x <= lo for x, lo in zip(pos, self._limit_lo_rad)]),
                 tuple([x >= hi for x, hi in zip(pos, self._limit_hi_rad)]))
+
+    def readouts(self) -> tuple[list[int], list[float], tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]]:
+        """(`encoder_counts`, `currents_a`, `switches()`) at one go: what the node sends each tick."""
+        if self._arm_tick is not None:
+            return self._arm_tick.readouts()
+        return self.encoder_counts, self.currents_a, self.switches()
 
 
 def _spawn(rng: np.random.Generator) -> np.random.Generator:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import operator
+from fractions import Fraction
 import struct
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
@@ -93,10 +94,15 @@ def _check(var: str, lo: float, hi: float) -> str:
     return f"{_literal(lo)} <= {var} <= {_literal(hi)}"
 
 
+def _quotient(var: str, f: Field) -> str:
+    """What `pack` rounds to a scaled signal's raw integer: (value - offset) / scale."""
+    shifted = f"({var} - {_literal(f.offset)})" if f.offset else var     # x - 0 is x, to the bit
+    return f"{shifted} / {_literal(f.scale)}"
+
+
 def _raw(var: str, f: Field) -> str:
     """The raw integer `pack` computes from a scaled signal's physical value."""
-    shifted = f"({var} - {_literal(f.offset)})" if f.offset else var     # x - 0 is x, to the bit
-    return f"round({shifted} / {_literal(f.scale)})"
+    return f"round({_quotient(var, f)})"
 
 
 def _physical(raw: str, f: Field) -> str:
@@ -239,6 +245,27 @@ def unpack_source(fields: Sequence[Field], length: int) -> tuple[str, Optional[s
     return "\n".join(lines) + "\n", fmt
 
 
+# Rounding a float to the nearest integer, ties to even, as `round` does, without the call (a fifth of
+# its cost): for |x| < 2**51, x + 1.5 * 2**52 lies where the doubles are the integers, so IEEE addition
+# rounds x to an integer there, ties to the even one (1.5 * 2**52 is even), and subtracting 1.5 * 2**52
+# again is exact. The result is round(x) as a float (never -0.0), whose product with a scale is the very
+# double round(x)'s int gives (an int below 2**53 converts to a double exactly).
+ROUNDER = 1.5 * 2.0 ** 52
+
+
+def _raw_bounds(f: Field) -> Optional[tuple[int, int]]:
+    """The least and the greatest raw value a scaled signal's value that passed its encode check can give
+    (exact bounds of the quotient, widened by 2**-50 of it for the subtraction's and the division's
+    rounding, then rounded to the nearest integer outward); None without a finite encode range or past
+    2**50 (the adding trick's reach, with room)."""
+    if not (math.isfinite(f.encode_lo) and math.isfinite(f.encode_hi)):
+        return None
+    ends = [(Fraction(end) - Fraction(f.offset)) / Fraction(f.scale) for end in (f.encode_lo, f.encode_hi)]
+    widen = max(abs(e) for e in ends) / 2 ** 50
+    lo, hi = math.ceil(min(ends) - widen - Fraction(1, 2)), math.floor(max(ends) + widen + Fraction(1, 2))
+    return (lo, hi) if max(-lo, hi) < 2 ** 50 else None
+
+
 def roundtrip_source(fields: Sequence[Field]) -> str:
     """Source of `fn(values) -> list | None`: the list `unpack(pack(values))` gives, without the bytes.
 
@@ -254,33 +281,67 @@ def roundtrip_source(fields: Sequence[Field]) -> str:
     fails it returns None (or raises TypeError, ValueError, ArithmeticError for what is not a
     number); the caller then takes the bytes, and with them pack's and unpack's own errors.
     Checking more than pack does (a layout whose pack leaves ranges to `struct`) only declines.
+
+    Two shortcuts keep to that. A scaled signal whose encode range bounds its raw value below
+    2**50 (`_raw_bounds`) rounds a Python float by adding and subtracting `ROUNDER` (the same
+    integer as `round`, as a float, and so the same physical value); anything else (an int's
+    quotient is a float too; a numpy float is not) goes through `round` and `index`. And a check
+    that those bounds already imply (the raw value inside its field, the physical value inside
+    what unpack accepts) is left out. (And the single bits, exact ints by then, are checked
+    together: `not (r1 | r2 | ...) >> 1`.)
     """
     names = [f"v{i}" for i in range(len(fields))]
-    lines = ["def fn(values, round=round, index=index):", _unpack_names(names, "values")]
+    lines = ["def fn(values, round=round, index=index, type=type, float=float):", _unpack_names(names, "values")]
     scaled = [(n, f) for n, f in zip(names, fields) if not f.identity]
     if scaled:
         lines += ["    if not (" + " and ".join(_check(n, f.encode_lo, f.encode_hi) for n, f in scaled) + "):",
                   "        return None"]
-    raw_checks, decode_checks, results = [], [], []
+    raw_checks, decode_checks, results, bits = [], [], [], []
     for i, (n, f) in enumerate(zip(names, fields)):
         r = f"r{i}"
+        decodes_inside = f.decodes_inside()
         if f.identity:
             lines.append(f"    {r} = index({n})")
-            raw_checks.append(_check(r, *f.accepted_ints()))
+            if f.accepted_ints() == (0, 1):
+                bits.append(r)
+            else:
+                raw_checks.append(_check(r, *f.accepted_ints()))
             result = r
         else:
-            lines.append(f"    {r} = index({_raw(n, f)})")
-            raw_checks.append(_check(r, *f.raw_span()))
+            bounds = _raw_bounds(f)
+            raw_lo, raw_hi = f.raw_span()
+            if bounds is None:
+                lines.append(f"    {r} = index({_raw(n, f)})")
+            else:
+                lines.append(f"    x{i} = {_quotient(n, f)}")
+                lines.append(f"    {r} = x{i} + {ROUNDER!r} - {ROUNDER!r} if type(x{i}) is float "
+                             f"else index(round(x{i}))")
+            if bounds is not None and raw_lo <= bounds[0] and bounds[1] <= raw_hi:
+                decodes_inside = decodes_inside or _decodes_inside(f, *bounds)     # and the raw value fits
+            else:
+                raw_checks.append(_check(r, raw_lo, raw_hi))
             result = f"p{i}"
-        if not f.decodes_inside():
+        if not decodes_inside:
             decode_checks.append(_check(result, f.decode_lo, f.decode_hi))
         results.append(result)
-    lines += ["    if not (" + " and ".join(raw_checks) + "):", "        return None"]
+    if len(bits) > 1:
+        # Ints all 0 or 1: their bitwise or is (a negative int's is negative, one of 2 or more has a higher bit).
+        raw_checks.append(f"not ({' | '.join(bits)}) >> 1")
+    else:
+        raw_checks += [_check(r, 0, 1) for r in bits]
+    if raw_checks:
+        lines += ["    if not (" + " and ".join(raw_checks) + "):", "        return None"]
     lines += [f"    p{i} = {_physical(f'r{i}', f)}" for i, f in enumerate(fields) if not f.identity]
     if decode_checks:
         lines += ["    if not (" + " and ".join(decode_checks) + "):", "        return None"]
     lines.append(f"    return [{', '.join(results)}]")
     return "\n".join(lines) + "\n"
+
+
+def _decodes_inside(f: Field, raw_lo: int, raw_hi: int) -> bool:
+    """True if every raw value in [raw_lo, raw_hi] decodes inside [decode_lo, decode_hi] (monotonic: the ends
+    decide, computed as unpack computes them)."""
+    return all(f.decode_lo <= f.physical(r) <= f.decode_hi for r in (raw_lo, raw_hi))
 
 
 def compile_pack(name: str, fields: Sequence[Field], length: int, check_all: bool) -> tuple[Callable, str]:

@@ -175,6 +175,7 @@ class HalCodec:
 
 
 _new_message = can.Message.__new__
+_new_value_frame = object.__new__
 
 
 class HalFrame(can.Message):
@@ -213,6 +214,10 @@ class HalFrame(can.Message):
                            is_error_frame=self.is_error_frame, channel=copy.deepcopy(self.channel, memo),
                            dlc=self.dlc, data=bytearray(self.data), is_fd=self.is_fd, is_rx=self.is_rx,
                            bitrate_switch=self.bitrate_switch, error_state_indicator=self.error_state_indicator)
+
+
+# What the generated roundtrip raises for a value that is not a number (FrameLayout.roundtrip: None).
+ROUNDTRIP_DECLINES = (TypeError, ValueError, ArithmeticError)
 
 
 class FrameLayout:
@@ -290,7 +295,8 @@ class FrameLayout:
         self._fast_pack, self.pack_source = compile_pack(
             name, code_fields, self.length, check_all=not (self._full_range and self._struct is not None))
         self._fast_unpack, self.unpack_source = compile_unpack(name, code_fields, self.length)
-        self._roundtrip, self.roundtrip_source = compile_roundtrip(name, code_fields)
+        # The generated function itself: None, or one of `ROUNDTRIP_DECLINES` raised, where `roundtrip` says None.
+        self.roundtrip_or_raise, self.roundtrip_source = compile_roundtrip(name, code_fields)
 
     def pack(self, values: Sequence) -> bytes:
         """Frame bytes for physical `values` in `order`; HalEncodeError if one is out of range."""
@@ -342,8 +348,8 @@ class FrameLayout:
         where that takes the bytes after all (a value `pack` refuses, or one of a kind not proven
         here: `protocol.frame_code.roundtrip_source`). For a carrier that hands values over."""
         try:
-            return self._roundtrip(values)
-        except (TypeError, ValueError, ArithmeticError):
+            return self.roundtrip_or_raise(values)
+        except ROUNDTRIP_DECLINES:
             return None
 
     def message(self, values: Sequence) -> can.Message:
@@ -437,11 +443,11 @@ class HalEndpoint:
 
     def poll(self, now: float) -> int:
         """Read and dispatch the waiting frames; return how many were read (bad ones included)."""
-        bus, listeners, decode = self.bus, self._listeners, self.codec.decode
+        recv, listeners = self.bus.recv, self._listeners
         read = 0
-        for _ in range(self.max_frames_per_poll):
+        while read < self.max_frames_per_poll:
             try:
-                msg = bus.recv(timeout=0)
+                msg = recv(0)
             except can.CanError as exc:
                 self._bus_error(exc)
                 break
@@ -450,38 +456,50 @@ class HalEndpoint:
             read += 1
             try:
                 entry = listeners.get(msg.arbitration_id)
-                if entry is not None and not (msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame):
-                    layout, handler = entry
-                    if msg.__class__ is ValueFrame and msg.layout is layout:
-                        handler(msg.values, now)
-                    else:
-                        handler(layout.unpack(msg.data), now)
-                elif decode(msg) is None:       # not ours; a declared frame nobody listens to passes
-                    self.bad_frames += 1
+                if entry is None:
+                    self._not_listened_to(msg)
+                elif msg.__class__ is ValueFrame and msg.layout is entry[0]:
+                    entry[1](msg.values, now)        # the values its unpack would give (`send_frame`)
+                elif msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame:
+                    self._not_listened_to(msg)
+                else:
+                    entry[1](entry[0].unpack(msg.data), now)
             except ValueError:      # HalDecodeError, or values the handler refuses
                 self.bad_frames += 1
         self.frames_received += read
         return read
+
+    def _not_listened_to(self, msg: Union[can.Message, ValueFrame]) -> None:
+        """A frame no handler takes: a declared one passes, anything else is a bad frame."""
+        if self.codec.decode(msg) is None:
+            self.bad_frames += 1
 
     def send_frame(self, layout: FrameLayout, values: Sequence) -> bool:
         """Pack (fast path) and send one frame; False (and counted) if the bus refused it.
 
         On a bus that carries values, what the receiver would unpack goes instead, where
         `layout.roundtrip` vouches for it (`ValueFrame`); `values` must then stay as they are."""
+        carried = None
         if self.carries_values:
-            carried = layout.roundtrip(values)
-            if carried is not None:
-                return self._transmit(layout.name, ValueFrame(layout, values, carried))
-        return self._transmit(layout.name, layout.message(values))
-
-    def _transmit(self, name: str, msg: Union[can.Message, ValueFrame]) -> bool:
+            try:
+                carried = layout.roundtrip_or_raise(values)     # layout.roundtrip(values), one call fewer
+            except ROUNDTRIP_DECLINES:
+                pass
+        if carried is None:
+            msg = layout.message(values)
+        else:
+            # ValueFrame(layout, values, carried) with its slots filled here: a Python __init__'s call
+            # would be most of what building it costs, on a path that runs for every frame.
+            msg = _new_value_frame(ValueFrame)
+            msg.arbitration_id, msg.layout, msg.sent, msg.values = layout.frame_id, layout, values, carried
         try:
-            self.bus.send(msg, timeout=0)
+            self.bus.send(msg, 0)
         except can.CanError as exc:
             self._bus_error(exc)
             return False
         self.frames_sent += 1
-        self.sent_by_name[name] = self.sent_by_name.get(name, 0) + 1
+        sent = self.sent_by_name
+        sent[layout.name] = sent.get(layout.name, 0) + 1
         return True
 
     def _bus_error(self, exc: can.CanError) -> None:

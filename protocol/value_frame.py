@@ -31,6 +31,7 @@ class ValueFrame:
     the receiver owns `values`, a fresh list, as it would own an unpacked one.
     """
 
+    # (`HalEndpoint.send_frame` fills these itself, as __init__ does: keep the two alike.)
     __slots__ = ("arbitration_id", "layout", "sent", "values")
 
     is_extended_id = False

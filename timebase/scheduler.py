@@ -54,7 +54,9 @@ class TaskStats:
         self._hist[bucket if bucket < _HIST_BUCKETS else _HIST_BUCKETS - 1] += 1
 
     def record_untimed(self, late_s: float, overrun: bool) -> None:
-        """`record` of a run on a simulated clock, where execution takes no time (exec_s 0)."""
+        """`record` of a run on a simulated clock, where execution takes no time (exec_s 0).
+
+        (`Scheduler.run_due` writes this out: it runs for every task run.)"""
         self.runs += 1
         if late_s > self.late_max_s:
             self.late_max_s = late_s
@@ -110,6 +112,7 @@ class Task:
         self.priority = priority
         self.stats = TaskStats()
         self.wake_s: Optional[float] = None
+        self.removed = False      # retired (`Scheduler.remove`, or its function returned None)
         # A periodic task's grid: its n-th period falls at grid_origin_s + n * period_s. Multiplied, not
         # summed: summing 1 ms drifts half a tick from n * 1 ms within 53 simulated hours, and the
         # lock-step clocks count ticks (n * period) against this grid.
@@ -154,6 +157,7 @@ class Scheduler:
         """Retire a task; its queued wake-ups are discarded lazily."""
         task = self.tasks.pop(name)
         task.wake_s = None
+        task.removed = True
 
     def _push(self, task: Task, wake_s: float) -> None:
         task.wake_s = wake_s
@@ -189,17 +193,24 @@ class Scheduler:
             late_s = now - wake
             if stopwatch is None:
                 next_wake = task.fn(now)
-                task.stats.record_untimed(late_s, late_s > task.tolerance_s)
+                stats = task.stats                       # stats.record_untimed(...), written out
+                stats.runs += 1
+                if late_s > stats.late_max_s:
+                    stats.late_max_s = late_s
+                if late_s > task.tolerance_s:
+                    stats.overruns += 1
+                stats._hist[0] += 1
             else:
                 start = stopwatch()
                 next_wake = task.fn(now)
                 task.stats.record(stopwatch() - start, late_s, late_s > task.tolerance_s)
             ran += 1
             now = clock_now()
-            if tasks.get(task.name) is not task:
+            if task.removed:
                 pass   # removed while it ran
             elif next_wake is None:
                 del tasks[task.name]
+                task.removed = True
             else:
                 period = task.period_s
                 if period is None:
