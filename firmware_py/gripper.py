@@ -90,6 +90,10 @@ class Gripper:
             self.mode = AxisMode.IDLE
 
     # ---- the tick ----
+    def may_fault(self, now: float) -> bool:
+        """Whether this tick's `update` could latch the timeout (the one way it reaches the other channels)."""
+        return self.mode is AxisMode.MOVING and now - self._started_s > self.timeout_s
+
     def update(self, now: float, count: int, i_a: float, closed_switch: bool, open_switch: bool) -> float:
         self._track(now, count)
         if self.mode is AxisMode.HOLDING:
