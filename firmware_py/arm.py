@@ -202,6 +202,10 @@ class ArmController:
         self.outputs_allowed = False
         for channel in self.channels:
             channel.safe()
+        self._send_braked()
+
+    def _send_braked(self) -> None:
+        """MOTOR_CMD with every channel braked, not driven."""
         n = len(self.channels)
         self.hal.send_motor_command([0.0] * n, [False] * n, [True] * n)
 
@@ -285,9 +289,11 @@ class ArmController:
         if fb_s is None:                 # nothing from the plant yet: nothing to control
             return now + self.dt_s
         duty = self._tick_axes(now, inputs, fb_s) if self.bank is None else self._tick_bank(now, inputs, fb_s)
-        allowed = self.outputs_allowed
-        brake = [channel.brake or not allowed for channel in self.channels]
-        self.hal.send_motor_command(duty if allowed else [0.0] * len(duty), [not b for b in brake], brake)
+        if self.outputs_allowed:
+            brake = [channel.brake for channel in self.channels]
+            self.hal.send_motor_command(duty, [not b for b in brake], brake)
+        else:
+            self._send_braked()
         self._report_motion_ends(now)
         return now + self.dt_s
 
@@ -332,6 +338,9 @@ class ArmController:
         return duty
 
     def _report_motion_ends(self, now: float) -> None:
+        """Report each motion that ended since the last tick, and one a newer command replaced."""
+        if [(channel.motion_id, channel.outcome) for channel in self.channels] == self._reported:
+            return                          # the usual tick: nothing started or ended
         for k, channel in enumerate(self.channels):
             key = (channel.motion_id, channel.outcome)
             if key == self._reported[k]:

@@ -14,8 +14,8 @@ same for the estimator and the debounced fault checks.
 `arm_joints_tick` takes, usually all of them, in one call; `run` goes on from a joint handed back.
 
 The rows are Python lists, or with `compiled=True` numpy arrays for the functions compiled by numba
-(firmware_py/joints_compiled.py); the inputs of a tick are then copied into arrays once
-(`take_inputs`), and the duties come out of one (`duty_list`) once the tick is done.
+(firmware_py/joints_compiled.py); a tick's inputs then go to them as tuples (`take_inputs`), and the
+duties come out of an array (`duty_list`) once the tick is done.
 """
 from __future__ import annotations
 
@@ -68,8 +68,6 @@ class JointBank:
         # this tick's inputs (take_inputs): as given, for Axis.update, and as the tick function takes them
         self._given: tuple = ()
         self._taken: tuple = ()
-        if compiled:
-            self._arrays = (np.zeros(channels, np.int64), np.zeros(channels), np.zeros(channels, np.bool_))
 
     def take_inputs(self, fb_s: float, counts: Sequence[int], currents_a: Sequence[float], home: Sequence[bool],
                     gravity_nm: Optional[Sequence[float]] = None) -> None:
@@ -79,14 +77,9 @@ class JointBank:
         self._given = (fb_s, counts, currents_a, home)
         if gravity_nm is not None:
             self.gravity_nm[:len(gravity_nm)] = gravity_nm
-        if not self.compiled:
-            self._taken = (fb_s, counts, currents_a, home, self.gravity_nm)
-            return
-        counts_in, currents_in, home_in = self._arrays
-        counts_in[:] = counts
-        currents_in[:] = currents_a
-        home_in[:] = home
-        self._taken = (fb_s, counts_in, currents_in, home_in, self.gravity_nm)
+        if self.compiled:                   # numba takes a tuple of numbers for less than filling an array costs
+            counts, currents_a, home = tuple(counts), tuple(currents_a), tuple(home)
+        self._taken = (fb_s, counts, currents_a, home, self.gravity_nm)
 
     def run_arm(self, stop: int, now: float, gravity_m_s2: float, payload_kg: float) -> int:
         """The arm's first call of a tick (`arm_joints_tick`): the gravity torques of J1..J3 for the whole tick (from
