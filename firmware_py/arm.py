@@ -314,7 +314,8 @@ class ArmController:
             done = split
         gripper_duty = self.gripper.update(now, inputs.counts[k], inputs.currents_a[k], inputs.limit_lo[k],
                                            inputs.limit_hi[k])
-        bank.run(done, bank.size, now)
+        if done < bank.size:
+            bank.run(done, bank.size, now)
         duty = bank.duty_list()
         duty[k] = gripper_duty
         return duty

@@ -96,6 +96,8 @@ class ControllerHal(HalEndpoint):
         self.on_frame("DIGITAL_IN", self._on_switches, _SWITCH_ORDER)
         self._motor_cmd = self.codec.layout("MOTOR_CMD", _CMD_ORDER)
         self.duty_step = _duty_step(self.codec)
+        self._flags_for: tuple[list, list] = ([], [])     # the enables and brakes `_flags` was made of
+        self._flags: list = []
         self.tracker_alive = 0   # value the next TRACKER_CMD frame will carry
         self.tracker_both_refused = 0   # TRACKER_CMD requests with both relays of an axis closed (sent open)
         self.on_frame("TRACKER_SENSE", self._on_tracker_sense, _SENSE_ORDER)
@@ -171,14 +173,20 @@ class ControllerHal(HalEndpoint):
                             + [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake] + [self.motor_alive])
             self.motor_alive = (self.motor_alive + 1) & 0xFF
             return
-        values += [1 if e else 0 for e in enable]
-        values += [1 if b else 0 for b in brake]
+        values += self._motor_flags(enable, brake)
         values.append(self.motor_alive)
         if self.carries_values:
             self._transmit(self._motor_cmd.name, ValueFrame(self._motor_cmd, values, list(values)))
         else:
             self.send_frame(self._motor_cmd, values)
         self.motor_alive = (self.motor_alive + 1) & 0xFF
+
+    def _motor_flags(self, enable: list, brake: list) -> list:
+        """MOTOR_CMD's enables and brakes as 0/1, made again only when they change (seldom: enable, the safe state)."""
+        if enable != self._flags_for[0] or brake != self._flags_for[1]:
+            self._flags_for = (list(enable), list(brake))
+            self._flags = [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake]
+        return self._flags
 
     def is_stale(self, now: float, max_age_s: float) -> bool:
         """True if no ANALOG_IN has arrived, or the last one is older than `max_age_s`."""
