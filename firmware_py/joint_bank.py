@@ -59,9 +59,9 @@ class JointBank:
         self.axes: list[BankedAxis] = []
         self.channels: list[int] = []       # each joint's HAL channel
         self.handed_back = 0                # joint-ticks run by Axis.update (the rest: by joints_tick)
-        # the arm's mass model (MassModel.row), for `run_arm`'s gravity feed-forward
-        self.masses = rows(1, jt.MASS_COLUMNS, float)[0]
-        self.masses[:len(masses)] = masses
+        # the arm's mass model (MassModel.row), for `run_arm`'s gravity feed-forward: constant, so a tuple (which
+        # numba takes for less than an array)
+        self.masses = tuple(masses) + (0.0,) * (jt.MASS_COLUMNS - len(masses))
         # each joint's gravity torque (given to `take_inputs`, or computed by `run_arm`) and its duty at its channel
         self.gravity_nm = rows(1, size, float)[0]
         self.duties = rows(1, channels, float)[0]
