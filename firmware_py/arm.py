@@ -39,6 +39,7 @@ from firmware_py.axis import Axis, AxisError, LimitBreach, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal, HalInputs
 from firmware_py.joint_bank import BankedAxis, JointBank
+from firmware_py.joints_tick import GRAVITY_ROWS
 from firmware_py.params import ParamStore
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
@@ -145,13 +146,12 @@ class ArmController:
         self.judge_lateness = False      # set for a controller on the wall clock (Controller.attach)
         self._last_tick_s: Optional[float] = None
         self.outputs_allowed = False
-        self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick
+        self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick (the bank: its own)
         values = params.values()
         self.joints: dict[str, Axis] = {}
         self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints, MASSES.row) if fused_joints else None
         for index, drive in enumerate(DRIVES):
-            gravity = None if index >= 3 else ((lambda k: (lambda pos: self._tau[k]))(index) if self.bank is None
-                                               else (lambda k: (lambda pos: float(self.bank.gravity_nm[k])))(index))
+            gravity = self._gravity_torque(index)
             k = ARM_CHANNELS.index(drive.name)
             config = arm_config.axis_config(drive, values, dt_s)
             on_axis_fault = (lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k)
@@ -167,6 +167,16 @@ class ArmController:
         self._reported = [(0, MotionOutcome.NONE)] * len(self.channels)
         self._running: list[Optional[int]] = [None] * len(self.channels)   # motion id last seen RUNNING
         self._duty = [0.0] * len(self.channels)
+
+    def _gravity_torque(self, index: int) -> Optional[Callable[[float], float]]:
+        """Joint `index`'s gravity torque as `Axis.update` asks for it: J1..J3's, refreshed once a tick (for banked
+        joints by the kernel, `JointBank.run_arm`); None for the others."""
+        if index >= GRAVITY_ROWS:
+            return None
+        if self.bank is None:
+            return lambda pos: self._tau[index]
+        gravity_nm = self.bank.gravity_nm
+        return lambda pos: float(gravity_nm[index])
 
     # ---- parameters ----
     def check_param(self, name: str, value: float) -> Optional[str]:
