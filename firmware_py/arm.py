@@ -37,8 +37,9 @@ from firmware_py import arm_config
 from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
 from firmware_py.axis import Axis, AxisError, LimitBreach, Refusal
 from firmware_py.gripper import Gripper
-from firmware_py.hal import ControllerHal
+from firmware_py.hal import ControllerHal, HalInputs
 from firmware_py.joint_bank import BankedAxis, JointBank
+from firmware_py.joints_tick import GRAVITY_ROWS
 from firmware_py.params import ParamStore
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
@@ -145,12 +146,12 @@ class ArmController:
         self.judge_lateness = False      # set for a controller on the wall clock (Controller.attach)
         self._last_tick_s: Optional[float] = None
         self.outputs_allowed = False
-        self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick
+        self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick (the bank: its own)
         values = params.values()
         self.joints: dict[str, Axis] = {}
-        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints) if fused_joints else None
+        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints, MASSES.row) if fused_joints else None
         for index, drive in enumerate(DRIVES):
-            gravity = (lambda k: (lambda pos: self._tau[k]))(index) if index < 3 else None
+            gravity = self._gravity_torque(index)
             k = ARM_CHANNELS.index(drive.name)
             config = arm_config.axis_config(drive, values, dt_s)
             on_axis_fault = (lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k)
@@ -166,6 +167,16 @@ class ArmController:
         self._reported = [(0, MotionOutcome.NONE)] * len(self.channels)
         self._running: list[Optional[int]] = [None] * len(self.channels)   # motion id last seen RUNNING
         self._duty = [0.0] * len(self.channels)
+
+    def _gravity_torque(self, index: int) -> Optional[Callable[[float], float]]:
+        """Joint `index`'s gravity torque as `Axis.update` asks for it: J1..J3's, refreshed once a tick (for banked
+        joints by the kernel, `JointBank.run_arm`); None for the others."""
+        if index >= GRAVITY_ROWS:
+            return None
+        if self.bank is None:
+            return lambda pos: self._tau[index]
+        gravity_nm = self.bank.gravity_nm
+        return lambda pos: float(gravity_nm[index])
 
     # ---- parameters ----
     def check_param(self, name: str, value: float) -> Optional[str]:
@@ -201,6 +212,10 @@ class ArmController:
         self.outputs_allowed = False
         for channel in self.channels:
             channel.safe()
+        self._send_braked()
+
+    def _send_braked(self) -> None:
+        """MOTOR_CMD with every channel braked, not driven."""
         n = len(self.channels)
         self.hal.send_motor_command([0.0] * n, [False] * n, [True] * n)
 
@@ -283,6 +298,40 @@ class ArmController:
         fb_s = inputs.fb_s
         if fb_s is None:                 # nothing from the plant yet: nothing to control
             return now + self.dt_s
+        duty = self._tick_axes(now, inputs, fb_s) if self.bank is None else self._tick_bank(now, inputs, fb_s)
+        if self.outputs_allowed:
+            brake = [channel.brake for channel in self.channels]
+            self.hal.send_motor_command(duty, [not b for b in brake], brake)
+        else:
+            self._send_braked()
+        self._report_motion_ends(now)
+        return now + self.dt_s
+
+    def _tick_bank(self, now: float, inputs: HalInputs, fb_s: float) -> list[float]:
+        """Every channel's tick, the joints through the bank's kernel; the duties in channel order.
+
+        The order is channel order (J1-J4, the gripper, the mount) wherever one channel's tick can reach another:
+        the gripper's reaches the joints only by faulting (the safe state), and a joint's only when the kernel
+        hands it back to `Axis.update`. So while the gripper cannot fault this tick, the kernel takes the joints
+        after it too, all of them in one call, and the gripper ticks before the first joint handed back after it.
+        """
+        bank, k, split = self.bank, GRIPPER_INDEX, self._rows_before_gripper
+        bank.take_inputs(fb_s, inputs.counts, inputs.currents_a, inputs.home)
+        stop = split if self.gripper.may_fault(now) else bank.size
+        done = bank.run_arm(stop, now, float(self.params["gravity_m_s2"]), float(self.params["payload_kg"]))
+        if done < split:
+            bank.run(done, split, now)
+            done = split
+        gripper_duty = self.gripper.update(now, inputs.counts[k], inputs.currents_a[k], inputs.limit_lo[k],
+                                           inputs.limit_hi[k])
+        if done < bank.size:
+            bank.run(done, bank.size, now)
+        duty = bank.duty_list()
+        duty[k] = gripper_duty
+        return duty
+
+    def _tick_axes(self, now: float, inputs: HalInputs, fb_s: float) -> list[float]:
+        """Every channel's tick, in channel order, each joint by its `Axis.update` (the reference); the duties."""
         joints = self.joints
         g = self.params["gravity_m_s2"]
         if g:
@@ -292,27 +341,17 @@ class ArmController:
             self._tau[:] = _NO_TORQUE        # gravity set to 0 while running (orbit): no feed-forward left over
         counts, currents, home = inputs.counts, inputs.currents_a, inputs.home
         duty = self._duty
-        channels = self.channels
-        bank = self.bank
-        if bank is None:
-            for k, channel in enumerate(channels):
-                if k == GRIPPER_INDEX:
-                    duty[k] = channel.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
-                else:
-                    duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
-        else:
-            split, k = self._rows_before_gripper, GRIPPER_INDEX
-            bank.take_inputs(fb_s, counts, currents, home, self._tau)
-            bank.run(0, split, now, duty)
-            duty[k] = self.gripper.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
-            bank.run(split, bank.size, now, duty)
-        allowed = self.outputs_allowed
-        brake = [channel.brake or not allowed for channel in channels]
-        self.hal.send_motor_command(duty if allowed else [0.0] * len(duty), [not b for b in brake], brake)
-        self._report_motion_ends(now)
-        return now + self.dt_s
+        for k, channel in enumerate(self.channels):
+            if k == GRIPPER_INDEX:
+                duty[k] = channel.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
+            else:
+                duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
+        return duty
 
     def _report_motion_ends(self, now: float) -> None:
+        """Report each motion that ended since the last tick, and one a newer command replaced."""
+        if [(channel.motion_id, channel.outcome) for channel in self.channels] == self._reported:
+            return                          # the usual tick: nothing started or ended
         for k, channel in enumerate(self.channels):
             key = (channel.motion_id, channel.outcome)
             if key == self._reported[k]:

@@ -17,9 +17,10 @@ degrees and millimetres, converted at the border (`firmware_py/arm.py`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass, fields
 from typing import Optional
 
+from firmware_py import joints_tick as jt
 from firmware_py.axis import AxisConfig, motor_gains
 from firmware_py.estimator import EstimatorConfig
 from firmware_py.params import ParamSpec
@@ -115,19 +116,19 @@ class MassModel:
 
     def holding_torques_nm(self, q1: float, q2: float, q3: float, g: float,
                            payload_kg: float = 0.0) -> tuple[float, float, float]:
-        """Torques J1, J2, J3 must apply to hold the pose against gravity `g` [m/s^2]."""
-        c1 = math.cos(q1)
-        c2 = math.cos(q1 + q2)
-        c3 = math.cos(q1 + q2 + q3)
-        t3 = g * (self.wrist_turned_kg * self.wrist_turned_cg_m + payload_kg * self.tip_m) * c3
-        beyond_j3 = self.wrist_fixed_kg + self.wrist_turned_kg + payload_kg
-        t2 = g * (self.link3_kg * self.link3_m / 2 + beyond_j3 * self.link3_m) * c2 + t3
-        beyond_j2 = self.elbow_hw_kg + self.link3_kg + beyond_j3
-        t1 = g * (self.link2_kg * self.link2_m / 2 + beyond_j2 * self.link2_m) * c1 + t2
-        return t1, t2, t3
+        """Torques J1, J2, J3 must apply to hold the pose against gravity `g` [m/s^2] (computed by
+        `joints_tick.holding_torques_nm`, which the joints' kernel runs too)."""
+        return jt.holding_torques_nm(q1, q2, q3, g, payload_kg, self.row)
+
+    @property
+    def row(self) -> tuple[float, ...]:
+        """The model as a row of numbers, its fields in order (the columns named in firmware_py/joints_tick.py)."""
+        return astuple(self)
 
 
 MASSES = MassModel()
+# the row's columns are the fields, in order
+assert all(getattr(jt, f.name.upper()) == k for k, f in enumerate(fields(MassModel))) and len(MASSES.row) == jt.MASS_COLUMNS
 
 
 # ---- parameters ----------------------------------------------------------------------------------

@@ -29,6 +29,7 @@ _OPEN, _CLOSE = 1, -1
 class Gripper:
     def __init__(self, model: GripperModel, on_fault: Callable[[int, float], None] = lambda bits, now: None) -> None:
         self.model = model
+        self._m_per_count = model.m_per_count     # the model's, computed once (the tick reads it twice)
         self._on_fault = on_fault
         self.mode = AxisMode.IDLE
         self.duty = 0.0
@@ -90,6 +91,10 @@ class Gripper:
             self.mode = AxisMode.IDLE
 
     # ---- the tick ----
+    def may_fault(self, now: float) -> bool:
+        """Whether this tick's `update` could latch the timeout (the one way it reaches the other channels)."""
+        return self.mode is AxisMode.MOVING and now - self._started_s > self.timeout_s
+
     def update(self, now: float, count: int, i_a: float, closed_switch: bool, open_switch: bool) -> float:
         self._track(now, count)
         if self.mode is AxisMode.HOLDING:
@@ -155,9 +160,9 @@ class Gripper:
     def _track(self, now: float, count: int) -> None:
         """Opening from counts (relative to the last open-switch reference), velocity over 20 ms."""
         # counts are 32-bit and wrap: always take differences modulo 2**32
-        self.opening_m = self._ref_m + unwrap_delta(count, self._ref_count) * self.model.m_per_count
+        self.opening_m = self._ref_m + unwrap_delta(count, self._ref_count) * self._m_per_count
         if self._vel_count is None:
             self._vel_count, self._vel_s = count, now
         elif now - self._vel_s >= 0.02:
-            self.vel_m_s = unwrap_delta(count, self._vel_count) * self.model.m_per_count / (now - self._vel_s)
+            self.vel_m_s = unwrap_delta(count, self._vel_count) * self._m_per_count / (now - self._vel_s)
             self._vel_count, self._vel_s = count, now

@@ -27,6 +27,7 @@ from typing import Optional
 import can
 
 from protocol.hal import HalCodec, HalEndpoint
+from protocol.value_frame import ValueFrame
 from protocol.states import ARM_CHANNELS
 
 _N = len(ARM_CHANNELS)
@@ -40,6 +41,16 @@ _SENSE_ORDER = ("cell_az_a", "cell_az_b", "cell_el_a", "cell_el_b")
 _POS_ORDER = ("angle_az", "angle_el", "limit_cw_az", "limit_ccw_az", "limit_cw_el", "limit_ccw_el", "motor_supply_v")
 _TRACKER_CMD_ORDER = ("relay_cw_az", "relay_ccw_az", "relay_cw_el", "relay_ccw_el", "brake_az", "brake_el",
                       "sensor_power", "motor_power", "duty_az", "duty_el", "alive")
+
+
+def _duty_step(codec: HalCodec) -> float:
+    """MOTOR_CMD's duty resolution: every channel's duty signal has the same scale, no offset."""
+    message = codec.database.get_message_by_name("MOTOR_CMD")
+    steps = {(message.get_signal_by_name(f"duty_{ch}").scale, message.get_signal_by_name(f"duty_{ch}").offset)
+             for ch in ARM_CHANNELS}
+    if len(steps) != 1 or next(iter(steps))[1] != 0:
+        raise ValueError(f"MOTOR_CMD: the duties' (scale, offset) differ or have an offset: {steps}")
+    return float(next(iter(steps))[0])
 
 
 @dataclass
@@ -84,6 +95,9 @@ class ControllerHal(HalEndpoint):
         self.on_frame("MOTOR_FB", self._on_feedback, _FB_ORDER)
         self.on_frame("DIGITAL_IN", self._on_switches, _SWITCH_ORDER)
         self._motor_cmd = self.codec.layout("MOTOR_CMD", _CMD_ORDER)
+        self.duty_step = _duty_step(self.codec)
+        self._flags_for: tuple[list, list] = ([], [])     # the enables and brakes `_flags` was made of
+        self._flags: list = []
         self.tracker_alive = 0   # value the next TRACKER_CMD frame will carry
         self.tracker_both_refused = 0   # TRACKER_CMD requests with both relays of an axis closed (sent open)
         self.on_frame("TRACKER_SENSE", self._on_tracker_sense, _SENSE_ORDER)
@@ -144,10 +158,35 @@ class ControllerHal(HalEndpoint):
         return self.send_frame(self._tracker_cmd, values)
 
     def send_motor_command(self, duty: list, enable: list, brake: list) -> None:
-        """Send MOTOR_CMD: per arm channel duty (-1..1), enable and brake; `motor_alive` advances."""
-        self.send_frame(self._motor_cmd, [-1.0 if d < -1.0 else 1.0 if d > 1.0 else d for d in duty]
-                        + [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake] + [self.motor_alive])
+        """Send MOTOR_CMD: per arm channel duty (-1..1, saturated), enable and brake; `motor_alive` advances.
+
+        The values go as the bus carries them: each duty a whole number of the DBC's steps (`duty_step`, as the
+        frame's packing rounds it), flags as 0/1. On a bus that carries values they go as they are, with no
+        round trip through the layout (`FrameLayout.roundtrip` would give them back unchanged: they are what
+        unpacking the frame gives; tests/test_hal.py holds every step of the range to that). A duty that is
+        not a number takes the layout's checked path, which refuses it as before."""
+        step = self.duty_step
+        try:
+            values = [round((-1.0 if d < -1.0 else 1.0 if d > 1.0 else d) / step) * step for d in duty]
+        except (ValueError, OverflowError):
+            self.send_frame(self._motor_cmd, [-1.0 if d < -1.0 else 1.0 if d > 1.0 else d for d in duty]
+                            + [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake] + [self.motor_alive])
+            self.motor_alive = (self.motor_alive + 1) & 0xFF
+            return
+        values += self._motor_flags(enable, brake)
+        values.append(self.motor_alive)
+        if self.carries_values:
+            self._transmit(self._motor_cmd.name, ValueFrame(self._motor_cmd, values, list(values)))
+        else:
+            self.send_frame(self._motor_cmd, values)
         self.motor_alive = (self.motor_alive + 1) & 0xFF
+
+    def _motor_flags(self, enable: list, brake: list) -> list:
+        """MOTOR_CMD's enables and brakes as 0/1, made again only when they change (seldom: enable, the safe state)."""
+        if enable != self._flags_for[0] or brake != self._flags_for[1]:
+            self._flags_for = (list(enable), list(brake))
+            self._flags = [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake]
+        return self._flags
 
     def is_stale(self, now: float, max_age_s: float) -> bool:
         """True if no ANALOG_IN has arrived, or the last one is older than `max_age_s`."""

@@ -10,9 +10,12 @@ same for the estimator and the debounced fault checks.
 `JointBank.run` is one tick of a span of joints: `joints_tick` for as many as it can take, and
 `Axis.update` for each joint it hands back (rare: faults, homing, a move's end, a soft limit).
 
-The rows are Python lists, or with `compiled=True` numpy arrays for the function compiled by numba
-(firmware_py/joints_compiled.py); the inputs of a tick are then copied into arrays once
-(`take_inputs`) and the duties out of one after each run.
+`run_arm` is the arm's first call of a tick: the gravity feed-forward and as many joints as
+`arm_joints_tick` takes, usually all of them, in one call; `run` goes on from a joint handed back.
+
+The rows are Python lists, or with `compiled=True` numpy arrays for the functions compiled by numba
+(firmware_py/joints_compiled.py); a tick's inputs then go to them as tuples (`take_inputs`), and the
+duties come out of an array (`duty_list`) once the tick is done.
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ from firmware_py import joints_tick as jt
 from firmware_py.axis import Axis, AxisConfig, AxisError, Debounce
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from firmware_py.homing import Homing
-from firmware_py.joints_compiled import compiled_joints_tick
+from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joints_tick
 from firmware_py.profiles import Profile
 
 _MODES = tuple(AxisMode)
@@ -38,10 +41,11 @@ class JointBank:
     `int_config`, `profile`) one row of numbers per joint, the columns named in firmware_py/joints_tick.py;
     `axes[k]` is joint k's facade. `compiled`: numpy rows and the tick compiled by numba."""
 
-    def __init__(self, size: int, channels: int, compiled: bool = False) -> None:
+    def __init__(self, size: int, channels: int, compiled: bool = False, masses: Sequence[float] = ()) -> None:
         self.size = size
         self.compiled = compiled
         self._tick = compiled_joints_tick() if compiled else jt.joints_tick
+        self._arm_tick = compiled_arm_joints_tick() if compiled else jt.arm_joints_tick
         rows = _arrays if compiled else _lists
         self.state = rows(size, jt.STATE_COLUMNS, float)
         for row in self.state:
@@ -55,49 +59,55 @@ class JointBank:
         self.axes: list[BankedAxis] = []
         self.channels: list[int] = []       # each joint's HAL channel
         self.handed_back = 0                # joint-ticks run by Axis.update (the rest: by joints_tick)
+        # the arm's mass model (MassModel.row), for `run_arm`'s gravity feed-forward: constant, so a tuple (which
+        # numba takes for less than an array)
+        self.masses = tuple(masses) + (0.0,) * (jt.MASS_COLUMNS - len(masses))
+        # each joint's gravity torque (given to `take_inputs`, or computed by `run_arm`) and its duty at its channel
+        self.gravity_nm = rows(1, size, float)[0]
+        self.duties = rows(1, channels, float)[0]
         # this tick's inputs (take_inputs): as given, for Axis.update, and as the tick function takes them
         self._given: tuple = ()
         self._taken: tuple = ()
-        if compiled:
-            self._arrays = (np.zeros(channels, np.int64), np.zeros(channels), np.zeros(channels, np.bool_),
-                            np.zeros(size))
-            self._duties = np.zeros(channels)
 
     def take_inputs(self, fb_s: float, counts: Sequence[int], currents_a: Sequence[float], home: Sequence[bool],
-                    gravity_nm: Sequence[float]) -> None:
+                    gravity_nm: Optional[Sequence[float]] = None) -> None:
         """This tick's inputs for its runs: MOTOR_FB's counts and currents (arrived at `fb_s`) and the home
-        switches, per channel; `gravity_nm[k]`, joint k's gravity torque if it has one."""
+        switches, per channel; `gravity_nm[k]`, joint k's gravity torque if it has one (None: `run_arm` computes
+        them)."""
         self._given = (fb_s, counts, currents_a, home)
-        if not self.compiled:
-            self._taken = (fb_s, counts, currents_a, home, gravity_nm)
-            return
-        counts_in, currents_in, home_in, gravity_in = self._arrays
-        counts_in[:] = counts
-        currents_in[:] = currents_a
-        home_in[:] = home
-        gravity_in[:len(gravity_nm)] = gravity_nm
-        self._taken = (fb_s, counts_in, currents_in, home_in, gravity_in)
+        if gravity_nm is not None:
+            self.gravity_nm[:len(gravity_nm)] = gravity_nm
+        if self.compiled:                   # numba takes a tuple of numbers for less than filling an array costs
+            counts, currents_a, home = tuple(counts), tuple(currents_a), tuple(home)
+        self._taken = (fb_s, counts, currents_a, home, self.gravity_nm)
 
-    def run(self, first: int, stop: int, now: float, duty_out: list[float]) -> None:
-        """One tick of joints `first` .. `stop - 1`, in order, on the inputs taken; each joint's duty into `duty_out`
+    def run_arm(self, stop: int, now: float, gravity_m_s2: float, payload_kg: float) -> int:
+        """The arm's first call of a tick (`arm_joints_tick`): the gravity torques of J1..J3 for the whole tick (from
+        the mass model, `gravity_m_s2` and the payload), then joints 0 .. `stop - 1` as far as the kernel takes them;
+        returns the first joint it hands back (`stop`: none). `run` goes on from there."""
+        fb_s, counts, currents_a, home, gravity_nm = self._taken
+        return self._arm_tick(stop, now, fb_s, gravity_m_s2, payload_kg, self.masses, counts, currents_a, home,
+                              gravity_nm, self.duties, self.state, self.int_state, self.config, self.int_config,
+                              self.profile)
+
+    def run(self, first: int, stop: int, now: float) -> None:
+        """One tick of joints `first` .. `stop - 1`, in order, on the inputs taken; each joint's duty into `duties`
         at its channel."""
-        fb_s, counts, currents_a, home = self._given
-        compiled = self.compiled
         k = first
         while k < stop:
-            done = self._tick(k, stop, now, *self._taken, self._duties if compiled else duty_out, self.state,
-                              self.int_state, self.config, self.int_config, self.profile)
-            if compiled and done > k:
-                duties = self._duties.tolist()
-                for channel in self.channels[k:done]:
-                    duty_out[channel] = duties[channel]
-            k = done
+            k = self._tick(k, stop, now, *self._taken, self.duties, self.state, self.int_state, self.config,
+                           self.int_config, self.profile)
             if k < stop:                    # handed back: the whole tick of joint k, as Axis.update does it
+                fb_s, counts, currents_a, home = self._given
                 channel = self.channels[k]
-                duty_out[channel] = self.axes[k].update(now, counts[channel], fb_s, currents_a[channel], fb_s,
-                                                        home[channel])
+                self.duties[channel] = self.axes[k].update(now, counts[channel], fb_s, currents_a[channel], fb_s,
+                                                           home[channel])
                 self.handed_back += 1
                 k += 1
+
+    def duty_list(self) -> list[float]:
+        """This tick's duties by channel, a list of the caller's (a channel without a joint: 0.0)."""
+        return self.duties.tolist() if self.compiled else list(self.duties)
 
     def load_profile(self, k: int, profile: Optional[Profile]) -> None:
         """Joint k follows `profile` (None: none): its segments into k's profile row."""

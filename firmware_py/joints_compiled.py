@@ -2,16 +2,17 @@
 
 `compiled_joints_tick()` is `joints_tick` (firmware_py/joints_tick.py) compiled without fastmath,
 so its duties are the same to the bit as the plain function's and `Axis.update`'s
-(tests/test_joints_tick.py runs it against both). It runs over the numpy arrays of a
-`JointBank(compiled=True)`. `ASPOD_COMPILED=1` (kernels/__init__.py) makes it the controller's
-default (`ControllerConfig.compiled_joints`).
+(tests/test_joints_tick.py runs it against both); `compiled_arm_joints_tick()` is `arm_joints_tick`
+(the gravity feed-forward, then `joints_tick` from the first joint), the arm's one call a tick.
+They run over the numpy arrays of a `JointBank(compiled=True)`. `ASPOD_COMPILED=1`
+(kernels/__init__.py) makes them the controller's default (`ControllerConfig.compiled_joints`).
 """
 from __future__ import annotations
 
 import functools
 from typing import Callable
 
-from firmware_py.joints_tick import joints_tick
+from firmware_py.joints_tick import arm_joints_tick, holding_torques_nm, joints_tick
 from kernels import compile_kernel
 
 
@@ -19,3 +20,9 @@ from kernels import compile_kernel
 def compiled_joints_tick() -> Callable[..., int]:
     """`joints_tick` compiled by numba (RuntimeError if numba is not installed)."""
     return compile_kernel(joints_tick, "joints")
+
+
+@functools.lru_cache(maxsize=1)
+def compiled_arm_joints_tick() -> Callable[..., int]:
+    """`arm_joints_tick` compiled by numba, `joints_tick` and the gravity compiled into it."""
+    return compile_kernel(arm_joints_tick, "joints", helpers=(joints_tick, holding_torques_nm))

@@ -86,6 +86,25 @@ IDLE, MOVING, JOGGING, HOMING, HOLDING, FAULT = (int(AxisMode.IDLE), int(AxisMod
 CURRENT_LIMITED = int(AxisError.CURRENT_LIMITED)
 HOME_START, HOME_CLEAR, HOME_BACKOFF = homing.START, homing.CLEAR, homing.BACKOFF    # else: seeking the switch
 NONE = math.nan           # a `since` or an arrival time that is not there
+# the arm's mass model for the gravity feed-forward (firmware_py/arm_config.py MassModel, its fields in this order)
+(LINK2_M, LINK3_M, LINK2_KG, LINK3_KG, ELBOW_HW_KG, WRIST_FIXED_KG, WRIST_TURNED_KG, WRIST_TURNED_CG_M,
+ TIP_M) = range(9)
+MASS_COLUMNS = 9
+GRAVITY_ROWS = 3          # the joints with gravity torque in the arm: rows 0, 1, 2 (J1, J2, J3)
+
+
+def holding_torques_nm(q1: float, q2: float, q3: float, g: float, payload_kg: float, masses) -> tuple:
+    """Torques J1, J2, J3 must apply to hold the pose (angles q1..q3) against gravity `g` [m/s^2]; `masses` the
+    mass model's row (`MassModel.holding_torques_nm` is this function)."""
+    c1 = math.cos(q1)
+    c2 = math.cos(q1 + q2)
+    c3 = math.cos(q1 + q2 + q3)
+    t3 = g * (masses[WRIST_TURNED_KG] * masses[WRIST_TURNED_CG_M] + payload_kg * masses[TIP_M]) * c3
+    beyond_j3 = masses[WRIST_FIXED_KG] + masses[WRIST_TURNED_KG] + payload_kg
+    t2 = g * (masses[LINK3_KG] * masses[LINK3_M] / 2 + beyond_j3 * masses[LINK3_M]) * c2 + t3
+    beyond_j2 = masses[ELBOW_HW_KG] + masses[LINK3_KG] + beyond_j3
+    t1 = g * (masses[LINK2_KG] * masses[LINK2_M] / 2 + beyond_j2 * masses[LINK2_M]) * c1 + t2
+    return t1, t2, t3
 
 
 def joints_tick(first: int, stop: int, now: float, fb_s: float, counts, currents_a, home, gravity_nm, duty_out,
@@ -243,3 +262,18 @@ def joints_tick(first: int, stop: int, now: float, fb_s: float, counts, currents
         int_state[k][:] = (mode, err, homed, has_count, last_count, turns, missed, 0, segments, phase)
         duty_out[channel] = duty
     return stop
+
+
+def arm_joints_tick(stop: int, now: float, fb_s: float, g: float, payload_kg: float, masses, counts, currents_a,
+                    home, gravity_nm, duty_out, state, int_state, config, int_config, profile) -> int:
+    """The arm's joints' tick from the first: J1..J3's gravity torques into `gravity_nm` (rows 0..2; `g` 0, none)
+    from where the joints are before any of them ticks, then `joints_tick` of joints 0 .. `stop - 1`; returns what
+    that returns. The torques stay for the joints a later call, or `Axis.update`, ticks."""
+    if g:
+        torques = holding_torques_nm(state[0][POS_RAD], state[1][POS_RAD], state[2][POS_RAD], g, payload_kg, masses)
+    else:
+        torques = (0.0, 0.0, 0.0)          # gravity set to 0 (orbit): no feed-forward
+    for k in range(GRAVITY_ROWS):
+        gravity_nm[k] = torques[k]
+    return joints_tick(0, stop, now, fb_s, counts, currents_a, home, gravity_nm, duty_out, state, int_state, config,
+                       int_config, profile)

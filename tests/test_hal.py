@@ -425,3 +425,35 @@ def test_params_are_checked_when_built():
     with pytest.raises(ValueError, match="supply_source_ohm"):
         PlantParams(supply_source_ohm=-1.0)
     assert PlantParams().thermal_time_constant_s == pytest.approx(300.0)
+
+
+def test_motor_command_values_are_what_its_bytes_give_for_every_duty_step():
+    """ControllerHal.send_motor_command hands a value-carrying bus its values as they are (no round trip through the
+    layout): for every duty step of the range, duties between steps, beyond -1..1, the receiver gets what the
+    frame's bytes give it, to the bit and the type."""
+    from host_tools.worlds.local_bus import open_local_pair
+    from firmware_py.hal import _CMD_ORDER
+    from protocol.hal import HalEndpoint
+
+    def received(carries_values: bool, commands: list) -> list:
+        controller_end, plant_end = open_local_pair(carries_values=carries_values)
+        hal, plant = ControllerHal(controller_end, CODEC), HalEndpoint(plant_end, CODEC)
+        got: list = []
+        plant.on_frame("MOTOR_CMD", lambda values, now: got.append(values), _CMD_ORDER)
+        try:
+            for duty, enable, brake in commands:
+                hal.send_motor_command(duty, enable, brake)
+                plant.poll(0.0)
+        finally:
+            controller_end.shutdown()
+            plant_end.shutdown()
+        return [[(type(v).__name__, v.hex() if isinstance(v, float) else v) for v in values] for values in got]
+
+    n = len(ARM_CHANNELS)
+    step = ControllerHal(open_local_pair()[0], CODEC).duty_step
+    duties = [r * step for r in range(-10_000, 10_001)] + [r * step + step / 2 for r in range(-10_000, 10_000)]
+    duties += [-1.5, 1.5, -1.0000000001, 1.0000000001, -0.0, 0.0, 0.123456789, -0.98765]
+    commands = [(duties[k:k + n], [k % 2 == 0] * n, [k % 3 == 0] * n) for k in range(0, len(duties) - n, n)]
+    carried = received(True, commands)
+    assert len(carried) == len(commands)
+    assert carried == received(False, commands)

@@ -30,7 +30,7 @@ from firmware_py.axis import Axis, AxisError, Refusal
 from firmware_py.controller import ControllerConfig
 from firmware_py.estimator import COUNT_MODULUS
 from firmware_py.joint_bank import BankedAxis, JointBank
-from firmware_py.joints_compiled import compiled_joints_tick
+from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joints_tick
 from kernels import ENVIRONMENT_SWITCH, switched
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M
@@ -367,10 +367,10 @@ class Twin:
                 if axis is self.axes[0]:
                     duty = axis.update(self.now, count, self.fb_s, i_a, self.fb_s, plant.home_switch)
                 else:
-                    out = [math.nan]
+                    self.bank.duties[0] = math.nan
                     self.bank.take_inputs(self.fb_s, [count], [i_a], [plant.home_switch], self.tau)
-                    self.bank.run(0, 1, self.now, out)
-                    duty = out[0]
+                    self.bank.run(0, 1, self.now)
+                    duty = self.bank.duty_list()[0]
                 duties.append(duty.hex())
                 plant.step(duty, axis.brake)
             assert duties[0] == duties[1], f"tick {self.ticks}"
@@ -514,9 +514,9 @@ def test_a_handed_back_joint_is_left_as_it_was_and_the_joints_before_it_are_done
     axes = [BankedAxis(bank, k, k, make_config(Joint())) for k in range(2)]
     for axis in axes:
         axis.enable(0.0)
-    counts, currents, home, out = [0, 0], [0.0, 0.0], [False, False], [0.0, 0.0]
+    counts, currents, home = [0, 0], [0.0, 0.0], [False, False]
     bank.take_inputs(0.0, counts, currents, home, [])
-    bank.run(0, 2, 0.0, out)
+    bank.run(0, 2, 0.0)
     before = [[list(group[k]) for group in (bank.state, bank.int_state)] for k in range(2)]
     out = [math.nan, math.nan]
     counts[1] = 100_000                                              # joint 1's count jumps: a glitch
@@ -536,12 +536,14 @@ def test_the_compiled_joints_are_asked_for_by_the_environment_and_need_numba(mon
     assert ControllerConfig().compiled_joints
     monkeypatch.setitem(sys.modules, "numba", None)              # as if it were not installed
     compiled_joints_tick.cache_clear()
+    compiled_arm_joints_tick.cache_clear()
     try:
         with pytest.raises(RuntimeError, match="need numba: pip install"):
             JointBank(1, 1, compiled=True)
         JointBank(1, 1)                                          # the plain function needs nothing
     finally:
         compiled_joints_tick.cache_clear()
+        compiled_arm_joints_tick.cache_clear()
 
 
 def test_stage_times_need_the_reference_path():
