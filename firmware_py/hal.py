@@ -27,7 +27,6 @@ from typing import Optional
 import can
 
 from protocol.hal import HalCodec, HalEndpoint
-from protocol.value_frame import ValueFrame
 from protocol.states import ARM_CHANNELS
 
 _N = len(ARM_CHANNELS)
@@ -175,10 +174,7 @@ class ControllerHal(HalEndpoint):
             return
         values += self._motor_flags(enable, brake)
         values.append(self.motor_alive)
-        if self.carries_values:
-            self._transmit(self._motor_cmd.name, ValueFrame(self._motor_cmd, values, list(values)))
-        else:
-            self.send_frame(self._motor_cmd, values)
+        self.send_carried(self._motor_cmd, values)
         self.motor_alive = (self.motor_alive + 1) & 0xFF
 
     def _motor_flags(self, enable: list, brake: list) -> list:

@@ -492,6 +492,20 @@ class HalEndpoint:
             # would be most of what building it costs, on a path that runs for every frame.
             msg = _new_value_frame(ValueFrame)
             msg.arbitration_id, msg.layout, msg.sent, msg.values = layout.frame_id, layout, values, carried
+        return self._send(layout, msg)
+
+    def send_carried(self, layout: FrameLayout, values: list) -> bool:
+        """`send_frame` for values that are already what unpacking the frame gives (each a whole number of its
+        signal's steps, within range, of the type unpack returns): on a bus that carries values they go as they
+        are, without the round trip. The sender vouches for that (firmware_py/hal.py's MOTOR_CMD, held to it by
+        tests/test_hal.py); anywhere else they are packed as always."""
+        if not self.carries_values:
+            return self._send(layout, layout.message(values))
+        msg = _new_value_frame(ValueFrame)
+        msg.arbitration_id, msg.layout, msg.sent, msg.values = layout.frame_id, layout, values, list(values)
+        return self._send(layout, msg)
+
+    def _send(self, layout: FrameLayout, msg: Union[can.Message, ValueFrame]) -> bool:
         try:
             self.bus.send(msg, 0)
         except can.CanError as exc:
