@@ -221,7 +221,7 @@ def test_the_doc_shows_the_script_and_the_panel_as_they_are():
     assert len(quoted) > 20 and quoted <= lines, sorted(quoted - lines)
     assert f"\n{AXIS_HEADER}\n" in doc
     for word in ("--sun-start", "--clouds", "--no-tracker", "aspod sim --hal", "watch box", "expect REASON",
-                 "wait aligned [az|el] DEG [TIMEOUT]", "python -m host_tools.cli.bench_script"):
+                 "wait aligned [az|el] DEG [TIMEOUT]", "aspod bench benches/tracker_procedure.txt"):
         assert word in doc, word
 
 

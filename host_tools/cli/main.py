@@ -203,6 +203,8 @@ EXAMPLES = {
     "plant": ["aspod plant --interface udp_multicast --channel 239.74.163.2 --gravity orbit"],
     "firmware": ["aspod firmware --interface udp_multicast --channel 239.74.163.2 --pty"],
     "teleop": ["aspod teleop /dev/pts/5", "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary"],
+    "bench": ["aspod bench benches/tracker_procedure.txt --sun-start 2026-03-20T06:50-07:00",
+              "aspod bench session.txt --json > result.json", "aspod bench session.txt --record s.pcapng"],
     "demo": ["aspod demo", "aspod demo --json --gravity orbit", "aspod demo --link"],
     "tracker-day": ["aspod tracker-day --mode feedforward --date 2026-12-21 --plot day.png"],
     "log": ["aspod log session.pcapng", "aspod log session.pcapng --class command --class event",
@@ -329,8 +331,22 @@ def build_parser() -> argparse.ArgumentParser:
     teleop.add_argument("--keep-going", action="store_true", help="in a script, go on after a failed command")
     teleop.add_argument("--connect-timeout", type=bounded(float, 0.1, 600), default=10.0, metavar="S")
     teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
+    teleop.add_argument("--json", action="store_true",
+                        help="with a script: print one JSON object (each line's outcome and output, the motions, "
+                             "the round trips) instead of the session's text")
     teleop.add_argument("--record", type=Path, metavar="FILE.pcapng",
                         help="capture every frame both ways, as this host sent and received them (aspod log)")
+
+    bench = add_command("bench", help="run a teleop script against the whole world on the simulated clock "
+                                      "(deterministic, fast); the plant's true state at the end")
+    bench.add_argument("script", type=Path, metavar="SCRIPT", help="a teleop script (one command a line)")
+    add_seed_arg(bench, "the plant's noise and the link's nonces")
+    add_arm_args(bench)
+    add_tracker_args(bench)
+    bench.add_argument("--keep-going", action="store_true", help="go on after a failed command")
+    bench.add_argument("--json", action="store_true", help="print one JSON object: steps, motions, the plant's state")
+    bench.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                       help="capture the session on the simulated clock (aspod replay re-runs it to the bit)")
 
     demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")
@@ -451,6 +467,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "teleop":
         from host_tools.cli.teleop import run_teleop
         return run_teleop(settings.teleop_settings(args), host_key(args.key_file))
+    if args.command == "bench":
+        from host_tools.cli.bench import run_bench
+        return run_bench(settings.bench_settings(args))
     if args.command == "demo":
         from host_tools.apps.demo import run_demo
         return run_demo(settings.demo_settings(args))

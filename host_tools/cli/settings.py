@@ -95,6 +95,7 @@ class TeleopSettings:
     connect_timeout_s: float = 10.0
     summary: bool = False
     record: Optional[Path] = None        # a session capture (pcapng) of every frame both ways
+    json: bool = False                   # a script's run as one JSON object (host_tools/teleop/record.py)
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,17 @@ class LogSettings:
     csv: Optional[Path] = None
     plot: Optional[Path] = None
     key_file: Optional[Path] = None
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """`aspod bench SCRIPT`: the script, the world it runs against (plant, seed), and what to print or keep."""
+    script: Path
+    plant: PlantSettings
+    seed: int = 0
+    keep_going: bool = False
+    json: bool = False
+    record: Optional[Path] = None
 
 
 @dataclass(frozen=True)
@@ -258,7 +270,7 @@ def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
-                          record=record_path(args.record))
+                          record=record_path(args.record), json=args.json)
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":
@@ -369,3 +381,13 @@ def proxy_settings(args: argparse.Namespace) -> ProxySettings:
         raise ValueError(f"--host and --controller are both {args.host}: the two sides must differ")
     return ProxySettings(args.host, args.controller, impairment, args.baud, record_path(args.record),
                          args.key_file, not args.no_view)
+
+
+def bench_settings(args: argparse.Namespace) -> BenchSettings:
+    """The plant as `aspod sim` takes it, but on the simulated clock the sun starts where PlantSettings starts it
+    unless told (a bench must run the same every time); `--sun-start now` is the real sun, asked for."""
+    plant = plant_settings(args)
+    if plant.tracker and plant.start is None:
+        default = PlantSettings().start if args.sun_start is None else to_utc(RealClock.wall_time())
+        plant = plant.with_start(default)
+    return BenchSettings(args.script, plant, args.seed, args.keep_going, args.json, record_path(args.record))

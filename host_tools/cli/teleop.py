@@ -1,6 +1,7 @@
 """The `aspod teleop` command: connect, then a script or an interactive console."""
 from __future__ import annotations
 
+import json
 import logging
 import sys
 
@@ -9,6 +10,7 @@ from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_USAGE
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.console import interactive_console
+from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import TeleopError, check_script, run_script
 from host_tools.teleop.words import read_script
 
@@ -44,8 +46,15 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
     try:
         client.connect(args.connect_timeout_s)
         info = client.link.controller_info
-        print(f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
-              f"controller link timeout {info.link_timeout_ms} ms", flush=True)
+        link_line = (f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
+                     f"controller link timeout {info.link_timeout_ms} ms")
+        if args.json and lines is not None:          # one JSON object on stdout, nothing else
+            record = ScriptRecord()
+            status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going, record=record)
+            print(json.dumps(record.as_dict(session, status, script=str(args.script or "-"), target=args.url,
+                                            link=link_line), indent=1), flush=True)
+            return status
+        print(link_line, flush=True)
         if lines is not None:
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going)
         else:

@@ -10,7 +10,7 @@ the plant's simulated date-time (`wall_time`: the sun's start + the simulated ti
 `clock now` in a script sets the controller to the plant's sun, as it does against `aspod sim`
 with its default `--sun-start now`.
 
-A script on the simulated clock from the command line: `python -m host_tools.cli.bench_script`.
+A script on the simulated clock from the command line: `aspod bench SCRIPT` (host_tools/cli/bench.py).
 """
 from __future__ import annotations
 

@@ -47,6 +47,7 @@ from timebase import RealClock
 
 from host_tools.datetimes import utc_text
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop.format import (INDENT, Console, failure_lines, format_message, format_outcome,
                                       latency, param_lines, link_down_lines, report_lines)
@@ -452,8 +453,12 @@ def peer_age(client) -> str:
 
 
 def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
-               err: TextIO = sys.stderr, wall_time: Callable[[], float] = RealClock.wall_time) -> tuple[int, Session]:
+               err: TextIO = sys.stderr, wall_time: Callable[[], float] = RealClock.wall_time,
+               record: Optional[ScriptRecord] = None) -> tuple[int, Session]:
     """Check every line, then run them; returns (exit status, session). `wall_time` as for `Session`.
+
+    With `record` (host_tools/teleop/record.py) each line is also kept as a step with its outcome and what
+    it printed; the session then prints into the record, which passes it on to its own `echo`.
 
     A failed command, or a motion that ends other than DONE (noticed after each line), fails the
     script: it stops there unless `keep_going`, and the status is EXIT_FAILED either way. A line that
@@ -461,7 +466,7 @@ def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
     trouble (`Session.link_trouble`) and EXIT_LINK.
     """
     steps, problems = check_script(lines)
-    session = Session(client, out, wall_time=wall_time)
+    session = Session(client, out if record is None else record, wall_time=wall_time)
     if problems:
         session.close()
         for problem in problems:
@@ -472,11 +477,17 @@ def run_script(client, lines: list[str], out: TextIO, keep_going: bool = False,
     stop = " (use --keep-going to go on)" if not keep_going else ""
     try:
         for step in steps:
+            if record is not None:
+                record.begin(step.line_no, step.text, client.clock.now())
             session.console.line(f"> {step.text}")
             if step.word == "quit":
+                if record is not None:
+                    record.end(True, client.clock.now())
                 break
             ok = session.run_step(step)
             failures = session.motion_failures()
+            if record is not None:
+                record.end(ok and not failures, client.clock.now())
             if ok and not failures:
                 continue
             status = EXIT_FAILED

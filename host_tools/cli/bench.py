@@ -1,0 +1,83 @@
+"""`aspod bench SCRIPT`: a teleop script against a whole world on the simulated clock (`BenchClient` on a
+`LockstepBench`): deterministic, as fast as the machine goes, with the plant's true state at the end.
+
+    aspod bench benches/tracker_procedure.txt --sun-start 2026-03-20T06:50-07:00
+    aspod bench session.txt --json > result.json
+    aspod bench session.txt --record session.pcapng && aspod replay session.pcapng
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import sys
+
+from protocol.states import ARM_AXES, Axis
+from timebase import RealClock
+
+from host_tools.cli.settings import BenchSettings
+from host_tools.client.bench import BenchClient
+from host_tools.exit_codes import EXIT_USAGE
+from host_tools.sessions.capture import CaptureWriter, SessionInfo
+from host_tools.teleop.record import ScriptRecord
+from host_tools.teleop.session import run_script
+from host_tools.teleop.words import TeleopError, read_script
+from host_tools.worlds.world import LockstepBench
+
+log = logging.getLogger("aspod")
+
+
+def plant_state(bench: LockstepBench) -> dict:
+    """The plant's true state (what no controller reading shows): joints, gripper, tracker and its sun."""
+    plant = bench.world.plant
+    arm = plant.arm
+    angles = {axis.name.lower(): math.degrees(x) for axis, x in zip(ARM_AXES, arm.pos_rad) if axis is not Axis.GRIPPER}
+    state = {"joints_deg": angles, "gripper_opening_mm": arm.gripper_opening_m * 1e3, "grip_force_n": arm.grip_force_n}
+    tracker = plant.tracker
+    if tracker is not None:
+        el, az, _dni, _dhi = tracker.sun()
+        state["tracker"] = {"az_deg": tracker.angle_deg[0], "el_deg": tracker.angle_deg[1], "sun_az_deg": az,
+                            "sun_el_deg": el, "off_sun_deg": tracker.angular_error_deg(),
+                            "relay_closings": list(tracker.relay_closures),
+                            "high_duty_starts": tracker.high_duty_starts}
+    return state
+
+
+def run_bench(settings: BenchSettings) -> int:
+    try:
+        lines = read_script(settings.script, option="script")
+    except (OSError, TeleopError) as exc:
+        log.error(f"aspod bench: {exc}")
+        return EXIT_USAGE
+    bench = LockstepBench(seed=settings.seed, plant=settings.plant)
+    if settings.record is not None:
+        bench.record(CaptureWriter.create(settings.record, SessionInfo(clock="simulated", tool="aspod bench",
+                                                                       seed=settings.seed,
+                                                                       settings=bench.settings())))
+    wall0 = RealClock.precise_now()
+    try:
+        client = BenchClient(bench)
+        client.connect()
+        record = ScriptRecord(echo=None if settings.json else sys.stdout)
+        status, session = run_script(client, lines, sys.stdout, keep_going=settings.keep_going,
+                                     wall_time=client.wall_time, record=record)
+        state = plant_state(bench)
+        if settings.json:
+            wall = RealClock.precise_now() - wall0
+            print(json.dumps(record.as_dict(session, status, script=str(settings.script), target="lockstep",
+                                            seed=settings.seed, sim_time_s=bench.clock.now(), wall_time_s=wall,
+                                            plant=state), indent=1))
+        else:
+            print(session.summary())
+            tracker = state.get("tracker")
+            print(f"plant after {bench.clock.now():.1f} simulated s: "
+                  + ", ".join(f"{name} {x:.3f}" for name, x in state["joints_deg"].items()) + " deg, gripper "
+                  f"{state['gripper_opening_mm']:.1f} mm"
+                  + ("" if tracker is None else
+                     f"; tracker az {tracker['az_deg']:.3f} el {tracker['el_deg']:.3f} deg, sun az "
+                     f"{tracker['sun_az_deg']:.3f} el {tracker['sun_el_deg']:.3f} deg, off the sun by "
+                     f"{tracker['off_sun_deg']:.3f} deg; relay closings az {tracker['relay_closings'][0]} el "
+                     f"{tracker['relay_closings'][1]}"))
+        return status
+    finally:
+        bench.close()

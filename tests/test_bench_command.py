@@ -1,0 +1,79 @@
+"""`aspod bench SCRIPT` (a teleop script on the lock-step world) and `--json` there and on `aspod teleop --script`:
+one JSON object with each line's outcome and output, the motions and their ends, the plant's true state."""
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+
+from host_tools.apps.replay import replay
+from host_tools.cli.main import main
+from host_tools.sessions.capture import SessionCapture
+from tests import test_e2e
+
+ASPOD = test_e2e.ASPOD
+env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
+SCRIPT = "enable\nmoveby j1 2 2\nwait\nstatus\n"
+
+
+def bench_json(tmp_path, script: str, *args: str, capsys) -> tuple[int, dict]:
+    path = tmp_path / "s.txt"
+    path.write_text(script)
+    status = main(["bench", str(path), "--json", *args])
+    return status, json.loads(capsys.readouterr().out)
+
+
+def test_a_bench_script_as_json_says_what_each_line_did_and_where_the_plant_ended(tmp_path, capsys):
+    status, doc = bench_json(tmp_path, SCRIPT, capsys=capsys)
+    assert status == 0 and doc["ok"] and doc["target"] == "lockstep"
+    assert [(s["line"], s["text"], s["ok"]) for s in doc["steps"]] == [
+        (1, "enable", True), (2, "moveby j1 2 2", True), (3, "wait", True), (4, "status", True)]
+    assert any("j1#1 DONE" in line for line in doc["steps"][2]["output"])
+    (motion,) = doc["motions"]
+    assert (motion["axis"], motion["kind"], motion["outcome"], motion["ok"]) == ("j1", "MoveBy", "DONE", True)
+    assert abs(motion["position"] - 2.0) < 0.05
+    assert doc["commands"] == {"sent": 3, "ok": 3, "failed": 0}
+    # the plant's truth: j1 moved by about the 2 degrees asked, from where it started
+    joints = doc["plant"]["joints_deg"]
+    assert abs(joints["j1"] - joints["j2"] - 2.0) < 0.05 and doc["sim_time_s"] > 1.0
+
+
+def test_a_failing_line_fails_its_step_and_the_run_and_runs_the_same_every_time(tmp_path, capsys):
+    script = "moveby j1 2 2\nenable\nmove j1 10\nstatus\n"     # not enabled; then an absolute move not homed
+    status, first = bench_json(tmp_path, script, "--keep-going", capsys=capsys)
+    assert status == 1 and not first["ok"]
+    assert [s["ok"] for s in first["steps"]] == [False, True, False, True]
+    _, second = bench_json(tmp_path, script, "--keep-going", capsys=capsys)
+    for doc in (first, second):
+        doc.pop("wall_time_s")
+    assert first == second                                     # deterministic, to the output's last character
+
+
+def test_a_bench_recorded_replays_to_the_bit(tmp_path, capsys):
+    capture = tmp_path / "b.pcapng"
+    status, _ = bench_json(tmp_path, SCRIPT, "--record", str(capture), capsys=capsys)
+    assert status == 0
+    report = replay(SessionCapture.read(capture))
+    assert report.matches and report.exact and report.identical_bytes == report.controller_frames > 10
+
+
+def test_bench_refuses_a_bad_script_before_anything_runs(tmp_path, capsys):
+    path = tmp_path / "bad.txt"
+    path.write_text("enable\nteleport j1\n")
+    assert main(["bench", str(path)]) == 2
+    assert main(["bench", str(tmp_path / "missing.txt")]) == 2
+
+
+@pytest.mark.pty
+def test_teleop_script_json_over_a_pty_is_one_json_object(sim_factory, tmp_path):
+    sim = sim_factory("--pty", "--no-tracker")
+    script = tmp_path / "s.txt"
+    script.write_text("ping 5\nenable\nstatus\n")
+    done = subprocess.run(ASPOD + ["teleop", sim.url, "--script", str(script), "--json"], capture_output=True,
+                          text=True, env=sim.env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    doc = json.loads(done.stdout)                              # nothing but the object on stdout
+    assert doc["target"] == sim.url and doc["link"].startswith("link up:")
+    assert [s["text"] for s in doc["steps"]] == ["ping 5", "enable", "status"] and all(s["ok"] for s in doc["steps"])
+    assert doc["round_trip_ms"]["p50"] > 0
