@@ -21,7 +21,11 @@ def bench_json(tmp_path, script: str, *args: str, capsys) -> tuple[int, dict]:
     path = tmp_path / "s.txt"
     path.write_text(script)
     status = main(["bench", str(path), "--json", *args])
-    return status, json.loads(capsys.readouterr().out)
+    out = capsys.readouterr().out
+    try:
+        return status, json.loads(out)
+    except json.JSONDecodeError as exc:
+        raise AssertionError(f"stdout is not one JSON object ({exc}): {out[:2000]!r}") from None
 
 
 def test_a_bench_script_as_json_says_what_each_line_did_and_where_the_plant_ended(tmp_path, capsys):

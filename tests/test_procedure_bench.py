@@ -1,4 +1,4 @@
-"""The report's ten-step operating procedure, then each interlock broken on purpose: benches/tracker_procedure.txt.
+"""The report's ten-step operating procedure, then each interlock broken on purpose: benches/tracker_procedure.aspod.
 
 Twice: on the simulated clock, the script's steps run one by one through teleop's `Session` on a
 `LockstepBench` (`BenchClient`) while a probe samples the plant (relays, brakes, motor power,
@@ -34,7 +34,7 @@ from host_tools.worlds.settings import PlantSettings
 from protocol.states import ControllerState, SwitchPosition as P
 
 ROOT = Path(__file__).resolve().parent.parent
-SCRIPT = ROOT / "benches" / "tracker_procedure.txt"
+SCRIPT = ROOT / "benches" / "tracker_procedure.aspod"
 START = datetime(2026, 3, 20, 6, 50, tzinfo=MST)
 PROBE_S = 0.05
 STILL_DEG = 1e-9          # an axis held by its brake (or unpowered) does not move at all
@@ -221,7 +221,7 @@ def test_the_doc_shows_the_script_and_the_panel_as_they_are():
     assert len(quoted) > 20 and quoted <= lines, sorted(quoted - lines)
     assert f"\n{AXIS_HEADER}\n" in doc
     for word in ("--sun-start", "--clouds", "--no-tracker", "aspod sim --hal", "watch box", "expect REASON",
-                 "wait aligned [az|el] DEG [TIMEOUT]", "aspod bench benches/tracker_procedure.txt"):
+                 "wait aligned [az|el] DEG [TIMEOUT]", "aspod bench benches/tracker_procedure.aspod"):
         assert word in doc, word
 
 

@@ -53,13 +53,19 @@ class StepResult:
 
 
 class PickAndPlace:
-    def __init__(self, gravity: str = "earth", seed: int = 0, scene: Scene = DEMO_SCENE) -> None:
+    def __init__(self, gravity: str = "earth", seed: int = 0, scene: Scene = DEMO_SCENE,
+                 bench: Optional[LockstepBench] = None) -> None:
         self.scene = scene
         self.gravity = gravity
-        self.bench = LockstepBench(seed=seed, plant=PlantSettings(gravity=gravity))
+        self.bench = bench if bench is not None else LockstepBench(seed=seed, plant=PlantSettings(gravity=gravity))
         self.plant = self.bench.world.plant
         self.results: list[StepResult] = []
         self.homing_s = math.nan
+
+    @classmethod
+    def on_bench(cls, bench: LockstepBench, scene: Scene = DEMO_SCENE) -> "PickAndPlace":
+        """The pick-and-place on a world someone else built (a bench target), in that world's gravity."""
+        return cls(bench.plant_settings.gravity, scene=scene, bench=bench)
 
     # ---- protocol helpers ----
     def _call(self, msg, what: str):

@@ -1,7 +1,7 @@
 """`aspod bench SCRIPT`: a teleop script against a whole world on the simulated clock (`BenchClient` on a
 `LockstepBench`): deterministic, as fast as the machine goes, with the plant's true state at the end.
 
-    aspod bench benches/tracker_procedure.txt --sun-start 2026-03-20T06:50-07:00
+    aspod bench benches/tracker_procedure.aspod --sun-start 2026-03-20T06:50-07:00
     aspod bench session.txt --json > result.json
     aspod bench session.txt --record session.pcapng && aspod replay session.pcapng
 """
@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import sys
 
-from protocol.states import ARM_AXES, Axis
 from timebase import RealClock
 
+from host_tools.apps.bench_state import plant_state
 from host_tools.cli.settings import BenchSettings
 from host_tools.client.bench import BenchClient
 from host_tools.exit_codes import EXIT_USAGE
@@ -25,22 +24,6 @@ from host_tools.teleop.words import TeleopError, read_script
 from host_tools.worlds.world import LockstepBench
 
 log = logging.getLogger("aspod")
-
-
-def plant_state(bench: LockstepBench) -> dict:
-    """The plant's true state (what no controller reading shows): joints, gripper, tracker and its sun."""
-    plant = bench.world.plant
-    arm = plant.arm
-    angles = {axis.name.lower(): math.degrees(x) for axis, x in zip(ARM_AXES, arm.pos_rad) if axis is not Axis.GRIPPER}
-    state = {"joints_deg": angles, "gripper_opening_mm": arm.gripper_opening_m * 1e3, "grip_force_n": arm.grip_force_n}
-    tracker = plant.tracker
-    if tracker is not None:
-        el, az, _dni, _dhi = tracker.sun()
-        state["tracker"] = {"az_deg": tracker.angle_deg[0], "el_deg": tracker.angle_deg[1], "sun_az_deg": az,
-                            "sun_el_deg": el, "off_sun_deg": tracker.angular_error_deg(),
-                            "relay_closings": list(tracker.relay_closures),
-                            "high_duty_starts": tracker.high_duty_starts}
-    return state
 
 
 def run_bench(settings: BenchSettings) -> int:

@@ -196,14 +196,14 @@ def add_tracker_args(parser: argparse.ArgumentParser) -> None:
 EXIT_CODES_TEXT = (f"exit status: {EXIT_OK} ok, {EXIT_FAILED} a command failed, {EXIT_USAGE} bad usage or input, "
                    f"{EXIT_LINK} link refused, unreachable or lost, 130 interrupted")
 EXAMPLES = {
-    None: ["aspod sim --pty", "aspod teleop /dev/pts/5 --script benches/tracker_procedure.txt", "aspod demo",
+    None: ["aspod sim --pty", "aspod teleop /dev/pts/5 --script benches/tracker_procedure.aspod", "aspod demo",
            "aspod completion bash > ~/.local/share/bash-completion/completions/aspod"],
     "sim": ["aspod sim --pty", "aspod sim --tcp 0 --sun-start 2026-03-20T06:50-07:00 --clouds '12:00+300s@0.9'",
             "aspod sim --hal udp_multicast --pty"],
     "plant": ["aspod plant --interface udp_multicast --channel 239.74.163.2 --gravity orbit"],
     "firmware": ["aspod firmware --interface udp_multicast --channel 239.74.163.2 --pty"],
     "teleop": ["aspod teleop /dev/pts/5", "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary"],
-    "bench": ["aspod bench benches/tracker_procedure.txt --sun-start 2026-03-20T06:50-07:00",
+    "bench": ["aspod bench benches/tracker_procedure.aspod --sun-start 2026-03-20T06:50-07:00",
               "aspod bench session.txt --json > result.json", "aspod bench session.txt --record s.pcapng"],
     "demo": ["aspod demo", "aspod demo --json --gravity orbit", "aspod demo --link"],
     "tracker-day": ["aspod tracker-day --mode feedforward --date 2026-12-21 --plot day.png"],

@@ -1,0 +1,20 @@
+"""The report's pick-and-place as a bench: every move of the demo scene through the protocol, the positioning error
+at the gripper measured against the report's 1 cm, on whatever target `pytest` is given (the lock-step world by
+default). Run: `pytest benches/` (docs/benches.md)."""
+from __future__ import annotations
+
+import pytest
+
+from host_tools.apps import pick_place
+
+
+def test_every_step_of_the_pick_and_place_lands_within_a_centimetre(aspod_target):
+    if not aspod_target.can_fault:        # the positioning error is measured on the plant's true gripper
+        pytest.skip("needs the plant's true state (the lock-step world)")
+    demo = pick_place.PickAndPlace.on_bench(aspod_target.bench)
+    demo.prepare()
+    for step in pick_place.steps(demo.scene):
+        result = demo.run_step(step)
+        aspod_target.measure(f"{result.name}_error_mm", round(result.position_error_m * 1e3, 3), "mm")
+        assert result.position_error_m <= pick_place.SPEC_M, f"{result.name}: {result.position_error_m * 1e3:.2f} mm"
+    aspod_target.measure("homing_s", round(demo.homing_s, 3), "s")

@@ -1,0 +1,177 @@
+"""The pytest plugin installed with the package (entry point `pytest11`: `aspod`): any project's tests get a bench
+target, and teleop scripts named `*.aspod` are collected as tests. See docs/benches.md.
+
+Options:
+    --aspod-target URL     a live controller (`aspod sim`'s pty or TCP port, or real hardware) instead of the default
+                           lock-step world on the simulated clock
+    --aspod-key-file FILE  its key (default: the development key `aspod sim` made)
+    --aspod-seed N         the lock-step world's seed (default 1)
+    --aspod-json DIR       a JSON record per test: outcome, target, measurements, a script's steps
+
+Fixture `aspod_target` (host_tools/plugin/target.py): connected, closed after the test. A test that needs
+the plant (faults, actions, its true state) is skipped on a target that has none to offer, with the
+reason, never faked. `aspod_target.measure(name, value, unit)` keeps a figure for the test's record and
+its JUnit properties.
+
+A `*.aspod` file is a teleop script: one test, each line a step in its report. Its first line may say
+what world it needs, as `aspod bench` takes it: `#! aspod bench --sun-start 2026-03-20T06:50-07:00 --seed 3`.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shlex
+from pathlib import Path
+from typing import Optional
+
+import pytest
+
+from host_tools.plugin.errors import CannotFault
+
+# The plugin loads in every pytest run of any project that installs the package: what it needs of the
+# emulator (the worlds, the clients, numba perhaps) is imported when a bench asks for a target, not before.
+
+SCRIPT_SUFFIX = ".aspod"
+DIRECTIVE = re.compile(r"#!\s*aspod\s+bench\b(.*)")
+RECORD_KEY = pytest.StashKey[dict]()
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("aspod", "ASPOD controller benches")
+    group.addoption("--aspod-target", default=None, metavar="URL",
+                    help="run benches against a live controller at URL (default: the lock-step world)")
+    group.addoption("--aspod-key-file", default=None, metavar="FILE", help="the live controller's key file")
+    group.addoption("--aspod-seed", type=int, default=1, metavar="N", help="the lock-step world's seed (default 1)")
+    group.addoption("--aspod-json", default=None, metavar="DIR", help="write a JSON record per test into DIR")
+
+
+def make_target(config: pytest.Config, seed: Optional[int] = None, plant=None):
+    """The target the run asks for: the lock-step world (seed, plant), or the live controller of --aspod-target."""
+    from protocol import auth
+    from host_tools.plugin.target import LiveTarget, LockstepTarget
+    url = config.getoption("--aspod-target")
+    if url is None:
+        kwargs = {} if plant is None else {"plant": plant}
+        return LockstepTarget(seed=config.getoption("--aspod-seed") if seed is None else seed, **kwargs)
+    key_file = config.getoption("--aspod-key-file")
+    psk = auth.load_key(key_file, "--aspod-key-file") if key_file else auth.load_key(auth.default_key_path(),
+                                                                                     "development key")
+    return LiveTarget(url, psk)
+
+
+def _record(item: pytest.Item) -> dict:
+    if RECORD_KEY not in item.stash:
+        item.stash[RECORD_KEY] = {"nodeid": item.nodeid, "measurements": {}}
+    return item.stash[RECORD_KEY]
+
+
+@pytest.fixture
+def aspod_target(request: pytest.FixtureRequest):
+    """A connected bench target: the lock-step world, or the live controller of --aspod-target."""
+    target = make_target(request.config)
+    record = _record(request.node)
+    record["target"] = target.kind
+
+    def measure(name: str, value: float, unit: str = "") -> None:
+        record["measurements"][name] = {"value": value, "unit": unit}
+        request.node.user_properties.append((name, f"{value}{' ' + unit if unit else ''}"))
+    target.measure = measure
+    try:
+        yield target
+    finally:
+        target.close()
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_call(item: pytest.Item):
+    """A bench that asks a target for a plant it does not have is skipped, saying so."""
+    outcome = yield
+    excinfo = outcome.excinfo
+    if excinfo is not None and isinstance(excinfo[1], CannotFault):
+        outcome.force_exception(pytest.skip.Exception(f"needs the plant: {excinfo[1]}", _use_item_location=True))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call):
+    outcome = yield
+    report = outcome.get_result()
+    folder = item.config.getoption("--aspod-json")
+    if folder is None or RECORD_KEY not in item.stash and not isinstance(item, ScriptItem):
+        return
+    record = _record(item)
+    if report.when == "call" or (report.when == "setup" and report.outcome != "passed"):
+        record["outcome"] = report.outcome
+        record["duration_s"] = report.duration
+    if report.when == "teardown":
+        path = Path(folder)
+        path.mkdir(parents=True, exist_ok=True)
+        name = re.sub(r"[^A-Za-z0-9_.-]+", "_", item.nodeid).strip("_") + ".json"
+        (path / name).write_text(json.dumps(record, indent=1, default=str))
+
+
+# ---- teleop scripts as tests -------------------------------------------------------------------------------------
+
+def pytest_collect_file(file_path: Path, parent: pytest.Collector):
+    if file_path.suffix == SCRIPT_SUFFIX:
+        return ScriptFile.from_parent(parent, path=file_path)
+    return None
+
+
+class ScriptFile(pytest.File):
+    def collect(self):
+        yield ScriptItem.from_parent(self, name=self.path.name)
+
+
+class ScriptFailed(Exception):
+    def __init__(self, record: dict) -> None:
+        super().__init__("a script step failed")
+        self.record = record
+
+
+class ScriptItem(pytest.Item):
+    """One `*.aspod` script, run on the target as `aspod teleop --script` (or `aspod bench`) would run it."""
+
+    def runtest(self) -> None:
+        text = self.path.read_text(encoding="utf-8")
+        seed, plant = self._world(text)
+        target = make_target(self.config, seed, plant)
+        try:
+            result = target.run_script(text)
+        finally:
+            target.close()
+        record = _record(self)
+        record.update(target=target.kind, steps=result["steps"], motions=result["motions"],
+                      commands=result["commands"], status=result["status"])
+        for step in result["steps"]:
+            self.user_properties.append((f"line {step['line']}", f"{'ok' if step['ok'] else 'FAILED'}: "
+                                                                 f"{step['text']}"))
+        if result["status"] != 0:
+            raise ScriptFailed(result)
+
+    def _world(self, text: str):
+        """The seed and plant the script's `#! aspod bench ...` line asks for (None, None: the defaults)."""
+        first = text.splitlines()[0] if text else ""
+        found = DIRECTIVE.match(first)
+        if not found:
+            return None, None
+        from host_tools.cli.main import build_parser
+        from host_tools.cli.settings import bench_settings
+        try:
+            args = build_parser().parse_args(["bench", str(self.path), *shlex.split(found.group(1))])
+            settings = bench_settings(args)
+        except SystemExit:
+            raise pytest.UsageError(f"{self.path}: its first line's `aspod bench` options do not parse") from None
+        return settings.seed, settings.plant
+
+    def repr_failure(self, excinfo, style=None):
+        if isinstance(excinfo.value, ScriptFailed):
+            lines = []
+            for step in excinfo.value.record["steps"]:
+                if not step["ok"]:
+                    lines.append(f"line {step['line']}: {step['text']}")
+                    lines += [f"    {out}" for out in step["output"]]
+            return "\n".join(lines) or "the script failed (a motion did not end as asked)"
+        return super().repr_failure(excinfo, style)
+
+    def reportinfo(self):
+        return self.path, 0, f"aspod script {self.path.name}"

@@ -1,0 +1,99 @@
+"""The pytest plugin as a user meets it: a project outside this repository, with the package installed, runs
+`pytest` with the `aspod_target` fixture and a `*.aspod` script: on the lock-step world, then against a live
+`aspod sim` over a pty (`--aspod-target`), where the test that needs the plant is skipped with its reason."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from tests import test_e2e
+
+env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
+
+BENCH = '''
+from protocol.messages import MESSAGES as M
+from protocol.states import Axis, MotionOutcome
+
+
+def ends(target, axis):
+    return [e for e in target.events if e.spec.name == "MotionDone" and e.axis == int(axis)]
+
+
+def test_moveby_lands_within_the_spec(aspod_target):
+    assert aspod_target.call(M["Enable"]()).ok
+    assert aspod_target.call(M["MoveBy"](int(Axis.J1), 2.0, 2.0)).reply.result == 0
+    assert aspod_target.wait_until(lambda: ends(aspod_target, Axis.J1), 15)
+    end = ends(aspod_target, Axis.J1)[0]
+    aspod_target.measure("j1_error_deg", abs(end.position - 2.0), "deg")
+    assert end.outcome == MotionOutcome.DONE and abs(end.position - 2.0) < 0.05
+
+
+def test_an_encoder_dropout_stops_the_motion_as_a_fault(aspod_target):
+    assert aspod_target.call(M["Enable"]()).ok
+    aspod_target.inject("encoder_dropout", "j1")
+    aspod_target.call(M["MoveBy"](int(Axis.J1), 2.0, 2.0))
+    assert aspod_target.wait_until(lambda: ends(aspod_target, Axis.J1), 15)
+    assert ends(aspod_target, Axis.J1)[0].outcome == MotionOutcome.FAULT
+'''
+SCRIPT = "#! aspod bench --seed 3\nenable\nmoveby j2 1 1\nwait\nstatus\n"
+
+
+@pytest.fixture
+def project(tmp_path):
+    (tmp_path / "test_arm_bench.py").write_text(BENCH)
+    (tmp_path / "moves.aspod").write_text(SCRIPT)
+    return tmp_path
+
+
+def run_pytest(project, *args: str, env=None) -> tuple[subprocess.CompletedProcess, dict]:
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", "-rs",
+                           "--junitxml", str(project / "junit.xml"), "--aspod-json", str(project / "records"), *args],
+                          cwd=project, capture_output=True, text=True, timeout=300, env=env)
+    cases = {c.get("name"): c for c in ET.parse(project / "junit.xml").getroot().iter("testcase")}
+    return done, cases
+
+
+def test_outside_the_repository_on_the_lockstep_world(project):
+    done, cases = run_pytest(project)
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert "3 passed" in done.stdout
+    assert set(cases) == {"test_moveby_lands_within_the_spec", "test_an_encoder_dropout_stops_the_motion_as_a_fault",
+                          "moves.aspod"}
+    props = {p.get("name"): p.get("value") for p in cases["moves.aspod"].iter("property")}
+    assert props["line 3"] == "ok: moveby j2 1 1"
+    record = json.loads((project / "records" / "test_arm_bench.py_test_moveby_lands_within_the_spec.json").read_text())
+    assert record["outcome"] == "passed" and record["target"] == "lockstep"
+    assert record["measurements"]["j1_error_deg"]["value"] < 0.05
+    script = json.loads((project / "records" / "moves.aspod_moves.aspod.json").read_text())
+    assert [s["text"] for s in script["steps"]] == ["enable", "moveby j2 1 1", "wait", "status"]
+
+
+@pytest.mark.pty
+def test_outside_the_repository_against_a_live_sim(project, sim_factory):
+    sim = sim_factory("--pty", "--no-tracker")
+    # (option=value: pytest takes a separate value that names a file, such as /dev/pts/N, for a path to test)
+    done, cases = run_pytest(project, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}", env=sim.env)
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert "2 passed, 1 skipped" in done.stdout
+    skipped = cases["test_an_encoder_dropout_stops_the_motion_as_a_fault"].find("skipped")
+    assert skipped is not None and "no plant to fault" in skipped.get("message")
+    record = json.loads((project / "records" / "test_arm_bench.py_test_moveby_lands_within_the_spec.json").read_text())
+    assert record["target"].startswith("live ") and record["outcome"] == "passed"
+
+
+def test_the_worked_example_fault_drill_runs_as_pytest_benches(tmp_path):
+    """`pytest benches/...` as docs/benches.md shows it (the pick-and-place and the procedure are run by their own
+    tests: test_demo, test_procedure_bench)."""
+    root = Path(__file__).resolve().parent.parent
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist",
+                           "--aspod-json", str(tmp_path), str(root / "benches" / "test_fault_drill.py")],
+                          cwd=root, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-3000:]
+    records = [json.loads(p.read_text()) for p in tmp_path.glob("*.json")]
+    assert len(records) == 3 and all(r["outcome"] == "passed" for r in records)
+    assert all(0 < r["measurements"]["reaction_s"]["value"] <= 2.0 for r in records)
