@@ -71,15 +71,13 @@ def aspod_target(request: pytest.FixtureRequest):
     target = make_target(request.config)
     record = _record(request.node)
     record["target"] = target.kind
-
-    def measure(name: str, value: float, unit: str = "") -> None:
-        record["measurements"][name] = {"value": value, "unit": unit}
-        request.node.user_properties.append((name, f"{value}{' ' + unit if unit else ''}"))
-    target.measure = measure
     try:
         yield target
     finally:
         target.close()
+        record["measurements"] = target.measurements
+        for name, m in target.measurements.items():
+            request.node.user_properties.append((name, f"{m['value']}{' ' + m['unit'] if m['unit'] else ''}"))
 
 
 @pytest.hookimpl(hookwrapper=True)

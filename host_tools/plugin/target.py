@@ -15,6 +15,7 @@ needs that is skipped there, never faked.
     target.inject(fault, channel) / clear(...) plant faults by name (hil_sim/faults.py); CannotFault if not here
     target.act(name, *args)                    a plant action by name (host_tools/worlds/plant_actions.py)
     target.true_state() -> dict                the plant's truth, where there is one to read
+    target.measure(name, value, unit)          a figure of the bench, for its record
 """
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ class Target:
     client: Any
     kind: str
     telemetry: dict[str, Message] = field(default_factory=dict)
+    measurements: dict[str, dict] = field(default_factory=dict)    # name -> {"value", "unit"}: `measure`
 
     def __post_init__(self) -> None:
         self.client.telemetry_listeners.append(lambda msg, now: self.telemetry.__setitem__(msg.spec.name, msg))
@@ -57,6 +59,10 @@ class Target:
 
     def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         return self.client.wait_for(predicate, timeout_s)
+
+    def measure(self, name: str, value: float, unit: str = "") -> None:
+        """Keep a figure of this bench (the plugin puts it in the test's record and JUnit properties)."""
+        self.measurements[name] = {"value": value, "unit": unit}
 
     def link_stats(self):
         return self.client.link.stats

@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Optional
 
-from protocol.framing import MAX_ENCODED
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
+from host_tools.sessions.segments import SegmentCutter
 from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, OUTBOUND, CaptureError, Packet, PcapngReader,
                                        PcapngWriter)
 
@@ -82,45 +82,10 @@ class SessionInfo:
                 f"this build speaks v{PROTOCOL_VERSION}, schema {SCHEMA.hash:016x}: messages may decode wrongly")
 
 
-class SegmentTap:
-    """Cuts one direction's byte stream into wire segments, as a receiver would, for the capture.
-
-    Holds at most one frame's worth between feeds. A run of bytes longer than any frame is
-    handed on cut to that length, flagged `overlong` with its true length, and the rest of it
-    up to the next delimiter is only counted.
-    """
-
-    def __init__(self) -> None:
-        self._pending = bytearray()
-        self._overlong = 0         # > 0: inside an over-long segment, this many bytes so far
-
-    def feed(self, data: bytes) -> list[tuple[bytes, int]]:
-        """The segments `data` completes: (captured bytes, true length)."""
-        out: list[tuple[bytes, int]] = []
-        start = 0
-        while True:
-            end = data.find(b"\x00", start)
-            piece = data[start:] if end < 0 else data[start:end]
-            if self._overlong:
-                self._overlong += len(piece)
-            elif len(self._pending) + len(piece) > MAX_ENCODED:
-                self._overlong = len(self._pending) + len(piece)
-                self._pending += piece[:MAX_ENCODED - len(self._pending)]
-            else:
-                self._pending += piece
-            if end < 0:
-                return out
-            if self._pending:
-                out.append((bytes(self._pending), self._overlong or len(self._pending)))
-            self._pending.clear()
-            self._overlong = 0
-            start = end + 1
-
-
 class CaptureWriter:
     """Writes a session's capture as it happens: `write(link, direction, data, time_s)` for every read or write.
 
-    Bytes are cut into frames per link and direction (`SegmentTap`); each frame is written with
+    Bytes are cut into frames per link and direction (`SegmentCutter`); each frame is written with
     the time its closing delimiter was seen. The file is flushed after every frame, so a session
     that ends abruptly leaves a capture that reads up to its last frame.
     """
@@ -129,7 +94,7 @@ class CaptureWriter:
         self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=f"aspod {info.tool}".strip())
         self._stream = stream
         self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}") for name in links}
-        self._taps = {(name, d): SegmentTap() for name in links for d in DIRECTION_FLAG}
+        self._taps = {(name, d): SegmentCutter() for name in links for d in DIRECTION_FLAG}
         self.frames = 0
         self._world: Optional[int] = None
 

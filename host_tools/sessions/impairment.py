@@ -33,7 +33,7 @@ import random
 from dataclasses import dataclass, field, fields, replace
 from typing import Optional
 
-from protocol.framing import MAX_ENCODED
+from host_tools.sessions.segments import SegmentCutter
 
 PRESETS: dict[str, dict] = {
     "clean": {},
@@ -216,8 +216,8 @@ class LineStats:
 class ImpairedLine:
     """One direction: `send(data, now)` takes bytes as they are written, `receive(now)` gives what has arrived.
 
-    Bytes are cut into frames as they come; an unfinished frame waits (at most one frame's worth, like a
-    receiver; a longer run goes on as it is when its delimiter comes). Times are seconds since the link
+    Bytes are cut into frames as they come (`SegmentCutter`); an unfinished frame waits (at most one frame's
+    worth, like a receiver; a longer run goes on cut to that length when its delimiter comes). Times are seconds since the link
     started, on whatever clock the caller keeps (the wall clock in the proxy, the simulated one in lock-step).
     """
 
@@ -225,7 +225,7 @@ class ImpairedLine:
         self.spec = spec
         self.outages = outages
         self._rng = random.Random(f"{spec.seed}/{direction}")
-        self._pending = bytearray()
+        self._cutter = SegmentCutter()
         self._queue: list[tuple[float, bytes]] = []        # (due, bytes), due non-decreasing
         self._last_due = 0.0
         self.stats = LineStats()
@@ -233,21 +233,7 @@ class ImpairedLine:
     def send(self, data: bytes, now: float) -> list[Fate]:
         """Take written bytes; the fates of the frames they complete."""
         self.stats.bytes_in += len(data)
-        fates = []
-        start = 0
-        while True:
-            end = data.find(b"\x00", start)
-            if end < 0:
-                self._pending += data[start:]
-                if len(self._pending) > MAX_ENCODED:     # no frame is this long: pass it on as it is
-                    fates.append(self._decide(bytes(self._pending), now))
-                    self._pending.clear()
-                return fates
-            self._pending += data[start:end]
-            if self._pending:
-                fates.append(self._decide(b"\x00" + bytes(self._pending) + b"\x00", now))
-                self._pending.clear()
-            start = end + 1
+        return [self._decide(b"\x00" + segment + b"\x00", now) for segment, _ in self._cutter.feed(data)]
 
     def _decide(self, frame: bytes, now: float) -> Fate:
         spec, rng, stats = self.spec, self._rng, self.stats

@@ -17,7 +17,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Optional
 
-from protocol.framing import MAX_ENCODED
+from host_tools.sessions.segments import SegmentCutter
 
 MEMORY = 512           # frames remembered as already taken (a few seconds of traffic at 115200 baud)
 QUIET_S = 3.0          # a path that has carried nothing for this long is shown as silent
@@ -49,36 +49,23 @@ class FrameMerger:
 
     def __init__(self, paths: list[str]) -> None:
         self.paths = {name: PathHealth(name) for name in paths}
-        self._pending = {name: bytearray() for name in paths}
-        self._skipping = {name: False for name in paths}
+        self._cutters = {name: SegmentCutter() for name in paths}
         self._seen: OrderedDict[bytes, None] = OrderedDict()
 
     def reset(self, path: str) -> None:
         """Forget a path's unfinished frame (its peer changed: what it left is not the new peer's)."""
-        self._pending[path].clear()
-        self._skipping[path] = False
+        self._cutters[path].reset()
 
     def feed(self, path: str, data: bytes, now: float) -> bytes:
-        health, pending = self.paths[path], self._pending[path]
+        health = self.paths[path]
         health.bytes += len(data)
         out = bytearray()
-        start = 0
-        while True:
-            end = data.find(b"\x00", start)
-            piece = data[start:] if end < 0 else data[start:end]
-            if not self._skipping[path]:
-                pending += piece
-                if len(pending) > MAX_ENCODED:          # no frame is this long: drop it up to its delimiter
-                    health.overlong += 1
-                    pending.clear()
-                    self._skipping[path] = True
-            if end < 0:
-                return bytes(out)
-            if pending and not self._skipping[path]:
-                out += self._take(path, bytes(pending), now)
-            pending.clear()
-            self._skipping[path] = False
-            start = end + 1
+        for segment, length in self._cutters[path].feed(data):
+            if length != len(segment):          # no frame is this long: dropped
+                health.overlong += 1
+            else:
+                out += self._take(path, segment, now)
+        return bytes(out)
 
     def _take(self, path: str, segment: bytes, now: float) -> bytes:
         health = self.paths[path]
