@@ -13,8 +13,12 @@ def test_every_step_of_the_pick_and_place_lands_within_a_centimetre(aspod_target
         pytest.skip("needs the plant's true state (the lock-step world)")
     demo = pick_place.PickAndPlace.on_bench(aspod_target.bench)
     demo.prepare()
+    worst_mm = 0.0
     for step in pick_place.steps(demo.scene):
         result = demo.run_step(step)
-        aspod_target.measure(f"{result.name}_error_mm", round(result.position_error_m * 1e3, 3), "mm")
+        error_mm = round(result.position_error_m * 1e3, 3)
+        worst_mm = max(worst_mm, error_mm)
+        aspod_target.measure(f"{result.name.replace(' ', '_')}_error_mm", error_mm, "mm")
+        aspod_target.measure("worst_error_mm", worst_mm, "mm")      # so far: a campaign's one figure per run
         assert result.position_error_m <= pick_place.SPEC_M, f"{result.name}: {result.position_error_m * 1e3:.2f} mm"
     aspod_target.measure("homing_s", round(demo.homing_s, 3), "s")

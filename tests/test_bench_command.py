@@ -81,3 +81,27 @@ def test_teleop_script_json_over_a_pty_is_one_json_object(sim_factory, tmp_path)
     assert doc["target"] == sim.url and doc["link"].startswith("link up:")
     assert [s["text"] for s in doc["steps"]] == ["ping 5", "enable", "status"] and all(s["ok"] for s in doc["steps"])
     assert doc["round_trip_ms"]["p50"] > 0
+
+
+def test_a_bench_world_takes_timed_faults_an_impairment_parameters_and_variables(tmp_path, capsys):
+    status, doc = bench_json(tmp_path, "enable\njog j2 ${speed}\nwait 3\n", "--fault", "jam:j2@1.5", "--var",
+                             "speed=2", "--impairment", "radio,seed=3", "--param", "j2_kp=40", "--no-tracker",
+                             capsys=capsys)
+    assert status == 1 and doc["steps"][2]["ok"] is False
+    (fault,) = doc["faults"]
+    assert fault["fault"] == "jam:j2" and fault["at_s"] == 1.5 and "STALL" in fault["fault_bits"]
+    assert 0 < fault["safe_after_s"] <= fault["stated_s"] == 1.0 and fault["within_stated"] is True
+    assert "tracker" not in doc["plant"]
+
+
+@pytest.mark.parametrize("args, reason", [
+    (["--fault", "jam:j9@1"], "unknown channel"), (["--fault", "jam:j2"], "NAME[:CHANNEL]@SECONDS"),
+    (["--fault", "supply_sag@5-2"], "cleared after"), (["--var", "speed"], "NAME=VALUE"),
+    (["--var", "speed=1", "--var", "other=2"], "uses no ${other}"), ([], "no value for ${speed}"),
+    (["--var", "speed=1", "--param", "j2_kp=1e9"], "j2_kp"), (["--var", "speed=1", "--impairment", "stormy"], "stormy"),
+])
+def test_a_bad_bench_world_is_refused_with_its_reason(tmp_path, capsys, args, reason):
+    path = tmp_path / "s.txt"
+    path.write_text("enable\njog j2 ${speed}\n")
+    assert main(["bench", str(path), *args]) == 2
+    assert reason in capsys.readouterr().err

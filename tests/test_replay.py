@@ -10,7 +10,8 @@ import pytest
 
 from protocol.messages import MESSAGES as M
 from protocol.states import Axis
-from host_tools.apps.replay import ReplayError, Tolerances, parse_params, replay
+from host_tools.apps.replay import ReplayError, Tolerances, replay
+from host_tools.cli.settings import pairs
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
@@ -89,7 +90,7 @@ def test_replay_refuses_what_it_cannot_replay(bench_capture, tmp_path):
     with pytest.raises(ReplayError, match="no_such_param"):
         replay(SessionCapture.read(bench_capture), params={"no_such_param": 1.0})
     with pytest.raises(ValueError, match="NAME=VALUE"):
-        parse_params(("j1_kp",))
+        pairs(["j1_kp"], "--param")
 
 
 def test_aspod_replay_command_json_and_exit_status(bench_capture, tmp_path, capsys):

@@ -14,7 +14,7 @@ def plant_state(bench: LockstepBench) -> dict:
     arm = plant.arm
     angles = {axis.name.lower(): math.degrees(x) for axis, x in zip(ARM_AXES, arm.pos_rad) if axis is not Axis.GRIPPER}
     state = {"joints_deg": angles, "gripper_opening_mm": arm.gripper_opening_m * 1e3, "grip_force_n": arm.grip_force_n}
-    tracker = plant.tracker
+    tracker = plant.tracker if bench.plant_settings.tracker else None     # a plant without one still carries its model
     if tracker is not None:
         el, az, _dni, _dhi = tracker.sun()
         state["tracker"] = {"az_deg": tracker.angle_deg[0], "el_deg": tracker.angle_deg[1], "sun_az_deg": az,

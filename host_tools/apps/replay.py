@@ -37,6 +37,7 @@ from protocol.schema import Direction, Message, MsgClass
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import DecodedFrame, SessionDecoder, format_value
 from host_tools.worlds.settings import PlantSettings
+from host_tools.worlds.bench_world import apply_params
 from host_tools.worlds.world import LockstepBench
 
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
@@ -274,13 +275,11 @@ class _World:
         if sample:
             bench.world.scheduler.add("replay-sampler", _sampler(bench, sample, samples), period_s=0.001,
                                       priority=SAMPLER_PRIORITY)
-        store = bench.controller.params
-        for name, value in self.params.items():
-            reason, detail = store.set(name, value)
-            if reason is not Reason.OK:
-                bench.close()
-                raise ReplayError(f"parameter {detail}")
-        bench.controller.telemetry_hz = int(store["telemetry_hz"])
+        try:
+            apply_params(bench, self.params.items())
+        except ValueError as exc:
+            bench.close()
+            raise ReplayError(str(exc)) from None
         stream = io.BytesIO()
         stream.close = lambda: None          # keep it readable after the bench closes the capture
         bench.record(CaptureWriter(stream, SessionInfo(clock="simulated", tool="aspod replay", seed=self.seed,
@@ -450,18 +449,3 @@ def _differ_sampled(recorded: DecodedFrame, at: Optional[Message], around: list[
             shown = (at or around[len(around) // 2]).as_dict()[name]
             return [Divergence(recorded.time_s, recorded.name, name, a, shown)]
     return []
-
-
-def parse_params(pairs: tuple[str, ...]) -> dict[str, float]:
-    """`NAME=VALUE` pairs; ValueError naming a malformed one."""
-    out: dict[str, float] = {}
-    for pair in pairs:
-        name, sep, value = pair.partition("=")
-        try:
-            if not sep or not name:
-                raise ValueError
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise ValueError(f"--param {pair}: write NAME=VALUE with a number") from None
-    return out
-

@@ -4,6 +4,7 @@
     aspod bench benches/tracker_procedure.aspod --sun-start 2026-03-20T06:50-07:00
     aspod bench session.txt --json > result.json
     aspod bench session.txt --record session.pcapng && aspod replay session.pcapng
+    aspod bench drill.aspod --fault jam:j2@3.5 --impairment radio --param j2_kp=40 --var speed=2
 """
 from __future__ import annotations
 
@@ -11,56 +12,39 @@ import json
 import logging
 import sys
 
-from timebase import RealClock
-
-from host_tools.apps.bench_state import plant_state
+from host_tools.apps.script_bench import run_script_bench
 from host_tools.cli.settings import BenchSettings
-from host_tools.client.bench import BenchClient
 from host_tools.exit_codes import EXIT_USAGE
-from host_tools.sessions.capture import CaptureWriter, SessionInfo
-from host_tools.teleop.record import ScriptRecord
-from host_tools.teleop.session import run_script
-from host_tools.teleop.words import TeleopError, read_script
-from host_tools.worlds.world import LockstepBench
+from host_tools.teleop.words import TeleopError, read_script, substitute
 
 log = logging.getLogger("aspod")
 
 
 def run_bench(settings: BenchSettings) -> int:
     try:
-        lines = read_script(settings.script, option="script")
+        lines = substitute(read_script(settings.script, option="script"), dict(settings.variables))
     except (OSError, TeleopError) as exc:
         log.error(f"aspod bench: {exc}")
         return EXIT_USAGE
-    bench = LockstepBench(seed=settings.seed, plant=settings.plant)
-    if settings.record is not None:
-        bench.record(CaptureWriter.create(settings.record, SessionInfo(clock="simulated", tool="aspod bench",
-                                                                       seed=settings.seed,
-                                                                       settings=bench.settings())))
-    wall0 = RealClock.precise_now()
-    try:
-        client = BenchClient(bench)
-        client.connect()
-        record = ScriptRecord(echo=None if settings.json else sys.stdout)
-        status, session = run_script(client, lines, sys.stdout, keep_going=settings.keep_going,
-                                     wall_time=client.wall_time, record=record)
-        state = plant_state(bench)
-        if settings.json:
-            wall = RealClock.precise_now() - wall0
-            print(json.dumps(record.as_dict(session, status, script=str(settings.script), target="lockstep",
-                                            seed=settings.seed, sim_time_s=bench.clock.now(), wall_time_s=wall,
-                                            plant=state), indent=1))
-        else:
-            print(session.summary())
-            tracker = state.get("tracker")
-            print(f"plant after {bench.clock.now():.1f} simulated s: "
-                  + ", ".join(f"{name} {x:.3f}" for name, x in state["joints_deg"].items()) + " deg, gripper "
-                  f"{state['gripper_opening_mm']:.1f} mm"
-                  + ("" if tracker is None else
-                     f"; tracker az {tracker['az_deg']:.3f} el {tracker['el_deg']:.3f} deg, sun az "
-                     f"{tracker['sun_az_deg']:.3f} el {tracker['sun_el_deg']:.3f} deg, off the sun by "
-                     f"{tracker['off_sun_deg']:.3f} deg; relay closings az {tracker['relay_closings'][0]} el "
-                     f"{tracker['relay_closings'][1]}"))
-        return status
-    finally:
-        bench.close()
+    run = run_script_bench(settings.world, lines, keep_going=settings.keep_going, err=sys.stderr,
+                           out=None if settings.json else sys.stdout, capture=settings.record,
+                           script=str(settings.script))
+    if settings.json:
+        print(json.dumps(run.record, indent=1))
+        return run.status
+    print(run.summary)
+    state, tracker = run.record["plant"], run.record["plant"].get("tracker")
+    print(f"plant after {run.record['sim_time_s']:.1f} simulated s: "
+          + ", ".join(f"{name} {x:.3f}" for name, x in state["joints_deg"].items()) + " deg, gripper "
+          f"{state['gripper_opening_mm']:.1f} mm"
+          + ("" if tracker is None else
+             f"; tracker az {tracker['az_deg']:.3f} el {tracker['el_deg']:.3f} deg, sun az "
+             f"{tracker['sun_az_deg']:.3f} el {tracker['sun_el_deg']:.3f} deg, off the sun by "
+             f"{tracker['off_sun_deg']:.3f} deg; relay closings az {tracker['relay_closings'][0]} el "
+             f"{tracker['relay_closings'][1]}"))
+    for fault in run.record["faults"]:
+        after = fault["safe_after_s"]
+        print(f"fault {fault['fault']} at {fault['at_s']:g} s: "
+              + ("no safe state" if after is None else f"safe state after {after:.3f} s ({fault['fault_bits']})")
+              + ("" if fault["stated_s"] is None else f", stated {fault['stated_s']:g} s"))
+    return run.status

@@ -180,6 +180,20 @@ def _clouds(text: str) -> str:
     return text
 
 
+def add_bench_world_args(parser: argparse.ArgumentParser) -> None:
+    """What else a lock-step bench's world may be given: faults at their times, the link's impairment,
+    controller parameters, the script's variables (host_tools/worlds/bench_world.py)."""
+    parser.add_argument("--fault", action="append", default=[], metavar="NAME[:CH]@T[-T2]",
+                        help="inject a plant fault at simulated time T (s), cleared at T2 if given (repeatable): "
+                             "jam:j2@3.5, supply_sag@10-12 (the faults: hil_sim/faults.py)")
+    parser.add_argument("--impairment", default=None, metavar="SPEC",
+                        help="impair the link as `aspod proxy` does: radio, optical, ber=1e-5,drop=0.01, ...")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a controller parameter before the run (repeatable)")
+    parser.add_argument("--var", action="append", default=[], metavar="NAME=VALUE",
+                        help="the script's ${NAME} is VALUE (repeatable)")
+
+
 def add_tracker_args(parser: argparse.ArgumentParser) -> None:
     """The plant's solar tracker: the sun's date-time at start, clouds, or no tracker at all."""
     parser.add_argument("--sun-start", type=_sun_start, default=None, metavar="now|ISO",
@@ -205,6 +219,11 @@ EXAMPLES = {
     "teleop": ["aspod teleop /dev/pts/5", "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary"],
     "bench": ["aspod bench benches/tracker_procedure.aspod --sun-start 2026-03-20T06:50-07:00",
               "aspod bench session.txt --json > result.json", "aspod bench session.txt --record s.pcapng"],
+    "campaign": ["aspod campaign benches/test_pick_and_place.py --seeds 1000 --draw payload_kg=0..2.5 "
+                 "--draw fault=none,jam:j2,open_circuit:j1,encoder_dropout:j3 --draw fault_at_s=1..20 "
+                 "--group-by fault --plot m.worst_error_mm:payload_kg",
+                 "aspod campaign benches/tracker_dial.aspod --vary sun_start=2026-01-15T10:00-07:00..2026-12-15T10:00-07:00/12 "
+                 "--vary dial=5,10,20 --scheduler tcp://10.0.0.5:8786"],
     "demo": ["aspod demo", "aspod demo --json --gravity orbit", "aspod demo --link"],
     "tracker-day": ["aspod tracker-day --mode feedforward --date 2026-12-21 --plot day.png"],
     "log": ["aspod log session.pcapng", "aspod log session.pcapng --class command --class event",
@@ -343,10 +362,43 @@ def build_parser() -> argparse.ArgumentParser:
     add_seed_arg(bench, "the plant's noise and the link's nonces")
     add_arm_args(bench)
     add_tracker_args(bench)
+    add_bench_world_args(bench)
     bench.add_argument("--keep-going", action="store_true", help="go on after a failed command")
     bench.add_argument("--json", action="store_true", help="print one JSON object: steps, motions, the plant's state")
     bench.add_argument("--record", type=Path, metavar="FILE.pcapng",
                        help="capture the session on the simulated clock (aspod replay re-runs it to the bit)")
+
+    campaign = add_command("campaign", help="run a bench over a matrix of settings, one row per run, on Dask "
+                                            "(a local cluster on every core, or --scheduler)")
+    campaign.add_argument("bench", metavar="BENCH", help="a teleop script, or a pytest file or node "
+                                                         "(path.py, path.py::test_name)")
+    campaign.add_argument("--vary", action="append", default=[], metavar="NAME=VALUES",
+                          help="a grid axis: NAME=A,B,C (impairment, clouds: A|B|C) or NAME=LO..HI/N (numbers or ISO date-times); every "
+                               "combination runs. NAME: gravity, payload_kg, sun_start, clouds, fault, fault_at_s, "
+                               "fault_until_s, impairment, param.NAME, or a bench variable (a script's ${NAME})")
+    campaign.add_argument("--draw", action="append", default=[], metavar="NAME=VALUES",
+                          help="drawn for each run from its seed: NAME=A,B,C (one of) or NAME=LO..HI (uniform); "
+                               "impairment and clouds values are separated by | instead")
+    campaign.add_argument("--seeds", default="1", metavar="N|FIRST..LAST",
+                          help="each grid point runs with these seeds (default 1: seed 0)")
+    campaign.add_argument("--workers", type=bounded(int, 1, 1024), default=None, metavar="N",
+                          help="local Dask workers (default: one per core)")
+    campaign.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                          help="a running Dask scheduler instead of a local cluster (docs/campaigns.md)")
+    campaign.add_argument("--serial", action="store_true", help="no Dask: every run in this process, in order")
+    campaign.add_argument("--out", type=Path, default=None, metavar="DIR",
+                          help="where the rows, campaign.json and plots go (default campaign-<UTC time>; "
+                               "a folder that already holds a campaign is refused)")
+    campaign.add_argument("--format", choices=("csv", "parquet"), default="csv", help="the rows' file (default csv)")
+    campaign.add_argument("--group-by", default=None, metavar="COLUMN",
+                          help="the summary per value of this column (default: fault, when it varies)")
+    campaign.add_argument("--summarize", action="append", default=[], metavar="COLUMN",
+                          help="a figure for the summary (default: the bench's measurements, the time to the "
+                               "safe state)")
+    campaign.add_argument("--plot", action="append", default=[], metavar="Y:X", help="a scatter plot of Y against X")
+    campaign.add_argument("--hist", action="append", default=[], metavar="COLUMN", help="a histogram")
+    campaign.add_argument("--keep-going", action="store_true", help="a script goes on after a failed line")
+    campaign.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")
@@ -467,6 +519,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "teleop":
         from host_tools.cli.teleop import run_teleop
         return run_teleop(settings.teleop_settings(args), host_key(args.key_file))
+    if args.command == "campaign":
+        from host_tools.cli.campaign import run_campaign
+        return run_campaign(settings.campaign_settings(args))
     if args.command == "bench":
         from host_tools.cli.bench import run_bench
         return run_bench(settings.bench_settings(args))

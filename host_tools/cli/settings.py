@@ -20,6 +20,9 @@ from host_tools.worlds.settings import PlantSettings, TIMINGS
 
 if TYPE_CHECKING:
     from host_tools.apps.demo import DemoSettings
+    from host_tools.campaign.engine import EngineSettings
+    from host_tools.campaign.matrix import Matrix
+    from host_tools.worlds.bench_world import WorldSettings
     from host_tools.sessions.impairment import Impairment
     from host_tools.apps.tracker_day import DaySettings
 
@@ -114,10 +117,10 @@ class LogSettings:
 
 @dataclass(frozen=True)
 class BenchSettings:
-    """`aspod bench SCRIPT`: the script, the world it runs against (plant, seed), and what to print or keep."""
+    """`aspod bench SCRIPT`: the script and its variables, the world it runs in, and what to print or keep."""
     script: Path
-    plant: PlantSettings
-    seed: int = 0
+    world: "WorldSettings"
+    variables: tuple[tuple[str, str], ...] = ()
     keep_going: bool = False
     json: bool = False
     record: Optional[Path] = None
@@ -364,11 +367,10 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
 
 
 def replay_settings(args: argparse.Namespace) -> ReplaySettings:
-    from host_tools.apps.replay import parse_params
     output = args.output
     if output is not None and not Path(output).parent.is_dir():
         raise ValueError(f"--output {output}: no folder {Path(output).parent}")
-    return ReplaySettings(args.capture, tuple(parse_params(tuple(args.param or ())).items()), args.key_file,
+    return ReplaySettings(args.capture, tuple(dict(pairs(args.param or [], "--param")).items()), args.key_file,
                           args.json, output)
 
 
@@ -390,4 +392,69 @@ def bench_settings(args: argparse.Namespace) -> BenchSettings:
     if plant.tracker and plant.start is None:
         default = PlantSettings().start if args.sun_start is None else to_utc(RealClock.wall_time())
         plant = plant.with_start(default)
-    return BenchSettings(args.script, plant, args.seed, args.keep_going, args.json, record_path(args.record))
+    return BenchSettings(args.script, bench_world(args, plant), pairs(args.var, "--var", str), args.keep_going,
+                         args.json, record_path(args.record))
+
+
+def pairs(texts: list[str], option: str, kind=float) -> tuple[tuple[str, Any], ...]:
+    """`NAME=VALUE` options as (name, value) pairs, the value a `kind`; ValueError naming a malformed one."""
+    out = []
+    for text in texts:
+        name, sep, value = text.partition("=")
+        try:
+            if not sep or not name.strip():
+                raise ValueError
+            out.append((name.strip(), kind(value)))
+        except ValueError:
+            raise ValueError(f"{option} {text}: write NAME=VALUE"
+                             + (" with a number" if kind is float else "")) from None
+    return tuple(out)
+
+
+def bench_world(args: argparse.Namespace, plant: PlantSettings) -> "WorldSettings":
+    """The lock-step world of `aspod bench` (and of the plugin's options): seed, plant, timed faults,
+    impairment, parameters. ValueError naming what is wrong."""
+    from host_tools.worlds.bench_world import TimedFault, WorldSettings
+    return WorldSettings(args.seed, plant, tuple(TimedFault.parse(f) for f in args.fault), args.impairment,
+                         pairs(args.param, "--param"))
+
+
+@dataclass(frozen=True)
+class CampaignSettings:
+    """`aspod campaign`: the bench, its matrix, where it runs, and what to write and show."""
+    bench: str
+    matrix: "Matrix"
+    engine: "EngineSettings"
+    out: Path
+    fmt: str = "csv"
+    group_by: Optional[str] = None
+    figures: tuple[str, ...] = ()
+    plots: tuple[tuple[str, str], ...] = ()
+    hists: tuple[str, ...] = ()
+    keep_going: bool = False
+    progress: bool = True
+
+
+def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
+    from host_tools.campaign.engine import EngineSettings
+    from host_tools.campaign.matrix import DrawnAxis, GridAxis, Matrix, parse_seeds
+    matrix = Matrix(tuple(GridAxis.parse(t) for t in args.vary), tuple(DrawnAxis.parse(t) for t in args.draw),
+                    parse_seeds(args.seeds))
+    plots = []
+    for text in args.plot:
+        y, sep, x = text.rpartition(":")
+        if not sep or not y or not x:
+            raise ValueError(f"--plot {text}: write Y:X, two columns (e.g. m.worst_error_mm:payload_kg)")
+        plots.append((y, x))
+    out = args.out
+    if out is None:
+        from datetime import datetime, timezone
+        out = Path(f"campaign-{datetime.now(timezone.utc):%Y%m%d-%H%M%S}")
+    if out.exists() and (not out.is_dir() or any(out.glob("rows.*")) or (out / "campaign.json").exists()):
+        raise ValueError(f"--out {out}: it already holds a campaign (or is not a folder); give another")
+    group_by = args.group_by
+    if group_by is None and "fault" in matrix.axes:
+        group_by = "fault"
+    return CampaignSettings(args.bench, matrix, EngineSettings(args.workers, args.scheduler, args.serial), out,
+                            args.format, group_by, tuple(args.summarize), tuple(plots), tuple(args.hist),
+                            args.keep_going, not args.no_progress)

@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import json
 import re
-import shlex
 from pathlib import Path
-from typing import Optional
 
 import pytest
 
@@ -32,7 +30,6 @@ from host_tools.plugin.errors import CannotFault
 # emulator (the worlds, the clients, numba perhaps) is imported when a bench asks for a target, not before.
 
 SCRIPT_SUFFIX = ".aspod"
-DIRECTIVE = re.compile(r"#!\s*aspod\s+bench\b(.*)")
 RECORD_KEY = pytest.StashKey[dict]()
 
 
@@ -41,22 +38,74 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--aspod-target", default=None, metavar="URL",
                     help="run benches against a live controller at URL (default: the lock-step world)")
     group.addoption("--aspod-key-file", default=None, metavar="FILE", help="the live controller's key file")
-    group.addoption("--aspod-seed", type=int, default=1, metavar="N", help="the lock-step world's seed (default 1)")
     group.addoption("--aspod-json", default=None, metavar="DIR", help="write a JSON record per test into DIR")
+    group.addoption("--aspod-seed", default=None, metavar="N", help="the lock-step world's seed (default 1)")
+    for option, metavar, what in WORLD_OPTIONS:
+        group.addoption(f"--aspod-{option}", default=None, metavar=metavar, help=f"the lock-step world's {what}")
+    for option, metavar, what in WORLD_LISTS:
+        group.addoption(f"--aspod-{option}", action="append", default=[], metavar=metavar, help=what)
+    group.addoption("--aspod-no-tracker", action="store_true", help="the lock-step world's plant without the tracker")
 
 
-def make_target(config: pytest.Config, seed: Optional[int] = None, plant=None):
-    """The target the run asks for: the lock-step world (seed, plant), or the live controller of --aspod-target."""
+# The lock-step world's settings, as `aspod bench` takes them (host_tools/worlds/bench_world.py), each
+# `--aspod-<its name>`: one grammar, one parser, one set of checks for both.
+WORLD_OPTIONS = (("gravity", "earth|orbit", "gravity"), ("payload-kg", "M", "payload at the gripper, kg"),
+                 ("sun-start", "ISO", "sun's start (default: a fixed date, as aspod bench)"),
+                 ("clouds", "SPEC", "clouds over the tracker"), ("impairment", "SPEC", "link impairment (radio, ...)"))
+WORLD_LISTS = (("fault", "NAME[:CH]@T", "a plant fault at simulated time T (repeatable): jam:j2@3.5"),
+               ("param", "NAME=VALUE", "a controller parameter set before the test (repeatable)"),
+               ("var", "NAME=VALUE", "a bench variable: aspod_target.variables[NAME], a script's ${NAME} (repeatable)"))
+DEFAULT_SEED = "1"
+
+
+def bench_options(config: pytest.Config, directive: tuple[str, ...] = ()) -> tuple[list[str], list[str]]:
+    """The world's `aspod bench` options: the seed's default, a script's directive, then this run's options
+    (which win); and the variables (`--var` pairs)."""
+    argv = ["--seed", DEFAULT_SEED, *directive]
+    seed = config.getoption("--aspod-seed")
+    if seed is not None:
+        argv += ["--seed", seed]
+    for option, _, _ in WORLD_OPTIONS:
+        value = config.getoption(f"--aspod-{option}")
+        if value is not None:
+            argv += [f"--{option}", value]
+    for option in ("fault", "param"):
+        for value in config.getoption(f"--aspod-{option}"):
+            argv += [f"--{option}", value]
+    if config.getoption("--aspod-no-tracker"):
+        argv.append("--no-tracker")
+    return argv, list(config.getoption("--aspod-var"))
+
+
+def world_and_variables(config: pytest.Config, directive: tuple[str, ...] = (), where: str = "--aspod options"):
+    """(WorldSettings, variables) from the run's options (and a script's directive); pytest.UsageError saying
+    what does not parse."""
+    from host_tools.cli.main import build_parser
+    from host_tools.cli.settings import bench_settings
+    argv, variables = bench_options(config, directive)
+    argv += [x for pair in variables for x in ("--var", pair)]
+    try:
+        settings = bench_settings(build_parser().parse_args(["bench", "-", *argv]))
+    except SystemExit:
+        raise pytest.UsageError(f"{where}: the world's options do not parse (see above)") from None
+    except ValueError as exc:
+        raise pytest.UsageError(f"{where}: {exc}") from None
+    return settings.world, dict(settings.variables)
+
+
+def make_target(config: pytest.Config, directive: tuple[str, ...] = (), where: str = "--aspod options"):
+    """The target the run asks for: the lock-step world its options (and a script's directive) describe, or the
+    live controller of --aspod-target."""
     from protocol import auth
     from host_tools.plugin.target import LiveTarget, LockstepTarget
     url = config.getoption("--aspod-target")
+    world, variables = world_and_variables(config, directive, where)
     if url is None:
-        kwargs = {} if plant is None else {"plant": plant}
-        return LockstepTarget(seed=config.getoption("--aspod-seed") if seed is None else seed, **kwargs)
+        return LockstepTarget(world, variables)
     key_file = config.getoption("--aspod-key-file")
     psk = auth.load_key(key_file, "--aspod-key-file") if key_file else auth.load_key(auth.default_key_path(),
                                                                                      "development key")
-    return LiveTarget(url, psk)
+    return LiveTarget(url, psk, variables=variables)
 
 
 def _record(item: pytest.Item) -> dict:
@@ -74,7 +123,7 @@ def aspod_target(request: pytest.FixtureRequest):
     try:
         yield target
     finally:
-        target.close()
+        record.update(target.close_record())
         record["measurements"] = target.measurements
         for name, m in target.measurements.items():
             request.node.user_properties.append((name, f"{m['value']}{' ' + m['unit'] if m['unit'] else ''}"))
@@ -100,6 +149,9 @@ def pytest_runtest_makereport(item: pytest.Item, call):
     if report.when == "call" or (report.when == "setup" and report.outcome != "passed"):
         record["outcome"] = report.outcome
         record["duration_s"] = report.duration
+        if report.failed:
+            crash = getattr(report.longrepr, "reprcrash", None)
+            record["error"] = crash.message.splitlines()[0] if crash is not None else str(report.longrepr)[:500]
     if report.when == "teardown":
         path = Path(folder)
         path.mkdir(parents=True, exist_ok=True)
@@ -130,14 +182,21 @@ class ScriptItem(pytest.Item):
     """One `*.aspod` script, run on the target as `aspod teleop --script` (or `aspod bench`) would run it."""
 
     def runtest(self) -> None:
+        from host_tools.teleop.words import TeleopError, script_directive, substitute
         text = self.path.read_text(encoding="utf-8")
-        seed, plant = self._world(text)
-        target = make_target(self.config, seed, plant)
         try:
-            result = target.run_script(text)
-        finally:
-            target.close()
+            directive = script_directive(text.splitlines())
+        except TeleopError as exc:
+            raise pytest.UsageError(f"{self.path}: {exc}") from None
+        target = make_target(self.config, directive, str(self.path))
         record = _record(self)
+        try:
+            lines = substitute(text.splitlines(), target.variables, all_used=False)
+            result = target.run_script("\n".join(lines))
+        except TeleopError as exc:
+            raise pytest.UsageError(f"{self.path}: {exc}") from None
+        finally:
+            record.update(target.close_record())
         record.update(target=target.kind, steps=result["steps"], motions=result["motions"],
                       commands=result["commands"], status=result["status"])
         for step in result["steps"]:
@@ -145,21 +204,6 @@ class ScriptItem(pytest.Item):
                                                                  f"{step['text']}"))
         if result["status"] != 0:
             raise ScriptFailed(result)
-
-    def _world(self, text: str):
-        """The seed and plant the script's `#! aspod bench ...` line asks for (None, None: the defaults)."""
-        first = text.splitlines()[0] if text else ""
-        found = DIRECTIVE.match(first)
-        if not found:
-            return None, None
-        from host_tools.cli.main import build_parser
-        from host_tools.cli.settings import bench_settings
-        try:
-            args = build_parser().parse_args(["bench", str(self.path), *shlex.split(found.group(1))])
-            settings = bench_settings(args)
-        except SystemExit:
-            raise pytest.UsageError(f"{self.path}: its first line's `aspod bench` options do not parse") from None
-        return settings.seed, settings.plant
 
     def repr_failure(self, excinfo, style=None):
         if isinstance(excinfo.value, ScriptFailed):

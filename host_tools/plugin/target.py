@@ -16,6 +16,7 @@ needs that is skipped there, never faked.
     target.act(name, *args)                    a plant action by name (host_tools/worlds/plant_actions.py)
     target.true_state() -> dict                the plant's truth, where there is one to read
     target.measure(name, value, unit)          a figure of the bench, for its record
+    target.variables                           the bench's variables (--aspod-var NAME=VALUE; a campaign's axes)
 """
 from __future__ import annotations
 
@@ -27,13 +28,13 @@ from protocol.host_link import CommandHandle
 from protocol.schema import Message
 
 from host_tools.apps.bench_state import plant_state
+from host_tools.apps.fault_reaction import reaction
 from host_tools.client.bench import BenchClient
 from host_tools.client.live import HostClient
 from host_tools.plugin.errors import CannotFault
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import run_script
-from host_tools.worlds.settings import PlantSettings
-from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.bench_world import WorldSettings, build_bench
 
 
 @dataclass
@@ -41,6 +42,7 @@ class Target:
     """A connected client (`BenchClient` or `HostClient`) and what the bench has seen through it."""
     client: Any
     kind: str
+    variables: dict[str, str] = field(default_factory=dict)       # the bench's variables (--aspod-var)
     telemetry: dict[str, Message] = field(default_factory=dict)
     measurements: dict[str, dict] = field(default_factory=dict)    # name -> {"value", "unit"}: `measure`
 
@@ -96,15 +98,31 @@ class Target:
     def close(self) -> None:
         self.client.close()
 
+    def close_record(self) -> dict:
+        """Close the target; what the test's record keeps of it."""
+        self.close()
+        return {"sim_time_s": self.now()}
+
 
 class LockstepTarget(Target):
-    """A whole world on the simulated clock, connected."""
+    """A whole world on the simulated clock, as `world` says (its faults injected at their times), connected."""
 
-    def __init__(self, seed: int = 1, plant: PlantSettings = PlantSettings()) -> None:
-        self.bench = LockstepBench(seed=seed, plant=plant)
+    def __init__(self, world: WorldSettings = WorldSettings(seed=1), variables: Optional[dict[str, str]] = None) -> None:
+        self.world = world
+        self.bench = build_bench(world)
         client = BenchClient(self.bench)
-        super().__init__(client, "lockstep")
+        super().__init__(client, "lockstep", dict(variables or {}))
         client.connect()
+
+    def fault_reactions(self) -> list[dict]:
+        """The controller's answer to each timed fault injected so far (host_tools/apps/fault_reaction.py)."""
+        started = self.bench.controller.started_s or 0.0
+        return [reaction(self.events, f.fault, f.at_s, started) for f in self.world.faults if f.at_s <= self.now()]
+
+    def close_record(self) -> dict:
+        record = {"sim_time_s": self.now(), "seed": self.world.seed, "faults": self.fault_reactions()}
+        self.close()
+        return record
 
     def _wall_time(self):
         return self.client.wall_time
@@ -132,9 +150,9 @@ class LockstepTarget(Target):
 class LiveTarget(Target):
     """A live controller at `url` (pyserial URL or device; several links comma-separated), connected."""
 
-    def __init__(self, url: str, psk: bytes, baud: int = 115200) -> None:
+    def __init__(self, url: str, psk: bytes, baud: int = 115200, variables: Optional[dict[str, str]] = None) -> None:
         client = HostClient(url, psk, baud=baud)
-        super().__init__(client, f"live {url}")
+        super().__init__(client, f"live {url}", dict(variables or {}))
         try:
             client.connect()
         except BaseException:

@@ -378,6 +378,44 @@ def read_script(path: Optional[Path], stdin: Optional[BinaryIO] = None, option: 
         raise TeleopError(f"{source}: not UTF-8 text (byte {exc.start}: {exc.reason})") from None
 
 
+DIRECTIVE = re.compile(r"#!\s*aspod\s+bench\b(.*)")
+
+
+def script_directive(lines: list[str]) -> tuple[str, ...]:
+    """The `aspod bench` options a script's first line asks for (`#! aspod bench --seed 3 ...`); none: ().
+    TeleopError if they cannot be split as a shell would."""
+    found = DIRECTIVE.match(lines[0]) if lines else None
+    if not found:
+        return ()
+    try:
+        return tuple(shlex.split(found.group(1)))
+    except ValueError as exc:
+        raise TeleopError(f"line 1: its `aspod bench` options: {exc}") from None
+
+
+VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+def substitute(lines: list[str], values: dict[str, str], all_used: bool = True) -> list[str]:
+    """A script's `${name}` written as `values[name]` (how `aspod bench --var` and a campaign's axes reach a
+    script). TeleopError naming the line of a variable with no value, or (`all_used`) a value the script
+    never uses."""
+    used: set[str] = set()
+    out = []
+    for number, text in enumerate(lines, 1):
+        def value(found: re.Match) -> str:
+            name = found.group(1)
+            if name not in values:
+                raise TeleopError(f"line {number}: no value for ${{{name}}} (give one: --var {name}=VALUE)")
+            used.add(name)
+            return str(values[name])
+        out.append(VARIABLE.sub(value, text))
+    unused = sorted(set(values) - used)
+    if unused and all_used:
+        raise TeleopError(f"the script uses no {', '.join('${' + name + '}' for name in unused)}")
+    return out
+
+
 def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
     """Every line parsed: the steps, and a message for each line that is not a command (the first
     MAX_PROBLEMS of them: past that, checking stops, and a last message says so; nothing will be sent)."""

@@ -1,7 +1,7 @@
 """What a bench may do to the plant directly, outside the controller's link, by name.
 
-A pick-and-place puts debris between the jaws and a payload in them; those are changes to the
-physical world, not commands, so the link's capture cannot show them. `LockstepBench.act(name,
+A pick-and-place puts debris between the jaws and a payload in them; a fault drill breaks a wire
+at a given moment. Those are changes to the physical world, not commands, so the link's capture cannot show them. `LockstepBench.act(name,
 *args)` does one and, when the session is recorded, writes it into the capture (as a world
 event: `CaptureWriter.note`) so that `aspod replay` does it again at the same moment.
 """
@@ -23,6 +23,8 @@ def _set_payload(plant: Plant, payload_kg) -> None:
 ACTIONS: dict[str, Callable[..., None]] = {
     "set_object": _set_object,      # width of the object between the gripper's jaws (m), or None: nothing
     "set_payload": _set_payload,    # mass held by the gripper (kg)
+    "inject": Plant.inject,         # a fault by name (hil_sim/faults.py): "jam:j2", or "jam", "j2"
+    "clear": Plant.clear,           # the same, cleared
 }
 
 

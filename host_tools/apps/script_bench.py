@@ -1,0 +1,60 @@
+"""A teleop script run on a lock-step world as one bench run: its record, the plant's truth at the end, and the
+controller's answer to each fault the world injected. `aspod bench` prints it; `aspod campaign` makes a row of it.
+
+    run = run_script_bench(WorldSettings(seed=3, faults=(TimedFault("jam:j2", 5.0),)), lines)
+    run.status, run.record["steps"], run.record["plant"], run.record["faults"]
+"""
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, TextIO
+
+from timebase import RealClock
+
+from host_tools.apps.bench_state import plant_state
+from host_tools.apps.fault_reaction import reaction
+from host_tools.client.bench import BenchClient
+from host_tools.sessions.capture import CaptureWriter, SessionInfo
+from host_tools.teleop.record import ScriptRecord
+from host_tools.teleop.session import run_script
+from host_tools.worlds.bench_world import WorldSettings, build_bench
+
+
+@dataclass
+class ScriptRun:
+    status: int         # as `aspod teleop --script`: 0 ok, 1 a line failed, 2 the script does not parse
+    record: dict        # what `aspod bench --json` prints
+    summary: str        # the session's summary, as teleop prints it at the end
+
+
+def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool = False,
+                     out: Optional[TextIO] = None, err: Optional[TextIO] = None,
+                     capture: Optional[Path] = None, script: Optional[str] = None) -> ScriptRun:
+    """Run `lines` on a world built as `world` says. `out`: where each line's output goes as it runs (None:
+    nowhere but the record); `err`: the script's problems (None: into the record's `problems`); `capture`:
+    a session capture of the link, on the simulated clock. ValueError if the world cannot be built."""
+    bench = build_bench(world)
+    if capture is not None:
+        bench.record(CaptureWriter.create(capture, SessionInfo(clock="simulated", tool="aspod bench",
+                                                               seed=world.seed, settings=bench.settings())))
+    wall0 = RealClock.precise_now()
+    problems = io.StringIO() if err is None else err
+    try:
+        client = BenchClient(bench)
+        client.connect()
+        record = ScriptRecord(echo=out)
+        status, session = run_script(client, lines, io.StringIO() if out is None else out, keep_going=keep_going,
+                                     err=problems, wall_time=client.wall_time, record=record)
+        started = bench.controller.started_s or 0.0
+        faults = [reaction(client.events, f.fault, f.at_s, started) for f in world.faults
+                  if f.at_s <= bench.clock.now()]
+        result = record.as_dict(session, status, script=script, target="lockstep", seed=world.seed,
+                                sim_time_s=bench.clock.now(), wall_time_s=RealClock.precise_now() - wall0,
+                                plant=plant_state(bench), faults=faults)
+        if err is None:
+            result["problems"] = problems.getvalue().splitlines()
+        return ScriptRun(status, result, session.summary())
+    finally:
+        bench.close()

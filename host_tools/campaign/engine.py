@@ -1,0 +1,103 @@
+"""Where a campaign's runs go: Dask's distributed scheduler (a local cluster of worker processes, one thread each,
+by default on every core; or a running scheduler at `tcp://HOST:8786` with workers on other machines), or this
+process alone (`serial`: the reference that a distributed run must equal, row for row).
+
+Runs are independent and each builds its own world, so they are spread one task per run; the results come back
+in any order and are put back in the matrix's. A run that raises (a bug, never the bench's own failure: that
+is its row) or whose worker dies becomes an error row saying so; the campaign goes on.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import traceback
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+from host_tools.campaign.matrix import Run
+from host_tools.campaign.runs import BenchSpec, RunResult, run_one
+
+OnResult = Callable[[RunResult], None]
+
+
+@dataclass(frozen=True)
+class EngineSettings:
+    workers: Optional[int] = None          # local workers (None: one per core)
+    scheduler: Optional[str] = None        # a running Dask scheduler's address instead of a local cluster
+    serial: bool = False                   # no Dask: every run in this process, one after the other
+
+    def __post_init__(self) -> None:
+        if self.workers is not None and not 1 <= self.workers <= 1024:
+            raise ValueError(f"--workers {self.workers}: between 1 and 1024")
+        if self.serial and (self.workers is not None or self.scheduler is not None):
+            raise ValueError("--serial runs in this process: no --workers or --scheduler with it")
+        if self.scheduler is not None and self.workers is not None:
+            raise ValueError("--workers starts a local cluster; a --scheduler has its own workers")
+
+    def describe(self) -> str:
+        if self.serial:
+            return "serial, in this process"
+        if self.scheduler is not None:
+            return f"Dask scheduler at {self.scheduler}"
+        return f"Dask local cluster, {self.local_workers()} workers"
+
+    def local_workers(self) -> int:
+        return self.workers if self.workers is not None else (os.cpu_count() or 1)
+
+
+def _error_result(run: Run, why: str) -> RunResult:
+    return RunResult(run.index, {"run": run.index, **run.as_dict(), "outcome": "error", "ok": False,
+                                 "error": why, "reproduce": ""}, 0.0)
+
+
+def run_serial(bench: BenchSpec, runs: list[Run], on_result: OnResult) -> list[RunResult]:
+    results = []
+    for run in runs:
+        try:
+            result = run_one(bench, run)
+        except Exception as exc:               # a bug in the emulator: the row says so, the campaign goes on
+            result = _error_result(run, f"the run raised {type(exc).__name__}: {exc} "
+                                        f"({traceback.extract_tb(exc.__traceback__)[-1].filename})")
+        results.append(result)
+        on_result(result)
+    return results
+
+
+def run_distributed(bench: BenchSpec, runs: list[Run], settings: EngineSettings, on_result: OnResult,
+                    on_started: Callable[[str], None] = lambda where: None) -> list[RunResult]:
+    """Every run a Dask task; results in the matrix's order. `on_started` is told where they run."""
+    from distributed import Client, LocalCluster, as_completed
+    cluster = None
+    if settings.scheduler is None:
+        cluster = LocalCluster(n_workers=settings.local_workers(), threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    else:
+        client = Client(settings.scheduler, timeout="30s")
+    try:
+        on_started(client.dashboard_link if settings.scheduler is not None else settings.describe())
+        shared = client.scatter(bench, broadcast=True)
+        futures = client.map(run_one, [shared] * len(runs), runs, pure=False)
+        run_of = {f.key: run for f, run in zip(futures, runs)}
+        results: dict[int, RunResult] = {}
+        for future in as_completed(futures):
+            run = run_of[future.key]
+            try:
+                result = future.result()
+            except Exception as exc:           # a bug in the run, or its worker died (KilledWorker)
+                result = _error_result(run, f"the run raised {type(exc).__name__}: {exc}")
+            results[run.index] = result
+            on_result(result)
+        return [results[run.index] for run in runs]
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_runs(bench: BenchSpec, runs: list[Run], settings: EngineSettings, on_result: OnResult = lambda r: None,
+             on_started: Callable[[str], None] = lambda where: None) -> list[RunResult]:
+    if settings.serial:
+        on_started(settings.describe())
+        return run_serial(bench, runs, on_result)
+    return run_distributed(bench, runs, settings, on_result, on_started)
