@@ -1,0 +1,148 @@
+"""Campaigns and targets: what Dask gives a campaign, and one bench on the lock-step world beside a live `aspod sim`.
+
+1. **Throughput.** A campaign of moving runs (a teleop script: enable, a joint jogged and moved, 12 simulated s
+   each) on a Dask local cluster of 1 worker and of 2 workers: simulated seconds per wall second summed over
+   the workers, from the first task given to the last row back (the cluster's start-up shown apart). Goal:
+   2 workers at least 1.8x one. On a 2-core machine the second worker shares the cores with this process,
+   the Dask scheduler and whatever else runs.
+2. **Engine overhead.** The same short runs (a script of one `status`: a world built, a session opened, one
+   command) through Dask's 2 workers and through a bare `concurrent.futures.ProcessPoolExecutor` of 2: the
+   wall time per run of each and the difference, Dask's cost per run.
+3. **Lock-step against live.** One bench script (two moves and a status) by `aspod bench --json` on the
+   lock-step world and by `aspod teleop --script --json` against `aspod sim --pty`: the wall time of each, and
+   whether they agree (every line's outcome, every motion's end, the final positions within 0.05 deg).
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from timebase import RealClock
+from host_tools.campaign.matrix import GridAxis, Matrix, parse_seeds
+from host_tools.campaign.runs import BenchSpec, run_one
+from host_tools.worlds.child import Child
+
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+MOVING = "enable\njog j2 ${speed}\nwait 4\nstop j2\nmoveby j1 3 3\nwait\nwait 4\n"
+SHORT = "status\n"
+AGREE = "enable\nmoveby j1 5 3\nwait\nmoveby j2 -3 3\nwait\nstatus\n"
+
+
+@dataclass
+class CampaignBenchResult:
+    lines: list[str] = field(default_factory=list)
+    error: str = ""
+
+
+def _runs(script: str, count: int, cwd: Path):
+    axes = (GridAxis.parse("speed=1,2"),) if "${speed}" in script else ()
+    seeds = parse_seeds(str(count // 2 if axes else count))
+    return BenchSpec("script", "bench.aspod", text=script, cwd=str(cwd)), Matrix(axes, (), seeds).runs()
+
+
+def _dask_wall(bench: BenchSpec, runs, workers: int) -> tuple[float, list, float]:
+    """(wall s from the first task given to the last result back, the results, the cluster's start-up s), on a
+    local cluster whose workers have each run one warm-up run first (their imports, numba's compilation)."""
+    from distributed import Client, LocalCluster, wait
+    wall0 = RealClock.precise_now()
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                      silence_logs=50) as cluster, Client(cluster) as client:
+        for address in client.scheduler_info()["workers"]:
+            wait(client.submit(run_one, bench, runs[0], workers=[address], pure=False))
+        startup = RealClock.precise_now() - wall0
+        wall0 = RealClock.precise_now()
+        results = client.gather(client.map(run_one, [bench] * len(runs), runs, pure=False))
+        return RealClock.precise_now() - wall0, results, startup
+
+
+def throughput(folder: Path, quick: bool) -> list[str]:
+    bench, runs = _runs(MOVING, 8 if quick else 24, folder)
+    lines, rates = [], {}
+    for workers in (1, 2):
+        wall, results, startup = _dask_wall(bench, runs, workers)
+        sim = sum(r.row["sim_s"] for r in results)
+        bad = [r.row for r in results if not r.row["ok"]]
+        if bad:
+            raise RuntimeError(f"a run failed: {bad[0]['error']}")
+        rates[workers] = sim / wall
+        lines.append(f"  {workers} worker{'s' if workers > 1 else ' '}: {len(runs)} runs, {sim:.0f} simulated s in "
+                     f"{wall:.1f} wall s: {sim / wall:.1f} simulated s per wall s (start-up and warm-up "
+                     f"{startup:.1f} s apart)")
+    lines.append(f"  2 workers / 1: {rates[2] / rates[1]:.2f}x (goal 1.8x); cores {os.cpu_count()}, load average "
+                 f"{os.getloadavg()[0]:.2f}")
+    return ["throughput: moving runs (a jog and a move, 12 simulated s each) on a Dask local cluster"] + lines
+
+
+def overhead(folder: Path, quick: bool) -> list[str]:
+    bench, runs = _runs(SHORT, 20 if quick else 60, folder)
+    with ProcessPoolExecutor(2) as pool:
+        list(pool.map(run_one, [bench] * 4, runs[:4]))            # warm: the workers' imports
+        wall0 = RealClock.precise_now()
+        results = list(pool.map(run_one, [bench] * len(runs), runs))
+        pool_wall = RealClock.precise_now() - wall0
+    dask_wall, dask_results, _ = _dask_wall(bench, runs, 2)
+    if [r.row for r in results] != [r.row for r in dask_results]:
+        raise RuntimeError("the process pool's rows and Dask's differ")
+    per_pool, per_dask = pool_wall / len(runs) * 1e3, dask_wall / len(runs) * 1e3
+    return ["engine overhead: short runs (one `status` each: a world built, a session, one command), 2 warm workers",
+            f"  ProcessPoolExecutor: {per_pool:.1f} ms per run; Dask: {per_dask:.1f} ms per run; Dask's cost "
+            f"{per_dask - per_pool:+.1f} ms per run ({per_dask / per_pool:.2f}x); the same rows from both"]
+
+
+def lockstep_against_live(folder: Path, quick: bool) -> list[str]:
+    script = folder / "agree.aspod"
+    script.write_text(AGREE)
+    wall0 = RealClock.precise_now()
+    done = subprocess.run([*ASPOD, "bench", str(script), "--json", "--no-tracker"], capture_output=True, text=True,
+                          timeout=300)
+    lockstep_wall = RealClock.precise_now() - wall0
+    lockstep = json.loads(done.stdout)
+    env = {**os.environ, "XDG_CONFIG_HOME": str(folder / "config")}      # a development key of its own
+    child = Child(["sim", "--pty", "--no-tracker"], env=env)
+    try:
+        url = child.ready("ASPOD-LINK ").split(" ", 1)[1]
+        child.ready("ASPOD-KEY ")
+        wall0 = RealClock.precise_now()
+        done = subprocess.run([*ASPOD, "teleop", url, "--script", str(script), "--json"], env=env,
+                              capture_output=True, text=True, timeout=300)
+        live_wall = RealClock.precise_now() - wall0
+    finally:
+        child.stop()
+    live = json.loads(done.stdout)
+    same_steps = [s["ok"] for s in lockstep["steps"]] == [s["ok"] for s in live["steps"]]
+    ends = [(m["axis"], m["outcome"]) for m in lockstep["motions"]] == [(m["axis"], m["outcome"])
+                                                                        for m in live["motions"]]
+    worst = max(abs(a["position"] - b["position"]) for a, b in zip(lockstep["motions"], live["motions"]))
+    agree = same_steps and ends and worst <= 0.05
+    return ["the same bench (two moves and a status) on the lock-step world and on a live aspod sim over a pty",
+            f"  lock-step (aspod bench, process start included): {lockstep_wall:.2f} s wall for "
+            f"{lockstep['sim_time_s']:.1f} simulated s; live (aspod teleop --script): {live_wall:.2f} s wall "
+            f"({live_wall / lockstep_wall:.1f}x)",
+            f"  outcomes {'agree' if agree else 'DIFFER'}: lines {'same' if same_steps else 'differ'}, motion ends "
+            f"{'same' if ends else 'differ'}, end positions within {worst:.4f} deg"]
+
+
+def main(quick: bool = False) -> CampaignBenchResult:
+    result = CampaignBenchResult()
+    print("campaign: Dask throughput 1 and 2 workers, engine overhead, lock-step against live", flush=True)
+    with tempfile.TemporaryDirectory(prefix="aspod-bench-campaign-") as tmp:
+        for part in (throughput, overhead, lockstep_against_live):
+            try:
+                lines = part(Path(tmp), quick)
+            except Exception as exc:       # a part that cannot run: say which and why, go on with the others
+                result.error = f"{part.__name__}: {type(exc).__name__}: {exc}"
+                lines = [f"{part.__name__}: could not run: {type(exc).__name__}: {exc}"]
+            for line in lines:
+                print(line, flush=True)
+            result.lines += lines
+    return result
+
+
+if __name__ == "__main__":
+    sys.exit(1 if main(quick="--quick" in sys.argv).error else 0)
