@@ -18,11 +18,11 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench import run_parts
 from timebase import RealClock
 from host_tools.campaign.matrix import GridAxis, Matrix, parse_seeds
 from host_tools.campaign.runs import BenchSpec, run_one
@@ -131,16 +131,7 @@ def lockstep_against_live(folder: Path, quick: bool) -> list[str]:
 def main(quick: bool = False) -> CampaignBenchResult:
     result = CampaignBenchResult()
     print("campaign: Dask throughput 1 and 2 workers, engine overhead, lock-step against live", flush=True)
-    with tempfile.TemporaryDirectory(prefix="aspod-bench-campaign-") as tmp:
-        for part in (throughput, overhead, lockstep_against_live):
-            try:
-                lines = part(Path(tmp), quick)
-            except Exception as exc:       # a part that cannot run: say which and why, go on with the others
-                result.error = f"{part.__name__}: {type(exc).__name__}: {exc}"
-                lines = [f"{part.__name__}: could not run: {type(exc).__name__}: {exc}"]
-            for line in lines:
-                print(line, flush=True)
-            result.lines += lines
+    result.lines, result.error = run_parts((throughput, overhead, lockstep_against_live), quick, "aspod-bench-campaign-")
     return result
 
 

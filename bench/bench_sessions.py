@@ -23,7 +23,6 @@ import shutil
 import statistics
 import subprocess
 import sys
-import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +32,7 @@ import serial
 
 from protocol import auth
 from protocol.messages import MESSAGES as M
+from bench import run_parts
 from timebase import RealClock
 from host_tools.client.lines import parse_links
 from host_tools.client.live import HostClient
@@ -290,17 +290,7 @@ def two_links(folder: Path, quick: bool) -> list[str]:
 def main(quick: bool = False) -> SessionsResult:
     result = SessionsResult()
     print("sessions: proxy overhead, capture decoding, two links through outages", flush=True)
-    with tempfile.TemporaryDirectory(prefix="aspod-bench-sessions-") as tmp:
-        folder = Path(tmp)
-        for part in (proxy_overhead, decode_speed, two_links):
-            try:
-                lines = part(folder, quick)
-            except Exception as exc:       # a part that cannot run: say which and why, go on with the others
-                result.error = f"{part.__name__}: {type(exc).__name__}: {exc}"
-                lines = [f"{part.__name__}: could not run: {type(exc).__name__}: {exc}"]
-            for line in lines:
-                print(line, flush=True)
-            result.lines += lines
+    result.lines, result.error = run_parts((proxy_overhead, decode_speed, two_links), quick, "aspod-bench-sessions-")
     return result
 
 
