@@ -105,3 +105,30 @@ def test_a_bad_bench_world_is_refused_with_its_reason(tmp_path, capsys, args, re
     path.write_text("enable\njog j2 ${speed}\n")
     assert main(["bench", str(path), *args]) == 2
     assert reason in capsys.readouterr().err
+
+
+def test_a_timed_fault_is_recorded_as_a_world_event_and_replays_to_the_bit(tmp_path, capsys):
+    capture = tmp_path / "f.pcapng"
+    status, doc = bench_json(tmp_path, "enable\njog j2 2\nwait 2.5\n", "--fault", "jam:j2@1.2", "--record",
+                             str(capture), capsys=capsys)
+    assert status == 1 and doc["faults"][0]["within_stated"] is True
+    recorded = SessionCapture.read(capture)
+    assert [(e["action"], e["args"]) for _, e, _ in recorded.world_events] == [("inject", ["jam:j2"])]
+    report = replay(recorded)
+    assert report.matches and report.exact, report.describe()
+
+
+def test_plant_actions_by_name_change_the_plant_or_refuse_saying_why():
+    from host_tools.worlds.world import LockstepBench
+    bench = LockstepBench()
+    try:
+        bench.act("set_gravity", "orbit")
+        bench.act("inject", "supply_sag")
+        assert bench.world.plant.arm.gravity == "orbit" and bench.world.plant.faults == frozenset({"supply_sag"})
+        for name, args, reason in (("set_gravity", ("mars",), "mars"), ("inject", ("jam:j9",), "j9"),
+                                   ("fly", (), "no plant action"), ("set_payload", (1, 2), "set_payload")):
+            with pytest.raises(ValueError, match=reason):
+                bench.act(name, *args)
+        assert bench.world.plant.arm.gravity == "orbit" and bench.world.plant.faults == frozenset({"supply_sag"})
+    finally:
+        bench.close()

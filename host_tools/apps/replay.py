@@ -38,11 +38,10 @@ from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionIn
 from host_tools.sessions.decode import DecodedFrame, SessionDecoder, format_value
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.bench_world import apply_params
-from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.world import AFTER_THE_WORLD, LockstepBench
 
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
 SUBMIT_EARLY_S = 1e-6
-SAMPLER_PRIORITY = 100     # after every task of the world at the same moment
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
 TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
@@ -274,7 +273,7 @@ class _World:
         samples: dict[tuple[str, int], Message] = {}
         if sample:
             bench.world.scheduler.add("replay-sampler", _sampler(bench, sample, samples), period_s=0.001,
-                                      priority=SAMPLER_PRIORITY)
+                                      priority=AFTER_THE_WORLD)
         try:
             apply_params(bench, self.params.items())
         except ValueError as exc:

@@ -21,7 +21,7 @@ from protocol.reasons import Reason
 
 from host_tools.sessions.impairment import Impairment
 from host_tools.worlds.settings import PlantSettings
-from host_tools.worlds.world import LockstepBench
+from host_tools.worlds.world import AFTER_THE_WORLD, LockstepBench
 
 NO_FAULT = "none"       # a campaign's fault axis: a run without one
 
@@ -130,7 +130,8 @@ def schedule_faults(bench: LockstepBench, faults: tuple[TimedFault, ...]) -> Non
             _, action, fault = due.pop(0)
             bench.act(action, fault)
         return due[0][0] if due else math.inf
-    bench.world.scheduler.add("timed-faults", step, first_wake_s=due[0][0])
+    # after the world's tasks at the same moment, as a world event is done (and replayed: apps/replay.py)
+    bench.world.scheduler.add("timed-faults", step, first_wake_s=due[0][0], priority=AFTER_THE_WORLD)
 
 
 def build_bench(world: WorldSettings, **bench_options) -> LockstepBench:

@@ -20,7 +20,12 @@ def _set_payload(plant: Plant, payload_kg) -> None:
     plant.arm.set_payload(float(payload_kg))
 
 
+def _set_gravity(plant: Plant, mode) -> None:
+    plant.arm.set_gravity(str(mode))
+
+
 ACTIONS: dict[str, Callable[..., None]] = {
+    "set_gravity": _set_gravity,    # earth | orbit (the controller's feed-forward is its parameter gravity_m_s2)
     "set_object": _set_object,      # width of the object between the gripper's jaws (m), or None: nothing
     "set_payload": _set_payload,    # mass held by the gripper (kg)
     "inject": Plant.inject,         # a fault by name (hil_sim/faults.py): "jam:j2", or "jam", "j2"

@@ -38,6 +38,9 @@ from host_tools.worlds.nodes import build_controller, build_plant_node
 from host_tools.worlds.settings import PlantSettings
 
 
+AFTER_THE_WORLD = 100     # a scheduler priority: after every task of the world due at the same moment
+
+
 def seeded_nonces(seed: int) -> Callable[[], bytes]:
     """Nonces from a seeded generator: for reproducible lock-step runs only, never for a live link."""
     rng = random.Random(seed)
