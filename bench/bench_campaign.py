@@ -51,7 +51,7 @@ def _dask_wall(bench: BenchSpec, runs, workers: int) -> tuple[float, list, float
     local cluster whose workers have each run one warm-up run first (their imports, numba's compilation)."""
     from distributed import Client, LocalCluster, wait
     wall0 = RealClock.precise_now()
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=50) as cluster, Client(cluster) as client:
         for address in client.scheduler_info()["workers"]:
             wait(client.submit(run_one, bench, runs[0], workers=[address], pure=False))

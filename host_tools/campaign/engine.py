@@ -70,7 +70,7 @@ def run_distributed(bench: BenchSpec, runs: list[Run], settings: EngineSettings,
     cluster = None
     if settings.scheduler is None:
         cluster = LocalCluster(n_workers=settings.local_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
         client = Client(settings.scheduler, timeout="30s")
