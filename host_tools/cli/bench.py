@@ -13,7 +13,7 @@ import sys
 
 from timebase import RealClock
 
-from host_tools.apps.bench_state import plant_state
+from host_tools.worlds.plant_state import plant_state
 from host_tools.cli.settings import BenchSettings
 from host_tools.client.bench import BenchClient
 from host_tools.exit_codes import EXIT_USAGE
@@ -44,7 +44,7 @@ def run_bench(settings: BenchSettings) -> int:
         record = ScriptRecord(echo=None if settings.json else sys.stdout)
         status, session = run_script(client, lines, sys.stdout, keep_going=settings.keep_going,
                                      wall_time=client.wall_time, record=record)
-        state = plant_state(bench)
+        state = plant_state(bench.world.plant, bench.plant_settings.tracker)
         if settings.json:
             wall = RealClock.precise_now() - wall0
             print(json.dumps(record.as_dict(session, status, script=str(settings.script), target="lockstep",

@@ -26,7 +26,7 @@ from typing import Any, Callable, Optional
 from protocol.host_link import CommandHandle
 from protocol.schema import Message
 
-from host_tools.apps.bench_state import plant_state
+from host_tools.worlds.plant_state import plant_state
 from host_tools.client.bench import BenchClient
 from host_tools.client.live import HostClient
 from host_tools.plugin.errors import CannotFault
@@ -123,7 +123,7 @@ class LockstepTarget(Target):
         self.bench.act(name, *args)
 
     def true_state(self) -> dict:
-        return plant_state(self.bench)
+        return plant_state(self.bench.world.plant, self.bench.plant_settings.tracker)
 
     def close(self) -> None:
         self.bench.close()
