@@ -4,8 +4,10 @@ client gone mid-line, a step answered when done), and finding it from a link URL
 (host_tools/worlds/plant_control.py, control_server.py, host_tools/client/control.py)."""
 from __future__ import annotations
 
+import io
 import json
 import os
+import re
 import socket
 import tempfile
 import threading
@@ -14,7 +16,10 @@ from typing import Callable
 
 import pytest
 
+from host_tools.client.bench import BenchClient
 from host_tools.client.control import ControlClient, ControlUnavailable, find_control
+from host_tools.teleop.session import run_script
+from host_tools.teleop.words import completions, help_text
 from host_tools.worlds.control_server import (MAX_CLIENTS, MAX_LINE, OUT_HIGH, ControlServer, claim_path,
                                               default_control_path, link_endpoints, private_dir)
 from host_tools.worlds.plant_control import NO_PAUSE, OPS, PlantControl
@@ -364,3 +369,51 @@ def test_a_host_finds_the_endpoint_from_the_link_url_and_skips_dead_ones(folder,
     with pytest.raises(ControlUnavailable, match="is its aspod sim still running"):
         ControlClient(served.server.path)
     assert link_endpoints("a=/dev/pts/1,b=socket://x:2") == {"/dev/pts/1", "socket://x:2"}
+
+
+# ---- teleop's `sim` words ----
+
+def script(client, text: str, keep_going: bool = True) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    status, _ = run_script(client, text.splitlines(), out, keep_going=keep_going, err=err)
+    return status, out.getvalue(), err.getvalue()
+
+
+def test_sim_lines_on_the_lockstep_world_fault_the_plant_and_a_jog_ends_as_a_fault(bench):
+    client = BenchClient(bench)
+    status, out, _ = script(client, "sim fault jam j1\nsim faults\nenable\njog j1 2\nwait j1 10\nsim state\n"
+                                    "sim clear all\nsim gravity orbit\nsim payload 1.5\nsim clouds on\n")
+    assert "ok   sim fault: injected jam:j1" in out and "ok   sim faults: active faults: jam:j1" in out
+    assert re.search(r"j1#\d+ FAULT", out), out
+    assert "gravity earth, payload 0 kg, object none; faults: jam:j1" in out
+    assert "ok   sim clear: cleared jam:j1" in out and "ok   sim clouds: injected clouds" in out
+    assert bench.world.plant.arm.gravity == "orbit" and bench.world.plant.faults == {"clouds"}
+    assert status == 1            # the jog's FAULT fails the script, as any motion that does not end DONE
+
+
+def test_a_bad_sim_line_fails_the_script_before_anything_is_sent(bench):
+    client = BenchClient(bench)
+    status, _, err = script(client, "enable\nsim fault jam\nsim fault melt j1\nsim payload lots\nsim clouds maybe\n"
+                                    "sim step 100\nsim frob\n")
+    assert status == 2 and "nothing was sent" in err and bench.world.plant.faults == set()
+    for expected in ("line 2: sim fault: fault 'jam' needs a channel", "line 3: sim fault: unknown fault 'melt'",
+                     "line 4: sim payload KG: 'lots' is not a number", "line 5: sim clouds on|off: 'maybe' is not on",
+                     "line 6: sim step seconds: 100 s is out of range", "line 7: sim: no op 'frob'"):
+        assert expected in err, err
+
+
+def test_a_target_without_a_control_endpoint_says_why_a_sim_line_cannot_run(bench):
+    client = BenchClient(bench)
+    client.control = None                     # as a real controller: no plant to reach
+    status, out, _ = script(client, "sim fault jam j1\n")
+    assert status == 1 and "FAIL sim fault: no control endpoint" in out and "a real controller has no plant" in out
+    assert bench.world.plant.faults == set()
+
+
+def test_sim_words_help_and_completion_come_from_the_declaration():
+    text = help_text("sim")
+    assert all(f"sim {name}" in text for name in OPS)
+    assert completions("sim ", 4, "") == list(OPS)
+    assert completions("sim clear ", 10, "a") == ["all"]
+    assert completions("sim fault jam ", 14, "g") == ["gripper"]
+    assert completions("sim gravity ", 12, "") == ["earth", "orbit"]

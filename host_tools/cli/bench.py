@@ -20,6 +20,7 @@ from host_tools.exit_codes import EXIT_USAGE
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import run_script
+from host_tools.teleop.sim_words import state_lines
 from host_tools.teleop.words import TeleopError, read_script
 from host_tools.worlds.world import LockstepBench
 
@@ -52,15 +53,8 @@ def run_bench(settings: BenchSettings) -> int:
                                             plant=state), indent=1))
         else:
             print(session.summary())
-            tracker = state.get("tracker")
-            print(f"plant after {bench.clock.now():.1f} simulated s: "
-                  + ", ".join(f"{name} {x:.3f}" for name, x in state["joints_deg"].items()) + " deg, gripper "
-                  f"{state['gripper_opening_mm']:.1f} mm"
-                  + ("" if tracker is None else
-                     f"; tracker az {tracker['az_deg']:.3f} el {tracker['el_deg']:.3f} deg, sun az "
-                     f"{tracker['sun_az_deg']:.3f} el {tracker['sun_el_deg']:.3f} deg, off the sun by "
-                     f"{tracker['off_sun_deg']:.3f} deg; relay closings az {tracker['relay_closings'][0]} el "
-                     f"{tracker['relay_closings'][1]}"))
+            print(f"plant after {bench.clock.now():.1f} simulated s:")
+            print("\n".join("  " + line for line in state_lines(state)))
         return status
     finally:
         bench.close()

@@ -159,7 +159,7 @@ def check_request(request: Any) -> tuple[Op, dict]:
             try:
                 resolve(values["name"], values["channel"])
             except ValueError as exc:
-                raise RequestError(str(exc)) from None
+                raise RequestError(f"{op.name}: {exc}") from None
     return op, values
 
 
