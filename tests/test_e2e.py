@@ -52,6 +52,11 @@ class Sim:
         assert key.startswith("ASPOD-KEY "), key
         self.url = link.split(" ", 1)[1]
         self.key_path = Path(key.split(" ", 1)[1])
+        self.control_path = None           # the control endpoint's socket (aspod sim serves one by default)
+        if "--no-control" not in args and "--hal" not in args:
+            control = read_line(self.child)
+            assert control.startswith("ASPOD-CONTROL "), control
+            self.control_path = Path(control.split(" ", 1)[1])
 
     def teleop(self, script: str, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
         return subprocess.run(ASPOD + ["teleop", self.url, *args], input=script.encode(), capture_output=True,

@@ -18,6 +18,8 @@ import pytest
 
 from host_tools.client.bench import BenchClient
 from host_tools.client.control import ControlClient, ControlUnavailable, find_control
+from host_tools.plugin.errors import CannotFault
+from host_tools.plugin.target import LockstepTarget
 from host_tools.teleop.session import run_script
 from host_tools.teleop.words import completions, help_text
 from host_tools.worlds.control_server import (MAX_CLIENTS, MAX_LINE, OUT_HIGH, ControlServer, claim_path,
@@ -26,7 +28,11 @@ from host_tools.worlds.plant_control import NO_PAUSE, OPS, PlantControl
 from host_tools.worlds.plant_state import plant_state
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
+from protocol.messages import MESSAGES as M
+from tests import test_e2e
 from timebase import PacedClock, SimClock
+
+env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
 
 
 @pytest.fixture
@@ -417,3 +423,61 @@ def test_sim_words_help_and_completion_come_from_the_declaration():
     assert completions("sim clear ", 10, "a") == ["all"]
     assert completions("sim fault jam ", 14, "g") == ["gripper"]
     assert completions("sim gravity ", 12, "") == ["earth", "orbit"]
+
+
+# ---- the plugin's targets ----
+
+def test_the_lockstep_target_reaches_its_plant_through_the_same_requests():
+    target = LockstepTarget(seed=1)
+    try:
+        assert target.can_fault and not target.can_pause
+        target.inject("jam", "j2")
+        target.act("set_payload", 1.5)
+        state = target.true_state()
+        assert state["faults"] == ["jam:j2"] and state["payload_kg"] == 1.5
+        target.clear("jam", "j2")
+        assert target.true_state()["faults"] == []
+        with pytest.raises(ValueError, match="unknown fault"):
+            target.inject("melt", "j1")
+        with pytest.raises(CannotFault, match="nothing to pause"):
+            target.pause()
+    finally:
+        target.close()
+
+
+# ---- end to end: `aspod sim` with its endpoint, teleop's `sim` lines, a held world whose link stays up ----
+
+@pytest.mark.pty
+def test_a_live_sim_is_faulted_from_a_teleop_script_and_held_while_its_link_stays_up(sim_factory, tmp_path):
+    sim = sim_factory("--pty", "--no-tracker")
+    assert sim.control_path is not None and sim.control_path.is_socket()
+    lines = tmp_path / "fault.txt"
+    lines.write_text("sim fault jam j1\nenable\njog j1 2\nwait j1 20\n")
+    done = sim.teleop("", "--script", str(lines))            # the endpoint found from the link's URL
+    out = done.stdout.decode()
+    assert "ok   sim fault: injected jam:j1" in out and re.search(r"j1#\d+ FAULT", out), out + done.stderr.decode()
+    assert done.returncode == 1                              # the jog did not end DONE: the script failed
+    sim.child.wait_stderr(r"^aspod sim: control: injected jam:j1$")
+    client = sim.client()
+    try:
+        with ControlClient(sim.control_path) as control:
+            held = control.request({"op": "pause"})
+            assert held["paused"]
+            uptimes = {client.call(M["Ping"](k)).reply.uptime_ms for k in range(20)}   # 20 round trips of wall time
+            assert len(uptimes) == 1 and control.request({"op": "time"})["time_s"] == held["time_s"]
+            assert control.request({"op": "step", "seconds": 0.5})["time_s"] == pytest.approx(held["time_s"] + 0.5)
+            control.request({"op": "resume"})
+            assert client.wait_for(lambda: control.request({"op": "time"})["time_s"] > held["time_s"] + 0.6, 30.0)
+            assert control.request({"op": "clear", "name": "all"})["said"] == "cleared jam:j1"
+    finally:
+        client.close()
+    status, err = sim.stop()
+    assert status == 0 and not sim.control_path.exists(), err
+
+
+@pytest.mark.pty
+def test_a_sim_without_its_endpoint_makes_a_sim_line_fail_with_the_reason(sim_factory):
+    sim = sim_factory("--pty", "--no-tracker", "--no-control")
+    done = sim.teleop("sim faults\n")
+    out = done.stdout.decode()
+    assert done.returncode == 1 and "FAIL sim faults: no control endpoint" in out, out

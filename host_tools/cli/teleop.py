@@ -4,10 +4,9 @@ from __future__ import annotations
 import json
 import logging
 import sys
-from typing import Optional
 
 from host_tools.cli.settings import TeleopSettings
-from host_tools.client.control import ControlClient, ControlUnavailable, find_control
+from host_tools.client.control import open_control
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_USAGE
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
@@ -41,7 +40,7 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
                                                                 settings={"url": args.url, "baud": args.baud}))
     control = None
     try:
-        control = open_control(args)
+        control = open_control(args.url, args.control)
         client = HostClient(args.url, psk, baud=args.baud, capture=capture, control=control)
     except BaseException:
         if capture is not None:
@@ -72,16 +71,3 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
     finally:
         client.close()
 
-
-def open_control(args: TeleopSettings) -> Optional[ControlClient]:
-    """The control endpoint for `sim` lines: --control (ControlUnavailable if it cannot be reached), else the one
-    of the aspod sim serving the URL, if any (a real controller has none)."""
-    if args.control is not None:
-        return ControlClient(args.control)
-    found = find_control(args.url)
-    if found is None:
-        return None
-    try:
-        return ControlClient(found)
-    except ControlUnavailable:        # it stopped since it was found
-        return None

@@ -9,6 +9,7 @@ answer the wrong request).
 
 `find_control(url)` finds the endpoint of the `aspod sim` that serves the link `url`: each live
 socket in this user's runtime folder answers `info` with its link. A real controller has none.
+`open_control(url, path)` connects to the one given, or else to the one found, if any.
 
 `LockstepBench.control` (the lock-step world) answers the same requests in-process; both have
 `request(request) -> dict` and `where`, which is all teleop's `sim` words and the plugin need.
@@ -130,3 +131,17 @@ def find_control(url: str, environ: Optional[Mapping[str, str]] = None) -> Optio
         if info.get("ok") and wanted & link_endpoints(str(info.get("link", ""))):
             return path
     return None
+
+
+def open_control(url: str, path: Optional[Path] = None) -> Optional[ControlClient]:
+    """The control endpoint beside the link `url`: at `path` (ControlUnavailable if it cannot be reached), else
+    the one of the aspod sim serving `url`, if any (None: a real controller, or a simulator without one)."""
+    if path is not None:
+        return ControlClient(path)
+    found = find_control(url)
+    if found is None:
+        return None
+    try:
+        return ControlClient(found)
+    except ControlUnavailable:        # it stopped since it was found
+        return None
