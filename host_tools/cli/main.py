@@ -278,7 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
         add_logging_args(command)
         return command
 
-    sim = add_command("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
+    sim = add_command("sim", help="run the controller and its plant; prints ASPOD-LINK, ASPOD-KEY and ASPOD-CONTROL "
+                                  "lines")
     add_controller_args(sim)
     add_seed_arg(sim, "the plant's noise")
     sim.add_argument("--hal", type=_interface, metavar="INTERFACE",
