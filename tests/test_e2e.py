@@ -270,7 +270,7 @@ def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the
 
 
 def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
-    sim = sim_factory("--tcp", "0")
+    sim = sim_factory("--tcp", "0", "--no-control")   # (killed below: no control socket's file left behind)
     host = sim.teleop_started("ping\nwait 5\nping\nping\n")
     sim.proc.kill()                               # the controller's end of the socket closes
     sim.proc.wait(timeout=10)

@@ -71,26 +71,25 @@ def run_sim(settings: SimSettings) -> int:
         world.log_hal_bus(settings.can_log)
         log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
     log_states(world.controller, "aspod sim")
-    try:
-        control = serve_control(settings, plant, world, port.url)
-    except BaseException:
-        world.close()
-        raise
-    print(f"ASPOD-LINK {port.url}", flush=True)
-    print(f"ASPOD-KEY {key_path}", flush=True)
-    if control is not None:
-        print(f"ASPOD-CONTROL {control.path}", flush=True)
-    log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
-             f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
-    log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
     stopping = []
 
     def stop(signum, frame):
         stopping.append(signum)
 
+    # From here on a stop is a request the run answers by closing everything (the control socket's file too),
+    # whenever it comes: a parent may stop the simulator as soon as it has read the ready lines.
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    control = None
     try:
+        control = serve_control(settings, plant, world, port.url)
+        print(f"ASPOD-LINK {port.url}", flush=True)
+        print(f"ASPOD-KEY {key_path}", flush=True)
+        if control is not None:
+            print(f"ASPOD-CONTROL {control.path}", flush=True)
+        log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
+                 f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
+        log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
         world.run(lambda: bool(stopping))
     finally:
         if control is not None:
