@@ -6,12 +6,13 @@ import dataclasses
 import logging
 import math
 from datetime import datetime, timezone
+from pathlib import Path
 
 import pytest
 
 from host_tools.cli.main import build_parser, main, setup_logging
 from host_tools.cli.settings import (BusSettings, PlantRunSettings, demo_settings, firmware_settings,
-                                     plant_run_settings, sim_settings)
+                                     plant_run_settings, sim_settings, teleop_settings)
 from host_tools.worlds.settings import PlantSettings
 
 BUS = BusSettings("udp_multicast", "239.74.163.2", (("port", 43120), ("bitrate", 500000)))
@@ -108,3 +109,18 @@ def test_log_levels_and_the_log_file(tmp_path, capsys):
         assert (args.verbose, args.quiet, str(args.log_file)) == (1, 1, "x.log")
     finally:
         setup_logging()
+
+
+def test_the_sims_control_endpoint_is_on_by_default_and_not_with_hal():
+    def sim(*argv: str):
+        return sim_settings(build_parser().parse_args(["sim", *argv]))
+    assert (sim().control, sim().control_path) == (True, None)
+    assert sim("--control", "/tmp/c.sock").control_path == Path("/tmp/c.sock")
+    assert sim("--no-control").control is False
+    assert sim("--hal", "udp_multicast").control is False          # the plant in a process of its own: none
+    with pytest.raises(ValueError, match="serves the one-process world"):
+        sim("--hal", "udp_multicast", "--control", "/tmp/c.sock")
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["sim", "--control", "/tmp/c.sock", "--no-control"])
+    teleop = build_parser().parse_args(["teleop", "/dev/pts/3", "--control", "/tmp/c.sock"])
+    assert teleop_settings(teleop).control == Path("/tmp/c.sock")

@@ -52,6 +52,11 @@ class Sim:
         assert key.startswith("ASPOD-KEY "), key
         self.url = link.split(" ", 1)[1]
         self.key_path = Path(key.split(" ", 1)[1])
+        self.control_path = None           # the control endpoint's socket (aspod sim serves one by default)
+        if "--no-control" not in args and "--hal" not in args:
+            control = read_line(self.child)
+            assert control.startswith("ASPOD-CONTROL "), control
+            self.control_path = Path(control.split(" ", 1)[1])
 
     def teleop(self, script: str, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess:
         return subprocess.run(ASPOD + ["teleop", self.url, *args], input=script.encode(), capture_output=True,
@@ -265,7 +270,7 @@ def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the
 
 
 def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
-    sim = sim_factory("--tcp", "0")
+    sim = sim_factory("--tcp", "0", "--no-control")   # (killed below: no control socket's file left behind)
     host = sim.teleop_started("ping\nwait 5\nping\nping\n")
     sim.proc.kill()                               # the controller's end of the socket closes
     sim.proc.wait(timeout=10)

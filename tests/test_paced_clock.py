@@ -107,3 +107,105 @@ def test_run_live_serves_the_wall_clock_tasks_while_the_world_catches_up():
     # the link polled on the wall clock throughout, catching up included
     late_polls = [t for t in link_runs if 0.060 < t < 0.2]
     assert len(late_polls) >= 130
+
+
+# ---- held (pause), stepped, resumed: the control endpoint's hand on time (host_tools/worlds/plant_control.py) ----
+
+def test_held_time_stands_still_while_the_wall_clock_and_its_tasks_go_on():
+    wall = SimClock()
+    world = Scheduler(PacedClock(wall))
+    link = Scheduler(wall)
+    world_runs, link_runs = [], []
+    world.add("tick", lambda now: world_runs.append(now), period_s=0.001)
+    link.add("poll", lambda now: (link_runs.append(now), now + 0.001)[1])
+    run_live(world, link, lambda: wall.now() >= 0.1)
+    world.clock.pause()
+    ticks, held_at = len(world_runs), world.clock.now()
+    run_live(world, link, lambda: wall.now() >= 1.1)            # a wall second held
+    assert len(world_runs) == ticks and world.clock.now() == held_at
+    assert len([t for t in link_runs if 0.1 < t <= 1.1]) >= 990  # the link polled all along
+    assert world.clock.paused and not world.clock.stepping
+
+
+def held_after_a_second(held_s: float) -> tuple[SimClock, PacedClock]:
+    """A paced clock that ran a simulated second on time, then was held for `held_s` wall seconds."""
+    wall = SimClock()
+    clock = PacedClock(wall)
+    for k in range(1, 1001):
+        clock.sleep_until(k * 0.001)
+    clock.pause()
+    wall.advance_by(held_s)
+    return wall, clock
+
+
+def test_a_held_clock_reports_no_recent_rate_and_no_lag_so_it_is_never_slow():
+    wall, clock = held_after_a_second(5.0)
+    timing = clock.timing()
+    assert math.isnan(timing.rtf_recent) and timing.lag_s == 0.0
+    assert timing.rtf_total == pytest.approx(1.0)
+
+
+def test_resume_paces_from_where_time_stands_and_counts_no_lag_and_no_slow_spell():
+    wall, clock = held_after_a_second(30.0)     # held for 30 wall seconds: far beyond max_lag_s
+    clock.resume()
+    for k in range(1001, 2001):
+        clock.sleep_until(k * 0.001)
+    assert wall.now() == pytest.approx(32.0)     # paced from the resume: a simulated second took a wall second
+    assert clock.slips == 0 and clock.lag_s == 0.0
+    timing = clock.timing()
+    assert timing.rtf_recent == pytest.approx(1.0, abs=0.06)
+    assert timing.rtf_total == pytest.approx(1.0)    # the 30 held seconds left out
+
+
+def test_a_step_runs_held_time_to_its_end_at_once_then_holds_it_there():
+    wall = SimClock()
+    clock = PacedClock(wall)
+    clock.pause()
+    clock.step_to(0.5)
+    assert clock.stepping and clock.step_end_s == 0.5
+    for k in range(1, 501):                      # the world's 1 ms deadlines, without waiting on the wall clock
+        clock.advance(k * 0.001, math.inf)
+    assert clock.now() == 0.5 and wall.now() == 0.0
+    assert not clock.stepping and clock.paused and clock.step_end_s is None
+    clock.advance(0.501, math.inf)               # held again after the step
+    assert clock.now() == 0.5 and wall.now() == pytest.approx(PacedClock.HELD_WAIT_S)
+
+
+def test_a_step_ends_exactly_at_its_end_between_two_deadlines():
+    wall = SimClock()
+    clock = PacedClock(wall)
+    clock.pause()
+    clock.step_to(0.0105)
+    clock.advance(0.010, math.inf)
+    clock.advance(0.011, math.inf)
+    assert clock.now() == 0.0105 and wall.now() == 0.0
+
+
+def test_pause_ends_a_step_under_way_and_step_needs_a_held_clock():
+    wall = SimClock()
+    clock = PacedClock(wall)
+    with pytest.raises(ValueError, match="pause it first"):
+        clock.step_to(1.0)
+    clock.pause()
+    clock.step_to(1.0)
+    clock.advance(0.2, math.inf)
+    clock.pause()
+    clock.advance(0.3, math.inf)
+    assert clock.now() == 0.2 and not clock.stepping
+    for bad in (0.1, math.nan, math.inf):
+        with pytest.raises(ValueError):
+            clock.step_to(bad)
+    with pytest.raises(RuntimeError, match="held"):
+        clock.sleep_until(0.5)
+
+
+def test_held_with_nothing_on_the_wall_clock_it_still_returns():
+    wall = SimClock()
+    clock = PacedClock(wall)
+    clock.pause()
+    clock.advance(1.0, math.inf)
+    assert clock.now() == 0.0 and wall.now() == pytest.approx(PacedClock.HELD_WAIT_S)
+    clock.resume()
+    clock.resume()                               # running: nothing changes
+    clock.advance(1.0, math.inf)
+    assert clock.now() == 1.0

@@ -12,6 +12,7 @@ import random
 import pytest
 
 from timebase.scheduler import run_live
+from host_tools.worlds.plant_control import PlantControl
 from host_tools.worlds.ports import BufferPort
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
@@ -136,3 +137,36 @@ def test_a_controller_stopped_again_and_again_still_finds_its_host_dead_one_link
     found_after = rig.wall.now() - last_heard
     assert 3.0 < found_after < 3.0 + 0.5, found_after    # timeout 3 s; a few ms per stall, one stall late at most
     assert sup.state is ControllerState.FAULT
+
+
+def test_paused_the_world_stands_still_its_link_stays_up_and_nothing_is_said_to_be_slow():
+    """The control endpoint's pause (host_tools/worlds/plant_control.py) on `aspod sim`'s world: simulated time, the
+    plant and the motion stand still for 10 wall seconds (three link timeouts) while the host's heartbeats and
+    commands go on; resumed, the motion ends DONE, and neither the pause nor the step is taken for a slow host."""
+    rig = LiveRig()
+    control = PlantControl(rig.world.plant, rig.world.clock)
+    rig.host.connect(rig.wall.now())
+    assert rig.run_until(lambda: rig.host.state is LinkState.UP, 5.0)
+    assert rig.call(M["Enable"]()).ok
+    accepted = rig.call(M["MoveBy"](int(Axis.J1), 2.0, 0)).reply
+    rig.run_until(lambda: False, 0.5)
+    assert control.request({"op": "pause"})["paused"]
+    pongs = [rig.call(M["Ping"](k)).reply.uptime_ms for k in range(3)]     # (the tasks due at the held moment run)
+    held_s, tick, j1 = rig.world.clock.now(), rig.world.plant_node.tick, rig.world.plant.arm.pos_rad[0]
+    rig.run_until(lambda: False, 10.0)
+    pongs += [rig.call(M["Ping"](k)).reply.uptime_ms for k in range(3)]
+    assert len(set(pongs)) == 1 and rig.host.state is LinkState.UP          # the controller's time stood still
+    assert (rig.world.clock.now(), rig.world.plant_node.tick, rig.world.plant.arm.pos_rad[0]) == (held_s, tick, j1)
+    reply = control.handle({"op": "step", "seconds": 0.25})
+    assert rig.run_until(lambda: reply.poll() is not None, 5.0) and reply.poll()["time_s"] == pytest.approx(held_s + 0.25)
+    assert control.request({"op": "resume"})["paused"] is False
+    assert rig.run_until(lambda: any(e.spec.name == "MotionDone" and e.motion_id == accepted.motion_id
+                                     for e in rig.events), 30.0)
+    rig.run_until(lambda: False, 3.0)
+    done = [e for e in rig.events if e.spec.name == "MotionDone"][-1]
+    assert done.reason == Reason.OK and done.position == pytest.approx(2.0, abs=0.05)
+    sup = rig.controller.supervisor
+    assert sup.state is ControllerState.ENABLED and not sup.faults
+    assert [e for e in rig.events if e.spec.name == "TimingWarning"] == []
+    status = rig.call(M["GetStatus"]()).reply
+    assert status.rtf_recent == pytest.approx(1.0, abs=0.1) and rig.world.clock.slips == 0

@@ -1,6 +1,8 @@
 """The pytest plugin as a user meets it: a project outside this repository, with the package installed, runs
 `pytest` with the `aspod_target` fixture and a `*.aspod` script: on the lock-step world, then against a live
-`aspod sim` over a pty (`--aspod-target`), where the test that needs the plant is skipped with its reason."""
+`aspod sim` over a pty (`--aspod-target`), whose plant the fault test reaches through the simulator's control
+endpoint (found from the target's URL), and against one without it (`--no-control`, as real hardware), where
+that test is skipped with its reason."""
 from __future__ import annotations
 
 import json
@@ -39,6 +41,7 @@ def test_an_encoder_dropout_stops_the_motion_as_a_fault(aspod_target):
     aspod_target.call(M["MoveBy"](int(Axis.J1), 2.0, 2.0))
     assert aspod_target.wait_until(lambda: ends(aspod_target, Axis.J1), 15)
     assert ends(aspod_target, Axis.J1)[0].outcome == MotionOutcome.FAULT
+    assert aspod_target.true_state()["faults"] == ["encoder_dropout:j1"]
 '''
 SCRIPT = "#! aspod bench --seed 3\nenable\nmoveby j2 1 1\nwait\nstatus\n"
 
@@ -74,16 +77,27 @@ def test_outside_the_repository_on_the_lockstep_world(project):
 
 
 @pytest.mark.pty
-def test_outside_the_repository_against_a_live_sim(project, sim_factory):
+def test_outside_the_repository_against_a_live_sim_its_plant_through_the_control_endpoint(project, sim_factory):
     sim = sim_factory("--pty", "--no-tracker")
     # (option=value: pytest takes a separate value that names a file, such as /dev/pts/N, for a path to test)
     done, cases = run_pytest(project, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}", env=sim.env)
     assert done.returncode == 0, done.stdout[-3000:]
-    assert "2 passed, 1 skipped" in done.stdout
-    skipped = cases["test_an_encoder_dropout_stops_the_motion_as_a_fault"].find("skipped")
-    assert skipped is not None and "no plant to fault" in skipped.get("message")
+    assert "3 passed" in done.stdout
     record = json.loads((project / "records" / "test_arm_bench.py_test_moveby_lands_within_the_spec.json").read_text())
     assert record["target"].startswith("live ") and record["outcome"] == "passed"
+    sim.child.wait_stderr(r"^aspod sim: control: injected encoder_dropout:j1$")    # each change said by the sim
+
+
+@pytest.mark.pty
+def test_outside_the_repository_against_a_live_target_without_a_plant_the_fault_test_skips(project, sim_factory):
+    sim = sim_factory("--pty", "--no-tracker", "--no-control")      # as real hardware: no plant to reach
+    done, cases = run_pytest(project, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}",
+                             "test_arm_bench.py", env=sim.env)
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert "1 passed, 1 skipped" in done.stdout
+    skipped = cases["test_an_encoder_dropout_stops_the_motion_as_a_fault"].find("skipped")
+    message = skipped.get("message") if skipped is not None else ""
+    assert "no plant to fault" in message and "no control endpoint" in message and "--aspod-control" in message
 
 
 def test_the_worked_example_fault_drill_runs_as_pytest_benches(tmp_path):

@@ -14,6 +14,14 @@ seconds to catch up.
 the last second and since the start; the paced clock and the lock-step clocks
 (`protocol.lockstep`) report it through `Clock.timing()`.
 
+A paced clock can also be held (`pause`): simulated time stands still, the plant and the
+control loops with it, while whatever runs on the wall clock (the controller's link) goes on.
+`step_to` lets a held world run to a later moment as fast as the work allows, then holds it
+again; `resume` paces it from where it stands, so the wall time spent held is neither lag nor
+a slow world (the rate meter's window starts afresh and its total leaves that time out).
+A test harness's hand on the simulator (host_tools/worlds/plant_control.py), never a
+controller's: real hardware cannot be paused.
+
 Both take the wall clock as an argument (a `RealClock` in a live run, a `SimClock` standing
 in for it in tests), so nothing here reads the OS clock.
 """
@@ -21,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Optional
 
 from timebase.clock import Clock, TimingReport
 
@@ -59,6 +68,13 @@ class RateMeter:
         start_wall, start_sim = self._start
         return (sim_s - start_sim) / (wall_s - start_wall) if wall_s > start_wall else math.nan
 
+    def leave_out(self, wall_s: float, sim_s: float, held_wall_s: float) -> None:
+        """`held_wall_s` of wall time, ending at (`wall_s`, `sim_s`), did not count (the world was held): the
+        window starts afresh there, and the total is taken as if that time had not passed."""
+        start_wall, start_sim = self._start
+        self._start = (start_wall + held_wall_s, start_sim)
+        self._points = deque([(wall_s, sim_s)])
+
 
 class PacedClock(Clock):
     """Simulated time that runs at `speed` times the wall clock at most, and slows down when late.
@@ -68,7 +84,13 @@ class PacedClock(Clock):
     when it has already passed, time moves to the deadline at once (no further), and the
     world catches up one deadline at a time. `lag_s` is how late the last deadline was
     reached, in wall seconds; past `max_lag_s` the lag is given up (`slipped_s`, `slips`).
+
+    Held (`pause`), `advance` moves no time: it waits on the wall clock for the wall deadline (at
+    most `HELD_WAIT_S`, so a caller with nothing on the wall clock still gets control back) and
+    returns; while stepping (`step_to`) it moves to each deadline at once, up to the step's end.
     """
+
+    HELD_WAIT_S = 0.05      # held, `advance` returns at least this often (wall seconds)
 
     def __init__(self, wall: Clock, speed: float = 1.0, start_s: float = 0.0, max_lag_s: float = 0.5) -> None:
         if not speed > 0:
@@ -85,9 +107,50 @@ class PacedClock(Clock):
         self.slipped_s = 0.0
         self.slips = 0
         self.meter = RateMeter(wall_now, self._now)
+        self._held_since: Optional[float] = None     # wall moment of `pause`; None: running
+        self._hold_s = math.inf                       # held: time may run up to here (a step), no further
 
     def now(self) -> float:
         return self._now
+
+    @property
+    def paused(self) -> bool:
+        return self._held_since is not None
+
+    @property
+    def stepping(self) -> bool:
+        """Held, but running to the end of a step (`step_to`)."""
+        return self._held_since is not None and self._now < self._hold_s
+
+    @property
+    def step_end_s(self) -> Optional[float]:
+        """Where the step under way ends (None: none under way)."""
+        return self._hold_s if self.stepping else None
+
+    def pause(self) -> None:
+        """Hold simulated time where it stands (a step under way ends here). Held already: nothing changes."""
+        if self._held_since is None:
+            self._held_since = self.wall.now()
+        self._hold_s = self._now
+
+    def resume(self) -> None:
+        """Pace again from where time stands; the wall time spent held is not lag. Running: nothing changes."""
+        if self._held_since is None:
+            return
+        wall_now = self.wall.now()
+        self.meter.leave_out(wall_now, self._now, wall_now - self._held_since)
+        self._anchor = (wall_now, self._now)
+        self.lag_s = 0.0
+        self._held_since = None
+        self._hold_s = math.inf
+
+    def step_to(self, sim_s: float) -> None:
+        """Held: let time run to `sim_s` as fast as the work allows, then hold it there again."""
+        if self._held_since is None:
+            raise ValueError("step_to needs a held clock: pause it first")
+        if not (math.isfinite(sim_s) and sim_s >= self._now):
+            raise ValueError(f"a step ends at or after now ({self._now} s), got {sim_s}")
+        self._hold_s = float(sim_s)
 
     def start(self) -> None:
         """Pace from this moment: the time spent before the run (building the world) is not lag."""
@@ -104,10 +167,20 @@ class PacedClock(Clock):
         return anchor_wall + (sim_s - anchor_sim) / self.speed
 
     def sleep_until(self, deadline: float) -> None:
+        if self._held_since is not None and deadline > self._hold_s:
+            raise RuntimeError(f"simulated time is held at {self._hold_s} s: a wait until {deadline} s would never "
+                               "end (resume the clock first)")
         self.advance(deadline, math.inf)
 
     def advance(self, deadline: float, wall_deadline: float) -> None:
         if deadline <= self._now:
+            return
+        if self._held_since is not None:
+            if self._now < self._hold_s:      # a step: at once, to the deadline or the step's end
+                self._now = float(min(deadline, self._hold_s))
+            else:                             # held: only the wall clock moves
+                wall = self.wall
+                wall.sleep_until(min(wall_deadline, wall.now() + self.HELD_WAIT_S))
             return
         due = self.due_wall_s(deadline)
         wall = self.wall
@@ -129,6 +202,9 @@ class PacedClock(Clock):
         self.meter.sample(wall_now, self._now)
 
     def timing(self) -> TimingReport:
+        """Held (stepping too), no recent factor and no lag: the world is not paced then, so it cannot be slow."""
         wall_now = self.wall.now()
+        if self._held_since is not None:
+            return TimingReport("paced", math.nan, self.meter.total(self._held_since, self._now), 0.0, self.slipped_s)
         return TimingReport("paced", self.meter.recent(wall_now, self._now), self.meter.total(wall_now, self._now),
                             self.lag_s, self.slipped_s)

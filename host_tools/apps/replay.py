@@ -311,7 +311,7 @@ def _do(bench: LockstepBench, action: _Action) -> None:
     if action.world_event is not None:   # done after the world's tasks at its time, as the bench did
         bench.run_for(max(0.0, action.time_s - bench.clock.now()))
         try:
-            bench.act(str(action.world_event.get("action")), *action.world_event.get("args", ()))
+            bench.redo(action.world_event)
         except ValueError as exc:
             raise ReplayError(f"world event at {action.time_s:.3f} s: {exc}") from None
         return

@@ -13,13 +13,13 @@ from typing import Optional, TextIO
 
 from timebase import RealClock
 
-from host_tools.apps.bench_state import plant_state
 from host_tools.apps.fault_reaction import reaction
 from host_tools.client.bench import BenchClient
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import run_script
 from host_tools.worlds.bench_world import WorldSettings, build_bench
+from host_tools.worlds.plant_state import plant_state
 
 
 @dataclass
@@ -52,7 +52,8 @@ def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool
                   if f.at_s <= bench.clock.now()]
         result = record.as_dict(session, status, script=script, target="lockstep", seed=world.seed,
                                 sim_time_s=bench.clock.now(), wall_time_s=RealClock.precise_now() - wall0,
-                                plant=plant_state(bench), faults=faults)
+                                plant=plant_state(bench.world.plant, bench.plant_settings.tracker),
+                                faults=faults)
         if err is None:
             result["problems"] = problems.getvalue().splitlines()
         return ScriptRun(status, result, session.summary())

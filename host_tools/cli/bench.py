@@ -15,6 +15,7 @@ import sys
 from host_tools.apps.script_bench import run_script_bench
 from host_tools.cli.settings import BenchSettings
 from host_tools.exit_codes import EXIT_USAGE
+from host_tools.teleop.sim_words import state_lines
 from host_tools.teleop.words import TeleopError, read_script, substitute
 
 log = logging.getLogger("aspod")
@@ -33,15 +34,8 @@ def run_bench(settings: BenchSettings) -> int:
         print(json.dumps(run.record, indent=1))
         return run.status
     print(run.summary)
-    state, tracker = run.record["plant"], run.record["plant"].get("tracker")
-    print(f"plant after {run.record['sim_time_s']:.1f} simulated s: "
-          + ", ".join(f"{name} {x:.3f}" for name, x in state["joints_deg"].items()) + " deg, gripper "
-          f"{state['gripper_opening_mm']:.1f} mm"
-          + ("" if tracker is None else
-             f"; tracker az {tracker['az_deg']:.3f} el {tracker['el_deg']:.3f} deg, sun az "
-             f"{tracker['sun_az_deg']:.3f} el {tracker['sun_el_deg']:.3f} deg, off the sun by "
-             f"{tracker['off_sun_deg']:.3f} deg; relay closings az {tracker['relay_closings'][0]} el "
-             f"{tracker['relay_closings'][1]}"))
+    print(f"plant after {run.record['sim_time_s']:.1f} simulated s:")
+    print("\n".join("  " + line for line in state_lines(run.record["plant"])))
     for fault in run.record["faults"]:
         after = fault["safe_after_s"]
         print(f"fault {fault['fault']} at {fault['at_s']:g} s: "

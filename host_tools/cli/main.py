@@ -297,7 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
         add_logging_args(command)
         return command
 
-    sim = add_command("sim", help="run the controller and its plant; prints ASPOD-LINK and ASPOD-KEY lines")
+    sim = add_command("sim", help="run the controller and its plant; prints ASPOD-LINK, ASPOD-KEY and ASPOD-CONTROL "
+                                  "lines")
     add_controller_args(sim)
     add_seed_arg(sim, "the plant's noise")
     sim.add_argument("--hal", type=_interface, metavar="INTERFACE",
@@ -318,6 +319,12 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--can-log", type=Path, metavar="FILE",
                      help="write every HAL bus frame through python-can's Logger (.blf, .asc, .log, .csv, .trc, "
                           ".txt), for cantools decode, can.viewer, cantools plot")
+    control = sim.add_mutually_exclusive_group()
+    control.add_argument("--control", type=Path, metavar="PATH",
+                         help="serve the control endpoint (faults, gravity, payload, clouds, pause and step, the "
+                              "plant's true state: docs/benches.md) on this Unix socket; by default it is served at "
+                              "a per-user path, said in an ASPOD-CONTROL line (not with --hal)")
+    control.add_argument("--no-control", action="store_true", help="serve no control endpoint")
 
     plant = add_command("plant", help="run only the plant, in real time, on a python-can interface; "
                                          "prints an ASPOD-PLANT ready line")
@@ -355,6 +362,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "the round trips) instead of the session's text")
     teleop.add_argument("--record", type=Path, metavar="FILE.pcapng",
                         help="capture every frame both ways, as this host sent and received them (aspod log)")
+    teleop.add_argument("--control", type=Path, metavar="PATH",
+                        help="the simulator's control endpoint, for `sim` lines (default: the one of the aspod sim "
+                             "that serves URL, if any)")
 
     bench = add_command("bench", help="run a teleop script against the whole world on the simulated clock "
                                       "(deterministic, fast); the plant's true state at the end")

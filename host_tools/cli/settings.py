@@ -99,6 +99,7 @@ class TeleopSettings:
     summary: bool = False
     record: Optional[Path] = None        # a session capture (pcapng) of every frame both ways
     json: bool = False                   # a script's run as one JSON object (host_tools/teleop/record.py)
+    control: Optional[Path] = None       # the simulator's control endpoint (None: found from the URL, if any)
 
 
 @dataclass(frozen=True)
@@ -161,6 +162,13 @@ class SimSettings:
     hal_options: tuple[tuple[str, Any], ...] = ()
     record: Optional[Path] = None        # a session capture (pcapng) of the controller's line
     can_log: Optional[Path] = None       # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
+    control: bool = False                # serve the control endpoint (aspod sim: unless --no-control or --hal) ...
+    control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/control_server.py)
+
+    def __post_init__(self) -> None:
+        if self.hal is not None and self.control:
+            raise ValueError("the control endpoint serves the one-process world; with --hal the plant runs in a "
+                             "process of its own: drop --control, or --hal")
 
 
 @dataclass(frozen=True)
@@ -256,7 +264,9 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
                        hal_options=tuple(hal_options.items()), record=record_path(args.record),
-                       can_log=can_log_path(args.can_log))
+                       can_log=can_log_path(args.can_log),
+                       control=not args.no_control and (args.hal is None or args.control is not None),
+                       control_path=args.control)
 
 
 def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
@@ -273,7 +283,7 @@ def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
-                          record=record_path(args.record), json=args.json)
+                          record=record_path(args.record), json=args.json, control=args.control)
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":

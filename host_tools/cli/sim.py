@@ -10,6 +10,11 @@ Prints `ASPOD-LINK <url>` as its first line on stdout and `ASPOD-KEY <path>` as 
 second, then runs until SIGINT or SIGTERM. Without --key-file it uses (creating it
 if needed) the per-user development key that the host tools also default to.
 
+Beside the link it serves the control endpoint (unless --no-control): a local Unix socket that
+faults, loads, clouds, pauses and steps the plant, and reads its true state, for teleop's `sim`
+words and the pytest plugin (host_tools/worlds/control_server.py, plant_control.py). Its path
+is the third ready line, `ASPOD-CONTROL <path>`; each change it makes is said on stderr.
+
 The plant carries the solar tracker unless --no-tracker; its sun starts at --sun-start
 (`now` by default: the real sun at Tucson, which `clock now` at teleop matches) with
 --clouds; where it starts is said on stderr (host_tools/cli/plant.py `resolve_sun`, `sun_line`).
@@ -21,7 +26,9 @@ docs/separate_processes.md.
 from __future__ import annotations
 
 import logging
+import os
 import signal
+from typing import Optional
 
 from timebase import PacedClock, RealClock
 
@@ -29,6 +36,8 @@ from host_tools.cli.firmware import apply_command_line, controller_config, log_s
 from host_tools.cli.plant import resolve_sun, sun_line
 from host_tools.cli.settings import SimSettings
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
+from host_tools.worlds.control_server import ControlServer
+from host_tools.worlds.plant_control import PlantControl
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
 
@@ -62,20 +71,45 @@ def run_sim(settings: SimSettings) -> int:
         world.log_hal_bus(settings.can_log)
         log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
     log_states(world.controller, "aspod sim")
-    print(f"ASPOD-LINK {port.url}", flush=True)
-    print(f"ASPOD-KEY {key_path}", flush=True)
-    log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
-             f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
-    log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
     stopping = []
 
     def stop(signum, frame):
         stopping.append(signum)
 
+    # From here on a stop is a request the run answers by closing everything (the control socket's file too),
+    # whenever it comes: a parent may stop the simulator as soon as it has read the ready lines.
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    control = None
     try:
+        control = serve_control(settings, plant, world, port.url)
+        print(f"ASPOD-LINK {port.url}", flush=True)
+        print(f"ASPOD-KEY {key_path}", flush=True)
+        if control is not None:
+            print(f"ASPOD-CONTROL {control.path}", flush=True)
+        log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
+                 f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
+        log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
         world.run(lambda: bool(stopping))
     finally:
+        if control is not None:
+            control.close()
         world.close()
     return 0
+
+
+def serve_control(settings: SimSettings, plant: PlantSettings, world: World, link_url: str) -> Optional[ControlServer]:
+    """The control endpoint, served by a task on the link's (wall-clock) scheduler; None with --no-control."""
+    if not settings.control:
+        return None
+
+    def say(text: str) -> None:
+        log.info(f"aspod sim: {text}")
+    control = PlantControl(world.plant, world.clock, tracker=plant.tracker, about={"link": link_url, "pid": os.getpid()},
+                           log=say)
+    if settings.control_path is None:
+        server = ControlServer.at_default_path(control, log=say)
+    else:
+        server = ControlServer(settings.control_path, control, log=say)
+    world.link_scheduler.add("control", server.poll, tolerance_s=1.0)
+    return server

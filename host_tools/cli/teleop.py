@@ -6,6 +6,7 @@ import logging
 import sys
 
 from host_tools.cli.settings import TeleopSettings
+from host_tools.client.control import open_control
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_USAGE
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
@@ -37,17 +38,22 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
     if args.record is not None:
         capture = CaptureWriter.create(args.record, SessionInfo(clock="wall", tool="aspod teleop",
                                                                 settings={"url": args.url, "baud": args.baud}))
+    control = None
     try:
-        client = HostClient(args.url, psk, baud=args.baud, capture=capture)
+        control = open_control(args.url, args.control)
+        client = HostClient(args.url, psk, baud=args.baud, capture=capture, control=control)
     except BaseException:
         if capture is not None:
             capture.close()
+        if control is not None:
+            control.close()
         raise
     try:
         client.connect(args.connect_timeout_s)
         info = client.link.controller_info
         link_line = (f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
-                     f"controller link timeout {info.link_timeout_ms} ms")
+                     f"controller link timeout {info.link_timeout_ms} ms"
+                     + (f"; the simulator's control endpoint {control.path}" if control is not None else ""))
         if args.json and lines is not None:          # one JSON object on stdout, nothing else
             record = ScriptRecord()
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going, record=record)
@@ -64,3 +70,4 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
         return status
     finally:
         client.close()
+

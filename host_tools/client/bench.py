@@ -52,6 +52,7 @@ class BenchClient:
         self.bench = bench
         self.clock = BenchClock(bench)
         self.link = bench.host
+        self.control = bench.control      # `sim ...`: the plant, as a live simulator's control endpoint has it
         self.io_error: Optional[str] = None
         self.telemetry_listeners: list[Callable[[Message, float], None]] = []
         self.event_listeners: list[Callable[[Message, float], None]] = []

@@ -18,17 +18,23 @@ from protocol.reasons import Reason
 from protocol.schema import Direction, Message
 from timebase import Clock, RealClock
 
+from host_tools.client.control import ControlClient
 from host_tools.client.lines import open_lines
 from host_tools.sessions.capture import CaptureWriter
 
 
 
 class HostClient:
+    """`control`: the simulator's control endpoint beside this link, if it has one (teleop's `sim` words); closed
+    with the client."""
+
     def __init__(self, url: str, psk: bytes, *, baud: int = 115200, config: Optional[LinkConfig] = None,
-                 clock: Optional[Clock] = None, capture: Optional[CaptureWriter] = None) -> None:
+                 clock: Optional[Clock] = None, capture: Optional[CaptureWriter] = None,
+                 control: Optional[ControlClient] = None) -> None:
         self.clock = clock or RealClock()
         self.capture = capture      # every byte both ways, stamped with the wall clock's Unix time
         self.url = url
+        self.control = control
         try:
             self.line = open_lines(url, baud, self.clock)
         except ValueError as exc:
@@ -148,3 +154,5 @@ class HostClient:
         self.line.close()
         if self.capture is not None:
             self.capture.close()
+        if self.control is not None:
+            self.control.close()

@@ -5,12 +5,14 @@ Options:
     --aspod-target URL     a live controller (`aspod sim`'s pty or TCP port, or real hardware) instead of the default
                            lock-step world on the simulated clock
     --aspod-key-file FILE  its key (default: the development key `aspod sim` made)
+    --aspod-control PATH   a live `aspod sim`'s control endpoint, to fault and read its plant (default: the one
+                           found beside --aspod-target, if any; real hardware has none)
     --aspod-seed N         the lock-step world's seed (default 1)
     --aspod-json DIR       a JSON record per test: outcome, target, measurements, a script's steps
 
 Fixture `aspod_target` (host_tools/plugin/target.py): connected, closed after the test. A test that needs
-the plant (faults, actions, its true state) is skipped on a target that has none to offer, with the
-reason, never faked. `aspod_target.measure(name, value, unit)` keeps a figure for the test's record and
+the plant (faults, actions, its true state; pausing its time) is skipped on a target that has none to offer
+(real hardware, a live simulator without its control endpoint), with the reason, never faked. `aspod_target.measure(name, value, unit)` keeps a figure for the test's record and
 its JUnit properties.
 
 A `*.aspod` file is a teleop script: one test, each line a step in its report. Its first line may say
@@ -38,6 +40,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--aspod-target", default=None, metavar="URL",
                     help="run benches against a live controller at URL (default: the lock-step world)")
     group.addoption("--aspod-key-file", default=None, metavar="FILE", help="the live controller's key file")
+    group.addoption("--aspod-control", default=None, metavar="PATH",
+                    help="the live simulator's control endpoint (default: the aspod sim's found beside --aspod-target)")
     group.addoption("--aspod-json", default=None, metavar="DIR", help="write a JSON record per test into DIR")
     group.addoption("--aspod-seed", default=None, metavar="N", help="the lock-step world's seed (default 1)")
     for option, metavar, what in WORLD_OPTIONS:
@@ -105,7 +109,8 @@ def make_target(config: pytest.Config, directive: tuple[str, ...] = (), where: s
     key_file = config.getoption("--aspod-key-file")
     psk = auth.load_key(key_file, "--aspod-key-file") if key_file else auth.load_key(auth.default_key_path(),
                                                                                      "development key")
-    return LiveTarget(url, psk, variables=variables)
+    control = config.getoption("--aspod-control")
+    return LiveTarget(url, psk, control_path=None if control is None else Path(control), variables=variables)
 
 
 def _record(item: pytest.Item) -> dict:

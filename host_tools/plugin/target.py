@@ -2,9 +2,11 @@
 
 `LockstepTarget`: a whole world on the simulated clock (`LockstepBench`), deterministic for its seed, as
 fast as the machine goes; the plant can be faulted and read. `LiveTarget`: a live controller over any
-pyserial URL (an `aspod sim` on a pty or TCP port, or real hardware), in real time; its plant cannot be
-faulted or read from here (the live simulator's control endpoint is not built yet), so a bench that
-needs that is skipped there, never faked.
+pyserial URL (an `aspod sim` on a pty or TCP port, or real hardware), in real time; an `aspod sim`'s plant
+is faulted and read through its control endpoint (host_tools/worlds/control_server.py: given, or found
+from the URL), and its time paused and stepped. Real hardware has no such endpoint: a bench that needs the
+plant is skipped there (`CannotFault`, with the reason), never faked. Both reach the plant with the same
+requests (host_tools/worlds/plant_control.py), so a fault does the same on either.
 
     target.call(msg) -> CommandHandle          one command, its one outcome
     target.wait_until(predicate, timeout_s)    in the target's time (simulated: runs the world)
@@ -15,6 +17,7 @@ needs that is skipped there, never faked.
     target.inject(fault, channel) / clear(...) plant faults by name (hil_sim/faults.py); CannotFault if not here
     target.act(name, *args)                    a plant action by name (host_tools/worlds/plant_actions.py)
     target.true_state() -> dict                the plant's truth, where there is one to read
+    target.pause() / resume() / step(seconds)  a live simulator's time held, stepped, paced again
     target.measure(name, value, unit)          a figure of the bench, for its record
     target.variables                           the bench's variables (--aspod-var NAME=VALUE; a campaign's axes)
 """
@@ -22,14 +25,16 @@ from __future__ import annotations
 
 import io
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Optional
 
 from protocol.host_link import CommandHandle
 from protocol.schema import Message
 
-from host_tools.apps.bench_state import plant_state
 from host_tools.apps.fault_reaction import reaction
+from host_tools.worlds import plant_actions, plant_control
 from host_tools.client.bench import BenchClient
+from host_tools.client.control import open_control
 from host_tools.client.live import HostClient
 from host_tools.plugin.errors import CannotFault
 from host_tools.teleop.record import ScriptRecord
@@ -45,6 +50,7 @@ class Target:
     variables: dict[str, str] = field(default_factory=dict)       # the bench's variables (--aspod-var)
     telemetry: dict[str, Message] = field(default_factory=dict)
     measurements: dict[str, dict] = field(default_factory=dict)    # name -> {"value", "unit"}: `measure`
+    pausable = True       # (not a field) its time can be held, where there is a control endpoint
 
     def __post_init__(self) -> None:
         self.client.telemetry_listeners.append(lambda msg, now: self.telemetry.__setitem__(msg.spec.name, msg))
@@ -79,21 +85,59 @@ class Target:
         from timebase import RealClock
         return RealClock.wall_time
 
+    # ---- the plant, through a simulator's control endpoint (None: there is none) ----
+    @property
+    def control(self):
+        return self.client.control
+
     @property
     def can_fault(self) -> bool:
-        return False
+        return self.control is not None
+
+    @property
+    def can_pause(self) -> bool:
+        return self.pausable and self.control is not None
+
+    def no_plant(self) -> str:
+        """Why there is no plant to reach (`CannotFault`'s reason)."""
+        return f"the {self.kind} target has no plant to fault from here"
+
+    def sim(self, request: dict) -> dict:
+        """One request of the control endpoint, its reply; ValueError with the reason if it was refused."""
+        if self.control is None:
+            raise CannotFault(self.no_plant())
+        reply = self.control.request(request)
+        if not reply["ok"]:
+            raise ValueError(reply["error"])
+        return reply
 
     def inject(self, fault: str, channel: Optional[str] = None) -> None:
-        raise CannotFault(f"the {self.kind} target has no plant to fault from here")
+        self.sim({"op": "fault", "name": fault, "channel": channel})
 
     def clear(self, fault: str, channel: Optional[str] = None) -> None:
-        raise CannotFault(f"the {self.kind} target has no plant to fault from here")
+        self.sim({"op": "clear", "name": fault, "channel": channel})
 
     def act(self, name: str, *args) -> None:
-        raise CannotFault(f"the {self.kind} target has no plant to act on from here")
+        self.sim(plant_actions.control_request(name, *args))
 
     def true_state(self) -> dict:
-        raise CannotFault(f"the {self.kind} target has no plant to read from here")
+        return self.sim({"op": "state"})["state"]
+
+    def _held(self, request: dict) -> dict:
+        if self.control is not None and not self.pausable:
+            raise CannotFault(plant_control.NO_PAUSE)
+        return self.sim(request)
+
+    def pause(self) -> None:
+        """Hold the simulator's time: the plant and the controller's loops stand still, the link stays up."""
+        self._held({"op": "pause"})
+
+    def resume(self) -> None:
+        self._held({"op": "resume"})
+
+    def step(self, seconds: float) -> float:
+        """Run a held simulator `seconds` further (as fast as it goes); returns its time then."""
+        return self._held({"op": "step", "seconds": seconds})["time_s"]
 
     def close(self) -> None:
         self.client.close()
@@ -106,6 +150,8 @@ class Target:
 
 class LockstepTarget(Target):
     """A whole world on the simulated clock, as `world` says (its faults injected at their times), connected."""
+
+    pausable = False      # its time moves only while the bench waits
 
     def __init__(self, world: WorldSettings = WorldSettings(seed=1), variables: Optional[dict[str, str]] = None) -> None:
         self.world = world
@@ -127,34 +173,31 @@ class LockstepTarget(Target):
     def _wall_time(self):
         return self.client.wall_time
 
-    @property
-    def can_fault(self) -> bool:
-        return True
-
-    def inject(self, fault: str, channel: Optional[str] = None) -> None:
-        self.bench.world.plant.inject(fault, channel)
-
-    def clear(self, fault: str, channel: Optional[str] = None) -> None:
-        self.bench.world.plant.clear(fault, channel)
-
-    def act(self, name: str, *args) -> None:
-        self.bench.act(name, *args)
-
-    def true_state(self) -> dict:
-        return plant_state(self.bench)
-
     def close(self) -> None:
         self.bench.close()
 
 
 class LiveTarget(Target):
-    """A live controller at `url` (pyserial URL or device; several links comma-separated), connected."""
+    """A live controller at `url` (pyserial URL or device; several links comma-separated), connected; with the
+    simulator's control endpoint at `control_path`, or else the one found beside `url`, if any."""
 
-    def __init__(self, url: str, psk: bytes, baud: int = 115200, variables: Optional[dict[str, str]] = None) -> None:
-        client = HostClient(url, psk, baud=baud)
+    def __init__(self, url: str, psk: bytes, baud: int = 115200, control_path: Optional[Path] = None,
+                 variables: Optional[dict[str, str]] = None) -> None:
+        control = open_control(url, control_path)
+        try:
+            client = HostClient(url, psk, baud=baud, control=control)
+        except BaseException:
+            if control is not None:
+                control.close()
+            raise
         super().__init__(client, f"live {url}", dict(variables or {}))
         try:
             client.connect()
         except BaseException:
             client.close()
             raise
+
+    def no_plant(self) -> str:
+        return (f"the {self.kind} target has no plant to fault from here: it has no control endpoint (real "
+                "hardware has none; `aspod sim` serves one unless --no-control, named in its ASPOD-CONTROL line: "
+                "give it as --aspod-control=PATH if it is not found from the target's URL)")

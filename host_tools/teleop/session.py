@@ -3,9 +3,11 @@
 The command words, their arguments, help and tab completion all come from the
 protocol declaration (`teleop=` in protocol/messages.py; see teleop_words.py); a few
 local words (`help`, `watch`, `link`, `params`, `wait`, `connect`, `quit`) act on the
-console itself. With `--script FILE`, or when stdin is not a terminal, every line is
-checked before any is sent (an unknown word fails the run with its line number and
-sends nothing), then run in order; the exit status is non-zero if any failed.
+console itself; `sim ...` reaches the simulated plant outside the link (teleop/sim_words.py:
+a live simulator's control endpoint, `client.control`, or the lock-step world's plant). With
+`--script FILE`, or when stdin is not a terminal, every line is checked before any is sent
+(an unknown word fails the run with its line number and sends nothing), then run in order;
+the exit status is non-zero if any failed.
 
 Motions: a motion command prints the motion's id (`ok   motion j1#2 started`); its end
 (MotionDone) is printed as it arrives (`! j1#2 DONE at 3.005 deg (line 5: move j1 3, 2.1 s)`,
@@ -47,6 +49,7 @@ from timebase import RealClock
 
 from host_tools.datetimes import utc_text
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+from host_tools.teleop import sim_words
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.box import box_block, box_state_text, clock_set, pointing_error_deg
 from host_tools.teleop.format import (INDENT, Console, failure_lines, format_message, format_outcome,
@@ -271,6 +274,10 @@ class Session:
         elif word == "connect":
             self.client.connect()
             console.line("link up")
+        elif word == "sim":
+            ok, lines = sim_words.run(self.client.control, step.control, getattr(self.client, "url", "this target"))
+            console.lines(lines)
+            return ok
         elif word == "watch":
             block = (lambda cache: box_block(cache.latest)) if step.view == "box" else arm_block
             watch(self.client, self.telemetry, step.seconds, console, block)

@@ -8,7 +8,8 @@ Every check runs before anything is sent, so a bad line changes nothing.
 Besides the declared commands: `box` and `watch box` (the solar tracker's control box,
 teleop/box.py), `wait aligned [az|el] DEG [TIMEOUT]` (until the tracker points at the sun),
 `expect REASON COMMAND` (a script line that passes only if COMMAND is refused with exactly
-REASON) and `clock now` / `clock YYYY-MM-DDTHH:MM[:SS]+HH:MM` besides POSIX seconds.
+REASON) and `clock now` / `clock YYYY-MM-DDTHH:MM[:SS]+HH:MM` besides POSIX seconds; `sim ...`
+(the simulated plant, outside the link: teleop/sim_words.py).
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from protocol.schema import Field, Message, MessageSpec
 
 from host_tools.datetimes import FORMAT as CLOCK_FORMAT
 from host_tools.datetimes import parse_when, split_seconds
+from host_tools.teleop import sim_words
 
 # The axes `wait` takes: the declared enum of the motion commands' `axis` field (Home's includes `all`).
 AXIS_ENUM = next(f.enum for f in SCHEMA["Home"].fields if f.name == "axis")
@@ -68,6 +70,7 @@ LOCAL_COMMANDS = {
             "that axis's error alone); it needs the controller's clock (`clock now`) and the box in use (main or "
             f"sensor power on); default timeout {ALIGNED_TIMEOUT_S:g} s; a timeout fails the line",
     "connect": "connect: handshake again (a new session)",
+    "sim": sim_words.summary(),
     "quit": "quit: leave",
 }
 
@@ -94,6 +97,7 @@ class Step:
     aligned_axis: Optional[str] = None    # ... of one axis (az, el), or None: the angle to the sun
     expect: Optional[Reason] = None       # expect REASON COMMAND: the refusal that passes
     clock_now: bool = False               # clock now: SetClock built from the host's UTC when it runs
+    control: Optional[dict] = None        # sim ...: the control endpoint's request
 
     @property
     def waits_for_motion(self) -> bool:
@@ -298,6 +302,11 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
             if len(args) > 1:
                 raise TeleopError(f"line {line_no}: watch takes `box` and at most a number of seconds")
             step.seconds = _seconds(args[0], "watch", line_no) if args else WATCH_S
+        elif word == "sim":
+            try:
+                step.control = sim_words.parse(args)
+            except sim_words.SimWordError as exc:
+                raise TeleopError(f"line {line_no}: {exc}") from None
         elif word == "help" and len(args) > 1:
             raise TeleopError(f"line {line_no}: help takes at most one command word")
         elif word == "help" and args and args[0].lower() not in _ALL_WORDS:
@@ -441,6 +450,9 @@ def help_text(word: Optional[str] = None) -> str:
         rows += [line for text in LOCAL_COMMANDS.values() for line in _wrap(text, "  ")]
         return "\n".join(["commands:"] + rows + _wrap(SCRIPT_RULES, ""))
     word = word.lower()
+    if word == "sim":
+        rows = [line for left, text in sim_words.help_lines() for line in _row(left, text, 26)]
+        return "\n".join(rows + _wrap(sim_words.HELP_NOTE, "  "))
     if word in LOCAL_COMMANDS:
         return "\n".join(_wrap(LOCAL_COMMANDS[word], "") + (_wrap(SCRIPT_RULES, "  ") if word == "wait" else []))
     spec = cmds.get(word)
@@ -515,6 +527,8 @@ def completions(line: str, begin: int, text: str) -> list[str]:
         return completions(rest, len(rest), text)
     elif word == "clock":
         options = ["now"] if position == 0 else []
+    elif word == "sim":
+        options = sim_words.completions(position, before[1:])
     else:
         spec = commands().get(word)
         fields = spec.fields if spec is not None else ()

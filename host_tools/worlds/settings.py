@@ -16,6 +16,7 @@ from hil_sim.arm_params import GRAVITY_M_S2
 from hil_sim.sun import DEFAULT_START, TUCSON, CloudPassage, DateTimeLike, as_clouds, to_utc
 
 GRAVITY_MODES = tuple(GRAVITY_M_S2)     # "earth", "orbit"
+PAYLOAD_MAX_KG = 1000.0                 # a payload's bound, far past what the arm lifts: a typing mistake's
 TIMINGS = ("lockstep", "realtime")      # how a plant or controller in its own process keeps time (docs/realtime.md)
 Clouds = Union[str, Sequence[CloudPassage], None]
 
@@ -40,8 +41,8 @@ class PlantSettings:
         if self.gravity not in GRAVITY_MODES:
             raise ValueError(f"unknown gravity {self.gravity!r}; known: {', '.join(GRAVITY_MODES)}")
         if isinstance(self.payload_kg, bool) or not isinstance(self.payload_kg, (int, float)) \
-                or not (math.isfinite(self.payload_kg) and self.payload_kg >= 0):
-            raise ValueError(f"payload_kg must be finite and >= 0, got {self.payload_kg!r}")
+                or not (math.isfinite(self.payload_kg) and 0 <= self.payload_kg <= PAYLOAD_MAX_KG):
+            raise ValueError(f"payload_kg must be in 0..{PAYLOAD_MAX_KG:g}, got {self.payload_kg!r}")
         object.__setattr__(self, "payload_kg", float(self.payload_kg))
         if not self.tracker:
             if self.clouds:

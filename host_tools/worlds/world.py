@@ -34,6 +34,7 @@ from protocol.schema import Direction
 from timebase import Clock, PacedClock, RealClock, SimClock
 
 from host_tools.worlds.local_bus import open_local_pair
+from host_tools.worlds.plant_control import PlantControl
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from host_tools.worlds.settings import PlantSettings
 
@@ -139,6 +140,9 @@ class LockstepBench:
         self.to_host = to_host
         self.plant_settings = plant
         self._capture: Optional[CaptureWriter] = None
+        # `sim ...` lines and a bench's faults, as the live simulator's control endpoint takes them
+        self.control = PlantControl(self.world.plant, self.clock, tracker=plant.tracker, about={"world": "lockstep"},
+                                    on_change=self._note_control)
         self.step_s = step_s
         self._host_alive = True
         self._host_running = False
@@ -232,6 +236,20 @@ class LockstepBench:
         plant_actions.act(self.world.plant, name, *args)
         if self._capture is not None:
             self._capture.note({"action": name, "args": list(args)}, self.clock.now())
+
+    def _note_control(self, request: dict) -> None:
+        """A change done through `control`, recorded as a world event, as `act` records an action."""
+        if self._capture is not None:
+            self._capture.note({"control": request}, self.clock.now())
+
+    def redo(self, event: dict) -> None:
+        """Do again a world event this bench recorded (`aspod replay`); ValueError if it cannot be done."""
+        if "control" in event:
+            reply = self.control.request(event["control"])
+            if not reply["ok"]:
+                raise ValueError(reply["error"])
+            return
+        self.act(str(event.get("action")), *event.get("args", ()))
 
     def settings(self) -> dict:
         """What `aspod replay` needs to build this world again (a capture's settings): the plant and every

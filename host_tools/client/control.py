@@ -1,0 +1,147 @@
+"""The host's end of a live simulator's control endpoint (host_tools/worlds/control_server.py).
+
+`ControlClient(path).request({"op": "fault", "name": "jam", "channel": "j2"})` sends one request
+line and returns its reply (`{"ok": ..., ...}`), waiting a bounded time: a step's reply comes
+when the step is done, so its wait grows with the step. A refused request is a reply with
+`ok` false, not an exception; an endpoint that cannot be reached, or stops answering, raises
+`ControlUnavailable` with the reason (and a client that timed out is closed: a late reply would
+answer the wrong request).
+
+`find_control(url)` finds the endpoint of the `aspod sim` that serves the link `url`: each live
+socket in this user's runtime folder answers `info` with its link. A real controller has none.
+`open_control(url, path)` connects to the one given, or else to the one found, if any.
+
+`LockstepBench.control` (the lock-step world) answers the same requests in-process; both have
+`request(request) -> dict` and `where`, which is all teleop's `sim` words and the plugin need.
+"""
+from __future__ import annotations
+
+import json
+import os
+import socket
+from pathlib import Path
+from typing import Mapping, Optional
+
+from host_tools.worlds.control_server import link_endpoints, peer_uid, runtime_dir
+
+REPLY_TIMEOUT_S = 10.0         # a request's reply (the endpoint answers within a poll, 10 ms, when the world runs)
+STEP_WALL_PER_S = 4.0          # ... and a step's, this much wall time more per simulated second (a busy host)
+FIND_TIMEOUT_S = 1.0           # `find_control`: a socket that does not answer `info` in this is not the one
+MAX_REPLY = 1 << 20
+MAX_SCANNED = 64               # sockets looked at by `find_control`
+
+
+class ControlUnavailable(OSError):
+    """The control endpoint cannot be reached, or stopped answering."""
+
+
+def reply_timeout_s(request: dict) -> float:
+    seconds = request.get("seconds") if request.get("op") == "step" else 0.0
+    return REPLY_TIMEOUT_S + STEP_WALL_PER_S * (seconds if isinstance(seconds, (int, float)) else 0.0)
+
+
+class ControlClient:
+    """A connection to the control endpoint at `path` (a Unix socket served by this user's `aspod sim`)."""
+
+    def __init__(self, path: Path, connect_timeout_s: float = REPLY_TIMEOUT_S) -> None:
+        self.path = Path(path)
+        self.where = f"the control endpoint {self.path}"
+        self._sock: Optional[socket.socket] = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._inbox = bytearray()
+        try:
+            self._sock.settimeout(connect_timeout_s)
+            self._sock.connect(str(self.path))
+            uid = peer_uid(self._sock)
+            if uid is not None and uid != os.getuid():
+                raise ControlUnavailable(f"{self.where} is served by user {uid}, not by this user ({os.getuid()})")
+        except ControlUnavailable:
+            self.close()
+            raise
+        except OSError as exc:
+            self.close()
+            raise ControlUnavailable(f"{self.where}: {exc.strerror or exc} (is its aspod sim still running?)") \
+                from None
+
+    def request(self, request: dict, timeout_s: Optional[float] = None) -> dict:
+        """Send `request`, return its reply; ControlUnavailable if the endpoint is gone or silent."""
+        if self._sock is None:
+            raise ControlUnavailable(f"{self.where}: the connection is closed (an earlier request went unanswered)")
+        line = json.dumps(request).encode() + b"\n"
+        try:
+            self._sock.settimeout(reply_timeout_s(request) if timeout_s is None else timeout_s)
+            self._sock.sendall(line)
+            return self._reply()
+        except socket.timeout:
+            self.close()
+            raise ControlUnavailable(f"{self.where}: no reply to {request.get('op')!r} in time") from None
+        except ControlUnavailable:
+            self.close()
+            raise
+        except OSError as exc:
+            self.close()
+            raise ControlUnavailable(f"{self.where}: {exc.strerror or exc}") from None
+
+    def _reply(self) -> dict:
+        while b"\n" not in self._inbox:
+            data = self._sock.recv(65536)
+            if not data:
+                raise ControlUnavailable(f"{self.where} closed the connection (its aspod sim stopped?)")
+            self._inbox += data
+            if len(self._inbox) > MAX_REPLY:
+                raise ControlUnavailable(f"{self.where} sent a reply longer than {MAX_REPLY} bytes")
+        end = self._inbox.index(b"\n")
+        line = bytes(self._inbox[:end])
+        del self._inbox[:end + 1]
+        try:
+            reply = json.loads(line)
+        except ValueError:
+            raise ControlUnavailable(f"{self.where} answered something that is not JSON: {line[:80]!r}") from None
+        if not isinstance(reply, dict) or "ok" not in reply:
+            raise ControlUnavailable(f"{self.where} answered something that is not a reply: {line[:80]!r}")
+        return reply
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def __enter__(self) -> "ControlClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def find_control(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Path]:
+    """The control socket of this user's live `aspod sim` that serves the link `url`, or None."""
+    folder = runtime_dir(environ)
+    wanted = link_endpoints(url)
+    try:
+        if folder.lstat().st_uid != os.getuid():
+            return None              # not this user's folder: nothing in it is to be trusted
+        candidates = sorted(folder.glob("sim-*.sock"))[:MAX_SCANNED]
+    except OSError:
+        return None
+    for path in candidates:
+        try:
+            with ControlClient(path, FIND_TIMEOUT_S) as control:
+                info = control.request({"op": "info"}, FIND_TIMEOUT_S)
+        except ControlUnavailable:
+            continue                 # a dead simulator's socket, or one that does not answer
+        if info.get("ok") and wanted & link_endpoints(str(info.get("link", ""))):
+            return path
+    return None
+
+
+def open_control(url: str, path: Optional[Path] = None) -> Optional[ControlClient]:
+    """The control endpoint beside the link `url`: at `path` (ControlUnavailable if it cannot be reached), else
+    the one of the aspod sim serving `url`, if any (None: a real controller, or a simulator without one)."""
+    if path is not None:
+        return ControlClient(path)
+    found = find_control(url)
+    if found is None:
+        return None
+    try:
+        return ControlClient(found)
+    except ControlUnavailable:        # it stopped since it was found
+        return None

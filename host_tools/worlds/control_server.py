@@ -1,0 +1,325 @@
+"""The live simulator's control endpoint: a local Unix socket, served from the scheduler loop, no threads.
+
+`aspod sim` serves `PlantControl` (host_tools/worlds/plant_control.py) here: newline-delimited
+JSON requests in, one JSON reply line out for each, in order. `ControlServer.poll` is a task on
+the link's wall-clock scheduler (every `POLL_S`): it accepts, reads and writes without blocking,
+with bounds everywhere, so no client can stall or swamp the world: at most `MAX_CLIENTS` at
+once (one more is told so and closed), a request line of at most `MAX_LINE` bytes (a longer one
+is answered with an error and its connection closed), at most `MAX_LINES_PER_POLL` requests a
+client a poll, and a client's replies held only up to `OUT_HIGH` bytes (past that it is not read
+until it reads its replies). A step's reply waits until the step is done; that client's next
+requests wait behind it (in the OS's buffer), the others' do not.
+
+Why local-only rather than authenticated like the controller's link: this channel does not
+exist on real hardware. It is a test harness's hand on the plant, on the machine that runs the
+simulator, and nothing reaches it from the link (a radio, a serial line, a TCP port). Its
+authentication is the operating system's: the socket lives in a directory only its user may
+enter (`runtime_dir`: `$XDG_RUNTIME_DIR/aspod`, else `/tmp/aspod-<uid>`, mode 0700), the socket
+itself is 0600, and each connection's peer is checked with SO_PEERCRED: another user's process
+is refused. A key would add nothing a same-user process could not read anyway (the link's key
+file is in that user's config).
+
+Finding it: by default the socket is `runtime_dir()/sim-<pid>.sock`, and each live one answers
+`info` with the link it sits beside. Those sockets are the registry: a host given only the link
+URL looks through them (host_tools/client/control.py `find_control`). A socket file whose
+simulator died is found dead by connecting to it and replaced; a live one is never touched.
+The file is removed when the simulator stops.
+"""
+from __future__ import annotations
+
+import json
+import os
+import selectors
+import socket
+import stat
+import struct
+from pathlib import Path
+from typing import Callable, Mapping, Optional
+
+from host_tools.worlds.plant_control import PlantControl, Reply, error_reply
+
+POLL_S = 0.01                  # the link scheduler runs the endpoint this often
+MAX_CLIENTS = 8
+MAX_LINE = 4096                # a request line, its newline excluded: the longest real one is under 100 bytes
+READ_CHUNK = 4096
+MAX_LINES_PER_POLL = 16        # requests served a client a poll (1,600 a second)
+OUT_HIGH = 16 * 1024           # replies held for a client that does not read them: past this it is not read
+ACCEPTS_PER_POLL = 16
+SUN_PATH_MAX = 107             # bytes of a Unix socket's path (Linux: 108 with its NUL)
+SOCKET_NAME = "sim-{pid}.sock"
+CONNECT_TIMEOUT_S = 1.0        # a stale socket refuses at once; a stopped process's may never answer
+
+
+def runtime_dir(environ: Optional[Mapping[str, str]] = None) -> Path:
+    """The per-user folder of control sockets: `$XDG_RUNTIME_DIR/aspod`, else `/tmp/aspod-<uid>`."""
+    environ = os.environ if environ is None else environ
+    base = environ.get("XDG_RUNTIME_DIR")
+    if base and Path(base).is_absolute() and Path(base).is_dir():
+        return Path(base) / "aspod"
+    return Path("/tmp") / f"aspod-{os.getuid()}"
+
+
+def default_control_path(environ: Optional[Mapping[str, str]] = None, pid: Optional[int] = None) -> Path:
+    return runtime_dir(environ) / SOCKET_NAME.format(pid=os.getpid() if pid is None else pid)
+
+
+def private_dir(path: Path) -> None:
+    """Make `path` (mode 0700) or check it: a folder of this user's that no one else may enter or write. A
+    folder of another user's (someone took /tmp/aspod-<uid> first) or open to others is refused: OSError."""
+    try:
+        path.mkdir(mode=0o700, parents=False)
+    except FileExistsError:
+        pass
+    info = path.lstat()
+    if not stat.S_ISDIR(info.st_mode):
+        raise OSError(f"control endpoint: {path} is not a folder")
+    if info.st_uid != os.getuid():
+        raise OSError(f"control endpoint: {path} belongs to user {info.st_uid}, not to this user "
+                      f"({os.getuid()}); give --control a path in a folder of yours")
+    if info.st_mode & 0o077:
+        raise OSError(f"control endpoint: {path} is open to other users (mode {stat.S_IMODE(info.st_mode):o}); "
+                      "it must be 0700")
+
+
+def is_live(path: Path, timeout_s: float = CONNECT_TIMEOUT_S) -> bool:
+    """Whether a process accepts connections on the Unix socket `path` (a dead simulator's file refuses)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        probe.settimeout(timeout_s)
+        try:
+            probe.connect(str(path))
+        except (ConnectionRefusedError, FileNotFoundError):
+            return False
+        except socket.timeout:
+            return True               # a backlog full or a stopped process: not ours to take
+        return True
+
+
+def claim_path(path: Path) -> None:
+    """Make `path` free for a new socket: nothing there, or a dead simulator's socket (removed). A live socket, or
+    anything that is not a socket, is left alone: OSError saying which."""
+    if len(os.fsencode(str(path))) > SUN_PATH_MAX:
+        raise OSError(f"control endpoint: {path} is longer than a Unix socket's path may be ({SUN_PATH_MAX} bytes); "
+                      "give --control a shorter one")
+    try:
+        info = path.lstat()
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(info.st_mode):
+        raise OSError(f"control endpoint: {path} exists and is not a socket; not replacing it")
+    if is_live(path):
+        raise OSError(f"control endpoint: a live process serves {path} already (another aspod sim?); give "
+                      "--control another path")
+    path.unlink()
+
+
+def peer_uid(sock: socket.socket) -> Optional[int]:
+    """The connecting process's user id (SO_PEERCRED), or None where the OS does not say."""
+    option = getattr(socket, "SO_PEERCRED", None)
+    if option is None:
+        return None
+    _pid, uid, _gid = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, option, struct.calcsize("3i")))
+    return uid
+
+
+def link_endpoints(url: str) -> set[str]:
+    """The endpoints a link URL names: `/dev/pts/5`; several comma-separated, each maybe `name=endpoint`."""
+    found = set()
+    for part in url.split(","):
+        name, sep, endpoint = part.partition("=")
+        endpoint = (endpoint if sep and name.isidentifier() else part).strip()
+        if endpoint.startswith("/"):
+            endpoint = os.path.realpath(endpoint)
+        if endpoint:
+            found.add(endpoint)
+    return found
+
+
+class _Client:
+    """One connection: what it sent that is not yet a whole line, its replies not yet sent, a reply to come."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.inbox = bytearray()
+        self.outbox = bytearray()
+        self.pending: Optional[Reply] = None
+        self.ended = False          # it sent end of file: what it sent whole is still answered
+        self.closing = False        # nothing more is read or answered: closed once its replies are out
+        self.gone = False           # to be dropped now
+
+
+class ControlServer:
+    """`control` served on the Unix socket `path` (made free with `claim_path`; 0600). Add `poll` to a wall-clock
+    scheduler; `close` ends every connection and removes the socket file. `log` says what a person should know
+    (a refused peer, a client that sent too much)."""
+
+    def __init__(self, path: Path, control: PlantControl, *, log: Callable[[str], None] = lambda text: None,
+                 max_clients: int = MAX_CLIENTS, max_line: int = MAX_LINE) -> None:
+        self.path = Path(path)
+        self.control = control
+        self.log = log
+        self.max_clients = max_clients
+        self.max_line = max_line
+        self.clients: list[_Client] = []
+        claim_path(self.path)
+        self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            try:
+                self._listener.bind(str(self.path))
+            except OSError as exc:
+                raise OSError(f"control endpoint: cannot make the socket {self.path}: {exc.strerror or exc}") from None
+            os.chmod(self.path, 0o600)
+            self._inode = self.path.lstat().st_ino
+            self._listener.listen(max_clients)
+            self._listener.setblocking(False)
+        except BaseException:
+            self._listener.close()
+            raise
+        self._selector = selectors.DefaultSelector()
+        self._selector.register(self._listener, selectors.EVENT_READ)
+
+    @classmethod
+    def at_default_path(cls, control: PlantControl, **kwargs) -> "ControlServer":
+        """On `default_control_path()`, its folder made private first."""
+        path = default_control_path()
+        private_dir(path.parent)
+        return cls(path, control, **kwargs)
+
+    # ---- the task ----
+    def poll(self, now: float) -> float:
+        """Accept, read, answer, write: whatever can be done now without waiting. Returns its next wake time."""
+        readable = {key.fileobj for key, _ in self._selector.select(0)}
+        if self._listener in readable:
+            self._accept()
+        for client in self.clients:
+            if client.sock in readable or client.pending is not None or client.inbox or client.outbox:
+                self._serve(client, client.sock in readable)
+        if any(c.gone for c in self.clients):
+            for client in [c for c in self.clients if c.gone]:
+                self._drop(client)
+        return now + POLL_S
+
+    def _accept(self) -> None:
+        for _ in range(ACCEPTS_PER_POLL):
+            try:
+                sock, _ = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:              # out of descriptors, say: the next poll tries again
+                self.log(f"control: could not accept a connection: {exc}")
+                return
+            sock.setblocking(False)
+            uid = peer_uid(sock)
+            if uid is not None and uid != os.getuid():
+                self.log(f"control: refused a connection from user {uid} (only this user, {os.getuid()}, may)")
+                sock.close()
+                continue
+            if len(self.clients) >= self.max_clients:
+                self._send_now(sock, error_reply(f"too many control clients ({self.max_clients}): try again later"))
+                sock.close()
+                continue
+            self.clients.append(_Client(sock))
+            self._selector.register(sock, selectors.EVENT_READ)
+
+    def _serve(self, client: _Client, readable: bool) -> None:
+        if client.pending is not None:
+            body = client.pending.poll()
+            if body is not None:
+                client.pending = None
+                self._queue(client, body)
+        if readable and not (client.ended or client.closing) and b"\n" not in client.inbox \
+                and len(client.outbox) < OUT_HIGH:
+            self._read(client)
+        served = 0
+        while client.pending is None and not client.closing and served < MAX_LINES_PER_POLL \
+                and len(client.outbox) < OUT_HIGH:
+            end = client.inbox.find(b"\n")
+            if end < 0:
+                if len(client.inbox) > self.max_line:
+                    self._too_long(client)
+                break
+            line = bytes(client.inbox[:end])
+            del client.inbox[:end + 1]
+            if len(line) > self.max_line:
+                self._too_long(client)
+                break
+            served += 1
+            self._answer(client, line)
+        if client.ended and client.pending is None and b"\n" not in client.inbox:
+            client.closing = True
+        self._write(client)
+        if client.closing and not client.outbox:
+            client.gone = True
+
+    def _read(self, client: _Client) -> None:
+        try:
+            data = client.sock.recv(READ_CHUNK)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            client.gone = True
+            return
+        if not data:                      # end of file: a last line without its newline is not a request
+            client.ended = True
+            return
+        client.inbox += data
+
+    def _answer(self, client: _Client, line: bytes) -> None:
+        if not line.strip():
+            return
+        try:
+            reply = self.control.handle_line(line)
+            body = reply.poll()
+        except Exception as exc:          # a bug here must not stop the simulator: said, and answered
+            self.log(f"control: internal error on {line[:80]!r}: {exc!r}")
+            reply, body = None, error_reply(f"internal error: {exc!r}")
+        if body is None:
+            client.pending = reply
+        else:
+            self._queue(client, body)
+
+    def _too_long(self, client: _Client) -> None:
+        self._queue(client, error_reply(f"a request line is at most {self.max_line} bytes; closing"))
+        client.inbox.clear()
+        client.closing = True
+        self.log(f"control: a client sent a line longer than {self.max_line} bytes; closed it")
+
+    @staticmethod
+    def _queue(client: _Client, body: dict) -> None:
+        client.outbox += json.dumps(body).encode() + b"\n"
+
+    def _write(self, client: _Client) -> None:
+        if not client.outbox or client.gone:
+            return
+        try:
+            sent = client.sock.send(client.outbox)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            client.gone = True
+            return
+        del client.outbox[:sent]
+
+    @staticmethod
+    def _send_now(sock: socket.socket, body: dict) -> None:
+        try:
+            sock.send(json.dumps(body).encode() + b"\n")
+        except OSError:
+            pass
+
+    def _drop(self, client: _Client) -> None:
+        self.clients.remove(client)
+        self._selector.unregister(client.sock)
+        client.sock.close()
+
+    def close(self) -> None:
+        for client in list(self.clients):
+            self._drop(client)
+        self._selector.close()
+        self._listener.close()
+        try:
+            if self.path.lstat().st_ino == self._inode:     # still ours (not a newer simulator's)
+                self.path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            self.log(f"control: could not remove {self.path}: {exc}")
