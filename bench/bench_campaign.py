@@ -2,8 +2,8 @@
 
 1. **Throughput.** A campaign of moving runs (a teleop script: enable, a joint jogged and moved, 12 simulated s
    each) on a Dask local cluster of 1 worker and of 2 workers: simulated seconds per wall second summed over
-   the workers, from the first task given to the last row back (the cluster's start-up shown apart). Goal:
-   2 workers at least 1.8x one. On a 2-core machine the second worker shares the cores with this process,
+   the workers, from the first task given to the last row back (the cluster's start-up shown apart), beside
+   the same runs in this process without Dask, whose rows must be the same. Goal: 2 workers at least 1.8x one. On a 2-core machine the second worker shares the cores with this process,
    the Dask scheduler and whatever else runs.
 2. **Engine overhead.** The same short runs (a script of one `status`: a world built, a session opened, one
    command) through Dask's 2 workers and through a bare `concurrent.futures.ProcessPoolExecutor` of 2: the
@@ -29,7 +29,7 @@ from host_tools.campaign.runs import BenchSpec, run_one
 from host_tools.worlds.child import Child
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
-MOVING = "enable\njog j2 ${speed}\nwait 4\nstop j2\nmoveby j1 3 3\nwait\nwait 4\n"
+MOVING = "enable\njog j2 ${speed}\nwait 4\nstop\nmoveby j1 3 3\nwait\nwait 4\n"
 SHORT = "status\n"
 AGREE = "enable\nmoveby j1 5 3\nwait\nmoveby j2 -3 3\nwait\nstatus\n"
 
@@ -74,7 +74,15 @@ def throughput(folder: Path, quick: bool) -> list[str]:
         lines.append(f"  {workers} worker{'s' if workers > 1 else ' '}: {len(runs)} runs, {sim:.0f} simulated s in "
                      f"{wall:.1f} wall s: {sim / wall:.1f} simulated s per wall s (start-up and warm-up "
                      f"{startup:.1f} s apart)")
-    lines.append(f"  2 workers / 1: {rates[2] / rates[1]:.2f}x (goal 1.8x); cores {os.cpu_count()}, load average "
+    wall0 = RealClock.precise_now()
+    serial = [run_one(bench, run) for run in runs]          # the peer: the same runs in this process, no engine
+    wall = RealClock.precise_now() - wall0
+    if [r.row for r in serial] != [r.row for r in results]:
+        raise RuntimeError("the serial rows differ from Dask's")
+    lines.append(f"  serial, in this process (no Dask): {sum(r.row['sim_s'] for r in serial) / wall:.1f} simulated s "
+                 f"per wall s; the same rows as Dask's")
+    lines.append(f"  2 workers / 1: {rates[2] / rates[1]:.2f}x (goal 1.8x); 2 workers / serial "
+                 f"{rates[2] * wall / sum(r.row['sim_s'] for r in serial):.2f}x; cores {os.cpu_count()}, load average "
                  f"{os.getloadavg()[0]:.2f}")
     return ["throughput: moving runs (a jog and a move, 12 simulated s each) on a Dask local cluster"] + lines
 
