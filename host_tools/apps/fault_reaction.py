@@ -7,10 +7,13 @@ measure, not the host's (the event's trip over the link adds nothing to it).
 """
 from __future__ import annotations
 
-from typing import Iterable, Optional
+from typing import Iterable, Optional, Sequence
 
 from protocol.schema import Message
 from protocol.states import ControllerState, Fault
+
+from host_tools.worlds.bench_world import TimedFault
+from host_tools.worlds.world import LockstepBench
 
 # The time to the safe state that docs/arm.md states for each plant fault (its "tested bound"). None: the
 # fault has no safe state to reach (clouds: the tracker holds and waits for the sun).
@@ -46,3 +49,17 @@ def reaction(events: Iterable[Message], fault: str, at_s: float, started_s: floa
             row["within_stated"] = row["safe_after_s"] <= stated
         break
     return row
+
+
+EVENTS_IN_FLIGHT_S = 0.2     # a bench may end (a demo step raising on the safe state it saw in telemetry) before
+                             # the controller's StateChanged event has reached the host: this much more lets it
+
+
+def reactions(bench: LockstepBench, events: Sequence[Message], faults: Sequence[TimedFault]) -> list[dict]:
+    """The controller's answer to each of `faults` injected so far on `bench`, after letting the events on their
+    way arrive (the world runs EVENTS_IN_FLIGHT_S further, when a fault was injected)."""
+    injected = [f for f in faults if f.at_s <= bench.clock.now()]
+    if injected:
+        bench.run_for(EVENTS_IN_FLIGHT_S)
+    started = bench.controller.started_s or 0.0
+    return [reaction(events, f.fault, f.at_s, started) for f in injected]

@@ -13,7 +13,7 @@ from typing import Optional, TextIO
 
 from timebase import RealClock
 
-from host_tools.apps.fault_reaction import reaction
+from host_tools.apps.fault_reaction import reactions
 from host_tools.client.bench import BenchClient
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.record import ScriptRecord
@@ -47,13 +47,11 @@ def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool
         record = ScriptRecord(echo=out)
         status, session = run_script(client, lines, io.StringIO() if out is None else out, keep_going=keep_going,
                                      err=problems, wall_time=client.wall_time, record=record)
-        started = bench.controller.started_s or 0.0
-        faults = [reaction(client.events, f.fault, f.at_s, started) for f in world.faults
-                  if f.at_s <= bench.clock.now()]
+        sim_time_s, state = bench.clock.now(), plant_state(bench.world.plant, bench.plant_settings.tracker)
+        faults = reactions(bench, client.events, world.faults)       # (the world runs a moment further)
         result = record.as_dict(session, status, script=script, target="lockstep", seed=world.seed,
-                                sim_time_s=bench.clock.now(), wall_time_s=RealClock.precise_now() - wall0,
-                                plant=plant_state(bench.world.plant, bench.plant_settings.tracker),
-                                faults=faults)
+                                sim_time_s=sim_time_s, wall_time_s=RealClock.precise_now() - wall0,
+                                plant=state, faults=faults)
         if err is None:
             result["problems"] = problems.getvalue().splitlines()
         return ScriptRun(status, result, session.summary())

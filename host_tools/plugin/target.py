@@ -31,7 +31,7 @@ from typing import Any, Callable, Optional
 from protocol.host_link import CommandHandle
 from protocol.schema import Message
 
-from host_tools.apps.fault_reaction import reaction
+from host_tools.apps.fault_reaction import reactions
 from host_tools.worlds import plant_actions, plant_control
 from host_tools.client.bench import BenchClient
 from host_tools.client.control import open_control
@@ -160,13 +160,9 @@ class LockstepTarget(Target):
         super().__init__(client, "lockstep", dict(variables or {}))
         client.connect()
 
-    def fault_reactions(self) -> list[dict]:
-        """The controller's answer to each timed fault injected so far (host_tools/apps/fault_reaction.py)."""
-        started = self.bench.controller.started_s or 0.0
-        return [reaction(self.events, f.fault, f.at_s, started) for f in self.world.faults if f.at_s <= self.now()]
-
     def close_record(self) -> dict:
-        record = {"sim_time_s": self.now(), "seed": self.world.seed, "faults": self.fault_reactions()}
+        record = {"sim_time_s": self.now(), "seed": self.world.seed,
+                  "faults": reactions(self.bench, self.events, self.world.faults)}
         self.close()
         return record
 
