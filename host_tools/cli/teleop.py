@@ -53,7 +53,7 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
         info = client.link.controller_info
         link_line = (f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
                      f"controller link timeout {info.link_timeout_ms} ms"
-                     + (f"; the simulator's control endpoint {control.path}" if control is not None else ""))
+                     + (f"\nthe simulator's control endpoint: {control.path}" if control is not None else ""))
         if args.json and lines is not None:          # one JSON object on stdout, nothing else
             record = ScriptRecord()
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going, record=record)
