@@ -198,3 +198,21 @@ def test_a_folder_that_holds_a_campaign_is_not_written_over(drill, capsys):
     assert main(["campaign", "drill.aspod", "--vary", "speed=2", "--serial", "--out", "c", "--no-progress"]) == 2
     assert "already holds a campaign" in capsys.readouterr().err
     assert (drill / "c" / "rows.csv").read_bytes() == before
+
+
+@pytest.mark.cpu_hog
+@pytest.mark.long
+def test_a_running_dask_scheduler_takes_the_campaign_and_parquet_holds_the_same_rows(drill, capsys):
+    from distributed import LocalCluster
+
+    from host_tools.campaign.results import read_rows
+    small = ["--vary", "speed=1,2", "--draw", "fault=none,jam:j2", "--draw", "fault_at_s=0.5..1.5", "--no-progress"]
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
+        address = cluster.scheduler_address
+        assert address.startswith("tcp://")
+        main(["campaign", "drill.aspod", *small, "--scheduler", address, "--out", "remote", "--format", "parquet"])
+    main(["campaign", "drill.aspod", *small, "--serial", "--out", "serial"])
+    remote, serial = read_rows(drill / "remote" / "rows.parquet"), rows_of(drill / "serial")
+    assert [r["run"] for r in remote] == [0, 1] and remote[0]["ok"] in (True, False)
+    assert [{k: "" if v is None else str(v) for k, v in r.items()} for r in remote] == serial
+    assert json.loads((drill / "remote" / "campaign.json").read_text())["engine"] == f"Dask scheduler at {address}"
