@@ -132,3 +132,11 @@ def test_plant_actions_by_name_change_the_plant_or_refuse_saying_why():
         assert bench.world.plant.arm.gravity == "orbit" and bench.world.plant.faults == frozenset({"supply_sag"})
     finally:
         bench.close()
+
+
+def test_a_scripts_first_line_gives_its_world_and_the_command_line_wins(tmp_path, capsys):
+    script = "#! aspod bench --no-tracker --seed 3 --fault supply_sag@0.5\nenable\nwait 1\n"
+    status, doc = bench_json(tmp_path, script, capsys=capsys)
+    assert doc["seed"] == 3 and "tracker" not in doc["plant"] and doc["faults"][0]["fault"] == "supply_sag"
+    _, doc = bench_json(tmp_path, script, "--seed", "5", capsys=capsys)
+    assert doc["seed"] == 5 and "tracker" not in doc["plant"]

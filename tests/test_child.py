@@ -24,8 +24,10 @@ while True:
 
 def test_ready_line_then_sigint_stops_a_well_behaved_child():
     # its stderr line before its ready line: a SIGINT right after the ready line must not beat it
-    child = Child(["import sys, signal; print('bye', file=sys.stderr, flush=True); print('READY x', flush=True); "
-                   "signal.pause()"], command=PY)
+    # (it takes SIGINT itself: started from a background job, a process inherits SIGINT ignored)
+    child = Child(["import sys, signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                   "print('bye', file=sys.stderr, flush=True); print('READY x', flush=True); signal.pause()"],
+                  command=PY)
     assert child.ready("READY") == "READY x"
     status, err = child.stop(timeout_s=60)
     assert status == -signal.SIGINT or status == 1       # KeyboardInterrupt: a traceback, exit 1

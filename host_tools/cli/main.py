@@ -561,8 +561,26 @@ def run_command(args: argparse.Namespace) -> int:
     return EXIT_USAGE
 
 
+def with_script_directive(args: argparse.Namespace, argv: Sequence[str]) -> argparse.Namespace:
+    """`aspod bench SCRIPT`: the options of the script's first line (`#! aspod bench --sun-start ...`) come first,
+    the command line's after them (so they win), as the pytest plugin and `aspod campaign` read a script. A
+    script that cannot be read is left for the command to refuse."""
+    from host_tools.teleop.words import TeleopError, read_script, script_directive
+    try:
+        directive = script_directive(read_script(args.script, option="script")[:1])
+    except (OSError, TeleopError):
+        return args
+    if not directive:
+        return args
+    at = list(argv).index("bench") + 1
+    return build_parser().parse_args([*argv[:at], *directive, *argv[at:]])
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    if args.command == "bench":
+        args = with_script_directive(args, argv)
     setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))
     log = logging.getLogger("aspod")
     try:
