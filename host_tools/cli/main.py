@@ -152,10 +152,10 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
 
 def add_arm_args(parser: argparse.ArgumentParser) -> None:
     """The plant's arm: gravity and payload."""
-    from host_tools.worlds.settings import GRAVITY_MODES
+    from host_tools.worlds.settings import GRAVITY_MODES, PAYLOAD_MAX_KG
     parser.add_argument("--gravity", choices=GRAVITY_MODES, default="earth",
                         help="the arm's gravity (default earth)")
-    parser.add_argument("--payload-kg", type=bounded(float, 0.0, 1000.0), default=0.0, metavar="M",
+    parser.add_argument("--payload-kg", type=bounded(float, 0.0, PAYLOAD_MAX_KG), default=0.0, metavar="M",
                         help="mass carried at the gripper tip, kg (default 0)")
 
 

@@ -52,15 +52,18 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
         client.connect(args.connect_timeout_s)
         info = client.link.controller_info
         link_line = (f"link up: {args.url}, protocol v{info.protocol_version}, schema {info.schema_hash:016x}, "
-                     f"controller link timeout {info.link_timeout_ms} ms"
-                     + (f"\nthe simulator's control endpoint: {control.path}" if control is not None else ""))
+                     f"controller link timeout {info.link_timeout_ms} ms")
+        control_line = None if control is None else f"the simulator's control endpoint: {control.path}"
         if args.json and lines is not None:          # one JSON object on stdout, nothing else
             record = ScriptRecord()
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going, record=record)
             print(json.dumps(record.as_dict(session, status, script=str(args.script or "-"), target=args.url,
-                                            link=link_line), indent=1), flush=True)
+                                            link=link_line, control=None if control is None else str(control.path)),
+                             indent=1), flush=True)
             return status
         print(link_line, flush=True)
+        if control_line is not None:
+            print(control_line, flush=True)
         if lines is not None:
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going)
         else:
