@@ -3,15 +3,24 @@ the tracker's day, live sessions, sessions tools and campaigns (`python -m bench
 from __future__ import annotations
 
 import tempfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
 Part = Callable[[Path, bool], list[str]]
 
 
-def run_parts(parts: Sequence[Part], quick: bool, prefix: str) -> tuple[list[str], str]:
-    """Run each part in one scratch folder, printing its lines as they come: (all the lines, the first part's
-    error or ""). A part that cannot run says which and why; the others still run."""
+@dataclass
+class PartsResult:
+    """A benchmark made of parts: every line it printed, and the first part's error ("" when all ran)."""
+    lines: list[str] = field(default_factory=list)
+    error: str = ""
+
+
+def run_parts(title: str, parts: Sequence[Part], quick: bool, prefix: str) -> PartsResult:
+    """Print `title`, then run each part in one scratch folder, printing its lines as they come. A part that cannot
+    run says which and why; the others still run."""
+    print(title, flush=True)
     lines_all, error = [], ""
     with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
         for part in parts:
@@ -23,4 +32,4 @@ def run_parts(parts: Sequence[Part], quick: bool, prefix: str) -> tuple[list[str
             for line in lines:
                 print(line, flush=True)
             lines_all += lines
-    return lines_all, error
+    return PartsResult(lines_all, error)

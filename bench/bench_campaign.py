@@ -19,10 +19,9 @@ import os
 import subprocess
 import sys
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from bench import run_parts
+from bench import PartsResult, run_parts
 from timebase import RealClock
 from host_tools.campaign.matrix import GridAxis, Matrix, parse_seeds
 from host_tools.campaign.runs import BenchSpec, run_one
@@ -32,12 +31,6 @@ ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 MOVING = "enable\njog j2 ${speed}\nwait 4\nstop\nmoveby j1 3 3\nwait\nwait 4\n"
 SHORT = "status\n"
 AGREE = "enable\nmoveby j1 5 3\nwait\nmoveby j2 -3 3\nwait\nstatus\n"
-
-
-@dataclass
-class CampaignBenchResult:
-    lines: list[str] = field(default_factory=list)
-    error: str = ""
 
 
 def _runs(script: str, count: int, cwd: Path):
@@ -136,11 +129,9 @@ def lockstep_against_live(folder: Path, quick: bool) -> list[str]:
             f"{'same' if ends else 'differ'}, end positions within {worst:.4f} deg"]
 
 
-def main(quick: bool = False) -> CampaignBenchResult:
-    result = CampaignBenchResult()
-    print("campaign: Dask throughput 1 and 2 workers, engine overhead, lock-step against live", flush=True)
-    result.lines, result.error = run_parts((throughput, overhead, lockstep_against_live), quick, "aspod-bench-campaign-")
-    return result
+def main(quick: bool = False) -> PartsResult:
+    return run_parts("campaign: Dask throughput 1 and 2 workers, engine overhead, lock-step against live",
+                     (throughput, overhead, lockstep_against_live), quick, "aspod-bench-campaign-")
 
 
 if __name__ == "__main__":

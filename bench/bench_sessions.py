@@ -24,15 +24,13 @@ import statistics
 import subprocess
 import sys
 import threading
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import serial
 
 from protocol import auth
 from protocol.messages import MESSAGES as M
-from bench import run_parts
+from bench import PartsResult, run_parts
 from timebase import RealClock
 from host_tools.client.lines import parse_links
 from host_tools.client.live import HostClient
@@ -48,12 +46,6 @@ ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 def pct(samples: list[float], q: float) -> float:
     ordered = sorted(samples)
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
-
-
-@dataclass
-class SessionsResult:
-    lines: list[str] = field(default_factory=list)
-    error: Optional[str] = None
 
 
 class _Env:
@@ -287,11 +279,9 @@ def two_links(folder: Path, quick: bool) -> list[str]:
     return lines
 
 
-def main(quick: bool = False) -> SessionsResult:
-    result = SessionsResult()
-    print("sessions: proxy overhead, capture decoding, two links through outages", flush=True)
-    result.lines, result.error = run_parts((proxy_overhead, decode_speed, two_links), quick, "aspod-bench-sessions-")
-    return result
+def main(quick: bool = False) -> PartsResult:
+    return run_parts("sessions: proxy overhead, capture decoding, two links through outages",
+                     (proxy_overhead, decode_speed, two_links), quick, "aspod-bench-sessions-")
 
 
 if __name__ == "__main__":

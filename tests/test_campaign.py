@@ -128,6 +128,7 @@ def test_two_dask_workers_give_the_rows_of_a_serial_run_and_a_failed_rows_comman
     assert len(rows) == 6 and {r["speed"] for r in rows} == {"1", "2"}
     doc = json.loads((drill / "dask" / "campaign.json").read_text())
     assert doc["runs"] == 6 and doc["engine"] == "Dask local cluster, 2 workers" and len(doc["timing"]["run_wall_s"]) == 6
+    assert doc["command"].startswith("aspod campaign drill.aspod --vary speed=1,2 ") and "--workers 2" in doc["command"]
     assert (drill / "dask" / "plot-fault.safe_after_s-vs-fault.png").stat().st_size > 1000
     assert (drill / "dask" / "hist-sim_s.png").stat().st_size > 1000
     failed = [r for r in rows if r["outcome"] == "failed"]

@@ -8,7 +8,6 @@ command that reproduces it alone. See docs/campaigns.md.
 from __future__ import annotations
 
 import logging
-import shlex
 import sys
 from pathlib import Path
 
@@ -82,7 +81,7 @@ def run_campaign(settings: CampaignSettings) -> int:
     table = results.summary(rows, settings.group_by, figures)
     sim_s = sum(float(r.get("sim_s") or 0.0) for r in rows)
     description = {
-        "command": shlex.join(["aspod", *sys.argv[1:]]) if sys.argv[0].endswith("aspod") else None,
+        "command": settings.command,
         "bench": settings.bench, "axes": settings.matrix.axes, "runs": len(rows),
         "seeds": [settings.matrix.seeds[0], settings.matrix.seeds[-1]], "engine": settings.engine.describe(),
         "timing": {"wall_s": wall, "sim_s": sim_s, "sim_s_per_wall_s": sim_s / wall if wall > 0 else None,

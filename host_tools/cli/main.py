@@ -581,6 +581,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "bench":
         args = with_script_directive(args, argv)
+    args.argv = tuple(argv)            # the command line as given (a campaign keeps it in its record)
     setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))
     log = logging.getLogger("aspod")
     try:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
@@ -443,6 +444,7 @@ class CampaignSettings:
     hists: tuple[str, ...] = ()
     keep_going: bool = False
     progress: bool = True
+    command: str = ""                    # the command line that asked for it, for its record
 
 
 def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
@@ -467,4 +469,5 @@ def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
         group_by = "fault"
     return CampaignSettings(args.bench, matrix, EngineSettings(args.workers, args.scheduler, args.serial), out,
                             args.format, group_by, tuple(args.summarize), tuple(plots), tuple(args.hist),
-                            args.keep_going, not args.no_progress)
+                            args.keep_going, not args.no_progress,
+                            shlex.join(["aspod", *getattr(args, "argv", ("campaign", args.bench))]))
