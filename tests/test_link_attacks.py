@@ -160,7 +160,9 @@ def test_an_event_whose_ack_was_lost_reaches_the_next_host_marked_as_from_an_ear
     try:
         events = Events(second)
         second.connect()
-        assert second.wait_for(lambda: any(m == estop for m, _ in events.seen), 10.0)
+        assert second.wait_for(lambda: any(m == estop for m, _ in events.seen), 10.0), (
+            f"the second host saw {[(m.spec.name, getattr(m, 'state', None), e) for m, e in events.seen]}; "
+            f"the first saw {estop}; the second's link: {second.link.stats}")     # what to read if this fails
         marker, earlier = events.seen[0]
         assert marker.spec.name == "EventsCarriedOver" and not earlier and marker.dropped == 0
         carried = events.seen[1:1 + marker.count]
