@@ -31,7 +31,7 @@ from protocol.link import (HELLO_REPLY_ID, NAK_TAG_BYTES, PRIO_RELIABLE, PRIO_UR
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import Outcome, Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
-from protocol.schema import Message, MsgClass, Schema
+from protocol.schema import Message, MessageSpec, MsgClass, Schema
 
 SENT_TAGS = 64    # tags of the last frames sent in this session that a handshake NAK may echo
 
@@ -48,6 +48,11 @@ class CommandHandle:
     done_s: Optional[float] = None
     tries: int = 0
     detail: str = ""
+    spec: Optional[MessageSpec] = None     # the command's spec (`msg.spec`; given where `msg` is None)
+
+    def __post_init__(self) -> None:
+        if self.spec is None and self.msg is not None:
+            self.spec = self.msg.spec
 
     @property
     def done(self) -> bool:
@@ -69,11 +74,11 @@ class CommandHandle:
 
     def describe(self) -> str:
         if self.outcome is Outcome.SUCCEEDED:
-            return f"{self.msg.spec.name}: ok"
+            return f"{self.spec.name}: ok"
         if self.outcome is Outcome.PENDING:
-            return f"{self.msg.spec.name}: no outcome yet (still being retried)"
+            return f"{self.spec.name}: no outcome yet (still being retried)"
         why = self.reason.describe() if isinstance(self.reason, Reason) else str(self.reason)
-        return f"{self.msg.spec.name}: {self.outcome.value}: {why}{' (' + self.detail + ')' if self.detail else ''}"
+        return f"{self.spec.name}: {self.outcome.value}: {why}{' (' + self.detail + ')' if self.detail else ''}"
 
 
 @dataclass
@@ -210,6 +215,19 @@ class HostLink(LinkEndpoint):
         except EncodeError as exc:
             handle._finish(Outcome.REJECTED, Reason.OUT_OF_RANGE, now, detail=str(exc))
             return handle
+        return self._send(handle, payload, now)
+
+    def submit_payload(self, spec, payload: bytes, now: float) -> CommandHandle:
+        """Send command `spec` with `payload` as given, unchecked, in sequence (a fuzzer's: host_tools/fuzz);
+        its handle's message is None. Refused at once if `spec` is no command or the link is not up."""
+        handle = CommandHandle(None, now, spec=spec)
+        if spec.cls not in (MsgClass.COMMAND, MsgClass.URGENT) or spec.reply is None or self.state is not LinkState.UP:
+            handle._finish(Outcome.FAILED, Reason.NO_SESSION, now, detail=f"{spec.name}: not a command, or link down")
+            return handle
+        return self._send(handle, payload, now)
+
+    def _send(self, handle: CommandHandle, payload: bytes, now: float) -> CommandHandle:
+        spec = handle.spec
         sender = self._commands if spec.cls == MsgClass.COMMAND else self._urgent
         sender.submit(spec.id, payload, handle)
         self._pump(now)

@@ -63,9 +63,13 @@ def run_serial(bench: BenchSpec, runs: list[Run], on_result: OnResult) -> list[R
     return results
 
 
-def run_distributed(bench: BenchSpec, runs: list[Run], settings: EngineSettings, on_result: OnResult,
-                    on_started: Callable[[str], None] = lambda where: None) -> list[RunResult]:
-    """Every run a Dask task; results in the matrix's order. `on_started` is told where they run."""
+def map_on_dask(fn: Callable, items: list, settings: EngineSettings, on_done: Callable[[int, object], None],
+                error_of: Callable[[object, str], object], shared: object = None,
+                on_started: Callable[[str], None] = lambda where: None) -> list:
+    """`fn(shared, item)` for every item as Dask tasks (one each, any order); results in the items' order.
+
+    `on_done(index, result)` as each ends; a task that raises, or whose worker dies, gives `error_of(item, why)`.
+    """
     from distributed import Client, LocalCluster, as_completed
     cluster = None
     if settings.scheduler is None:
@@ -76,23 +80,31 @@ def run_distributed(bench: BenchSpec, runs: list[Run], settings: EngineSettings,
         client = Client(settings.scheduler, timeout="30s")
     try:
         on_started(client.dashboard_link if settings.scheduler is not None else settings.describe())
-        shared = client.scatter(bench, broadcast=True)
-        futures = client.map(run_one, [shared] * len(runs), runs, pure=False)
-        run_of = {f.key: run for f, run in zip(futures, runs)}
-        results: dict[int, RunResult] = {}
+        scattered = client.scatter(shared, broadcast=True) if shared is not None else None
+        futures = client.map(fn, [scattered] * len(items), items, pure=False)
+        index_of = {f.key: i for i, f in enumerate(futures)}
+        results: dict[int, object] = {}
         for future in as_completed(futures):
-            run = run_of[future.key]
+            index = index_of[future.key]
             try:
                 result = future.result()
-            except Exception as exc:           # a bug in the run, or its worker died (KilledWorker)
-                result = _error_result(run, f"the run raised {type(exc).__name__}: {exc}")
-            results[run.index] = result
-            on_result(result)
-        return [results[run.index] for run in runs]
+            except Exception as exc:           # a bug in the task, or its worker died (KilledWorker)
+                result = error_of(items[index], f"the task raised {type(exc).__name__}: {exc}")
+            results[index] = result
+            on_done(index, result)
+        return [results[i] for i in range(len(items))]
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def run_distributed(bench: BenchSpec, runs: list[Run], settings: EngineSettings, on_result: OnResult,
+                    on_started: Callable[[str], None] = lambda where: None) -> list[RunResult]:
+    """Every run a Dask task; results in the matrix's order. `on_started` is told where they run."""
+    return map_on_dask(run_one, runs, settings, lambda index, result: on_result(result),
+                       lambda run, why: _error_result(run, why.replace("the task raised", "the run raised")),
+                       shared=bench, on_started=on_started)
 
 
 def run_runs(bench: BenchSpec, runs: list[Run], settings: EngineSettings, on_result: OnResult = lambda r: None,

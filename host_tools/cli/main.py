@@ -229,6 +229,10 @@ EXAMPLES = {
     "log": ["aspod log session.pcapng", "aspod log session.pcapng --class command --class event",
             "aspod log session.pcapng --stats", "aspod log session.pcapng --message TelemetryJoints --csv joints.csv",
             "aspod log session.pcapng --plot session.png --key-file link.key"],
+    "fuzz": ["aspod fuzz controller-link --time 60", "aspod fuzz frames codec teleop --runs 10000000 --jobs 8 --coverage",
+             "aspod fuzz --target-cmd 'aspod sim --pty --no-pacing' --time 60",
+             "aspod fuzz --url /dev/pts/5 --key-file link.key --only BoxDial --time 600",
+             "aspod fuzz --replay fuzz-findings/crash-codec-0123456789ab.json"],
     "proxy": ["aspod proxy --controller /dev/pts/5", "aspod proxy --controller socket://127.0.0.1:5000 --host tcp:6000 "
               "--impair 'radio,seed=7' --record radio.pcapng"],
     "replay": ["aspod demo --record demo.pcapng && aspod replay demo.pcapng",
@@ -410,6 +414,43 @@ def build_parser() -> argparse.ArgumentParser:
     campaign.add_argument("--keep-going", action="store_true", help="a script goes on after a failed line")
     campaign.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    fuzz = add_command("fuzz", help="fuzz the protocol: in process, coverage-guided (atheris), on a target of the "
+                                    "emulator's; or black-box against a live link; or replay a finding")
+    fuzz.add_argument("targets", nargs="*", metavar="TARGET",
+                      help="in-process targets (--list names them), or module:factory for your own")
+    fuzz.add_argument("--list", action="store_true", help="list the in-process targets and what each covers")
+    fuzz.add_argument("--url", default=None, help="black-box: the link of a running target (pty, socket://, device)")
+    fuzz.add_argument("--target-cmd", default=None, metavar="COMMAND",
+                      help="black-box: start the target with COMMAND (it prints ASPOD-LINK URL, as aspod sim does); "
+                           "it is restarted after a crash, and findings are shrunk on fresh targets")
+    fuzz.add_argument("--key-file", type=Path, default=None, help="the link's key (default: the development key)")
+    fuzz.add_argument("--baud", type=_baud, default=115200, help="black-box: the line's rate (default 115200)")
+    fuzz.add_argument("--replay", type=Path, default=None, metavar="FILE", help="run one finding again, alone")
+    fuzz.add_argument("--time", type=bounded(float, 0.001, 30 * 86400), default=None, metavar="S",
+                      help="seconds per job (in process) or in all (black-box); default 60 unless --runs/--cases")
+    fuzz.add_argument("--runs", type=bounded(int, 1, 10**12), default=None, metavar="N",
+                      help="in process: executions per job")
+    fuzz.add_argument("--cases", type=bounded(int, 1, 10**9), default=None, metavar="N", help="black-box: cases")
+    fuzz.add_argument("--jobs", type=bounded(int, 1, 10000), default=1, metavar="N",
+                      help="in process: jobs per target, each with its own seed, sharing the target's corpus")
+    fuzz.add_argument("--seed", type=bounded(int, 1, 2**31 - 1), default=1, help="the first job's seed (default 1)")
+    fuzz.add_argument("--corpus", type=Path, default=Path("fuzz-corpus"), metavar="DIR",
+                      help="corpus folders, one per target, kept between runs (default fuzz-corpus)")
+    fuzz.add_argument("--findings", type=Path, default=Path("fuzz-findings"), metavar="DIR",
+                      help="where findings are written (default fuzz-findings)")
+    fuzz.add_argument("--only", action="append", default=[], metavar="MESSAGE",
+                      help="black-box: send only this command in sequence (repeatable)")
+    fuzz.add_argument("--skip", action="append", default=None, metavar="MESSAGE",
+                      help="black-box: never send this command (repeatable; default ParamSave)")
+    fuzz.add_argument("--workers", type=bounded(int, 1, 1024), default=None, metavar="N",
+                      help="in process: local Dask workers (default one per core)")
+    fuzz.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786", help="a running Dask scheduler")
+    fuzz.add_argument("--serial", action="store_true", help="no Dask: the jobs one after the other, here")
+    fuzz.add_argument("--coverage", action="store_true",
+                      help="in process: afterwards, the line coverage each target's corpus reaches (coverage.py)")
+    fuzz.add_argument("--json", action="store_true", help="print one JSON object at the end")
+    fuzz.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")
     demo.add_argument("--json", action="store_true", help="print one JSON object (steps, errors, times)")
@@ -532,6 +573,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "campaign":
         from host_tools.cli.campaign import run_campaign
         return run_campaign(settings.campaign_settings(args))
+    if args.command == "fuzz":
+        from host_tools.cli.fuzz import run_fuzz
+        return run_fuzz(settings.fuzz_settings(args))
     if args.command == "bench":
         from host_tools.cli.bench import run_bench
         return run_bench(settings.bench_settings(args))

@@ -7,6 +7,7 @@ Nothing below `cli/` sees a Namespace. The types the worlds and apps use live wi
 from __future__ import annotations
 
 import argparse
+import sys
 import math
 import shlex
 from dataclasses import dataclass, field
@@ -23,6 +24,8 @@ if TYPE_CHECKING:
     from host_tools.apps.demo import DemoSettings
     from host_tools.campaign.engine import EngineSettings
     from host_tools.campaign.matrix import Matrix
+    from host_tools.fuzz.blackbox import BlackBoxSettings
+    from host_tools.fuzz.campaign import CampaignPlan
     from host_tools.worlds.bench_world import WorldSettings
     from host_tools.sessions.impairment import Impairment
     from host_tools.apps.tracker_day import DaySettings
@@ -471,3 +474,52 @@ def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
                             args.format, group_by, tuple(args.summarize), tuple(plots), tuple(args.hist),
                             args.keep_going, not args.no_progress,
                             shlex.join(["aspod", *getattr(args, "argv", ("campaign", args.bench))]))
+
+
+@dataclass(frozen=True)
+class FuzzSettings:
+    """`aspod fuzz`: one of three jobs (`mode`: list, inprocess, blackbox, replay) and what it needs."""
+    mode: str
+    plan: Optional["CampaignPlan"] = None
+    engine: Optional["EngineSettings"] = None
+    blackbox: Optional["BlackBoxSettings"] = None
+    replay: Optional[Path] = None
+    key_file: Optional[Path] = None
+    coverage: bool = False
+    as_json: bool = False
+    progress: bool = True
+
+
+def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
+    import shlex
+    from host_tools.campaign.engine import EngineSettings
+    from host_tools.fuzz.blackbox import BlackBoxSettings
+    from host_tools.fuzz.campaign import CampaignPlan
+    common = dict(key_file=args.key_file, coverage=args.coverage, as_json=args.json, progress=not args.no_progress)
+    live = args.url is not None or args.target_cmd is not None
+    if args.list:
+        return FuzzSettings("list", **common)
+    if args.targets and (live or args.replay is not None):
+        raise ValueError("in-process TARGETs, or --url/--target-cmd (black-box), or --replay FILE: one at a time")
+    if live or (args.replay is not None and not args.targets):
+        command = tuple(shlex.split(args.target_cmd)) if args.target_cmd else ()
+        if command and command[0] == "aspod":       # the aspod of this Python, wherever the shell's PATH points
+            command = (sys.executable, "-m", "host_tools.cli.main") + command[1:]
+        if live:
+            if args.runs is not None or args.jobs != 1 or args.coverage:
+                raise ValueError("--runs, --jobs and --coverage are for in-process targets; black-box takes --cases")
+            seconds = args.time if args.time is not None else (None if args.cases else 60.0)
+            blackbox = BlackBoxSettings(args.url or "", command, args.baud, seconds, args.cases, args.seed,
+                                        args.findings, skip=tuple(args.skip) if args.skip is not None
+                                        else ("ParamSave",), only=tuple(args.only))
+            return FuzzSettings("replay" if args.replay is not None else "blackbox", blackbox=blackbox,
+                                replay=args.replay, **common)
+        return FuzzSettings("replay", replay=args.replay, **common)
+    if not args.targets:
+        raise ValueError("name an in-process TARGET (aspod fuzz --list), or --url/--target-cmd, or --replay FILE")
+    if args.cases is not None or args.only or args.skip is not None:
+        raise ValueError("--cases, --only and --skip are for black-box fuzzing (--url or --target-cmd)")
+    seconds = args.time if args.time is not None else (None if args.runs else 60.0)
+    plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed)
+    return FuzzSettings("inprocess", plan=plan, engine=EngineSettings(args.workers, args.scheduler, args.serial),
+                        **common)

@@ -1,0 +1,98 @@
+"""Fuzzing: how fast each engine runs, and `aspod fuzz` beside boofuzz on the same live target.
+
+1. **In process.** Each built-in target under atheris for 10 s (3 s with --quick), one job on one core:
+   executions per second, libFuzzer's coverage (edges) and corpus.
+2. **Black-box over a pty.** `aspod fuzz --target-cmd 'aspod sim --pty ...'` for 20 s (8 s) at --no-pacing and
+   at 115200 baud: cases and steps per second (each case is a few steps and a health check of two commands).
+3. **Beside boofuzz.** The planted simulator (host_tools/fuzz/planted.py: BoxDial at exactly 100 % crashes the
+   controller) over TCP at --no-pacing, 60 s each (20 s with --quick): `aspod fuzz` black-box with its grammar from
+   the declaration, and boofuzz 0.4.2 with the best grammar written for it by hand (bench/boofuzz_peer.py): cases
+   per second, and whether and when each found the bug. One after the other, never together.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from bench import PartsResult, run_parts
+from protocol import auth
+
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+TARGETS = ("frames", "codec", "controller-link", "host-link", "hal", "params-file", "key-file", "teleop")
+
+
+def _load() -> str:
+    return "load %.1f" % os.getloadavg()[0]
+
+
+def in_process(tmp: Path, quick: bool) -> list[str]:
+    seconds = 3 if quick else 10
+    done = subprocess.run([*ASPOD, "fuzz", *TARGETS, "--time", str(seconds), "--serial", "--json", "--no-progress",
+                           "--corpus", str(tmp / "corpus"), "--findings", str(tmp / "found")],
+                          capture_output=True, text=True, timeout=60 * len(TARGETS) + 120, cwd=tmp)
+    if done.returncode not in (0, 1):
+        raise RuntimeError(done.stderr[-800:])
+    lines = [f"in process, atheris, one core, {seconds} s per target ({_load()}):",
+             f"  {'target':17} {'exec/s':>8} {'executions':>11} {'cov':>5} {'corpus':>6} findings"]
+    for s in json.loads(done.stdout)["targets"]:
+        lines.append(f"  {s['target']:17} {s['execs_per_core_s']:8,.0f} {s['execs']:11,} {s['cov']:5} {s['corpus']:6} "
+                     f"{s['findings']}")
+    return lines
+
+
+def _key(tmp: Path) -> Path:
+    key = tmp / "link.key"
+    if not key.exists():
+        auth.write_key(key, bytes(range(32)))
+    return key
+
+
+def _blackbox(tmp: Path, module: str, port: str, seconds: float, pacing: bool, extra=()) -> dict:
+    key = _key(tmp)
+    target = [sys.executable, "-m", module, "sim", port, "--key-file", str(key), "--no-control",
+              "--params", str(tmp / "params.json")] + ([] if pacing else ["--no-pacing"])
+    done = subprocess.run([*ASPOD, "fuzz", "--target-cmd", " ".join(target), "--key-file", str(key), "--time",
+                           str(seconds), "--json", "--no-progress", "--findings", str(tmp / "bb-found"), *extra],
+                          capture_output=True, text=True, timeout=seconds * 4 + 300, cwd=tmp,
+                          env=dict(os.environ, XDG_CONFIG_HOME=str(tmp)))
+    if done.returncode not in (0, 1):
+        raise RuntimeError(done.stderr[-800:])
+    return json.loads(done.stdout)
+
+
+def black_box(tmp: Path, quick: bool) -> list[str]:
+    seconds = 8 if quick else 20
+    lines = [f"black-box over a pty, {seconds} s each:"]
+    for pacing, what in ((False, "--no-pacing"), (True, "115200 baud")):
+        r = _blackbox(tmp, "host_tools.cli.main", "--pty", seconds, pacing)
+        lines.append(f"  {what:12} {r['cases_per_s']:6.1f} cases/s, {r['steps'] / r['wall_s']:6.1f} steps/s "
+                     f"({r['cases']} cases, {len(r['findings'])} findings; {_load()})")
+    return lines
+
+
+def beside_boofuzz(tmp: Path, quick: bool) -> list[str]:
+    from bench.boofuzz_peer import run_boofuzz
+    seconds = 20 if quick else 60
+    lines = [f"the planted BoxDial crash over TCP at --no-pacing, {seconds} s each:"]
+    r = _blackbox(tmp, "host_tools.fuzz.planted", "--tcp=0", seconds, False)
+    crashes = [f for f in r["findings"] if Path(f).name.startswith("crash-")]
+    first = json.loads((tmp / crashes[0]).read_text())["execs"] if crashes else None
+    lines.append(f"  aspod fuzz  {r['cases_per_s']:6.1f} cases/s; planted bug "
+                 + (f"found after {first} cases" if crashes else "not found") + f" ({r['cases']} cases; {_load()})")
+    b = run_boofuzz(tmp / "boofuzz", seconds, planted=True)
+    lines.append(f"  boofuzz     {b.cases_per_s:6.1f} cases/s; planted bug "
+                 + (f"found after {b.found_after_cases} cases" if b.found else "not found") + f" ({b.cases} cases; "
+                 f"{_load()})")
+    return lines
+
+
+def main(quick: bool = False) -> PartsResult:
+    return run_parts("fuzz: in-process targets, black-box over a pty, beside boofuzz",
+                     (in_process, black_box, beside_boofuzz), quick, "aspod-bench-fuzz-")
+
+
+if __name__ == "__main__":
+    sys.exit(1 if main(quick="--quick" in sys.argv).error else 0)

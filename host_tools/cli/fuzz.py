@@ -1,0 +1,155 @@
+"""`aspod fuzz`: protocol fuzzing (docs/fuzzing.md).
+
+    aspod fuzz controller-link --time 60                  one in-process target, coverage-guided (atheris)
+    aspod fuzz frames codec --runs 10000000 --jobs 8      a campaign: jobs split by seed, on Dask
+    aspod fuzz --target-cmd 'aspod sim --pty --no-pacing' black-box against a target it starts (and restarts)
+    aspod fuzz --url /dev/pts/5 --key-file link.key       black-box against a running target
+    aspod fuzz --replay FINDING.json [--url ...]          one finding again, alone
+
+Exit status: 0 nothing found, 1 findings (or a replayed finding still fails), 2 bad usage or input.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+
+from host_tools.cli.main import host_key
+from host_tools.cli.settings import FuzzSettings
+from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+
+log = logging.getLogger("aspod")
+
+
+def run_fuzz(settings: FuzzSettings) -> int:
+    if settings.mode == "list":
+        from host_tools.fuzz.targets import builtin_targets
+        for name, target in builtin_targets().items():
+            print(f"{name:17} {target.about}")
+        return EXIT_OK
+    if settings.mode == "replay":
+        return _replay(settings)
+    if settings.mode == "blackbox":
+        return _blackbox(settings)
+    return _inprocess(settings)
+
+
+def _progress_bar(settings: FuzzSettings, total, unit: str):
+    if not settings.progress or settings.as_json:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, unit=unit, unit_scale=True, file=sys.stderr, dynamic_ncols=True)
+
+
+def _inprocess(settings: FuzzSettings) -> int:
+    from host_tools.fuzz.campaign import run_campaign, summarize
+    from host_tools.fuzz.targets import load_target
+    plan = settings.plan
+    for name in plan.targets:
+        load_target(name).close()            # an unknown target: refused before anything starts
+    jobs = plan.jobs()
+    total = sum(j.runs for j in jobs) if plan.runs is not None else None
+    bar = _progress_bar(settings, total, "exec")
+    seen: dict[tuple, int] = {}
+
+    def advance(target: str, seed: int, execs: int, said: str) -> None:
+        if bar is not None:
+            bar.update(max(0, execs - seen.get((target, seed), 0)))
+            seen[(target, seed)] = execs
+            bar.set_postfix_str(f"{target} {said}")
+
+    def progress(p) -> None:
+        advance(p.target, p.seed, p.execs, f"{p.execs / p.wall_s if p.wall_s else 0:,.0f} exec/s cov {p.cov}")
+
+    def done(r) -> None:
+        advance(r.target, r.seed, r.execs, f"done: {r.execs_per_s:,.0f} exec/s cov {r.cov}")
+        for path in r.findings:
+            log.error(f"aspod fuzz: {r.target}: finding {path}")
+        if r.error:
+            log.error(f"aspod fuzz: {r.target} (seed {r.seed}): {r.error}")
+
+    results = run_campaign(plan, settings.engine, done, progress)
+    if bar is not None:
+        bar.close()
+    summary = summarize(results)
+    coverage = {}
+    if settings.coverage:
+        from host_tools.fuzz.coverage_report import line_coverage
+        for s in summary:
+            target = load_target(s.target)
+            coverage[s.target] = line_coverage(s.target, plan.corpus_root / _folder(s.target),
+                                               tuple(getattr(target, "covers", ())))
+            target.close()
+    if settings.as_json:
+        print(json.dumps({"targets": [s.as_dict() for s in summary], "jobs": [r.as_dict() for r in results],
+                          "coverage": coverage}, indent=1))
+    else:
+        print(f"{'target':17} {'jobs':>4} {'executions':>12} {'exec/s/core':>11} {'cov':>5} {'corpus':>6} findings")
+        for s in summary:
+            print(f"{s.target:17} {s.jobs:4} {s.execs:12,} {s.execs_per_core_s:11,.0f} {s.cov:5} {s.corpus:6} "
+                  f"{s.findings}" + (f"  ({s.errors} jobs could not run)" if s.errors else ""))
+            for name, figures in coverage.get(s.target, {}).items():
+                print(f"    {name:36} {figures['percent']:5.1f} % of {figures['statements']} lines")
+    if any(r.error for r in results) and not any(r.findings for r in results):
+        return EXIT_USAGE if all(r.error for r in results) else EXIT_FAILED
+    return EXIT_FAILED if any(r.findings for r in results) else EXIT_OK
+
+
+def _folder(target: str) -> str:
+    return target.replace(":", "_").replace("/", "_")
+
+
+def _blackbox(settings: FuzzSettings) -> int:
+    from host_tools.fuzz.blackbox import BlackBoxFuzzer, TargetGone
+    bb = settings.blackbox
+    bar = _progress_bar(settings, bb.cases, "case")
+    state = {"cases": 0}
+
+    def on_case(r) -> None:
+        if bar is not None:
+            bar.update(r.cases - state["cases"])
+            state["cases"] = r.cases
+            bar.set_postfix_str(f"{r.cases_per_s:,.1f} cases/s, {len(r.findings)} findings")
+
+    try:
+        result = BlackBoxFuzzer(bb, host_key(settings.key_file)).run(on_case)
+    except TargetGone as exc:
+        log.error(f"aspod fuzz: {exc}")
+        return EXIT_LINK
+    finally:
+        if bar is not None:
+            bar.close()
+    for path in result.findings:
+        log.error(f"aspod fuzz: finding {path}")
+    figures = {"cases": result.cases, "steps": result.steps, "wall_s": round(result.wall_s, 2),
+               "cases_per_s": round(result.cases_per_s, 2), "restarts": result.restarts, "findings": result.findings}
+    if settings.as_json:
+        print(json.dumps(figures, indent=1))
+    else:
+        print(f"black-box: {result.cases} cases ({result.steps} steps) in {result.wall_s:.1f} s, "
+              f"{result.cases_per_s:.1f} cases/s, {len(result.findings)} findings")
+    return EXIT_FAILED if result.findings else EXIT_OK
+
+
+def _replay(settings: FuzzSettings) -> int:
+    from host_tools.fuzz import findings
+    finding = findings.load(settings.replay)
+    if finding.target == "blackbox":
+        if settings.blackbox is None:
+            raise ValueError(f"{settings.replay} is a black-box finding (against {finding.url}): "
+                             "give --url or --target-cmd to replay it against")
+        from host_tools.fuzz.blackbox import BlackBoxFuzzer
+        failure = BlackBoxFuzzer(settings.blackbox, host_key(settings.key_file)).replay(finding)
+    else:
+        from host_tools.fuzz.targets import load_target
+        failure = findings.replay(finding, lambda: load_target(finding.target))
+    said = finding.failure.describe()
+    if failure is None:
+        print(f"{settings.replay}: no longer fails (it was: {said})")
+        return EXIT_OK
+    same = failure.signature == finding.failure.signature if finding.target != "blackbox" else (
+        failure.kind == finding.failure.kind)
+    print(f"{settings.replay}: fails {'as found' if same else 'differently'}: {failure.describe()}")
+    if failure.trace:
+        print(failure.trace, file=sys.stderr)
+    return EXIT_FAILED

@@ -1,0 +1,426 @@
+"""The black-box, stateful fuzzer: against any link URL (a pty, a TCP port, a serial device), a live `aspod sim`
+or a real controller that speaks this protocol, holding its key.
+
+It runs the handshake as a host does (a `HostLink` over a `SerialLine`) and keeps that session's counters and
+sequence numbers right. Each case is a few steps drawn from a seeded generator (the same seed, the same cases):
+
+    command   a command in sequence through the host's own sender, its payload from the grammar (boundaries,
+              one beyond, NaN and infinities, broken names): it reaches the handler
+    frame     a frame built by the fuzzer (link_targets.FrameRecipe): header fields, length, class, flags, MAC
+              (another key, the handshake key, a flipped bit, none, a used counter), a duplicate or a gap
+    replay    a frame sent earlier, again
+    raw       any bytes
+    hello     a Hello under the handshake key with fields from the grammar (a new nonce)
+    burst     several steps written at once;  silence   no byte (not even a heartbeat) for 50-95 % of the
+              controller's link timeout, which must not count it as lost
+
+After each case, the health check: a Ping through the session answered with its token; GetStatus with the
+controller's uptime rising, its commands-executed counter moved by exactly the commands that ran (those whose
+payload decodes, each once), and its state changed only if a command of the case was accepted. A failed check
+is a finding: its steps, the bytes sent and the pauses, saved (host_tools/fuzz/findings.py). With `--target-cmd`
+the fuzzer starts the target itself, restarts it after a crash, and shrinks a finding by replaying subsets of
+its steps on fresh targets.
+"""
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from protocol.framing import MAX_ENCODED, MAX_PAYLOAD
+from protocol.link import LinkConfig, LinkState
+from protocol.messages import SCHEMA
+from protocol.reliable import Outcome
+from protocol.host_link import HostLink
+from protocol.schema import MsgClass
+from protocol.states import ControllerState
+from timebase import RealClock
+
+from host_tools.client.lines import SerialLine
+from host_tools.fuzz import findings as findings_mod
+from host_tools.fuzz.grammar import TO_CONTROLLER, RandomDraw, draw_payload, draw_value, pack_raw
+from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
+
+_CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
+COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT))
+STEP_KINDS = ("command",) * 6 + ("frame",) * 5 + ("replay", "replay", "raw", "raw", "hello", "burst")
+EXIT_WAIT_S = 2.0              # after the line broke, how long a target we started has to be seen exiting
+READ_WAIT_S = 0.002            # a read waits this long for a first byte (the fuzzer's turns are short)
+SILENCE_ONE_IN = 200           # a silence (about 2 s at the default timeout) in one step of this many
+
+
+class TargetGone(Exception):
+    """The target stopped answering or exited: the case that did it is a finding."""
+
+
+@dataclass(frozen=True)
+class BlackBoxSettings:
+    url: str = ""                            # the link; empty: the one `command` prints (ASPOD-LINK)
+    command: tuple[str, ...] = ()            # starts (and restarts) the target
+    baud: int = 115200
+    seconds: Optional[float] = 60.0
+    cases: Optional[int] = None
+    seed: int = 1
+    findings: Path = Path("fuzz-findings")
+    link_timeout_s: float = LinkConfig().link_timeout_s
+    health_timeout_s: float = 5.0            # a Ping not answered in this long: the target is not healthy
+    max_steps: int = 6
+    skip: tuple[str, ...] = ("ParamSave",)   # commands never sent (ParamSave writes the target's own file)
+    only: tuple[str, ...] = ()               # if given, the only commands sent in sequence (one handler's fuzzing)
+    minimize_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        if not self.url and not self.command:
+            raise ValueError("black-box fuzzing needs --url (a running target) or --target-cmd (one to start)")
+        if self.seconds is None and self.cases is None:
+            raise ValueError("black-box fuzzing needs --time or --cases")
+        unknown = [n for n in self.skip + self.only if n not in {s.name for s in COMMANDS}]
+        if unknown:
+            raise ValueError(f"--skip/--only {', '.join(unknown)}: not a command the controller takes")
+
+
+@dataclass
+class BlackBoxResult:
+    cases: int = 0
+    steps: int = 0
+    wall_s: float = 0.0
+    findings: list[str] = field(default_factory=list)
+    restarts: int = 0
+    error: str = ""
+
+    @property
+    def cases_per_s(self) -> float:
+        return self.cases / self.wall_s if self.wall_s > 0 else 0.0
+
+
+class _Peer:
+    """What the fuzzer knows of the controller's counter: the last one it sent (delivered by the time it runs)."""
+
+    def __init__(self, counter: int) -> None:
+        self.rx_counter = counter
+
+
+class Session:
+    """One connection to the target: the line, the host's end of the link, the target's process if ours."""
+
+    def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
+        self.settings, self.psk, self.clock = settings, psk, RealClock()
+        self.child = None
+        url = settings.url
+        if settings.command:
+            from host_tools.worlds.child import Child
+            self.child = Child(list(settings.command[1:]), command=settings.command[:1])
+            url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
+        self.url = url
+        self.line = SerialLine(url, settings.baud)
+        self.line.serial.timeout = READ_WAIT_S
+        self.host = HostLink(psk, LinkConfig(link_timeout_s=settings.link_timeout_s))
+        self.sent: list[bytes] = []
+        self.host.connect(self.clock.now())
+        if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
+            self.close()
+            raise TargetGone(f"no session with {url} within {settings.health_timeout_s * 2:.0f} s "
+                             f"(link {self.host.state.value})")
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.line.write(data)
+        except OSError as exc:
+            raise TargetGone(f"writing to {self.url}: {exc}") from None
+
+    def pump(self, wire_out: bool = True) -> None:
+        """One turn: what came in to the host, its timers, what it has to send."""
+        try:
+            data = self.line.read()
+        except OSError as exc:
+            raise TargetGone(f"reading {self.url}: {exc}") from None
+        now = self.clock.now()
+        if data:
+            self.host.feed(data, now)
+        self.host.poll(now)
+        if wire_out:
+            out = self.host.take_all(now)
+            if out:
+                self.write(out)
+
+    def pump_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
+        end = _CLOCK.now() + timeout_s
+        while not done():
+            if _CLOCK.now() > end or self.exited():
+                return False
+            self.pump()
+        return True
+
+    def exited(self) -> Optional[int]:
+        return None if self.child is None else self.child.exit_status()
+
+    def close(self) -> str:
+        """Close the line and stop our target; its stderr's last lines."""
+        try:
+            self.line.close()
+        except OSError:
+            pass
+        if self.child is None:
+            return ""
+        _status, err = self.child.stop()
+        return "\n".join(err.splitlines()[-12:])
+
+
+class Case:
+    """A case's steps, drawn from `draw`, or given (a finding's, replayed)."""
+
+    def __init__(self, steps: list[dict]) -> None:
+        self.steps = steps
+
+    @classmethod
+    def draw(cls, draw: RandomDraw, settings: BlackBoxSettings) -> "Case":
+        commands = [s for s in COMMANDS if s.name not in settings.skip and (not settings.only or s.name in settings.only)]
+        steps = []
+        for _ in range(1 + draw.pick(settings.max_steps)):
+            kind = "silence" if draw.pick(SILENCE_ONE_IN) == 0 else STEP_KINDS[draw.pick(len(STEP_KINDS))]
+            step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(4) else draw.pick(20) / 1000.0}
+            if kind == "command":
+                spec = commands[draw.pick(len(commands))]
+                step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex())
+            elif kind == "frame":
+                spec = TO_CONTROLLER[draw.pick(len(TO_CONTROLLER))]
+                step.update(msg=spec.name, cls=int(spec.cls) if draw.pick(8) else draw.int_in(0, 255),
+                            seq=["duplicate", "gap", "any"][draw.pick(3)], offset=draw.pick(4),
+                            any_seq=draw.int_in(0, 0xFFFF), payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex(),
+                            mac=MACS[4 + draw.pick(len(MACS) - 4)] if draw.pick(2) else "good",
+                            version=1 if draw.pick(8) else draw.int_in(0, 255),
+                            flags=0x10 if draw.pick(8) else draw.int_in(0, 255),
+                            length_delta=0 if draw.pick(8) else draw.int_in(-4, 4))
+            elif kind == "replay":
+                step.update(which=draw.pick(64))
+            elif kind == "raw":
+                step.update(bytes=draw.raw(MAX_ENCODED + 8).hex())
+            elif kind == "hello":
+                hello = SCHEMA["Hello"]
+                values = [draw_value(f, draw) for f in hello.fields]
+                step.update(payload=pack_raw(hello, values).hex())
+            elif kind == "burst":
+                step.update(count=2 + draw.pick(20))
+            elif kind == "silence":
+                step.update(fraction=0.5 + draw.pick(46) / 100.0)
+            steps.append(step)
+        return cls(steps)
+
+    def run(self, session: Session, draw: RandomDraw) -> tuple[list, int]:
+        """Send the steps; the handles of the commands sent in sequence, and how many crafted frames may have
+        run (authentic urgent ones: that class is taken in any order, so one may land on an unused number)."""
+        handles, maybe = [], 0
+        for step in self.steps:
+            if step["delay_s"]:
+                end = _CLOCK.now() + step["delay_s"]
+                while _CLOCK.now() < end:
+                    session.pump()
+            kind = step["kind"]
+            repeat = step.get("count", 1) if kind == "burst" else 1
+            for _ in range(repeat):
+                if kind in ("command", "burst"):
+                    spec = SCHEMA[step.get("msg", "Ping")]
+                    payload = bytes.fromhex(step.get("payload", "00000000"))
+                    handles.append((spec, payload, session.host.submit_payload(spec, payload, session.clock.now())))
+                    if kind == "burst":
+                        out = session.host.take_all(session.clock.now())   # all at once, no read between
+                        step.setdefault("wire", "")
+                        session.write(out)
+                        continue
+                elif kind == "frame":
+                    session.write(self._frame(step, session, draw))
+                    maybe += step["mac"] == "good" and step["cls"] == MsgClass.URGENT
+                elif kind == "replay" and session.sent:
+                    session.write(session.sent[step["which"] % len(session.sent)])
+                elif kind == "raw":
+                    session.write(bytes.fromhex(step["bytes"]))
+                elif kind == "hello":
+                    from protocol.framing import encode_signed
+                    host = session.host
+                    host._handshake_tx_counter += 1
+                    wire, _tag = encode_signed(MsgClass.LINK, 0, 0xFFFF, SCHEMA["Hello"].id,
+                                               bytes.fromhex(step["payload"]), host._handshake.tx,
+                                               host._handshake_tx_counter)
+                    session.write(wire)
+                elif kind == "silence":
+                    end = _CLOCK.now() + step["fraction"] * session.settings.link_timeout_s
+                    while _CLOCK.now() < end:
+                        session.pump(wire_out=False)   # read and keep, send nothing: not even a heartbeat
+                session.pump()
+        return handles, maybe
+
+    @staticmethod
+    def _frame(step: dict, session: Session, draw: RandomDraw) -> bytes:
+        host = session.host
+        spec = SCHEMA[step["msg"]]
+        sender = host._commands if step["cls"] == MsgClass.COMMAND else host._urgent
+        base = (sender.next_seq - 1) & 0xFFFF
+        how = step["seq"]
+        if step["cls"] == MsgClass.URGENT and step["mac"] == "good":
+            how = "duplicate"     # urgent frames are taken in any order: an authentic one with a sequence number
+            #                       the host's sender has not used yet would run, and take that number from it
+        seq = {"duplicate": (base - step["offset"]) & 0xFFFF,
+               "gap": (sender.next_seq + 1 + step["offset"]) & 0xFFFF}.get(how, step["any_seq"])
+        recipe = FrameRecipe(spec, step["cls"], seq, bytes.fromhex(step["payload"]), step["mac"], step["version"],
+                             step["flags"], step["length_delta"])
+        wire = build(recipe, host.session, _Peer(host.session.tx_counter), host._handshake.tx, host._ack_value(),
+                     draw)
+        session.sent = (session.sent + [wire])[-64:]
+        return wire
+
+
+class HealthCheck:
+    """The target after a case: alive, answering, counting right, in the state it should be."""
+
+    def __init__(self, session: Session) -> None:
+        self.session = session
+        self.token = 0
+        self.last = self._status()
+        end = _CLOCK.now() + session.settings.health_timeout_s
+        while self.last.state == ControllerState.BOOT and _CLOCK.now() < end:   # its boot check still running
+            self.last = self._status()
+
+    def _call(self, msg):
+        s = self.session
+        handle = s.host.submit(msg, s.clock.now())
+        if not s.pump_until(lambda: handle.done, s.settings.health_timeout_s):
+            status = s.exited()
+            raise TargetGone(f"{msg.spec.name} not answered within {s.settings.health_timeout_s:.0f} s"
+                             + (f" (the target exited with status {status})" if status is not None else "")
+                             + f"; link {s.host.state.value}")
+        if not handle.ok:
+            raise TargetGone(f"{msg.spec.name}: {handle.describe()}")
+        return handle.reply
+
+    def _status(self):
+        return self._call(SCHEMA["GetStatus"].type())
+
+    def check(self, handles: list, maybe: int = 0) -> Optional[str]:
+        """None if healthy, else what is wrong (TargetGone if it does not answer)."""
+        s = self.session
+        s.pump_until(lambda: all(h.done for _spec, _payload, h in handles), s.settings.health_timeout_s)
+        self.token = (self.token + 1) & 0xFFFFFFFF
+        pong = self._call(SCHEMA["Ping"].type(token=self.token))
+        if pong.token != self.token:
+            return f"Pong carries token {pong.token}, the Ping {self.token}"
+        status = self._status()
+        before, self.last = self.last, status
+        if status.uptime_ms <= before.uptime_ms and status.uptime_ms > 1000:   # (a wrap after 49 days)
+            return f"uptime did not rise: {before.uptime_ms} ms then {status.uptime_ms} ms"
+        if all(h.done for _spec, _payload, h in handles):
+            ran = sum(1 for spec, payload, h in handles if h.outcome is not Outcome.FAILED and _decodes(spec, payload))
+            moved = (status.commands_executed - before.commands_executed) & 0xFFFFFFFF
+            if not ran + 2 <= moved <= ran + 2 + maybe:        # + the last GetStatus and this Ping
+                return (f"commands executed moved by {moved}, expected {ran + 2}" + (f"..{ran + 2 + maybe}" if maybe
+                        else "") + f" ({ran} of the case's {len(handles)} commands decode, + Ping and GetStatus"
+                        + (f", + {maybe} authentic urgent frames" if maybe else "") + "): not exactly once")
+        accepted = any(h.ok for _spec, _payload, h in handles) or maybe > 0
+        if not accepted and (status.state, status.faults) != (before.state, before.faults):
+            return (f"state {before.state}/faults {before.faults:#x} became {status.state}/{status.faults:#x} "
+                    f"with no command of the case accepted")
+        return None
+
+
+def _decodes(spec, payload: bytes) -> bool:
+    try:
+        spec.decode(payload)
+        return True
+    except Exception:          # noqa: BLE001 (a payload the controller must refuse)
+        return False
+
+
+def run_case(case: Case, session: Session, health: HealthCheck, seed: int) -> Optional[findings_mod.Failure]:
+    """Run `case` and the health check; the failure, or None."""
+    try:
+        handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
+        problem = health.check(handles, maybe)
+    except TargetGone as exc:
+        end = _CLOCK.now() + EXIT_WAIT_S
+        while session.child is not None and session.exited() is None and _CLOCK.now() < end:
+            _CLOCK.sleep(0.01)    # a line that broke: the process may be on its way out
+        status = session.exited()
+        kind = "crash" if status is not None else "hang"
+        return findings_mod.Failure(kind, f"TargetGone: {exc}", session.url, "health")
+    if problem is not None:
+        return findings_mod.Failure("oracle", f"HealthCheck: {problem}", session.url, "health")
+    return None
+
+
+class BlackBoxFuzzer:
+    def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
+        self.settings, self.psk = settings, psk
+
+    def _open(self) -> tuple[Session, HealthCheck]:
+        session = Session(self.settings, self.psk)
+        return session, HealthCheck(session)
+
+    def run(self, on_case: Callable[[BlackBoxResult], None] = lambda r: None) -> BlackBoxResult:
+        result = BlackBoxResult()
+        start = _CLOCK.now()
+        rng = random.Random(self.settings.seed)
+        session, health = self._open()
+        try:
+            while (self.settings.cases is None or result.cases < self.settings.cases) and (
+                    self.settings.seconds is None or _CLOCK.now() - start < self.settings.seconds):
+                case_seed = rng.getrandbits(32)
+                case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings)
+                failure = run_case(case, session, health, case_seed)
+                result.cases += 1
+                result.steps += len(case.steps)
+                if failure is not None:
+                    stderr = session.close()
+                    if stderr:
+                        failure.trace = stderr
+                    finding = findings_mod.Finding("blackbox", failure, steps=_steps_with_seed(case, case_seed),
+                                                   url=self.settings.url or " ".join(self.settings.command),
+                                                   execs=result.cases)
+                    if self.settings.command:
+                        finding = self.minimize(finding)
+                    result.findings.append(str(finding.save(self.settings.findings)))
+                    if not self.settings.command:
+                        break                  # not ours to restart: the target is as the case left it
+                    result.restarts += 1
+                    session, health = self._open()
+                result.wall_s = _CLOCK.now() - start
+                on_case(result)
+        finally:
+            session.close()
+        result.wall_s = _CLOCK.now() - start
+        return result
+
+    def replay(self, finding: findings_mod.Finding) -> Optional[findings_mod.Failure]:
+        """Run a finding's steps on a fresh session: the failure, or None (it no longer fails)."""
+        seed = int(finding.steps[0].get("seed", 0)) if finding.steps else 0
+        try:
+            session, health = self._open()
+        except TargetGone as exc:
+            return findings_mod.Failure("hang", f"TargetGone: {exc}", "", "health")
+        try:
+            return run_case(Case([dict(s) for s in finding.steps]), session, health, seed)
+        finally:
+            session.close()
+
+    def minimize(self, finding: findings_mod.Finding) -> findings_mod.Finding:
+        """Fewer steps that fail the same way (kind and oracle), each tried on a fresh target."""
+        deadline = _CLOCK.now() + self.settings.minimize_s
+        wanted = finding.failure.kind
+
+        def fails(steps: list[dict]) -> bool:
+            if _CLOCK.now() > deadline:
+                return False
+            failure = self.replay(findings_mod.Finding(finding.target, finding.failure, steps=steps))
+            return failure is not None and failure.kind == wanted
+
+        steps = findings_mod._ddmin(list(finding.steps), fails)
+        if len(steps) == len(finding.steps):
+            return finding
+        return findings_mod.Finding(finding.target, finding.failure, steps=steps, url=finding.url,
+                                    execs=finding.execs, minimized=True)
+
+
+def _steps_with_seed(case: Case, seed: int) -> list[dict]:
+    steps = [dict(s) for s in case.steps]
+    if steps:
+        steps[0]["seed"] = seed        # the draw a replayed "frame" step's flipped bit comes from
+    return steps

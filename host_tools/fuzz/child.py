@@ -1,0 +1,73 @@
+"""One in-process fuzzing job: atheris (libFuzzer) driving one target, in a process of its own.
+
+    python -m host_tools.fuzz.child TARGET FINDINGS_DIR [libFuzzer options and corpus folders]
+
+libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and
+reads its progress lines. Nothing of the emulator is imported before atheris' import hook is in place, so the
+code under test is instrumented for coverage. On a crash or an oracle failure the finding is written to
+FINDINGS_DIR with every input since the target was last fresh (host_tools/fuzz/findings.py) before libFuzzer
+reports it; a hang or running out of memory is left to libFuzzer's own artifact, which `aspod fuzz` turns into a
+finding.
+"""
+import sys
+
+from timebase import RealClock
+
+import atheris
+
+_CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
+
+PROGRESS_EVERY_S = 1.0       # how often the job says how many inputs it has run (libFuzzer's own lines thin out)
+
+# the code under test; the plant, the clock and the worlds that carry it are not (their coverage would only
+# slow every execution down)
+INSTRUMENTED = ["protocol", "firmware_py", "hil_sim.hal_node", "host_tools.teleop", "host_tools.fuzz.planted"]
+
+
+class Harness:
+    """Calls the target, rebuilding a stateful one every `fresh_every` inputs, and keeps the inputs since."""
+
+    def __init__(self, target, spec: str, findings) -> None:
+        self.target, self.spec, self.findings = target, spec, findings
+        self.stateful = getattr(target, "stateful", False)
+        self.fresh_every = getattr(target, "fresh_every", 1)
+        self.history: list[bytes] = []
+        self.execs = 0
+        self._said_s = _CLOCK.now()
+
+    def __call__(self, data: bytes) -> None:
+        if self.stateful and self.execs % self.fresh_every == 0:
+            self.target.fresh()
+            self.history.clear()
+        self.execs += 1
+        if self.execs & 255 == 0 and _CLOCK.now() - self._said_s >= PROGRESS_EVERY_S:
+            self._said_s = _CLOCK.now()
+            print(f"ASPOD-PROGRESS {self.execs}", file=sys.stderr, flush=True)
+        if self.stateful:
+            self.history.append(bytes(data))
+        try:
+            self.target.one_input(data)
+        except Exception as exc:
+            self.save(exc, self.history if self.stateful else [bytes(data)])
+            raise
+
+    def save(self, exc: BaseException, inputs: list[bytes]) -> None:
+        from host_tools.fuzz import findings
+        finding = findings.Finding(self.spec, findings.failure_of(exc), list(inputs), execs=self.execs)
+        path = finding.save(self.findings)
+        print(f"ASPOD-FINDING {path}", file=sys.stderr, flush=True)
+
+
+def main(argv: list[str]) -> None:
+    from pathlib import Path
+    spec, findings_dir, libfuzzer_args = argv[0], Path(argv[1]), argv[2:]
+    with atheris.instrument_imports(include=INSTRUMENTED + [spec.split(":")[0]] * (":" in spec)):
+        from host_tools.fuzz.targets import load_target
+        target = load_target(spec)
+    harness = Harness(target, spec, findings_dir)
+    atheris.Setup([sys.argv[0]] + libfuzzer_args, harness)
+    atheris.Fuzz()
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,206 @@
+"""A finding: what failed, and the exact input that makes it fail again, in one small JSON file.
+
+In process, the input is the list of fuzz inputs fed to a fresh target (one for a target that keeps nothing
+between inputs; for a stateful one, every input since its world was built). Black-box, it is the list of steps
+(the bytes written, how they were made, the pause before each; host_tools/fuzz/blackbox.py).
+
+`minimize` shrinks an in-process finding while it still fails the same way (the same kind, oracle, exception
+type and place): first whole inputs are dropped (delta debugging), then chunks of each remaining input.
+`replay` runs one on a fresh target.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+
+from timebase import RealClock
+
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Optional
+
+from protocol import files
+
+_CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
+
+FORMAT = "aspod-fuzz-finding/1"
+FINDING_LIMIT = 64 * files.MIB
+KINDS = ("crash", "oracle", "hang", "out-of-memory")
+
+
+class FindingError(ValueError):
+    """A finding file that cannot be read (the reason says why)."""
+
+
+@dataclass
+class Failure:
+    kind: str                  # crash | oracle | hang | out-of-memory
+    error: str                 # "IndexError: list index out of range"
+    where: str = ""            # file:line of the innermost frame of our code
+    oracle: str = ""
+    trace: str = ""
+
+    @property
+    def signature(self) -> tuple:
+        return (self.kind, self.oracle, self.error.split(":", 1)[0], self.where)
+
+    def describe(self) -> str:
+        what = f"oracle {self.oracle!r} failed" if self.kind == "oracle" else self.kind
+        return f"{what}: {self.error}" + (f" at {self.where}" if self.where else "")
+
+
+def failure_of(exc: BaseException) -> Failure:
+    from host_tools.fuzz.targets import OracleFailure
+    frames = traceback.extract_tb(exc.__traceback__)
+    kind = "oracle" if isinstance(exc, OracleFailure) else "crash"
+    if kind == "oracle":        # the oracle's own line: where `check` was called
+        ours = [f for f in frames if f.name != "check"]
+    else:                       # the code under test's innermost line, not the harness's
+        ours = [f for f in frames if "/fuzz/" not in f.filename or "planted" in f.filename] or frames
+    where = f"{_short(ours[-1].filename)}:{ours[-1].lineno}" if ours else ""
+    return Failure(kind, f"{type(exc).__name__}: {exc}", where, getattr(exc, "oracle", ""),
+                   "".join(traceback.format_exception(exc))[-4000:])
+
+
+def _short(filename: str) -> str:
+    for root in ("protocol/", "firmware_py/", "hil_sim/", "host_tools/", "timebase/"):
+        if root in filename:
+            return root + filename.rsplit(root, 1)[1]
+    return filename
+
+
+@dataclass
+class Finding:
+    target: str
+    failure: Failure
+    inputs: list[bytes] = field(default_factory=list)        # in process
+    steps: list[dict] = field(default_factory=list)          # black-box
+    url: str = ""
+    execs: int = 0             # executions before it was found
+    minimized: bool = False
+    found_at: str = ""
+
+    def to_json(self) -> dict:
+        return {"format": FORMAT, "target": self.target, "failure": asdict(self.failure),
+                "inputs": [i.hex() for i in self.inputs], "steps": self.steps, "url": self.url, "execs": self.execs,
+                "minimized": self.minimized, "found_at": self.found_at}
+
+    def name(self) -> str:
+        digest = hashlib.sha1(json.dumps([self.target, self.inputs and [i.hex() for i in self.inputs],
+                                          self.steps], sort_keys=True).encode()).hexdigest()[:12]
+        return f"{self.failure.kind}-{self.target.replace(':', '_').replace('/', '_')}-{digest}.json"
+
+    def save(self, folder: Path) -> Path:
+        folder.mkdir(parents=True, exist_ok=True)
+        self.found_at = self.found_at or time.strftime("%Y-%m-%dT%H:%M:%S")
+        path = folder / self.name()
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(self.to_json(), indent=1) + "\n")
+        tmp.replace(path)
+        return path
+
+
+def load(path: Path) -> Finding:
+    """A finding file; FindingError with the reason for anything else."""
+    try:
+        data = json.loads(files.read_bounded(path, FINDING_LIMIT).decode("utf-8"))
+    except files.InputFileError as exc:
+        raise FindingError(str(exc)) from None
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise FindingError(f"{path}: not a finding file ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise FindingError(f"{path}: not a finding file (no \"format\": \"{FORMAT}\")")
+    try:
+        failure = Failure(**{k: str(v) for k, v in data["failure"].items()})
+        inputs = [bytes.fromhex(h) for h in data.get("inputs", [])]
+        steps = list(data.get("steps", []))
+        if not all(isinstance(s, dict) for s in steps):
+            raise ValueError("a step is not an object")
+        return Finding(str(data["target"]), failure, inputs, steps, str(data.get("url", "")),
+                       int(data.get("execs", 0)), bool(data.get("minimized", False)), str(data.get("found_at", "")))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FindingError(f"{path}: a finding file, but {type(exc).__name__}: {exc}") from None
+
+
+# ---- in process: replay and minimize ----
+def run_inputs(target, inputs: list[bytes]) -> Optional[Failure]:
+    """Feed `inputs` to `target` from fresh; the failure they cause, or None."""
+    fresh_every = target.fresh_every if getattr(target, "stateful", False) else 1
+    for index, data in enumerate(inputs):
+        if getattr(target, "stateful", False) and index % fresh_every == 0:
+            target.fresh()
+        try:
+            target.one_input(data)
+        except Exception as exc:       # noqa: BLE001 (whatever escapes is the finding)
+            return failure_of(exc)
+    return None
+
+
+def replay(finding: Finding, make_target: Callable[[], object]) -> Optional[Failure]:
+    target = make_target()
+    try:
+        return run_inputs(target, finding.inputs)
+    finally:
+        target.close()
+
+
+def minimize(finding: Finding, make_target: Callable[[], object], budget_s: float = 60.0) -> Finding:
+    """`finding` with fewer and shorter inputs that fail the same way (within `budget_s` of trying)."""
+    target = make_target()
+    wanted = finding.failure.signature
+    deadline = _CLOCK.now() + budget_s
+
+    def fails(inputs: list[bytes]) -> bool:
+        if _CLOCK.now() > deadline:
+            return False
+        failure = run_inputs(target, inputs)
+        return failure is not None and failure.signature == wanted
+
+    try:
+        inputs = list(finding.inputs)
+        if not fails(inputs):
+            return finding                       # not reproducible alone: kept as it was found
+        inputs = _ddmin(inputs, fails)
+        for i in range(len(inputs)):
+            inputs[i] = _shrink_bytes(inputs, i, fails)
+        failure = run_inputs(target, inputs) or finding.failure
+        return Finding(finding.target, failure, inputs, execs=finding.execs, minimized=True,
+                       found_at=finding.found_at)
+    finally:
+        target.close()
+
+
+def _ddmin(items: list, fails: Callable[[list], bool]) -> list:
+    """Zeller's delta debugging: a smaller list that still fails (the last item, the failing one, is kept)."""
+    n = 2
+    while len(items) > 1:
+        chunk = max(1, (len(items) - 1) // n)
+        reduced = False
+        for start in range(0, len(items) - 1, chunk):
+            candidate = items[:start] + items[start + chunk:]
+            if candidate and candidate[-1] is items[-1] and fails(candidate):
+                items, n, reduced = candidate, max(n - 1, 2), True
+                break
+        if not reduced:
+            if chunk == 1:
+                break
+            n = min(len(items), n * 2)
+    return items
+
+
+def _shrink_bytes(inputs: list[bytes], i: int, fails: Callable[[list], bool]) -> bytes:
+    data = inputs[i]
+    size = max(1, len(data) // 2)
+    while size >= 1:
+        start, changed = 0, False
+        while start < len(data):
+            candidate = data[:start] + data[start + size:]
+            if fails(inputs[:i] + [candidate] + inputs[i + 1:]):
+                data, changed = candidate, True
+            else:
+                start += size
+        if not changed:
+            size //= 2
+    return data

@@ -1,0 +1,172 @@
+"""The link's grammar, from its one declaration (`protocol/messages.py` SCHEMA): what a fuzzer may put in each field.
+
+A field's interesting values come from its type, its range and its enum: the boundaries, one step beyond them
+(still in the wire type), zero, the type's own extremes, NaN and the infinities for floats, names and texts that
+break their rules (too long, a character not allowed, a zero inside, a byte above 127). `pack_raw` packs any
+such values with the field's struct code and none of the codec's checks, so a payload may be wrong on purpose.
+
+Every choice comes from a `Draw`: `FdpDraw` over atheris' FuzzedDataProvider (in process: the coverage-guided
+engine steers the choices), `RandomDraw` over a seeded `random.Random` (black-box: the same seed, the same cases).
+"""
+from __future__ import annotations
+
+import math
+import random
+import struct
+from typing import Any, Protocol as TypingProtocol, Sequence
+
+from protocol.messages import SCHEMA
+from protocol.schema import Direction, Field, MessageSpec
+
+_INT_LIMITS = {"b": (-2**7, 2**7 - 1), "B": (0, 2**8 - 1), "h": (-2**15, 2**15 - 1), "H": (0, 2**16 - 1),
+               "i": (-2**31, 2**31 - 1), "I": (0, 2**32 - 1), "q": (-2**63, 2**63 - 1), "Q": (0, 2**64 - 1),
+               "?": (0, 1)}
+_F32 = struct.Struct("<f")
+F32_MAX = 3.4028234663852886e38
+
+TO_CONTROLLER = tuple(s for s in SCHEMA.by_id.values() if s.direction in (Direction.TO_CONTROLLER, Direction.BOTH))
+TO_HOST = tuple(s for s in SCHEMA.by_id.values() if s.direction in (Direction.TO_HOST, Direction.BOTH))
+
+
+class Draw(TypingProtocol):
+    """Where a fuzzer's choices come from."""
+
+    def pick(self, n: int) -> int: ...                   # 0 <= i < n
+    def int_in(self, lo: int, hi: int) -> int: ...       # lo <= i <= hi
+    def raw(self, n: int) -> bytes: ...                  # at most n bytes
+    def any_float(self) -> float: ...                    # any double, NaN and infinities included
+    def left(self) -> int: ...                           # how much input is left (0: choices are all zeros now)
+
+
+class FdpDraw:
+    """Choices from libFuzzer's input, through atheris' FuzzedDataProvider."""
+
+    def __init__(self, data: bytes) -> None:
+        import atheris
+        self._fdp = atheris.FuzzedDataProvider(data)
+
+    def pick(self, n: int) -> int:
+        return self._fdp.ConsumeIntInRange(0, n - 1) if n > 1 else 0
+
+    def int_in(self, lo: int, hi: int) -> int:
+        return self._fdp.ConsumeIntInRange(lo, hi)
+
+    def raw(self, n: int) -> bytes:
+        return self._fdp.ConsumeBytes(n)
+
+    def any_float(self) -> float:
+        return self._fdp.ConsumeRegularFloat() if self._fdp.ConsumeBool() else self._fdp.ConsumeFloat()
+
+    def left(self) -> int:
+        return self._fdp.remaining_bytes()
+
+
+class RandomDraw:
+    """Choices from a seeded generator (the black-box fuzzer's: the same seed gives the same cases)."""
+
+    def __init__(self, rng: random.Random) -> None:
+        self.rng = rng
+
+    def pick(self, n: int) -> int:
+        return self.rng.randrange(n) if n > 1 else 0
+
+    def int_in(self, lo: int, hi: int) -> int:
+        return self.rng.randint(lo, hi)
+
+    def raw(self, n: int) -> bytes:
+        return self.rng.randbytes(self.rng.randint(0, n))
+
+    def any_float(self) -> float:
+        return _F32.unpack(self.rng.randbytes(4))[0] if self.rng.random() < 0.5 else self.rng.uniform(-1e6, 1e6)
+
+    def left(self) -> int:
+        return 1 << 30
+
+
+def _f32(value: float) -> float:
+    """`value` as the nearest f32 (infinite beyond its range)."""
+    if math.isnan(value) or math.isinf(value):
+        return value
+    if abs(value) > F32_MAX:
+        return math.copysign(math.inf, value)
+    return _F32.unpack(_F32.pack(value))[0]
+
+
+def _f32_step(value: float, towards: float) -> float:
+    """The next f32 after `value` towards `towards`: the first value beyond a float boundary."""
+    bits = struct.unpack("<i", _F32.pack(value))[0]
+    up = (towards > value) == (bits >= 0)
+    return struct.unpack("<f", struct.pack("<i", bits + (1 if up else -1)))[0] if value != 0 else (
+        math.copysign(1.4e-45, towards - value))
+
+
+def interesting(fld: Field) -> list[Any]:
+    """The values worth trying in `fld`: its boundaries and one beyond, zero, the type's extremes, broken texts."""
+    if fld.type.startswith("bytes"):
+        n = fld.text_size
+        return [bytes(n), b"\xff" * n, bytes(range(n))]
+    if fld.is_text:
+        n = fld.text_size
+        name_ok = "a" * n if fld.type.startswith("str") else "~" * n
+        return ["", "x", name_ok, name_ok[:-1] + "\x7f", "a b" if fld.type.startswith("str") else "\t",
+                b"\x00a", b"a\x00b", b"\xc3\xa9", b"\xff" * n, "J1"]
+    code = fld.struct_code
+    if code == "f":
+        values = [0.0, -0.0, math.nan, math.inf, -math.inf, F32_MAX, -F32_MAX, 1.4e-45, 1.0, -1.0]
+        if fld.range is not None:
+            lo, hi = (_f32(v) for v in fld.range)
+            values += [lo, hi, _f32_step(lo, -math.inf), _f32_step(hi, math.inf), (lo + hi) / 2]
+        return values
+    lo_t, hi_t = _INT_LIMITS[code]
+    values = {lo_t, hi_t, 0, 1, hi_t - 1}
+    if fld.range is not None:
+        lo, hi = (int(v) for v in fld.range)
+        values |= {lo, hi, lo - 1, hi + 1}
+    if fld.enum is not None:
+        members = [int(m) for m in fld.enum]
+        values |= set(members) | {max(members) + 1, min(members) - 1}
+    return sorted(v for v in values if lo_t <= v <= hi_t)
+
+
+def draw_value(fld: Field, draw: Draw) -> Any:
+    """One value for `fld`: mostly an interesting one, sometimes a valid one at random, sometimes anything."""
+    how = draw.pick(5)
+    if how == 4 and fld.range is not None and not fld.is_text:     # a boundary itself: where off-by-ones live
+        return type(interesting(fld)[0])(fld.range[draw.pick(2)])
+    if how <= 1:
+        values = interesting(fld)
+        return values[draw.pick(len(values))]
+    if fld.type.startswith("bytes"):
+        return draw.raw(fld.text_size).ljust(fld.text_size, b"\x00")
+    if fld.is_text:
+        return draw.raw(fld.text_size)
+    if fld.struct_code == "f":
+        if how == 2 and fld.range is not None:
+            lo, hi = fld.range
+            return lo + (hi - lo) * draw.int_in(0, 1 << 16) / (1 << 16)
+        return draw.any_float()
+    lo_t, hi_t = _INT_LIMITS[fld.struct_code]
+    if how == 2 and fld.range is not None:
+        return draw.int_in(max(lo_t, int(fld.range[0])), min(hi_t, int(fld.range[1])))
+    return draw.int_in(lo_t, hi_t)
+
+
+def pack_raw(spec: MessageSpec, values: Sequence[Any]) -> bytes:
+    """`values` packed as `spec`'s payload with none of the codec's checks (texts as bytes, zero-padded and cut)."""
+    out = []
+    for fld, value in zip(spec.fields, values):
+        if fld.is_text or fld.type.startswith("bytes"):
+            raw = value.encode("latin-1") if isinstance(value, str) else bytes(value)
+            out.append(raw[:fld.text_size].ljust(fld.text_size, b"\x00"))
+        elif fld.struct_code == "f":
+            out.append(_F32.pack(_f32(value)))
+        else:
+            out.append(struct.pack("<" + fld.struct_code, value))
+    return b"".join(out)
+
+
+def draw_payload(spec: MessageSpec, draw: Draw) -> bytes:
+    """A payload for `spec`: its fields from the grammar (the usual case), or bytes of any length."""
+    if draw.pick(8) == 0:
+        return draw.raw(spec.size + 4)
+    return pack_raw(spec, [draw_value(f, draw) for f in spec.fields])

@@ -1,0 +1,135 @@
+"""aspod fuzz: the grammar, the in-process targets and their oracles, findings (saved, minimized, replayed), the
+planted defects found in process and black-box, and the command's bad input."""
+from __future__ import annotations
+
+import json
+import math
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from host_tools.fuzz import findings
+from host_tools.fuzz.grammar import TO_CONTROLLER, interesting
+from host_tools.fuzz.inprocess import JobSettings, run_job
+from host_tools.fuzz.targets import builtin_targets, load_target
+from protocol.messages import SCHEMA
+
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+PLANTED_CODEC = "host_tools.fuzz.planted:planted_codec_target"
+
+
+def aspod(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def test_the_grammar_holds_each_fields_boundaries_and_one_beyond():
+    dial = SCHEMA["BoxDial"].fields[0]
+    values = interesting(dial)
+    assert 0.0 in values and 100.0 in values
+    assert any(v > 100.0 and v < 100.0001 for v in values)          # the next f32 after the boundary
+    assert any(isinstance(v, float) and math.isnan(v) for v in values) and math.inf in values
+    axis = SCHEMA["Move"].fields[0]
+    members = [int(m) for m in axis.enum]
+    assert set(members) <= set(interesting(axis)) and set(interesting(axis)) - set(members)   # and some not
+    assert {s.name for s in TO_CONTROLLER} >= {"Ping", "Move", "EStop", "Hello", "Heartbeat"}
+
+
+@pytest.mark.parametrize("name", sorted(builtin_targets()))
+def test_every_target_takes_any_bytes_and_its_oracles_hold(name):
+    """300 inputs of random bytes per target, in this process (no atheris engine): nothing escapes."""
+    target = load_target(name)
+    rng = random.Random(name)
+    try:
+        failure = findings.run_inputs(target, [rng.randbytes(rng.randint(0, 200)) for _ in range(300)])
+    finally:
+        target.close()
+    assert failure is None, failure.describe() + "\n" + failure.trace
+
+
+def test_the_controller_link_target_reaches_the_handlers_with_frames_it_signed():
+    target = load_target("controller-link")
+    rng = random.Random(3)
+    try:
+        target.fresh()
+        executed = target.bench.controller.link.commands_executed
+        for _ in range(200):
+            target.one_input(rng.randbytes(60))
+        assert target.bench.controller.link.commands_executed > executed + 20
+    finally:
+        target.close()
+
+
+def test_a_planted_off_by_one_in_the_codec_is_found_minimized_and_replayed(tmp_path):
+    """The codec's length check off by one (host_tools/fuzz/planted.py): found by the round-trip oracle within
+    20,000 executions, shrunk to a few bytes, and `aspod fuzz --replay` says it still fails."""
+    job = JobSettings(PLANTED_CODEC, tmp_path / "corpus", tmp_path / "found", seconds=None, runs=20000)
+    result = run_job(job)
+    assert len(result.findings) == 1 and result.execs <= 20000
+    finding = findings.load(Path(result.findings[0]))
+    assert finding.failure.kind == "oracle" and finding.failure.oracle == "round trip"
+    assert finding.minimized and len(finding.inputs) == 1 and len(finding.inputs[0]) <= 8
+    done = aspod("fuzz", "--replay", result.findings[0], cwd=tmp_path)
+    assert done.returncode == 1 and "fails as found" in done.stdout
+    clean = run_job(JobSettings("codec", tmp_path / "corpus2", tmp_path / "found2", seconds=None, runs=5000))
+    assert clean.findings == [] and clean.execs == 5000 and clean.cov > 50
+
+
+def test_findings_that_are_not_findings_are_refused_with_a_reason(tmp_path):
+    bad = tmp_path / "bad.json"
+    for text in ("not json", json.dumps([1]), json.dumps({"format": "aspod-fuzz-finding/1", "target": "codec"}),
+                 json.dumps({"format": "aspod-fuzz-finding/1", "target": "codec", "failure": {"kind": "crash",
+                                                                                            "error": "x"},
+                             "inputs": ["zz"]})):
+        bad.write_text(text)
+        with pytest.raises(findings.FindingError):
+            findings.load(bad)
+    done = aspod("fuzz", "--replay", str(bad), cwd=tmp_path)
+    assert done.returncode == 2 and "bad.json" in done.stderr
+
+
+def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
+    for args, said in ((["nosuch"], "no fuzz target 'nosuch'"), (["codec", "--cases", "3"], "black-box"),
+                       ([], "name an in-process TARGET"), (["codec", "--url", "/dev/null"], "one at a time"),
+                       (["--url", "/dev/null", "--only", "Pong"], "not a command the controller takes"),
+                       (["nosuch.module:f"], "cannot load it")):
+        done = aspod("fuzz", *args, cwd=tmp_path, timeout=60)
+        assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
+    assert not (tmp_path / "fuzz-findings").exists() or not any((tmp_path / "fuzz-findings").iterdir())
+
+
+@pytest.mark.pty
+@pytest.mark.long
+def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp_path):
+    """A simulator whose BoxDial handler crashes at exactly 100 % (planted): the black-box fuzzer, sending only
+    BoxDial, finds it within 300 cases, shrinks it, and the finding fails again on a fresh simulator."""
+    key = tmp_path / "k.key"
+    from protocol import auth
+    auth.write_key(key, bytes(range(32)))
+    target = f"{sys.executable} -m host_tools.fuzz.planted sim --pty --no-pacing --key-file {key}"
+    done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--only", "BoxDial", "--cases", "300",
+                 "--json", cwd=tmp_path, timeout=600)
+    assert done.returncode == 1, done.stderr[-2000:]
+    figures = json.loads(done.stdout)
+    crashes = [f for f in figures["findings"] if Path(f).name.startswith("crash-")]
+    assert crashes, figures
+    finding = findings.load(tmp_path / crashes[0])
+    assert any(s["kind"] == "command" and s["msg"] == "BoxDial" for s in finding.steps)
+    again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, "--key-file", str(key), cwd=tmp_path,
+                  timeout=300)
+    assert again.returncode == 1 and "fails as found" in again.stdout, again.stdout + again.stderr
+
+
+@pytest.mark.pty
+@pytest.mark.long
+def test_black_box_against_the_real_simulator_finds_nothing(tmp_path):
+    key = tmp_path / "k.key"
+    from protocol import auth
+    auth.write_key(key, bytes(range(32)))
+    target = f"{sys.executable} -m host_tools.cli.main sim --pty --no-pacing --key-file {key}"
+    done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--cases", "60", "--seed", "5", "--json",
+                 cwd=tmp_path, timeout=600)
+    figures = json.loads(done.stdout)
+    assert done.returncode == 0 and figures["findings"] == [] and figures["cases"] == 60, done.stderr[-3000:]
