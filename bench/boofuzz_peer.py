@@ -106,11 +106,6 @@ def _delimit(raw: bytes) -> bytes:
     return b"\x00" + cobs.encode(raw) + b"\x00"
 
 
-def seq_delta(a: int, b: int) -> int:
-    d = (a - b) & 0xFFFF
-    return d - 0x10000 if d >= 0x8000 else d
-
-
 # ---- the host's end, as the callbacks keep it ----
 class Line:
     """Keys, counters and sequence numbers shared by the hooks and the grammar's tag `Checksum`; reads the controller's

@@ -77,7 +77,7 @@ def _inprocess(settings: FuzzSettings) -> int:
         from host_tools.fuzz.coverage_report import line_coverage
         for s in summary:
             target = load_target(s.target)
-            coverage[s.target] = line_coverage(s.target, plan.corpus_root / _folder(s.target),
+            coverage[s.target] = line_coverage(s.target, plan.corpus(s.target),
                                                tuple(getattr(target, "covers", ())))
             target.close()
     if settings.as_json:
@@ -93,10 +93,6 @@ def _inprocess(settings: FuzzSettings) -> int:
     if any(r.error for r in results) and not any(r.findings for r in results):
         return EXIT_USAGE if all(r.error for r in results) else EXIT_FAILED
     return EXIT_FAILED if any(r.findings for r in results) else EXIT_OK
-
-
-def _folder(target: str) -> str:
-    return target.replace(":", "_").replace("/", "_")
 
 
 def _blackbox(settings: FuzzSettings) -> int:

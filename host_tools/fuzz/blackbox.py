@@ -11,12 +11,14 @@ sequence numbers right. Each case is a few steps drawn from a seeded generator (
     replay    a frame sent earlier, again
     raw       any bytes
     hello     a Hello under the handshake key with fields from the grammar (a new nonce)
-    burst     several steps written at once;  silence   no byte (not even a heartbeat) for 50-95 % of the
+    burst     several commands written at once;  silence   no byte (not even a heartbeat) for 50-80 % of the
               controller's link timeout, which must not count it as lost
 
 After each case, the health check: a Ping through the session answered with its token; GetStatus with the
 controller's uptime rising, its commands-executed counter moved by exactly the commands that ran (those whose
-payload decodes, each once), and its state changed only if a command of the case was accepted. A failed check
+payload decodes, each once), and its state changed only if a command of the case was accepted, or into FAULT
+for a cause outside the case (the arm faulting under a motion we started, our own silence past the link
+timeout, the target saying it is too slow for real time). A failed check
 is a finding: its steps, the bytes sent and the pauses, saved (host_tools/fuzz/findings.py). With `--target-cmd`
 the fuzzer starts the target itself, restarts it after a crash, and shrinks a finding by replaying subsets of
 its steps on fresh targets.
@@ -30,11 +32,11 @@ from typing import Callable, Optional
 
 from protocol.framing import MAX_ENCODED, MAX_PAYLOAD
 from protocol.link import LinkConfig, LinkState
-from protocol.messages import SCHEMA
-from protocol.reliable import Outcome
 from protocol.host_link import HostLink
+from protocol.messages import SCHEMA, started_motions
+from protocol.reliable import Outcome
 from protocol.schema import MsgClass
-from protocol.states import ControllerState
+from protocol.states import ControllerState, Fault
 from timebase import RealClock
 
 from host_tools.client.lines import SerialLine
@@ -43,11 +45,14 @@ from host_tools.fuzz.grammar import TO_CONTROLLER, RandomDraw, draw_payload, dra
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
+MOTION_FAULTS = (Fault.ENCODER | Fault.STALL | Fault.FOLLOWING_ERROR | Fault.OVER_CURRENT | Fault.HOMING_FAILED
+                 | Fault.OPEN_CIRCUIT | Fault.GRIPPER)       # what a moving arm may latch, whatever the link does
 COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT))
 STEP_KINDS = ("command",) * 6 + ("frame",) * 5 + ("replay", "replay", "raw", "raw", "hello", "burst")
 EXIT_WAIT_S = 2.0              # after the line broke, how long a target we started has to be seen exiting
 READ_WAIT_S = 0.002            # a read waits this long for a first byte (the fuzzer's turns are short)
 SILENCE_ONE_IN = 200           # a silence (about 2 s at the default timeout) in one step of this many
+SILENCE_MIN, SILENCE_MAX = 0.5, 0.8   # of the link timeout: near it, with room for this process being held up
 
 
 class TargetGone(Exception):
@@ -115,15 +120,37 @@ class Session:
         self.url = url
         self.line = SerialLine(url, settings.baud)
         self.line.serial.timeout = READ_WAIT_S
-        self.host = HostLink(psk, LinkConfig(link_timeout_s=settings.link_timeout_s))
+        self.host = HostLink(psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
         self.sent: list[bytes] = []
+        self.started: dict[int, int] = {}      # axis -> the last motion id a command of ours started
+        self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
+        self.last_write_s = self.clock.now()
+        self.lapsed = False                    # our own silence outlasted the link timeout since the last check
         self.host.connect(self.clock.now())
         if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
             self.close()
             raise TargetGone(f"no session with {url} within {settings.health_timeout_s * 2:.0f} s "
                              f"(link {self.host.state.value})")
 
+    def _event(self, msg, now: float) -> None:
+        if msg.spec.name == "MotionDone":
+            self.ended[msg.axis] = max(self.ended.get(msg.axis, 0), msg.motion_id)
+
+    def note_started(self, reply) -> None:
+        """The motions a MotionAccepted reply says it started."""
+        for axis, motion_id in started_motions(reply).items():
+            self.started[axis] = max(self.started.get(axis, 0), motion_id)
+
+    @property
+    def moving(self) -> bool:
+        """A motion we started has not ended (motion ids rise on each axis; ends come in order)."""
+        return any(motion_id > self.ended.get(axis, 0) for axis, motion_id in self.started.items())
+
     def write(self, data: bytes) -> None:
+        now = self.clock.now()
+        if now - self.last_write_s >= self.settings.link_timeout_s:
+            self.lapsed = True       # the controller heard nothing from us for a whole link timeout
+        self.last_write_s = now
         try:
             self.line.write(data)
         except OSError as exc:
@@ -203,7 +230,7 @@ class Case:
             elif kind == "burst":
                 step.update(count=2 + draw.pick(20))
             elif kind == "silence":
-                step.update(fraction=0.5 + draw.pick(46) / 100.0)
+                step.update(fraction=SILENCE_MIN + draw.pick(int((SILENCE_MAX - SILENCE_MIN) * 100) + 1) / 100.0)
             steps.append(step)
         return cls(steps)
 
@@ -224,12 +251,12 @@ class Case:
                     payload = bytes.fromhex(step.get("payload", "00000000"))
                     handles.append((spec, payload, session.host.submit_payload(spec, payload, session.clock.now())))
                     if kind == "burst":
-                        out = session.host.take_all(session.clock.now())   # all at once, no read between
-                        step.setdefault("wire", "")
-                        session.write(out)
+                        session.write(session.host.take_all(session.clock.now()))   # all at once, no read between
                         continue
                 elif kind == "frame":
-                    session.write(self._frame(step, session, draw))
+                    wire = self._frame(step, session, draw)
+                    step["wire"] = wire.hex()          # as sent (a replay re-signs it in its own session)
+                    session.write(wire)
                     maybe += step["mac"] == "good" and step["cls"] == MsgClass.URGENT
                 elif kind == "replay" and session.sent:
                     session.write(session.sent[step["which"] % len(session.sent)])
@@ -242,6 +269,7 @@ class Case:
                     wire, _tag = encode_signed(MsgClass.LINK, 0, 0xFFFF, SCHEMA["Hello"].id,
                                                bytes.fromhex(step["payload"]), host._handshake.tx,
                                                host._handshake_tx_counter)
+                    step["wire"] = wire.hex()
                     session.write(wire)
                 elif kind == "silence":
                     end = _CLOCK.now() + step["fraction"] * session.settings.link_timeout_s
@@ -315,11 +343,27 @@ class HealthCheck:
                 return (f"commands executed moved by {moved}, expected {ran + 2}" + (f"..{ran + 2 + maybe}" if maybe
                         else "") + f" ({ran} of the case's {len(handles)} commands decode, + Ping and GetStatus"
                         + (f", + {maybe} authentic urgent frames" if maybe else "") + "): not exactly once")
+        for _spec, _payload, h in handles:
+            if h.ok and h.reply is not None and h.reply.spec.name == "MotionAccepted":
+                s.note_started(h.reply)
         accepted = any(h.ok for _spec, _payload, h in handles) or maybe > 0
-        if not accepted and (status.state, status.faults) != (before.state, before.faults):
+        explained = self._explained(status.faults & ~before.faults)
+        s.lapsed = False
+        if not accepted and (status.state, status.faults) != (before.state, before.faults) and not (
+                status.state == ControllerState.FAULT and explained):
             return (f"state {before.state}/faults {before.faults:#x} became {status.state}/{status.faults:#x} "
                     f"with no command of the case accepted")
         return None
+
+    def _explained(self, new: int) -> bool:
+        """True if faults `new` have a cause other than the case: the plant under a motion we started, our own
+        silence past the link timeout, or the target saying it is too slow for real time."""
+        allowed = Fault.SCHEDULER_OVERRUN
+        if self.session.moving:
+            allowed |= MOTION_FAULTS
+        if self.session.lapsed:
+            allowed |= Fault.LINK_LOST
+        return bool(new) and not new & ~allowed
 
 
 def _decodes(spec, payload: bytes) -> bool:

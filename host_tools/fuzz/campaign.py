@@ -30,12 +30,12 @@ class CampaignPlan:
     def jobs(self) -> list[JobSettings]:
         if not 1 <= self.jobs_per_target <= 10000:
             raise ValueError(f"--jobs {self.jobs_per_target}: between 1 and 10000")
-        return [JobSettings(target, self.corpus_root / _folder_name(target), self.findings, self.seconds, self.runs,
-                            self.seed + k) for target in self.targets for k in range(self.jobs_per_target)]
+        return [JobSettings(target, self.corpus(target), self.findings, self.seconds, self.runs, self.seed + k)
+                for target in self.targets for k in range(self.jobs_per_target)]
 
-
-def _folder_name(target: str) -> str:
-    return target.replace(":", "_").replace("/", "_")
+    def corpus(self, target: str) -> Path:
+        """The corpus folder of `target`, shared by its jobs."""
+        return self.corpus_root / target.replace(":", "_").replace("/", "_")
 
 
 def _job_task(_shared, job: JobSettings) -> JobResult:

@@ -23,14 +23,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-from protocol.framing import COUNTER_MAX, FLAG_AUTH, HEADER, MAX_ENCODED, MAX_PAYLOAD, TAG_SIZE, VERSION, mac_key
+from protocol.framing import COUNTER_MAX, FLAG_AUTH, HEADER, MAX_ENCODED, MAX_PAYLOAD, TAG_SIZE, VERSION, mac_key, seal
 from protocol.link import HANDSHAKE_IDS, LinkState
 from protocol.messages import SCHEMA
 from protocol.reliable import Verdict
 from protocol.schema import MsgClass, MessageSpec
 
 from host_tools.fuzz.grammar import TO_CONTROLLER, TO_HOST, Draw, FdpDraw, draw_payload
-from host_tools.fuzz.targets import Target, check, complete_frame
+from host_tools.fuzz.targets import Target, check
 
 MACS = ("good", "good", "good", "good", "stale-counter", "other-key", "handshake-key", "flipped", "none")
 SEQS = ("expected", "expected", "expected", "duplicate", "gap", "any")
@@ -72,14 +72,14 @@ def build(recipe: FrameRecipe, session, peer_session, handshake_key: bytes, ack:
     msg_id = recipe.spec.id if recipe.msg_id is None else recipe.msg_id
     signed = HEADER.pack(recipe.version, flags, recipe.cls, recipe.seq, ack, msg_id, length)
     if recipe.mac == "none":
-        return complete_frame(signed + recipe.payload)
+        return seal(signed + recipe.payload)
     signed += counter.to_bytes(6, "little") + recipe.payload
     key = {"other-key": bytes(32), "handshake-key": handshake_key}.get(recipe.mac, session.keys.tx)
     tag = mac_key(key).tag(signed)
     if recipe.mac == "flipped":
         bit = draw.pick(TAG_SIZE * 8)
         tag = bytes(b ^ (1 << (bit % 8)) if i == bit // 8 else b for i, b in enumerate(tag))
-    return complete_frame(signed + tag)
+    return seal(signed + tag)
 
 
 class _LinkTarget(Target):
