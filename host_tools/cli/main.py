@@ -233,6 +233,8 @@ EXAMPLES = {
              "aspod fuzz --target-cmd 'aspod sim --pty --no-pacing' --time 60",
              "aspod fuzz --url /dev/pts/5 --key-file link.key --only BoxDial --time 600",
              "aspod fuzz --replay fuzz-findings/crash-codec-0123456789ab.json"],
+    "plan": ["aspod plan", "aspod plan --json --plot figures", "aspod plan --objective thermal --max-time 2",
+             "aspod plan --problem my_path.json --objective time --integrator ab2"],
     "proxy": ["aspod proxy --controller /dev/pts/5", "aspod proxy --controller socket://127.0.0.1:5000 --host tcp:6000 "
               "--impair 'radio,seed=7' --record radio.pcapng"],
     "replay": ["aspod demo --record demo.pcapng && aspod replay demo.pcapng",
@@ -451,6 +453,33 @@ def build_parser() -> argparse.ArgumentParser:
     fuzz.add_argument("--json", action="store_true", help="print one JSON object at the end")
     fuzz.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    plan = add_command("plan", help="the report's trajectory planning for two arms carrying one object: time-optimal "
+                                    "on the phase plane, minimum cost by dynamic programming (docs/planning.md)")
+    plan.add_argument("--problem", type=Path, default=None, metavar="FILE",
+                      help="a path, arms, object and limits from a JSON file (default: the report's example)")
+    plan.add_argument("--objective", choices=("time", "energy", "work", "thermal"), default="energy",
+                      help="time: the minimum-time plan alone; otherwise also the dynamic-programming plan "
+                           "minimising this (default energy, the report's index)")
+    plan.add_argument("--max-time", type=bounded(float, 1e-6, 1e6), default=None, metavar="S",
+                      help="the minimum-cost plan's time bound in seconds")
+    plan.add_argument("--integrator", choices=("ab2", "rk4"), default="rk4",
+                      help="limit curves by the report's 2nd-order Adams-Bashforth, or 4th-order Runge-Kutta "
+                           "(default)")
+    plan.add_argument("--nodes", type=bounded(int, 10, 200000), default=2000,
+                      help="intervals in s for the minimum-time plan (default 2000)")
+    plan.add_argument("--dp-intervals", type=bounded(int, 2, 5000), default=100,
+                      help="dynamic programming: intervals in s (default 100, the report's)")
+    plan.add_argument("--dp-speeds", type=bounded(int, 3, 2001), default=201,
+                      help="dynamic programming: speeds per node (default 201, the report's)")
+    plan.add_argument("--dp-speed-step", type=bounded(float, 1e-6, 100.0), default=0.005, metavar="STEP",
+                      help="dynamic programming: the step between speeds, 1/s (default 0.005, the report's)")
+    plan.add_argument("--gravity", action="store_true",
+                      help="the example with gravity on (the report's points are matched with it off)")
+    plan.add_argument("--links", choices=("point", "rod"), default="point",
+                      help="the example's links: point masses at their far ends (default), or uniform rods")
+    plan.add_argument("--json", action="store_true", help="print one JSON object")
+    plan.add_argument("--plot", type=Path, default=None, metavar="DIR", help="draw the report's Figs. 11-17 into DIR")
+
     demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
                                        "reports the positioning error of each step")
     demo.add_argument("--json", action="store_true", help="print one JSON object (steps, errors, times)")
@@ -576,6 +605,9 @@ def run_command(args: argparse.Namespace) -> int:
     if args.command == "fuzz":
         from host_tools.cli.fuzz import run_fuzz
         return run_fuzz(settings.fuzz_settings(args))
+    if args.command == "plan":
+        from host_tools.cli.plan import run_plan
+        return run_plan(settings.plan_settings(args))
     if args.command == "bench":
         from host_tools.cli.bench import run_bench
         return run_bench(settings.bench_settings(args))

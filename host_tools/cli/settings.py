@@ -523,3 +523,29 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
     plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed)
     return FuzzSettings("inprocess", plan=plan, engine=EngineSettings(args.workers, args.scheduler, args.serial),
                         **common)
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """`aspod plan`: which problem (a file, or the report's example with its model options) and how to plan it."""
+    problem: Optional[Path]
+    gravity: bool
+    links: str
+    objective: str
+    integrator: str
+    nodes: int
+    dp_intervals: int
+    dp_speeds: int
+    dp_speed_step: float
+    max_time: Optional[float]
+    as_json: bool
+    plot: Optional[Path]
+
+
+def plan_settings(args: argparse.Namespace) -> PlanSettings:
+    if args.problem is not None and (args.gravity or args.links != "point"):
+        raise ValueError("--gravity and --links shape the report's example; a --problem file says its own")
+    if args.max_time is not None and args.objective == "time":
+        raise ValueError("--max-time bounds a minimum-cost plan: give --objective energy, work or thermal")
+    return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
+                        args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot)

@@ -1,0 +1,92 @@
+"""A planning problem from a JSON file (`aspod plan --problem FILE`); every part is optional but the path:
+
+    {"path":    {"kind": "line", "start": [0.688, 0.331], "end": [1.716, 0.504]},
+     "arms":    {"separation": 2.0, "lengths": [1, 1], "masses": [1, 1], "elbows": [1, 1], "links": "point"},
+     "object":  {"mass": 0.25, "size": [0.25, 0.1], "grasps": [[-0.125, 0], [0.125, 0]]},
+     "gravity": 9.81,
+     "limits":  {"symmetric": [30, 20, 35, 15]}}
+
+`limits` may instead give "lower" and "upper", and "back_emf" (per joint) for DC motors' voltage limits
+(bounds.py). Paths: "line" (start, end), "polynomial" (x, y: coefficients, lowest power first), "piecewise"
+(knots, pieces). Anything else, or a value of the wrong kind, is refused with the reason.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from host_tools.plan.bounds import Limits
+from host_tools.plan.errors import PlanError
+from host_tools.plan.example import LIMITS
+from host_tools.plan.model import GRAVITY, Held, two_arms
+from host_tools.plan.paths import path_from_dict
+from host_tools.plan.phase import Problem
+
+MAX_BYTES = 1 << 20
+KEYS = {"path", "arms", "object", "gravity", "limits"}
+
+
+def _numbers(value, n: int, what: str) -> tuple:
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
+        raise PlanError("file", f"{what} must be a list of {n} finite numbers")
+    return tuple(float(v) for v in value)
+
+
+def _section(spec: dict, key: str) -> dict:
+    value = spec.get(key, {})
+    if not isinstance(value, dict):
+        raise PlanError("file", f"'{key}' must be an object")
+    return value
+
+
+def problem_from_dict(spec: dict) -> Problem:
+    if not isinstance(spec, dict):
+        raise PlanError("file", "a problem is a JSON object")
+    unknown = set(spec) - KEYS
+    if unknown:
+        raise PlanError("file", f"unknown keys {sorted(unknown)} (known: {sorted(KEYS)})")
+    if "path" not in spec:
+        raise PlanError("file", "a problem needs a 'path'")
+    arms, held, limits = _section(spec, "arms"), _section(spec, "object"), _section(spec, "limits")
+    gravity = spec.get("gravity", GRAVITY)
+    if isinstance(gravity, bool) or not isinstance(gravity, (int, float)) or not 0 <= gravity <= 100:
+        raise PlanError("file", "'gravity' is a number of m/s^2 from 0 to 100")
+    separation = _numbers([arms.get("separation", 2.0)], 1, "arms.separation")[0]
+    elbows = _numbers(arms.get("elbows", [1, 1]), 2, "arms.elbows")
+    system = two_arms(separation, _numbers(arms.get("lengths", [1, 1]), 2, "arms.lengths"),
+                      _numbers(arms.get("masses", [1, 1]), 2, "arms.masses"), tuple(int(e) for e in elbows),
+                      str(arms.get("links", "rod")),
+                      Held(_numbers([held.get("mass", 0.25)], 1, "object.mass")[0],
+                           _numbers(held.get("size", [0.25, 0.1]), 2, "object.size"),
+                           tuple(_numbers(g, 2, "object.grasps[]") for g in held.get("grasps", [[-0.125, 0],
+                                                                                                  [0.125, 0]]))),
+                      float(gravity))
+    if len(system.held.grasps) != 2 or system.held.grasps[0] == system.held.grasps[1]:
+        raise PlanError("file", "object.grasps needs two different points")
+    if system.held.mass < 0:
+        raise PlanError("file", "object.mass must not be negative")
+    back_emf = limits.get("back_emf")
+    if "symmetric" in limits:
+        bounds = Limits.symmetric(_numbers(limits["symmetric"], 4, "limits.symmetric"),
+                                  None if back_emf is None else _numbers(back_emf, 4, "limits.back_emf"))
+    elif "lower" in limits or "upper" in limits:
+        bounds = Limits(_numbers(limits.get("lower"), 4, "limits.lower"), _numbers(limits.get("upper"), 4,
+                                                                                     "limits.upper"),
+                        None if back_emf is None else _numbers(back_emf, 4, "limits.back_emf"))
+    else:
+        bounds = Limits.symmetric(LIMITS)
+    return Problem(system, path_from_dict(spec["path"]), bounds)
+
+
+def load_problem(path: Path) -> Problem:
+    try:
+        if path.stat().st_size > MAX_BYTES:
+            raise PlanError("file", f"{path} is larger than {MAX_BYTES} bytes")
+        spec = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise PlanError("file", f"cannot read {path}: {e.strerror or e}") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise PlanError("file", f"{path} is not JSON: {e}") from None
+    return problem_from_dict(spec)

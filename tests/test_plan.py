@@ -1,0 +1,169 @@
+"""`aspod plan`: the model, the report's time-optimal and dynamic-programming planners, its example, the command."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from host_tools.plan.bounds import Limits
+from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
+from host_tools.plan.errors import PlanError
+from host_tools.plan.example import REPORTED, report_problem
+from host_tools.plan.model import two_arms
+from host_tools.plan.paths import PiecewisePath, PolynomialPath
+from host_tools.plan.phase import Problem
+from host_tools.plan.problem_file import problem_from_dict
+from host_tools.plan.timeopt import plan_time_optimal
+
+CURVED = PolynomialPath((0.9, 0.3, 0.1), (0.5, 0.4, -0.2))
+
+
+def _energy(system, q, qd):
+    """Kinetic plus potential energy of both arms and the object, from first principles (not from the model's
+    dynamics), to check the model's torques against."""
+    total = 0.0
+    for k, arm in enumerate(system.arms):
+        a, w = q[:, 2 * k:2 * k + 2], qd[:, 2 * k:2 * k + 2]
+        (m1, m2), (l1, _), (r1, r2), (i1, i2) = arm.masses, arm.lengths, arm.centres, arm.inertias
+        q1, q12, w12 = a[:, 0], a[:, 0] + a[:, 1], w[:, 0] + w[:, 1]
+        v1 = r1 * w[:, 0]
+        v2 = np.hypot(-l1 * np.sin(q1) * w[:, 0] - r2 * np.sin(q12) * w12, l1 * np.cos(q1) * w[:, 0] + r2 * np.cos(q12) * w12)
+        height = m1 * (arm.base[1] + r1 * np.sin(q1)) + m2 * (arm.base[1] + l1 * np.sin(q1) + r2 * np.sin(q12))
+        total = total + 0.5 * (m1 * v1 ** 2 + i1 * w[:, 0] ** 2 + m2 * v2 ** 2 + i2 * w12 ** 2) + system.gravity * height
+    hand = system.arms[0].forward(q[:, :2])
+    v = np.einsum("nij,nj->ni", system.arms[0].jacobian(q[:, :2]), qd[:, :2])
+    return total + 0.5 * system.held.mass * (v ** 2).sum(1) + system.held.mass * system.gravity * hand[:, 1]
+
+
+@pytest.mark.parametrize("links", ["rod", "point"])
+def test_the_parameterized_dynamics_deliver_the_power_the_chain_takes(links):
+    """u . q' = dE/dt along s(t) = s0 + s' t + s'' t^2 / 2, for u = a s'' + b s'^2 + c: the closed chain's
+    torques are right (inertia, Coriolis, gravity, the object's share), and the squeeze does no work."""
+    system = two_arms(links=links)
+    s, sd, sdd, dt = np.linspace(0.05, 0.95, 9), 1.7, -0.9, 1e-6
+    co = system.coefficients(CURVED, s)
+    hands = system.hands(co.joints.q)
+    assert np.allclose(hands[:, 1] - hands[:, 0], [0.25, 0.0], atol=1e-12)        # the chain is closed
+
+    def energy(t):
+        jp = system.joint_path(CURVED, s + sd * t + sdd * t * t / 2)
+        return _energy(system, jp.q, jp.q_s * (sd + sdd * t))
+    rate = (energy(dt) - energy(-dt)) / (2 * dt)
+    u = co.a * sdd + co.b * sd ** 2 + co.c
+    assert np.allclose((u * co.joints.q_s * sd).sum(1), rate, rtol=1e-6, atol=1e-6)
+    assert np.allclose((co.n * co.joints.q_s).sum(1), 0.0, atol=1e-12)
+
+
+def test_the_example_finds_the_reports_three_switching_points():
+    """The report's zero-inertia points (0.2634, 5.956), (0.9337, 6.098) and tangent point (0.8, 6.968): each
+    within 1.6 % in s and 1 % in s' of a candidate of the same kind found here."""
+    plan = plan_time_optimal(report_problem(), nodes=1000)
+    for kind, _, s, sd in REPORTED:
+        near = min((p for p in plan.switching_points if p.kind == kind), key=lambda p: abs(p.s - s))
+        assert abs(near.s - s) / s < 0.016 and abs(near.sd - sd) / sd < 0.01, (kind, near)
+
+
+def test_the_minimum_time_profile_saturates_a_joint_throughout_and_keeps_every_limit():
+    for integrator in ("ab2", "rk4"):
+        plan = plan_time_optimal(report_problem(), nodes=2000, integrator=integrator)
+        assert plan.profile.saturated_time > 0.99
+        assert plan.profile.worst_violation < 0.002          # at the nodes, the grid's O(h)
+        assert (plan.profile.sd <= plan.grid.mvc * (1 + 1e-9)).all()
+    coarse = plan_time_optimal(report_problem(), nodes=200).duration
+    fine = plan_time_optimal(report_problem(), nodes=4000).duration
+    assert abs(coarse - fine) / fine < 1e-3
+
+
+def test_the_reports_energy_index_cannot_choose_a_profile():
+    """sum u^T dq is the change of potential energy whatever the profile: the same for the minimum-time plan and
+    every dynamic-programming plan, and 0 with gravity off."""
+    for gravity, expected in ((True, None), (False, 0.0)):
+        problem = report_problem(gravity=gravity)
+        fastest = plan_time_optimal(problem, nodes=1000)
+        plans = [costs_of(fastest.grid.t, fastest.profile.sd)["energy"]]
+        for objective, bound in (("energy", None), ("thermal", 2.0), ("work", 3.0)):
+            plans.append(plan_cost_optimal(problem, objective, max_time=bound).costs["energy"])
+        jp = problem.system.joint_path(problem.path, [0.0, 1.0])
+        rise = np.diff(_energy(problem.system, jp.q, np.zeros_like(jp.q)))[0]
+        assert np.allclose(plans, expected if expected is not None else rise, atol=1e-3 * max(1.0, abs(rise)))
+
+
+def test_minimum_heat_within_a_time_bound_meets_the_bound_and_costs_more_the_tighter_it_is():
+    """With gravity, holding the object costs heat too: unbounded, the cheapest motion is neither the fastest nor
+    the slowest; a time bound tighter than it is met, at a higher cost."""
+    problem = report_problem(gravity=True)
+    free = plan_cost_optimal(problem, "thermal")                          # the report's grid: s' up to 1 /s
+    tight = plan_cost_optimal(problem, "thermal", max_time=0.97 * free.profile.duration)
+    assert tight.profile.duration <= 0.97 * free.profile.duration
+    assert tight.costs["thermal"] > free.costs["thermal"]
+    assert tight.profile.worst_violation == 0.0 and free.profile.worst_violation == 0.0
+    assert free.profile.duration < 0.2 * plan_cost_optimal(problem, "work").profile.duration
+    assert tight.profile.duration > plan_time_optimal(problem, nodes=1000).duration
+
+
+def test_state_dependent_limits_keep_the_voltage_within_bounds():
+    """DC motors (back-emf): the bounded quantity u + K q' stays within its limits, and the motion is slower."""
+    torque = plan_time_optimal(Problem(two_arms(), CURVED, Limits.symmetric((30, 20, 35, 15))), nodes=1000)
+    motors = Problem(two_arms(), CURVED, Limits.symmetric((30, 20, 35, 15), back_emf=(2.0, 1.5, 2.0, 1.5)))
+    plan = plan_time_optimal(motors, nodes=1000)
+    assert plan.duration > torque.duration
+    assert plan.profile.worst_violation < 0.01 and plan.profile.saturated_time > 0.98
+
+
+def test_a_jump_in_the_paths_curvature_is_a_discontinuity_candidate():
+    up = PolynomialPath((0.9, 0.5), (0.4, 0.2))
+    bend = PolynomialPath((0.9 - 0.5 * 0.5 ** 2, 0.5 + 0.5, -0.5), (0.4, 0.2))      # same w and w' at s = 0.5
+    plan = plan_time_optimal(Problem(two_arms(), PiecewisePath([0, 0.5, 1], [up, bend]),
+                                     Limits.symmetric((30, 20, 35, 15))), nodes=1000)
+    assert [p.s for p in plan.switching_points if p.kind == "discontinuity"] == [0.5]
+    assert plan.profile.worst_violation < 0.02          # at the nodes: O(1/nodes), 0.4 % at 4000
+
+
+@pytest.mark.parametrize("spec, what, said", [
+    ({"path": {"kind": "line", "start": [0.2, 0.3], "end": [3.5, 0.3]}}, "reach", "leaves arm"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1.1, 0.6]}, "limits": {"symmetric": [3, 2, 3, 2]}},
+     "bounds", "too weak to hold the object still"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5]}}, "path", "end"),
+    ({"path": {"kind": "spiral"}}, "path", "unknown path kind"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "limits": {"symmetric": [1, 2]}}, "file",
+     "4 finite numbers"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "gravity": "lots"}, "file", "gravity"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "colour": 1}, "file", "unknown keys"),
+    ({"path": {"kind": "piecewise", "knots": [0, 0.5, 1], "pieces": [
+        {"kind": "line", "start": [0.9, 0.5], "end": [1.0, 0.5]},
+        {"kind": "line", "start": [1.0, 0.5], "end": [1.0, 0.8]}]}}, "path", "jumps"),
+])
+def test_bad_problems_are_refused_with_the_reason(spec, what, said):
+    with pytest.raises(PlanError) as caught:
+        problem = problem_from_dict(spec)
+        plan_time_optimal(problem, nodes=200)
+    assert caught.value.what == what and said in caught.value.reason, caught.value
+
+
+def test_a_grid_too_coarse_for_the_limits_is_refused():
+    with pytest.raises(PlanError, match="grid: no admissible profile"):
+        plan_cost_optimal(report_problem(gravity=True), "energy", DpGrid(intervals=4, speeds=5, speed_step=5.0))
+    with pytest.raises(PlanError, match="grid"):
+        plan_time_optimal(report_problem(), nodes=5)
+
+
+def test_the_command_plans_the_example_as_json_and_draws_the_figures(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--json", "--plot", str(tmp_path / "f"),
+                           "--nodes", "500"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert len(out["beside_report"]) == 3 and all(abs(r["error_s"]) < 0.016 for r in out["beside_report"])
+    assert out["cost_optimal"]["objective"] == "energy"
+    assert len(out["figures"]) == 7
+    assert all((tmp_path / "f" / name).stat().st_size > 10_000 for name in
+               ("fig11_limit_curves.png", "fig14_time_optimal_torques.png", "fig17_comparison.png"))
+    bad = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "none.json")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "cannot read" in bad.stderr
+    (tmp_path / "far.json").write_text(json.dumps({"path": {"kind": "line", "start": [0.2, 0.3], "end": [3.5, 0.3]}}))
+    far = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "far.json")],
+                         capture_output=True, text=True, timeout=120)
+    assert far.returncode == 2 and "reach" in far.stderr and far.stdout == ""
