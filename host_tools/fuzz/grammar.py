@@ -165,8 +165,31 @@ def pack_raw(spec: MessageSpec, values: Sequence[Any]) -> bytes:
     return b"".join(out)
 
 
+def draw_valid(fld: Field, draw: Draw) -> Any:
+    """A value the declaration allows: an enum member, a number in range (a quarter of the time one of the range's
+    own ends, which are valid and where off-by-ones live); a field with no declared rule, any value."""
+    if fld.enum is not None and not fld.is_text:
+        members = [int(m) for m in fld.enum]
+        return members[draw.pick(len(members))]
+    if fld.range is not None and not fld.is_text:
+        lo, hi = fld.range
+        if draw.pick(4) == 0:
+            return type(interesting(fld)[0])((lo, hi)[draw.pick(2)])
+        if fld.struct_code == "f":
+            return lo + (hi - lo) * draw.int_in(0, 1 << 16) / (1 << 16)
+        return draw.int_in(int(lo), int(hi))
+    return draw_value(fld, draw)
+
+
 def draw_payload(spec: MessageSpec, draw: Draw) -> bytes:
-    """A payload for `spec`: its fields from the grammar (the usual case), or bytes of any length."""
-    if draw.pick(8) == 0:
+    """A payload for `spec`: bytes of any length (1 in 8); every field from the grammar (3 in 8); or every field
+    valid but one, which comes from the grammar (half): a message that decodes, and so reaches its handler, with
+    one field at or beyond its edge (a fuzzer of single fields, as boofuzz mutates one primitive at a time)."""
+    how = draw.pick(8)
+    if how == 0:
         return draw.raw(spec.size + 4)
-    return pack_raw(spec, [draw_value(f, draw) for f in spec.fields])
+    if how <= 3 or not spec.fields:
+        return pack_raw(spec, [draw_value(f, draw) for f in spec.fields])
+    odd = draw.pick(len(spec.fields))
+    return pack_raw(spec, [draw_value(f, draw) if i == odd else draw_valid(f, draw)
+                           for i, f in enumerate(spec.fields)])
