@@ -132,6 +132,9 @@ def test_a_jump_in_the_paths_curvature_is_a_discontinuity_candidate():
      "4 finite numbers"),
     ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "gravity": "lots"}, "file", "gravity"),
     ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "colour": 1}, "file", "unknown keys"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "limits": {"symetric": [30, 20, 35, 15]}},
+     "file", "unknown keys in 'limits'"),
+    ({"path": {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}, "arms": {"elbows": [1.5, 1]}}, "file", "+1 or -1"),
     ({"path": {"kind": "piecewise", "knots": [0, 0.5, 1], "pieces": [
         {"kind": "line", "start": [0.9, 0.5], "end": [1.0, 0.5]},
         {"kind": "line", "start": [1.0, 0.5], "end": [1.0, 0.8]}]}}, "path", "jumps"),

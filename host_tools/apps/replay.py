@@ -73,7 +73,8 @@ class Tolerances:
         if unit == "ms":
             return abs(recorded - replayed) <= self.time_ms
         limit = dict(self.by_unit).get(unit, self.relative * max(abs(recorded), 1.0))
-        return abs(recorded - replayed) <= limit
+        rounding = 1e-6 * max(abs(recorded), abs(replayed))      # the fields are f32: 22.1 is 22.100000381...
+        return abs(recorded - replayed) <= limit + rounding
 
 
 @dataclass

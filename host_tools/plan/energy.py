@@ -133,8 +133,7 @@ class _Stages:
 
 
 def plan_cost_optimal(problem: Problem, objective: str = "energy", grid: DpGrid = DpGrid(),
-                      max_time: Optional[float] = None, weights: Optional[Sequence[float]] = None,
-                      time_weight: float = 0.0) -> CostOptimal:
+                      max_time: Optional[float] = None, weights: Optional[Sequence[float]] = None) -> CostOptimal:
     """The cheapest rest-to-rest profile by `objective` on `grid`, within `max_time` seconds if given."""
     if objective not in OBJECTIVES:
         raise PlanError("objective", f"{objective!r}: one of {', '.join(OBJECTIVES)}")
@@ -151,12 +150,12 @@ def plan_cost_optimal(problem: Problem, objective: str = "energy", grid: DpGrid 
         sd = stages.solve(mu)
         return sd, (None if sd is None else costs_of(terms, sd, w)["time"])
 
-    sd, t = solve(time_weight)
+    sd, t = solve(0.0)
     if sd is None:
         raise PlanError("grid", f"no admissible profile on this grid ({grid.speeds} speeds {grid.speed_step:g} "
                                 f"apart, {grid.intervals} intervals): the speeds step too far for the limits "
                                 "between nodes; use a finer speed step or more intervals")
-    mu = time_weight
+    mu = 0.0
     if max_time is not None and t > max_time:
         fastest, tf = solve(1e12)
         if tf > max_time:

@@ -82,11 +82,13 @@ def zero_inertia(a: np.ndarray) -> np.ndarray:
 def accel_bounds(t: Terms, limits: Limits, sd) -> tuple[np.ndarray, np.ndarray]:
     """(alpha, beta) at each of t's points for s' = sd; alpha > beta where no s'' is admissible (a zero-inertia
     joint whose speed bound is broken gives alpha = +inf, beta = -inf)."""
-    sd = np.asarray(sd, float)
-    rest = t.b * (sd * sd)[..., None] + t.d * sd[..., None] + t.c
-    lo, hi = limits.lo, limits.hi
-    zero = zero_inertia(t.a)
-    a = np.where(zero, 1.0, t.a)
+    return _accel_bounds(t.a, t.b, t.c, t.d, limits.lo, limits.hi, np.asarray(sd, float))
+
+
+def _accel_bounds(a, b, c, d, lo, hi, sd) -> tuple[np.ndarray, np.ndarray]:
+    rest = b * (sd * sd)[..., None] + d * sd[..., None] + c
+    zero = zero_inertia(a)
+    a = np.where(zero, 1.0, a)
     to_lo, to_hi = (lo - rest) / a, (hi - rest) / a
     alpha_i = np.where(zero, -np.inf, np.where(a > 0, to_lo, to_hi))
     beta_i = np.where(zero, np.inf, np.where(a > 0, to_hi, to_lo))
@@ -203,15 +205,14 @@ class PhaseGrid:
 
     def slope(self, fine_index: int, x: float, direction: int) -> float:
         """dx/ds = 2 s'' at the extreme admissible s'' (beta forwards, alpha backwards); NaN if none."""
-        sd = np.sqrt(max(x, 0.0))
-        alpha, beta = accel_bounds(self.fine.at(slice(fine_index, fine_index + 1)), self.problem.limits,
-                                   np.array([sd]))
+        f, k, limits = self.fine, slice(fine_index, fine_index + 1), self.problem.limits
+        alpha, beta = _accel_bounds(f.a[k], f.b[k], f.c[k], f.d[k], limits.lo, limits.hi,
+                                    np.array([np.sqrt(max(x, 0.0))]))
         if alpha[0] > beta[0] + 1e-9 * max(1.0, abs(beta[0])):
             return float("nan")
         return 2.0 * float(beta[0] if direction > 0 else alpha[0])
 
-    def integrate(self, node: int, x0: float, direction: int, integrator: str, label: str,
-                  stop_at_mvc: bool = True) -> Curve:
+    def integrate(self, node: int, x0: float, direction: int, integrator: str, label: str) -> Curve:
         """From node `node` at x = x0, forwards at beta (direction +1) or backwards at alpha (-1)."""
         if integrator not in INTEGRATORS:
             raise PlanError("integrator", f"{integrator!r}: one of {', '.join(INTEGRATORS)}")
@@ -243,7 +244,7 @@ class PhaseGrid:
                 stop = "rest"
                 break
             limit = self.mvc[k] ** 2
-            if stop_at_mvc and nxt > limit * (1 + 1e-9):
+            if nxt > limit * (1 + 1e-9):
                 index.append(k)
                 xs.append(limit)
                 stop = "mvc"

@@ -34,10 +34,17 @@ def _numbers(value, n: int, what: str) -> tuple:
     return tuple(float(v) for v in value)
 
 
+SECTION_KEYS = {"arms": {"separation", "lengths", "masses", "elbows", "links"},
+                "object": {"mass", "size", "grasps"}, "limits": {"symmetric", "lower", "upper", "back_emf"}}
+
+
 def _section(spec: dict, key: str) -> dict:
     value = spec.get(key, {})
     if not isinstance(value, dict):
         raise PlanError("file", f"'{key}' must be an object")
+    unknown = set(value) - SECTION_KEYS[key]
+    if unknown:
+        raise PlanError("file", f"unknown keys in '{key}': {sorted(unknown)} (known: {sorted(SECTION_KEYS[key])})")
     return value
 
 
@@ -55,6 +62,8 @@ def problem_from_dict(spec: dict) -> Problem:
         raise PlanError("file", "'gravity' is a number of m/s^2 from 0 to 100")
     separation = _numbers([arms.get("separation", 2.0)], 1, "arms.separation")[0]
     elbows = _numbers(arms.get("elbows", [1, 1]), 2, "arms.elbows")
+    if any(e not in (1.0, -1.0) for e in elbows):
+        raise PlanError("file", "arms.elbows are +1 or -1 each (the sign of the elbow angle)")
     system = two_arms(separation, _numbers(arms.get("lengths", [1, 1]), 2, "arms.lengths"),
                       _numbers(arms.get("masses", [1, 1]), 2, "arms.masses"), tuple(int(e) for e in elbows),
                       str(arms.get("links", "rod")),

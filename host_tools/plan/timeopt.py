@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from host_tools.plan.errors import PlanError
 from host_tools.plan.phase import Curve, PhaseGrid, Problem, accel_bounds, admissible_speeds, zero_inertia
 from host_tools.plan.profile import Profile, profile_from_speeds
 
@@ -133,8 +132,6 @@ def plan_time_optimal(problem: Problem, nodes: int = 1000, integrator: str = "rk
     curves.append(grid.integrate(grid.nodes, 0.0, -1, integrator, "end (alpha, backwards)"))
     for curve in curves:
         x[curve.index] = np.minimum(x[curve.index], curve.x)
-    if x[0] > 0 or x[-1] > 0:
-        raise PlanError("bounds", "the start or end cannot be reached from rest")
     profile = profile_from_speeds(grid.t, problem.limits, np.sqrt(np.maximum(x, 0.0)),
                                   getattr(problem.path, "breaks", ()))
     return TimeOptimal(grid, integrator, profile, points, curves)
