@@ -6,7 +6,8 @@ pyserial as a host would) and serves the host a port of the same kind, as `aspod
 its own, and is recorded. The attacker's side: `inject_to_controller` / `inject_to_host` put
 recorded frames onto the line between two whole frames; `flood(frames, bytes_per_s)` replays
 frames, in turn, at a steady byte rate; `drop_after(msg_id)` passes the host's frames up to the
-first of that message, then loses all it sends (an Ack that never arrives) until `drop_after(None)`;
+first of that message, then loses all it sends (an Ack that never arrives) until `drop_after(None)`
+(`wait_dropped(n)` waits until n were lost);
 `retarget(url)` puts another controller behind the same line (a restart behind a radio link that
 stays up).
 """
@@ -94,6 +95,8 @@ class LineTap:
         self.clock = clock or RealClock()
         self._drop_after: Optional[int] = None
         self.dropping = False                 # the host's frames are being lost
+        self.frames_dropped = 0               # of the host's, by `drop_after`
+        self._dropped_cond = threading.Condition()
         self.injected_bytes = 0
         self._up = _Direction()               # host -> controller
         self._down = _Direction()             # controller -> host
@@ -140,8 +143,18 @@ class LineTap:
         self._command("retarget", url)
 
     def drop_after(self, msg_id: Optional[int]) -> None:
-        """Pass the host's frames up to the first with `msg_id`, then lose them all (None: pass all again)."""
-        self._command("drop_after", msg_id)
+        """Pass the host's frames up to the first with `msg_id`, then lose them all (None: pass all again).
+        In force when this returns, so the host's next frame goes by it."""
+        applied = threading.Event()
+        self._command("drop_after", (msg_id, applied))
+        if not applied.wait(10.0):
+            raise RuntimeError("the line tap's thread did not take drop_after in 10 s")
+
+    def wait_dropped(self, count: int, timeout_s: float) -> bool:
+        """Wait until `drop_after` has lost `count` of the host's frames (a host's bytes cross a pty
+        asynchronously: what it wrote before closing may reach the tap after the test's next step)."""
+        with self._dropped_cond:
+            return self._dropped_cond.wait_for(lambda: self.frames_dropped >= count, timeout_s)
 
     def close(self) -> None:
         self._stop = True
@@ -173,7 +186,9 @@ class LineTap:
                 self._flood = None if arg is None else (arg[0], arg[1], self.clock.now())
                 self._flood_sent = self._flood_next = 0
             elif what == "drop_after":
-                self._drop_after, self.dropping = arg, False
+                self._take_from_host()          # what the host sent before this call goes by the old rule
+                (self._drop_after, applied), self.dropping = arg, False
+                applied.set()
             elif what == "retarget":
                 if self._controller is not None:
                     self._controller.close()
@@ -209,10 +224,16 @@ class LineTap:
         passed = []
         for frame, wire in decoded(whole):
             if self.dropping:
-                break
+                with self._dropped_cond:
+                    self.frames_dropped += 1
+                    self._dropped_cond.notify_all()
+                continue
             passed.append(wire)
             self.dropping = frame.msg_id == self._drop_after
         return b"".join(passed)
+
+    def _take_from_host(self) -> None:
+        self._up.queue(self._pass_up(self._up.take_whole(self._host.read(65536))))
 
     def _run(self) -> None:
         while not self._stop:
@@ -222,7 +243,7 @@ class LineTap:
                 except BlockingIOError:
                     pass
             self._handle_commands()
-            self._up.queue(self._pass_up(self._up.take_whole(self._host.read(65536))))
+            self._take_from_host()
             self._down.queue(self._down.take_whole(self._read_controller()))
             self._flood_step()
             self._up.write(self._controller)

@@ -155,6 +155,7 @@ def test_an_event_whose_ack_was_lost_reaches_the_next_host_marked_as_from_an_ear
         estop = next(m for m, _ in events.seen if m.spec.name == "StateChanged" and m.state == ControllerState.ESTOP)
     finally:
         first.close()                                         # its Ack for that event was lost on the line
+    assert tap.wait_dropped(1, 10.0)        # sent at the latest on close; it may reach the tap after close returns
     tap.drop_after(None)
     second = HostClient(tap.url, psk)
     try:
