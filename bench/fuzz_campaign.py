@@ -1,0 +1,109 @@
+"""The long in-process fuzzing campaign (issue 15: at least 10^7 executions per target), run in chunks that
+survive being stopped.
+
+    python -m bench.fuzz_campaign DIR [--goal 10000000] [--chunk 1000000] [--jobs 2] [--targets a,b]
+    python -m bench.fuzz_campaign DIR --report        # the totals so far, and each target's line coverage
+
+Each chunk is one `aspod fuzz TARGET --runs CHUNK/JOBS --jobs JOBS` with seeds of its own; its jobs are
+appended to DIR/ledger.jsonl when it ends, with the commit they ran. A chunk stopped half-way counts for
+nothing, and the next start goes on from the ledger. The targets share DIR/corpus (one folder each) and
+DIR/findings, so the campaign's coverage grows across chunks as a single run's would. The children run at
+the lowest priority (nice 19): the campaign uses what the machine does not.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGETS = ("codec", "frames", "hal", "teleop", "key-file", "controller-link", "params-file", "host-link")
+
+
+def _commit() -> str:
+    out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    return out.stdout.strip() or "unknown"
+
+
+def read_ledger(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def totals(rows: list[dict]) -> dict[str, dict]:
+    by: dict[str, dict] = {}
+    for r in rows:
+        t = by.setdefault(r["target"], {"execs": 0, "core_s": 0.0, "jobs": 0, "findings": 0, "errors": 0,
+                                        "seeds": []})
+        t["execs"] += r["execs"]
+        t["core_s"] += r["wall_s"]
+        t["jobs"] += 1
+        t["findings"] += len(r["findings"])
+        t["errors"] += bool(r["error"])
+        t["seeds"].append(r["seed"])
+    return by
+
+
+def run_chunk(target: str, runs_per_job: int, jobs: int, seed: int, out: Path) -> list[dict]:
+    """One chunk: `aspod fuzz` as a child at nice 19; its jobs' rows, or none if it did not finish."""
+    cmd = [sys.executable, "-m", "host_tools.cli.main", "fuzz", target, "--runs", str(runs_per_job),
+           "--jobs", str(jobs), "--workers", str(jobs), "--seed", str(seed), "--json", "--no-progress",
+           "--corpus", str(out / "corpus"), "--findings", str(out / "findings")]
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, preexec_fn=lambda: os.nice(19),
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    if done.returncode not in (0, 1):           # 1: findings (they are in the rows); anything else: no chunk
+        print(f"{target} seed {seed}: exit {done.returncode}: {done.stderr.strip()[-400:]}", file=sys.stderr)
+        return []
+    return json.loads(done.stdout)["jobs"]
+
+
+def report(out: Path) -> None:
+    from host_tools.fuzz.coverage_report import line_coverage
+    from host_tools.fuzz.targets import builtin_targets
+    by = totals(read_ledger(out / "ledger.jsonl"))
+    print(f"{'target':16} {'executions':>12} {'core-h':>7} {'exec/core-s':>11} {'findings':>8} {'errors':>6}  coverage")
+    for name, t in by.items():
+        covers = builtin_targets()[name].covers
+        cov = line_coverage(name, out / "corpus" / name, covers)
+        said = ", ".join(f"{file} {c['percent']}%" for file, c in cov.items())
+        print(f"{name:16} {t['execs']:>12,} {t['core_s'] / 3600:>7.2f} {t['execs'] / t['core_s']:>11,.0f} "
+              f"{t['findings']:>8} {t['errors']:>6}  {said}")
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="python -m bench.fuzz_campaign", description=__doc__.split("\n\n")[0])
+    ap.add_argument("dir", type=Path)
+    ap.add_argument("--goal", type=int, default=10_000_000, help="executions per target")
+    ap.add_argument("--chunk", type=int, default=1_000_000, help="executions per chunk (all its jobs)")
+    ap.add_argument("--jobs", type=int, default=2, help="jobs per chunk, one per core")
+    ap.add_argument("--targets", default=",".join(TARGETS))
+    ap.add_argument("--report", action="store_true", help="print the totals and coverage, run nothing")
+    args = ap.parse_args(argv)
+    args.dir.mkdir(parents=True, exist_ok=True)
+    if args.report:
+        report(args.dir)
+        return 0
+    ledger = args.dir / "ledger.jsonl"
+    commit = _commit()
+    for target in args.targets.split(","):
+        while True:
+            done = totals(read_ledger(ledger)).get(target, {"execs": 0, "seeds": [0]})
+            if done["execs"] >= args.goal:
+                break
+            seed = max(done["seeds"]) + 1
+            rows = run_chunk(target, args.chunk // args.jobs, args.jobs, seed, args.dir)
+            if not rows:
+                return 1
+            with ledger.open("a") as f:
+                for row in rows:
+                    f.write(json.dumps({**row, "commit": commit}) + "\n")
+            print(f"{target}: {done['execs'] + sum(r['execs'] for r in rows):,} executions", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
