@@ -192,8 +192,10 @@ class PhaseGrid:
         self.speeds = admissible_speeds(self.fine, problem.limits)
         self.mvc_fine = self.speeds.mvc
         self.mvc = self.mvc_fine[::2]
-        if not self.speeds.static_ok.all():
-            k = int(np.argmin(self.speeds.static_ok))
+        lo, hi = problem.limits.lo, problem.limits.hi
+        held = ((self.fine.c >= lo) & (self.fine.c <= hi)).all(axis=1)     # still, s' = s'' = 0
+        if not (held & self.speeds.static_ok).all():
+            k = int(np.argmin(held & self.speeds.static_ok))
             u = self.fine.c[k]
             worst = int(np.argmax(np.maximum(u - problem.limits.hi, problem.limits.lo - u)))
             raise PlanError("bounds", f"too weak to hold the object still at s = {self.fine.s[k]:.4g}: joint "

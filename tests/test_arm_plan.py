@@ -1,0 +1,96 @@
+"""Time-optimal moves of ASPOD's own arm (host_tools/apps/arm_plan.py): the plan keeps every motor within its
+voltage and current shares, saturates one of them, and refuses what cannot be planned."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V
+from host_tools.apps.arm_plan import ARM_JOINTS, ArmPlanSettings, plan_move
+from host_tools.plan.errors import PlanError
+
+LIMITS_A = {d.name: d.i_limit_a for d in DRIVES}
+START = {"j1": math.radians(60), "j2": math.radians(-110), "j3": math.radians(-40), "j4": 0.0}
+TARGET = {"j1": math.radians(21.2), "j2": math.radians(-116.9), "j3": math.radians(5.7), "j4": math.radians(30)}
+EARTH = 9.80665
+
+
+def motor_demands(move, gravity, payload):
+    """Each moving joint's current and voltage along the plan, from the drive constants directly."""
+    prof = move.plan.profile
+    dq = move.path.q1 - move.path.q0
+    sdd = np.concatenate([prof.sdd, prof.sdd[-1:]])
+    q = move.path.q(prof.s)
+    drives = {d.name: d for d in DRIVES}
+    currents, volts = [], []
+    for k, name in enumerate(move.names):
+        d = drives[name]
+        qd, qdd = prof.sd * dq[k], sdd * dq[k]
+        angles = np.tile([START["j1"], START["j2"], START["j3"]], (len(q), 1))
+        for j, other in enumerate(move.names):
+            if other != "j4":
+                angles[:, ARM_JOINTS.index(other)] = q[:, j]
+        hold = 0.0 if name == "j4" else np.array(
+            [MASSES.holding_torques_nm(*row, gravity, payload)[ARM_JOINTS.index(name)] for row in angles])
+        torque = (d.inertia_kg_m2 + d.load_inertia_kg_m2) * qdd + d.viscous_nm_s_rad * qd + hold
+        i = torque / (d.efficiency * d.kt_nm_a * d.ratio)
+        currents.append(i / d.i_limit_a)
+        volts.append((d.r_ohm * i + d.kt_nm_a * d.ratio * qd) / SUPPLY_NOMINAL_V)
+    return np.array(currents).T, np.array(volts).T
+
+
+@pytest.mark.parametrize("gravity", [EARTH, 0.0], ids=["earth", "orbit"])
+def test_a_planned_move_keeps_every_motor_within_its_shares_and_saturates_one(gravity):
+    settings = ArmPlanSettings()
+    move = plan_move(START, TARGET, gravity, 0.0, LIMITS_A, settings)
+    assert move.names == ARM_JOINTS
+    current, volts = motor_demands(move, gravity, 0.0)
+    slack = 1.03         # the phase plane's profile exceeds its limits by O(1/nodes) at the nodes (docs/planning.md)
+    assert np.abs(current).max() <= settings.current_share * slack
+    assert np.abs(volts).max() <= settings.voltage_share * slack
+    near = np.maximum(np.abs(current) / settings.current_share, np.abs(volts) / settings.voltage_share).max(axis=1)
+    assert np.mean(near >= 0.97) > 0.9                   # time-optimal: some motor at its share nearly always
+    slowest = max(abs(TARGET[n] - START[n]) for n in ARM_JOINTS) / math.radians(3.0)
+    assert move.duration_s < slowest / 3                 # far quicker than cruising at the report's 1/2 RPM
+
+
+def test_orbit_is_quicker_than_earth_and_a_payload_slows_the_move():
+    earth = plan_move(START, TARGET, EARTH, 0.0, LIMITS_A).duration_s
+    assert plan_move(START, TARGET, 0.0, 0.0, LIMITS_A).duration_s < earth
+    assert plan_move(START, TARGET, EARTH, 2.0, LIMITS_A).duration_s > earth
+
+
+def test_the_knots_start_and_end_at_rest_on_the_poses_and_follow_the_profile():
+    move = plan_move(START, {"j1": TARGET["j1"]}, EARTH, 0.0, LIMITS_A)
+    knots = move.knots(21)
+    assert knots[0].t_s == 0 and knots[-1].t_s == pytest.approx(move.duration_s)
+    assert all(b.t_s > a.t_s for a, b in zip(knots, knots[1:]))
+    assert knots[0].q_deg == pytest.approx([math.degrees(START[n]) for n in ARM_JOINTS])
+    assert knots[-1].q_deg[0] == pytest.approx(math.degrees(TARGET["j1"]))
+    assert knots[-1].q_deg[1:] == pytest.approx([math.degrees(START[n]) for n in ARM_JOINTS[1:]])
+    assert knots[0].qd_deg_s == (0, 0, 0, 0) and knots[-1].qd_deg_s == (0, 0, 0, 0)
+    assert max(abs(k.qd_deg_s[0]) for k in knots) == pytest.approx(
+        math.degrees(abs(TARGET["j1"] - START["j1"])) * move.plan.profile.sd.max(), rel=0.05)
+
+
+@pytest.mark.parametrize("targets, why", [
+    ({"mount": 0.3}, "not an arm joint"),
+    ({"j1": START["j1"]}, "no joint moves"),
+])
+def test_what_cannot_be_planned_is_refused_with_the_reason(targets, why):
+    with pytest.raises(PlanError, match=why):
+        plan_move(START, targets, EARTH, 0.0, LIMITS_A)
+
+
+def test_limits_too_weak_to_hold_the_arm_are_refused_naming_a_joint():
+    with pytest.raises(PlanError, match="joint"):
+        plan_move(START, TARGET, EARTH, 0.0, {**LIMITS_A, "j1": 0.01})
+
+
+@pytest.mark.parametrize("field, value", [("voltage_share", 0.0), ("current_share", 1.5), ("nodes", 5),
+                                          ("knots", 1000)])
+def test_settings_out_of_range_are_refused(field, value):
+    with pytest.raises(PlanError, match=field):
+        ArmPlanSettings(**{field: value})
