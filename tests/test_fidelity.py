@@ -644,11 +644,67 @@ def box_rows() -> list[Row]:
     ]
 
 
+# ---- the planner's worked example (the report's section 4) -------------------------------------------------------
+
+@lru_cache(maxsize=None)
+def planned_example():
+    """The example planned here: time-optimal (ab2 and rk4), and by dynamic programming on the report's grid."""
+    from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
+    from host_tools.plan.example import DP_INTERVALS, DP_SPEED_STEP, DP_SPEEDS, report_problem
+    from host_tools.plan.timeopt import plan_time_optimal
+    problem, with_gravity = report_problem(), report_problem(gravity=True)
+    fastest = {k: plan_time_optimal(problem, 1000, k) for k in ("ab2", "rk4")}
+    grid = DpGrid(DP_INTERVALS, DP_SPEEDS, DP_SPEED_STEP)
+    energy = plan_cost_optimal(problem, "energy", grid)
+    up = plan_time_optimal(with_gravity, 1000)
+    up_energy = plan_cost_optimal(with_gravity, "energy", grid)
+    heat = plan_cost_optimal(with_gravity, "thermal", grid)
+    return fastest, energy, costs_of(up.grid.t, up.profile.sd), up_energy, heat
+
+
+def planner_rows() -> list[Row]:
+    from host_tools.plan.example import PATH, beside_report
+    fastest, energy, up_costs, up_energy, heat = planned_example()
+    rk4, ab2 = fastest["rk4"], fastest["ab2"]
+    rows = [Row("P1", "the object's path", "garbled in the text: only \"1/2 s\" survives for one coordinate "
+                "(4.1)", f"w(s) = ({PATH[0][0]} + {PATH[1][0] - PATH[0][0]:.3f} s, {PATH[0][1]} + "
+                f"{PATH[1][1] - PATH[0][1]:.3f} s) m; point-mass links, gravity off (`plan/example.py`)",
+                "chosen: the only model of 16 tried with zero-inertia points near both of the report's")]
+    for n, near in enumerate(beside_report(rk4.switching_points), start=2):
+        r, h = near["report"], near["here"]
+        what = f"zero-inertia, a{r['joint']}" if r["joint"] else near["kind"]
+        here = f"a{h['joint']}: " if h.get("joint") else ""
+        rows.append(Row(f"P{n}", f"switching point, {what}", f"(s, s') = ({r['s']}, {r['sd']}) (4.2)",
+                        f"{here}({h['s']:.4f}, {h['sd']:.3f}); {'kept' if h['kept'] else 'discarded: ' + h['why']}",
+                        f"{near['error_s'] * 100:+.1f} % in s, {near['error_sd'] * 100:+.1f} % in s'"))
+    rows += [
+        Row("P5", "limit curves' integrator", "second-order Adams-Bashforth (4.2)",
+            f"ab2 or rk4: minimum time {ab2.duration:.5f} s and {rk4.duration:.5f} s at 1000 intervals",
+            f"they differ by {abs(ab2.duration / rk4.duration - 1) * 1e6:.0f} ppm; the report gives no time"),
+        Row("P6", "saturation", "at any given time at least one actuator torque is saturated (4.2, Fig. 14)",
+            f"a joint within 1 % of its limit {rk4.profile.saturated_time * 100:.2f} % of the time",
+            "same" if rk4.profile.saturated_time > 0.99 else "NOT everywhere"),
+        Row("P7", "dynamic programming grid", "101 points in s, 201 speeds 0.005 apart (4.3)",
+            f"the same grid: the minimum-energy profile takes {energy.profile.duration:.1f} s, "
+            f"energy index {energy.costs['energy']:.2g} J",
+            "every profile's index is 0 without gravity: the grid's tie-break chooses"),
+        Row("P8", "energy index sum(u dq)", "minimized (section 3)",
+            f"with gravity on: {up_costs['energy']:.4f} J time-optimal ({up_costs['time']:.3f} s), "
+            f"{up_energy.costs['energy']:.4f} J energy-optimal ({up_energy.profile.duration:.2f} s)",
+            "the rise in potential energy, whatever the profile: it cannot choose one"),
+        Row("P9", "heat sum(u^2 dt), with gravity", "not in the report",
+            f"least at {heat.profile.duration:.2f} s: {heat.costs['thermal']:.0f} against "
+            f"{up_costs['thermal']:.0f} time-optimal", "beyond the report"),
+    ]
+    return rows
+
+
 # ---- the page ----------------------------------------------------------------------------------------------------
 
 SECTIONS: dict[str, Callable[[], list[Row]]] = {
     "links": link_rows, "deflections": deflection_rows, "moments": moment_rows, "torques": torque_rows,
-    "worst-case": worst_rows, "mount": mount_rows, "speed": speed_rows, "tracker": tracker_rows, "box": box_rows}
+    "worst-case": worst_rows, "mount": mount_rows, "speed": speed_rows, "tracker": tracker_rows, "box": box_rows,
+    "planner": planner_rows}
 
 HEADER = ("| id | figure | report (where) | emulator | compared |", "|---|---|---|---|---|")
 BLOCK = re.compile(r"(?P<head><!-- table:(?P<key>[\w-]+) [^>]*-->\n)(?P<body>.*?)"
@@ -699,7 +755,7 @@ def test_the_page_has_each_table_once_and_names_only_rows_it_has():
     ids = re.findall(r"^\| ([A-Z]+\d+) \|", text, re.M)
     assert len(ids) == len(set(ids)), "row ids are unique"
     prose = BLOCK.sub("", text)
-    named = set(re.findall(r"\b(?:L|D|E|T|W|M|S|SU|B)\d+\b", prose))
+    named = set(re.findall(r"\b(?:L|D|E|T|W|M|S|SU|B|P)\d+\b", prose))
     assert named <= set(ids), f"the prose names rows the tables do not have: {sorted(named - set(ids))}"
 
 

@@ -14,22 +14,9 @@ import json
 from host_tools.cli.settings import PlanSettings
 from host_tools.exit_codes import EXIT_OK
 from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
-from host_tools.plan.example import REPORTED, report_problem
+from host_tools.plan.example import REPORTED, beside_report, report_problem
 from host_tools.plan.problem_file import load_problem
 from host_tools.plan.timeopt import plan_time_optimal
-
-
-def beside_report(points) -> list[dict]:
-    """Each of the report's switching points beside the nearest candidate of the same kind found here."""
-    rows = []
-    for kind, joint, s, sd in REPORTED:
-        same = [p for p in points if p.kind == kind] or list(points)
-        if not same:
-            continue
-        near = min(same, key=lambda p: abs(p.s - s) / s + abs(p.sd - sd) / sd)
-        rows.append({"kind": kind, "report": {"joint": joint, "s": s, "sd": sd}, "here": near.describe(),
-                     "error_s": round((near.s - s) / s, 5), "error_sd": round((near.sd - sd) / sd, 5)})
-    return rows
 
 
 def run_plan(settings: PlanSettings) -> int:

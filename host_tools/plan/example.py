@@ -37,3 +37,16 @@ def report_problem(gravity: bool = False, links: str = "point") -> Problem:
                       held=Held(mass=0.25, size=(0.25, 0.1), grasps=((-0.125, 0.0), (0.125, 0.0))),
                       gravity=GRAVITY if gravity else 0.0)
     return Problem(system, PolynomialPath.line(*PATH), Limits.symmetric(LIMITS))
+
+
+def beside_report(points) -> list[dict]:
+    """Each of the report's switching points beside the nearest candidate of the same kind found here."""
+    rows = []
+    for kind, joint, s, sd in REPORTED:
+        same = [p for p in points if p.kind == kind] or list(points)
+        if not same:
+            continue
+        near = min(same, key=lambda p: abs(p.s - s) / s + abs(p.sd - sd) / sd)
+        rows.append({"kind": kind, "report": {"joint": joint, "s": s, "sd": sd}, "here": near.describe(),
+                     "error_s": round((near.s - s) / s, 5), "error_sd": round((near.sd - sd) / sd, 5)})
+    return rows
