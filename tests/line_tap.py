@@ -6,8 +6,8 @@ pyserial as a host would) and serves the host a port of the same kind, as `aspod
 its own, and is recorded. The attacker's side: `inject_to_controller` / `inject_to_host` put
 recorded frames onto the line between two whole frames; `flood(frames, bytes_per_s)` replays
 frames, in turn, at a steady byte rate; `drop_after(msg_id)` passes the host's frames up to the
-first of that message, then loses all it sends (an Ack that never arrives) until `drop_after(None)`
-(`wait_dropped(n)` waits until n were lost);
+first of that message, then loses all it sends (an Ack that never arrives) up to a frame with id `until`
+(a new host's Hello: it passes, whenever the last bytes of the old host reach the tap) or `drop_after(None)`;
 `retarget(url)` puts another controller behind the same line (a restart behind a radio link that
 stays up).
 """
@@ -94,9 +94,9 @@ class LineTap:
     def __init__(self, target_url: str, clock: Optional[RealClock] = None) -> None:
         self.clock = clock or RealClock()
         self._drop_after: Optional[int] = None
+        self._drop_until: Optional[int] = None
         self.dropping = False                 # the host's frames are being lost
         self.frames_dropped = 0               # of the host's, by `drop_after`
-        self._dropped_cond = threading.Condition()
         self.injected_bytes = 0
         self._up = _Direction()               # host -> controller
         self._down = _Direction()             # controller -> host
@@ -142,19 +142,14 @@ class LineTap:
     def retarget(self, url: str) -> None:
         self._command("retarget", url)
 
-    def drop_after(self, msg_id: Optional[int]) -> None:
-        """Pass the host's frames up to the first with `msg_id`, then lose them all (None: pass all again).
-        In force when this returns, so the host's next frame goes by it."""
+    def drop_after(self, msg_id: Optional[int], until: Optional[int] = None) -> None:
+        """Pass the host's frames up to the first with `msg_id`, then lose them all up to the first with `until`,
+        which passes and ends the loss (None: pass all again). In force when this returns, so the host's next
+        frame goes by it."""
         applied = threading.Event()
-        self._command("drop_after", (msg_id, applied))
+        self._command("drop_after", (msg_id, until, applied))
         if not applied.wait(10.0):
             raise RuntimeError("the line tap's thread did not take drop_after in 10 s")
-
-    def wait_dropped(self, count: int, timeout_s: float) -> bool:
-        """Wait until `drop_after` has lost `count` of the host's frames (a host's bytes cross a pty
-        asynchronously: what it wrote before closing may reach the tap after the test's next step)."""
-        with self._dropped_cond:
-            return self._dropped_cond.wait_for(lambda: self.frames_dropped >= count, timeout_s)
 
     def close(self) -> None:
         self._stop = True
@@ -187,7 +182,7 @@ class LineTap:
                 self._flood_sent = self._flood_next = 0
             elif what == "drop_after":
                 self._take_from_host()          # what the host sent before this call goes by the old rule
-                (self._drop_after, applied), self.dropping = arg, False
+                (self._drop_after, self._drop_until, applied), self.dropping = arg, False
                 applied.set()
             elif what == "retarget":
                 if self._controller is not None:
@@ -223,10 +218,11 @@ class LineTap:
             return whole
         passed = []
         for frame, wire in decoded(whole):
+            if self.dropping and frame.msg_id == self._drop_until:
+                self._drop_after = self._drop_until = None
+                self.dropping = False
             if self.dropping:
-                with self._dropped_cond:
-                    self.frames_dropped += 1
-                    self._dropped_cond.notify_all()
+                self.frames_dropped += 1
                 continue
             passed.append(wire)
             self.dropping = frame.msg_id == self._drop_after
