@@ -110,7 +110,8 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
     for args, said in ((["nosuch"], "no fuzz target 'nosuch'"), (["codec", "--cases", "3"], "black-box"),
                        ([], "name an in-process TARGET"), (["codec", "--url", "/dev/null"], "one at a time"),
                        (["--url", "/dev/null", "--only", "Pong"], "not a command the controller takes"),
-                       (["nosuch.module:f"], "cannot load it")):
+                       (["nosuch.module:f"], "cannot load it"), (["codec", "--max-findings", "1"], "black-box"),
+                       (["--url", "/dev/null", "--max-findings", "0"], "--max-findings")):
         done = aspod("fuzz", *args, cwd=tmp_path, timeout=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-findings").exists() or not any((tmp_path / "fuzz-findings").iterdir())
@@ -120,17 +121,19 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
 @pytest.mark.long
 def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp_path):
     """A simulator whose BoxDial handler crashes at exactly 100 % (planted): the black-box fuzzer, sending only
-    BoxDial, finds it within 300 cases, shrinks it, and the finding fails again on a fresh simulator."""
+    BoxDial, finds it within 300 cases, shrinks it, stops (--max-findings 1), and the finding fails again on a fresh
+    simulator."""
     key = tmp_path / "k.key"
     from protocol import auth
     auth.write_key(key, bytes(range(32)))
     target = f"{sys.executable} -m host_tools.fuzz.planted sim --pty --no-pacing --key-file {key}"
     done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--only", "BoxDial", "--cases", "300",
+                 "--max-findings", "1",
                  "--json", cwd=tmp_path, timeout=600)
     assert done.returncode == 1, done.stderr[-2000:]
     figures = json.loads(done.stdout)
     crashes = [f for f in figures["findings"] if Path(f).name.startswith("crash-")]
-    assert crashes, figures
+    assert crashes == figures["findings"] and len(crashes) == 1 and figures["cases"] < 300, figures  # then it stops
     finding = findings.load(tmp_path / crashes[0])
     assert any(s["kind"] == "command" and s["msg"] == "BoxDial" for s in finding.steps)
     again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, "--key-file", str(key), cwd=tmp_path,

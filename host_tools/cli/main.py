@@ -433,6 +433,8 @@ def build_parser() -> argparse.ArgumentParser:
     fuzz.add_argument("--runs", type=bounded(int, 1, 10**12), default=None, metavar="N",
                       help="in process: executions per job")
     fuzz.add_argument("--cases", type=bounded(int, 1, 10**9), default=None, metavar="N", help="black-box: cases")
+    fuzz.add_argument("--max-findings", type=bounded(int, 1, 10**6), default=None, metavar="N",
+                      help="black-box: stop after N findings (default: go on to --time or --cases)")
     fuzz.add_argument("--jobs", type=bounded(int, 1, 10000), default=1, metavar="N",
                       help="in process: jobs per target, each with its own seed, sharing the target's corpus")
     fuzz.add_argument("--seed", type=bounded(int, 1, 2**31 - 1), default=1, help="the first job's seed (default 1)")

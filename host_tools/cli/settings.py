@@ -511,14 +511,16 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
             seconds = args.time if args.time is not None else (None if args.cases else 60.0)
             blackbox = BlackBoxSettings(args.url or "", command, args.baud, seconds, args.cases, args.seed,
                                         args.findings, skip=tuple(args.skip) if args.skip is not None
-                                        else ("ParamSave",), only=tuple(args.only))
+                                        else ("ParamSave",), only=tuple(args.only),
+                                        max_findings=args.max_findings)
             return FuzzSettings("replay" if args.replay is not None else "blackbox", blackbox=blackbox,
                                 replay=args.replay, **common)
         return FuzzSettings("replay", replay=args.replay, **common)
     if not args.targets:
         raise ValueError("name an in-process TARGET (aspod fuzz --list), or --url/--target-cmd, or --replay FILE")
-    if args.cases is not None or args.only or args.skip is not None:
-        raise ValueError("--cases, --only and --skip are for black-box fuzzing (--url or --target-cmd)")
+    if args.cases is not None or args.only or args.skip is not None or args.max_findings is not None:
+        raise ValueError("--cases, --only, --skip and --max-findings are for black-box fuzzing (--url or "
+                         "--target-cmd)")
     seconds = args.time if args.time is not None else (None if args.runs else 60.0)
     plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed)
     return FuzzSettings("inprocess", plan=plan, engine=EngineSettings(args.workers, args.scheduler, args.serial),

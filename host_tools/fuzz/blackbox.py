@@ -74,6 +74,7 @@ class BlackBoxSettings:
     skip: tuple[str, ...] = ("ParamSave",)   # commands never sent (ParamSave writes the target's own file)
     only: tuple[str, ...] = ()               # if given, the only commands sent in sequence (one handler's fuzzing)
     minimize_s: float = 60.0
+    max_findings: Optional[int] = None       # stop after this many
 
     def __post_init__(self) -> None:
         if not self.url and not self.command:
@@ -100,7 +101,8 @@ class BlackBoxResult:
 
 
 class _Peer:
-    """What the fuzzer knows of the controller's counter: the last one it sent (delivered by the time it runs)."""
+    """What the fuzzer knows of the controller's counter: the last one of a frame it answered (a counter the
+    host merely sent may have been on a frame the controller refused, and is then still fresh to it)."""
 
     def __init__(self, counter: int) -> None:
         self.rx_counter = counter
@@ -126,6 +128,7 @@ class Session:
         self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
         self.last_write_s = self.clock.now()
         self.lapsed = False                    # our own silence outlasted the link timeout since the last check
+        self.accepted_counter = -1             # the host's counter on the last frame the target answered
         self.host.connect(self.clock.now())
         if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
             self.close()
@@ -292,7 +295,7 @@ class Case:
                "gap": (sender.next_seq + 1 + step["offset"]) & 0xFFFF}.get(how, step["any_seq"])
         recipe = FrameRecipe(spec, step["cls"], seq, bytes.fromhex(step["payload"]), step["mac"], step["version"],
                              step["flags"], step["length_delta"])
-        wire = build(recipe, host.session, _Peer(host.session.tx_counter), host._handshake.tx, host._ack_value(),
+        wire = build(recipe, host.session, _Peer(session.accepted_counter), host._handshake.tx, host._ack_value(),
                      draw)
         session.sent = (session.sent + [wire])[-64:]
         return wire
@@ -308,6 +311,7 @@ class HealthCheck:
         end = _CLOCK.now() + session.settings.health_timeout_s
         while self.last.state == ControllerState.BOOT and _CLOCK.now() < end:   # its boot check still running
             self.last = self._status()
+        session.accepted_counter = session.host.session.tx_counter
 
     def _call(self, msg):
         s = self.session
@@ -333,6 +337,7 @@ class HealthCheck:
         if pong.token != self.token:
             return f"Pong carries token {pong.token}, the Ping {self.token}"
         status = self._status()
+        s.accepted_counter = s.host.session.tx_counter      # the GetStatus was answered: its counter was taken
         before, self.last = self.last, status
         if status.uptime_ms <= before.uptime_ms and status.uptime_ms > 1000:   # (a wrap after 49 days)
             return f"uptime did not rise: {before.uptime_ms} ms then {status.uptime_ms} ms"
@@ -422,6 +427,8 @@ class BlackBoxFuzzer:
                     if self.settings.command:
                         finding = self.minimize(finding)
                     result.findings.append(str(finding.save(self.settings.findings)))
+                    if len(result.findings) == self.settings.max_findings:
+                        break
                     if not self.settings.command:
                         break                  # not ours to restart: the target is as the case left it
                     result.restarts += 1
