@@ -35,10 +35,12 @@ from host_tools.plan.reach import FREE, plan_reach, sampled_torques
 from host_tools.plan.timeopt import plan_time_optimal
 
 GRIDS = (20, 50, 100)
-DENSE = 4000
+DENSE = 4000                    # the reference's grid points (--quick: QUICK_DENSE)
+PHASE_NODES = 2000              # the phase-plane planner's nodes, for the cross-check (skipped with --quick)
+QUICK_DENSE = 1000
 RANDOM = 4
 SEED = 16
-PER_INTERVAL = 50
+PER_INTERVAL = 50               # --quick: 10
 GOAL_TIME = 1e-3
 GOAL_VIOLATION = 1e-9
 SQUEEZE_BOUND = 20.0            # N
@@ -48,6 +50,7 @@ SQUEEZE_BOUND = 20.0            # N
 class PlanBench:
     rows: list = field(default_factory=list)          # dicts: problem, planner, gridpoints, figures
     squeeze: list = field(default_factory=list)
+    points_for_goal: dict = field(default_factory=dict)   # problem -> grid points for GOAL_TIME (None: > dense / 2)
     error: Optional[str] = None
 
 
@@ -96,23 +99,27 @@ def _verdict(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
 
-def _reach_row(problem, n, reference, path_q, inverse_dynamics) -> dict:
+def _row(planner: str, grid_s, x, duration, total_s, setup_s, n, reference, problem, check) -> dict:
+    path_q, inverse_dynamics, per_interval = check
+    return {"planner": planner, "time_ratio": duration / reference - 1,
+            "violation": worst_violation(grid_s, x, path_q, inverse_dynamics, problem.limits.lo, problem.limits.hi,
+                                         per_interval),
+            "us_total": 1e6 * total_s / n, "us_passes": 1e6 * (total_s - setup_s) / n}
+
+
+def _reach_row(problem, n, reference, check, repeats) -> dict:
     plan_reach(problem, n)                                      # warm
-    plan = min((plan_reach(problem, n) for _ in range(3)), key=lambda p: p.solve_time_s)
-    return {"planner": "reach", "time_ratio": plan.duration / reference - 1,
-            "violation": worst_violation(plan.s, plan.x, path_q, inverse_dynamics, problem.limits.lo,
-                                         problem.limits.hi, PER_INTERVAL),
-            "us_total": 1e6 * plan.solve_time_s / n, "us_passes": 1e6 * (plan.solve_time_s - plan.setup_time_s) / n}
+    p = min((plan_reach(problem, n) for _ in range(repeats)), key=lambda p: p.solve_time_s)
+    return _row("reach", p.s, p.x, p.duration, p.solve_time_s, p.setup_time_s, n, reference, problem, check)
 
 
-def _toppra_row(problem, n, scheme, reference, path_q, inverse_dynamics) -> dict:
-    r = toppra_solve(path_q, inverse_dynamics, problem.limits.lo, problem.limits.hi, n, scheme)
+def _toppra_row(problem, n, scheme, reference, check, repeats) -> dict:
+    runs = [toppra_solve(check[0], check[1], problem.limits.lo, problem.limits.hi, n, scheme) for _ in range(repeats)]
+    r = min(runs, key=lambda r: r.solve_time_s if r.ok else float("inf"))
     if not r.ok:
         return {"planner": f"toppra {scheme}", "failed": r.reason}
-    return {"planner": f"toppra {scheme}", "time_ratio": r.traversal_time_s / reference - 1,
-            "violation": worst_violation(r.grid_s, r.x, path_q, inverse_dynamics, problem.limits.lo,
-                                         problem.limits.hi, PER_INTERVAL),
-            "us_total": 1e6 * r.solve_time_s / n, "us_passes": 1e6 * (r.solve_time_s - r.setup_time_s) / n}
+    return _row(f"toppra {scheme}", r.grid_s, r.x, r.traversal_time_s, r.solve_time_s, r.setup_time_s, n, reference,
+                problem, check)
 
 
 def _print_row(row: dict) -> None:
@@ -126,19 +133,20 @@ def _print_row(row: dict) -> None:
 
 def _squeeze_rows(bench: PlanBench, quick: bool) -> None:
     paths = [(1.0, 0.3, 1.2)] if quick else [(1.0, 0.3, 1.2), (1.0, 1.2, 0.3), (0.8, 0.4, 1.0), (1.2, 0.5, 1.3)]
+    n = 50 if quick else 100
     print()
-    print(f"  Squeeze: vertical paths, the report's arms with gravity on, 100 grid points; the squeeze per interval "
+    print(f"  Squeeze: vertical paths, the report's arms with gravity on, {n} grid points; the squeeze per interval "
           f"free, or |lambda| <= {SQUEEZE_BOUND:g} N")
     print(f"  {'path (x; y0 -> y1)':<22} {'fixed split':>11} {'bounded':>9} {'free':>9} {'shorter':>8} "
           f"{'max |lambda|':>12} {'excess':>8} {'solve ms':>9}")
     for x, y0, y1 in paths:
         problem = vertical_problem(x, y0, y1)
-        fixed = plan_reach(problem, 100)
-        bounded = plan_reach(problem, 100, squeeze=SQUEEZE_BOUND)
-        free = plan_reach(problem, 100, squeeze=FREE)
+        fixed = plan_reach(problem, n)
+        bounded = plan_reach(problem, n, squeeze=SQUEEZE_BOUND)
+        free = plan_reach(problem, n, squeeze=FREE)
         excess = 0.0
         for plan in (fixed, bounded, free):
-            _, tau = sampled_torques(problem, plan, PER_INTERVAL)
+            _, tau = sampled_torques(problem, plan, PER_INTERVAL)          # from the model, squeeze included
             excess = max(excess, float(np.max(np.maximum(tau - problem.limits.hi, problem.limits.lo - tau)
                                               / problem.limits.hi)))
         row = {"path": (x, y0, y1), "fixed_s": fixed.duration, "bounded_s": bounded.duration,
@@ -157,27 +165,35 @@ def main(quick: bool = False) -> PlanBench:
     problems = [("example", report_problem())] + [(f"random {k + 1}", random_problem(rng))
                                                   for k in range(1 if quick else RANDOM)]
     grids = (20, 100) if quick else GRIDS
+    dense = QUICK_DENSE if quick else DENSE
+    repeats = 1 if quick else 3
     version = toppra_version()
     print(f"Time-optimal planning: the reachability planner beside toppra {version or '(not installed)'}; "
-          f"torque excess checked at {PER_INTERVAL} points inside every interval")
+          f"torque excess checked at {10 if quick else PER_INTERVAL} points inside every interval")
     print(f"  {'problem':<10} {'grid':>4}  {'planner':<22} {'time/ref':>10} {'excess':>11} {'us/point':>9} "
           f"{'passes':>8}")
     try:
         for name, problem in problems:
-            reference = plan_reach(problem, DENSE).duration
-            phase = plan_time_optimal(problem, DENSE).duration
-            path_q, inverse_dynamics = joint_functions(problem)
-            print(f"  {name:<10} reference {reference:.5f} s ({DENSE} points); the phase-plane planner at "
-                  f"{DENSE} nodes {phase:.5f} s ({100 * (phase / reference - 1):+.3f} %)")
+            reference = plan_reach(problem, dense).duration
+            check = (*joint_functions(problem), 10 if quick else PER_INTERVAL)
+            if quick:
+                print(f"  {name:<10} reference {reference:.5f} s ({dense} points)")
+            else:
+                phase = plan_time_optimal(problem, PHASE_NODES).duration
+                print(f"  {name:<10} reference {reference:.5f} s ({dense} points); the phase-plane planner at "
+                      f"{PHASE_NODES} nodes {phase:.5f} s ({100 * (phase / reference - 1):+.3f} %)")
             for n in grids:
-                rows = [_reach_row(problem, n, reference, path_q, inverse_dynamics)]
+                rows = [_reach_row(problem, n, reference, check, repeats)]
                 if version:
-                    rows += [_toppra_row(problem, n, scheme, reference, path_q, inverse_dynamics)
-                             for scheme in DISCRETIZATIONS]
+                    rows += [_toppra_row(problem, n, scheme, reference, check, repeats) for scheme in DISCRETIZATIONS]
                 for row in rows:
                     row.update(problem=name, gridpoints=n)
                     _print_row(row)
                 bench.rows += rows
+            enough = _points_for(problem, reference, dense)
+            bench.points_for_goal[name] = enough
+            print(f"  {name:<10} this planner first within {100 * GOAL_TIME:g} % of the reference at "
+                  f"{enough if enough else f'more than {dense // 2}'} grid points (doubling from 100)")
         print("  (time/ref: traversal time over the reference; excess: the worst torque past its limit between "
               "grid points, % of the limit; us/point: all of the planning per grid point, the model's "
               "coefficients included; passes: without them)")
@@ -188,6 +204,16 @@ def main(quick: bool = False) -> PlanBench:
         return bench
     _goals(bench)
     return bench
+
+
+def _points_for(problem: Problem, reference: float, dense: int) -> Optional[int]:
+    """The first of 100, 200, 400, ... grid points at which this planner's time is within GOAL_TIME."""
+    n = 100
+    while n <= dense // 2:
+        if plan_reach(problem, n).duration / reference - 1 <= GOAL_TIME:
+            return n
+        n *= 2
+    return None
 
 
 def _goals(bench: PlanBench) -> None:

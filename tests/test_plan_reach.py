@@ -153,3 +153,26 @@ def test_bad_grids_and_squeezes_are_refused():
         plan_reach(problem, 20, squeeze=(5.0, -5.0))
     uneven = plan_reach(problem, np.concatenate([np.linspace(0, 0.5, 40), np.linspace(0.5, 1, 11)[1:]]))
     assert _model_excess(problem, uneven) <= 1e-9 and len(uneven.s) == 50
+
+
+def test_the_command_plans_by_reachability_with_the_squeeze_free():
+    import json
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", *args], capture_output=True,
+                              text=True, timeout=300)
+
+    fixed = run("--method", "reach", "--nodes", "49", "--gravity", "--objective", "time", "--json")
+    free = run("--method", "reach", "--nodes", "49", "--gravity", "--objective", "time", "--json", "--squeeze", "free")
+    assert fixed.returncode == 0 and free.returncode == 0, fixed.stderr + free.stderr
+    fixed, free = json.loads(fixed.stdout)["time_optimal"], json.loads(free.stdout)["time_optimal"]
+    assert fixed["method"] == "reach" and fixed["nodes"] == 49 and fixed["squeeze"] is None
+    assert fixed["worst_violation_between_nodes"] <= 1e-9 and free["worst_violation_between_nodes"] <= 1e-9
+    assert free["duration_s"] < fixed["duration_s"] and free["squeeze"]["bound_n"] is None
+    assert free["squeeze"]["max_n"] > 0
+    for wrong, said in ((["--squeeze", "5"], "--method reach"), (["--method", "reach", "--plot", "x"], "--method phase"),
+                        (["--method", "reach", "--squeeze", "lots"], "--squeeze")):
+        done = run(*wrong)
+        assert done.returncode == 2 and said in done.stderr and done.stdout == "", done.stderr

@@ -183,12 +183,13 @@ def _eliminate(rows: tuple, var: int) -> tuple:
     return _normalized(out)
 
 
-def _x_range(rows: tuple, chunk: int = 64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _x_range(rows: tuple, pairs: int = 40_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """From rows alpha x + beta u <= gamma: each interval's [lower, upper] for x where some u satisfies them all,
     and where none does. Fourier-Motzkin on u (as `_eliminate`), each pair's bound on x taken at once, a chunk
-    of intervals at a time (so that the pairs stay in the cache)."""
+    of intervals at a time (about `pairs` pairs, so that they stay in the cache)."""
     neg, pos, zero = _blocks(rows, 1)
     n = len(rows[0])
+    chunk = max(1, pairs // (neg[0].shape[1] * pos[0].shape[1]))
     lower, upper, empty = np.empty(n), np.empty(n), np.zeros(n, bool)
     with np.errstate(divide="ignore", invalid="ignore"):
         for k in range(0, n, chunk):
