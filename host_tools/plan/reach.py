@@ -110,20 +110,25 @@ def _point_terms(problem: Problem, s: np.ndarray) -> tuple[Terms, Terms, Terms]:
 def _rows(limits: Limits, s: np.ndarray, terms: tuple, guard: float, squeeze: Optional[tuple[float, float]]) -> tuple:
     """Every interval's constraints as rows  alpha x + beta u (+ mu lambda) <= gamma: the tuple (alpha, beta,
     [mu,] gamma) of (N, M) arrays, each row scaled so that its largest coefficient is 1. `terms`: the terms at
-    each interval's start, midpoint and end."""
+    each interval's start, midpoint and end. The first PAIRED rows bound the torques from above, the next PAIRED
+    the same from below (their coefficients negated), then x_i >= 0 and x_{i+1} >= 0 (and the squeeze's bounds)."""
     h = np.diff(s)[:, None]
     start, mid, end = terms
     # each point's torque as coefficients of x_i, u_i, lambda_i and 1: x there is x_i + 2 u_i (offset)
     points = [(t.b, t.a + 2 * off * t.b, t.n, t.c) for t, off in ((start, 0.0), (mid, h / 2), (end, h))]
     curvature = [p0 - 2 * p1 + p2 for p0, p1, p2 in zip(*points)]
     lo, hi = limits.lo, limits.hi
-    cols: list[list] = [[], [], [], []]
+    upper: list[list] = [[], [], [], []]
+    lower: list[list] = [[], [], [], []]
     for p in points:
         for sign in (guard, -guard):
             g = [v + sign * d for v, d in zip(p, curvature)]
             for k in range(3):
-                cols[k] += [g[k], -g[k]]                          # tau <= upper, then tau >= lower
-            cols[3] += [hi - g[3], g[3] - lo]
+                upper[k].append(g[k])                              # tau <= upper
+                lower[k].append(-g[k])                             # tau >= lower: the same row negated
+            upper[3].append(hi - g[3])
+            lower[3].append(g[3] - lo)
+    cols = [u + lw for u, lw in zip(upper, lower)]
     n = len(h)
     one, zero = np.ones((n, 1)), np.zeros((n, 1))
     extra = [(-one, zero, zero, zero), (-one, -2 * h, zero, zero)]     # x_i >= 0, x_{i+1} >= 0
@@ -168,6 +173,20 @@ def _blocks(rows: tuple, var: int) -> tuple[tuple, tuple, tuple]:
     return out[0], out[1], out[2]
 
 
+def _paired_blocks(rows: tuple, paired: int) -> tuple[tuple, tuple, tuple]:
+    """`_blocks(rows, 1)` for the rows `_rows` makes without the squeeze, without sorting: of each upper and
+    lower row of one torque (coefficients negated) one bounds u from above and the other from below (a row with
+    no u in it does no harm in either block: paired with a row that has u, it comes back as itself times a
+    positive weight). The two last rows are x_i >= 0 (no u) and x_{i+1} >= 0 (a negative u coefficient)."""
+    up = rows[1][:, :paired] < 0
+    neg, pos = [], []
+    for r in rows:
+        first, second = r[:, :paired], r[:, paired:2 * paired]
+        neg.append(np.concatenate([np.where(up, first, second), r[:, -1:]], axis=1))
+        pos.append(np.where(up, second, first))
+    return tuple(neg), tuple(pos), tuple(r[:, -2:-1] for r in rows)
+
+
 def _eliminate(rows: tuple, var: int) -> tuple:
     """Fourier-Motzkin: the rows without variable `var` that hold exactly where some value of it satisfies all
     of `rows` (M rows -> M' rows, one fewer variable). Each (negative, positive) pair is combined with
@@ -183,12 +202,12 @@ def _eliminate(rows: tuple, var: int) -> tuple:
     return _normalized(out)
 
 
-def _x_range(rows: tuple, pairs: int = 40_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """From rows alpha x + beta u <= gamma: each interval's [lower, upper] for x where some u satisfies them all,
-    and where none does. Fourier-Motzkin on u (as `_eliminate`), each pair's bound on x taken at once, a chunk
-    of intervals at a time (about `pairs` pairs, so that they stay in the cache)."""
-    neg, pos, zero = _blocks(rows, 1)
-    n = len(rows[0])
+def _x_range(blocks: tuple, pairs: int = 40_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """From rows alpha x + beta u <= gamma, split by the sign of beta (`_blocks`): each interval's [lower, upper]
+    for x where some u satisfies them all, and where none does. Fourier-Motzkin on u (as `_eliminate`), each
+    pair's bound on x taken at once, a chunk of intervals at a time (about `pairs` pairs, to stay in the cache)."""
+    neg, pos, zero = blocks
+    n = len(neg[0])
     chunk = max(1, pairs // (neg[0].shape[1] * pos[0].shape[1]))
     lower, upper, empty = np.empty(n), np.empty(n), np.zeros(n, bool)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -199,10 +218,11 @@ def _x_range(rows: tuple, pairs: int = 40_000) -> tuple[np.ndarray, np.ndarray, 
             alpha += wn * pos[0][part, None, :]
             gamma = wp * neg[2][part, :, None]
             gamma += wn * pos[2][part, None, :]
-            empty[part] = ((alpha == 0) & (gamma < -1e-9)).any(axis=(1, 2))
-            bound = np.divide(gamma, alpha, out=gamma)
-            upper[part] = np.min(bound, axis=(1, 2), where=alpha > 0, initial=np.inf)
-            lower[part] = np.max(bound, axis=(1, 2), where=alpha < 0, initial=-np.inf)
+            alpha, gamma = alpha.reshape(len(alpha), -1), gamma.reshape(len(gamma), -1)
+            empty[part] = ((alpha == 0) & (gamma < -1e-9)).any(axis=1)
+            bound = gamma / alpha
+            upper[part] = np.where(alpha > 0, bound, np.inf).min(axis=1)
+            lower[part] = np.where(alpha < 0, bound, -np.inf).max(axis=1)
         alpha, gamma = zero[0], zero[2]                         # rows without u bound x alone
         bound = gamma / alpha
     upper = np.minimum(upper, np.min(bound, axis=1, where=alpha > 0, initial=np.inf))
@@ -261,8 +281,12 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
     terms = _point_terms(problem, s)
     setup = clock.precise_now() - started
     rows3 = _rows(problem.limits, s, terms, guard, span)
-    rows2 = _eliminate(rows3, 2) if span is not None else rows3
-    static_lo, static_hi, empty = _x_range(rows2)
+    if span is not None:
+        rows2 = _eliminate(rows3, 2)
+        static_lo, static_hi, empty = _x_range(_blocks(rows2, 1))
+    else:
+        rows2 = rows3
+        static_lo, static_hi, empty = _x_range(_paired_blocks(rows2, 6 * len(problem.limits.lo)))
     if np.isinf(static_hi).any():
         raise PlanError("bounds", "the limits do not bound the speed along this path")
     backward = np.stack(_coupling(rows2, h), axis=1) * np.array([1.0, -1.0, -1.0])[:, None]    # (N, 3, M)
