@@ -88,6 +88,20 @@ def test_the_time_converges_from_above_to_the_phase_plane_planners():
     assert (times[2] - dense) / dense < 3e-3
 
 
+def test_zero_inertia_points_on_the_grid_itself():
+    """The example's joints 1 and 4 have a = 0 at s = 0.2594 and 0.9283: with grid points exactly there (where a
+    joint's torque does not depend on s'' and bounds s' alone), the limits still hold."""
+    problem = report_problem()
+    zeros = [p.s for p in plan_time_optimal(problem, nodes=400).switching_points if p.kind == "zero-inertia"]
+    assert len(zeros) == 2
+    a = problem.terms(zeros).a
+    assert np.abs(a).min(axis=1).max() < 1e-9 * np.abs(a).max()
+    plan = plan_reach(problem, np.unique(np.concatenate([np.linspace(0, 1, 40), zeros])))
+    assert set(zeros) <= set(plan.s.tolist())
+    assert _model_excess(problem, plan) <= 1e-9
+    assert plan.duration < 1.01 * plan_reach(problem, 4000).duration
+
+
 def test_a_break_in_the_paths_curvature_becomes_a_grid_point():
     up = PolynomialPath((0.9, 0.5), (0.4, 0.2))
     bend = PolynomialPath((0.9 - 0.5 * 0.37 ** 2, 0.5 + 0.37, -0.5), (0.4, 0.2))      # same w and w' at s = 0.37
@@ -142,6 +156,17 @@ def test_what_cannot_be_planned_is_refused_with_the_reason(limits, what, said):
     with pytest.raises(PlanError) as caught:
         plan_reach(problem, 50)
     assert caught.value.what == what and said in caught.value.reason, caught.value
+
+
+def test_a_start_the_limits_cannot_hold_is_refused_naming_the_joint():
+    """Lifting with gravity on: joint 3 needs 11.13 N m to hold the object at the start, less further up."""
+    lift = vertical_problem(1.0, 0.3, 1.2)
+    weak = Problem(lift.system, lift.path, Limits.symmetric((30, 20, 10.8, 15)))
+    with pytest.raises(PlanError) as caught:
+        plan_reach(weak, 50)
+    assert caught.value.what == "bounds" and "start at rest is not controllable" in caught.value.reason
+    assert "joint 3 needs -11.13 N m" in caught.value.reason
+    assert _model_excess(lift, plan_reach(lift, 50)) <= 1e-9          # the report's limits hold it
 
 
 def test_bad_grids_and_squeezes_are_refused():
