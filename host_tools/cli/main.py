@@ -65,6 +65,11 @@ def bounded(kind, lo: float, hi: float):
     return parse
 
 
+def _squeeze(text: str) -> float:
+    """`free` (unbounded) or a bound in newtons, 0 to 1e6."""
+    return float("inf") if text.strip().lower() == "free" else bounded(float, 0.0, 1e6)(text)
+
+
 def _speed(text: str) -> float:
     if text.strip().lower() == "max":
         return math.inf
@@ -234,7 +239,8 @@ EXAMPLES = {
              "aspod fuzz --url /dev/pts/5 --key-file link.key --only BoxDial --time 600",
              "aspod fuzz --replay fuzz-findings/crash-codec-0123456789ab.json"],
     "plan": ["aspod plan", "aspod plan --json --plot figures", "aspod plan --objective thermal --max-time 2",
-             "aspod plan --problem my_path.json --objective time --integrator ab2"],
+             "aspod plan --problem my_path.json --objective time --integrator ab2",
+             "aspod plan --method reach --nodes 99 --squeeze free --objective time"],
     "proxy": ["aspod proxy --controller /dev/pts/5", "aspod proxy --controller socket://127.0.0.1:5000 --host tcp:6000 "
               "--impair 'radio,seed=7' --record radio.pcapng"],
     "replay": ["aspod demo --record demo.pcapng && aspod replay demo.pcapng",
@@ -464,6 +470,12 @@ def build_parser() -> argparse.ArgumentParser:
                            "minimising this (default energy, the report's index)")
     plan.add_argument("--max-time", type=bounded(float, 1e-6, 1e6), default=None, metavar="S",
                       help="the minimum-cost plan's time bound in seconds")
+    plan.add_argument("--method", choices=("phase", "reach"), default="phase",
+                      help="minimum time: phase, the report's switching points on the phase plane (default); reach, "
+                           "reachability (TOPP-RA), every torque within its limits between grid points too")
+    plan.add_argument("--squeeze", type=_squeeze, default=None, metavar="N|free",
+                      help="--method reach: the squeeze force between the grasps a free variable, |squeeze| <= N "
+                           "newtons, or unbounded (free); default none, the load shared without squeeze")
     plan.add_argument("--integrator", choices=("ab2", "rk4"), default="rk4",
                       help="limit curves by the report's 2nd-order Adams-Bashforth, or 4th-order Runge-Kutta "
                            "(default)")

@@ -4,6 +4,7 @@
     aspod plan --json --plot figures             ... as JSON, and its Figs. 11-17 as PNG files
     aspod plan --objective thermal --max-time 2  minimum heat in the motors within 2 s
     aspod plan --problem FILE                    a path, arms and limits of your own (host_tools/plan/problem_file.py)
+    aspod plan --method reach --squeeze free     minimum time by reachability, the squeeze force free
 
 Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a grid too coarse: the reason says).
 """
@@ -11,28 +12,46 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from host_tools.cli.settings import PlanSettings
 from host_tools.exit_codes import EXIT_OK
 from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
 from host_tools.plan.example import REPORTED, beside_report, report_problem
 from host_tools.plan.problem_file import load_problem
+from host_tools.plan.reach import plan_reach, sampled_torques
 from host_tools.plan.timeopt import plan_time_optimal
+
+
+def _reach_result(problem, settings: PlanSettings) -> dict:
+    """The reachability planner's minimum time, on nodes + 1 grid points, its excess checked between them."""
+    plan = plan_reach(problem, settings.nodes + 1, settings.squeeze)
+    _, tau = sampled_torques(problem, plan, 20)
+    lo, hi = problem.limits.lo, problem.limits.hi
+    excess = float(max(0.0, np.max((tau - hi) / np.abs(hi)), np.max((lo - tau) / np.abs(lo))))
+    out = {"method": "reach", "nodes": len(plan.s) - 1, "duration_s": round(plan.duration, 6),
+           "worst_violation_between_nodes": excess, "saturated_time": round(plan.profile.saturated_time, 4),
+           "solve_time_s": round(plan.solve_time_s, 4),
+           "squeeze": None if settings.squeeze is None else {
+               "bound_n": None if np.isinf(settings.squeeze) else settings.squeeze,
+               "max_n": round(float(np.abs(plan.squeeze).max()), 4)}}
+    if settings.squeeze is None:
+        out["costs"] = costs_of(problem.terms(plan.s), plan.profile.sd)
+    return out
 
 
 def run_plan(settings: PlanSettings) -> int:
     example = settings.problem is None
     problem = report_problem(settings.gravity, settings.links) if example else load_problem(settings.problem)
+    if settings.method == "reach":
+        return _print(settings, _with_cost(problem, settings, {
+            "problem": "the report's example" if example else str(settings.problem),
+            "model": _model(problem), "time_optimal": _reach_result(problem, settings)}))
     fastest = plan_time_optimal(problem, settings.nodes, settings.integrator)
-    cost = None
-    if settings.objective != "time":
-        cost = plan_cost_optimal(problem, settings.objective,
-                                 DpGrid(settings.dp_intervals, settings.dp_speeds, settings.dp_speed_step),
-                                 settings.max_time)
     result = {
         "problem": "the report's example" if example else str(settings.problem),
-        "model": {"links": problem.system.arms[0].links, "gravity": problem.system.gravity,
-                  "path": problem.path.describe(), "limits": problem.limits.describe()},
-        "time_optimal": {"integrator": fastest.integrator, "nodes": settings.nodes,
+        "model": _model(problem),
+        "time_optimal": {"method": "phase", "integrator": fastest.integrator, "nodes": settings.nodes,
                          "duration_s": round(fastest.duration, 6),
                          "switching_points": [p.describe() for p in fastest.switching_points],
                          "islands": len(fastest.grid.speeds.islands),
@@ -42,30 +61,55 @@ def run_plan(settings: PlanSettings) -> int:
     }
     if example:
         result["beside_report"] = beside_report(fastest.switching_points)
-    if cost is not None:
-        result["cost_optimal"] = {"objective": cost.objective, "duration_s": round(cost.profile.duration, 6),
-                                  "max_time": settings.max_time, "time_weight": cost.time_weight,
-                                  "grid": {"intervals": cost.grid.intervals, "speeds": cost.grid.speeds,
-                                           "speed_step": cost.grid.speed_step},
-                                  "worst_violation": round(cost.profile.worst_violation, 6), "costs": cost.costs}
+    result = _with_cost(problem, settings, result)
     if settings.plot is not None:
         from host_tools.plan.plots import draw
-        files = draw(settings.plot, fastest, cost, REPORTED if example else ())
+        files = draw(settings.plot, fastest, result.pop("_cost", None), REPORTED if example else ())
         result["figures"] = [str(f) for f in files]
-    if settings.as_json:
-        print(json.dumps(result, indent=1))
-    else:
-        print(_text(result))
+    return _print(settings, result)
+
+
+def _model(problem) -> dict:
+    return {"links": problem.system.arms[0].links, "gravity": problem.system.gravity,
+            "path": problem.path.describe(), "limits": problem.limits.describe()}
+
+
+def _with_cost(problem, settings: PlanSettings, result: dict) -> dict:
+    """The dynamic-programming plan, when the objective is not time alone (kept as "_cost" for the figures)."""
+    if settings.objective == "time":
+        return result
+    cost = plan_cost_optimal(problem, settings.objective,
+                             DpGrid(settings.dp_intervals, settings.dp_speeds, settings.dp_speed_step),
+                             settings.max_time)
+    result["cost_optimal"] = {"objective": cost.objective, "duration_s": round(cost.profile.duration, 6),
+                              "max_time": settings.max_time, "time_weight": cost.time_weight,
+                              "grid": {"intervals": cost.grid.intervals, "speeds": cost.grid.speeds,
+                                       "speed_step": cost.grid.speed_step},
+                              "worst_violation": round(cost.profile.worst_violation, 6), "costs": cost.costs}
+    result["_cost"] = cost
+    return result
+
+
+def _print(settings: PlanSettings, result: dict) -> int:
+    result.pop("_cost", None)
+    print(json.dumps(result, indent=1) if settings.as_json else _text(result))
     return EXIT_OK
 
 
 def _text(result: dict) -> str:
     to = result["time_optimal"]
-    lines = [f"{result['problem']}: links {result['model']['links']}, gravity {result['model']['gravity']} m/s^2",
-             f"minimum time ({to['integrator']}, {to['nodes']} intervals): {to['duration_s']:.4f} s, "
-             f"a joint saturated {to['saturated_time']:.1%} of the time, worst excess {to['worst_violation']:.2%}",
-             "  candidate switching points:"]
-    for p in to["switching_points"]:
+    lines = [f"{result['problem']}: links {result['model']['links']}, gravity {result['model']['gravity']} m/s^2"]
+    if to["method"] == "reach":
+        squeeze = to["squeeze"]
+        lines.append(f"minimum time (reachability, {to['nodes']} intervals): {to['duration_s']:.4f} s, a joint "
+                     f"saturated {to['saturated_time']:.1%} of the time, worst excess between nodes "
+                     f"{to['worst_violation_between_nodes']:.2%}, planned in {to['solve_time_s'] * 1e3:.1f} ms"
+                     + ("" if squeeze is None else f"; the squeeze free (largest {squeeze['max_n']:.3g} N)"))
+    else:
+        lines += [f"minimum time ({to['integrator']}, {to['nodes']} intervals): {to['duration_s']:.4f} s, "
+                  f"a joint saturated {to['saturated_time']:.1%} of the time, worst excess {to['worst_violation']:.2%}",
+                  "  candidate switching points:"]
+    for p in to.get("switching_points", []):
         joint = f" joint {p['joint']}" if p["joint"] else ""
         lines.append(f"    {p['kind']:13}{joint:9} s = {p['s']:.4f}  s' = {p['sd']:.3f}  "
                      f"{'kept' if p['kept'] else 'discarded: ' + p['why']}")
@@ -78,7 +122,7 @@ def _text(result: dict) -> str:
         lines.append(f"minimum {co['objective']} (dynamic programming, {co['grid']['intervals']} x "
                      f"{co['grid']['speeds']}): {co['duration_s']:.4f} s")
     lines.append("costs of each plan (energy: the report's sum u.dq, J; work: sum |u dq|, J; thermal: sum u^2 dt):")
-    for name, costs in (("minimum time", to["costs"]),) + (
+    for name, costs in ((("minimum time", to["costs"]),) if "costs" in to else ()) + (
             (("minimum " + result["cost_optimal"]["objective"], result["cost_optimal"]["costs"]),)
             if "cost_optimal" in result else ()):
         lines.append(f"  {name:16} " + "  ".join(f"{k} {v:.4g}" for k, v in costs.items()))

@@ -542,6 +542,8 @@ class PlanSettings:
     max_time: Optional[float]
     as_json: bool
     plot: Optional[Path]
+    method: str = "phase"
+    squeeze: Optional[float] = None          # --method reach: the bound on |squeeze| (N), inf for free
 
 
 def plan_settings(args: argparse.Namespace) -> PlanSettings:
@@ -549,5 +551,10 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--gravity and --links shape the report's example; a --problem file says its own")
     if args.max_time is not None and args.objective == "time":
         raise ValueError("--max-time bounds a minimum-cost plan: give --objective energy, work or thermal")
+    if args.method == "reach" and args.plot is not None:
+        raise ValueError("--plot draws the phase-plane planner's figures: give --method phase")
+    if args.squeeze is not None and args.method != "reach":
+        raise ValueError("--squeeze frees the squeeze force in the reachability planner: give --method reach")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
-                        args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot)
+                        args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
+                        args.method, args.squeeze)

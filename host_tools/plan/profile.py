@@ -29,9 +29,10 @@ class Profile:
         return float(self.t[-1])
 
 
-def profile_from_speeds(terms: Terms, limits: Limits, sd: np.ndarray, breaks=()) -> Profile:
+def profile_from_speeds(terms: Terms, limits: Limits, sd: np.ndarray, breaks=(), squeeze=None) -> Profile:
     """Everything that follows from s' at the nodes of `terms`. At a node on one of the path's `breaks` the
-    torques jump with d2w/ds2, so the interval ending there is not judged by the next piece's terms."""
+    torques jump with d2w/ds2, so the interval ending there is not judged by the next piece's terms.
+    `squeeze`: the squeeze force on each interval (N), added to its torques along n(s); None: no squeeze."""
     s = terms.s
     sd = np.asarray(sd, float)
     x = sd * sd
@@ -46,6 +47,11 @@ def profile_from_speeds(terms: Terms, limits: Limits, sd: np.ndarray, breaks=())
     effort = terms.effort(sd, node_sdd)
     torque = terms.torque(sd, node_sdd)
     end_effort = terms.at(slice(1, None)).effort(sd[1:], sdd)     # each interval's s'' at its far node as well
+    if squeeze is not None:
+        lam = np.asarray(squeeze, float)[:, None]
+        node_lam = np.concatenate([lam, lam[-1:]])
+        effort, torque = effort + node_lam * terms.n, torque + node_lam * terms.n
+        end_effort = end_effort + lam * terms.n[1:]
     lo, hi = limits.lo, limits.hi
     half, mid = (hi - lo) / 2, (hi + lo) / 2
     on_break = np.isin(s[1:], np.asarray(breaks, float))

@@ -1,0 +1,351 @@
+"""Time-optimal planning by reachability (TOPP-RA: Pham and Pham, 2018), with no torque excess between grid
+points and, as an option, the squeeze force as a free variable. Beyond the report: docs/planning.md says how.
+
+**The profile.** On a grid s_0 < ... < s_N (uniform, plus the path's breaks) the pseudo-acceleration s'' = u_i
+is constant on each interval, so x = s'^2 = x_i + 2 u_i (s - s_i) is linear in s there, and every joint's torque
+tau(s) = a(s) u_i + b(s) x(s) + c(s) (+ n(s) lambda_i, the squeeze, also constant on the interval) is linear in
+the interval's variables (x_i, u_i, lambda_i) at every s. This is the profile `bench.toppra_peer` checks.
+
+**The curvature guard.** Each interval is judged at three points, its ends and its midpoint, each of them a
+linear function of the variables. Between two of them (h/2 apart) a smooth function leaves its chord by at
+most (h/2)^2 max|tau''| / 8, and D = tau(s_i) - 2 tau(mid) + tau(s_{i+1}) = (h/2)^2 tau'' (exactly, for a
+quadratic), so that excess is |D| / 8. Each of the three points is required to keep tau +/- GUARD * D within the
+limits. GUARD = 1/4 is twice the quadratic's need: the other half covers the cubic and higher terms the three
+points do not see. D is linear in the variables too, so every constraint stays a half-plane.
+
+**The passes.** With the squeeze eliminated first (Fourier-Motzkin: every pair of constraints that bound it from
+opposite sides gives one constraint without it), each interval is a set of half-planes in (x_i, u_i).
+Eliminating u the same way gives each interval's x-range on its own, once, for the whole grid (numpy, no loop).
+Backwards from rest at the end, the controllable set K_i (the x_i from which some admissible u_i reaches
+K_{i+1}) is an interval: the only new pairs are each constraint with the coupling x_i + 2 h u_i in K_{i+1},
+five numpy operations per grid point. Forwards from rest at the start, each interval takes the largest u_i
+keeping x_{i+1} in K_{i+1}: that greedy pass is time-optimal for this discretization (Pham and Pham, 2018).
+The squeeze then is, on each interval, the admissible value nearest 0 (the least squeeze that does).
+
+Only constant torque limits: with a back-emf term d s' = d sqrt(x) the torque is no longer linear in x, and
+the planner refuses such limits (`PlanError` "bounds") rather than plan them unsafely.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Union
+
+import numpy as np
+
+from host_tools.plan.bounds import Limits
+from host_tools.plan.errors import PlanError
+from host_tools.plan.phase import Problem, Terms
+from host_tools.plan.profile import Profile, profile_from_speeds
+from timebase.clock import RealClock
+
+GUARD = 0.25                    # the curvature guard's factor on D (1/8 covers a quadratic exactly)
+FREE = float("inf")             # squeeze=FREE: the squeeze is unbounded
+Squeeze = Union[None, float, tuple]
+_TINY = 1e-12                   # a normalized coefficient below this does not bound the variable it multiplies
+
+
+@dataclass(frozen=True)
+class ReachPlan:
+    """The plan: x = s'^2 at the grid points, u = s'' and the squeeze (N) on each interval, the controllable
+    sets (N+1, 2), how long the planning took, and the profile (torques at the nodes
+    with each interval's u and squeeze)."""
+
+    s: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    squeeze: np.ndarray
+    controllable: np.ndarray
+    setup_time_s: float             # the model's coefficients on the grid
+    solve_time_s: float             # all of it: coefficients, constraints, both passes
+    profile: Profile
+
+    @property
+    def duration(self) -> float:
+        return self.profile.duration
+
+    @property
+    def gridpoints(self) -> int:
+        return len(self.s)
+
+
+def _grid(problem: Problem, gridpoints) -> np.ndarray:
+    """`gridpoints` evenly spaced, or the grid itself (rising from 0 to 1); with the path's breaks added."""
+    if np.ndim(gridpoints) == 0:
+        if not 3 <= gridpoints <= 200_000:
+            raise PlanError("grid", f"{gridpoints} grid points: use 3 to 200000")
+        gridpoints = np.linspace(0.0, 1.0, int(gridpoints))
+    grid = np.asarray(gridpoints, float)
+    if len(grid) < 3 or grid[0] != 0.0 or grid[-1] != 1.0 or np.any(np.diff(grid) <= 0):
+        raise PlanError("grid", "a grid rises from 0 to 1 through at least 3 points")
+    breaks = [b for b in getattr(problem.path, "breaks", ()) if 0.0 < b < 1.0]
+    return np.unique(np.concatenate([grid, breaks]))
+
+
+def _squeeze_range(squeeze: Squeeze) -> Optional[tuple[float, float]]:
+    """None (the fixed split) or the squeeze's range [lo, hi] in newtons."""
+    if squeeze is None:
+        return None
+    lo, hi = (-float(squeeze), float(squeeze)) if np.ndim(squeeze) == 0 else (float(squeeze[0]), float(squeeze[1]))
+    if np.isnan(lo) or np.isnan(hi) or lo > hi:
+        raise PlanError("squeeze", "give a bound lambda_max >= 0, a range (lo, hi) with lo <= hi, or FREE")
+    return lo, hi
+
+
+def _point_terms(problem: Problem, s: np.ndarray) -> tuple[Terms, Terms, Terms]:
+    """The terms at each interval's start, midpoint and end, from one evaluation of the model. An interval that
+    ends on a break of the path is judged by its own piece: its end's terms are taken just before the break."""
+    mids = (s[:-1] + s[1:]) / 2
+    points = np.empty(2 * len(s) - 1)
+    points[0::2], points[1::2] = s, mids
+    t = problem.terms(points)
+    start, mid, end = t.at(slice(0, -1, 2)), t.at(slice(1, None, 2)), t.at(slice(2, None, 2))
+    breaks = np.isin(s[1:], getattr(problem.path, "breaks", ()))
+    if breaks.any():
+        left = problem.terms(np.nextafter(s[1:][breaks], 0.0))
+        for name in ("a", "b", "c", "d", "n"):
+            getattr(end, name)[breaks] = getattr(left, name)
+    return start, mid, end
+
+
+def _rows(limits: Limits, s: np.ndarray, terms: tuple, guard: float, squeeze: Optional[tuple[float, float]]) -> tuple:
+    """Every interval's constraints as rows  alpha x + beta u (+ mu lambda) <= gamma: the tuple (alpha, beta,
+    [mu,] gamma) of (N, M) arrays, each row scaled so that its largest coefficient is 1. `terms`: the terms at
+    each interval's start, midpoint and end. The first PAIRED rows bound the torques from above, the next PAIRED
+    the same from below (their coefficients negated), then x_i >= 0 and x_{i+1} >= 0 (and the squeeze's bounds)."""
+    h = np.diff(s)[:, None]
+    start, mid, end = terms
+    # each point's torque as coefficients of x_i, u_i, lambda_i and 1: x there is x_i + 2 u_i (offset)
+    points = [(t.b, t.a + 2 * off * t.b, t.n, t.c) for t, off in ((start, 0.0), (mid, h / 2), (end, h))]
+    curvature = [p0 - 2 * p1 + p2 for p0, p1, p2 in zip(*points)]
+    lo, hi = limits.lo, limits.hi
+    upper: list[list] = [[], [], [], []]
+    lower: list[list] = [[], [], [], []]
+    for p in points:
+        for sign in (guard, -guard):
+            g = [v + sign * d for v, d in zip(p, curvature)]
+            for k in range(3):
+                upper[k].append(g[k])                              # tau <= upper
+                lower[k].append(-g[k])                             # tau >= lower: the same row negated
+            upper[3].append(hi - g[3])
+            lower[3].append(g[3] - lo)
+    cols = [u + lw for u, lw in zip(upper, lower)]
+    n = len(h)
+    one, zero = np.ones((n, 1)), np.zeros((n, 1))
+    extra = [(-one, zero, zero, zero), (-one, -2 * h, zero, zero)]     # x_i >= 0, x_{i+1} >= 0
+    if squeeze is not None:
+        extra += [(zero, zero, one, squeeze[1] * one), (zero, zero, -one, -squeeze[0] * one)]
+    for row in extra:
+        for k in range(4):
+            cols[k].append(row[k])
+    rows = [np.concatenate(c, axis=1) for c in cols]
+    if squeeze is None:
+        del rows[2]
+    return _normalized(_finite(rows))
+
+
+def _finite(rows: list) -> list:
+    """An infinite bound (an unbounded squeeze) is no constraint: made the trivial row 0 <= 1."""
+    inf = ~np.isfinite(rows[-1])
+    return [np.where(inf, 0.0, r) for r in rows[:-1]] + [np.where(inf, 1.0, rows[-1])]
+
+
+def _normalized(rows: list) -> tuple:
+    scale = np.abs(rows[0])
+    for r in rows[1:-1]:
+        scale = np.maximum(scale, np.abs(r))
+    scale = np.where(scale > 0, scale, 1.0)
+    return tuple(r / scale for r in rows)
+
+
+def _blocks(rows: tuple, var: int) -> tuple[tuple, tuple, tuple]:
+    """The rows whose coefficient of `var` is negative, positive and zero, each padded (per interval) with the
+    trivial row 0 <= 1 to the largest count over the intervals."""
+    coef = rows[var]
+    order = np.argsort(coef, axis=1, kind="stable")             # negative first, positive last
+    out = []
+    for mask, take in ((coef < 0, slice(None)), (coef > 0, slice(None, None, -1)), (coef == 0, None)):
+        width = max(1, int(mask.sum(axis=1).max()))
+        index = order[:, take][:, :width] if take is not None else np.argsort(~mask, axis=1, kind="stable")[:, :width]
+        keep = np.take_along_axis(mask, index, axis=1)
+        block = [np.where(keep, np.take_along_axis(r, index, axis=1), 0.0) for r in rows[:-1]]
+        block.append(np.where(keep, np.take_along_axis(rows[-1], index, axis=1), 1.0))
+        out.append(tuple(block))
+    return out[0], out[1], out[2]
+
+
+def _paired_blocks(rows: tuple, paired: int) -> tuple[tuple, tuple, tuple]:
+    """`_blocks(rows, 1)` for the rows `_rows` makes without the squeeze, without sorting: of each upper and
+    lower row of one torque (coefficients negated) one bounds u from above and the other from below (a row with
+    no u in it does no harm in either block: paired with a row that has u, it comes back as itself times a
+    positive weight). The two last rows are x_i >= 0 (no u) and x_{i+1} >= 0 (a negative u coefficient)."""
+    up = rows[1][:, :paired] < 0
+    neg, pos = [], []
+    for r in rows:
+        first, second = r[:, :paired], r[:, paired:2 * paired]
+        neg.append(np.concatenate([np.where(up, first, second), r[:, -1:]], axis=1))
+        pos.append(np.where(up, second, first))
+    return tuple(neg), tuple(pos), tuple(r[:, -2:-1] for r in rows)
+
+
+def _eliminate(rows: tuple, var: int) -> tuple:
+    """Fourier-Motzkin: the rows without variable `var` that hold exactly where some value of it satisfies all
+    of `rows` (M rows -> M' rows, one fewer variable). Each (negative, positive) pair is combined with
+    non-negative weights that cancel `var`, so no coefficient is divided by."""
+    neg, pos, zero = _blocks(rows, var)
+    wn, wp = -neg[var][:, :, None], pos[var][:, None, :]
+    out = []
+    for k in range(len(rows)):
+        if k == var:
+            continue
+        pair = wp * neg[k][:, :, None] + wn * pos[k][:, None, :]
+        out.append(np.concatenate([pair.reshape(len(pair), -1), zero[k]], axis=1))
+    return _normalized(out)
+
+
+def _x_range(blocks: tuple, pairs: int = 40_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """From rows alpha x + beta u <= gamma, split by the sign of beta (`_blocks`): each interval's [lower, upper]
+    for x where some u satisfies them all, and where none does. Fourier-Motzkin on u (as `_eliminate`), each
+    pair's bound on x taken at once, a chunk of intervals at a time (about `pairs` pairs, to stay in the cache)."""
+    neg, pos, zero = blocks
+    n = len(neg[0])
+    chunk = max(1, pairs // (neg[0].shape[1] * pos[0].shape[1]))
+    lower, upper, empty = np.empty(n), np.empty(n), np.zeros(n, bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(0, n, chunk):
+            part = slice(k, k + chunk)
+            wn, wp = -neg[1][part, :, None], pos[1][part, None, :]
+            alpha = wp * neg[0][part, :, None]
+            alpha += wn * pos[0][part, None, :]
+            gamma = wp * neg[2][part, :, None]
+            gamma += wn * pos[2][part, None, :]
+            alpha, gamma = alpha.reshape(len(alpha), -1), gamma.reshape(len(gamma), -1)
+            empty[part] = ((alpha == 0) & (gamma < -1e-9)).any(axis=1)
+            bound = gamma / alpha
+            upper[part] = np.where(alpha > 0, bound, np.inf).min(axis=1)
+            lower[part] = np.where(alpha < 0, bound, -np.inf).max(axis=1)
+        alpha, gamma = zero[0], zero[2]                         # rows without u bound x alone
+        bound = gamma / alpha
+    upper = np.minimum(upper, np.min(bound, axis=1, where=alpha > 0, initial=np.inf))
+    lower = np.maximum(lower, np.max(bound, axis=1, where=alpha < 0, initial=-np.inf))
+    return lower, upper, empty | ((alpha == 0) & (gamma < -1e-9)).any(axis=1)
+
+
+def _coupling(rows: tuple, h: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the backward pass: each row (alpha, beta, gamma) in (x, u) paired with the coupling
+    L <= x + 2 h u <= U gives (2 h alpha - beta) x <= 2 h gamma - beta (L if beta > 0 else U). Returned as
+    A0 - L A1 - U A2 per row, scaled so that the first half of the rows (c > 0) give upper bounds on x and the
+    second half (c < 0) minus lower bounds: min over each half is all the step needs."""
+    alpha, beta, gamma = rows
+    hh = 2 * h[:, None]
+    c = hh * alpha - beta
+    a1, a2 = np.where(beta > 0, beta, 0.0), np.where(beta < 0, beta, 0.0)
+    halves = []
+    for side in (c > 0, c < 0):
+        w = np.where(side & (beta != 0), 1.0 / np.where(c != 0, np.abs(c), 1.0), 0.0)
+        halves.append((np.where(w > 0, hh * gamma * w, np.inf), a1 * w, a2 * w))
+    return tuple(np.ascontiguousarray(np.concatenate(pair, axis=1)) for pair in zip(*halves))
+
+
+def _forward_bounds(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """u <= Q0 - x Q1 from every row with a positive coefficient of u (padded with +inf)."""
+    alpha, beta, gamma = rows
+    up = beta > _TINY
+    safe = np.where(up, beta, 1.0)
+    return np.where(up, gamma / safe, np.inf), np.where(up, alpha / safe, 0.0)
+
+
+def _refuse(problem: Problem, s: float, why: str) -> PlanError:
+    """Names the joint that needs the most of its limit to hold the object still at s."""
+    c = problem.terms([s]).c[0]
+    lo, hi = problem.limits.lo, problem.limits.hi
+    need = np.maximum(c / hi, c / lo)
+    j = int(np.argmax(need))
+    return PlanError("bounds", f"{why} at s = {s:.4g} (holding the object still there, joint {j + 1} needs "
+                               f"{c[j]:.4g} N m against its limits [{lo[j]:g}, {hi[j]:g}])")
+
+
+def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None, guard: float = GUARD,
+               clock=None) -> ReachPlan:
+    """The time-optimal rest-to-rest profile on `gridpoints` grid points (plus the path's breaks), every torque
+    within its limits between grid points too. `squeeze`: None keeps the load shared with no squeeze (the
+    model's split); a number bounds |lambda| (N); a pair (lo, hi) bounds lambda; FREE leaves it unbounded."""
+    clock = clock or RealClock()
+    started = clock.precise_now()
+    s = _grid(problem, gridpoints)
+    h = np.diff(s)
+    span = _squeeze_range(squeeze)
+    if problem.limits.state_dependent:
+        raise PlanError("bounds", "the reachability planner takes constant torque limits only (a back-emf term "
+                                  "d s' is not linear in x = s'^2): plan DC motors' limits with the phase-plane "
+                                  "method (--method phase)")
+    terms = _point_terms(problem, s)
+    setup = clock.precise_now() - started
+    rows3 = _rows(problem.limits, s, terms, guard, span)
+    if span is not None:
+        rows2 = _eliminate(rows3, 2)
+        static_lo, static_hi, empty = _x_range(_blocks(rows2, 1))
+    else:
+        rows2 = rows3
+        static_lo, static_hi, empty = _x_range(_paired_blocks(rows2, 6 * len(problem.limits.lo)))
+    if np.isinf(static_hi).any():
+        raise PlanError("bounds", "the limits do not bound the speed along this path")
+    backward = np.stack(_coupling(rows2, h), axis=1) * np.array([1.0, -1.0, -1.0])[:, None]    # (N, 3, M)
+    forward = np.stack(_forward_bounds(rows2), axis=1) * np.array([1.0, -1.0])[:, None]         # (N, 2, M)
+    n, half = len(h), backward.shape[2] // 2
+    s_lo, s_hi, hh = static_lo.tolist(), static_hi.tolist(), (2 * h).tolist()
+    sets = np.zeros((n + 1, 2))
+    step = np.array([1.0, 0.0, 0.0])                              # (1, L, U): K_N is rest at the end
+    for i in range(n - 1, -1, -1):
+        hi_i, neg_lo = (step @ backward[i]).reshape(2, half).min(axis=1).tolist()
+        hi_i, lo_i = min(s_hi[i], hi_i), max(s_lo[i], -neg_lo, 0.0)
+        if lo_i > hi_i + 1e-9 * max(1.0, hi_i):
+            raise _refuse(problem, float(s[i]), "no admissible speed reaches the end at rest from here")
+        step[1], step[2] = sets[i] = min(lo_i, hi_i), hi_i
+    if empty.any():
+        raise _refuse(problem, float(s[np.argmax(empty)]), "no admissible speed")
+    if sets[0, 0] > 1e-9 * max(1.0, sets[0, 1]):
+        raise _refuse(problem, 0.0, "the start at rest is not controllable: no admissible profile reaches the end")
+    x = [0.0] * (n + 1)
+    ends = sets.tolist()
+    state = np.array([1.0, 0.0])                                  # (1, x_i)
+    for i in range(n):
+        lower, upper = ends[i + 1]
+        xi = x[i]
+        state[1] = xi
+        u = min(float((state @ forward[i]).min()), (upper - xi) / hh[i])
+        x[i + 1] = min(max(xi + hh[i] * u, lower), upper)
+    x = np.array(x)
+    u = (x[1:] - x[:-1]) / (2 * h)
+    lam = np.clip(_squeeze_values(rows3, x, u), *span) if span is not None else np.zeros(n)
+    solve = clock.precise_now() - started
+    terms = problem.terms(s)
+    profile = profile_from_speeds(terms, problem.limits, np.sqrt(x), getattr(problem.path, "breaks", ()),
+                                  squeeze=lam)
+    return ReachPlan(s, x, u, lam, sets, setup, solve, profile)
+
+
+def _squeeze_values(rows: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """On each interval, the admissible squeeze nearest 0 for the chosen (x_i, u_i)."""
+    alpha, beta, mu, gamma = rows
+    rest = gamma - alpha * x[:-1, None] - beta * u[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = rest / mu
+    hi = np.where(mu > _TINY, bound, np.inf).min(axis=1)
+    lo = np.where(mu < -_TINY, bound, -np.inf).max(axis=1)
+    return np.where(lo <= hi, np.clip(0.0, lo, hi), (lo + hi) / 2)
+
+
+def sampled_torques(problem: Problem, plan: ReachPlan, per_interval: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """The torques along the planned motion, straight from the model's inverse dynamics and squeeze direction
+    (not from a, b, c): at both ends of every interval and `per_interval` points inside, each with that
+    interval's u and squeeze. Returns (s (M,), tau (M, dof))."""
+    frac = np.linspace(0.0, 1.0, per_interval + 2)
+    s0, s1 = plan.s[:-1, None], plan.s[1:, None]
+    s = s0 + frac * (s1 - s0)
+    s[:, -1] = np.nextafter(s1[:, 0], s0[:, 0])                  # an interval's end, seen from inside it
+    x = np.clip(plan.x[:-1, None] + 2 * plan.u[:, None] * (s - s0), 0.0, None).ravel()
+    u, lam, s = np.repeat(plan.u, frac.size), np.repeat(plan.squeeze, frac.size), s.ravel()
+    system = problem.system
+    jp = system.joint_path(problem.path, s)
+    tau = system.inverse_dynamics(jp.q, jp.q_s * np.sqrt(x)[:, None], jp.q_s * u[:, None] + jp.q_ss * x[:, None])
+    return s, tau + lam[:, None] * system.squeeze_direction(jp.q)

@@ -1,0 +1,203 @@
+"""host_tools.plan.reach: the reachability planner keeps every limit between grid points, converges to the
+phase-plane planner's time, uses the squeeze when free, copes near a singularity, and refuses what it cannot plan.
+
+The torques are checked by code that does not use the planner's constraints: `bench.toppra_peer.worst_violation`
+(the implied profile through the model's inverse dynamics, 50 points inside every interval) and
+`reach.sampled_torques` (the model's inverse dynamics and squeeze direction, not a, b, c).
+"""
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+from bench.bench_plan import joint_functions, random_problem, vertical_problem
+from bench.toppra_peer import implied_torques, toppra_solve, worst_violation
+from host_tools.plan.bounds import Limits
+from host_tools.plan.errors import PlanError
+from host_tools.plan.example import LIMITS, report_problem
+from host_tools.plan.model import two_arms
+from host_tools.plan.paths import PiecewisePath, PolynomialPath
+from host_tools.plan.phase import Problem
+from host_tools.plan.reach import FREE, plan_reach, sampled_torques
+from host_tools.plan.timeopt import plan_time_optimal
+
+CURVED = PolynomialPath((0.9, 0.3, 0.1), (0.5, 0.4, -0.2))
+
+
+def _excess(problem: Problem, plan, per_interval: int = 50) -> float:
+    """The worst torque past its limit along the plan, as a fraction of the limit, by the bench's checker."""
+    path_q, inverse_dynamics = joint_functions(problem)
+    return worst_violation(plan.s, plan.x, path_q, inverse_dynamics, problem.limits.lo, problem.limits.hi,
+                           per_interval)
+
+
+def _model_excess(problem: Problem, plan) -> float:
+    """The same from `sampled_torques` (squeeze included)."""
+    _, tau = sampled_torques(problem, plan, 50)
+    lo, hi = problem.limits.lo, problem.limits.hi
+    return float(max(0.0, np.max((tau - hi) / np.abs(hi)), np.max((lo - tau) / np.abs(lo))))
+
+
+@pytest.fixture(scope="module")
+def random_problems() -> list[Problem]:
+    rng = np.random.default_rng(7)
+    return [random_problem(rng) for _ in range(2)]
+
+
+@pytest.mark.parametrize("gridpoints", [20, 50, 100])
+def test_no_torque_excess_between_grid_points(gridpoints, random_problems):
+    for problem in [report_problem()] + random_problems:
+        plan = plan_reach(problem, gridpoints)
+        assert plan.x[0] == 0.0 and plan.x[-1] == 0.0 and np.all(plan.x[1:-1] > 0)
+        assert _excess(problem, plan) <= 1e-9
+        assert _model_excess(problem, plan) <= 1e-9
+        assert (plan.controllable[:, 0] - 1e-9 <= plan.x).all() and (plan.x <= plan.controllable[:, 1] + 1e-9).all()
+
+
+def test_the_curvature_guard_is_what_keeps_the_limits_between_grid_points(random_problems):
+    """Without the guard (the three points alone) the torque passes a limit between them on a coarse grid."""
+    problem = random_problems[0]
+    bare = plan_reach(problem, 20, guard=0.0)
+    assert _excess(problem, bare) > 1e-6
+    assert _excess(problem, plan_reach(problem, 20)) <= 1e-9
+    assert plan_reach(problem, 20).duration >= bare.duration
+
+
+@pytest.mark.skipif(importlib.util.find_spec("toppra") is None, reason="toppra is not installed")
+def test_toppra_collocation_passes_limits_where_this_planner_does_not():
+    problem = report_problem()
+    path_q, inverse_dynamics = joint_functions(problem)
+    peer = toppra_solve(path_q, inverse_dynamics, problem.limits.lo, problem.limits.hi, 20, "collocation")
+    assert peer.ok, peer.reason
+    assert worst_violation(peer.grid_s, peer.x, path_q, inverse_dynamics, problem.limits.lo, problem.limits.hi,
+                           50) > 0.01
+    assert _excess(problem, plan_reach(problem, 20)) <= 1e-9
+
+
+def test_the_time_converges_from_above_to_the_phase_plane_planners():
+    """Conservative (the limits hold everywhere), so never faster than the optimum; dense, it agrees with the
+    report's method to 0.02 %; coarse, it is slower by about the grid's step (O(h))."""
+    problem = report_problem()
+    dense = plan_reach(problem, 4000).duration
+    phase = plan_time_optimal(problem, nodes=4000).duration
+    assert abs(dense - phase) / phase < 2e-4
+    times = [plan_reach(problem, n).duration for n in (20, 50, 100, 400)]
+    assert times == sorted(times, reverse=True) and times[-1] > dense * (1 - 1e-9)
+    assert (times[2] - dense) / dense < 3e-3
+
+
+def test_zero_inertia_points_on_the_grid_itself():
+    """The example's joints 1 and 4 have a = 0 at s = 0.2594 and 0.9283: with grid points exactly there (where a
+    joint's torque does not depend on s'' and bounds s' alone), the limits still hold."""
+    problem = report_problem()
+    zeros = [p.s for p in plan_time_optimal(problem, nodes=400).switching_points if p.kind == "zero-inertia"]
+    assert len(zeros) == 2
+    a = problem.terms(zeros).a
+    assert np.abs(a).min(axis=1).max() < 1e-9 * np.abs(a).max()
+    plan = plan_reach(problem, np.unique(np.concatenate([np.linspace(0, 1, 40), zeros])))
+    assert set(zeros) <= set(plan.s.tolist())
+    assert _model_excess(problem, plan) <= 1e-9
+    assert plan.duration < 1.01 * plan_reach(problem, 4000).duration
+
+
+def test_a_break_in_the_paths_curvature_becomes_a_grid_point():
+    up = PolynomialPath((0.9, 0.5), (0.4, 0.2))
+    bend = PolynomialPath((0.9 - 0.5 * 0.37 ** 2, 0.5 + 0.37, -0.5), (0.4, 0.2))      # same w and w' at s = 0.37
+    problem = Problem(two_arms(), PiecewisePath([0, 0.37, 1], [up, bend]), Limits.symmetric(LIMITS))
+    plan = plan_reach(problem, 20)
+    assert 0.37 in plan.s and len(plan.s) == 21
+    assert _model_excess(problem, plan) <= 1e-9
+
+
+def test_a_free_squeeze_shortens_a_vertical_lift_and_keeps_every_torque_within_limits():
+    problem = vertical_problem(1.0, 0.3, 1.2)
+    fixed = plan_reach(problem, 50)
+    bounded = plan_reach(problem, 50, squeeze=5.0)
+    free = plan_reach(problem, 50, squeeze=FREE)
+    assert not fixed.squeeze.any()
+    assert np.abs(bounded.squeeze).max() <= 5.0 and np.abs(bounded.squeeze).max() > 4.0
+    assert free.duration < bounded.duration < fixed.duration
+    assert free.duration < 0.98 * fixed.duration
+    path_q, inverse_dynamics = joint_functions(problem)
+    for plan in (fixed, bounded, free):
+        # independently: the implied profile's torques (bench.toppra_peer) plus the squeeze along the model's n(q)
+        s, tau = implied_torques(plan.s, plan.x, path_q, inverse_dynamics, per_interval=30)
+        squeeze = np.repeat(plan.squeeze, 32)
+        tau = tau + squeeze[:, None] * problem.system.squeeze_direction(path_q(s))
+        assert (tau <= problem.limits.hi * (1 + 1e-9)).all() and (tau >= problem.limits.lo * (1 + 1e-9)).all()
+        assert _model_excess(problem, plan) <= 1e-9
+    one_sided = plan_reach(problem, 50, squeeze=(0.0, 5.0))
+    assert (one_sided.squeeze >= 0).all() and one_sided.duration >= bounded.duration - 1e-12
+
+
+def test_near_a_singularity_the_limits_hold_where_the_phase_plane_passes_them():
+    """Arm 1's elbow comes within 4 degrees of straight: the phase-plane profile passes a limit by far at its
+    nodes even at 2000 of them; this planner keeps every limit at 50 grid points."""
+    s = np.linspace(0.0, 1.0, 200)
+    radius, angle = 1.999 - 0.6 * (2 * s - 1) ** 2, np.radians(35 + 20 * s)
+    w = np.stack([radius * np.cos(angle) + 0.125, radius * np.sin(angle)], -1)
+    path = PolynomialPath(np.polyfit(s, w[:, 0], 6)[::-1], np.polyfit(s, w[:, 1], 6)[::-1])
+    problem = Problem(report_problem(gravity=True).system, path, Limits.symmetric(LIMITS))
+    elbow = problem.system.joint_path(path, np.linspace(0, 1, 2001)).q[:, 1]
+    assert np.degrees(np.abs(elbow).min()) < 4.0
+    plan = plan_reach(problem, 50)
+    assert _model_excess(problem, plan) <= 1e-9
+    assert plan_time_optimal(problem, nodes=2000).profile.worst_violation > 0.1
+
+
+@pytest.mark.parametrize("limits, what, said", [
+    (Limits.symmetric((3, 2, 3, 2)), "bounds", "joint"),
+    (Limits.symmetric(LIMITS, back_emf=(2.0, 1.5, 2.0, 1.5)), "bounds", "constant torque limits only"),
+])
+def test_what_cannot_be_planned_is_refused_with_the_reason(limits, what, said):
+    problem = Problem(two_arms(), CURVED, limits)
+    with pytest.raises(PlanError) as caught:
+        plan_reach(problem, 50)
+    assert caught.value.what == what and said in caught.value.reason, caught.value
+
+
+def test_a_start_the_limits_cannot_hold_is_refused_naming_the_joint():
+    """Lifting with gravity on: joint 3 needs 11.13 N m to hold the object at the start, less further up."""
+    lift = vertical_problem(1.0, 0.3, 1.2)
+    weak = Problem(lift.system, lift.path, Limits.symmetric((30, 20, 10.8, 15)))
+    with pytest.raises(PlanError) as caught:
+        plan_reach(weak, 50)
+    assert caught.value.what == "bounds" and "start at rest is not controllable" in caught.value.reason
+    assert "joint 3 needs -11.13 N m" in caught.value.reason
+    assert _model_excess(lift, plan_reach(lift, 50)) <= 1e-9          # the report's limits hold it
+
+
+def test_bad_grids_and_squeezes_are_refused():
+    problem = report_problem()
+    for grid in (2, [0.0, 0.5], [0.0, 0.6, 0.4, 1.0], [0.1, 0.5, 1.0]):
+        with pytest.raises(PlanError, match="grid"):
+            plan_reach(problem, grid)
+    with pytest.raises(PlanError, match="squeeze"):
+        plan_reach(problem, 20, squeeze=(5.0, -5.0))
+    uneven = plan_reach(problem, np.concatenate([np.linspace(0, 0.5, 40), np.linspace(0.5, 1, 11)[1:]]))
+    assert _model_excess(problem, uneven) <= 1e-9 and len(uneven.s) == 50
+
+
+def test_the_command_plans_by_reachability_with_the_squeeze_free():
+    import json
+    import subprocess
+    import sys
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", *args], capture_output=True,
+                              text=True, timeout=300)
+
+    fixed = run("--method", "reach", "--nodes", "49", "--gravity", "--objective", "time", "--json")
+    free = run("--method", "reach", "--nodes", "49", "--gravity", "--objective", "time", "--json", "--squeeze", "free")
+    assert fixed.returncode == 0 and free.returncode == 0, fixed.stderr + free.stderr
+    fixed, free = json.loads(fixed.stdout)["time_optimal"], json.loads(free.stdout)["time_optimal"]
+    assert fixed["method"] == "reach" and fixed["nodes"] == 49 and fixed["squeeze"] is None
+    assert fixed["worst_violation_between_nodes"] <= 1e-9 and free["worst_violation_between_nodes"] <= 1e-9
+    assert free["duration_s"] < fixed["duration_s"] and free["squeeze"]["bound_n"] is None
+    assert free["squeeze"]["max_n"] > 0
+    for wrong, said in ((["--squeeze", "5"], "--method reach"), (["--method", "reach", "--plot", "x"], "--method phase"),
+                        (["--method", "reach", "--squeeze", "lots"], "--squeeze")):
+        done = run(*wrong)
+        assert done.returncode == 2 and said in done.stderr and done.stdout == "", done.stderr
