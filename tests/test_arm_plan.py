@@ -12,6 +12,7 @@ from host_tools.apps.arm_plan import ARM_JOINTS, ArmPlanSettings, plan_move
 from host_tools.plan.errors import PlanError
 
 LIMITS_A = {d.name: d.i_limit_a for d in DRIVES}
+SPEEDS = {d.name: math.radians(30.0) for d in DRIVES}      # the speed parameters' largest value
 START = {"j1": math.radians(60), "j2": math.radians(-110), "j3": math.radians(-40), "j4": 0.0}
 TARGET = {"j1": math.radians(21.2), "j2": math.radians(-116.9), "j3": math.radians(5.7), "j4": math.radians(30)}
 EARTH = 9.80665
@@ -44,7 +45,7 @@ def motor_demands(move, gravity, payload):
 @pytest.mark.parametrize("gravity", [EARTH, 0.0], ids=["earth", "orbit"])
 def test_a_planned_move_keeps_every_motor_within_its_shares_and_saturates_one(gravity):
     settings = ArmPlanSettings()
-    move = plan_move(START, TARGET, gravity, 0.0, LIMITS_A, settings)
+    move = plan_move(START, TARGET, gravity, 0.0, LIMITS_A, SPEEDS, settings)
     assert move.names == ARM_JOINTS
     current, volts = motor_demands(move, gravity, 0.0)
     slack = 1.03         # the phase plane's profile exceeds its limits by O(1/nodes) at the nodes (docs/planning.md)
@@ -52,18 +53,28 @@ def test_a_planned_move_keeps_every_motor_within_its_shares_and_saturates_one(gr
     assert np.abs(volts).max() <= settings.voltage_share * slack
     near = np.maximum(np.abs(current) / settings.current_share, np.abs(volts) / settings.voltage_share).max(axis=1)
     assert np.mean(near >= 0.97) > 0.9                   # time-optimal: some motor at its share nearly always
+    dq = move.path.q1 - move.path.q0
+    assert (np.abs(move.plan.profile.sd[:, None] * dq) <= math.radians(30.0) + 1e-9).all()   # the speed limits
     slowest = max(abs(TARGET[n] - START[n]) for n in ARM_JOINTS) / math.radians(3.0)
     assert move.duration_s < slowest / 3                 # far quicker than cruising at the report's 1/2 RPM
 
 
+def test_a_lower_speed_limit_caps_the_move_and_its_knots():
+    slow = {**SPEEDS, "j3": math.radians(5.0)}
+    move = plan_move(START, {"j3": TARGET["j3"]}, EARTH, 0.0, LIMITS_A, slow)
+    assert max(abs(k.qd_deg_s[2]) for k in move.knots(41)) <= 5.0
+    assert move.duration_s > math.degrees(abs(TARGET["j3"] - START["j3"])) / 5.0     # cruising at the cap
+    assert move.duration_s > plan_move(START, {"j3": TARGET["j3"]}, EARTH, 0.0, LIMITS_A, SPEEDS).duration_s
+
+
 def test_orbit_is_quicker_than_earth_and_a_payload_slows_the_move():
-    earth = plan_move(START, TARGET, EARTH, 0.0, LIMITS_A).duration_s
-    assert plan_move(START, TARGET, 0.0, 0.0, LIMITS_A).duration_s < earth
-    assert plan_move(START, TARGET, EARTH, 2.0, LIMITS_A).duration_s > earth
+    earth = plan_move(START, TARGET, EARTH, 0.0, LIMITS_A, SPEEDS).duration_s
+    assert plan_move(START, TARGET, 0.0, 0.0, LIMITS_A, SPEEDS).duration_s < earth
+    assert plan_move(START, TARGET, EARTH, 2.0, LIMITS_A, SPEEDS).duration_s > earth
 
 
 def test_the_knots_start_and_end_at_rest_on_the_poses_and_follow_the_profile():
-    move = plan_move(START, {"j1": TARGET["j1"]}, EARTH, 0.0, LIMITS_A)
+    move = plan_move(START, {"j1": TARGET["j1"]}, EARTH, 0.0, LIMITS_A, SPEEDS)
     knots = move.knots(21)
     assert knots[0].t_s == 0 and knots[-1].t_s == pytest.approx(move.duration_s)
     assert all(b.t_s > a.t_s for a, b in zip(knots, knots[1:]))
@@ -81,12 +92,12 @@ def test_the_knots_start_and_end_at_rest_on_the_poses_and_follow_the_profile():
 ])
 def test_what_cannot_be_planned_is_refused_with_the_reason(targets, why):
     with pytest.raises(PlanError, match=why):
-        plan_move(START, targets, EARTH, 0.0, LIMITS_A)
+        plan_move(START, targets, EARTH, 0.0, LIMITS_A, SPEEDS)
 
 
 def test_limits_too_weak_to_hold_the_arm_are_refused_naming_a_joint():
     with pytest.raises(PlanError, match="joint"):
-        plan_move(START, TARGET, EARTH, 0.0, {**LIMITS_A, "j1": 0.01})
+        plan_move(START, TARGET, EARTH, 0.0, {**LIMITS_A, "j1": 0.01}, SPEEDS)
 
 
 @pytest.mark.parametrize("field, value", [("voltage_share", 0.0), ("current_share", 1.5), ("nodes", 5),

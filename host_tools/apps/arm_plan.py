@@ -17,7 +17,8 @@ planner's one form a s'' + b s'^2 + d s' + c (host_tools/plan/bounds.py):
     voltage:  |u + (eta k^2 N^2 / R) q'| <= eta k N V / R   (d: friction plus back-emf)
 
 with i_max and V shares of the current limit parameter and the 28 V supply (`ArmPlanSettings`): the rest is the
-loops' authority to correct what the model does not know. The profile comes from the report's phase-plane
+loops' authority to correct what the model does not know. Each joint's speed limit (the controller refuses a
+trajectory faster than `jN_speed_dps`) caps s' at min over the joints of v_max / |q1 - q0|. The profile comes from the report's phase-plane
 planner (host_tools/plan/timeopt.py), and `knots` turns it into the trajectory the controller follows.
 """
 from __future__ import annotations
@@ -35,6 +36,7 @@ from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
 
 ARM_JOINTS = ("j1", "j2", "j3", "j4")
 MOVE_EPS_RAD = 1e-6          # a joint that moves less than this is not part of the path
+SPEED_SHARE = 0.98           # of each joint's speed limit: the knots' cubics may overshoot a knot's speed a little
 
 
 @dataclass(frozen=True)
@@ -157,8 +159,10 @@ class PlannedMove:
 
 
 def plan_move(start_rad: dict[str, float], targets_rad: dict[str, float], gravity_m_s2: float, payload_kg: float,
-              current_limits_a: dict[str, float], settings: ArmPlanSettings = ArmPlanSettings()) -> PlannedMove:
-    """The minimum-time move of the arm joints from `start_rad` (all four) to `targets_rad` (those that move)."""
+              current_limits_a: dict[str, float], speed_limits_rad_s: dict[str, float],
+              settings: ArmPlanSettings = ArmPlanSettings()) -> PlannedMove:
+    """The minimum-time move of the arm joints from `start_rad` (all four) to `targets_rad` (those that move),
+    within each joint's current limit and speed limit (the controller's parameters) and the supply."""
     missing = [n for n in ARM_JOINTS if n not in start_rad]
     if missing:
         raise PlanError("path", f"the start pose has no angle for {', '.join(missing)}")
@@ -171,6 +175,7 @@ def plan_move(start_rad: dict[str, float], targets_rad: dict[str, float], gravit
     fixed = tuple(float(start_rad[n]) for n in ARM_JOINTS[:3])
     system = ArmJoints(names, gravity_m_s2, payload_kg, fixed)
     path = JointLine(np.array([start_rad[n] for n in names], float), np.array([targets_rad[n] for n in names], float))
-    problem = Problem(system, path, system.limits(settings, current_limits_a))
+    cap = min(speed_limits_rad_s[n] * SPEED_SHARE / abs(targets_rad[n] - start_rad[n]) for n in names)
+    problem = Problem(system, path, system.limits(settings, current_limits_a), speed_cap=cap)
     return PlannedMove(names, dict(start_rad), path, plan_time_optimal(problem, settings.nodes))
 

@@ -37,6 +37,7 @@ class Problem:
     system: TwoArms
     path: object
     limits: Limits
+    speed_cap: float = float("inf")      # s' never above this (a joint speed limit on a straight joint-space path)
 
     def terms(self, s) -> "Terms":
         co = self.system.coefficients(self.path, s)
@@ -190,7 +191,7 @@ class PhaseGrid:
         self.t = self.fine.at(slice(0, None, 2))
         self.s = self.t.s
         self.speeds = admissible_speeds(self.fine, problem.limits)
-        self.mvc_fine = self.speeds.mvc
+        self.mvc_fine = np.minimum(self.speeds.mvc, problem.speed_cap)
         self.mvc = self.mvc_fine[::2]
         lo, hi = problem.limits.lo, problem.limits.hi
         held = ((self.fine.c >= lo) & (self.fine.c <= hi)).all(axis=1)     # still, s' = s'' = 0
