@@ -612,7 +612,9 @@ class Controller:
     @handles("TrajRun")
     def _traj_run(self, msg: Message, now: float) -> Message:
         everyone = int(Axis.ALL)
-        refusal = self._motion_refusal() or self.trajectory.check_count(msg.count)[0]
+        refusal = self._motion_refusal()
+        if refusal is None:
+            refusal = self.trajectory.check_count(msg.count)[0]
         if refusal is not Reason.OK:
             return self._accepted(everyone, MotionStart(refusal))
         axis, start = self.arm.run_trajectory(self.trajectory.profiles(), now)
