@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, Optional, Sequence
 
 from protocol.reasons import Reason
 from protocol.states import ARM_CHANNELS, AxisMode, Fault, FaultCause, MotionOutcome
@@ -38,9 +38,11 @@ from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
 from firmware_py.axis import Axis, AxisError, LimitBreach, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal, HalInputs
+from firmware_py.hermite import HermiteProfile
 from firmware_py.joint_bank import BankedAxis, JointBank
 from firmware_py.joints_tick import GRAVITY_ROWS
 from firmware_py.params import ParamStore
+from firmware_py.trajectory import REST_TOLERANCE_DPS, START_TOLERANCE_DEG
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
 _NO_TORQUE = [0.0, 0.0, 0.0]          # J1..J3 holding torques without gravity
@@ -84,6 +86,7 @@ REFUSAL_REASON = {
     Refusal.NOT_HOMED: Reason.NOT_HOMED,
     Refusal.BAD_VALUE: Reason.OUT_OF_RANGE,
     Refusal.BUSY: Reason.BUSY,
+    Refusal.ENDPOINTS: Reason.TRAJ_ENDPOINTS,
 }
 
 OUTCOME_REASON = {
@@ -167,6 +170,7 @@ class ArmController:
         self._reported = [(0, MotionOutcome.NONE)] * len(self.channels)
         self._running: list[Optional[int]] = [None] * len(self.channels)   # motion id last seen RUNNING
         self._duty = [0.0] * len(self.channels)
+        self._trajectory: dict[int, int] = {}      # the last trajectory's motions: axis index -> motion id
 
     def _gravity_torque(self, index: int) -> Optional[Callable[[float], float]]:
         """Joint `index`'s gravity torque as `Axis.update` asks for it: J1..J3's, refreshed once a tick (for banked
@@ -267,6 +271,24 @@ class ArmController:
     def grip(self, close: bool, now: float) -> MotionStart:
         refusal, detail = (self.gripper.close if close else self.gripper.open)(now)
         return self._started(GRIPPER_INDEX, self.gripper, refusal, detail)
+
+    def run_trajectory(self, profiles: Sequence[HermiteProfile], now: float) -> tuple[Optional[int], MotionStart]:
+        """Joints 0 .. len(profiles) - 1 (j1..j4) follow their profiles from this tick, all of them or none: the
+        first joint that refused and why, or (None, every joint's motion)."""
+        tolerances = math.radians(START_TOLERANCE_DEG), math.radians(REST_TOLERANCE_DPS)
+        for index, profile in enumerate(profiles):
+            refusal, detail = self.channels[index].check_trajectory(profile, *tolerances)
+            if refusal is not Refusal.OK:
+                return index, self._started(index, self.channels[index], refusal, detail)
+        for index, profile in enumerate(profiles):
+            self.channels[index].follow(profile, now)
+        self._trajectory = {index: self.channels[index].motion_id for index in range(len(profiles))}
+        return None, MotionStart(Reason.OK, started=dict(self._trajectory))
+
+    def trajectory_running(self) -> bool:
+        """Whether a joint still runs the motion the last trajectory started on it."""
+        return any(self.channels[k].motion_id == motion_id and self.channels[k].outcome is MotionOutcome.RUNNING
+                   for k, motion_id in self._trajectory.items())
 
     def _started(self, index: int, channel, refusal: Refusal, detail: str) -> MotionStart:
         """The MotionStart of one channel's command: its new motion, or the refusal with the limit it broke."""

@@ -41,6 +41,7 @@ from typing import Callable, Optional
 
 from firmware_py import profiles
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
+from firmware_py.hermite import HermiteProfile
 from firmware_py.homing import Homing
 from firmware_py.profiles import DEFAULT_JOINT_ACC_RAD_S2, REPORT_JOINT_SPEED_RAD_S, Profile
 from protocol.states import AxisMode, MotionOutcome
@@ -93,7 +94,8 @@ class Refusal(enum.IntEnum):
     SOFT_LIMIT = 3    # the target lies beyond a soft limit
     NOT_HOMED = 4     # absolute moves need a homed axis
     BAD_VALUE = 5     # not finite, or a speed/acceleration beyond the axis's limits
-    BUSY = 6          # homing is in progress: stop it first
+    BUSY = 6          # homing is in progress: stop it first (a trajectory: any other motion)
+    ENDPOINTS = 7     # a trajectory that does not start where the axis holds, at rest, or does not end at rest
 
 
 class Debounce:
@@ -276,7 +278,7 @@ class Axis:
         self.breach: Optional[LimitBreach] = None    # the limit the last refused move or jog went beyond
         self.duty_requested = 0.0        # before the current limit and saturation
         self._err = 0
-        self._profile: Optional[Profile] = None
+        self._profile: Optional[Profile | HermiteProfile] = None
         self._profile_t0 = 0.0
         self._integ = 0.0
         self._duty_lo, self._duty_hi = -1.0, 1.0
@@ -410,6 +412,44 @@ class Axis:
         p, v, _ = self._setpoint(now)
         self._start(profiles.jog(p, vel_rad_s, acc, v), AxisMode.JOGGING, math.nan, now)
         return Refusal.OK, ""
+
+    def check_trajectory(self, profile: HermiteProfile, start_tolerance_rad: float,
+                         rest_tolerance_rad_s: float) -> tuple[Refusal, str]:
+        """Whether the axis may follow `profile` now (nothing changes but `breach`): active, homed, holding within
+        `start_tolerance_rad` of where the curve starts, the curve starting and ending within
+        `rest_tolerance_rad_s` of rest, inside the soft limits and never faster than the speed limit."""
+        c = self.config
+        self.breach = None
+        refusal = self._check_active()
+        if refusal[0] is not Refusal.OK:
+            return refusal
+        if self.mode is not _HOLDING:
+            return Refusal.BUSY, f"{c.name}: another motion is running; a trajectory starts from a joint holding"
+        if not self._limits_on():
+            return Refusal.NOT_HOMED, f"{c.name}: not homed; a trajectory's positions are absolute"
+        start_rad, start_vel, _ = profile.sample(0.0)
+        if (abs(start_rad - self.pos_sp_rad) > start_tolerance_rad or abs(start_vel) > rest_tolerance_rad_s
+                or abs(profile.end_vel_rad_s) > rest_tolerance_rad_s):
+            return Refusal.ENDPOINTS, (f"{c.name}: the trajectory starts at {start_rad:.5f} rad, "
+                                       f"{start_vel:.5f} rad/s and ends at {profile.end_vel_rad_s:.5f} rad/s; the "
+                                       f"joint holds at {self.pos_sp_rad:.5f} rad")
+        lowest, highest, top_speed = profile.bounds()
+        for side, beyond, limit, asked in (("min", lowest < c.soft_min_rad, c.soft_min_rad, lowest),
+                                           ("max", highest > c.soft_max_rad, c.soft_max_rad, highest)):
+            if beyond:
+                self.breach = LimitBreach(side, limit, asked)
+                return Refusal.SOFT_LIMIT, (f"{c.name}: the trajectory reaches {asked:.4f} rad, beyond the soft "
+                                            f"limit {side} {limit:.4f} rad")
+        if top_speed > c.vel_limit_rad_s:
+            self.breach = LimitBreach("speed", c.vel_limit_rad_s, top_speed)
+            return Refusal.BAD_VALUE, (f"{c.name}: the trajectory reaches {top_speed:.5f} rad/s, above the speed "
+                                       f"limit {c.vel_limit_rad_s:.5f} rad/s")
+        return Refusal.OK, ""
+
+    def follow(self, profile: HermiteProfile, now: float) -> None:
+        """Follow a checked trajectory (`check_trajectory`) from `now`: a motion that ends, as a move does, when
+        the axis has settled at the curve's end."""
+        self._start(profile, AxisMode.MOVING, profile.end_pos_rad, now)
 
     def stop(self, now: float, outcome: MotionOutcome = MotionOutcome.STOPPED) -> None:
         """Decelerate at the acceleration limit, then hold (accepted in any state)."""
@@ -666,7 +706,7 @@ class Axis:
         self._start(profiles.trapezoid(p, target_rad, vel_rad_s or c.vel_limit_rad_s,
                                        acc_rad_s2 or c.acc_limit_rad_s2, v), AxisMode.MOVING, target_rad, now)
 
-    def _start(self, profile: Profile, mode: AxisMode, target_rad: float, now: float) -> None:
+    def _start(self, profile: Profile | HermiteProfile, mode: AxisMode, target_rad: float, now: float) -> None:
         self._profile, self._profile_t0 = profile, now
         self.mode = mode
         self.target_rad = target_rad

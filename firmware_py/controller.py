@@ -18,7 +18,8 @@ Tasks (period):
                         on the link scheduler when there is one
   hal         1 ms      HAL inputs in, outputs (enable, brakes) out; outputs expire at the plant
   health      10 ms     boot check, HAL staleness, supply and temperature limits
-  arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py)
+  arm         1 ms      the arm's motor loops: five joint axes and the gripper (firmware_py/arm.py); trajectories
+                        (TrajPoint, TrajRun: the knots in firmware_py/trajectory.py) run there as any motion
   tracker     10 ms     the solar tracker's control box and relay logic, TRACKER_CMD (firmware_py/tracker/)
   telemetry   1/rate    TelemetryStatus and TelemetryJoints frames; while the tracker's box is in use (main or
                         sensor power on), TelemetryTracker (at most 10 Hz) half a period after them, so the three
@@ -52,6 +53,7 @@ from firmware_py.hal import ControllerHal
 from kernels import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.supervisor import FAULT_REASON, Supervisor
+from firmware_py.trajectory import TrajectoryBuffer, knot_of
 from firmware_py.tracker.task import TrackerController, parameter_table as tracker_parameter_table
 from firmware_py.uart import PacedUart
 
@@ -135,6 +137,7 @@ class Controller:
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
                                  on_motion_done=self._motion_done, stopwatch=stopwatch, on_late=self._loop_late,
                                  fused_joints=self.config.fused_joints, compiled_joints=self.config.compiled_joints)
+        self.trajectory = TrajectoryBuffer()
         self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
                                          allowed=lambda: self.supervisor.outputs_allowed)
         self._tracker_telemetry_due = False      # the telemetry task's next run sends TelemetryTracker
@@ -585,6 +588,37 @@ class Controller:
         if msg.axis == Axis.ALL:
             return self._accepted(msg.axis, self.arm.home_all(now))
         return self._accepted(msg.axis, self.arm.home(msg.axis, now))
+
+    # ---- trajectories: knots into the buffer, then j1..j4 along them at once ----
+    def _traj_state(self, reason: Reason) -> Message:
+        buffer = self.trajectory
+        return M["TrajState"](int(reason), len(buffer.knots), buffer.capacity, buffer.t_last_s,
+                              self.arm.trajectory_running())
+
+    @handles("TrajClear")
+    def _traj_clear(self, msg: Message, now: float) -> Message:
+        if self.arm.trajectory_running():
+            return self._traj_state(Reason.BUSY)
+        self.trajectory.clear()
+        return self._traj_state(Reason.OK)
+
+    @handles("TrajPoint")
+    def _traj_point(self, msg: Message, now: float) -> Message:
+        if self.arm.trajectory_running():
+            return self._traj_state(Reason.BUSY)
+        reason, _detail = self.trajectory.append(msg.index, knot_of(msg))
+        return self._traj_state(reason)
+
+    @handles("TrajRun")
+    def _traj_run(self, msg: Message, now: float) -> Message:
+        everyone = int(Axis.ALL)
+        refusal = self._motion_refusal()
+        if refusal is None:
+            refusal = self.trajectory.check_count(msg.count)[0]
+        if refusal is not Reason.OK:
+            return self._accepted(everyone, MotionStart(refusal))
+        axis, start = self.arm.run_trajectory(self.trajectory.profiles(), now)
+        return self._accepted(everyone if axis is None else axis, start)
 
     @handles("Grip")
     def _grip(self, msg: Message, now: float) -> Message:

@@ -30,6 +30,7 @@ from firmware_py.axis import Axis, AxisConfig, AxisError, Debounce
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from firmware_py.homing import Homing
 from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joints_tick
+from firmware_py.hermite import HermiteProfile
 from firmware_py.profiles import Profile
 
 _MODES = tuple(AxisMode)
@@ -55,7 +56,8 @@ class JointBank:
         self.config = rows(size, jt.CONFIG_COLUMNS, float)
         self.int_config = rows(size, jt.INT_CONFIG_COLUMNS, int)
         self.profile = rows(size, jt.PROFILE_COLUMNS, float)
-        self.profiles: list[Optional[Profile]] = [None] * size     # the objects behind the profile rows
+        # the objects behind the profile rows
+        self.profiles: list[Optional[Profile | HermiteProfile]] = [None] * size
         self.axes: list[BankedAxis] = []
         self.channels: list[int] = []       # each joint's HAL channel
         self.handed_back = 0                # joint-ticks run by Axis.update (the rest: by joints_tick)
@@ -109,11 +111,15 @@ class JointBank:
         """This tick's duties by channel, a list of the caller's (a channel without a joint: 0.0)."""
         return self.duties.tolist() if self.compiled else list(self.duties)
 
-    def load_profile(self, k: int, profile: Optional[Profile]) -> None:
-        """Joint k follows `profile` (None: none): its segments into k's profile row."""
+    def load_profile(self, k: int, profile: Optional[Profile | HermiteProfile]) -> None:
+        """Joint k follows `profile` (None: none): its segments into k's profile row; a profile that is not
+        constant-acceleration segments (a trajectory's curve) is marked for `Axis.update` to follow."""
         self.profiles[k] = profile
         if profile is None:
             self.int_state[k][jt.PROFILE_SEGMENTS] = 0
+            return
+        if not profile.constant_acceleration:
+            self.int_state[k][jt.PROFILE_SEGMENTS] = jt.FACADE_PROFILE
             return
         segments = profile.segments
         if len(segments) > jt.MAX_SEGMENTS:
@@ -216,7 +222,7 @@ class _Profile:
             return self
         return obj._bank.profiles[obj._row]
 
-    def __set__(self, obj, value: Optional[Profile]) -> None:
+    def __set__(self, obj, value: Optional[Profile | HermiteProfile]) -> None:
         obj._bank.load_profile(obj._row, value)
 
 

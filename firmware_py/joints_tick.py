@@ -17,6 +17,8 @@ joint's tick does to the others (a fault's safe state) happens exactly where it 
 
   - flag its encoder (no new count for `stale_ticks` ticks, or a count jump no motion could make),
   - be homing (the homing phases: firmware_py/homing.py),
+  - follow a profile that is not constant-acceleration segments (a trajectory's cubic Hermite curve,
+    firmware_py/hermite.py: its row holds no segments, PROFILE_SEGMENTS is FACADE_PROFILE),
   - be a move at or past its profile's end (settling, then the end of the move and its outcome),
   - reach a soft limit while moving or jogging (the stop),
   - exceed the following error, find the current reading stale or not a number,
@@ -79,6 +81,7 @@ INT_CONFIG_COLUMNS = 5
 DURATION_S, END_POS_RAD, END_VEL_RAD_S, SEGMENTS = range(4)
 SEGMENT_COLUMNS = 4
 MAX_SEGMENTS = 4          # the most a profile has: stop, ramp, cruise, ramp down (firmware_py/profiles.py)
+FACADE_PROFILE = -1       # PROFILE_SEGMENTS of a profile this tick does not evaluate: Axis.update follows it
 PROFILE_COLUMNS = SEGMENTS + SEGMENT_COLUMNS * MAX_SEGMENTS
 
 IDLE, MOVING, JOGGING, HOMING, HOLDING, FAULT = (int(AxisMode.IDLE), int(AxisMode.MOVING), int(AxisMode.JOGGING),
@@ -120,6 +123,8 @@ def joints_tick(first: int, stop: int, now: float, fb_s: float, counts, currents
          stall_duty, stall_vel, stall_time_s, open_duty, open_a, open_s, soft_min, soft_max, in_position,
          in_position_vel, settle_timeout_s, acc_limit, home_max_travel) = config[k]
         channel, stale_ticks, glitch_margin, has_gravity, moves_need_home = int_config[k]
+        if segments == FACADE_PROFILE:
+            return k                                         # a trajectory's curve: Axis.update samples it
 
         # ---- stage 0: encoder count -> estimator (SteadyStateEstimator.update)
         pos = pos_rad + vel_rad_s * est_dt                   # predict

@@ -14,7 +14,8 @@ after the profile's start; before 0 it gives the start, at and after `duration_s
   replaced by `stop(...)`.
 * `stop(...)`: decelerate to rest at the acceleration limit.
 
-S-curves (jerk-limited) are not implemented: at the report's joint speeds (1/2 RPM) the
+A trajectory's setpoint, a cubic through given positions and velocities, is `hermite.HermiteProfile`
+(the same interface). S-curves (jerk-limited) are not implemented: at the report's joint speeds (1/2 RPM) the
 trapezoid's acceleration steps are far below anything that excites the links, and the
 velocity loop smooths them further.
 """
@@ -47,6 +48,7 @@ class Profile:
     """A sequence of constant-acceleration segments ending at rest at `end_pos_rad`
     (or, for a jog, cruising forever)."""
 
+    constant_acceleration = True      # the joints' compiled tick evaluates it (firmware_py/joints_tick.py)
     __slots__ = ("segments", "duration_s", "end_pos_rad", "end_vel_rad_s", "_last")
 
     def __init__(self, segments: list[Segment], duration_s: float, end_pos_rad: float,

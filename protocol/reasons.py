@@ -53,6 +53,10 @@ class Reason(enum.IntEnum):
     ENCODER_STALE = 41
     CURRENT_STALE = 42
     HOST_OVERLOADED = 43
+    TRAJ_FULL = 44
+    TRAJ_ORDER = 45
+    TRAJ_COUNT = 46
+    TRAJ_ENDPOINTS = 47
 
     @property
     def doc(self) -> str:
@@ -129,7 +133,8 @@ _TABLE: dict[Reason, tuple[str, str]] = {
                        "relative moves and jogs are allowed before homing"),
     Reason.SOFT_LIMIT: ("the target lies beyond the joint's soft limit, or a motion stopped at it",
                         "choose a target inside the limits (parameters <axis>_min_deg and <axis>_max_deg)"),
-    Reason.BUSY: ("the axis is homing", "wait for it to finish, or `stop` it first"),
+    Reason.BUSY: ("the axis is homing; for a trajectory, a joint is not holding still (another motion runs), or a "
+                  "trajectory is running and its knots cannot change", "wait for it to finish, or `stop` it first"),
     Reason.ENCODER_FAULT: ("an encoder count jumped further than its joint can move",
                            "check the encoder, reset, then home again"),
     Reason.STALL: ("a joint was driven hard but did not move", "clear the jam or the brake, then reset"),
@@ -160,6 +165,16 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.HOST_OVERLOADED: ("the controller's motor loop ran later than loop_late_max_s on the wall clock: the "
                              "computer running the emulator is overloaded, the hardware is not at fault",
                              "reduce the load on the host, or raise loop_late_max_s, then reset"),
+    Reason.TRAJ_FULL: ("the controller's trajectory buffer already holds as many knots as it can (TrajState "
+                       "capacity)", "send a shorter trajectory (fewer knots), or split the motion into trajectories"),
+    Reason.TRAJ_ORDER: ("a trajectory knot out of order: its index is not the next one (TrajState knots), the first "
+                        "is not at t = 0, or its time is not strictly after the previous knot's",
+                        "send the knots in order from index 0 at t = 0, times increasing; TrajClear to start over"),
+    Reason.TRAJ_COUNT: ("TrajRun's count is not the number of knots the controller holds, or fewer than 2 are held "
+                        "(a knot lost or sent twice)", "TrajClear and upload the knots again"),
+    Reason.TRAJ_ENDPOINTS: ("a trajectory must start where each joint holds (within 0.1 deg) at rest and end at "
+                            "rest: a first or last knot's speed above 0.01 deg/s, or a first position away from "
+                            "the joint's", "plan from the joints' present positions, starting and ending at rest"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

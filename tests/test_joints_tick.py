@@ -32,6 +32,7 @@ from firmware_py.estimator import COUNT_MODULUS
 from firmware_py.joint_bank import BankedAxis, JointBank
 from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joints_tick
 from kernels import ENVIRONMENT_SWITCH, switched
+from host_tools.client.trajectory import Knot, send_trajectory
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -60,7 +61,8 @@ def snapshot(axis: Axis) -> tuple:
               axis._duty_hi, axis._count_s, axis._profile_t0, axis._settle_since, axis._stopping_for,
               axis._stall.since, axis._trip.since, axis._open.since, axis._homing.phase, axis._homing.start_rad,
               est.pos_rad, est.vel_rad_s, est.offset_rad, est.last_count, est.turns_counts, est.missed_ticks,
-              est.glitches, est.flags, None if profile is None else tuple(profile.segments),
+              est.glitches, est.flags, None if profile is None else tuple(
+                  profile.segments if profile.constant_acceleration else profile.coefficients),
               None if profile is None else (profile.duration_s, profile.end_pos_rad, profile.end_vel_rad_s))
     return tuple(tuple(map(hexed, v)) if isinstance(v, tuple) else hexed(v) for v in values)
 
@@ -245,6 +247,29 @@ def stale_session(bench: LockstepBench) -> dict:
     return {"ends": motion_ends(bench), "faults": fault_reasons(bench)}
 
 
+def trajectory_session(bench: LockstepBench) -> dict:
+    """j1..j4 homed, then along a trajectory (its ticks handed back: the kernel evaluates no cubic), stopped
+    midway, and again to its end; the mount moving meanwhile, in the kernel."""
+    call_ok(bench, M["Enable"]())
+    started = bench.call(M["Home"](int(AxisId.ALL))).reply
+    wanted = {int(a): getattr(started, f"{a.name.lower()}_motion_id") for a in AxisId if a is not AxisId.ALL}
+    ended = lambda: {(e.axis, e.motion_id) for e in bench.events if e.spec.name == "MotionDone"}  # noqa: E731
+    assert bench.wait_until(lambda: set(wanted.items()) <= ended(), 60.0), "homing did not end"
+    arm = bench.controller.arm
+    for stop_after_s in (1.5, None):
+        start = [math.degrees(arm.joints[n].pos_sp_rad) for n in JOINTS[:4]]
+        knots = [Knot(t, tuple(q + a * (3 * (t / 4) ** 2 - 2 * (t / 4) ** 3) for q, a in zip(start, (2, -2, 3, -3))),
+                      tuple(a * 6 * (t / 4) * (1 - t / 4) / 4 for a in (2, -2, 3, -3))) for t in (0.0, 1.0, 2.5, 4.0)]
+        ids = send_trajectory(bench, knots)
+        call_ok(bench, M["MoveBy"](int(AxisId.MOUNT), 1.0, 0))
+        if stop_after_s is not None:
+            bench.run_for(stop_after_s)
+            call_ok(bench, M["Stop"]())
+        assert bench.wait_until(lambda: {(int(a), i) for a, i in zip(AxisId, ids)} <= ended(), 10.0)
+        bench.run_for(0.5)
+    return {"ends": motion_ends(bench), "faults": fault_reasons(bench)}
+
+
 @dataclass(frozen=True)
 class Session:
     """A scripted session and what it must go through: axis modes, error bits, motion outcomes and fault reports
@@ -272,6 +297,9 @@ SESSIONS = {
     # every tick of a stale encoder is a fault (already latched or not)
     "stale": Session(stale_session, frozenset({_M.FAULT, _M.MOVING}), AxisError.ENCODER_STALE | AxisError.CURRENT_STALE,
                      reasons=frozenset({Reason.ENCODER_STALE, Reason.CURRENT_STALE}), handed_back=0.05),
+    # a trajectory's every tick is handed back (4 joints of 5, about half the session)
+    "trajectory": Session(trajectory_session, frozenset({_M.HOMING, _M.HOLDING, _M.MOVING}),
+                          outcomes=frozenset({_O.DONE, _O.STOPPED}), handed_back=0.5),
 }
 
 
@@ -299,7 +327,8 @@ def assert_went_through(session: Session, run: WorldRun) -> None:
     assert 0 < run.handed_back < session.handed_back * len(JOINTS) * len(run.per_tick)
 
 
-@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.long) if name in ("moving", "homing") else name
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.long) if name in ("moving", "homing", "trajectory")
+                                  else name
                                   for name in SESSIONS])
 def test_a_session_on_the_fused_joints_is_the_same_to_the_bit(name):
     """The session on each path of the joints (compiled: if numba is installed): the same MOTOR_CMDs, modes and
