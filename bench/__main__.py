@@ -92,8 +92,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.only is None:
             print()
     if args.only in (None, "plan"):
-        from bench import bench_plan
+        from bench import bench_arm_moves, bench_plan
         if bench_plan.main(quick=args.quick).error:
+            status = 1
+        print()
+        if bench_arm_moves.main(quick=args.quick).error:
             status = 1
     return status
 

@@ -105,3 +105,27 @@ def test_limits_too_weak_to_hold_the_arm_are_refused_naming_a_joint():
 def test_settings_out_of_range_are_refused(field, value):
     with pytest.raises(PlanError, match=field):
         ArmPlanSettings(**{field: value})
+
+
+@pytest.mark.parametrize("gravity", ["earth", "orbit"])
+def test_planned_moves_run_on_the_emulated_arm_through_the_protocol_within_a_centimetre(gravity):
+    """The pick-and-place's first moves as planned trajectories on the lock-step bench: each ends with the tip
+    within the report's 1 cm, and its plan takes a fraction of the 1/2 RPM trapezoid's time."""
+    from host_tools.apps.kinematics import steps
+    from host_tools.apps.pick_place import SPEC_M
+    from host_tools.apps.planned_moves import PlannedPickAndPlace, PlannedStep
+    demo = PlannedPickAndPlace(gravity)
+    try:
+        demo.prepare()
+        before = None
+        for step in steps(demo.scene)[:4]:              # home, open, approach (with the mount), descend
+            pose = demo._pose()
+            result = demo.run_step(step)
+            assert result.position_error_m <= SPEC_M, (step.name, result)
+            if isinstance(result, PlannedStep) and step.name != "home":
+                cruise = max(abs(q - pose[n]) for n, q in step.targets.items() if n in pose) / math.radians(3.0)
+                assert result.planned_s < cruise / 2, (step.name, result.planned_s, cruise)
+                before = result
+        assert before is not None and set(before.outcomes) >= {"j1", "j2", "j3", "j4"}
+    finally:
+        demo.close()

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V, Drive
+from host_tools.client.trajectory import Knot
 from host_tools.plan.bounds import Limits
 from host_tools.plan.errors import PlanError
 from host_tools.plan.model import Coefficients, JointPath
@@ -42,7 +43,7 @@ SPEED_SHARE = 0.98           # of each joint's speed limit: the knots' cubics ma
 @dataclass(frozen=True)
 class ArmPlanSettings:
     voltage_share: float = 0.7       # of the nominal supply the plan may use
-    current_share: float = 0.7       # of each joint's current limit
+    current_share: float = 0.9       # of each joint's current limit (J1 holds the arm stretched out at 72 %)
     nodes: int = 200                 # phase-plane intervals
     knots: int = 41                  # trajectory knots sent to the controller (the profile resampled in time)
 
@@ -116,15 +117,6 @@ class ArmJoints:
         k_current = [d.viscous_nm_s_rad for d in self.drives]
         k_voltage = [d.viscous_nm_s_rad + d.efficiency * (d.kt_nm_a * d.ratio) ** 2 / d.r_ohm for d in self.drives]
         return Limits.symmetric(current + voltage, k_current + k_voltage)
-
-
-@dataclass(frozen=True)
-class Knot:
-    """One point of a trajectory: time from its start, and each joint's angle and speed (the four arm joints)."""
-
-    t_s: float
-    q_deg: tuple[float, float, float, float]
-    qd_deg_s: tuple[float, float, float, float]
 
 
 @dataclass(frozen=True)

@@ -74,8 +74,9 @@ class PickAndPlace:
             raise DemoFailed(f"{what}: {handle.describe()}")
         return handle.reply
 
-    def _wait_motions(self, started: dict[int, int], what: str) -> dict[str, str]:
-        """Wait for the MotionDone of each (axis -> motion_id); fail unless every one is DONE."""
+    def _wait_motions(self, started: dict[int, int], what: str,
+                      accept: frozenset = frozenset({MotionOutcome.DONE})) -> dict[str, str]:
+        """Wait for the MotionDone of each (axis -> motion_id); fail unless every one ends as `accept` says."""
         done: dict[int, object] = {}
 
         def finished() -> bool:
@@ -87,7 +88,7 @@ class PickAndPlace:
         if not self.bench.wait_until(finished, MOTION_TIMEOUT_S):
             raise DemoFailed(f"{what}: no MotionDone within {MOTION_TIMEOUT_S} s of simulated time")
         outcomes = {Axis(a).name.lower(): MotionOutcome(e.outcome).name for a, e in done.items()}
-        bad = {a: e for a, e in done.items() if e.outcome != MotionOutcome.DONE}
+        bad = {a: e for a, e in done.items() if e.outcome not in accept}
         if bad or len(done) < len(started):
             sup = self.bench.controller.supervisor
             details = ", ".join(f"{Axis(a).name.lower()} {MotionOutcome(e.outcome).name} ({Reason(e.reason).name})"
