@@ -25,7 +25,7 @@ from host_tools.teleop.session import run_script
 from host_tools.teleop.motion import MotionTracker
 from host_tools.teleop.words import parse_line
 from host_tools.worlds.world import LockstepBench
-from host_tools.worlds.child import DEVNULL, Child
+from host_tools.worlds.child import Child
 from protocol import auth
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
@@ -42,8 +42,10 @@ class ArmSim:
     def __init__(self, tmp: Path) -> None:
         self.env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "config")}
         self.params = tmp / "params.json"
-        self.child = Child(["sim", "--pty", "--telemetry-hz", "10", "--params", str(self.params)],
-                           stderr=DEVNULL, env=self.env)
+        self.log = tmp / "sim.stderr"                 # what the simulator says (state changes and why): for failures
+        with self.log.open("wb") as log:
+            self.child = Child(["sim", "--pty", "--telemetry-hz", "10", "--params", str(self.params)],
+                               stderr=log, env=self.env)
         self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1]
         self.key_path = Path(self.child.ready("ASPOD-KEY ").split(" ", 1)[1])
         self.homed = False
@@ -53,7 +55,8 @@ class ArmSim:
         path.write_text(script)
         done = subprocess.run(ASPOD + ["teleop", self.url, "--script", str(path), *args], capture_output=True,
                               env=self.env, timeout=120)
-        return done.returncode, done.stdout.decode(), done.stderr.decode()
+        said = self.log.read_text(errors="replace").splitlines()[-12:]
+        return done.returncode, done.stdout.decode(), done.stderr.decode() + "\nthe simulator:\n" + "\n".join(said)
 
     def ensure_homed(self, tmp: Path) -> None:
         if not self.homed:
