@@ -108,10 +108,17 @@ def _row(planner: str, grid_s, x, duration, total_s, setup_s, n, reference, prob
             "us_total": 1e6 * total_s / n, "us_passes": 1e6 * (total_s - setup_s) / n}
 
 
-def _reach_row(problem, n, reference, check, repeats) -> dict:
-    plan_reach(problem, n)                                      # warm
-    p = min((plan_reach(problem, n) for _ in range(repeats)), key=lambda p: p.solve_time_s)
-    return _row("reach", p.s, p.x, p.duration, p.solve_time_s, p.setup_time_s, n, reference, problem, check)
+def _reach_row(problem, n, reference, check, repeats, order: int = 1) -> dict:
+    plan_reach(problem, n, order=order)                         # warm
+    p = min((plan_reach(problem, n, order=order) for _ in range(repeats)), key=lambda p: p.solve_time_s)
+    if order == 1:
+        return _row("reach", p.s, p.x, p.duration, p.solve_time_s, p.setup_time_s, n, reference, problem, check)
+    # s'' linear between grid points: the torques from the model along that profile (`sampled_torques`)
+    _, tau = sampled_torques(problem, p, check[2])
+    lo, hi = problem.limits.lo, problem.limits.hi
+    violation = float(max(0.0, np.max((tau - hi) / np.abs(hi)), np.max((lo - tau) / np.abs(lo))))
+    return {"planner": "reach order 2", "time_ratio": p.duration / reference - 1, "violation": violation,
+            "us_total": 1e6 * p.solve_time_s / n, "us_passes": 1e6 * (p.solve_time_s - p.setup_time_s) / n}
 
 
 def _toppra_row(problem, n, scheme, reference, check, repeats) -> dict:
@@ -185,7 +192,8 @@ def main(quick: bool = False) -> PlanBench:
                       f"the phase-plane planner at "
                       f"{PHASE_NODES} nodes {phase:.5f} s ({100 * (phase / reference - 1):+.3f} %)")
             for n in grids:
-                rows = [_reach_row(problem, n, reference, check, repeats)]
+                rows = [_reach_row(problem, n, reference, check, repeats),
+                        _reach_row(problem, n, reference, check, repeats, order=2)]
                 if version:
                     rows += [_toppra_row(problem, n, scheme, reference, check, repeats) for scheme in DISCRETIZATIONS]
                 for row in rows:
@@ -196,6 +204,10 @@ def main(quick: bool = False) -> PlanBench:
             bench.points_for_goal[name] = enough
             print(f"  {name:<10} this planner first within {100 * GOAL_TIME:g} % of the reference at "
                   f"{enough if enough else f'more than {dense}'} grid points (doubling from 100)")
+            enough2 = _points_for(problem, reference, dense, order=2, start=25)
+            bench.points_for_goal[f"{name} order 2"] = enough2
+            print(f"  {name:<10} order 2 first within {100 * GOAL_TIME:g} % at "
+                  f"{enough2 if enough2 else f'more than {dense}'} grid points (doubling from 25)")
         print("  (time/ref: traversal time over the reference; excess: the worst torque past its limit between "
               "grid points, % of the limit; us/point: all of the planning per grid point, the model's "
               "coefficients included; passes: without them)")
@@ -208,22 +220,35 @@ def main(quick: bool = False) -> PlanBench:
     return bench
 
 
-def _points_for(problem: Problem, reference: float, dense: int) -> Optional[int]:
-    """The first of 100, 200, 400, ... grid points at which this planner's time is within GOAL_TIME."""
-    n = 100
+def _points_for(problem: Problem, reference: float, dense: int, order: int = 1, start: int = 100) -> Optional[int]:
+    """The first of start, 2 start, 4 start, ... grid points at which this planner's time is within GOAL_TIME."""
+    n = start
     while n <= dense:
-        if plan_reach(problem, n).duration / reference - 1 <= GOAL_TIME:
+        if plan_reach(problem, n, order=order).duration / reference - 1 <= GOAL_TIME:
             return n
         n *= 2
     return None
 
 
 def _goals(bench: PlanBench) -> None:
-    mine = [r for r in bench.rows if r["planner"] == "reach"]
+    for planner in ("reach", "reach order 2"):
+        print()
+        print(f"  {planner}:")
+        _goals_of(bench, planner)
+    toppra_excess = [r["violation"] for r in bench.rows if r["planner"] == "toppra collocation" and "failed" not in r]
+    if toppra_excess:
+        print(f"  (toppra collocation's worst excess between grid points: {100 * max(toppra_excess):.2f} %)")
+    if bench.squeeze:
+        gains = [r["shorter"] for r in bench.squeeze]
+        print(f"  squeeze free: cycles {100 * min(gains):.2f} % to {100 * max(gains):.2f} % shorter than the fixed "
+              f"split on the vertical paths (issue 16 expected 6-12 %)")
+
+
+def _goals_of(bench: PlanBench, planner: str) -> None:
+    mine = [r for r in bench.rows if r["planner"] == planner]
     worst = max(r["violation"] for r in mine)
     at_100 = [r for r in mine if r["gridpoints"] == 100]
     worst_time = max(r["time_ratio"] for r in at_100)
-    print()
     print(f"  goal: no excess between grid points: worst {100 * worst:.2g} % -> {_verdict(worst <= GOAL_VIOLATION)}")
     print(f"  goal: time within {100 * GOAL_TIME:g} % of the reference at 100 grid points: worst "
           f"{100 * worst_time:+.3f} % -> {_verdict(worst_time <= GOAL_TIME)}")
@@ -237,10 +262,3 @@ def _goals(bench: PlanBench) -> None:
             print(f"  goal: faster per grid point than toppra ({label}): toppra takes {np.median(ratios):.2f}x this "
                   f"planner's time (median of {len(ratios)}; {min(ratios):.2f}x to {max(ratios):.2f}x) -> "
                   f"{_verdict(np.median(ratios) > 1)}")
-    toppra_excess = [r["violation"] for r in bench.rows if r["planner"] == "toppra collocation" and "failed" not in r]
-    if toppra_excess:
-        print(f"  (toppra collocation's worst excess between grid points: {100 * max(toppra_excess):.2f} %)")
-    if bench.squeeze:
-        gains = [r["shorter"] for r in bench.squeeze]
-        print(f"  squeeze free: cycles {100 * min(gains):.2f} % to {100 * max(gains):.2f} % shorter than the fixed "
-              f"split on the vertical paths (issue 16 expected 6-12 %)")

@@ -201,3 +201,63 @@ def test_the_command_plans_by_reachability_with_the_squeeze_free():
                         (["--method", "reach", "--squeeze", "lots"], "--squeeze")):
         done = run(*wrong)
         assert done.returncode == 2 and said in done.stderr and done.stdout == "", done.stderr
+
+
+# ---- order 2: s'' linear in s between grid points ----------------------------------------------------------------
+
+def test_order2_keeps_every_limit_between_grid_points(random_problems):
+    """The example and the two random paths of this module (seed 7): nothing past a limit at 50 points inside
+    every interval, from the model's inverse dynamics along the quadratic x (`sampled_torques`)."""
+    for problem in [report_problem()] + random_problems:
+        for n in (20, 50, 100):
+            plan = plan_reach(problem, n, order=2)
+            assert plan.order == 2 and len(plan.u) == len(plan.s)
+            assert plan.x[0] == 0.0 and plan.x[-1] == 0.0 and np.all(plan.x[1:-1] > 0)
+            assert _model_excess(problem, plan) <= 1e-9, (n, _model_excess(problem, plan))
+
+
+def test_order2_converges_as_the_square_of_the_step_and_beats_order1():
+    """Second order in h on the example: each halving of the step cuts the excess time about fourfold; at 100
+    points order 2 is within 0.02 % of the reference (order 1: 0.17 %)."""
+    problem = report_problem()
+    reference = 2 * plan_reach(problem, 4000).duration - plan_reach(problem, 2000).duration
+    errors = [plan_reach(problem, n, order=2).duration / reference - 1 for n in (50, 100, 200)]
+    assert all(e > -1e-5 for e in errors)
+    assert errors[0] > 3 * errors[1] > 9 * errors[2] - 1e-6
+    assert errors[1] < 2e-4 < plan_reach(problem, 100).duration / reference - 1
+
+
+def test_order2_on_random_paths_is_several_times_closer_than_order1(random_problems):
+    for problem in random_problems:
+        reference = 2 * plan_reach(problem, 4000).duration - plan_reach(problem, 2000).duration
+        one, two = (plan_reach(problem, 100, order=k).duration / reference - 1 for k in (1, 2))
+        assert -1e-5 < two < one / 3 and two < 3e-3, (one, two)
+
+
+def test_order2_interval_times_agree_with_quadrature():
+    from host_tools.plan.reach2 import interval_times
+    rng = np.random.default_rng(3)
+    h = np.full(300, 0.01)
+    u = rng.uniform(-20, 20, 301)
+    u[1:] = np.where(rng.random(300) < 0.3, u[:-1], u[1:])              # some straight intervals (C = 0)
+    x = 30 + np.concatenate([[0.0], np.cumsum(h * (u[:-1] + u[1:]))])   # the exact step
+    sigma = np.linspace(0, 1, 20001)[:, None] * h
+    curve = x[:-1] + 2 * u[:-1] * sigma + (u[1:] - u[:-1]) / h * sigma ** 2
+    ok = curve.min(axis=0) > 0.5
+    numeric = np.trapezoid(1 / np.sqrt(curve[:, ok]), sigma[:, 0], axis=0)
+    assert ok.sum() > 200 and (u[1:] == u[:-1])[ok].sum() > 50
+    assert np.allclose(interval_times(x, u, h)[ok], numeric, rtol=1e-8)
+    start = interval_times(np.array([0.0, 0.5]), np.array([25.0, 25.0]), np.array([0.01]))
+    assert np.isclose(start[0], 2 * 0.01 / np.sqrt(0.5))              # from rest, s'' constant: 2 h / v
+
+
+def test_order2_refuses_the_squeeze_and_other_orders():
+    problem = report_problem()
+    with pytest.raises(PlanError) as caught:
+        plan_reach(problem, 20, squeeze=FREE, order=2)
+    assert caught.value.what == "squeeze" and "order 1" in caught.value.reason
+    with pytest.raises(PlanError, match="order"):
+        plan_reach(problem, 20, order=3)
+    with pytest.raises(PlanError) as caught:
+        plan_reach(Problem(two_arms(), CURVED, Limits.symmetric((3, 2, 3, 2))), 50, order=2)
+    assert caught.value.what == "bounds" and "joint" in caught.value.reason
