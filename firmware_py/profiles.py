@@ -25,8 +25,9 @@ import math
 from typing import NamedTuple
 
 # The report (DEFLECTION AND MOMENT ANALYSIS, Figure 7 and APPENDIX B, ACCELERATION ANALYSIS)
-# keeps joint speed at or below 1/2 RPM so torques stay static: a half turn takes 30 s and the
-# inertial term of the Lagrangian stays orders of magnitude below the gravity term on Earth.
+# keeps joint speed at or below 1/2 RPM so torques stay static, and the inertial term of the Lagrangian
+# stays orders of magnitude below the gravity term on Earth. (Its "30 seconds" for a half turn does not fit
+# 1/2 RPM, which takes 60 s: docs/fidelity.md, S2.)
 REPORT_JOINT_SPEED_RAD_S = 0.5 * 2.0 * math.pi / 60.0   # 1/2 RPM = pi/60 rad/s
 
 # Reaches the report's speed in about a second. The inertial torque it asks for stays in the
