@@ -40,6 +40,5 @@ def main(quick: bool = False) -> ArmMovesBench:
         print(f"  {'':<7} {'all moves':<16} {run['trapezoid_s']:9.2f}s {run['planned_s']:8.2f}s; worst planned "
               f"error {1000 * run['max_planned_error_m']:.3f} mm against {1000 * run['spec_m']:.0f} mm: "
               f"{'met' if ok else 'NOT met'}")
-    print("  (a step's time includes its settling; a mount move in a step stays a trapezoid at 1/2 RPM: the "
-          "trajectory moves j1..j4)")
+    print("  (a step's time includes its settling; the trajectory moves j1..j4 and the mount)")
     return bench

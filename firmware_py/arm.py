@@ -43,6 +43,7 @@ from firmware_py.joint_bank import BankedAxis, JointBank
 from firmware_py.joints_tick import GRAVITY_ROWS
 from firmware_py.params import ParamStore
 from firmware_py.trajectory import REST_TOLERANCE_DPS, START_TOLERANCE_DEG
+from protocol.messages import TRAJECTORY_JOINTS
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
 _NO_TORQUE = [0.0, 0.0, 0.0]          # J1..J3 holding torques without gravity
@@ -273,16 +274,18 @@ class ArmController:
         return self._started(GRIPPER_INDEX, self.gripper, refusal, detail)
 
     def run_trajectory(self, profiles: Sequence[HermiteProfile], now: float) -> tuple[Optional[int], MotionStart]:
-        """Joints 0 .. len(profiles) - 1 (j1..j4) follow their profiles from this tick, all of them or none: the
-        first joint that refused and why, or (None, every joint's motion)."""
+        """The trajectory's joints (`TRAJECTORY_JOINTS`: j1..j4 and the mount, one profile each) follow their
+        profiles from this tick, all of them or none: the first channel that refused and why, or (None, every
+        joint's motion)."""
         tolerances = math.radians(START_TOLERANCE_DEG), math.radians(REST_TOLERANCE_DPS)
-        for index, profile in enumerate(profiles):
+        channels = [int(axis) for axis in TRAJECTORY_JOINTS[:len(profiles)]]
+        for index, profile in zip(channels, profiles):
             refusal, detail = self.channels[index].check_trajectory(profile, *tolerances)
             if refusal is not Refusal.OK:
                 return index, self._started(index, self.channels[index], refusal, detail)
-        for index, profile in enumerate(profiles):
+        for index, profile in zip(channels, profiles):
             self.channels[index].follow(profile, now)
-        self._trajectory = {index: self.channels[index].motion_id for index in range(len(profiles))}
+        self._trajectory = {index: self.channels[index].motion_id for index in channels}
         return None, MotionStart(Reason.OK, started=dict(self._trajectory))
 
     def trajectory_running(self) -> bool:

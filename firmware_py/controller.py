@@ -589,7 +589,7 @@ class Controller:
             return self._accepted(msg.axis, self.arm.home_all(now))
         return self._accepted(msg.axis, self.arm.home(msg.axis, now))
 
-    # ---- trajectories: knots into the buffer, then j1..j4 along them at once ----
+    # ---- trajectories: knots into the buffer, then j1..j4 and the mount along them at once ----
     def _traj_state(self, reason: Reason) -> Message:
         buffer = self.trajectory
         return M["TrajState"](int(reason), len(buffer.knots), buffer.capacity, buffer.t_last_s,

@@ -1,4 +1,5 @@
-"""The arm's trajectory buffer: knots uploaded one at a time (TrajPoint), run on j1..j4 at once (TrajRun).
+"""The arm's trajectory buffer: knots uploaded one at a time (TrajPoint), run on j1..j4 and the mount at once
+(TrajRun).
 
 A knot is a time from the trajectory's start and, for each of the four arm joints, a position and a
 velocity, in the protocol's units (s, deg, deg/s). The buffer takes them strictly in order (index 0 at
@@ -26,7 +27,7 @@ JOINT_NAMES = tuple(a.name.lower() for a in TRAJECTORY_JOINTS)
 
 
 class Knot(NamedTuple):
-    """One knot as uploaded: its time [s] and each joint's position [deg] and velocity [deg/s] (j1..j4)."""
+    """One knot as uploaded: its time [s] and each joint's position [deg] and velocity [deg/s] (j1..j4, mount)."""
 
     t_s: float
     pos_deg: tuple[float, ...]
@@ -63,7 +64,7 @@ class TrajectoryBuffer:
         values = (knot.t_s, *knot.pos_deg, *knot.vel_deg_s)
         if len(knot.pos_deg) != len(JOINT_NAMES) or len(knot.vel_deg_s) != len(JOINT_NAMES) or not all(
                 math.isfinite(v) for v in values):
-            return Reason.OUT_OF_RANGE, f"knot {index}: a position and a velocity of each of j1..j4, finite"
+            return Reason.OUT_OF_RANGE, f"knot {index}: a finite position and velocity of each of j1..j4 and the mount"
         if held == 0 and knot.t_s != 0.0:
             return Reason.TRAJ_ORDER, f"the first knot is at t = 0, not {knot.t_s} s"
         if held and not knot.t_s > self.knots[-1].t_s:
@@ -80,7 +81,7 @@ class TrajectoryBuffer:
         return Reason.OK, ""
 
     def profiles(self) -> list[HermiteProfile]:
-        """Each joint's setpoint through the knots, in radians (j1..j4)."""
+        """Each joint's setpoint through the knots, in radians (j1..j4 and the mount)."""
         times = [k.t_s for k in self.knots]
         return [HermiteProfile(times, [math.radians(k.pos_deg[j]) for k in self.knots],
                                [math.radians(k.vel_deg_s[j]) for k in self.knots]) for j in range(len(JOINT_NAMES))]

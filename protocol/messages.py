@@ -83,9 +83,10 @@ _STARTED_IDS = tuple(
 )
 
 
-# A trajectory knot's joint values: position and velocity of each of the four arm joints (not the mount).
-TRAJECTORY_JOINTS = ARM_AXES[:4]
-assert [a.name for a in TRAJECTORY_JOINTS] == ["J1", "J2", "J3", "J4"]
+# A trajectory knot's joint values: position and velocity of each of the four arm joints and the mount (not the
+# gripper, which opens and closes on its switches).
+TRAJECTORY_JOINTS = ARM_AXES[:4] + (Axis.MOUNT,)
+assert [a.name for a in TRAJECTORY_JOINTS] == ["J1", "J2", "J3", "J4", "MOUNT"]
 _KNOT_FIELDS = tuple(
     f
     for a in TRAJECTORY_JOINTS
@@ -255,8 +256,8 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 "runs). Answered with TrajState.",
                 reply="TrajState"),
     MessageSpec("TrajPoint", 0x61, MsgClass.COMMAND, H,
-                "Appends one knot to the trajectory buffer: a time and, for j1..j4, a position and a velocity "
-                "(the joints follow a piecewise cubic Hermite curve through the knots). Refused, the buffer "
+                "Appends one knot to the trajectory buffer: a time and, for j1..j4 and the mount, a position and a "
+                "velocity (the joints follow a piecewise cubic Hermite curve through the knots). Refused, the buffer "
                 "unchanged, with TRAJ_FULL when it is full, TRAJ_ORDER when `index` is not the next one, the first "
                 "knot is not at t = 0 or `t` is not strictly after the previous knot's, BUSY while a trajectory "
                 "runs; values outside their ranges are refused by the codec (OUT_OF_RANGE). Answered with "
@@ -266,10 +267,11 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 + _KNOT_FIELDS,
                 reply="TrajState"),
     MessageSpec("TrajRun", 0x62, MsgClass.COMMAND, H,
-                "Starts the uploaded trajectory on j1..j4 at one controller tick: each joint follows its Hermite "
-                "setpoint through its position and velocity loops as in a Move, and MotionDone reports each "
+                "Starts the uploaded trajectory on j1..j4 and the mount at one controller tick: each joint follows its "
+                "Hermite setpoint through its position and velocity loops as in a Move, and MotionDone reports each "
                 "joint's end (Stop, EStop and faults end it as any motion). Refused, nothing moving, unless the "
-                "controller is ENABLED and j1..j4 are homed, enabled and holding (BUSY: another motion), with "
+                "controller is ENABLED and j1..j4 and the mount are homed, enabled and holding (BUSY: another motion), "
+                "with "
                 "TRAJ_COUNT when `count` is not the number of knots held or fewer than 2, TRAJ_ENDPOINTS when the "
                 "first knot is not at each joint's position at rest or the last not at rest, SOFT_LIMIT or "
                 "OUT_OF_RANGE (with the limit's parameter) when the curve between the knots leaves a joint's soft "

@@ -34,7 +34,7 @@ from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joint
 from kernels import ENVIRONMENT_SWITCH, switched
 from host_tools.client.trajectory import Knot, send_trajectory
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import MESSAGES as M
+from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
 from protocol.states import Axis as AxisId, AxisMode, ControllerState, MotionOutcome
 
@@ -257,15 +257,16 @@ def trajectory_session(bench: LockstepBench) -> dict:
     assert bench.wait_until(lambda: set(wanted.items()) <= ended(), 60.0), "homing did not end"
     arm = bench.controller.arm
     for stop_after_s in (1.5, None):
-        start = [math.degrees(arm.joints[n].pos_sp_rad) for n in JOINTS[:4]]
-        knots = [Knot(t, tuple(q + a * (3 * (t / 4) ** 2 - 2 * (t / 4) ** 3) for q, a in zip(start, (2, -2, 3, -3))),
-                      tuple(a * 6 * (t / 4) * (1 - t / 4) / 4 for a in (2, -2, 3, -3))) for t in (0.0, 1.0, 2.5, 4.0)]
+        start = [math.degrees(arm.channels[int(a)].pos_sp_rad) for a in TRAJECTORY_JOINTS]
+        amplitude = (2, -2, 3, -3, 0)        # the mount's part holds still, until the MoveBy below takes it over
+        knots = [Knot(t, tuple(q + a * (3 * (t / 4) ** 2 - 2 * (t / 4) ** 3) for q, a in zip(start, amplitude)),
+                      tuple(a * 6 * (t / 4) * (1 - t / 4) / 4 for a in amplitude)) for t in (0.0, 1.0, 2.5, 4.0)]
         ids = send_trajectory(bench, knots)
         call_ok(bench, M["MoveBy"](int(AxisId.MOUNT), 1.0, 0))
         if stop_after_s is not None:
             bench.run_for(stop_after_s)
             call_ok(bench, M["Stop"]())
-        assert bench.wait_until(lambda: {(int(a), i) for a, i in zip(AxisId, ids)} <= ended(), 10.0)
+        assert bench.wait_until(lambda: {(int(a), i) for a, i in zip(TRAJECTORY_JOINTS, ids)} <= ended(), 10.0)
         bench.run_for(0.5)
     return {"ends": motion_ends(bench), "faults": fault_reasons(bench)}
 

@@ -1,4 +1,4 @@
-"""Trajectories: knots uploaded (TrajClear, TrajPoint), run on j1..j4 at once (TrajRun), followed by the arm
+"""Trajectories: knots uploaded (TrajClear, TrajPoint), run on j1..j4 and the mount at once (TrajRun), followed by the arm
 closed around the plant, on the simulated clock.
 
 The setpoint is checked against an independent cubic Hermite spline (scipy's `CubicHermiteSpline`), the
@@ -19,16 +19,17 @@ from host_tools.client.bench import BenchClient
 from host_tools.client.trajectory import Knot, TrajectoryRefused, point_message, send_trajectory
 from host_tools.sessions.impairment import Impairment
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import MESSAGES as M
+from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
-from protocol.states import Axis, AxisMode, ControllerState, MotionOutcome
+from protocol.states import Axis, ControllerState, MotionOutcome
 
-JOINTS = (Axis.J1, Axis.J2, Axis.J3, Axis.J4)
+JOINTS = TRAJECTORY_JOINTS                     # j1..j4 and the mount
+N = len(JOINTS)
 # How far the plant's true angle may be from the setpoint while following: J3 lags most (a Move of J3 at the same
 # speed lags 0.15 deg while it accelerates); the others stay within 0.05 deg.
-FOLLOW_TOLERANCE_DEG = {Axis.J1: 0.05, Axis.J2: 0.05, Axis.J3: 0.25, Axis.J4: 0.05}
+FOLLOW_TOLERANCE_DEG = {Axis.J1: 0.05, Axis.J2: 0.05, Axis.J3: 0.25, Axis.J4: 0.05, Axis.MOUNT: 0.05}
 END_TOLERANCE_DEG = 0.02          # where a move ends, as tests/test_arm_control.py holds a Move to
-AMPLITUDE_DEG = (10.0, -8.0, 12.0, -12.0)
+AMPLITUDE_DEG = (10.0, -8.0, 12.0, -12.0, -6.0)
 
 
 # ---- helpers -----------------------------------------------------------------------------------------------
@@ -116,14 +117,14 @@ def test_the_host_refuses_knots_that_cannot_be_a_trajectory_before_sending_anyth
     class NoCalls:
         def call(self, msg, timeout_s=30.0):
             raise AssertionError("nothing may be sent")
-    with pytest.raises(ValueError, match="4 positions"):
-        Knot(0.0, (0.0, 0.0, 0.0), (0.0,) * 4)
+    with pytest.raises(ValueError, match=f"{N} positions"):
+        Knot(0.0, (0.0, 0.0, 0.0), (0.0,) * N)
     with pytest.raises(ValueError, match="finite"):
-        Knot(0.0, (0.0, math.inf, 0.0, 0.0), (0.0,) * 4)
-    still = Knot(0.0, (0.0,) * 4, (0.0,) * 4)
+        Knot(0.0, (0.0, math.inf) + (0.0,) * (N - 2), (0.0,) * N)
+    still = Knot(0.0, (0.0,) * N, (0.0,) * N)
     for knots, words in (([still], "at least 2"), ([still, still], "increase strictly"),
-                         ([Knot(1.0, (0.0,) * 4, (0.0,) * 4), Knot(2.0, (0.0,) * 4, (0.0,) * 4)], "t = 0"),
-                         ([still, Knot(1.0, (400.0, 0, 0, 0), (0.0,) * 4)], "knot 1: j1_pos=400")):
+                         ([Knot(1.0, (0.0,) * N, (0.0,) * N), Knot(2.0, (0.0,) * N, (0.0,) * N)], "t = 0"),
+                         ([still, Knot(1.0, (400.0,) + (0.0,) * (N - 1), (0.0,) * N)], "knot 1: j1_pos=400")):
         with pytest.raises(ValueError, match=words):
             send_trajectory(NoCalls(), knots)
 
@@ -137,13 +138,13 @@ def test_a_planned_trajectory_is_followed_and_each_joint_reports_done():
         start[1] += 0.5 * START_TOLERANCE_DEG          # not quite where j2 holds, but within the tolerance
         knots = smooth_knots(start)
         ids = send_trajectory(BenchClient(bench), knots)
-        assert len(ids) == 4 and all(ids)
+        assert len(ids) == N and all(ids)
         assert len({arm.channels[int(a)]._profile_t0 for a in JOINTS}) == 1          # one tick starts them all
-        assert arm.channels[int(Axis.MOUNT)].mode is AxisMode.HOLDING
-        started_s, references = bench.clock.now(), [spline(knots, j) for j in range(4)]
+        assert arm.channels[int(Axis.GRIPPER)].outcome is not MotionOutcome.RUNNING       # not part of it
+        started_s, references = bench.clock.now(), [spline(knots, j) for j in range(N)]
         # while it runs, the knots cannot change
         assert bench.call(M["TrajClear"]()).reason is Reason.BUSY
-        assert bench.call(point_message(len(knots), Knot(9.0, (0.0,) * 4, (0.0,) * 4))).reason is Reason.BUSY
+        assert bench.call(point_message(len(knots), Knot(9.0, (0.0,) * N, (0.0,) * N))).reason is Reason.BUSY
         worst = dict.fromkeys(JOINTS, 0.0)
         while bench.clock.now() - started_s < knots[-1].t_s:
             bench.run_for(0.01)
@@ -184,7 +185,7 @@ def test_stop_and_estop_end_a_trajectory_midway():
             moved = true_deg(bench, axis) - knots[0].q_deg[j]
             assert 0.1 < moved / AMPLITUDE_DEG[j] < 0.9, (axis, moved)
         # from where they stopped, another; an e-stop ends it too, and nothing moves until reset
-        ids = send_trajectory(client, smooth_knots(holding_deg(bench), (-4.0, 4.0, -4.0, 4.0), 4.0))
+        ids = send_trajectory(client, smooth_knots(holding_deg(bench), (-4.0, 4.0, -4.0, 4.0, 4.0), 4.0))
         bench.run_for(1.5)
         assert bench.call(M["EStop"]()).ok
         assert bench.wait_until(lambda: all(done(bench, int(a), i) for a, i in zip(JOINTS, ids)), 1.0)
@@ -234,7 +235,7 @@ def refused(bench: LockstepBench, msg, reason: Reason):
     return handle.reply
 
 
-def still(t: float, q, qd=(0.0,) * 4) -> Knot:
+def still(t: float, q, qd=(0.0,) * N) -> Knot:
     return Knot(t, tuple(q), tuple(qd))
 
 
@@ -282,27 +283,27 @@ def test_a_run_with_the_wrong_count_or_ends_is_refused_and_nothing_moves(holding
     shifted = [Knot(k.t_s, (k.q_deg[0], k.q_deg[1] + 2 * START_TOLERANCE_DEG, *k.q_deg[2:]), k.qd_deg_s)
                for k in knots]
     assert run_refused(holding, shifted, Reason.TRAJ_ENDPOINTS).axis == Axis.J2
-    moving_start = [still(0.0, q, (0.0, 0.0, 0.0, 3 * REST_TOLERANCE_DPS)), still(2.0, q)]
+    moving_start = [still(0.0, q, (0.0, 0.0, 0.0, 3 * REST_TOLERANCE_DPS, 0.0)), still(2.0, q)]
     assert run_refused(holding, moving_start, Reason.TRAJ_ENDPOINTS).axis == Axis.J4
-    moving_end = [still(0.0, q), still(2.0, q, (0.0, 0.0, 3 * REST_TOLERANCE_DPS, 0.0))]
+    moving_end = [still(0.0, q), still(2.0, q, (0.0, 0.0, 3 * REST_TOLERANCE_DPS, 0.0, 0.0))]
     assert run_refused(holding, moving_end, Reason.TRAJ_ENDPOINTS).axis == Axis.J3
 
 
 def test_a_run_beyond_a_soft_limit_or_a_speed_limit_names_the_limit(holding):
     q = holding_deg(holding)
     j1_max = holding.call(M["ParamGet"]("j1_max_deg")).reply.value
-    beyond = smooth_knots(q, (j1_max - q[0] + 1.0, 0.0, 0.0, 0.0), 60.0)
+    beyond = smooth_knots(q, (j1_max - q[0] + 1.0,) + (0.0,) * (N - 1), 60.0)
     reply = run_refused(holding, beyond, Reason.SOFT_LIMIT)
     assert (reply.axis, reply.limit, reply.limit_value) == (Axis.J1, "j1_max_deg", pytest.approx(j1_max))
     assert reply.asked == pytest.approx(j1_max + 1.0, abs=1e-3)
     # between its knots, the curve overshoots below j2's lowest knot: the whole curve is checked
     j2_min = holding.call(M["ParamGet"]("j2_min_deg")).reply.value
-    at_min = [still(0.0, q), Knot(30.0, (q[0], j2_min + 0.01, q[2], q[3]), (0.0, -2.0, 0.0, 0.0)),
-              still(60.0, (q[0], j2_min + 0.01, q[2], q[3]))]
+    low = (q[0], j2_min + 0.01, *q[2:])
+    at_min = [still(0.0, q), Knot(30.0, low, (0.0, -2.0) + (0.0,) * (N - 2)), still(60.0, low)]
     assert min(spline(at_min, 1)(np.linspace(0, 60, 6001))) < j2_min < min(k.q_deg[1] for k in at_min)
     assert run_refused(holding, at_min, Reason.SOFT_LIMIT).limit == "j2_min_deg"
     speed = holding.call(M["ParamGet"]("j4_speed_dps")).reply.value
-    fast = smooth_knots(q, (0.0, 0.0, 0.0, speed * 8.0 / 1.875 * 1.01), 8.0)    # the quintic's peak rate: 1.875 a / T
+    fast = smooth_knots(q, (0.0, 0.0, 0.0, speed * 8.0 / 1.875 * 1.01, 0.0), 8.0)   # the quintic's peak: 1.875 a / T
     reply = run_refused(holding, fast, Reason.OUT_OF_RANGE)
     assert (reply.axis, reply.limit, reply.limit_value) == (Axis.J4, "j4_speed_dps", pytest.approx(speed))
     assert reply.asked == pytest.approx(speed * 1.01, rel=1e-3)

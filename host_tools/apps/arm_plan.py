@@ -1,12 +1,14 @@
 """Time-optimal joint moves for ASPOD's own arm, under its motors' voltage and current limits (issue 16, item 6).
 
-The path is a straight line in joint space, q(s) = q0 + s (q1 - q0), for the joints that move (J1..J4). The model
+The path is a straight line in joint space, q(s) = q0 + s (q1 - q0), for the joints that move (J1..J4 and the
+mount). The model
 is the firmware's (firmware_py/arm_config.py), as ground software would have it, not the plant's truth:
 
 * each joint is its own axis: inertia J = the rotor reflected through the train plus the output's own, plus the
   drive's typical (outstretched) arm load, so the mass matrix is diagonal and constant (the plant neglects the
   coupling too: every joint sees its rotor through 300:1 to 1600:1);
-* gravity is the mass model's holding torques (`MassModel.holding_torques_nm`, with the payload), J4 none;
+* gravity is the mass model's holding torques (`MassModel.holding_torques_nm`, with the payload); J4 (a roll
+  about the gripper's axis) and the mount (about a vertical shaft) hold none;
 * viscous friction at the joint.
 
 Joint torque u = J q'' + v q' + g(q). The motor, with efficiency eta through a train of ratio N, draws
@@ -34,8 +36,10 @@ from host_tools.plan.errors import PlanError
 from host_tools.plan.model import Coefficients, JointPath
 from host_tools.plan.phase import Problem
 from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
+from protocol.messages import TRAJECTORY_JOINTS
 
-ARM_JOINTS = ("j1", "j2", "j3", "j4")
+ARM_JOINTS = tuple(a.name.lower() for a in TRAJECTORY_JOINTS)       # j1..j4 and the mount
+HELD = ("j1", "j2", "j3")                                             # the joints that hold against gravity
 MOVE_EPS_RAD = 1e-6          # a joint that moves less than this is not part of the path
 SPEED_SHARE = 0.98           # of each joint's speed limit: the knots' cubics may overshoot a knot's speed a little
 
@@ -91,11 +95,10 @@ class ArmJoints:
         """(N, joints): the holding torque of each moving joint along q (N, joints)."""
         full = np.tile(np.asarray(self.fixed_rad, float), (len(q), 1))
         for k, name in enumerate(self.names):
-            if name != "j4":
-                full[:, ARM_JOINTS.index(name)] = q[:, k]
+            if name in HELD:
+                full[:, HELD.index(name)] = q[:, k]
         torques = np.array([MASSES.holding_torques_nm(*row, self.gravity_m_s2, self.payload_kg) for row in full])
-        return np.stack([torques[:, ARM_JOINTS.index(n)] if n != "j4" else np.zeros(len(q)) for n in self.names],
-                        axis=1)
+        return np.stack([torques[:, HELD.index(n)] if n in HELD else np.zeros(len(q)) for n in self.names], axis=1)
 
     def coefficients(self, path: JointLine, s) -> Coefficients:
         s = np.atleast_1d(np.asarray(s, float))
@@ -122,7 +125,7 @@ class ArmJoints:
 @dataclass(frozen=True)
 class PlannedMove:
     names: tuple[str, ...]
-    start_rad: dict[str, float]           # all four arm joints
+    start_rad: dict[str, float]           # every joint of the trajectory (ARM_JOINTS)
     path: JointLine
     plan: TimeOptimal
 
@@ -153,8 +156,8 @@ class PlannedMove:
 def plan_move(start_rad: dict[str, float], targets_rad: dict[str, float], gravity_m_s2: float, payload_kg: float,
               current_limits_a: dict[str, float], speed_limits_rad_s: dict[str, float],
               settings: ArmPlanSettings = ArmPlanSettings()) -> PlannedMove:
-    """The minimum-time move of the arm joints from `start_rad` (all four) to `targets_rad` (those that move),
-    within each joint's current limit and speed limit (the controller's parameters) and the supply."""
+    """The minimum-time move of the arm's joints from `start_rad` (every one of ARM_JOINTS) to `targets_rad` (those
+    that move), within each joint's current limit and speed limit (the controller's parameters) and the supply."""
     missing = [n for n in ARM_JOINTS if n not in start_rad]
     if missing:
         raise PlanError("path", f"the start pose has no angle for {', '.join(missing)}")
@@ -164,7 +167,7 @@ def plan_move(start_rad: dict[str, float], targets_rad: dict[str, float], gravit
     names = tuple(n for n in ARM_JOINTS if n in targets_rad and abs(targets_rad[n] - start_rad[n]) > MOVE_EPS_RAD)
     if not names:
         raise PlanError("path", "no joint moves")
-    fixed = tuple(float(start_rad[n]) for n in ARM_JOINTS[:3])
+    fixed = tuple(float(start_rad[n]) for n in HELD)
     system = ArmJoints(names, gravity_m_s2, payload_kg, fixed)
     path = JointLine(np.array([start_rad[n] for n in names], float), np.array([targets_rad[n] for n in names], float))
     cap = min(speed_limits_rad_s[n] * SPEED_SHARE / abs(targets_rad[n] - start_rad[n]) for n in names)

@@ -2,10 +2,9 @@
 trapezoids at the report's 1/2 RPM (issue 16, item 6).
 
 Both runs go through the protocol on a `LockstepBench` (the simulated clock), as `apps/pick_place.py` does: the
-same scene, homing, grips and payloads. In the planned run each move of j1..j4 is planned by
+same scene, homing, grips and payloads. In the planned run each move of j1..j4 and the mount is planned by
 `apps/arm_plan.plan_move` from what the controller says (its current and speed limit parameters, read with
-ParamGet; its gravity), sent with `client/trajectory.send_trajectory`, and followed by the firmware; a mount
-move in the same step runs beside it as a Move. The joints' speed parameters are raised to what the planner
+ParamGet; its gravity), sent with `client/trajectory.send_trajectory`, and followed by the firmware. The joints' speed parameters are raised to what the planner
 may use (`PLANNED_SPEED_DPS`), since the controller refuses a trajectory faster than them. After each step the
 gripper tip's true position is compared with where the step should put it: the report's 1 cm.
 """
@@ -17,7 +16,7 @@ from dataclasses import dataclass
 from firmware_py.arm_config import DRIVES
 from host_tools.apps.arm_plan import ARM_JOINTS, ArmPlanSettings, plan_move
 from host_tools.apps.kinematics import steps
-from host_tools.apps.pick_place import AXIS_BY_NAME, SPEC_M, DemoFailed, PickAndPlace, StepResult
+from host_tools.apps.pick_place import SPEC_M, DemoFailed, PickAndPlace, StepResult
 from host_tools.client.trajectory import TrajectoryRefused, send_trajectory
 from host_tools.plan.errors import PlanError
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
@@ -65,17 +64,11 @@ class PlannedPickAndPlace(PickAndPlace):
                              self.speed_rad_s, self.settings)
         except PlanError as exc:
             raise DemoFailed(f"{step.name}: cannot plan it: {exc}") from exc
-        started = {}
-        for name, target in step.targets.items():
-            if name not in ARM_JOINTS:            # the mount: a Move beside the trajectory
-                reply = self._call(M["Move"](int(AXIS_BY_NAME[name]), math.degrees(target), 0.0),
-                                   f"{step.name}: move {name}")
-                started[int(AXIS_BY_NAME[name])] = reply.motion_id
         try:
             ids = send_trajectory(self.bench, move.knots(self.settings.knots))
         except (TrajectoryRefused, ValueError) as exc:
             raise DemoFailed(f"{step.name}: trajectory refused: {exc}") from exc
-        started.update({int(axis): motion for axis, motion in zip(TRAJECTORY_JOINTS, ids)})
+        started = {int(axis): motion for axis, motion in zip(TRAJECTORY_JOINTS, ids)}
         outcomes = self._wait_motions(started, step.name, SETTLED_OR_NOT)
         result = PlannedStep(step.name, self.tip_error_m(step.tip_xyz_m), self.bench.clock.now() - start_s, outcomes,
                              move.duration_s)

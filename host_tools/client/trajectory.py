@@ -18,7 +18,7 @@ from protocol.messages import MESSAGES as M, SCHEMA, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
 from protocol.schema import Message
 
-JOINTS = len(TRAJECTORY_JOINTS)     # j1..j4
+JOINTS = len(TRAJECTORY_JOINTS)     # j1..j4 and the mount
 
 
 class Caller(Protocol):
@@ -27,15 +27,16 @@ class Caller(Protocol):
 
 @dataclass(frozen=True)
 class Knot:
-    """One knot: its time from the start [s], and j1..j4's positions [deg] and velocities [deg/s]."""
+    """One knot: its time from the start [s], and j1..j4's and the mount's positions [deg] and
+    velocities [deg/s]."""
 
     t_s: float
-    q_deg: tuple[float, float, float, float]
-    qd_deg_s: tuple[float, float, float, float]
+    q_deg: tuple[float, ...]
+    qd_deg_s: tuple[float, ...]
 
     def __post_init__(self) -> None:
         if len(self.q_deg) != JOINTS or len(self.qd_deg_s) != JOINTS:
-            raise ValueError(f"a knot has {JOINTS} positions and {JOINTS} velocities (j1..j4), not "
+            raise ValueError(f"a knot has {JOINTS} positions and {JOINTS} velocities (j1..j4, mount), not "
                              f"{len(self.q_deg)} and {len(self.qd_deg_s)}")
         if not all(math.isfinite(v) for v in (self.t_s, *self.q_deg, *self.qd_deg_s)):
             raise ValueError(f"a knot's time, positions and velocities must be finite: {self}")
@@ -62,7 +63,8 @@ def point_message(index: int, knot: Knot) -> Message:
 
 
 def send_trajectory(client: Caller, knots: Sequence[Knot]) -> list[int]:
-    """Clear the controller's buffer, upload `knots`, run them: j1..j4's motion ids (MotionDone carries them).
+    """Clear the controller's buffer, upload `knots`, run them: j1..j4's and the mount's motion ids (MotionDone
+    carries them).
     ValueError for knots that cannot be a trajectory (nothing sent); TrajectoryRefused for the controller's no."""
     if len(knots) < 2:
         raise ValueError(f"a trajectory needs at least 2 knots, not {len(knots)}")
