@@ -15,12 +15,12 @@ from dataclasses import dataclass
 
 from firmware_py.arm_config import DRIVES
 from host_tools.apps.arm_plan import ARM_JOINTS, ArmPlanSettings, plan_move
-from host_tools.apps.kinematics import steps
+from host_tools.apps.kinematics import DEMO_SCENE, steps
 from host_tools.apps.pick_place import SPEC_M, DemoFailed, PickAndPlace, StepResult
 from host_tools.client.trajectory import TrajectoryRefused, send_trajectory
 from host_tools.plan.errors import PlanError
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
-from protocol.states import Axis, MotionOutcome
+from protocol.states import MotionOutcome
 
 GRAVITY_M_S2 = {"earth": 9.80665, "orbit": 0.0}
 PLANNED_SPEED_DPS = 30.0          # the speed parameters' largest value
@@ -87,14 +87,13 @@ def run_both(gravity: str = "earth", seed: int = 0) -> dict:
         finally:
             demo.close()
         runs[how] = demo.results
-    rows = []
-    for trap, plan in zip(runs["trapezoid"], runs["planned"]):
-        if trap.outcomes.keys() - {a.name.lower() for a in (Axis.GRIPPER,)}:
-            rows.append({"step": trap.name, "trapezoid_s": round(trap.sim_time_s, 3),
-                         "planned_s": round(plan.sim_time_s, 3),
-                         "plan_s": round(getattr(plan, "planned_s", math.nan), 3),
-                         "trapezoid_error_m": trap.position_error_m, "planned_error_m": plan.position_error_m})
-    moves = [r for r in rows if r["step"] != "home"]
+    moves = []
+    for step, trap, plan in zip(steps(DEMO_SCENE), runs["trapezoid"], runs["planned"]):
+        if step.action is None and step.name != "home":        # the moves between the homed pose and home
+            moves.append({"step": step.name, "trapezoid_s": round(trap.sim_time_s, 3),
+                          "planned_s": round(plan.sim_time_s, 3),
+                          "plan_s": round(getattr(plan, "planned_s", math.nan), 3),
+                          "trapezoid_error_m": trap.position_error_m, "planned_error_m": plan.position_error_m})
     return {"gravity": gravity, "moves": moves,
             "trapezoid_s": round(sum(r["trapezoid_s"] for r in moves), 3),
             "planned_s": round(sum(r["planned_s"] for r in moves), 3),
