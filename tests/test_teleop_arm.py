@@ -43,9 +43,13 @@ class ArmSim:
         self.env = {**os.environ, "XDG_CONFIG_HOME": str(tmp / "config")}
         self.params = tmp / "params.json"
         self.log = tmp / "sim.stderr"                 # what the simulator says (state changes and why): for failures
+        # --link-timeout 10: in three CI runs of 2026-11-24 this session's sim went to its safe state with
+        # LINK_TIMEOUT during `home all` (uptime 7.7-10.1 s) while teleop kept sending; not understood yet (the sim
+        # kept real time in every run reproduced here, busy loops beside it or not). The link timeout itself is
+        # tested in test_e2e; here it would only hide what these tests are about.
         with self.log.open("wb") as log:
-            self.child = Child(["sim", "--pty", "--telemetry-hz", "10", "--params", str(self.params)],
-                               stderr=log, env=self.env)
+            self.child = Child(["sim", "--pty", "--telemetry-hz", "10", "--link-timeout", "10",
+                                "--params", str(self.params)], stderr=log, env=self.env)
         self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1]
         self.key_path = Path(self.child.ready("ASPOD-KEY ").split(" ", 1)[1])
         self.homed = False
