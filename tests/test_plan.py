@@ -1,6 +1,7 @@
 """`aspod plan`: the model, the report's time-optimal and dynamic-programming planners, its example, the command."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -16,6 +17,7 @@ from host_tools.plan.model import two_arms
 from host_tools.plan.paths import PiecewisePath, PolynomialPath
 from host_tools.plan.phase import Problem
 from host_tools.plan.problem_file import problem_from_dict
+from host_tools.plan.reach import plan_reach
 from host_tools.plan.timeopt import plan_time_optimal
 
 CURVED = PolynomialPath((0.9, 0.3, 0.1), (0.5, 0.4, -0.2))
@@ -111,6 +113,18 @@ def test_state_dependent_limits_keep_the_voltage_within_bounds():
     plan = plan_time_optimal(motors, nodes=1000)
     assert plan.duration > torque.duration
     assert plan.profile.worst_violation < 0.01 and plan.profile.saturated_time > 0.98
+
+
+def test_a_speed_cap_bounds_the_time_optimal_and_the_dp_profiles_and_the_reachability_planner_refuses_it():
+    free = report_problem()                                       # its minimum-time profile peaks near 7 /s
+    fastest = plan_time_optimal(dataclasses.replace(free, speed_cap=3.0), 400)
+    assert fastest.profile.sd.max() <= 3.0 + 1e-9 and fastest.duration > plan_time_optimal(free, 400).duration
+    grid = DpGrid(20, 41, 0.1)                                    # speeds up to 4 /s, 0.1 apart
+    within = plan_cost_optimal(free, "thermal", grid, max_time=0.8)     # the coolest within 0.8 s peaks at 2.0 /s
+    capped = plan_cost_optimal(dataclasses.replace(free, speed_cap=1.85), "thermal", grid, max_time=0.8)
+    assert capped.profile.sd.max() <= 1.85 < within.profile.sd.max() and capped.profile.duration <= 0.8
+    with pytest.raises(PlanError, match="speed cap"):
+        plan_reach(dataclasses.replace(free, speed_cap=3.0), 50)
 
 
 def test_a_jump_in_the_paths_curvature_is_a_discontinuity_candidate():

@@ -110,7 +110,7 @@ class _Stages:
                   & _within(far + terms.d[k + 1] * v[None, :, None], lo, hi))
             with np.errstate(divide="ignore"):
                 dt = 2 * ds / (v[:, None] + v[None, :])
-            ok &= np.isfinite(dt)
+            ok &= np.isfinite(dt) & (v[:, None] <= problem.speed_cap) & (v[None, :] <= problem.speed_cap)
             dt = np.where(ok, dt, 0.0)
             self.cost[k] = np.where(ok, _step_cost(objective, u, far, q[k + 1] - q[k], dt, weights), np.inf)
             self.time[k] = dt

@@ -37,7 +37,8 @@ class Problem:
     system: TwoArms
     path: object
     limits: Limits
-    speed_cap: float = float("inf")      # s' never above this (a joint speed limit on a straight joint-space path)
+    speed_cap: float = float("inf")      # s' never above this (a joint speed limit on a straight joint-space path);
+    #                                      the phase plane and the DP honour it, the reachability planner refuses it
 
     def terms(self, s) -> "Terms":
         co = self.system.coefficients(self.path, s)

@@ -318,6 +318,9 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
         raise PlanError("bounds", "the reachability planner takes constant torque limits only (a back-emf term "
                                   "d s' is not linear in x = s'^2): plan DC motors' limits with the phase-plane "
                                   "method (--method phase)")
+    if np.isfinite(problem.speed_cap):
+        raise PlanError("bounds", "the reachability planner takes no speed cap (s' <= a ceiling): plan it with the "
+                                  "phase-plane method (--method phase)")
     terms = _point_terms(problem, s)
     setup = clock.precise_now() - started
     if order == 2:

@@ -57,7 +57,7 @@ class TimeOptimal:
 
 
 def _mvc_at(problem: Problem, s: float) -> float:
-    return float(admissible_speeds(problem.terms([s]), problem.limits).mvc[0])
+    return min(float(admissible_speeds(problem.terms([s]), problem.limits).mvc[0]), problem.speed_cap)
 
 
 def zero_inertia_points(grid: PhaseGrid) -> list[SwitchingPoint]:
