@@ -20,7 +20,7 @@ from protocol.reasons import Reason
 
 from firmware_py.hermite import HermiteProfile
 
-TRAJECTORY_KNOTS = 256            # the buffer's size: 38 bytes a knot on the wire, 9.7 KB uploaded at most
+TRAJECTORY_KNOTS = 256            # the buffer's size: a 46-byte payload a knot, 11.8 KB uploaded at most
 START_TOLERANCE_DEG = 0.1         # a trajectory's first knot must be this near where each joint holds ...
 REST_TOLERANCE_DPS = 0.01         # ... and its first and last knots this near rest (TRAJ_ENDPOINTS)
 JOINT_NAMES = tuple(a.name.lower() for a in TRAJECTORY_JOINTS)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V, Drive
+from firmware_py.trajectory import TRAJECTORY_KNOTS
 from host_tools.client.trajectory import Knot
 from host_tools.plan.bounds import Limits
 from host_tools.plan.errors import PlanError
@@ -57,8 +58,8 @@ class ArmPlanSettings:
                 raise PlanError("bounds", f"{name} {getattr(self, name)}: between 0.05 and 1")
         if not 20 <= self.nodes <= 20000:
             raise PlanError("grid", f"nodes {self.nodes}: between 20 and 20000")
-        if not 2 <= self.knots <= 256:
-            raise PlanError("grid", f"knots {self.knots}: between 2 and 256")
+        if not 2 <= self.knots <= TRAJECTORY_KNOTS:
+            raise PlanError("grid", f"knots {self.knots}: between 2 and {TRAJECTORY_KNOTS} (the controller's buffer)")
 
 
 @dataclass(frozen=True)
