@@ -152,3 +152,23 @@ def test_black_box_against_the_real_simulator_finds_nothing(tmp_path):
                  cwd=tmp_path, timeout=600)
     figures = json.loads(done.stdout)
     assert done.returncode == 0 and figures["findings"] == [] and figures["cases"] == 60, done.stderr[-3000:]
+
+
+@pytest.mark.pty
+def test_a_replayed_counter_is_one_the_target_answered_so_a_refused_frame_does_not_make_a_false_finding(tmp_path):
+    """A frame under another key (refused: its counter never taken), then an EStop "replayed" with the counter the
+    fuzzer last used: that counter must be one the target has answered, else the EStop is authentic, rightly runs,
+    and the health check calls it a second execution. (A false finding the fuzzer once made.)"""
+    key = tmp_path / "k.key"
+    from protocol import auth
+    auth.write_key(key, bytes(range(32)))
+    frame = {"kind": "frame", "delay_s": 0.0, "offset": 1, "version": 1, "flags": 16, "length_delta": 0}
+    steps = [{**frame, "msg": "ParamSet", "cls": 1, "seq": "any", "any_seq": 50488,
+              "payload": "6161616161616161616161616161616169a0a6e4", "mac": "other-key"},
+             {**frame, "msg": "EStop", "cls": 2, "seq": "duplicate", "any_seq": 52547, "payload": "",
+              "mac": "stale-counter", "delay_s": 0.006}]
+    path = findings.Finding("blackbox", findings.Failure("oracle", "HealthCheck: not exactly once"),
+                            steps=steps).save(tmp_path / "found")
+    target = f"{sys.executable} -m host_tools.cli.main sim --pty --no-pacing --key-file {key}"
+    done = aspod("fuzz", "--replay", str(path), "--target-cmd", target, "--key-file", str(key), cwd=tmp_path)
+    assert done.returncode == 0 and "no longer fails" in done.stdout, done.stdout + done.stderr

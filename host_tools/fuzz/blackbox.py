@@ -311,7 +311,6 @@ class HealthCheck:
         end = _CLOCK.now() + session.settings.health_timeout_s
         while self.last.state == ControllerState.BOOT and _CLOCK.now() < end:   # its boot check still running
             self.last = self._status()
-        session.accepted_counter = session.host.session.tx_counter
 
     def _call(self, msg):
         s = self.session
@@ -326,7 +325,9 @@ class HealthCheck:
         return handle.reply
 
     def _status(self):
-        return self._call(SCHEMA["GetStatus"].type())
+        status = self._call(SCHEMA["GetStatus"].type())
+        self.session.accepted_counter = self.session.host.session.tx_counter   # answered: its counter was taken
+        return status
 
     def check(self, handles: list, maybe: int = 0) -> Optional[str]:
         """None if healthy, else what is wrong (TargetGone if it does not answer)."""
@@ -337,7 +338,6 @@ class HealthCheck:
         if pong.token != self.token:
             return f"Pong carries token {pong.token}, the Ping {self.token}"
         status = self._status()
-        s.accepted_counter = s.host.session.tx_counter      # the GetStatus was answered: its counter was taken
         before, self.last = self.last, status
         if status.uptime_ms <= before.uptime_ms and status.uptime_ms > 1000:   # (a wrap after 49 days)
             return f"uptime did not rise: {before.uptime_ms} ms then {status.uptime_ms} ms"
