@@ -17,7 +17,11 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import fields
 from pathlib import Path
+
+from host_tools.fuzz.campaign import summarize
+from host_tools.fuzz.inprocess import JobResult
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = ("codec", "frames", "hal", "teleop", "key-file", "controller-link", "params-file", "host-link")
@@ -28,24 +32,17 @@ def _commit() -> str:
     return out.stdout.strip() or "unknown"
 
 
-def read_ledger(path: Path) -> list[dict]:
+def read_ledger(path: Path) -> list[JobResult]:
+    """The jobs of every chunk that ended (each row a `JobResult` and the commit it ran)."""
     if not path.exists():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    names = {f.name for f in fields(JobResult)}
+    return [JobResult(**{k: v for k, v in json.loads(line).items() if k in names})
+            for line in path.read_text().splitlines() if line.strip()]
 
 
-def totals(rows: list[dict]) -> dict[str, dict]:
-    by: dict[str, dict] = {}
-    for r in rows:
-        t = by.setdefault(r["target"], {"execs": 0, "core_s": 0.0, "jobs": 0, "findings": 0, "errors": 0,
-                                        "seeds": []})
-        t["execs"] += r["execs"]
-        t["core_s"] += r["wall_s"]
-        t["jobs"] += 1
-        t["findings"] += len(r["findings"])
-        t["errors"] += bool(r["error"])
-        t["seeds"].append(r["seed"])
-    return by
+def next_seed(jobs: list[JobResult], target: str) -> int:
+    return max((j.seed for j in jobs if j.target == target), default=0) + 1
 
 
 def run_chunk(target: str, runs_per_job: int, jobs: int, seed: int, out: Path) -> list[dict]:
@@ -64,14 +61,12 @@ def run_chunk(target: str, runs_per_job: int, jobs: int, seed: int, out: Path) -
 def report(out: Path) -> None:
     from host_tools.fuzz.coverage_report import line_coverage
     from host_tools.fuzz.targets import builtin_targets
-    by = totals(read_ledger(out / "ledger.jsonl"))
     print(f"{'target':16} {'executions':>12} {'core-h':>7} {'exec/core-s':>11} {'findings':>8} {'errors':>6}  coverage")
-    for name, t in by.items():
-        covers = builtin_targets()[name].covers
-        cov = line_coverage(name, out / "corpus" / name, covers)
+    for t in summarize(read_ledger(out / "ledger.jsonl")):
+        cov = line_coverage(t.target, out / "corpus" / t.target, builtin_targets()[t.target].covers)
         said = ", ".join(f"{file} {c['percent']}%" for file, c in cov.items())
-        print(f"{name:16} {t['execs']:>12,} {t['core_s'] / 3600:>7.2f} {t['execs'] / t['core_s']:>11,.0f} "
-              f"{t['findings']:>8} {t['errors']:>6}  {said}")
+        print(f"{t.target:16} {t.execs:>12,} {t.job_s / 3600:>7.2f} {t.execs_per_core_s:>11,.0f} "
+              f"{t.findings:>8} {t.errors:>6}  {said}")
 
 
 def main(argv: list[str]) -> int:
@@ -91,17 +86,17 @@ def main(argv: list[str]) -> int:
     commit = _commit()
     for target in args.targets.split(","):
         while True:
-            done = totals(read_ledger(ledger)).get(target, {"execs": 0, "seeds": [0]})
-            if done["execs"] >= args.goal:
+            jobs = read_ledger(ledger)
+            done = sum(j.execs for j in jobs if j.target == target)
+            if done >= args.goal:
                 break
-            seed = max(done["seeds"]) + 1
-            rows = run_chunk(target, args.chunk // args.jobs, args.jobs, seed, args.dir)
+            rows = run_chunk(target, args.chunk // args.jobs, args.jobs, next_seed(jobs, target), args.dir)
             if not rows:
                 return 1
             with ledger.open("a") as f:
                 for row in rows:
                     f.write(json.dumps({**row, "commit": commit}) + "\n")
-            print(f"{target}: {done['execs'] + sum(r['execs'] for r in rows):,} executions", flush=True)
+            print(f"{target}: {done + sum(r['execs'] for r in rows):,} executions", flush=True)
     return 0
 
 
