@@ -215,7 +215,10 @@ class Controller:
         self._outputs_sent = False
 
     def _link_lost(self, now: float) -> None:
-        self.supervisor.enter_safe_state(Fault.LINK_LOST, self._now())   # the link's clock may be another
+        """The link watchdog fired at `now` (the link's clock, which may be another than the world's)."""
+        silence = now - (self.link.last_valid_rx_s if self.link.last_valid_rx_s is not None else now)
+        self._trip(Fault.LINK_LOST, self._now(), Reason.LINK_TIMEOUT,
+                   Measured(FaultCause.LINK_SILENCE, int(Axis.ALL), silence, self.link.config.link_timeout_s))
 
     def _state_changed(self, new: ControllerState, old: ControllerState, reason: Reason, now: float) -> None:
         for listener in self.state_listeners:

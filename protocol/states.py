@@ -226,6 +226,7 @@ class FaultCause(enum.IntEnum):
     CURRENT_AGE = 2      # age of an axis's last current reading while driving (current_stale_s)
     LOOP_LATE = 3        # how late the motor loop ran on the wall clock (loop_late_max_s)
     PLANT_SILENT = 4     # lock-step: wall time without a tick from the plant (lockstep_wait_s)
+    LINK_SILENCE = 5     # time without a valid frame from the host (link_timeout_s)
 
 
 FAULT_CAUSE_DOCS: dict[FaultCause, tuple[str, str]] = {
@@ -236,6 +237,8 @@ FAULT_CAUSE_DOCS: dict[FaultCause, tuple[str, str]] = {
                            "loop_late_max_s"),
     FaultCause.PLANT_SILENT: ("lock-step: no tick from the plant for this long on the wall clock (plant process "
                               "gone or stopped)", "lockstep_wait_s"),
+    FaultCause.LINK_SILENCE: ("no valid frame from the host for this long on the wall clock (the controller's own "
+                              "stalls excused: firmware_py/comms.py)", "link_timeout_s"),
 }
 
 assert set(FAULT_CAUSE_DOCS) == set(FaultCause)

@@ -5,11 +5,12 @@ from dataclasses import replace
 
 from firmware_py.controller import ControllerConfig
 from hil_sim.plant import PlantParams
+from host_tools.teleop.format import describe_report
 from host_tools.worlds.world import LockstepBench
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
-from protocol.states import ControllerState, Fault
+from protocol.states import ControllerState, Fault, FaultCause
 
 
 def status(bench):
@@ -70,6 +71,12 @@ def test_link_loss_reaches_the_safe_state_within_the_timeout():
         assert status(bench).state == ControllerState.IDLE
         # the fault event of the lost session is delivered in the new one
         assert any(e.spec.name == "StateChanged" and e.reason == Reason.LINK_TIMEOUT for e in bench.events)
+        # ... with what was measured: the silence, against the link timeout
+        report = next(e for e in bench.events if e.spec.name == "FaultReport")
+        assert (report.fault, report.reason, report.cause) == (Fault.LINK_LOST, Reason.LINK_TIMEOUT,
+                                                               FaultCause.LINK_SILENCE)
+        assert report.limit_ms == 500.0 and 500.0 < report.value_ms <= 520.0
+        assert "no valid frame from the host" in describe_report(report)
     finally:
         bench.close()
 

@@ -195,6 +195,8 @@ def test_killing_the_host_sends_the_controller_to_its_safe_state_within_the_time
         found = re.search(r"uptime (\d+) ms: ENABLED -> FAULT \(LINK_TIMEOUT\), faults LINK_LOST", line)
         if found:
             break
+    counters = read_line(sim.child, 30.0, "stderr")   # what the link had counted: a timeout's first clue
+    assert re.search(r"the link until then: \d+ frames .* own stalls excused", counters), counters
     faulted = wall.now()
     # The link timeout is on the wall clock (the host is a real process): the fault came no sooner than 1 s
     # after the host's last frame (itself after the host started) and within the timeout, plus slack for a

@@ -176,11 +176,22 @@ def log_states(controller: Controller, prog: str) -> None:
     def log_state(new, old, reason, now) -> None:
         log.info(f"{prog}: uptime {controller.uptime_ms(now)} ms: {old.name} -> {new.name} ({reason.name}), "
                  f"faults {Fault(controller.supervisor.faults).name or 'none'}")
+        if reason is Reason.LINK_TIMEOUT:
+            log.info(f"{prog}: the link until then: {describe_link(controller)}")
 
     def log_report(msg) -> None:
         log.info(f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}")
     controller.state_listeners.append(log_state)
     controller.report_listeners.append(log_report)
+
+
+def describe_link(controller: Controller) -> str:
+    """What the controller's end of the link has counted, and its own stalls: what a link timeout is read against."""
+    stats, comms = controller.link.stats, controller.comms
+    return (f"{stats.frames_rx} frames ({stats.bytes_rx} B) in, {stats.frames_tx} out; {stats.crc_errors} CRC errors, "
+            f"{stats.auth_errors} authentication errors ({stats.replays} replays), {stats.rejected} refused; "
+            f"own stalls excused {comms.stalls_excused_s:.3f} s; {comms.uart.discarded_rx_bytes} B of a former "
+            "client discarded")
 
 
 def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callable[[float], Optional[float]]:
