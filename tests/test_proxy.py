@@ -30,7 +30,13 @@ def start_proxy(env, controller_url: str, *args: str) -> tuple[Child, str, list[
     line = read_line(proxy)
     assert line.startswith("ASPOD-LINK "), line
     view: list[bytes] = []
-    threading.Thread(target=lambda: view.extend(iter(proxy.proc.stdout.readline, b"")), daemon=True).start()
+
+    def read_view() -> None:
+        try:
+            view.extend(iter(proxy.proc.stdout.readline, b""))
+        except (ValueError, OSError):      # the proxy stopped and its pipe was closed under the read
+            pass
+    threading.Thread(target=read_view, daemon=True).start()
     return proxy, line.split(" ", 1)[1], view
 
 
