@@ -8,6 +8,7 @@ import re
 import pytest
 
 from protocol import auth
+from protocol.errors import LinkError
 from protocol.framing import encode_frame
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
@@ -70,7 +71,10 @@ def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim
     client = HostClient(f"radio={radio_url},optical={optical_url}", auth.load_key(sim.key_path),
                         config=LinkConfig(retry_limit=20))
     try:
-        client.connect()
+        try:
+            client.connect()
+        except LinkError as exc:       # what each path carried says which of four processes was not there
+            raise AssertionError(f"{exc}; {client.line.health()}; host link {client.link.stats}") from exc
         connected_at = clock.now() - radio_start
         assert connected_at < 8.0, f"the host connected {connected_at:.1f} s after the radio's proxy started"
         # at least 600 commands, and on until both outages are over (15 s after the radio's proxy started)
