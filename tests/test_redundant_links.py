@@ -78,11 +78,17 @@ def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim
         connected_at = clock.now() - radio_start
         assert connected_at < 8.0, f"the host connected {connected_at:.1f} s after the radio's proxy started"
         # at least 600 commands, and on until both outages are over (15 s after the radio's proxy started)
-        handles = []
+        handles, sent_at = [], []
         while len(handles) < 600 or clock.now() - radio_start < 15.0:
+            sent_at.append(clock.now() - radio_start)
             handles.append(client.call(M["Ping"](len(handles)), timeout_s=60))
         count = len(handles)
-        assert all(h.ok for h in handles), [h.describe() for h in handles if not h.ok][:3]
+        failed = [k for k, h in enumerate(handles) if not h.ok]
+        if failed:      # when it was sent, what the host's link and each path saw, what the simulator said
+            _, said = sim.child.stop(timeout_s=10)
+            raise AssertionError(f"Ping {failed[0]} sent {sent_at[failed[0]]:.1f} s after the radio's proxy started: "
+                                 f"{handles[failed[0]].describe()}; {client.line.health()}; host link "
+                                 f"{client.link.stats}; the simulator: {said[-3000:]}")
         assert [h.reply.token for h in handles] == list(range(count))
         status = client.call(M["GetStatus"]()).reply
         assert status.commands_executed == count       # none twice (GetStatus is counted once it has answered)
