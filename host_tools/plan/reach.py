@@ -35,6 +35,7 @@ the planner refuses such limits (`PlanError` "bounds") rather than plan them uns
 from __future__ import annotations
 
 from dataclasses import dataclass
+from math import comb
 from typing import Optional, Union
 
 import numpy as np
@@ -47,6 +48,12 @@ from host_tools.plan.profile import Profile, profile_from_speeds
 from timebase.clock import RealClock
 
 GUARD = 0.25                    # the curvature guard's factor on D (1/8 covers a quadratic exactly)
+UNIFORM_SHARE = 0.3            # placed grids: the share of the points spread evenly, the rest where time is lost
+FRACTIONS2 = np.linspace(0.0, 1.0, 5)   # order 2: where a, b, c are sampled in each interval (a quartic through them)
+_DEGREE2 = 6                            # order 2: a torque along an interval is a polynomial of this degree in sigma
+_TO_POWER = np.linalg.inv(np.vander(FRACTIONS2, increasing=True))     # values at FRACTIONS2 -> power coefficients
+_TO_BERNSTEIN = np.array([[comb(k, j) / comb(_DEGREE2, j) if j <= k else 0.0 for j in range(_DEGREE2 + 1)]
+                          for k in range(_DEGREE2 + 1)])               # power -> Bernstein coefficients, degree 6
 FREE = float("inf")             # squeeze=FREE: the squeeze is unbounded
 Squeeze = Union[None, float, tuple]
 _TINY = 1e-12                   # a normalized coefficient below this does not bound the variable it multiplies
@@ -100,20 +107,22 @@ def _squeeze_range(squeeze: Squeeze) -> Optional[tuple[float, float]]:
     return lo, hi
 
 
-def _point_terms(problem: Problem, s: np.ndarray) -> tuple[Terms, Terms, Terms]:
-    """The terms at each interval's start, midpoint and end, from one evaluation of the model. An interval that
-    ends on a break of the path is judged by its own piece: its end's terms are taken just before the break."""
-    mids = (s[:-1] + s[1:]) / 2
-    points = np.empty(2 * len(s) - 1)
-    points[0::2], points[1::2] = s, mids
+def _point_terms(problem: Problem, s: np.ndarray, fractions=(0.0, 0.5, 1.0)) -> tuple[Terms, ...]:
+    """The terms at each of `fractions` (rising from 0 to 1) of every interval, from one evaluation of the model:
+    by default its start, midpoint and end. An interval that ends on a break of the path is judged by its own
+    piece: its end's terms are taken just before the break."""
+    fractions = np.asarray(fractions, float)
+    width = len(fractions) - 1
+    points = np.append((s[:-1, None] + fractions[None, :-1] * np.diff(s)[:, None]).ravel(), s[-1])
     t = problem.terms(points)
-    start, mid, end = t.at(slice(0, -1, 2)), t.at(slice(1, None, 2)), t.at(slice(2, None, 2))
+    found = [t.at(slice(k, -1, width)) for k in range(width)] + [t.at(slice(width, None, width))]
+    end = found[-1]
     breaks = np.isin(s[1:], getattr(problem.path, "breaks", ()))
     if breaks.any():
         left = problem.terms(np.nextafter(s[1:][breaks], 0.0))
         for name in ("a", "b", "c", "d", "n"):
             getattr(end, name)[breaks] = getattr(left, name)
-    return start, mid, end
+    return tuple(found)
 
 
 def _rows(limits: Limits, s: np.ndarray, terms: tuple, guard: float, squeeze: Optional[tuple[float, float]]) -> tuple:
@@ -136,21 +145,34 @@ def _rows(limits: Limits, s: np.ndarray, terms: tuple, guard: float, squeeze: Op
     return _normalized(_finite(rows))
 
 
-def _rows_order2(limits: Limits, s: np.ndarray, terms: tuple, guard: float) -> tuple:
-    """The second-order profile's constraints as rows  alpha x_i + beta u_i + delta u_{i+1} <= gamma (as `_rows`):
-    at offset sigma into an interval s'' = u_i + (u_{i+1} - u_i) sigma / h and x = x_i + 2 u_i sigma +
-    (u_{i+1} - u_i) sigma^2 / h; x >= 0 all along by its Bernstein coefficients x_i, x_i + h u_i, x_{i+1}."""
-    h = np.diff(s)[:, None]
-    start, mid, end = terms
-    zero = np.zeros_like(start.c)
-    # (x_i, u_i, u_{i+1}) weights of s'' and of x at each point: start, midpoint, end
-    points = [(start.b, start.a, zero, start.c),
-              (mid.b, mid.a / 2 + 0.75 * h * mid.b, mid.a / 2 + 0.25 * h * mid.b, mid.c),
-              (end.b, h * end.b, end.a + h * end.b, end.c)]
-    n = len(h)
+def _rows_order2(limits: Limits, s: np.ndarray, terms: tuple) -> tuple:
+    """The second-order profile's constraints as rows  alpha x_i + beta u_i + delta u_{i+1} <= gamma (as `_rows`),
+    every torque within its limits all along each interval by its Bernstein coefficients.
+
+    At sigma in [0, 1] across an interval of width h, s'' = u_i (1 - sigma) + u_{i+1} sigma and x = x_i +
+    2 h u_i sigma + h (u_{i+1} - u_i) sigma^2. With a, b, c replaced by their quartics through the interval's
+    `FRACTIONS2` (`terms`), each torque a s'' + b x + c is a polynomial of degree 6 in sigma whose coefficients
+    are linear in (x_i, u_i, u_{i+1}); it lies within the hull of its 7 Bernstein coefficients, so those within
+    the limits keep it there everywhere in the interval (not only where it was sampled). What the quartics leave
+    out of a, b, c is of order h^5. x >= 0 all along, by x's own Bernstein coefficients x_i, x_i + h u_i, x_{i+1}."""
+    n = len(s) - 1
+    h = np.diff(s)[:, None, None]
+    power = {name: np.einsum("jk,nkd->njd", _TO_POWER, np.stack([getattr(t, name) for t in terms], axis=1))
+             for name in "abc"}
+    a, b, c = (np.pad(power[name], ((0, 0), (0, _DEGREE2 - 4), (0, 0))) for name in "abc")
+    times_sigma = lambda p, k: np.roll(p, k, axis=1)           # degree 4 times sigma^k, k <= 2: nothing wraps
+    columns = (b,                                                                        # x_i
+               a - times_sigma(a, 1) + 2 * h * times_sigma(b, 1) - h * times_sigma(b, 2),   # u_i
+               times_sigma(a, 1) + h * times_sigma(b, 2),                                   # u_{i+1}
+               c)
+    alpha, beta, delta, const = (np.einsum("kj,njd->nkd", _TO_BERNSTEIN, p).reshape(n, -1) for p in columns)
+    hi, lo = np.tile(limits.hi, _DEGREE2 + 1), np.tile(limits.lo, _DEGREE2 + 1)
+    h = h[:, :, 0]
     one, nil = np.ones((n, 1)), np.zeros((n, 1))
-    extra = [(-one, nil, nil, nil), (-one, -h, nil, nil), (-one, -h, -h, nil)]
-    return _normalized(_guarded_rows(limits, points, guard, extra))
+    rows = [np.concatenate(parts, axis=1) for parts in (
+        (alpha, -alpha, -one, -one, -one), (beta, -beta, nil, -h, -h), (delta, -delta, nil, nil, -h),
+        (hi - const, const - lo, nil, nil, nil))]
+    return _normalized(rows)
 
 
 def _guarded_rows(limits: Limits, points: list, guard: float, extra: list) -> list:
@@ -298,15 +320,41 @@ def _refuse(problem: Problem, s: float, why: str) -> PlanError:
                                f"{c[j]:.4g} N m against its limits [{lo[j]:g}, {hi[j]:g}])")
 
 
+def placed_grid(problem: Problem, gridpoints: int, uniform_share: float = UNIFORM_SHARE) -> np.ndarray:
+    """`gridpoints` grid points placed where a plan loses time. Two order-1 plans, on half as many points and on
+    the same with every interval halved, say how much time each coarse interval loses to its width (the
+    difference of its time and its halves' times, d). Order 2's error in an interval of width h is of order h^3
+    (C h^3), so the total is least with h proportional to C^(-1/3): the density of points follows
+    (d / h^3)^(1/3), mixed with a uniform density (`uniform_share` of it) so that no stretch is left bare."""
+    if np.ndim(gridpoints) != 0 or not 5 <= gridpoints <= 200_000:
+        raise PlanError("grid", f"placed grid points: give their number, 5 to 200000 (got {gridpoints!r})")
+    coarse = np.linspace(0.0, 1.0, max(3, gridpoints // 2))
+    halved = np.sort(np.concatenate([coarse, (coarse[:-1] + coarse[1:]) / 2]))
+    times = [np.diff(plan_reach(problem, grid).profile.t) for grid in (coarse, halved)]
+    # breaks of the path split intervals: sum each plan's times per coarse interval
+    per = [np.bincount(np.searchsorted(coarse, plan_s[:-1], side="right") - 1, t, len(coarse) - 1)
+           for plan_s, t in zip((_grid(problem, coarse), _grid(problem, halved)), times)]
+    h = np.diff(coarse)
+    density = np.cbrt(np.abs(per[0] - per[1]) / h ** 3)
+    weight = float(np.sum(density * h))
+    density = uniform_share + (1.0 - uniform_share) * (density / weight if weight > 0 else 1.0)
+    cumulative = np.concatenate([[0.0], np.cumsum(density * h)])
+    grid = np.interp(np.linspace(0.0, cumulative[-1], int(gridpoints)), cumulative, coarse)
+    grid[0], grid[-1] = 0.0, 1.0
+    return grid
+
+
 def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None, guard: float = GUARD,
-               clock=None, order: int = 1) -> ReachPlan:
+               clock=None, order: int = 1, placed: bool = False) -> ReachPlan:
     """The time-optimal rest-to-rest profile on `gridpoints` grid points (plus the path's breaks), every torque
     within its limits between grid points too. `squeeze`: None keeps the load shared with no squeeze (the
     model's split); a number bounds |lambda| (N); a pair (lo, hi) bounds lambda; FREE leaves it unbounded.
-    `order`: 1, s'' constant on each interval; 2, s'' linear in s on each interval (without the squeeze)."""
+    `order`: 1, s'' constant on each interval (its torques kept by three points and the curvature `guard`);
+    2, s'' linear in s on each interval (without the squeeze; its torques kept by Bernstein coefficients).
+    `placed`: the points where the plan loses time (`placed_grid`, its time included), not evenly spaced."""
     clock = clock or RealClock()
     started = clock.precise_now()
-    s = _grid(problem, gridpoints)
+    s = _grid(problem, placed_grid(problem, gridpoints) if placed else gridpoints)
     h = np.diff(s)
     span = _squeeze_range(squeeze)
     if order not in (1, 2):
@@ -321,10 +369,10 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
     if np.isfinite(problem.speed_cap):
         raise PlanError("bounds", "the reachability planner takes no speed cap (s' <= a ceiling): plan it with the "
                                   "phase-plane method (--method phase)")
-    terms = _point_terms(problem, s)
+    terms = _point_terms(problem, s, FRACTIONS2 if order == 2 else (0.0, 0.5, 1.0))
     setup = clock.precise_now() - started
     if order == 2:
-        return _plan_order2(problem, s, terms, guard, clock, started, setup)
+        return _plan_order2(problem, s, terms, clock, started, setup)
     rows3 = _rows(problem.limits, s, terms, guard, span)
     if span is not None:
         rows2 = _eliminate(rows3, 2)
@@ -369,13 +417,12 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
     return ReachPlan(s, x, u, lam, sets, setup, solve, profile)
 
 
-def _plan_order2(problem: Problem, s: np.ndarray, terms: tuple, guard: float, clock, started: float,
-                 setup: float) -> ReachPlan:
+def _plan_order2(problem: Problem, s: np.ndarray, terms: tuple, clock, started: float, setup: float) -> ReachPlan:
     """`plan_reach` with s'' linear on each interval: the passes of `reach2`. ReachPlan.u holds s'' at the grid
     points (N + 1) and `controllable` each K_i's x-range at its vertices."""
     h = np.diff(s)
     limits = problem.limits
-    rows = _rows_order2(limits, s, terms, guard)
+    rows = _rows_order2(limits, s, terms)
     start = terms[0]
     node = (np.concatenate([start.b, -start.b], axis=1), np.concatenate([start.a, -start.a], axis=1),
             np.concatenate([limits.hi - start.c, start.c - limits.lo], axis=1))
