@@ -198,8 +198,15 @@ def test_the_command_plans_by_reachability_with_the_squeeze_free():
     assert fixed["worst_violation_between_nodes"] <= 1e-9 and free["worst_violation_between_nodes"] <= 1e-9
     assert free["duration_s"] < fixed["duration_s"] and free["squeeze"]["bound_n"] is None
     assert free["squeeze"]["max_n"] > 0
+    second = run("--method", "reach", "--order", "2", "--nodes", "49", "--gravity", "--objective", "time", "--json")
+    assert second.returncode == 0, second.stderr
+    second = json.loads(second.stdout)["time_optimal"]
+    assert second["order"] == 2 and second["nodes"] == 49 and second["worst_violation_between_nodes"] <= 1e-9
+    assert second["duration_s"] < fixed["duration_s"] and "costs" not in second
     for wrong, said in ((["--squeeze", "5"], "--method reach"), (["--method", "reach", "--plot", "x"], "--method phase"),
-                        (["--method", "reach", "--squeeze", "lots"], "--squeeze")):
+                        (["--method", "reach", "--squeeze", "lots"], "--squeeze"), (["--order", "2"], "--method reach"),
+                        (["--method", "reach", "--order", "2", "--squeeze", "free"], "--order 1"),
+                        (["--method", "reach", "--order", "3"], "--order")):
         done = run(*wrong)
         assert done.returncode == 2 and said in done.stderr and done.stdout == "", done.stderr
 

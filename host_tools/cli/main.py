@@ -240,7 +240,8 @@ EXAMPLES = {
              "aspod fuzz --replay fuzz-findings/crash-codec-0123456789ab.json"],
     "plan": ["aspod plan", "aspod plan --json --plot figures", "aspod plan --objective thermal --max-time 2",
              "aspod plan --problem my_path.json --objective time --integrator ab2",
-             "aspod plan --method reach --nodes 99 --squeeze free --objective time"],
+             "aspod plan --method reach --nodes 99 --squeeze free --objective time",
+             "aspod plan --method reach --order 2 --nodes 99 --objective time"],
     "proxy": ["aspod proxy --controller /dev/pts/5", "aspod proxy --controller socket://127.0.0.1:5000 --host tcp:6000 "
               "--impair 'radio,seed=7' --record radio.pcapng"],
     "replay": ["aspod demo --record demo.pcapng && aspod replay demo.pcapng",
@@ -476,6 +477,9 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--squeeze", type=_squeeze, default=None, metavar="N|free",
                       help="--method reach: the squeeze force between the grasps a free variable, |squeeze| <= N "
                            "newtons, or unbounded (free); default none, the load shared without squeeze")
+    plan.add_argument("--order", type=int, choices=(1, 2), default=1,
+                      help="--method reach: 1, s'' constant between grid points (default; takes --squeeze); 2, s'' "
+                           "linear, on grid points placed where time is lost (within 0.1 %% of a dense plan at 100)")
     plan.add_argument("--integrator", choices=("ab2", "rk4"), default="rk4",
                       help="limit curves by the report's 2nd-order Adams-Bashforth, or 4th-order Runge-Kutta "
                            "(default)")

@@ -5,6 +5,7 @@
     aspod plan --objective thermal --max-time 2  minimum heat in the motors within 2 s
     aspod plan --problem FILE                    a path, arms and limits of your own (host_tools/plan/problem_file.py)
     aspod plan --method reach --squeeze free     minimum time by reachability, the squeeze force free
+    aspod plan --method reach --order 2          ... s'' linear between grid points placed where time is lost
 
 Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a grid too coarse: the reason says).
 """
@@ -24,18 +25,20 @@ from host_tools.plan.timeopt import plan_time_optimal
 
 
 def _reach_result(problem, settings: PlanSettings) -> dict:
-    """The reachability planner's minimum time, on nodes + 1 grid points, its excess checked between them."""
-    plan = plan_reach(problem, settings.nodes + 1, settings.squeeze)
+    """The reachability planner's minimum time, on nodes + 1 grid points (order 2: placed where time is lost), its
+    excess checked between them."""
+    plan = plan_reach(problem, settings.nodes + 1, settings.squeeze, order=settings.order,
+                      placed=settings.order == 2)
     _, tau = sampled_torques(problem, plan, 20)
     lo, hi = problem.limits.lo, problem.limits.hi
     excess = float(max(0.0, np.max((tau - hi) / np.abs(hi)), np.max((lo - tau) / np.abs(lo))))
-    out = {"method": "reach", "nodes": len(plan.s) - 1, "duration_s": round(plan.duration, 6),
+    out = {"method": "reach", "order": plan.order, "nodes": len(plan.s) - 1, "duration_s": round(plan.duration, 6),
            "worst_violation_between_nodes": excess, "saturated_time": round(plan.profile.saturated_time, 4),
            "solve_time_s": round(plan.solve_time_s, 4),
            "squeeze": None if settings.squeeze is None else {
                "bound_n": None if np.isinf(settings.squeeze) else settings.squeeze,
                "max_n": round(float(np.abs(plan.squeeze).max()), 4)}}
-    if settings.squeeze is None:
+    if settings.squeeze is None and plan.order == 1:     # costs_of takes s'' constant between the nodes
         out["costs"] = costs_of(problem.terms(plan.s), plan.profile.sd)
     return out
 
@@ -101,7 +104,7 @@ def _text(result: dict) -> str:
     lines = [f"{result['problem']}: links {result['model']['links']}, gravity {result['model']['gravity']} m/s^2"]
     if to["method"] == "reach":
         squeeze = to["squeeze"]
-        lines.append(f"minimum time (reachability, {to['nodes']} intervals): {to['duration_s']:.4f} s, a joint "
+        lines.append(f"minimum time (reachability, order {to['order']}, {to['nodes']} intervals): {to['duration_s']:.4f} s, a joint "
                      f"saturated {to['saturated_time']:.1%} of the time, worst excess between nodes "
                      f"{to['worst_violation_between_nodes']:.2%}, planned in {to['solve_time_s'] * 1e3:.1f} ms"
                      + ("" if squeeze is None else f"; the squeeze free (largest {squeeze['max_n']:.3g} N)"))

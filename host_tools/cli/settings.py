@@ -544,6 +544,7 @@ class PlanSettings:
     plot: Optional[Path]
     method: str = "phase"
     squeeze: Optional[float] = None          # --method reach: the bound on |squeeze| (N), inf for free
+    order: int = 1                           # --method reach: 2, s'' linear on placed grid points
 
 
 def plan_settings(args: argparse.Namespace) -> PlanSettings:
@@ -555,6 +556,10 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--plot draws the phase-plane planner's figures: give --method phase")
     if args.squeeze is not None and args.method != "reach":
         raise ValueError("--squeeze frees the squeeze force in the reachability planner: give --method reach")
+    if args.order != 1 and args.method != "reach":
+        raise ValueError("--order is the reachability planner's: give --method reach")
+    if args.order == 2 and args.squeeze is not None:
+        raise ValueError("--order 2 plans with the load shared, without the squeeze: give --order 1 for --squeeze")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
-                        args.method, args.squeeze)
+                        args.method, args.squeeze, args.order)

@@ -22,12 +22,13 @@ five numpy operations per grid point. Forwards from rest at the start, each inte
 keeping x_{i+1} in K_{i+1}: that greedy pass is time-optimal for this discretization (Pham and Pham, 2018).
 The squeeze then is, on each interval, the admissible value nearest 0 (the least squeeze that does).
 
-**Order 2** (`order=2`, opt-in; `reach2`): s'' linear in s on each interval, the state (x_i, u_i) at each grid
-point, controllable sets convex polygons, the same three points and guard (x >= 0 by its Bernstein
-coefficients). Second order in h: within 0.1 % of the reference at 50-100 grid points where order 1 needs
-200-3200. Not the default, as it misses two of issue 16's goals: it is 10-30 times slower per grid point than
-order 1 (a Python loop clipping a polygon by ~800 rows per step; slower than toppra), and the guard of 1/4 lets
-one bench path pass a limit between grid points by 3e-6 to 3e-5 of it (1/2 still 4e-8). No squeeze with it.
+**Order 2** (`order=2`, `reach2`): s'' linear in s on each interval, the state (x_i, u_i) at each grid point,
+controllable sets convex polygons (compiled by numba where installed). Every torque along an interval is kept
+within its limits by the Bernstein coefficients of its polynomial in the interval's variables (`_rows_order2`),
+not by sampled points and a guard. Second order in h; on grid points placed where order-1 plans lose time
+(`placed_grid`, `placed=True`) within 0.1 % of the reference at 100 points on the bench's paths, where order 1
+needs 200-3200. No squeeze with it (`PlanError` "squeeze"). Order 1 stays the default: it takes the squeeze,
+and needs no compiler to be fast.
 
 Only constant torque limits: with a back-emf term d s' = d sqrt(x) the torque is no longer linear in x, and
 the planner refuses such limits (`PlanError` "bounds") rather than plan them unsafely.

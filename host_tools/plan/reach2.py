@@ -11,7 +11,8 @@ hundreds of rows that gives are cut down to the polygon's edges by clipping (Sut
 each row in turn cuts the polygon, unless it is violated at no vertex by more than its tolerance. The edges
 left are K_i's rows (3 to 18 on the bench's paths, now and then up to 100; and the box's four).
 
-**Forwards.** From rest with the largest u_0 in K_0, each step takes the largest u_{i+1} the interval's rows and
+**Forwards.** From rest with the u_0 that lets x_1 be the largest (`_start`: the largest u_0 in K_0 can force u_1
+far below it), each step takes the largest u_{i+1} the interval's rows and
 K_{i+1} allow (a one-variable LP): the greedy pass, which also makes x_{i+1} the largest. It rides K's boundary,
 where forwards is the unstable direction (as integrating a deceleration curve forwards is): rounding outside K_i
 by 1e-11 would grow step by step until no u_{i+1} is admissible. So K_i is computed as what reaches K_{i+1}
