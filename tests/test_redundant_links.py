@@ -98,10 +98,10 @@ def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim
     finally:
         client.close()
     assert len(health) == 2 and all("copies dropped" in line for line in health)
-    lost = {}
+    lost, said = {}, {}
     for name, proxy in (("radio", radio), ("optical", optical)):
-        status, err = proxy.stop()
-        assert status == 0, err
-        lost[name] = [int(n) for n in re.findall(r"(\d+) in fades, (\d+) in blockages", err)[0]]
+        status, said[name] = proxy.stop()
+        assert status == 0, said[name]
+        lost[name] = [int(n) for n in re.findall(r"(\d+) in fades, (\d+) in blockages", said[name])[0]]
     # the outages really took frames: the radio's in its fade, the optical link's in its blockage
-    assert lost["radio"][0] > 0 and lost["optical"][1] > 0, lost
+    assert lost["radio"][0] > 0 and lost["optical"][1] > 0, (lost, health, said)
