@@ -13,9 +13,10 @@ from protocol.framing import encode_frame
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from timebase import RealClock
-from host_tools.client.lines import parse_links
+from host_tools.client.lines import RedundantLines, parse_links
 from host_tools.client.live import HostClient
 from host_tools.sessions.redundancy import MEMORY, FrameMerger
+from host_tools.worlds.ports import PtyPort
 from tests import test_e2e
 from tests.test_proxy import start_proxy
 
@@ -105,3 +106,61 @@ def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim
         lost[name] = [int(n) for n in re.findall(r"(\d+) in fades, (\d+) in blockages", said[name])[0]]
     # the outages really took frames: the radio's in its fade, the optical link's in its blockage
     assert lost["radio"][0] > 0 and lost["optical"][1] > 0, (lost, health, said)
+
+
+def _read_as_many(lines: RedundantLines, expected: bytes, within_s: float = 10.0) -> bytes:
+    """Read `lines` until as many bytes as `expected` have come (bounded: a real pty, real time)."""
+    clock, got = RealClock(), b""
+    deadline = clock.now() + within_s
+    while len(got) < len(expected) and clock.now() < deadline:
+        got += lines.read()
+    return got
+
+
+def test_a_link_whose_other_end_has_gone_is_dropped_and_the_other_carries_on():
+    first, second = PtyPort(), PtyPort()
+    lines = RedundantLines([("a", first.url), ("b", second.url)], 115200, RealClock())
+    try:
+        frames = [encode_frame(1, i, 0, SCHEMA["Ping"].id, i.to_bytes(4, "little")) for i in range(2)]
+        second.write(frames[0])
+        assert _read_as_many(lines, frames[0]) == frames[0] and not lines.failed
+        first.close()                          # the controller's end of link a is gone (its pty closed)
+        second.write(frames[1])
+        assert _read_as_many(lines, frames[1]) == frames[1]
+        clock = RealClock()
+        deadline = clock.now() + 10.0
+        while "a" not in lines.failed and clock.now() < deadline:
+            lines.read()
+        assert set(lines.failed) == {"a"} and any("FAILED" in line for line in lines.health())
+    finally:
+        lines.close()
+        second.close()
+
+
+def test_a_link_that_selects_ready_but_reads_nothing_stays():
+    """pyserial's read, without a timeout, does its own select: it can find nothing where the selector found the
+    port ready. That is no closed link (pyserial raises for one); the link stays in the set."""
+    first, second = PtyPort(), PtyPort()
+    lines = RedundantLines([("a", first.url), ("b", second.url)], 115200, RealClock())
+    real = lines.ports["a"]
+
+    class FindsNothing:         # stands in for the race: the one thing here that cannot be made to happen at will
+        def read(self, size: int) -> bytes:
+            return b""
+
+        def fileno(self) -> int:
+            return real.fileno()
+
+        def close(self) -> None:
+            real.close()
+
+    try:
+        lines.ports["a"] = FindsNothing()
+        first.write(b"\x00")                   # the selector sees port a ready
+        for _ in range(3):
+            lines.read()
+        assert not lines.failed and set(lines.ports) == {"a", "b"}
+    finally:
+        lines.close()
+        first.close()
+        second.close()
