@@ -242,6 +242,22 @@ def test_order2_on_random_paths_is_several_times_closer_than_order1(random_probl
         assert -1e-5 < two < one / 3 and two < 3e-3, (one, two)
 
 
+def test_order2_reaches_rest_with_a_deceleration_on_coarse_grids():
+    """On this path (seed 7's sixth) the greedy forward pass rode, at 6 to 13 grid points, to the vertex of the
+    last controllable set where s'' is 0 at the end: x then meets 0 as a double root and the last interval takes
+    forever (a NaN duration at 10 and 11 points, several times the time elsewhere). The end's s'' is now held
+    below a share of the last interval's mean deceleration, so rest comes in finite time."""
+    rng = np.random.default_rng(7)
+    problem = [random_problem(rng) for _ in range(6)][-1]
+    fine = plan_reach(problem, 200, order=2).duration
+    for n in (6, 10, 11):
+        for placed in (False, True):
+            plan = plan_reach(problem, n, order=2, placed=placed)
+            h = plan.s[-1] - plan.s[-2]
+            assert plan.u[-1] <= -reach._END_SHARE * plan.x[-2] / h * (1 - 1e-9), (n, placed, plan.u[-1])
+            assert fine <= plan.duration < 1.3 * fine, (n, placed, plan.duration, fine)
+
+
 def test_order2s_bernstein_coefficients_are_the_torque_polynomials_own_and_bound_it():
     """The matrix that takes a degree-6 polynomial's power coefficients to its Bernstein coefficients: the
     Bernstein form gives the polynomial back, and the coefficients' hull holds its values on [0, 1]."""

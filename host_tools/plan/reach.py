@@ -55,6 +55,8 @@ _DEGREE2 = 6                            # order 2: a torque along an interval is
 _TO_POWER = np.linalg.inv(np.vander(FRACTIONS2, increasing=True))     # values at FRACTIONS2 -> power coefficients
 _TO_BERNSTEIN = np.array([[comb(k, j) / comb(_DEGREE2, j) if j <= k else 0.0 for j in range(_DEGREE2 + 1)]
                           for k in range(_DEGREE2 + 1)])               # power -> Bernstein coefficients, degree 6
+_END_SHARE = 0.25               # order 2: the last interval's x_{N-1} + h u_{N-1} >= this share of x_{N-1}, so
+                                # u_N <= -_END_SHARE x_{N-1} / h (u_N = 0 reaches rest only after infinite time)
 FREE = float("inf")             # squeeze=FREE: the squeeze is unbounded
 Squeeze = Union[None, float, tuple]
 _TINY = 1e-12                   # a normalized coefficient below this does not bound the variable it multiplies
@@ -155,7 +157,9 @@ def _rows_order2(limits: Limits, s: np.ndarray, terms: tuple) -> tuple:
     `FRACTIONS2` (`terms`), each torque a s'' + b x + c is a polynomial of degree 6 in sigma whose coefficients
     are linear in (x_i, u_i, u_{i+1}); it lies within the hull of its 7 Bernstein coefficients, so those within
     the limits keep it there everywhere in the interval (not only where it was sampled). What the quartics leave
-    out of a, b, c is of order h^5. x >= 0 all along, by x's own Bernstein coefficients x_i, x_i + h u_i, x_{i+1}."""
+    out of a, b, c is of order h^5. x >= 0 all along, by x's own Bernstein coefficients x_i, x_i + h u_i, x_{i+1};
+    on the last interval the middle one at least `_END_SHARE` x_{N-1}, so that x meets 0 with s'' < 0 (with s'' = 0
+    there x has a double root at the end, and rest takes forever: the greedy forward pass rode to that vertex)."""
     n = len(s) - 1
     h = np.diff(s)[:, None, None]
     power = {name: np.einsum("jk,nkd->njd", _TO_POWER, np.stack([getattr(t, name) for t in terms], axis=1))
@@ -170,8 +174,10 @@ def _rows_order2(limits: Limits, s: np.ndarray, terms: tuple) -> tuple:
     hi, lo = np.tile(limits.hi, _DEGREE2 + 1), np.tile(limits.lo, _DEGREE2 + 1)
     h = h[:, :, 0]
     one, nil = np.ones((n, 1)), np.zeros((n, 1))
+    middle = -one.copy()                        # x's middle coefficient x_i + h u_i >= 0; at the end >= a share
+    middle[-1] = -(1.0 - _END_SHARE)            # of x_{N-1}: rest is reached with s'' < 0, in finite time
     rows = [np.concatenate(parts, axis=1) for parts in (
-        (alpha, -alpha, -one, -one, -one), (beta, -beta, nil, -h, -h), (delta, -delta, nil, nil, -h),
+        (alpha, -alpha, -one, middle, -one), (beta, -beta, nil, -h, -h), (delta, -delta, nil, nil, -h),
         (hi - const, const - lo, nil, nil, nil))]
     return _normalized(rows)
 
