@@ -289,10 +289,13 @@ def test_a_placed_grid_crowds_where_time_is_lost_and_order2_on_it_is_within_0_1_
 
 def test_a_placed_grid_needs_a_number_of_points():
     problem = report_problem()
-    for wrong in (4, 300_000, [0.0, 0.5, 1.0]):
+    for wrong in (4, 300_000, [0.0, 0.5, 1.0], 100.0, "100", float("nan")):
         with pytest.raises(PlanError) as caught:
             placed_grid(problem, wrong)
         assert caught.value.what == "grid"
+    for share in (-0.1, 1.5, float("nan")):
+        with pytest.raises(PlanError, match="share"):
+            placed_grid(problem, 20, share)
     assert len(placed_grid(problem, 5)) == 5
 
 

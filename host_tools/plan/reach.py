@@ -35,6 +35,7 @@ the planner refuses such limits (`PlanError` "bounds") rather than plan them uns
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 from math import comb
 from typing import Optional, Union
@@ -73,7 +74,7 @@ class ReachPlan:
     u: np.ndarray
     squeeze: np.ndarray
     controllable: np.ndarray
-    setup_time_s: float             # the model's coefficients on the grid
+    setup_time_s: float             # the grid (placed: the two order-1 plans) and the model's coefficients on it
     solve_time_s: float             # all of it: coefficients, constraints, both passes
     profile: Profile
     order: int = 1                  # 2: u is s'' at the grid points (N + 1), linear in s between them
@@ -330,23 +331,29 @@ def _refuse(problem: Problem, s: float, why: str) -> PlanError:
 def placed_grid(problem: Problem, gridpoints: int, uniform_share: float = UNIFORM_SHARE) -> np.ndarray:
     """`gridpoints` grid points placed where a plan loses time. Two order-1 plans, on half as many points and on
     the same with every interval halved, say how much time each coarse interval loses to its width (the
-    difference of its time and its halves' times, d). Order 2's error in an interval of width h is of order h^3
-    (C h^3), so the total is least with h proportional to C^(-1/3): the density of points follows
-    (d / h^3)^(1/3), mixed with a uniform density (`uniform_share` of it) so that no stretch is left bare."""
-    if np.ndim(gridpoints) != 0 or not 5 <= gridpoints <= 200_000:
+    difference of its time and its halves' times, d): order 1's loss stands in for order 2's. Order 2's error in
+    an interval of width h is of order h^3 (C h^3), so the total is least with h proportional to C^(-1/3): the
+    density of points follows d^(1/3) (the coarse intervals are all as wide), mixed with a uniform density
+    (`uniform_share` of it) so that no stretch is left bare."""
+    try:
+        count = operator.index(gridpoints)          # an integer (a float, a string or a grid is refused)
+    except TypeError:
+        count = None
+    if count is None or not 5 <= count <= 200_000:
         raise PlanError("grid", f"placed grid points: give their number, 5 to 200000 (got {gridpoints!r})")
-    coarse = np.linspace(0.0, 1.0, max(3, gridpoints // 2))
+    if not 0.0 <= uniform_share <= 1.0:
+        raise PlanError("grid", f"placed grid points: the share spread evenly is 0 to 1 (got {uniform_share!r})")
+    coarse = np.linspace(0.0, 1.0, max(3, count // 2))
     halved = np.sort(np.concatenate([coarse, (coarse[:-1] + coarse[1:]) / 2]))
-    times = [np.diff(plan_reach(problem, grid).profile.t) for grid in (coarse, halved)]
     # breaks of the path split intervals: sum each plan's times per coarse interval
-    per = [np.bincount(np.searchsorted(coarse, plan_s[:-1], side="right") - 1, t, len(coarse) - 1)
-           for plan_s, t in zip((_grid(problem, coarse), _grid(problem, halved)), times)]
+    per = [np.bincount(np.searchsorted(coarse, plan.s[:-1], side="right") - 1, np.diff(plan.profile.t),
+                       len(coarse) - 1) for plan in (plan_reach(problem, grid) for grid in (coarse, halved))]
     h = np.diff(coarse)
     density = np.cbrt(np.abs(per[0] - per[1]) / h ** 3)
     weight = float(np.sum(density * h))
     density = uniform_share + (1.0 - uniform_share) * (density / weight if weight > 0 else 1.0)
     cumulative = np.concatenate([[0.0], np.cumsum(density * h)])
-    grid = np.interp(np.linspace(0.0, cumulative[-1], int(gridpoints)), cumulative, coarse)
+    grid = np.interp(np.linspace(0.0, cumulative[-1], count), cumulative, coarse)
     grid[0], grid[-1] = 0.0, 1.0
     return grid
 
@@ -361,8 +368,6 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
     `placed`: the points where the plan loses time (`placed_grid`, its time included), not evenly spaced."""
     clock = clock or RealClock()
     started = clock.precise_now()
-    s = _grid(problem, placed_grid(problem, gridpoints) if placed else gridpoints)
-    h = np.diff(s)
     span = _squeeze_range(squeeze)
     if order not in (1, 2):
         raise PlanError("order", f"order {order!r}: 1 (s'' constant per interval) or 2 (s'' linear)")
@@ -376,6 +381,8 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
     if np.isfinite(problem.speed_cap):
         raise PlanError("bounds", "the reachability planner takes no speed cap (s' <= a ceiling): plan it with the "
                                   "phase-plane method (--method phase)")
+    s = _grid(problem, placed_grid(problem, gridpoints) if placed else gridpoints)     # refused input first
+    h = np.diff(s)
     terms = _point_terms(problem, s, FRACTIONS2 if order == 2 else (0.0, 0.5, 1.0))
     setup = clock.precise_now() - started
     if order == 2:
