@@ -4,6 +4,7 @@ times): every command runs exactly once and none is lost. Plus the merger alone:
 from __future__ import annotations
 
 import re
+import select
 
 import pytest
 
@@ -12,8 +13,8 @@ from protocol.errors import LinkError
 from protocol.framing import encode_frame
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
-from timebase import RealClock
-from host_tools.client.lines import RedundantLines, parse_links
+from timebase import RealClock, SimClock
+from host_tools.client.lines import EMPTY_READY_LIMIT_S, READ_TIMEOUT_S, RedundantLines, parse_links
 from host_tools.client.live import HostClient
 from host_tools.sessions.redundancy import MEMORY, FrameMerger
 from host_tools.worlds.ports import PtyPort
@@ -137,30 +138,64 @@ def test_a_link_whose_other_end_has_gone_is_dropped_and_the_other_carries_on():
         second.close()
 
 
+class _FindsNothing:
+    """Stands in for link a's port: ready to the selector (its real fd has a byte waiting), yet its read finds
+    nothing (the race: the one thing here that cannot be made to happen at will). Counts its reads."""
+
+    def __init__(self, real) -> None:
+        self.real, self.reads = real, 0
+
+    def read(self, size: int) -> bytes:
+        self.reads += 1
+        return b""
+
+    def fileno(self) -> int:
+        return self.real.fileno()
+
+    def close(self) -> None:
+        self.real.close()
+
+
+def _ready_but_empty(clock) -> tuple[RedundantLines, _FindsNothing, list]:
+    """Two links on real ptys, link a's port a `_FindsNothing` whose fd the selector sees ready."""
+    first, second = PtyPort(), PtyPort()
+    lines = RedundantLines([("a", first.url), ("b", second.url)], 115200, clock)
+    stub = lines.ports["a"] = _FindsNothing(lines.ports["a"])
+    first.write(b"\x00")
+    ready, _, _ = select.select([stub.fileno()], [], [], 10.0)      # the byte has reached the host's end
+    assert ready, "the byte written to link a never made its fd ready"
+    return lines, stub, [first, second]
+
+
 def test_a_link_that_selects_ready_but_reads_nothing_stays():
     """pyserial's read, without a timeout, does its own select: it can find nothing where the selector found the
     port ready. That is no closed link (pyserial raises for one); the link stays in the set."""
-    first, second = PtyPort(), PtyPort()
-    lines = RedundantLines([("a", first.url), ("b", second.url)], 115200, RealClock())
-    real = lines.ports["a"]
-
-    class FindsNothing:         # stands in for the race: the one thing here that cannot be made to happen at will
-        def read(self, size: int) -> bytes:
-            return b""
-
-        def fileno(self) -> int:
-            return real.fileno()
-
-        def close(self) -> None:
-            real.close()
-
+    lines, stub, ports = _ready_but_empty(SimClock())
     try:
-        lines.ports["a"] = FindsNothing()
-        first.write(b"\x00")                   # the selector sees port a ready
         for _ in range(3):
             lines.read()
-        assert not lines.failed and set(lines.ports) == {"a", "b"}
+        assert stub.reads == 3 and not lines.failed and set(lines.ports) == {"a", "b"}
     finally:
         lines.close()
-        first.close()
-        second.close()
+        for port in ports:
+            port.close()
+
+
+def test_a_link_that_stays_ready_with_nothing_to_read_is_paced_then_dropped():
+    """Each read that finds a link ready and nothing to read waits out READ_TIMEOUT_S (the selector returns at
+    once: without it the reading thread spins), and after EMPTY_READY_LIMIT_S of that the link is dropped; the
+    other carries on."""
+    clock = SimClock()
+    lines, stub, ports = _ready_but_empty(clock)
+    try:
+        while "a" not in lines.failed and stub.reads < 2 * EMPTY_READY_LIMIT_S / READ_TIMEOUT_S:
+            before = clock.now()
+            lines.read()
+            if "a" not in lines.failed:
+                assert clock.now() - before >= READ_TIMEOUT_S * (1 - 1e-9), stub.reads      # paced
+        assert set(lines.failed) == {"a"} and "nothing came" in lines.failed["a"] and set(lines.ports) == {"b"}
+        assert EMPTY_READY_LIMIT_S <= clock.now() <= EMPTY_READY_LIMIT_S + 2 * READ_TIMEOUT_S
+    finally:
+        lines.close()
+        for port in ports:
+            port.close()

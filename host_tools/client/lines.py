@@ -19,6 +19,7 @@ from host_tools.sessions.redundancy import FrameMerger
 
 READ_SIZE = 4096
 READ_TIMEOUT_S = 0.001
+EMPTY_READY_LIMIT_S = 1.0     # a link the selector finds ready that brings nothing for this long is taken for gone
 
 
 def parse_links(url: str) -> list[tuple[str, str]]:
@@ -98,6 +99,7 @@ class RedundantLines:
             raise
         self.merger = FrameMerger([name for name, _ in links])
         self.failed: dict[str, str] = {}
+        self._empty_since: dict[str, float] = {}      # links found ready that read nothing, since when
         self._selector = selectors.DefaultSelector()
         for name, port in self.ports.items():
             self._selector.register(port.fileno(), selectors.EVENT_READ, name)
@@ -117,8 +119,11 @@ class RedundantLines:
         """What the links brought, joined. A link whose other end has gone is dropped: pyserial says so by raising
         (a device ready to read that returns nothing, a socket at its end, an I/O error). A read that finds nothing
         after the selector said ready is not that: pyserial's own select, without a timeout, can find nothing there
-        (taken for a closed link, it would drop a working link for the rest of the session)."""
-        out = bytearray()
+        (taken for a closed link, it would drop a working link for the rest of the session). Such a read waits out
+        `READ_TIMEOUT_S` (a link that stays ready would otherwise make every read return at once: a busy loop), and
+        a link that has been ready with nothing to read for `EMPTY_READY_LIMIT_S` is dropped after all."""
+        out, came = bytearray(), False
+        empty: dict[str, float] = {}
         for key, _ in self._selector.select(READ_TIMEOUT_S):
             name = key.data
             try:
@@ -126,8 +131,19 @@ class RedundantLines:
             except (serial.SerialException, OSError) as exc:
                 self._fail(name, exc)
                 continue
+            now = self._clock.now()
             if data:
-                out += self.merger.feed(name, data, self._clock.now())
+                came = True
+                out += self.merger.feed(name, data, now)
+                continue
+            since = self._empty_since.get(name, now)
+            if now - since < EMPTY_READY_LIMIT_S:
+                empty[name] = since
+            else:
+                self._fail(name, serial.SerialException(f"ready to read, yet nothing came for {now - since:.1f} s"))
+        self._empty_since = empty
+        if empty and not came:
+            self._clock.sleep(READ_TIMEOUT_S)
         return bytes(out)
 
     def write(self, data: bytes) -> None:
