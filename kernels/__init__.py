@@ -14,6 +14,9 @@ test session picks it up unchanged; `ControllerConfig.compiled_joints` and the p
 turned on without numba, building the controller or the plant says so. `NUMBA_DISABLE_JIT=1` runs
 the same arrays through the plain functions (slow: numpy scalars), for debugging.
 
+`compile_kernel` also compiles the reachability planner's order-2 passes (host_tools/plan/reach2.py),
+but whenever numba is installed, without the switch: a planner is not held to the bit as the world is.
+
 This package sits below every other (tests/test_code_rules.py) and imports none of them.
 """
 from __future__ import annotations
