@@ -119,8 +119,10 @@ def _point_terms(problem: Problem, s: np.ndarray, fractions=(0.0, 0.5, 1.0)) -> 
     width = len(fractions) - 1
     points = np.append((s[:-1, None] + fractions[None, :-1] * np.diff(s)[:, None]).ravel(), s[-1])
     t = problem.terms(points)
-    found = [t.at(slice(k, -1, width)) for k in range(width)] + [t.at(slice(width, None, width))]
-    end = found[-1]
+    # the ends by an index array: a copy (a slice would be a view sharing each end with the next interval's start,
+    # and replacing an end at a break below would give the interval after it the piece before it)
+    end = t.at(np.arange(width, len(points), width))
+    found = [t.at(slice(k, -1, width)) for k in range(width)] + [end]
     breaks = np.isin(s[1:], getattr(problem.path, "breaks", ()))
     if breaks.any():
         left = problem.terms(np.nextafter(s[1:][breaks], 0.0))
