@@ -117,11 +117,11 @@ class RedundantLines:
 
     def read(self) -> bytes:
         """What the links brought, joined. A link whose other end has gone is dropped: pyserial says so by raising
-        (a device ready to read that returns nothing, a socket at its end, an I/O error). A read that finds nothing
-        after the selector said ready is not that: pyserial's own select, without a timeout, can find nothing there
-        (taken for a closed link, it would drop a working link for the rest of the session). Such a read waits out
-        `READ_TIMEOUT_S` (a link that stays ready would otherwise make every read return at once: a busy loop), and
-        a link that has been ready with nothing to read for `EMPTY_READY_LIMIT_S` is dropped after all."""
+        (a device ready to read that returns nothing, a socket at its end, an I/O error). A read that returns nothing
+        after the selector said ready (pyserial's read without a timeout returns nothing when its own select finds
+        nothing, or on EAGAIN) is no proof of that: taken for a closed link, it would drop the link for the rest of
+        the session. Such a read waits out `READ_TIMEOUT_S` (a link that stays ready would otherwise make every read
+        return at once: a busy loop), and a link ready with nothing to read for `EMPTY_READY_LIMIT_S` is dropped."""
         out, came = bytearray(), False
         empty: dict[str, float] = {}
         for key, _ in self._selector.select(READ_TIMEOUT_S):
