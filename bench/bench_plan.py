@@ -12,9 +12,9 @@ How. The report's example (gravity off, point masses) and `RANDOM` random smooth
 paths within both arms' reach and at least 6 degrees from straight elbows, uniform rods, gravity on, constant
 torque limits 1.3 times the largest torque holding the object still plus 5 N m), each at 20, 50 and 100 grid
 points: this planner (order 1; order 2; order 2 on grid points placed where time is lost, `placed_grid`), toppra
-with collocation and toppra with interpolation (solver wrapper "seidel"). The rows: the time over the reference, the worst excess between grid points, the time per grid point (all of it,
-the model's coefficients included, and the passes alone: toppra's `compute_parameterization` against this
-planner without its coefficients). Then the squeeze: on vertical paths with gravity on, the minimum time with
+with collocation and toppra with interpolation (solver wrapper "seidel"). The rows: the time over the reference,
+the worst excess between grid points, the time per grid point (all of it, the model's coefficients included, and
+the passes alone: toppra's `compute_parameterization` against this planner without its coefficients). Then the squeeze: on vertical paths with gravity on, the minimum time with
 the load shared without squeeze against the squeeze free (and bounded by 20 N), each checked by the torques
 straight from the model. `--quick`: the example and one random path, 20 and 100 points, one vertical path.
 """

@@ -216,7 +216,7 @@ class Controller:
 
     def _link_lost(self, now: float) -> None:
         """The link watchdog fired at `now` (the link's clock, which may be another than the world's)."""
-        silence = now - (self.link.last_valid_rx_s if self.link.last_valid_rx_s is not None else now)
+        silence = now - self.link.last_valid_rx_s       # the watchdog runs only once a valid frame has come
         self._trip(Fault.LINK_LOST, self._now(), Reason.LINK_TIMEOUT,
                    Measured(FaultCause.LINK_SILENCE, int(Axis.ALL), silence, self.link.config.link_timeout_s))
 

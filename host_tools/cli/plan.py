@@ -104,8 +104,9 @@ def _text(result: dict) -> str:
     lines = [f"{result['problem']}: links {result['model']['links']}, gravity {result['model']['gravity']} m/s^2"]
     if to["method"] == "reach":
         squeeze = to["squeeze"]
-        lines.append(f"minimum time (reachability, order {to['order']}, {to['nodes']} intervals): {to['duration_s']:.4f} s, a joint "
-                     f"saturated {to['saturated_time']:.1%} of the time, worst excess between nodes "
+        lines.append(f"minimum time (reachability, order {to['order']}, {to['nodes']} intervals): "
+                     f"{to['duration_s']:.4f} s, a joint saturated {to['saturated_time']:.1%} of the time, "
+                     f"worst excess between nodes "
                      f"{to['worst_violation_between_nodes']:.2%}, planned in {to['solve_time_s'] * 1e3:.1f} ms"
                      + ("" if squeeze is None else f"; the squeeze free (largest {squeeze['max_n']:.3g} N)"))
     else:
