@@ -199,3 +199,23 @@ def test_a_link_that_stays_ready_with_nothing_to_read_is_paced_then_dropped():
         lines.close()
         for port in ports:
             port.close()
+
+
+def test_the_host_says_how_long_its_pump_was_held_up():
+    """A host whose pump cannot turn sends nothing, heartbeats neither: `pump_pause_max_s` says how long that
+    lasted (teleop's summary prints it). Held here by its own lock while its clock moves on 2 s."""
+    from timebase import SimClock
+    port, clock = PtyPort(), SimClock(100.0)
+    client = HostClient(port.url, bytes(32), clock=clock)
+    try:
+        with client._cond:
+            clock.advance_by(2.0)
+        for _ in range(200):                    # its next turn, within 10 s of the wall clock (the clock is frozen)
+            with client._cond:
+                if client.pump_pause_max_s >= 2.0:
+                    break
+                client._cond.wait(0.05)
+        assert 2.0 <= client.pump_pause_max_s < 2.5
+    finally:
+        client.close()
+        port.close()

@@ -44,6 +44,9 @@ class HostClient:
         self.events: list[Message] = []
         self.link = HostLink(psk, config, on_telemetry=self._telemetry, on_event=self._event)
         self.io_error: Optional[str] = None
+        # the longest time between two turns of the pump (reading, the link's timers, writing): a host held up
+        # that long sends nothing, heartbeats neither, whatever the controller does
+        self.pump_pause_max_s = 0.0
         self._cond = threading.Condition()
         self._stop = False
         self._thread = threading.Thread(target=self._pump, name="aspod-link", daemon=True)
@@ -51,11 +54,14 @@ class HostClient:
 
     # ---- pump thread ----
     def _pump(self) -> None:
+        last = self.clock.now()
         while not self._stop:
             try:
                 data = self.line.read()
                 with self._cond:
                     now = self.clock.now()
+                    self.pump_pause_max_s = max(self.pump_pause_max_s, now - last)
+                    last = now
                     if data:
                         if self.capture is not None:
                             self.capture.write("link", Direction.TO_HOST, data, RealClock.wall_time())

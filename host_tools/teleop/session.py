@@ -399,7 +399,9 @@ class Session:
             lines.append(f"round trip: p50 {statistics.median(ms):.1f} ms, p99 {p99:.1f} ms, max {ms[-1]:.1f} ms")
         lines.append(f"host link: frames {stats.frames_tx} out / {stats.frames_rx} in, bytes {stats.bytes_tx} / "
                      f"{stats.bytes_rx}, crc {stats.crc_errors}, auth {stats.auth_errors}, "
-                     f"retransmits {stats.retransmits}, telemetry lost {stats.telemetry_lost}")
+                     f"retransmits {stats.retransmits}, telemetry lost {stats.telemetry_lost}"
+                     + (f", the pump's longest pause {1000 * pause:.0f} ms"
+                        if (pause := getattr(self.client, "pump_pause_max_s", None)) is not None else ""))
         peer = link.peer_stats
         if peer is not None:
             lines.append(f"controller link (heartbeat {peer_age(self.client)}): frames {peer.frames_rx} in / "
