@@ -65,8 +65,10 @@ class Tolerances:
     """How far a real-time recording may differ from its replay, per field unit (absolute), else relative."""
     time_ms: float = 25.0          # an event's or a reply's uptime_ms
     shift_ms: float = 10.0         # telemetry: what the replay showed this long before or after the same uptime
+    # degC: the box's temperature is read with 0.1 degC of noise a sample (hil_sim/plant.py temp_noise_c), and a
+    # reply a few ms earlier or later reads another sample: 0.5 is 3.5 sigma of two samples' difference (V: 0.02)
     by_unit: tuple[tuple[str, float], ...] = (("deg", 0.1), ("deg/s", 0.5), ("mm", 0.2), ("mm/s", 1.0),
-                                              ("A", 0.25), ("V", 0.1), ("degC", 0.1), ("%", 0.5))
+                                              ("A", 0.25), ("V", 0.1), ("degC", 0.5), ("%", 0.5))
     relative: float = 0.02
 
     def allows(self, unit: str, recorded: float, replayed: float) -> bool:
