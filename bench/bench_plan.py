@@ -14,9 +14,9 @@ torque limits 1.3 times the largest torque holding the object still plus 5 N m),
 points: this planner (order 1; order 2; order 2 on grid points placed where time is lost, `placed_grid`), toppra
 with collocation and toppra with interpolation (solver wrapper "seidel"). The rows: the time over the reference,
 the worst excess between grid points, the time per grid point (all of it, the model's coefficients included, and
-the passes alone: toppra's `compute_parameterization` against this planner without its coefficients). Then the squeeze: on vertical paths with gravity on, the minimum time with
-the load shared without squeeze against the squeeze free (and bounded by 20 N), each checked by the torques
-straight from the model. `--quick`: the example and one random path, 20 and 100 points, one vertical path.
+the passes alone: toppra's `compute_parameterization` against this planner without its coefficients). Then the
+squeeze: on vertical paths with gravity on, the minimum time with the load shared without squeeze against the
+squeeze free (and bounded by 20 N), each checked by the torques straight from the model. `--quick`: the example and one random path, 20 and 100 points, one vertical path.
 """
 from __future__ import annotations
 

@@ -232,6 +232,18 @@ def test_the_command_plans_by_reachability_with_the_squeeze_free():
         assert done.returncode == 2 and said in done.stderr and done.stdout == "", done.stderr
 
 
+def test_the_commands_largest_node_count_is_the_planners_largest_grid():
+    """`--nodes N` plans on N + 1 grid points: the parser takes MAX_GRIDPOINTS - 1 and no more, and the planner
+    takes that many points (the bound is written twice, so that the command line does not import numpy)."""
+    from host_tools.cli.main import build_parser
+    from host_tools.plan.reach import MAX_GRIDPOINTS, _grid
+    parser = build_parser()
+    assert parser.parse_args(["plan", "--nodes", str(MAX_GRIDPOINTS - 1)]).nodes == MAX_GRIDPOINTS - 1
+    with pytest.raises(SystemExit):
+        parser.parse_args(["plan", "--nodes", str(MAX_GRIDPOINTS)])
+    assert len(_grid(report_problem(), MAX_GRIDPOINTS)) == MAX_GRIDPOINTS
+
+
 # ---- order 2: s'' linear in s between grid points ----------------------------------------------------------------
 
 def test_order2_keeps_every_limit_between_grid_points(random_problems):

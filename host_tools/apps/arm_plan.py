@@ -20,8 +20,8 @@ planner's one form a s'' + b s'^2 + d s' + c (host_tools/plan/bounds.py):
 
 with i_max and V shares of the current limit parameter and the 28 V supply (`ArmPlanSettings`): the rest is the
 loops' authority to correct what the model does not know. Each joint's speed limit (the controller refuses a
-trajectory faster than `jN_speed_dps`) caps s' at min over the joints of v_max / |q1 - q0|. The profile comes from the report's phase-plane
-planner (host_tools/plan/timeopt.py), and `knots` turns it into the trajectory the controller follows.
+trajectory faster than `jN_speed_dps`) caps s' at min over the joints of v_max / |q1 - q0|. The profile comes
+from the report's phase-plane planner (host_tools/plan/timeopt.py), and `knots` turns it into the trajectory the controller follows.
 """
 from __future__ import annotations
 

@@ -190,8 +190,8 @@ def describe_link(controller: Controller) -> str:
     stats, comms = controller.link.stats, controller.comms
     return (f"{stats.frames_rx} frames ({stats.bytes_rx} B) in, {stats.frames_tx} out; {stats.crc_errors} CRC errors, "
             f"{stats.auth_errors} authentication errors ({stats.replays} replays), {stats.rejected} refused; "
-            f"own stalls excused since the start {comms.stalls_excused_s:.3f} s; {comms.uart.discarded_rx_bytes} B of a former "
-            "client discarded")
+            f"own stalls excused since the start {comms.stalls_excused_s:.3f} s; "
+            f"{comms.uart.discarded_rx_bytes} B of a former client discarded")
 
 
 def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callable[[float], Optional[float]]:

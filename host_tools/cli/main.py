@@ -483,7 +483,8 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--integrator", choices=("ab2", "rk4"), default="rk4",
                       help="limit curves by the report's 2nd-order Adams-Bashforth, or 4th-order Runge-Kutta "
                            "(default)")
-    plan.add_argument("--nodes", type=bounded(int, 10, 199999), default=2000,
+    # at most plan.reach.MAX_GRIDPOINTS - 1 (a reach plan takes nodes + 1 points; not imported: the CLI starts light)
+    plan.add_argument("--nodes", type=bounded(int, 10, 199_999), default=2000,
                       help="intervals in s for the minimum-time plan (default 2000)")
     plan.add_argument("--dp-intervals", type=bounded(int, 2, 5000), default=100,
                       help="dynamic programming: intervals in s (default 100, the report's)")

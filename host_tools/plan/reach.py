@@ -49,6 +49,7 @@ from host_tools.plan import reach2
 from host_tools.plan.profile import Profile, profile_from_speeds
 from timebase.clock import RealClock
 
+MAX_GRIDPOINTS = 200_000        # the most grid points a plan takes (uniform or placed)
 GUARD = 0.25                    # the curvature guard's factor on D (1/8 covers a quadratic exactly)
 UNIFORM_SHARE = 0.3            # placed grids: the share of the points spread evenly, the rest where time is lost
 FRACTIONS2 = np.linspace(0.0, 1.0, 5)   # order 2: where a, b, c are sampled in each interval (a quartic through them)
@@ -91,8 +92,8 @@ class ReachPlan:
 def _grid(problem: Problem, gridpoints) -> np.ndarray:
     """`gridpoints` evenly spaced, or the grid itself (rising from 0 to 1); with the path's breaks added."""
     if np.ndim(gridpoints) == 0:
-        if not 3 <= gridpoints <= 200_000:
-            raise PlanError("grid", f"{gridpoints} grid points: use 3 to 200000")
+        if not 3 <= gridpoints <= MAX_GRIDPOINTS:
+            raise PlanError("grid", f"{gridpoints} grid points: use 3 to {MAX_GRIDPOINTS}")
         gridpoints = np.linspace(0.0, 1.0, int(gridpoints))
     grid = np.asarray(gridpoints, float)
     if len(grid) < 3 or grid[0] != 0.0 or grid[-1] != 1.0 or np.any(np.diff(grid) <= 0):
@@ -341,8 +342,8 @@ def placed_grid(problem: Problem, gridpoints: int, uniform_share: float = UNIFOR
         count = operator.index(gridpoints)          # an integer (a float, a string or a grid is refused)
     except TypeError:
         count = None
-    if count is None or not 5 <= count <= 200_000:
-        raise PlanError("grid", f"placed grid points: give their number, 5 to 200000 (got {gridpoints!r})")
+    if count is None or not 5 <= count <= MAX_GRIDPOINTS:
+        raise PlanError("grid", f"placed grid points: give their number, 5 to {MAX_GRIDPOINTS} (got {gridpoints!r})")
     if not 0.0 <= uniform_share <= 1.0:
         raise PlanError("grid", f"placed grid points: the share spread evenly is 0 to 1 (got {uniform_share!r})")
     coarse = np.linspace(0.0, 1.0, max(3, count // 2))
