@@ -335,6 +335,14 @@ def grammar(line: Line) -> list[Request]:
         _frame("SetClock", COMMAND, 0x52, (DWord("utc_s", default_value=1767225600, endian="<",
                                                  fuzz_values=[946684800, 946684799, 4102444799, 4102444800]),
                                            Word("utc_ms", default_value=0, endian="<", fuzz_values=[999, 1000])), line),
+        _frame("TrajClear", COMMAND, 0x60, (Bytes("extra", default_value=b""),), line),
+        # a knot: index, time, then position and velocity of j1, j2, j3, j4 and the mount; the buffer holds 256
+        _frame("TrajPoint", COMMAND, 0x61, (Word("index", default_value=0, endian="<", fuzz_values=[1, 255, 256]),
+                                            _f32("t", 0.0, 0.0, 3600.0))
+               + tuple(_f32(f"{joint}_{what}", 0.0, -360.0, 360.0)
+                       for joint in ("j1", "j2", "j3", "j4", "mount") for what in ("pos", "vel")), line),
+        _frame("TrajRun", COMMAND, 0x62, (Word("count", default_value=2, endian="<", fuzz_values=[0, 1, 256, 257]),),
+               line),
         _frame("EStop", URGENT, 0x20, (Bytes("extra", default_value=b""),), line),
         _frame("Stop", URGENT, 0x21, (Bytes("extra", default_value=b""),), line),
         _frame("Hello", LINK, HELLO, (Byte("protocol_version", default_value=VERSION),
