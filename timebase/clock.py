@@ -20,6 +20,7 @@ import abc
 import math
 import time
 from dataclasses import dataclass
+from typing import Optional
 
 
 @dataclass(frozen=True)
@@ -93,6 +94,16 @@ class RealClock(Clock):
     def precise_now() -> float:
         """`time.perf_counter`, for benchmarks that time code rather than schedule it."""
         return time.perf_counter()
+
+    @staticmethod
+    def cpu_wait_s(thread_id: int) -> Optional[float]:
+        """Seconds the thread with native id `thread_id` (of this process) has been runnable but waiting for a CPU,
+        from Linux's schedstat (run_delay); None where the kernel does not keep it."""
+        try:
+            with open(f"/proc/self/task/{thread_id}/schedstat", "rb") as stat:
+                return int(stat.read().split()[1]) / 1e9
+        except (OSError, ValueError, IndexError):
+            return None
 
     @staticmethod
     def wall_time() -> float:

@@ -138,7 +138,7 @@ def _replay(settings: FuzzSettings) -> int:
         failure = BlackBoxFuzzer(settings.blackbox, host_key(settings.key_file)).replay(finding)
     else:
         from host_tools.fuzz.targets import load_target
-        failure = findings.replay(finding, lambda: load_target(finding.target))
+        failure = findings.replay(finding, lambda: load_target(finding.target), settings.hang_s)
     said = finding.failure.describe()
     if failure is None:
         print(f"{settings.replay}: no longer fails (it was: {said})")

@@ -440,6 +440,9 @@ def build_parser() -> argparse.ArgumentParser:
     fuzz.add_argument("--runs", type=bounded(int, 1, 10**12), default=None, metavar="N",
                       help="in process: executions per job")
     fuzz.add_argument("--cases", type=bounded(int, 1, 10**9), default=None, metavar="N", help="black-box: cases")
+    fuzz.add_argument("--hang-s", type=bounded(float, 0.01, 86400), default=None, metavar="S",
+                      help="in process and --replay: an input past S seconds of its own time (the time the host kept "
+                           "it waiting for a CPU does not count) is a hang (default 10)")
     fuzz.add_argument("--max-findings", type=bounded(int, 1, 10**6), default=None, metavar="N",
                       help="black-box: stop after N findings (default: go on to --time or --cases)")
     fuzz.add_argument("--jobs", type=bounded(int, 1, 10000), default=1, metavar="N",

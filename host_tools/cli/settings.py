@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Optional
 from hil_sim.sun import TUCSON, as_clouds, to_utc
 from timebase import RealClock
 
+from host_tools.fuzz.hangs import HANG_S
 from host_tools.worlds import nodes
 from host_tools.worlds.settings import PlantSettings, TIMINGS
 
@@ -488,6 +489,7 @@ class FuzzSettings:
     coverage: bool = False
     as_json: bool = False
     progress: bool = True
+    hang_s: float = HANG_S             # in process and in-process replay: an input's own time past which it hangs
 
 
 def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
@@ -495,7 +497,8 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
     from host_tools.campaign.engine import EngineSettings
     from host_tools.fuzz.blackbox import BlackBoxSettings
     from host_tools.fuzz.campaign import CampaignPlan
-    common = dict(key_file=args.key_file, coverage=args.coverage, as_json=args.json, progress=not args.no_progress)
+    common = dict(key_file=args.key_file, coverage=args.coverage, as_json=args.json, progress=not args.no_progress,
+                  hang_s=HANG_S if args.hang_s is None else args.hang_s)
     live = args.url is not None or args.target_cmd is not None
     if args.list:
         return FuzzSettings("list", **common)
@@ -506,8 +509,10 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
         if command and command[0] == "aspod":       # the aspod of this Python, wherever the shell's PATH points
             command = (sys.executable, "-m", "host_tools.cli.main") + command[1:]
         if live:
-            if args.runs is not None or args.jobs != 1 or args.coverage:
-                raise ValueError("--runs, --jobs and --coverage are for in-process targets; black-box takes --cases")
+            if args.runs is not None or args.jobs != 1 or args.coverage or (args.hang_s is not None and
+                                                                             args.replay is None):
+                raise ValueError("--runs, --jobs, --coverage and --hang-s are for in-process targets; black-box takes "
+                                 "--cases")
             seconds = args.time if args.time is not None else (None if args.cases else 60.0)
             blackbox = BlackBoxSettings(args.url or "", command, args.baud, seconds, args.cases, args.seed,
                                         args.findings, skip=tuple(args.skip) if args.skip is not None
@@ -522,7 +527,8 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
         raise ValueError("--cases, --only, --skip and --max-findings are for black-box fuzzing (--url or "
                          "--target-cmd)")
     seconds = args.time if args.time is not None else (None if args.runs else 60.0)
-    plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed)
+    plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed,
+                        common["hang_s"])
     return FuzzSettings("inprocess", plan=plan, engine=EngineSettings(args.workers, args.scheduler, args.serial),
                         **common)
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from host_tools.campaign.engine import EngineSettings, map_on_dask
+from host_tools.fuzz.hangs import HANG_S
 from host_tools.fuzz.inprocess import JobResult, JobSettings, Progress, run_job
 
 
@@ -26,11 +27,13 @@ class CampaignPlan:
     seconds: Optional[float]          # per job
     runs: Optional[int]               # per job
     seed: int = 1
+    hang_s: float = HANG_S            # an input's own time past which it is a hang
 
     def jobs(self) -> list[JobSettings]:
         if not 1 <= self.jobs_per_target <= 10000:
             raise ValueError(f"--jobs {self.jobs_per_target}: between 1 and 10000")
-        return [JobSettings(target, self.corpus(target), self.findings, self.seconds, self.runs, self.seed + k)
+        return [JobSettings(target, self.corpus(target), self.findings, self.seconds, self.runs, self.seed + k,
+                            hang_s=self.hang_s)
                 for target in self.targets for k in range(self.jobs_per_target)]
 
     def corpus(self, target: str) -> Path:

@@ -1,19 +1,22 @@
 """One in-process fuzzing job: atheris (libFuzzer) driving one target, in a process of its own.
 
-    python -m host_tools.fuzz.child TARGET FINDINGS_DIR [libFuzzer options and corpus folders]
+    python -m host_tools.fuzz.child TARGET FINDINGS_DIR HANG_S [libFuzzer options and corpus folders]
 
 libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and
 reads its progress lines. Nothing of the emulator is imported before atheris' import hook is in place, so the
 code under test is instrumented for coverage. On a crash or an oracle failure the finding is written to
 FINDINGS_DIR with every input since the target was last fresh (host_tools/fuzz/findings.py) before libFuzzer
-reports it; a hang or running out of memory is left to libFuzzer's own artifact, which `aspod fuzz` turns into a
-finding.
+reports it. An input past HANG_S seconds of its own time (not counting the time the host kept it waiting for a
+CPU: host_tools/fuzz/hangs.py) is interrupted and saved the same way, as a hang. Running out of memory, or a hang
+the interrupt cannot reach, is left to libFuzzer's own artifact, which `aspod fuzz` turns into a finding.
 """
 import sys
 
 from timebase import RealClock
 
 import atheris
+
+from host_tools.fuzz.hangs import Hang, HangWatch
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
 
@@ -27,8 +30,8 @@ INSTRUMENTED = ["protocol", "firmware_py", "hil_sim.hal_node", "host_tools.teleo
 class Harness:
     """Calls the target, rebuilding a stateful one every `fresh_every` inputs, and keeps the inputs since."""
 
-    def __init__(self, target, spec: str, findings) -> None:
-        self.target, self.spec, self.findings = target, spec, findings
+    def __init__(self, target, spec: str, findings, watch) -> None:
+        self.target, self.spec, self.findings, self.watch = target, spec, findings, watch
         self.stateful = getattr(target, "stateful", False)
         self.fresh_every = getattr(target, "fresh_every", 1)
         self.history: list[bytes] = []
@@ -46,8 +49,9 @@ class Harness:
         if self.stateful:
             self.history.append(bytes(data))
         try:
-            self.target.one_input(data)
-        except Exception as exc:
+            with self.watch.input():
+                self.target.one_input(data)
+        except (Exception, Hang) as exc:
             self.save(exc, self.history if self.stateful else [bytes(data)])
             raise
 
@@ -60,13 +64,14 @@ class Harness:
 
 def main(argv: list[str]) -> None:
     from pathlib import Path
-    spec, findings_dir, libfuzzer_args = argv[0], Path(argv[1]), argv[2:]
+    spec, findings_dir, hang_s, libfuzzer_args = argv[0], Path(argv[1]), float(argv[2]), argv[3:]
     with atheris.instrument_imports(include=INSTRUMENTED + [spec.split(":")[0]] * (":" in spec)):
         from host_tools.fuzz.targets import load_target
         target = load_target(spec)
-    harness = Harness(target, spec, findings_dir)
-    atheris.Setup([sys.argv[0]] + libfuzzer_args, harness)
-    atheris.Fuzz()
+    with HangWatch(hang_s) as watch:
+        harness = Harness(target, spec, findings_dir, watch)
+        atheris.Setup([sys.argv[0]] + libfuzzer_args, harness)
+        atheris.Fuzz()
 
 
 if __name__ == "__main__":

@@ -6,7 +6,8 @@ between inputs; for a stateful one, every input since its world was built). Blac
 
 `minimize` shrinks an in-process finding while it still fails the same way (the same kind, oracle, exception
 type and place): first whole inputs are dropped (delta debugging), then chunks of each remaining input.
-`replay` runs one on a fresh target.
+`replay` runs one on a fresh target, each input bounded by a `HangWatch` (host_tools/fuzz/hangs.py), so that a
+hang found comes back as a hang rather than hanging the replay.
 """
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from protocol import files
+
+from host_tools.fuzz.hangs import HANG_S, Hang, HangWatch
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
 
@@ -44,7 +47,8 @@ class Failure:
 
     @property
     def signature(self) -> tuple:
-        return (self.kind, self.oracle, self.error.split(":", 1)[0], self.where)
+        """What makes two failures the same; a hang's place is only where the interrupt found it."""
+        return (self.kind, self.oracle, self.error.split(":", 1)[0], "" if self.kind == "hang" else self.where)
 
     def describe(self) -> str:
         what = f"oracle {self.oracle!r} failed" if self.kind == "oracle" else self.kind
@@ -54,12 +58,16 @@ class Failure:
 def failure_of(exc: BaseException) -> Failure:
     from host_tools.fuzz.targets import OracleFailure
     frames = traceback.extract_tb(exc.__traceback__)
-    kind = "oracle" if isinstance(exc, OracleFailure) else "crash"
+    kind = "oracle" if isinstance(exc, OracleFailure) else "hang" if isinstance(exc, Hang) else "crash"
     if kind == "oracle":        # the oracle's own line: where `check` was called
         ours = [f for f in frames if f.name != "check"]
     else:                       # the code under test's innermost line, not the harness's
         ours = [f for f in frames if "/fuzz/" not in f.filename or "planted" in f.filename] or frames
-    where = f"{_short(ours[-1].filename)}:{ours[-1].lineno}" if ours else ""
+    where = ""
+    if ours:                    # an instruction atheris added has no line: then the function names the place
+        last = ours[-1]
+        where = f"{_short(last.filename)}:{last.lineno}" if last.lineno is not None else \
+            f"{_short(last.filename)}, in {last.name}()"
     return Failure(kind, f"{type(exc).__name__}: {exc}", where, getattr(exc, "oracle", ""),
                    "".join(traceback.format_exception(exc))[-4000:])
 
@@ -125,23 +133,28 @@ def load(path: Path) -> Finding:
 
 
 # ---- in process: replay and minimize ----
-def run_inputs(target, inputs: list[bytes]) -> Optional[Failure]:
-    """Feed `inputs` to `target` from fresh; the failure they cause, or None."""
+def run_inputs(target, inputs: list[bytes], watch: Optional[HangWatch] = None) -> Optional[Failure]:
+    """Feed `inputs` to `target` from fresh, each within `watch`'s time if given; the failure they cause, or None."""
     fresh_every = target.fresh_every if getattr(target, "stateful", False) else 1
     for index, data in enumerate(inputs):
         if getattr(target, "stateful", False) and index % fresh_every == 0:
             target.fresh()
         try:
-            target.one_input(data)
-        except Exception as exc:       # noqa: BLE001 (whatever escapes is the finding)
+            if watch is None:
+                target.one_input(data)
+            else:
+                with watch.input():
+                    target.one_input(data)
+        except (Exception, Hang) as exc:       # noqa: BLE001 (whatever escapes is the finding)
             return failure_of(exc)
     return None
 
 
-def replay(finding: Finding, make_target: Callable[[], object]) -> Optional[Failure]:
+def replay(finding: Finding, make_target: Callable[[], object], hang_s: float = HANG_S) -> Optional[Failure]:
     target = make_target()
     try:
-        return run_inputs(target, finding.inputs)
+        with HangWatch(hang_s) as watch:
+            return run_inputs(target, finding.inputs, watch)
     finally:
         target.close()
 

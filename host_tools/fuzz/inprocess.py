@@ -5,9 +5,11 @@ findings folder. `run_job` starts the child, turns its lines into `Progress`, an
 found (host_tools/fuzz/findings.py) and says what it ran: executions, executions per second, coverage (libFuzzer's
 count of edges, `cov`, and features, `ft`), corpus size, findings.
 
-A hang (libFuzzer's `-timeout`) or running out of memory ends the child without our harness seeing it; its
-artifact (the one input) becomes the finding, and for a stateful target the file says that the inputs before it
-are not known.
+A hang is an input past `hang_s` of its own time (host_tools/fuzz/hangs.py: the time the host kept it waiting
+for a CPU does not count); the child interrupts it and saves it as any other finding, but it is not minimized
+(every try would take `hang_s`). Running out of memory, or a hang past libFuzzer's wall-clock backstop, ends the
+child without our harness seeing it; its artifact (the one input) becomes the finding, and for a stateful target
+the file says that the inputs before it are not known.
 """
 from __future__ import annotations
 
@@ -24,12 +26,12 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from host_tools.fuzz import findings as findings_mod
+from host_tools.fuzz.hangs import HANG_S, backstop_s
 from host_tools.fuzz.targets import load_target
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
 
 MAX_LEN = 4096                 # bytes of one fuzz input
-HANG_S = 10                    # one input running longer than this is a hang
 RSS_LIMIT_MB = 2048
 _STATUS = re.compile(r"^#(\d+)\s+\w+\s+cov: (\d+) ft: (\d+) corp: (\d+)/")
 _ARTIFACT = re.compile(r"Test unit written to (\S+)")
@@ -44,8 +46,11 @@ class JobSettings:
     runs: Optional[int] = None             # executions (None: until `seconds`)
     seed: int = 1
     minimize_s: float = 60.0
+    hang_s: float = HANG_S                 # an input's own time past which it is a hang
 
     def __post_init__(self) -> None:
+        if not 0 < self.hang_s <= 86400:
+            raise ValueError(f"--hang-s {self.hang_s}: between 0 and a day of seconds")
         if self.seconds is None and self.runs is None:
             raise ValueError("a fuzzing job needs a time (--time) or a number of executions (--runs)")
         if self.seconds is not None and not 0 < self.seconds <= 30 * 86400:
@@ -87,9 +92,11 @@ class JobResult:
 def child_command(settings: JobSettings) -> list[str]:
     settings.corpus.mkdir(parents=True, exist_ok=True)
     settings.findings.mkdir(parents=True, exist_ok=True)
+    backstop = backstop_s(settings.hang_s)     # libFuzzer's wall-clock timeout, behind the child's own watch
     args = [sys.executable, "-m", "host_tools.fuzz.child", settings.target, str(settings.findings),
-            f"-seed={settings.seed}", f"-max_len={MAX_LEN}", f"-timeout={HANG_S}", f"-rss_limit_mb={RSS_LIMIT_MB}",
-            "-print_final_stats=1", f"-artifact_prefix={settings.findings}{os.sep}"]
+            repr(settings.hang_s), f"-seed={settings.seed}", f"-max_len={MAX_LEN}", f"-timeout={backstop}",
+            f"-report_slow_units={backstop}", f"-rss_limit_mb={RSS_LIMIT_MB}", "-print_final_stats=1",
+            f"-artifact_prefix={settings.findings}{os.sep}"]
     if settings.seconds is not None:
         args.append(f"-max_total_time={max(1, int(round(settings.seconds)))}")
     if settings.runs is not None:
@@ -105,6 +112,7 @@ def run_job(settings: JobSettings, on_progress: Callable[[Progress], None] = lam
     tail: deque[str] = deque(maxlen=40)
     found: list[Path] = []
     artifacts: list[tuple[str, Path]] = []
+    copies: list[tuple[str, Path]] = []          # libFuzzer's crash-* file of an input the harness saved itself
     stats: dict[str, str] = {}
     kind = ""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -126,8 +134,8 @@ def run_job(settings: JobSettings, on_progress: Callable[[Progress], None] = lam
                 kind = "hang"
             elif "ERROR: libFuzzer: out-of-memory" in line:
                 kind = "out-of-memory"
-            elif (match := _ARTIFACT.search(line)) is not None and kind:
-                artifacts.append((kind, Path(match.group(1))))
+            elif (match := _ARTIFACT.search(line)) is not None:
+                (artifacts if kind else copies).append((kind, Path(match.group(1))))
             else:
                 continue
             progress.wall_s = _CLOCK.now() - start
@@ -140,6 +148,8 @@ def run_job(settings: JobSettings, on_progress: Callable[[Progress], None] = lam
         result.error = f"the fuzzing child exited with status {child.returncode}: " + " | ".join(list(tail)[-6:])
     for path in found:
         result.findings.append(str(_minimized(path, settings)))
+    for _, copy in copies if found else ():
+        copy.unlink(missing_ok=True)             # its input is the finding's last, with those before it
     for what, path in artifacts:
         result.findings.append(str(_artifact_finding(what, path, settings, execs)))
     return result
@@ -147,6 +157,8 @@ def run_job(settings: JobSettings, on_progress: Callable[[Progress], None] = lam
 
 def _minimized(path: Path, settings: JobSettings) -> Path:
     finding = findings_mod.load(path)
+    if finding.failure.kind == "hang":
+        return path                  # each try would run until the bound: kept as found
     smaller = findings_mod.minimize(finding, lambda: load_target(settings.target), settings.minimize_s)
     if smaller is finding:
         return path
@@ -158,7 +170,8 @@ def _minimized(path: Path, settings: JobSettings) -> Path:
 
 def _artifact_finding(kind: str, artifact: Path, settings: JobSettings, execs: int) -> Path:
     data = artifact.read_bytes() if artifact.is_file() else b""
-    note = "one input ran longer than %d s" % HANG_S if kind == "hang" else f"past {RSS_LIMIT_MB} MB"
+    note = (f"one input ran longer than {backstop_s(settings.hang_s)} s of wall time (libFuzzer's backstop)"
+            if kind == "hang" else f"past {RSS_LIMIT_MB} MB")
     if getattr(load_target(settings.target), "stateful", False):
         note += "; the target keeps a world between inputs, and the inputs before this one are not known"
     finding = findings_mod.Finding(settings.target, findings_mod.Failure(kind, note), [data], execs=execs)

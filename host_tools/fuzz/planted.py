@@ -10,6 +10,8 @@ The emulator never loads this module. A test, the benchmark, or a person checkin
   controller. Every other value, and every other message, behaves as in the real controller. A fuzzer finds
   it only if it reaches the handler (a session, a valid MAC, counter and sequence number) with a float at
   its declared boundary.
+- `planted_hang_target()`: a walker over length-prefixed records that does not step over a record of length 0,
+  so it loops for ever on such an input: a hang, which `aspod fuzz` must end, save and replay as one.
 """
 from __future__ import annotations
 
@@ -31,6 +33,32 @@ def planted_codec_target():
     """The codec target, decoding through `planted_decode` (`aspod fuzz host_tools.fuzz.planted:planted_codec_target`)."""
     from host_tools.fuzz.targets import CodecTarget
     return CodecTarget(decode=planted_decode)
+
+
+def planted_walk(data: bytes) -> int:
+    """The number of length-prefixed records in `data` (a length byte, then that many bytes each); the planted
+    defect: a record of length 0 is never stepped over."""
+    at = records = 0
+    while at < len(data):
+        length = data[at]
+        if length == 0:
+            continue                                         # the defect: should step over it (at += 1)
+        at += 1 + length
+        records += 1
+    return records
+
+
+def planted_hang_target():
+    """A target feeding `planted_walk` (`aspod fuzz host_tools.fuzz.planted:planted_hang_target`)."""
+    from host_tools.fuzz.targets import Target
+
+    class WalkTarget(Target):
+        name = "planted-walk"
+        about = "length-prefixed records, with a planted hang on a record of length 0"
+
+        def one_input(self, data: bytes) -> None:
+            planted_walk(data)
+    return WalkTarget()
 
 
 def plant_dial_defect() -> None:

@@ -1,0 +1,109 @@
+"""When an in-process input is a hang: its own time, not the host's.
+
+libFuzzer's `-timeout` counts wall time. A job the host starves (the campaign runs at nice 19 beside other work;
+under load 12 one input of controller-link took over 10 s of wall time, its world build being 15 ms of CPU) would
+report an input as hung that only waited for a CPU: the host's slowness taken for the target's fault. So
+`HangWatch` counts an input's own time: the wall time since it started, less the time its thread was runnable but
+waiting on a run queue for a CPU (Linux's schedstat `run_delay`; where the kernel does not say, the whole wall
+time counts). Past `hang_s` of its own time, the input is interrupted on the main thread with `Hang`, and the
+finding holds the inputs that led there and where it was stuck. A hang that blocks in a call without waiting for a
+CPU (a lock, a read) still counts, since blocked time is the input's own.
+
+libFuzzer's own timeout stays as the backstop, at `backstop_s(hang_s)` of wall time, for a hang the interrupt
+cannot reach (a loop in C that never returns to Python).
+"""
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+from typing import Callable, Iterator, Optional
+
+from timebase import Clock, RealClock
+
+HANG_S = 10.0                 # an input's own time past which it is a hang (`aspod fuzz --hang-s`)
+POLL_S = 0.1                  # how often the watch looks
+_SIGNAL = signal.SIGRTMIN + 2  # libFuzzer keeps SIGALRM (its timeout), SIGUSR1 and SIGUSR2 (its exits) for itself
+
+
+def backstop_s(hang_s: float) -> int:
+    """libFuzzer's wall-clock `-timeout` behind the watch: 30 times the bound, at least 5 minutes."""
+    return max(300, int(30 * hang_s) + 1)
+
+
+class Hang(BaseException):
+    """An input ran past its time. A BaseException, as KeyboardInterrupt is, so that a target's own
+    `except Exception` cannot swallow it."""
+
+
+class HangWatch:
+    """Interrupts the main thread's input once its own time passes `hang_s` (use `with watch:` around the run, and
+    `with watch.input():` around each input). `waited_s` says how long the main thread has waited for a CPU so far
+    (None: not known); the default reads the kernel's count."""
+
+    def __init__(self, hang_s: float = HANG_S, clock: Optional[Clock] = None,
+                 waited_s: Optional[Callable[[], Optional[float]]] = None) -> None:
+        self.hang_s = hang_s
+        self.clock = clock or RealClock()
+        main_id = threading.main_thread().native_id
+        self._waited_s = waited_s or (lambda: RealClock.cpu_wait_s(main_id))
+        self._started: Optional[tuple[float, Optional[float]]] = None     # the input's start: wall, waited
+        self._fired = False
+        self._stop = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        self._previous = None
+
+    # ---- the judgement (no thread, no signal: tests drive it with a SimClock) ----
+    def overdue(self) -> Optional[str]:
+        """Why the running input is a hang, or None (none running, or still within its time)."""
+        started = self._started
+        if started is None:
+            return None
+        wall = self.clock.now() - started[0]
+        waited_now = self._waited_s()
+        waited = 0.0 if waited_now is None or started[1] is None else max(0.0, waited_now - started[1])
+        own = wall - waited
+        if own <= self.hang_s:
+            return None
+        return (f"one input ran {own:.1f} s of its own time, past the {self.hang_s:g} s of --hang-s "
+                f"({wall:.1f} s of wall time, {waited:.1f} s of it waiting for a CPU)")
+
+    @contextmanager
+    def input(self) -> Iterator[None]:
+        """Around one input: its time starts now and ends with the block."""
+        self._fired = False
+        self._started = (self.clock.now(), self._waited_s())
+        try:
+            yield
+        finally:
+            self._started = None
+
+    # ---- the watch ----
+    def __enter__(self) -> "HangWatch":
+        if threading.current_thread() is not threading.main_thread():
+            return self          # a signal reaches only the main thread: here, libFuzzer's backstop alone
+        self._previous = signal.signal(_SIGNAL, self._interrupt)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._watch, name="aspod-hang-watch", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._thread is None:
+            return
+        self._stop.set()
+        self._thread.join()
+        self._thread = None
+        signal.signal(_SIGNAL, self._previous)
+
+    def _watch(self) -> None:
+        while not self._stop.wait(POLL_S):
+            why = self.overdue()
+            if why is not None and not self._fired:
+                self._fired = True
+                signal.pthread_kill(threading.main_thread().ident, _SIGNAL)
+
+    def _interrupt(self, signum, frame) -> None:
+        why = self.overdue()                # judged again: the input may have ended since the watch looked
+        if why is not None:
+            raise Hang(why)
