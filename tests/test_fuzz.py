@@ -88,6 +88,8 @@ def test_a_planted_off_by_one_in_the_codec_is_found_minimized_and_replayed(tmp_p
     assert finding.failure.kind == "oracle" and finding.failure.oracle == "round trip"
     assert finding.minimized and len(finding.inputs) == 1 and len(finding.inputs[0]) <= 8
     done = aspod("fuzz", "--replay", result.findings[0], cwd=tmp_path)
+    assert done.returncode == 2 and "name it after the file to say you trust it" in done.stderr   # it runs code
+    done = aspod("fuzz", "--replay", result.findings[0], PLANTED_CODEC, cwd=tmp_path)
     assert done.returncode == 1 and "fails as found" in done.stdout
     clean = run_job(JobSettings("codec", tmp_path / "corpus2", tmp_path / "found2", seconds=None, runs=5000))
     assert clean.findings == [] and clean.execs == 5000 and clean.cov > 50
@@ -111,10 +113,14 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
                        ([], "name an in-process TARGET"), (["codec", "--url", "/dev/null"], "one at a time"),
                        (["--url", "/dev/null", "--only", "Pong"], "not a command the controller takes"),
                        (["nosuch.module:f"], "cannot load it"), (["codec", "--max-findings", "1"], "black-box"),
-                       (["--url", "/dev/null", "--max-findings", "0"], "--max-findings")):
+                       (["--url", "/dev/null", "--max-findings", "0"], "--max-findings"),
+                       (["codec", "codec"], "named twice"), (["builtins:input"], "its factory raised EOFError"),
+                       (["host_tools.fuzz.planted:PLANTED_DIAL_PCT"], "is not a factory")):
         done = aspod("fuzz", *args, cwd=tmp_path, timeout=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-findings").exists() or not any((tmp_path / "fuzz-findings").iterdir())
+    done = aspod("--log-file", str(tmp_path), "fuzz", "--list", cwd=tmp_path)     # a folder: every command says so
+    assert done.returncode == 2 and "--log-file: cannot write" in done.stderr and "Traceback" not in done.stderr
 
 
 @pytest.mark.pty

@@ -78,8 +78,8 @@ def test_a_planted_hang_is_ended_saved_with_its_place_and_replayed_as_a_hang(tmp
     # the line of the loop it was stuck in, or (an instruction atheris added has no line) the function
     assert finding["failure"]["where"] in stuck | {"host_tools/fuzz/planted.py, in planted_walk()"}, finding
     assert "of its own time, past the 0.5 s of --hang-s" in finding["failure"]["error"]
-    again = subprocess.run([*ASPOD, "fuzz", "--replay", job["findings"][0], "--hang-s", "0.5"], cwd=tmp_path,
-                           capture_output=True, text=True, timeout=60)
+    again = subprocess.run([*ASPOD, "fuzz", "--replay", job["findings"][0], PLANTED_HANG, "--hang-s", "0.5"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert again.returncode == 1 and "fails as found: hang" in again.stdout, again.stdout + again.stderr
 
 

@@ -137,7 +137,11 @@ def _replay(settings: FuzzSettings) -> int:
         from host_tools.fuzz.blackbox import BlackBoxFuzzer
         failure = BlackBoxFuzzer(settings.blackbox, host_key(settings.key_file)).replay(finding)
     else:
-        from host_tools.fuzz.targets import load_target
+        from host_tools.fuzz.targets import builtin_targets, load_target
+        if finding.target not in builtin_targets() and finding.target != settings.replay_target:
+            raise ValueError(f"{settings.replay} names the target {finding.target}, which a replay would import and "
+                             f"run: name it after the file to say you trust it "
+                             f"(aspod fuzz --replay {settings.replay} {finding.target})")
         failure = findings.replay(finding, lambda: load_target(finding.target), settings.hang_s)
     said = finding.failure.describe()
     if failure is None:

@@ -680,7 +680,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.command == "bench":
         args = with_script_directive(args, argv)
     args.argv = tuple(argv)            # the command line as given (a campaign keeps it in its record)
-    setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))
+    try:
+        setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))
+    except OSError as exc:                      # --log-file a folder, or in a folder that is not there
+        print(f"aspod: --log-file: cannot write {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return EXIT_USAGE
     log = logging.getLogger("aspod")
     try:
         return run_command(args)

@@ -485,6 +485,7 @@ class FuzzSettings:
     engine: Optional["EngineSettings"] = None
     blackbox: Optional["BlackBoxSettings"] = None
     replay: Optional[Path] = None
+    replay_target: Optional[str] = None   # `--replay FILE MODULE:FACTORY`: the user's own target, named to trust it
     key_file: Optional[Path] = None
     coverage: bool = False
     as_json: bool = False
@@ -502,8 +503,9 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
     live = args.url is not None or args.target_cmd is not None
     if args.list:
         return FuzzSettings("list", **common)
-    if args.targets and (live or args.replay is not None):
-        raise ValueError("in-process TARGETs, or --url/--target-cmd (black-box), or --replay FILE: one at a time")
+    if args.targets and (live or (args.replay is not None and len(args.targets) > 1)):
+        raise ValueError("in-process TARGETs, or --url/--target-cmd (black-box), or --replay FILE [MODULE:FACTORY]: "
+                         "one at a time")
     if live or (args.replay is not None and not args.targets):
         command = tuple(shlex.split(args.target_cmd)) if args.target_cmd else ()
         if command and command[0] == "aspod":       # the aspod of this Python, wherever the shell's PATH points
@@ -521,6 +523,10 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
             return FuzzSettings("replay" if args.replay is not None else "blackbox", blackbox=blackbox,
                                 replay=args.replay, **common)
         return FuzzSettings("replay", replay=args.replay, **common)
+    if args.replay is not None:
+        return FuzzSettings("replay", replay=args.replay, replay_target=args.targets[0], **common)
+    if len(set(args.targets)) != len(args.targets):
+        raise ValueError(f"a TARGET named twice ({' '.join(args.targets)}): --jobs N runs one several times")
     if not args.targets:
         raise ValueError("name an in-process TARGET (aspod fuzz --list), or --url/--target-cmd, or --replay FILE")
     if args.cases is not None or args.only or args.skip is not None or args.max_findings is not None:

@@ -352,18 +352,23 @@ def builtin_targets() -> dict[str, Callable[[], Target]]:
 
 def load_target(spec: str) -> Target:
     """A built-in target by name, or `module:factory` (a callable returning an object with `one_input`)."""
-    if ":" in spec:
-        module_name, _, attr = spec.partition(":")
-        try:
-            factory = getattr(importlib.import_module(module_name), attr)
-        except (ImportError, AttributeError) as exc:
-            raise ValueError(f"fuzz target {spec}: cannot load it ({exc})") from None
-    else:
+    if ":" not in spec:
         factory = builtin_targets().get(spec)
         if factory is None:
             raise ValueError(f"no fuzz target {spec!r}; the targets are {', '.join(builtin_targets())}, "
                              f"or module:factory for your own")
-    target = factory()
+        return factory()
+    module_name, _, attr = spec.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError, TypeError, ValueError) as exc:     # TypeError: ".x", a relative name
+        raise ValueError(f"fuzz target {spec}: cannot load it ({exc})") from None
+    if not callable(factory):
+        raise ValueError(f"fuzz target {spec}: {attr} is not a factory (a callable returning a target)")
+    try:
+        target = factory()
+    except (Exception, SystemExit) as exc:      # noqa: BLE001 (the user's factory: whatever it raises is refused)
+        raise ValueError(f"fuzz target {spec}: its factory raised {type(exc).__name__}: {exc}") from None
     if not callable(getattr(target, "one_input", None)):
         raise ValueError(f"fuzz target {spec}: {target!r} has no one_input(data)")
     return target
