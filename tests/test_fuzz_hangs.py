@@ -35,6 +35,7 @@ def test_an_inputs_own_time_leaves_out_what_it_waited_for_a_cpu():
     watch = HangWatch(10.0, clock, waited)
     assert watch.overdue() is None                        # no input running
     with watch.input():
+        assert watch.overdue() is None                    # the first look: the CPU wait is counted from here
         clock.sleep_until(112.0)
         waited.value = 8.0                                # 12 s of wall time, 3 of them waiting for a CPU: 9 s
         assert watch.overdue() is None
