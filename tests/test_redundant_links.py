@@ -57,6 +57,13 @@ def test_link_addresses_parse_as_the_simulator_prints_them():
         parse_links("a=/dev/pts/3,a=/dev/pts/4")
 
 
+@pytest.mark.parametrize("url", ["socket://127.0.0.1:99999", "socket://", "socket://127.0.0.1:abc",
+                                 "socket://:4000", "optical=socket://127.0.0.1:0,radio=/dev/null"])
+def test_a_socket_link_that_is_not_host_and_port_is_refused_saying_what_it_must_be(url):
+    with pytest.raises(LinkError, match=r"a socket link is socket://HOST:PORT, PORT a number 1\.\.65535"):
+        HostClient(url, bytes(32))
+
+
 @pytest.mark.pty
 def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim_factory, env):
     sim = sim_factory("--link", "radio=pty", "--link", "optical=tcp:0", "--no-tracker")

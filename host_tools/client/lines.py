@@ -40,6 +40,11 @@ def parse_links(url: str) -> list[tuple[str, str]]:
 
 
 def _open(url: str, baud: int, timeout: float) -> serial.SerialBase:
+    if url.startswith("socket://"):      # pyserial's own complaint about a bad one names its logging options
+        host, sep, port = url[len("socket://"):].split("?", 1)[0].rpartition(":")
+        if not (sep and host and port.isdigit() and 1 <= int(port) <= 65535):
+            raise LinkError(Reason.NO_SESSION, f"cannot open {url}: a socket link is socket://HOST:PORT, "
+                                               "PORT a number 1..65535")
     try:
         return serial.serial_for_url(url, baudrate=baud, timeout=timeout, write_timeout=2.0)
     except (serial.SerialException, ValueError) as exc:
