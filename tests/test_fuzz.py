@@ -108,6 +108,12 @@ def test_findings_that_are_not_findings_are_refused_with_a_reason(tmp_path):
     assert done.returncode == 2 and "bad.json" in done.stderr
 
 
+def test_a_finding_with_more_inputs_than_the_fuzzer_keeps_is_refused_before_it_runs(tmp_path):
+    path = findings.Finding("controller-link", findings.Failure("crash", "x"), [b""] * 501).save(tmp_path)
+    with pytest.raises(findings.FindingError, match="holds at most 500 inputs"):
+        findings.replay(findings.load(path), lambda: load_target("controller-link"))
+
+
 def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
     for args, said in ((["nosuch"], "no fuzz target 'nosuch'"), (["codec", "--cases", "3"], "black-box"),
                        ([], "name an in-process TARGET"), (["codec", "--url", "/dev/null"], "one at a time"),

@@ -152,6 +152,11 @@ def run_inputs(target, inputs: list[bytes], watch: Optional[HangWatch] = None) -
 
 def replay(finding: Finding, make_target: Callable[[], object], hang_s: float = HANG_S) -> Optional[Failure]:
     target = make_target()
+    most = target.fresh_every if getattr(target, "stateful", False) else 1
+    if len(finding.inputs) > most:        # more than the fuzzer keeps: not one of its findings, and long to run
+        target.close()
+        raise FindingError(f"a finding of {finding.target} holds at most {most} inputs (those since the target "
+                           f"was fresh), not {len(finding.inputs)}")
     try:
         with HangWatch(hang_s) as watch:
             return run_inputs(target, finding.inputs, watch)
