@@ -1,4 +1,5 @@
-"""aspod fuzz, black-box: bad input refused before any target starts (a finding's fields and steps, --only/--skip)."""
+"""aspod fuzz, black-box: bad input refused before any target starts (a finding's fields and steps, --only/--skip),
+and a target it started stopped on every way out."""
 from __future__ import annotations
 
 import json
@@ -150,3 +151,18 @@ def test_only_and_skip_that_leave_no_command_are_refused_before_the_target_start
     done = aspod("fuzz", "--target-cmd", fake_target(tmp_path), "--only", "Pong", "--cases", "3", cwd=tmp_path)
     assert done.returncode == 2 and "not a command the controller takes" in done.stderr, done.stderr
     assert not (tmp_path / "pid").exists()
+
+
+@pytest.mark.parametrize("ready", ["ASPOD-LINK socket://127.0.0.1:1", "ASPOD-LINK", "something else",
+                                   "ASPOD-LINK /nonexistent/tty"])
+def test_a_target_started_whose_link_cannot_be_opened_is_stopped(tmp_path, ready):
+    """A closed port, no URL, a wrong ready line, a URL that is not there: the command exits 3 and the target
+    it started is not left running."""
+    done = aspod("fuzz", "--target-cmd", fake_target(tmp_path, ready), "--cases", "2", cwd=tmp_path)
+    assert done.returncode == 3 and "Traceback" not in done.stderr, done.stderr
+    pid = int((tmp_path / "pid").read_text())
+    assert gone(pid), f"the target (pid {pid}) is still running"
+    done = aspod("fuzz", "--replay", str(finding_file(tmp_path)), "--target-cmd",
+                 fake_target(tmp_path, ready, "pid2"), cwd=tmp_path)
+    assert done.returncode in (1, 3) and "Traceback" not in done.stderr, done.stderr
+    assert gone(int((tmp_path / "pid2").read_text()))

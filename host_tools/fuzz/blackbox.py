@@ -132,15 +132,25 @@ class Session:
     def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
         self.settings, self.psk, self.clock = settings, psk, RealClock()
         self.child = None
-        url = settings.url
+        self.line = None
+        self.url = settings.url
         if settings.command:
             from host_tools.worlds.child import Child
             self.child = Child(list(settings.command[1:]), command=settings.command[:1])
-            url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
-        self.url = url
+        try:
+            self._connect()
+        except BaseException:        # no session: a target we started is stopped, not left running
+            self.close()
+            raise
+
+    def _connect(self) -> None:
+        settings = self.settings
+        if self.child is not None:
+            self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
+        url = self.url
         self.line = SerialLine(url, settings.baud)
         self.line.serial.timeout = READ_WAIT_S
-        self.host = HostLink(psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
+        self.host = HostLink(self.psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
         self.sent: list[bytes] = []
         self.started: dict[int, int] = {}      # axis -> the last motion id a command of ours started
         self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
@@ -149,7 +159,6 @@ class Session:
         self.accepted_counter = -1             # the host's counter on the last frame the target answered
         self.host.connect(self.clock.now())
         if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
-            self.close()
             raise TargetGone(f"no session with {url} within {settings.health_timeout_s * 2:.0f} s "
                              f"(link {self.host.state.value})")
 
@@ -206,7 +215,8 @@ class Session:
     def close(self) -> str:
         """Close the line and stop our target; its stderr's last lines."""
         try:
-            self.line.close()
+            if self.line is not None:
+                self.line.close()
         except OSError:
             pass
         if self.child is None:
@@ -498,7 +508,11 @@ class BlackBoxFuzzer:
 
     def _open(self) -> tuple[Session, HealthCheck]:
         session = Session(self.settings, self.psk)
-        return session, HealthCheck(session)
+        try:
+            return session, HealthCheck(session)
+        except BaseException:        # its first status not had: our target is stopped, not left running
+            session.close()
+            raise
 
     def run(self, on_case: Callable[[BlackBoxResult], None] = lambda r: None) -> BlackBoxResult:
         result = BlackBoxResult()
