@@ -1,5 +1,5 @@
-"""aspod fuzz, black-box: bad input refused before any target starts (a finding's fields and steps, --only/--skip),
-and a target it started stopped on every way out."""
+"""aspod fuzz, black-box: bad input refused before any target starts (a finding's fields and steps, --only/--skip,
+--findings), a target it started stopped on every way out, and a finding that cannot be saved not lost."""
 from __future__ import annotations
 
 import json
@@ -166,3 +166,43 @@ def test_a_target_started_whose_link_cannot_be_opened_is_stopped(tmp_path, ready
                  fake_target(tmp_path, ready, "pid2"), cwd=tmp_path)
     assert done.returncode in (1, 3) and "Traceback" not in done.stderr, done.stderr
     assert gone(int((tmp_path / "pid2").read_text()))
+
+
+def test_the_findings_folder_is_checked_before_the_target_starts(tmp_path):
+    (tmp_path / "afile").write_text("")
+    for where, said in (("afile", "not a folder"), ("afile/sub", "cannot be made")):
+        done = aspod("fuzz", "--target-cmd", fake_target(tmp_path), "--findings", where, "--cases", "2",
+                     cwd=tmp_path)
+        assert done.returncode == 2 and "--findings" in done.stderr and said in done.stderr, done.stderr
+    assert not (tmp_path / "pid").exists() and (tmp_path / "afile").read_text() == ""
+
+
+def test_check_writable_folder(tmp_path):
+    findings.check_writable_folder(tmp_path / "a" / "b", "--findings")
+    assert (tmp_path / "a" / "b").is_dir() and not any((tmp_path / "a" / "b").iterdir())
+    (tmp_path / "f").write_text("keep")
+    for path, said in ((tmp_path / "f", "not a folder"), (tmp_path / "f" / "x", "cannot be made")):
+        with pytest.raises(ValueError, match=said):
+            findings.check_writable_folder(path, "--findings")
+    assert (tmp_path / "f").read_text() == "keep"
+
+
+def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypatch, capsys):
+    class FakeSession:
+        url, child = "fake", None
+
+        def close(self) -> str:
+            return ""
+
+    fuzzer = blackbox.BlackBoxFuzzer(blackbox.BlackBoxSettings(url="fake", cases=1, findings=tmp_path), b"k" * 32)
+    monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), None))
+    monkeypatch.setattr(blackbox, "run_case", lambda *a: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
+
+    def refuse(self, folder):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(findings.Finding, "save", refuse)
+    result = fuzzer.run()
+    err = capsys.readouterr().err
+    assert result.findings == [] and len(result.unsaved) == 1 and "No space left on device" in err
+    shown = json.loads(err[err.index("{"):])
+    assert shown == result.unsaved[0] and shown["failure"]["error"] == "HealthCheck: wrong" and shown["steps"]

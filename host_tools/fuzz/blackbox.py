@@ -25,7 +25,9 @@ its steps on fresh targets.
 """
 from __future__ import annotations
 
+import json
 import random
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
@@ -110,6 +112,7 @@ class BlackBoxResult:
     steps: int = 0
     wall_s: float = 0.0
     findings: list[str] = field(default_factory=list)
+    unsaved: list[dict] = field(default_factory=list)     # findings that could not be saved (on stderr)
     restarts: int = 0
     error: str = ""
 
@@ -518,6 +521,7 @@ class BlackBoxFuzzer:
         result = BlackBoxResult()
         start = _CLOCK.now()
         rng = random.Random(self.settings.seed)
+        findings_mod.check_writable_folder(self.settings.findings, "--findings")   # before any target starts
         session, health = self._open()
         try:
             while (self.settings.cases is None or result.cases < self.settings.cases) and (
@@ -536,8 +540,13 @@ class BlackBoxFuzzer:
                                                    execs=result.cases)
                     if self.settings.command:
                         finding = self.minimize(finding)
-                    result.findings.append(str(finding.save(self.settings.findings)))
-                    if len(result.findings) == self.settings.max_findings:
+                    try:
+                        result.findings.append(str(finding.save(self.settings.findings)))
+                    except OSError as exc:     # not lost: it goes to stderr whole, with the reason
+                        result.unsaved.append(finding.to_json())
+                        print(f"aspod fuzz: a finding could not be saved in {self.settings.findings} ({exc}); "
+                              f"here it is:\n{json.dumps(finding.to_json(), indent=1)}", file=sys.stderr)
+                    if len(result.findings) + len(result.unsaved) == self.settings.max_findings:
                         break
                     if not self.settings.command:
                         break                  # not ours to restart: the target is as the case left it
