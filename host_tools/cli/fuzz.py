@@ -97,7 +97,9 @@ def _inprocess(settings: FuzzSettings) -> int:
 
 def _blackbox(settings: FuzzSettings) -> int:
     from host_tools.fuzz.blackbox import BlackBoxFuzzer, TargetGone
+    from host_tools.fuzz.findings import check_writable_folder
     bb = settings.blackbox
+    check_writable_folder(bb.findings, "--findings")        # before the progress bar (the fuzzer checks it too)
     bar = _progress_bar(settings, bb.cases, "case")
     state = {"cases": 0}
 
@@ -118,13 +120,15 @@ def _blackbox(settings: FuzzSettings) -> int:
     for path in result.findings:
         log.error(f"aspod fuzz: finding {path}")
     figures = {"cases": result.cases, "steps": result.steps, "wall_s": round(result.wall_s, 2),
-               "cases_per_s": round(result.cases_per_s, 2), "restarts": result.restarts, "findings": result.findings}
+               "cases_per_s": round(result.cases_per_s, 2), "restarts": result.restarts, "findings": result.findings,
+               "unsaved": len(result.unsaved)}
     if settings.as_json:
         print(json.dumps(figures, indent=1))
     else:
         print(f"black-box: {result.cases} cases ({result.steps} steps) in {result.wall_s:.1f} s, "
-              f"{result.cases_per_s:.1f} cases/s, {len(result.findings)} findings")
-    return EXIT_FAILED if result.findings else EXIT_OK
+              f"{result.cases_per_s:.1f} cases/s, {len(result.findings)} findings"
+              + (f", {len(result.unsaved)} not saved (on stderr)" if result.unsaved else ""))
+    return EXIT_FAILED if result.findings or result.unsaved else EXIT_OK
 
 
 def _replay(settings: FuzzSettings) -> int:

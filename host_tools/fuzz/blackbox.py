@@ -25,7 +25,9 @@ its steps on fresh targets.
 """
 from __future__ import annotations
 
+import json
 import random
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
@@ -53,6 +55,14 @@ EXIT_WAIT_S = 2.0              # after the line broke, how long a target we star
 READ_WAIT_S = 0.002            # a read waits this long for a first byte (the fuzzer's turns are short)
 SILENCE_ONE_IN = 200           # a silence (about 2 s at the default timeout) in one step of this many
 SILENCE_MIN, SILENCE_MAX = 0.5, 0.8   # of the link timeout: near it, with room for this process being held up
+MAX_STEPS = 6                  # a case's steps, at most
+DELAY_MAX_MS = 19              # the pause before a step, at most (0 three times in four)
+BURST_MIN, BURST_MAX = 2, 21   # commands in a burst
+SENT_KEPT = 64                 # the frames a replay step picks from (the last sent)
+FRAME_SEQS = ("duplicate", "gap", "any")   # a crafted frame's sequence number: an old one, ahead, any
+OFFSET_MAX = 3                 # how far back (duplicate) or ahead (gap), at most
+LENGTH_DELTA = 4               # a crafted frame's length field, off by at most this
+RAW_MAX = MAX_ENCODED + 8      # a raw step's bytes, at most
 
 
 class TargetGone(Exception):
@@ -70,7 +80,7 @@ class BlackBoxSettings:
     findings: Path = Path("fuzz-findings")
     link_timeout_s: float = LinkConfig().link_timeout_s
     health_timeout_s: float = 5.0            # a Ping not answered in this long: the target is not healthy
-    max_steps: int = 6
+    max_steps: int = MAX_STEPS
     skip: tuple[str, ...] = ("ParamSave",)   # commands never sent (ParamSave writes the target's own file)
     only: tuple[str, ...] = ()               # if given, the only commands sent in sequence (one handler's fuzzing)
     minimize_s: float = 60.0
@@ -84,6 +94,16 @@ class BlackBoxSettings:
         unknown = [n for n in self.skip + self.only if n not in {s.name for s in COMMANDS}]
         if unknown:
             raise ValueError(f"--skip/--only {', '.join(unknown)}: not a command the controller takes")
+        if not self.commands:
+            raise ValueError(f"--only {' '.join(self.only) or '(all)'} less --skip {' '.join(self.skip)} leaves no "
+                             "command to send")
+        if not 1 <= self.max_steps <= MAX_STEPS:
+            raise ValueError(f"max_steps {self.max_steps}: must be 1..{MAX_STEPS}")
+
+    @property
+    def commands(self) -> list:
+        """The commands sent in sequence: --only's (or all), less --skip's."""
+        return [s for s in COMMANDS if s.name not in self.skip and (not self.only or s.name in self.only)]
 
 
 @dataclass
@@ -92,6 +112,7 @@ class BlackBoxResult:
     steps: int = 0
     wall_s: float = 0.0
     findings: list[str] = field(default_factory=list)
+    unsaved: list[dict] = field(default_factory=list)     # findings that could not be saved (on stderr)
     restarts: int = 0
     error: str = ""
 
@@ -114,15 +135,25 @@ class Session:
     def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
         self.settings, self.psk, self.clock = settings, psk, RealClock()
         self.child = None
-        url = settings.url
+        self.line = None
+        self.url = settings.url
         if settings.command:
             from host_tools.worlds.child import Child
             self.child = Child(list(settings.command[1:]), command=settings.command[:1])
-            url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
-        self.url = url
+        try:
+            self._connect()
+        except BaseException:        # no session: a target we started is stopped, not left running
+            self.close()
+            raise
+
+    def _connect(self) -> None:
+        settings = self.settings
+        if self.child is not None:
+            self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
+        url = self.url
         self.line = SerialLine(url, settings.baud)
         self.line.serial.timeout = READ_WAIT_S
-        self.host = HostLink(psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
+        self.host = HostLink(self.psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
         self.sent: list[bytes] = []
         self.started: dict[int, int] = {}      # axis -> the last motion id a command of ours started
         self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
@@ -131,7 +162,6 @@ class Session:
         self.accepted_counter = -1             # the host's counter on the last frame the target answered
         self.host.connect(self.clock.now())
         if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
-            self.close()
             raise TargetGone(f"no session with {url} within {settings.health_timeout_s * 2:.0f} s "
                              f"(link {self.host.state.value})")
 
@@ -188,7 +218,8 @@ class Session:
     def close(self) -> str:
         """Close the line and stop our target; its stderr's last lines."""
         try:
-            self.line.close()
+            if self.line is not None:
+                self.line.close()
         except OSError:
             pass
         if self.child is None:
@@ -205,33 +236,33 @@ class Case:
 
     @classmethod
     def draw(cls, draw: RandomDraw, settings: BlackBoxSettings) -> "Case":
-        commands = [s for s in COMMANDS if s.name not in settings.skip and (not settings.only or s.name in settings.only)]
+        commands = settings.commands
         steps = []
         for _ in range(1 + draw.pick(settings.max_steps)):
             kind = "silence" if draw.pick(SILENCE_ONE_IN) == 0 else STEP_KINDS[draw.pick(len(STEP_KINDS))]
-            step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(4) else draw.pick(20) / 1000.0}
+            step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(4) else draw.pick(DELAY_MAX_MS + 1) / 1000.0}
             if kind == "command":
                 spec = commands[draw.pick(len(commands))]
                 step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex())
             elif kind == "frame":
                 spec = TO_CONTROLLER[draw.pick(len(TO_CONTROLLER))]
                 step.update(msg=spec.name, cls=int(spec.cls) if draw.pick(8) else draw.int_in(0, 255),
-                            seq=["duplicate", "gap", "any"][draw.pick(3)], offset=draw.pick(4),
+                            seq=FRAME_SEQS[draw.pick(len(FRAME_SEQS))], offset=draw.pick(OFFSET_MAX + 1),
                             any_seq=draw.int_in(0, 0xFFFF), payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex(),
                             mac=MACS[4 + draw.pick(len(MACS) - 4)] if draw.pick(2) else "good",
                             version=1 if draw.pick(8) else draw.int_in(0, 255),
                             flags=0x10 if draw.pick(8) else draw.int_in(0, 255),
-                            length_delta=0 if draw.pick(8) else draw.int_in(-4, 4))
+                            length_delta=0 if draw.pick(8) else draw.int_in(-LENGTH_DELTA, LENGTH_DELTA))
             elif kind == "replay":
-                step.update(which=draw.pick(64))
+                step.update(which=draw.pick(SENT_KEPT))
             elif kind == "raw":
-                step.update(bytes=draw.raw(MAX_ENCODED + 8).hex())
+                step.update(bytes=draw.raw(RAW_MAX).hex())
             elif kind == "hello":
                 hello = SCHEMA["Hello"]
                 values = [draw_value(f, draw) for f in hello.fields]
                 step.update(payload=pack_raw(hello, values).hex())
             elif kind == "burst":
-                step.update(count=2 + draw.pick(20))
+                step.update(count=BURST_MIN + draw.pick(BURST_MAX - BURST_MIN + 1))
             elif kind == "silence":
                 step.update(fraction=SILENCE_MIN + draw.pick(int((SILENCE_MAX - SILENCE_MIN) * 100) + 1) / 100.0)
             steps.append(step)
@@ -297,8 +328,86 @@ class Case:
                              step["flags"], step["length_delta"])
         wire = build(recipe, host.session, _Peer(session.accepted_counter), host._handshake.tx, host._ack_value(),
                      draw)
-        session.sent = (session.sent + [wire])[-64:]
+        session.sent = (session.sent + [wire])[-SENT_KEPT:]
         return wire
+
+
+def _whole(lo: int, hi: int) -> Callable[[object], Optional[str]]:
+    return lambda v: None if type(v) is int and lo <= v <= hi else f"a whole number {lo}..{hi}"
+
+
+def _number(lo: float, hi: float) -> Callable[[object], Optional[str]]:
+    return lambda v: None if type(v) in (int, float) and lo <= v <= hi else f"a number {lo:g}..{hi:g}"
+
+
+def _one_of(names) -> Callable[[object], Optional[str]]:
+    names = tuple(dict.fromkeys(names))
+    said = ", ".join(names) if len(names) <= 10 else ", ".join(names[:8]) + f", ... ({len(names)} names)"
+    return lambda v: None if isinstance(v, str) and v in names else f"one of {said}"
+
+
+def _hex(most: int) -> Callable[[object], Optional[str]]:
+    def check(v: object) -> Optional[str]:
+        try:
+            if isinstance(v, str) and len(v) <= 2 * most and len(bytes.fromhex(v)) <= most:
+                return None
+        except ValueError:
+            pass
+        return f"hexadecimal of at most {most} bytes"
+    return check
+
+
+_COMMAND_NAMES = [s.name for s in COMMANDS]
+_STEP_FIELDS: dict[str, dict[str, Callable[[object], Optional[str]]]] = {    # what each kind needs
+    "command": {"msg": _one_of(_COMMAND_NAMES), "payload": _hex(MAX_PAYLOAD)},
+    "frame": {"msg": _one_of(s.name for s in TO_CONTROLLER), "cls": _whole(0, 255), "seq": _one_of(FRAME_SEQS),
+              "offset": _whole(0, OFFSET_MAX), "any_seq": _whole(0, 0xFFFF), "payload": _hex(MAX_PAYLOAD),
+              "mac": _one_of(MACS), "version": _whole(0, 255), "flags": _whole(0, 255),
+              "length_delta": _whole(-LENGTH_DELTA, LENGTH_DELTA)},
+    "replay": {"which": _whole(0, SENT_KEPT - 1)},
+    "raw": {"bytes": _hex(RAW_MAX)},
+    "hello": {"payload": _hex(MAX_PAYLOAD)},
+    "burst": {"count": _whole(BURST_MIN, BURST_MAX)},
+    "silence": {"fraction": _number(SILENCE_MIN, SILENCE_MAX)},
+}
+_STEP_OPTIONAL: dict[str, Callable[[object], Optional[str]]] = {
+    "seed": _whole(0, (1 << 32) - 1),               # the case's, on its first step
+    "wire": _hex(MAX_ENCODED + 2),                  # a frame as it was sent, delimiters included
+}
+_BURST_OPTIONAL = {"msg": _STEP_FIELDS["command"]["msg"], "payload": _STEP_FIELDS["command"]["payload"]}
+_COMMON = {"kind": _one_of(_STEP_FIELDS), "delay_s": _number(0, DELAY_MAX_MS / 1000)}
+
+
+def check_steps(steps: object) -> None:
+    """`steps` as the fuzzer writes them: 1..MAX_STEPS objects, each with its kind's fields, each field of its
+    type and within the bounds the fuzzer draws it from; ValueError naming the step, the field and what it must
+    be (so that a replay neither crashes, nor waits for ever, nor sends without end)."""
+    if not isinstance(steps, list) or not 1 <= len(steps) <= MAX_STEPS:
+        raise ValueError(f"\"steps\" must be a list of 1..{MAX_STEPS} steps")
+    for index, step in enumerate(steps):
+        if not isinstance(step, dict):
+            raise ValueError(f"step {index} must be an object")
+        kind = step.get("kind")
+        rules = dict(_COMMON)
+        if kind in _STEP_FIELDS:
+            rules.update(_STEP_FIELDS[kind])
+        for name, rule in rules.items():
+            if name not in step:
+                raise ValueError(f"step {index} ({kind if kind in _STEP_FIELDS else 'a step'}) has no \"{name}\"; "
+                                 f"it must be {rule(None)}")
+        if kind == "burst":
+            rules.update(_BURST_OPTIONAL)
+        rules.update(_STEP_OPTIONAL)
+        for name, rule in rules.items():
+            if name in step:
+                must = rule(step[name])
+                if must is not None:
+                    raise ValueError(f"step {index}, \"{name}\": {_shown(step[name])}; it must be {must}")
+
+
+def _shown(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 class HealthCheck:
@@ -402,12 +511,17 @@ class BlackBoxFuzzer:
 
     def _open(self) -> tuple[Session, HealthCheck]:
         session = Session(self.settings, self.psk)
-        return session, HealthCheck(session)
+        try:
+            return session, HealthCheck(session)
+        except BaseException:        # its first status not had: our target is stopped, not left running
+            session.close()
+            raise
 
     def run(self, on_case: Callable[[BlackBoxResult], None] = lambda r: None) -> BlackBoxResult:
         result = BlackBoxResult()
         start = _CLOCK.now()
         rng = random.Random(self.settings.seed)
+        findings_mod.check_writable_folder(self.settings.findings, "--findings")   # before any target starts
         session, health = self._open()
         try:
             while (self.settings.cases is None or result.cases < self.settings.cases) and (
@@ -426,8 +540,13 @@ class BlackBoxFuzzer:
                                                    execs=result.cases)
                     if self.settings.command:
                         finding = self.minimize(finding)
-                    result.findings.append(str(finding.save(self.settings.findings)))
-                    if len(result.findings) == self.settings.max_findings:
+                    try:
+                        result.findings.append(str(finding.save(self.settings.findings)))
+                    except OSError as exc:     # not lost: it goes to stderr whole, with the reason
+                        result.unsaved.append(finding.to_json())
+                        print(f"aspod fuzz: a finding could not be saved in {self.settings.findings} ({exc}); "
+                              f"here it is:\n{json.dumps(finding.to_json(), indent=1)}", file=sys.stderr)
+                    if len(result.findings) + len(result.unsaved) == self.settings.max_findings:
                         break
                     if not self.settings.command:
                         break                  # not ours to restart: the target is as the case left it
@@ -442,7 +561,8 @@ class BlackBoxFuzzer:
 
     def replay(self, finding: findings_mod.Finding) -> Optional[findings_mod.Failure]:
         """Run a finding's steps on a fresh session: the failure, or None (it no longer fails)."""
-        seed = int(finding.steps[0].get("seed", 0)) if finding.steps else 0
+        check_steps(finding.steps)         # (a finding from findings.load has been checked)
+        seed = finding.steps[0].get("seed", 0)
         try:
             session, health = self._open()
         except TargetGone as exc:

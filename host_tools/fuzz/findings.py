@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import tempfile
 import time
 
 from timebase import RealClock
 
 import traceback
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -110,6 +112,25 @@ class Finding:
         return path
 
 
+def check_writable_folder(path: Path, what: str) -> None:
+    """`path` a folder this process can write in (made if missing, a probe file written and removed), before
+    anything starts that would want to save there; ValueError with the reason else (`what`: the option, say)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise ValueError(f"{what} {path}: not a folder") from None
+    except OSError as exc:
+        raise ValueError(f"{what} {path}: cannot be made ({exc.strerror or exc})") from None
+    if not path.is_dir():
+        raise ValueError(f"{what} {path}: not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".aspod-probe-", dir=path)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ValueError(f"{what} {path}: cannot write in it ({exc.strerror or exc})") from None
+
+
 def load(path: Path) -> Finding:
     """A finding file; FindingError with the reason for anything else."""
     try:
@@ -120,16 +141,49 @@ def load(path: Path) -> Finding:
         raise FindingError(f"{path}: not a finding file ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise FindingError(f"{path}: not a finding file (no \"format\": \"{FORMAT}\")")
+
+    def bad(what: str) -> FindingError:
+        return FindingError(f"{path}: a finding file, but {what}")
+
+    failure = data.get("failure")
+    if not isinstance(failure, dict):
+        raise bad(f"\"failure\" must be an object with \"kind\" ({', '.join(KINDS)}) and \"error\"")
+    unknown = sorted(set(failure) - {f.name for f in fields(Failure)})
+    if unknown:
+        raise bad(f"\"failure\" has {', '.join(map(repr, unknown))}: not a field of a failure")
+    for name in ("kind", "error"):
+        if name not in failure:
+            raise bad(f"\"failure\" has no \"{name}\"")
+    for name, value in failure.items():
+        if not isinstance(value, str):
+            raise bad(f"\"failure\".\"{name}\" must be a string")
+    if failure["kind"] not in KINDS:
+        raise bad(f"\"failure\".\"kind\" {failure['kind']!r}: must be one of {', '.join(KINDS)}")
+    for name in ("target", "url", "found_at"):
+        if not isinstance(data.get(name, ""), str) or (name == "target" and name not in data):
+            raise bad(f"\"{name}\" must be a string")
+    execs = data.get("execs", 0)
+    if type(execs) is not int or not 0 <= execs < 1 << 63:
+        raise bad(f"\"execs\" must be a whole number 0..{(1 << 63) - 1}, not {str(execs)[:40]}")
+    minimized = data.get("minimized", False)
+    if not isinstance(minimized, bool):
+        raise bad(f"\"minimized\" must be true or false (a JSON boolean), not {json.dumps(minimized)[:40]}")
+    inputs = data.get("inputs", [])
+    if not isinstance(inputs, list):
+        raise bad("\"inputs\" must be a list of hexadecimal strings")
     try:
-        failure = Failure(**{k: str(v) for k, v in data["failure"].items()})
-        inputs = [bytes.fromhex(h) for h in data.get("inputs", [])]
-        steps = list(data.get("steps", []))
-        if not all(isinstance(s, dict) for s in steps):
-            raise ValueError("a step is not an object")
-        return Finding(str(data["target"]), failure, inputs, steps, str(data.get("url", "")),
-                       int(data.get("execs", 0)), bool(data.get("minimized", False)), str(data.get("found_at", "")))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FindingError(f"{path}: a finding file, but {type(exc).__name__}: {exc}") from None
+        inputs = [bytes.fromhex(h) for h in inputs]
+    except (TypeError, ValueError) as exc:
+        raise bad(f"\"inputs\" must be a list of hexadecimal strings ({exc})") from None
+    steps = data.get("steps", [])
+    if data["target"] == "blackbox" or steps:
+        from host_tools.fuzz.blackbox import check_steps
+        try:
+            check_steps(steps)
+        except ValueError as exc:
+            raise bad(str(exc)) from None
+    return Finding(data["target"], Failure(**failure), inputs, [dict(s) for s in steps], data.get("url", ""),
+                   execs, minimized, data.get("found_at", ""))
 
 
 # ---- in process: replay and minimize ----

@@ -1,0 +1,208 @@
+"""aspod fuzz, black-box: bad input refused before any target starts (a finding's fields and steps, --only/--skip,
+--findings), a target it started stopped on every way out, and a finding that cannot be saved not lost."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from host_tools.fuzz import blackbox, findings
+from host_tools.fuzz.grammar import RandomDraw
+
+ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+GOOD_STEP = {"kind": "command", "delay_s": 0.0, "msg": "BoxDial", "payload": "0000c84202"}
+
+
+def aspod(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def finding_file(tmp_path: Path, **fields) -> Path:
+    data = {"format": findings.FORMAT, "target": "blackbox", "failure": {"kind": "crash", "error": "x"},
+            "url": "sim", "steps": [GOOD_STEP]}
+    data.update(fields)
+    path = tmp_path / "f.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def fake_target(tmp_path: Path, ready: str = "ASPOD-LINK socket://127.0.0.1:1", name: str = "pid") -> str:
+    """A target that writes its PID to `name`, says `ready`, then sleeps (it never opens a link)."""
+    return f"sh -c 'echo $$ > {tmp_path / name}; echo {ready}; exec sleep 60'"
+
+
+def gone(pid: int, within_s: float = 5.0) -> bool:
+    end = time.monotonic() + within_s
+    while time.monotonic() < end:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.parametrize("fields, said", [
+    ({"failure": None}, '"failure" must be an object'),
+    ({"failure": "crash"}, '"failure" must be an object'),
+    ({"failure": ["crash", "x"]}, '"failure" must be an object'),
+    ({"failure": {"kind": "crash"}}, '"failure" has no "error"'),
+    ({"failure": {"kind": "crash", "error": 3}}, '"failure"."error" must be a string'),
+    ({"failure": {"kind": "nosuch", "error": "x"}}, '"failure"."kind"'),
+    ({"execs": float("inf")}, '"execs" must be a whole number'),
+    ({"execs": 1.5}, '"execs" must be a whole number'),
+    ({"execs": -1}, '"execs" must be a whole number'),
+    ({"minimized": "false"}, '"minimized" must be true or false'),
+    ({"minimized": 1}, '"minimized" must be true or false'),
+    ({"inputs": "00"}, '"inputs" must be a list'),
+    ({"target": 3}, '"target" must be a string'),
+])
+def test_a_findings_fields_of_the_wrong_type_are_refused_naming_the_file_and_the_field(tmp_path, fields, said):
+    path = finding_file(tmp_path, **fields)
+    if "execs" in fields and fields["execs"] == float("inf"):
+        path.write_text(path.read_text().replace("Infinity", "1e400"))       # json reads it as inf
+    with pytest.raises(findings.FindingError) as caught:
+        findings.load(path)
+    assert str(path) in str(caught.value) and said in str(caught.value), str(caught.value)
+
+
+def test_minimized_is_a_json_boolean(tmp_path):
+    assert findings.load(finding_file(tmp_path, minimized=True)).minimized is True
+    assert findings.load(finding_file(tmp_path, minimized=False)).minimized is False
+
+
+BAD_STEPS = [
+    ({"delay_s": 0.0, "msg": "BoxDial", "payload": ""}, '"kind"'),
+    ({"kind": "nosuch", "delay_s": 0.0}, '"kind"'),
+    ({"kind": "command", "msg": "BoxDial", "payload": ""}, '"delay_s"'),
+    ({**GOOD_STEP, "delay_s": "abc"}, '"delay_s"'),
+    ({**GOOD_STEP, "delay_s": 1e9}, '"delay_s"'),
+    ({**GOOD_STEP, "delay_s": -5}, '"delay_s"'),
+    ({**GOOD_STEP, "msg": "NoSuchMsg"}, '"msg"'),
+    ({**GOOD_STEP, "msg": "Pong"}, '"msg"'),                       # the controller's, not the host's
+    ({**GOOD_STEP, "payload": "zz"}, '"payload"'),
+    ({**GOOD_STEP, "payload": "00" * 241}, '"payload"'),
+    ({**GOOD_STEP, "seed": "abc"}, '"seed"'),
+    ({**GOOD_STEP, "seed": 1 << 40}, '"seed"'),
+    ({"kind": "silence", "delay_s": 0}, '"fraction"'),
+    ({"kind": "silence", "delay_s": 0, "fraction": 1e6}, '"fraction"'),
+    ({"kind": "burst", "delay_s": 0, "count": 10 ** 8}, '"count"'),
+    ({"kind": "burst", "delay_s": 0, "count": 3, "msg": "Hello"}, '"msg"'),
+    ({"kind": "replay", "delay_s": 0, "which": "x"}, '"which"'),
+    ({"kind": "raw", "delay_s": 0, "bytes": "01" * 1000}, '"bytes"'),
+    ({"kind": "hello", "delay_s": 0, "payload": "00" * 300}, '"payload"'),
+    ({"kind": "frame", "delay_s": 0, "msg": "Ping"}, '"cls"'),
+]
+FRAME = {"kind": "frame", "delay_s": 0.0, "msg": "Ping", "cls": 1, "seq": "any", "offset": 1, "any_seq": 5,
+         "payload": "01000000", "mac": "good", "version": 1, "flags": 16, "length_delta": 0}
+BAD_STEPS += [({**FRAME, name: value}, f'"{name}"') for name, value in (
+    ("cls", 999), ("any_seq", 10 ** 9), ("seq", "nosuch"), ("mac", "nosuch"), ("version", 999), ("flags", -1),
+    ("length_delta", 100), ("offset", True), ("msg", "HelloReply"), ("wire", "0" * 2000))]
+
+
+@pytest.mark.parametrize("step, field", BAD_STEPS)
+def test_a_black_box_findings_steps_are_checked_when_it_is_loaded(tmp_path, step, field):
+    """Every step: its kind's fields there, of their type, within what the fuzzer draws (no KeyError, TypeError or
+    struct.error on replay, no pause of a billion seconds, no burst of a hundred million commands)."""
+    path = finding_file(tmp_path, steps=[GOOD_STEP, step])
+    with pytest.raises(findings.FindingError) as caught:
+        findings.load(path)
+    said = str(caught.value)
+    assert str(path) in said and "step 1" in said and field in said and "must be" in said, said
+
+
+@pytest.mark.parametrize("steps", [[], [GOOD_STEP] * 7, {"0": GOOD_STEP}, [3]])
+def test_a_black_box_finding_has_one_to_six_steps_each_an_object(tmp_path, steps):
+    with pytest.raises(findings.FindingError) as caught:
+        findings.load(finding_file(tmp_path, steps=steps))
+    assert "f.json" in str(caught.value)
+
+
+def test_every_step_the_fuzzer_draws_passes_the_check():
+    """The check's bounds are the draw's: what the fuzzer writes, it can replay."""
+    settings = blackbox.BlackBoxSettings(url="x", cases=1)
+    kinds = set()
+    for seed in range(3000):
+        case = blackbox.Case.draw(RandomDraw(random.Random(seed)), settings)
+        blackbox.check_steps(blackbox._steps_with_seed(case, random.Random(seed).getrandbits(32)))
+        kinds |= {s["kind"] for s in case.steps}
+    assert kinds == set(blackbox._STEP_FIELDS)
+    for k in range(31):       # each silence the draw can make, at its ends too
+        blackbox.check_steps([{"kind": "silence", "delay_s": 0.019, "fraction": 0.5 + k / 100.0}])
+
+
+def test_a_bad_step_is_refused_by_the_command_before_the_target_starts(tmp_path):
+    path = finding_file(tmp_path, steps=[{"kind": "burst", "delay_s": 0, "count": 10 ** 8}])
+    done = aspod("fuzz", "--replay", str(path), "--target-cmd", fake_target(tmp_path), cwd=tmp_path)
+    assert done.returncode == 2 and "f.json" in done.stderr and '"count"' in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "pid").exists()
+
+
+def test_only_and_skip_that_leave_no_command_are_refused_before_the_target_starts(tmp_path):
+    for args in (["--only", "BoxDial", "--skip", "BoxDial"], ["--only", "ParamSave"]):
+        done = aspod("fuzz", "--target-cmd", fake_target(tmp_path), *args, "--cases", "3", cwd=tmp_path)
+        assert done.returncode == 2 and "no command to send" in done.stderr, done.stderr
+    done = aspod("fuzz", "--target-cmd", fake_target(tmp_path), "--only", "Pong", "--cases", "3", cwd=tmp_path)
+    assert done.returncode == 2 and "not a command the controller takes" in done.stderr, done.stderr
+    assert not (tmp_path / "pid").exists()
+
+
+@pytest.mark.parametrize("ready", ["ASPOD-LINK socket://127.0.0.1:1", "ASPOD-LINK", "something else",
+                                   "ASPOD-LINK /nonexistent/tty"])
+def test_a_target_started_whose_link_cannot_be_opened_is_stopped(tmp_path, ready):
+    """A closed port, no URL, a wrong ready line, a URL that is not there: the command exits 3 and the target
+    it started is not left running."""
+    done = aspod("fuzz", "--target-cmd", fake_target(tmp_path, ready), "--cases", "2", cwd=tmp_path)
+    assert done.returncode == 3 and "Traceback" not in done.stderr, done.stderr
+    pid = int((tmp_path / "pid").read_text())
+    assert gone(pid), f"the target (pid {pid}) is still running"
+    done = aspod("fuzz", "--replay", str(finding_file(tmp_path)), "--target-cmd",
+                 fake_target(tmp_path, ready, "pid2"), cwd=tmp_path)
+    assert done.returncode in (1, 3) and "Traceback" not in done.stderr, done.stderr
+    assert gone(int((tmp_path / "pid2").read_text()))
+
+
+def test_the_findings_folder_is_checked_before_the_target_starts(tmp_path):
+    (tmp_path / "afile").write_text("")
+    for where, said in (("afile", "not a folder"), ("afile/sub", "cannot be made")):
+        done = aspod("fuzz", "--target-cmd", fake_target(tmp_path), "--findings", where, "--cases", "2",
+                     cwd=tmp_path)
+        assert done.returncode == 2 and "--findings" in done.stderr and said in done.stderr, done.stderr
+    assert not (tmp_path / "pid").exists() and (tmp_path / "afile").read_text() == ""
+
+
+def test_check_writable_folder(tmp_path):
+    findings.check_writable_folder(tmp_path / "a" / "b", "--findings")
+    assert (tmp_path / "a" / "b").is_dir() and not any((tmp_path / "a" / "b").iterdir())
+    (tmp_path / "f").write_text("keep")
+    for path, said in ((tmp_path / "f", "not a folder"), (tmp_path / "f" / "x", "cannot be made")):
+        with pytest.raises(ValueError, match=said):
+            findings.check_writable_folder(path, "--findings")
+    assert (tmp_path / "f").read_text() == "keep"
+
+
+def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypatch, capsys):
+    class FakeSession:
+        url, child = "fake", None
+
+        def close(self) -> str:
+            return ""
+
+    fuzzer = blackbox.BlackBoxFuzzer(blackbox.BlackBoxSettings(url="fake", cases=1, findings=tmp_path), b"k" * 32)
+    monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), None))
+    monkeypatch.setattr(blackbox, "run_case", lambda *a: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
+
+    def refuse(self, folder):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(findings.Finding, "save", refuse)
+    result = fuzzer.run()
+    err = capsys.readouterr().err
+    assert result.findings == [] and len(result.unsaved) == 1 and "No space left on device" in err
+    shown = json.loads(err[err.index("{"):])
+    assert shown == result.unsaved[0] and shown["failure"]["error"] == "HealthCheck: wrong" and shown["steps"]
