@@ -120,11 +120,17 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
                        (["--url", "/dev/null", "--only", "Pong"], "not a command the controller takes"),
                        (["nosuch.module:f"], "cannot load it"), (["codec", "--max-findings", "1"], "black-box"),
                        (["--url", "/dev/null", "--max-findings", "0"], "--max-findings"),
-                       (["codec", "codec"], "named twice"), (["builtins:input"], "its factory raised EOFError"),
+                       (["codec", "codec"], "named twice"), (["codec", "--list"], "give it alone"), (["builtins:input"], "its factory raised EOFError"),
                        (["host_tools.fuzz.planted:PLANTED_DIAL_PCT"], "is not a factory")):
         done = aspod("fuzz", *args, cwd=tmp_path, timeout=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-findings").exists() or not any((tmp_path / "fuzz-findings").iterdir())
+    (tmp_path / "afile").write_text("")
+    for args, said in ((["--findings", "afile"], "--findings afile: not a folder"),
+                       (["--corpus", "afile"], "--corpus afile/codec: cannot be made")):
+        done = aspod("fuzz", "codec", "--runs", "10", *args, cwd=tmp_path, timeout=60)
+        assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
+    assert not (tmp_path / "fuzz-corpus").exists()              # nothing made for a run that was refused
     done = aspod("--log-file", str(tmp_path), "fuzz", "--list", cwd=tmp_path)     # a folder: every command says so
     assert done.returncode == 2 and "--log-file: cannot write" in done.stderr and "Traceback" not in done.stderr
 

@@ -7,13 +7,13 @@ import os
 import random
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from host_tools.fuzz import blackbox, findings
 from host_tools.fuzz.grammar import RandomDraw
+from timebase import RealClock
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 GOOD_STEP = {"kind": "command", "delay_s": 0.0, "msg": "BoxDial", "payload": "0000c84202"}
@@ -38,13 +38,14 @@ def fake_target(tmp_path: Path, ready: str = "ASPOD-LINK socket://127.0.0.1:1", 
 
 
 def gone(pid: int, within_s: float = 5.0) -> bool:
-    end = time.monotonic() + within_s
-    while time.monotonic() < end:
+    clock = RealClock()
+    end = clock.now() + within_s
+    while clock.now() < end:
         try:
             os.kill(pid, 0)
         except ProcessLookupError:
             return True
-        time.sleep(0.05)
+        clock.sleep_until(clock.now() + 0.05)
     return False
 
 

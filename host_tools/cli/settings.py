@@ -502,6 +502,8 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
                   hang_s=HANG_S if args.hang_s is None else args.hang_s)
     live = args.url is not None or args.target_cmd is not None
     if args.list:
+        if args.targets or live or args.replay is not None:
+            raise ValueError("--list names the in-process targets and runs nothing: give it alone")
         return FuzzSettings("list", **common)
     if args.targets and (live or (args.replay is not None and len(args.targets) > 1)):
         raise ValueError("in-process TARGETs, or --url/--target-cmd (black-box), or --replay FILE [MODULE:FACTORY]: "
