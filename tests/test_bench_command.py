@@ -140,3 +140,36 @@ def test_a_scripts_first_line_gives_its_world_and_the_command_line_wins(tmp_path
     assert doc["seed"] == 3 and "tracker" not in doc["plant"] and doc["faults"][0]["fault"] == "supply_sag"
     _, doc = bench_json(tmp_path, script, "--seed", "5", capsys=capsys)
     assert doc["seed"] == 5 and "tracker" not in doc["plant"]
+
+
+@pytest.mark.parametrize("first, said", [
+    ("#! aspod bench --record victim.txt", "'--record'"),
+    ("#! aspod bench --seed 3 --log-file=victim.txt", "'--log-file=victim.txt'"),
+    ("#! aspod bench --rec victim.txt", "'--rec'"),                   # argparse would take it for --record
+    ("#! aspod bench --json", "'--json'"),
+    ("#! aspod bench " + "--seed 1 " * 1000, "more than 4096"),      # argparse takes quadratic time over it
+])
+def test_a_scripts_first_line_gives_only_its_world_else_it_is_refused_and_nothing_is_written(
+        tmp_path, capsys, first, said, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "victim.txt").write_text("keep me")
+    (tmp_path / "s.txt").write_text(first + "\nenable\n")
+    assert main(["bench", "s.txt"]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "Traceback" not in err
+    assert (tmp_path / "victim.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.txt", "victim.txt"]
+
+
+def test_every_world_option_a_script_may_give_is_one_of_the_bench_world_options():
+    import argparse
+
+    from host_tools.cli import main as cli
+    from host_tools.teleop.words import WORLD_OPTIONS
+    parser = argparse.ArgumentParser()
+    cli.add_seed_arg(parser, "x")
+    for add in (cli.add_arm_args, cli.add_tracker_args, cli.add_bench_world_args):
+        add(parser)
+    world = {o: a.nargs != 0 for a in parser._actions for o in a.option_strings if o.startswith("--")}
+    world.pop("--help")
+    assert WORLD_OPTIONS == world

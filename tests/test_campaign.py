@@ -206,6 +206,13 @@ def test_a_campaign_reads_its_script_as_bench_does_a_fifo_or_an_oversized_script
     assert not (drill / "c").exists()
 
 
+def test_a_campaign_refuses_a_scripts_first_line_that_gives_more_than_its_world(drill, capsys):
+    (drill / "rec.aspod").write_text("#! aspod bench --seed 2 --record victim.pcapng\n" + DRILL)
+    assert main(["campaign", "rec.aspod", "--vary", "speed=1", "--out", "c", "--no-progress"]) == 2
+    assert "'--record' is not an option a script may give" in capsys.readouterr().err
+    assert not (drill / "c").exists() and not (drill / "victim.pcapng").exists()
+
+
 def test_a_folder_that_holds_a_campaign_is_not_written_over(drill, capsys):
     assert main(["campaign", "drill.aspod", "--vary", "speed=1", "--serial", "--out", "c", "--no-progress"]) == 0
     before = (drill / "c" / "rows.csv").read_bytes()
