@@ -3,6 +3,7 @@ one JSON object with each line's outcome and output, the motions and their ends,
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 
 import pytest
@@ -173,3 +174,19 @@ def test_every_world_option_a_script_may_give_is_one_of_the_bench_world_options(
     world = {o: a.nargs != 0 for a in parser._actions for o in a.option_strings if o.startswith("--")}
     world.pop("--help")
     assert WORLD_OPTIONS == world
+
+
+def test_a_record_over_the_script_or_to_a_folder_or_a_device_is_refused_before_the_run(tmp_path, capsys):
+    script = tmp_path / "s.txt"
+    script.write_text(SCRIPT)
+    (tmp_path / "adir").mkdir()
+    os.link(script, tmp_path / "hard.txt")
+    for record, said in ((script, "the script itself"), (tmp_path / "hard.txt", "the script itself"),
+                         (tmp_path / "adir", "a folder, not a file"), ("/dev/full", "not a regular file"),
+                         (tmp_path / "nowhere" / "r.pcapng", "no folder")):
+        assert main(["bench", str(script), "--record", str(record)]) == 2, record
+        err = capsys.readouterr().err
+        assert said in err and "Traceback" not in err, err
+    assert script.read_text() == SCRIPT
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "hard.txt", "s.txt"]
+    assert list((tmp_path / "adir").iterdir()) == []
