@@ -190,3 +190,16 @@ def test_a_record_over_the_script_or_to_a_folder_or_a_device_is_refused_before_t
     assert script.read_text() == SCRIPT
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "hard.txt", "s.txt"]
     assert list((tmp_path / "adir").iterdir()) == []
+
+
+def test_a_clouds_spec_too_long_for_a_recordings_header_is_refused_before_the_record_is_touched(tmp_path, capsys):
+    script, record = tmp_path / "s.txt", tmp_path / "r.pcapng"
+    script.write_text(SCRIPT)
+    record.write_bytes(b"an earlier recording")
+    for clouds, said in ((",".join(["12:00+1s@0.5"] * 6000), "at most 4096"),
+                         (",".join(["12:00+1s@0.5"] * 250), "at most 200")):
+        with pytest.raises(SystemExit) as exited:
+            main(["bench", str(script), "--clouds", clouds, "--record", str(record)])
+        assert exited.value.code == 2
+        assert said in capsys.readouterr().err
+    assert record.read_bytes() == b"an earlier recording"
