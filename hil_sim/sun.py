@@ -244,6 +244,10 @@ _DURATION = re.compile(r"^(\d+(?:\.\d*)?|\.\d+)(s|m|min|h)$")
 _UNIT_S = {"s": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}
 
 
+MAX_CLOUDS_CHARS = 4096   # a spec; about 250 passages of '12:00+300s@0.9'
+MAX_PASSAGES = 200
+
+
 def parse_clouds(spec: str, day: date, utc_offset_h: float) -> tuple[CloudPassage, ...]:
     """Cloud passages from a spec "TIME+DURATION@ATTENUATION, ..." (module docstring).
 
@@ -251,7 +255,12 @@ def parse_clouds(spec: str, day: date, utc_offset_h: float) -> tuple[CloudPassag
     ValueError, naming the passage and what is wrong, for anything malformed.
     """
     if not isinstance(spec, str):
-        raise ValueError(f"a clouds spec must be a string, got {spec!r}")
+        raise ValueError(f"a clouds spec must be a string, got {spec!r:.80}")
+    if len(spec) > MAX_CLOUDS_CHARS:
+        raise ValueError(f"a clouds spec of {len(spec)} characters: at most {MAX_CLOUDS_CHARS} (it travels in a "
+                         "recording's header, whose options are bounded)")
+    if spec.count(",") >= MAX_PASSAGES:
+        raise ValueError(f"a clouds spec of {spec.count(',') + 1} passages: at most {MAX_PASSAGES}")
     tz = timezone(timedelta(hours=utc_offset_h))
     passages = []
     items = [s.strip() for s in spec.split(",")]

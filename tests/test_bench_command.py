@@ -3,6 +3,7 @@ one JSON object with each line's outcome and output, the motions and their ends,
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 
 import pytest
@@ -140,3 +141,65 @@ def test_a_scripts_first_line_gives_its_world_and_the_command_line_wins(tmp_path
     assert doc["seed"] == 3 and "tracker" not in doc["plant"] and doc["faults"][0]["fault"] == "supply_sag"
     _, doc = bench_json(tmp_path, script, "--seed", "5", capsys=capsys)
     assert doc["seed"] == 5 and "tracker" not in doc["plant"]
+
+
+@pytest.mark.parametrize("first, said", [
+    ("#! aspod bench --record victim.txt", "'--record'"),
+    ("#! aspod bench --seed 3 --log-file=victim.txt", "'--log-file=victim.txt'"),
+    ("#! aspod bench --rec victim.txt", "'--rec'"),                   # argparse would take it for --record
+    ("#! aspod bench --json", "'--json'"),
+    ("#! aspod bench " + "--seed 1 " * 1000, "more than 4096"),      # argparse takes quadratic time over it
+])
+def test_a_scripts_first_line_gives_only_its_world_else_it_is_refused_and_nothing_is_written(
+        tmp_path, capsys, first, said, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "victim.txt").write_text("keep me")
+    (tmp_path / "s.txt").write_text(first + "\nenable\n")
+    assert main(["bench", "s.txt"]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "Traceback" not in err
+    assert (tmp_path / "victim.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.txt", "victim.txt"]
+
+
+def test_every_world_option_a_script_may_give_is_one_of_the_bench_world_options():
+    import argparse
+
+    from host_tools.cli import main as cli
+    from host_tools.teleop.words import WORLD_OPTIONS
+    parser = argparse.ArgumentParser()
+    cli.add_seed_arg(parser, "x")
+    for add in (cli.add_arm_args, cli.add_tracker_args, cli.add_bench_world_args):
+        add(parser)
+    world = {o: a.nargs != 0 for a in parser._actions for o in a.option_strings if o.startswith("--")}
+    world.pop("--help")
+    assert WORLD_OPTIONS == world
+
+
+def test_a_record_over_the_script_or_to_a_folder_or_a_device_is_refused_before_the_run(tmp_path, capsys):
+    script = tmp_path / "s.txt"
+    script.write_text(SCRIPT)
+    (tmp_path / "adir").mkdir()
+    os.link(script, tmp_path / "hard.txt")
+    for record, said in ((script, "the script itself"), (tmp_path / "hard.txt", "the script itself"),
+                         (tmp_path / "adir", "a folder, not a file"), ("/dev/full", "not a regular file"),
+                         (tmp_path / "nowhere" / "r.pcapng", "no folder")):
+        assert main(["bench", str(script), "--record", str(record)]) == 2, record
+        err = capsys.readouterr().err
+        assert said in err and "Traceback" not in err, err
+    assert script.read_text() == SCRIPT
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "hard.txt", "s.txt"]
+    assert list((tmp_path / "adir").iterdir()) == []
+
+
+def test_a_clouds_spec_too_long_for_a_recordings_header_is_refused_before_the_record_is_touched(tmp_path, capsys):
+    script, record = tmp_path / "s.txt", tmp_path / "r.pcapng"
+    script.write_text(SCRIPT)
+    record.write_bytes(b"an earlier recording")
+    for clouds, said in ((",".join(["12:00+1s@0.5"] * 6000), "at most 4096"),
+                         (",".join(["12:00+1s@0.5"] * 250), "at most 200")):
+        with pytest.raises(SystemExit) as exited:
+            main(["bench", str(script), "--clouds", clouds, "--record", str(record)])
+        assert exited.value.code == 2
+        assert said in capsys.readouterr().err
+    assert record.read_bytes() == b"an earlier recording"

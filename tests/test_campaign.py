@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shlex
 
 import pytest
@@ -12,7 +13,9 @@ from host_tools.campaign.engine import EngineSettings, run_runs
 from host_tools.campaign.matrix import DrawnAxis, GridAxis, Matrix, Run, parse_seeds
 from host_tools.campaign.runs import BenchSpec, world_of
 from host_tools.cli.main import main
+from host_tools.teleop.words import SCRIPT_LIMIT
 from host_tools.worlds.bench_world import TimedFault, WorldSettings
+from protocol import files
 
 # A joint jogged while a fault may strike it: short (2.4 simulated s a run), failing when the fault comes.
 DRILL = "enable\njog j2 ${speed}\nwait 2\n"
@@ -191,6 +194,23 @@ def test_bad_campaign_arguments_are_refused_with_the_reason_and_write_nothing(dr
     assert main(["campaign", *args, "--out", "c", "--no-progress"]) == 2
     assert reason in capsys.readouterr().err
     assert not (drill / "c").exists()
+
+
+def test_a_campaign_reads_its_script_as_bench_does_a_fifo_or_an_oversized_script_refused(drill, capsys):
+    os.mkfifo(drill / "fifo.aspod")
+    assert main(["campaign", "fifo.aspod", "--vary", "speed=1", "--out", "c", "--no-progress"]) == 2
+    assert "FIFO" in capsys.readouterr().err
+    (drill / "big.aspod").write_bytes(b"# filler\n" * (SCRIPT_LIMIT // 9 + 1))
+    assert main(["campaign", "big.aspod", "--vary", "speed=1", "--out", "c", "--no-progress"]) == 2
+    assert f"larger than {files.size_text(SCRIPT_LIMIT)}" in capsys.readouterr().err
+    assert not (drill / "c").exists()
+
+
+def test_a_campaign_refuses_a_scripts_first_line_that_gives_more_than_its_world(drill, capsys):
+    (drill / "rec.aspod").write_text("#! aspod bench --seed 2 --record victim.pcapng\n" + DRILL)
+    assert main(["campaign", "rec.aspod", "--vary", "speed=1", "--out", "c", "--no-progress"]) == 2
+    assert "'--record' is not an option a script may give" in capsys.readouterr().err
+    assert not (drill / "c").exists() and not (drill / "victim.pcapng").exists()
 
 
 def test_a_folder_that_holds_a_campaign_is_not_written_over(drill, capsys):

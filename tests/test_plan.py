@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import subprocess
 import sys
 
@@ -16,7 +17,7 @@ from host_tools.plan.example import REPORTED, report_problem
 from host_tools.plan.model import two_arms
 from host_tools.plan.paths import PiecewisePath, PolynomialPath
 from host_tools.plan.phase import Problem
-from host_tools.plan.problem_file import problem_from_dict
+from host_tools.plan.problem_file import load_problem, problem_from_dict
 from host_tools.plan.reach import plan_reach
 from host_tools.plan.timeopt import plan_time_optimal
 
@@ -184,3 +185,39 @@ def test_the_command_plans_the_example_as_json_and_draws_the_figures(tmp_path):
     far = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "far.json")],
                          capture_output=True, text=True, timeout=120)
     assert far.returncode == 2 and "reach" in far.stderr and far.stdout == ""
+
+
+LINE = {"kind": "line", "start": [0.9, 0.5], "end": [1, 1]}
+
+
+@pytest.mark.parametrize("spec, said", [
+    ({"path": LINE, "object": {"grasps": 5}}, "object.grasps"),
+    ({"path": LINE, "object": {"grasps": [[0, 0], "ab"]}}, "object.grasps"),
+    ({"path": {"kind": "line", "start": [int("1" + "0" * 400), 0.5], "end": [1, 1]}}, "path.start"),
+    ({"path": {"kind": "line", "start": [True, 0.5], "end": [1, 1]}}, "path.start"),
+    ({"path": {"kind": "polynomial", "x": [0.9, False], "y": [0.5, 0.1]}}, "path.x"),
+    ({"path": {"kind": "piecewise", "knots": [0, int("9" * 400)], "pieces": [LINE]}}, "path.knots"),
+    ({"path": {"kind": "piecewise", "knots": [0, 1], "pieces": [{"kind": "piecewise", "knots": [0, 1],
+                                                                  "pieces": [LINE]}]}}, "another piecewise"),
+    ({"path": LINE, "object": {"size": [-0.25, 0.1]}}, "object.size"),
+    ({"path": LINE, "gravity": int("1" + "0" * 400)}, "gravity"),
+])
+def test_values_of_the_wrong_kind_are_refused_naming_the_key(spec, said):
+    with pytest.raises(PlanError) as caught:
+        problem_from_dict(spec)
+    assert said in caught.value.reason, caught.value
+
+
+def test_a_problem_file_is_read_bounded_a_fifo_or_deep_nesting_refused(tmp_path):
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    with pytest.raises(PlanError, match="FIFO"):
+        load_problem(fifo)                          # refused without opening it: no writer, no hang
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(PlanError, match="nested too deeply"):
+        load_problem(deep)
+    big = tmp_path / "big.json"
+    big.write_text(" " * (2 << 20) + "{}")
+    with pytest.raises(PlanError, match="larger than"):
+        load_problem(big)

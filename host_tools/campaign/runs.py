@@ -24,7 +24,7 @@ from timebase import RealClock
 from host_tools.apps.script_bench import run_script_bench
 from host_tools.campaign.matrix import PARAM_PREFIX, WORLD_AXES, Run, Value
 from host_tools.datetimes import parse_iso
-from host_tools.teleop.words import TeleopError, substitute
+from host_tools.teleop.words import TeleopError, read_script, substitute
 from host_tools.worlds.bench_world import NO_FAULT, TimedFault, WorldSettings
 
 SCRIPT, PYTEST = "script", "pytest"
@@ -44,13 +44,15 @@ class BenchSpec:
     @classmethod
     def of(cls, target: str, base: WorldSettings, cwd: Path, keep_going: bool = False) -> "BenchSpec":
         """A pytest node (`path.py`, `path.py::test`, with or without parameters) or a script; a script is read
-        here (OSError, UnicodeDecodeError if it cannot be)."""
+        here as `aspod bench` reads one (`read_script`: a regular file of at most SCRIPT_LIMIT bytes of UTF-8;
+        TeleopError, a ValueError, with the reason if it is not)."""
         path = target.split("::", 1)[0]
         if path.endswith(".py"):
             if not (cwd / path).is_file():
                 raise ValueError(f"bench {target}: no file {path}")
             return cls(PYTEST, target, base, cwd=str(cwd), keep_going=keep_going)
-        text = (cwd / target).read_text(encoding="utf-8")
+        lines = read_script(cwd / target, option="bench")
+        text = "".join(line + "\n" for line in lines)
         return cls(SCRIPT, target, base, text=text, cwd=str(cwd), keep_going=keep_going)
 
 

@@ -662,12 +662,14 @@ def run_command(args: argparse.Namespace) -> int:
 def with_script_directive(args: argparse.Namespace, argv: Sequence[str]) -> argparse.Namespace:
     """`aspod bench SCRIPT`: the options of the script's first line (`#! aspod bench --sun-start ...`) come first,
     the command line's after them (so they win), as the pytest plugin and `aspod campaign` read a script. A
-    script that cannot be read is left for the command to refuse."""
+    script that cannot be read is left for the command to refuse; a first line that gives more than the world
+    (words.py `script_directive`) is refused here: TeleopError (a ValueError)."""
     from host_tools.teleop.words import TeleopError, read_script, script_directive
     try:
-        directive = script_directive(read_script(args.script, option="script")[:1])
+        first = read_script(args.script, option="script")[:1]
     except (OSError, TeleopError):
         return args
+    directive = script_directive(first)
     if not directive:
         return args
     at = list(argv).index("bench") + 1
@@ -678,7 +680,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     if args.command == "bench":
-        args = with_script_directive(args, argv)
+        try:
+            args = with_script_directive(args, argv)
+        except ValueError as exc:               # logging is not set up yet: the script's line is refused plainly
+            print(f"aspod bench: {args.script}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
     args.argv = tuple(argv)            # the command line as given (a campaign keeps it in its record)
     try:
         setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))

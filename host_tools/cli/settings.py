@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 import math
+import os
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -326,12 +327,17 @@ def day_settings(args: argparse.Namespace) -> "DaySettings":
 
 
 def record_path(path: Optional[Path]) -> Optional[Path]:
-    """A capture to write: its folder must exist and it must not be a folder (checked before anything runs)."""
+    """A capture to write, checked before anything runs: a regular file that can be written, or none yet in a folder
+    that is there and can be written (a folder, /dev/full or a FIFO in its place is refused: ValueError)."""
     if path is None:
         return None
     path = Path(path)
     if path.is_dir() or not path.parent.is_dir():
         raise ValueError(f"--record {path}: " + ("a folder, not a file" if path.is_dir() else f"no folder {path.parent}"))
+    if os.path.lexists(path) and not path.is_file():
+        raise ValueError(f"--record {path}: not a regular file; a recording is written to a file")
+    if not os.access(path if path.exists() else path.parent, os.W_OK):
+        raise ValueError(f"--record {path}: cannot be written (permission denied)")
     return path
 
 

@@ -9,8 +9,9 @@ Two kinds, both exact in s (no numerical differentiation):
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -91,18 +92,44 @@ class PiecewisePath:
         return {"kind": "piecewise", "knots": self.knots.tolist(), "pieces": [p.describe() for p in self.pieces]}
 
 
-def path_from_dict(spec: dict):
+def _numbers(value, what: str, n: Optional[int] = None) -> list:
+    """`value` as a list of finite floats (`n` of them if given): PlanError naming `what` else (a bool, text, an
+    integer too large for a float, an infinity are not numbers here)."""
+    if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n) or not value:
+        raise PlanError("path", f"{what} must be a list of {n or 'one or more'} finite numbers")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise PlanError("path", f"{what} must hold numbers, not {type(v).__name__} {v!r:.40}")
+        try:
+            f = float(v)
+        except OverflowError:
+            f = math.inf
+        if not math.isfinite(f):
+            raise PlanError("path", f"{what} must hold finite numbers (one is {str(v)[:40]})")
+        out.append(f)
+    return out
+
+
+def path_from_dict(spec: dict, piece: bool = False):
     """A path from its description (the `describe()` form; what `aspod plan --path FILE` reads)."""
     if not isinstance(spec, dict):
         raise PlanError("path", "a path is an object with a 'kind'")
     kind = spec.get("kind")
     try:
         if kind == "line":
-            return PolynomialPath.line(spec["start"], spec["end"])
+            return PolynomialPath.line(_numbers(spec["start"], "path.start", 2), _numbers(spec["end"], "path.end", 2))
         if kind == "polynomial":
-            return PolynomialPath(spec["x"], spec["y"])
-        if kind == "piecewise":
-            return PiecewisePath(spec["knots"], [path_from_dict(p) for p in spec["pieces"]])
+            return PolynomialPath(_numbers(spec["x"], "path.x"), _numbers(spec["y"], "path.y"))
+        if kind == "piecewise" and not piece:
+            pieces = spec["pieces"]
+            if not isinstance(pieces, list):
+                raise PlanError("path", "path.pieces must be a list of paths")
+            return PiecewisePath(_numbers(spec["knots"], "path.knots"), [path_from_dict(p, True) for p in pieces])
+    except PlanError:
+        raise
     except (KeyError, TypeError, ValueError) as e:
         raise PlanError("path", f"a {kind} path needs {e}" if isinstance(e, KeyError) else f"{kind} path: {e}")
-    raise PlanError("path", f"unknown path kind {kind!r} (line, polynomial, piecewise)")
+    if kind == "piecewise":
+        raise PlanError("path", "a piece of a piecewise path is a line or a polynomial, not another piecewise path")
+    raise PlanError("path", f"unknown path kind {str(kind)[:40]!r} (line, polynomial, piecewise)")

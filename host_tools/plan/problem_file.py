@@ -22,14 +22,23 @@ from host_tools.plan.example import LIMITS
 from host_tools.plan.model import GRAVITY, Held, two_arms
 from host_tools.plan.paths import path_from_dict
 from host_tools.plan.phase import Problem
+from protocol import files
 
 MAX_BYTES = 1 << 20
 KEYS = {"path", "arms", "object", "gravity", "limits"}
 
 
+def _finite(v) -> bool:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:                                  # an integer too large for a float
+        return False
+
+
 def _numbers(value, n: int, what: str) -> tuple:
-    if not isinstance(value, (list, tuple)) or len(value) != n or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value):
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(_finite(v) for v in value):
         raise PlanError("file", f"{what} must be a list of {n} finite numbers")
     return tuple(float(v) for v in value)
 
@@ -57,8 +66,14 @@ def problem_from_dict(spec: dict) -> Problem:
     if "path" not in spec:
         raise PlanError("file", "a problem needs a 'path'")
     arms, held, limits = _section(spec, "arms"), _section(spec, "object"), _section(spec, "limits")
+    grasps = held.get("grasps", [[-0.125, 0], [0.125, 0]])
+    if not isinstance(grasps, list) or len(grasps) != 2:
+        raise PlanError("file", "object.grasps must be a list of two points [x, y]")
+    size = _numbers(held.get("size", [0.25, 0.1]), 2, "object.size")
+    if any(v <= 0 for v in size):
+        raise PlanError("file", "object.size must be two lengths above 0")
     gravity = spec.get("gravity", GRAVITY)
-    if isinstance(gravity, bool) or not isinstance(gravity, (int, float)) or not 0 <= gravity <= 100:
+    if not _finite(gravity) or not 0 <= gravity <= 100:
         raise PlanError("file", "'gravity' is a number of m/s^2 from 0 to 100")
     separation = _numbers([arms.get("separation", 2.0)], 1, "arms.separation")[0]
     elbows = _numbers(arms.get("elbows", [1, 1]), 2, "arms.elbows")
@@ -68,9 +83,7 @@ def problem_from_dict(spec: dict) -> Problem:
                       _numbers(arms.get("masses", [1, 1]), 2, "arms.masses"), tuple(int(e) for e in elbows),
                       str(arms.get("links", "rod")),
                       Held(_numbers([held.get("mass", 0.25)], 1, "object.mass")[0],
-                           _numbers(held.get("size", [0.25, 0.1]), 2, "object.size"),
-                           tuple(_numbers(g, 2, "object.grasps[]") for g in held.get("grasps", [[-0.125, 0],
-                                                                                                  [0.125, 0]]))),
+                           size, tuple(_numbers(g, 2, "object.grasps[]") for g in grasps)),
                       float(gravity))
     if len(system.held.grasps) != 2 or system.held.grasps[0] == system.held.grasps[1]:
         raise PlanError("file", "object.grasps needs two different points")
@@ -91,11 +104,11 @@ def problem_from_dict(spec: dict) -> Problem:
 
 def load_problem(path: Path) -> Problem:
     try:
-        if path.stat().st_size > MAX_BYTES:
-            raise PlanError("file", f"{path} is larger than {MAX_BYTES} bytes")
-        spec = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise PlanError("file", f"cannot read {path}: {e.strerror or e}") from None
+        spec = json.loads(files.read_bounded(path, MAX_BYTES).decode("utf-8"))
+    except files.InputFileError as e:
+        raise PlanError("file", str(e)) from None
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise PlanError("file", f"{path} is not JSON: {e}") from None
+    except RecursionError:
+        raise PlanError("file", f"{path} is nested too deeply to be a problem") from None
     return problem_from_dict(spec)

@@ -388,18 +388,40 @@ def read_script(path: Optional[Path], stdin: Optional[BinaryIO] = None, option: 
 
 
 DIRECTIVE = re.compile(r"#!\s*aspod\s+bench\b(.*)")
+MAX_DIRECTIVE_CHARS = 4 * files.KIB   # the longest real directive is under 200 characters
+# The options a script's first line may give: those of the world it runs in (`aspod bench`'s seed, arm, tracker
+# and bench-world options; host_tools/cli/main.py), each with whether it takes a value. Nothing else: a script is
+# input, and must not choose where the tool writes (--record, --log-file) or how it reports.
+WORLD_OPTIONS = {"--seed": True, "--gravity": True, "--payload-kg": True, "--sun-start": True, "--clouds": True,
+                 "--no-tracker": False, "--fault": True, "--impairment": True, "--param": True, "--var": True}
 
 
 def script_directive(lines: list[str]) -> tuple[str, ...]:
     """The `aspod bench` options a script's first line asks for (`#! aspod bench --seed 3 ...`); none: ().
-    TeleopError if they cannot be split as a shell would."""
+    TeleopError if the line is longer than MAX_DIRECTIVE_CHARS, cannot be split as a shell would, or gives
+    anything but WORLD_OPTIONS."""
     found = DIRECTIVE.match(lines[0]) if lines else None
     if not found:
         return ()
+    if len(lines[0]) > MAX_DIRECTIVE_CHARS:
+        raise TeleopError(f"line 1: its `aspod bench` options are {len(lines[0])} characters, more than "
+                          f"{MAX_DIRECTIVE_CHARS}, the most a script's first line may give")
     try:
-        return tuple(shlex.split(found.group(1)))
+        words = tuple(shlex.split(found.group(1)))
     except ValueError as exc:
         raise TeleopError(f"line 1: its `aspod bench` options: {exc}") from None
+    value_next = False
+    for word in words:
+        if value_next:
+            value_next = False
+            continue
+        name, eq, _ = word.partition("=")
+        if name not in WORLD_OPTIONS:
+            raise TeleopError(f"line 1: {shown(word)} is not an option a script may give: its first line "
+                              f"gives only the world it runs in ({', '.join(WORLD_OPTIONS)}); where the run is "
+                              "recorded or logged is for the command line")
+        value_next = WORLD_OPTIONS[name] and not eq
+    return words
 
 
 VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
