@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from protocol import auth
+from protocol.files import InputFileError
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from host_tools.sessions.capture import SessionCapture
 from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, describe
@@ -27,6 +28,9 @@ def read_capture(path: Path, prog: str) -> SessionCapture | None:
         return SessionCapture.read(path)
     except OSError as exc:
         log.error(f"{prog}: cannot read {path}: {exc.strerror or exc}")
+        return None
+    except InputFileError as exc:          # missing, unreadable, a FIFO or device, larger than MAX_CAPTURE_BYTES
+        log.error(f"{prog}: cannot read the capture {exc}")
         return None
 
 

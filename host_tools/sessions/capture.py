@@ -21,11 +21,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Optional
 
+from protocol.files import read_bounded
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
 from host_tools.sessions.segments import SegmentCutter
-from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, OUTBOUND, CaptureError, Packet, PcapngReader,
-                                       PcapngWriter)
+from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, CaptureError, Packet,
+                                       PcapngReader, PcapngWriter)
 
 FORMAT_VERSION = 1
 MARK = "aspod-session "
@@ -152,8 +153,9 @@ class SessionCapture:
 
     @classmethod
     def read(cls, path: Path) -> "SessionCapture":
-        """Never raises for bad content; a missing or unreadable file raises OSError."""
-        return cls.parse(Path(path).read_bytes())
+        """Never raises for bad content; a file that is missing, unreadable, not a regular file (a FIFO, a
+        device, a directory) or larger than `pcapng.MAX_CAPTURE_BYTES` (256 MiB) raises `files.InputFileError`."""
+        return cls.parse(read_bounded(path, MAX_CAPTURE_BYTES))
 
     @classmethod
     def parse(cls, data: bytes) -> "SessionCapture":
