@@ -1,12 +1,16 @@
 """Bad session captures given to `aspod log` and `aspod replay`: refused with the reason, never a traceback or a hang."""
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
 
+from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from host_tools.cli.main import main
-from host_tools.sessions.pcapng import MAX_CAPTURE_BYTES
+from host_tools.sessions.capture import MARK, SessionInfo
+from host_tools.sessions.pcapng import MAX_CAPTURE_BYTES, OUTBOUND, PcapngWriter
+from host_tools.worlds.settings import PlantSettings
 
 
 @pytest.mark.parametrize("command", ["log", "replay"])
@@ -24,3 +28,70 @@ def test_a_capture_larger_than_the_limit_is_refused_unread(tmp_path, capsys, com
         f.truncate(MAX_CAPTURE_BYTES + 1)          # sparse: nothing is written
     assert main([command, str(big)]) == 2
     assert "larger than 256 MiB" in capsys.readouterr().err
+
+
+GOOD = {"format": 1, "protocol_version": PROTOCOL_VERSION, "schema_hash": f"{SCHEMA.hash:016x}",
+        "clock": "simulated", "tool": "aspod bench", "seed": 2,
+        "settings": {"plant": PlantSettings().to_dict(), "params": {"j1_kp": 2.0}}}
+
+
+def _comment(**changes) -> str:
+    return MARK + json.dumps({**GOOD, **changes})
+
+
+def _capture_file(path, comment: str) -> str:
+    with open(path, "wb") as f:
+        writer = PcapngWriter(f, comment=comment)
+        writer.write_packet(writer.add_interface("link"), 0.5, b"\x01\x02", OUTBOUND)
+    return str(path)
+
+
+def test_a_good_session_description_reads():
+    assert SessionInfo.from_comment(_comment()).seed == 2
+
+
+@pytest.mark.parametrize("comment, reason", [
+    (MARK + "[]", "not a JSON object"), (MARK + "null", "not a JSON object"), (MARK + "5", "not a JSON object"),
+    (MARK + '"x"', "not a JSON object"), (MARK + "[" * 60_000, "nests deeper"),
+    (MARK + '{"a": ' + "{" * 5000 + "}" * 5000 + "}", "nests deeper"),
+    (MARK + json.dumps(GOOD).replace('"protocol_version": 1', '"protocol_version": 1e400'), "out of range"),
+    (_comment(protocol_version=1.9), "protocol_version"), (_comment(protocol_version="1"), "protocol_version"),
+    (_comment(seed=[1, 2]), "seed"), (_comment(seed={}), "seed"), (_comment(seed=2**100), "seed"),
+    (_comment(seed=3.7), "seed"), (_comment(seed=-1), "seed"), (_comment(seed=True), "seed"),
+    (_comment(clock=["simulated"]), "clock"), (_comment(schema_hash=5), "schema_hash"),
+    (_comment(settings=[1]), "settings"), (_comment(tool=7), "tool"),
+])
+def test_a_bad_session_description_is_refused_with_the_field_named(comment, reason):
+    with pytest.raises(ValueError, match=reason):
+        SessionInfo.from_comment(comment)
+
+
+@pytest.mark.parametrize("plant, reason", [
+    ({"start": "0001-01-01T00:00:00+00:00"}, "outside the controller clock's range"),
+    ({"start": "9999-01-01T00:00:00+00:00"}, "outside the controller clock's range"),
+    ({"start": "2026-01-01T00:00:00"}, "UTC offset"), ({"tracker": "no"}, "tracker"),
+    ({"gravity": ["earth"]}, "gravity"), ({"clouds": 5}, "clouds"), ({"payload_kg": 10**400}, "payload_kg"),
+    ({"payload_kg": float("nan")}, "payload_kg"),
+])
+def test_bad_plant_settings_are_refused_as_the_command_line_would(plant, reason):
+    with pytest.raises(ValueError, match=reason):
+        PlantSettings.from_dict({**PlantSettings().to_dict(), **plant})
+
+
+@pytest.mark.parametrize("changes, reason", [
+    ({"seed": [1, 2]}, "seed"), ({"seed": 2**100}, "seed"), ({"protocol_version": 1.9}, "protocol_version"),
+    ({"settings": {"plant": {**PlantSettings().to_dict(), "tracker": "no"}, "params": {}}}, "tracker"),
+    ({"settings": {"plant": PlantSettings().to_dict(), "params": {"j1_kp": 10**400}}}, "j1_kp"),
+    ({"settings": {"plant": {**PlantSettings().to_dict(), "start": "0001-01-01T00:00:00+00:00"}, "params": {}}},
+     "range"),
+])
+def test_replay_refuses_a_bad_session_description_naming_the_field(tmp_path, capsys, changes, reason):
+    path = _capture_file(tmp_path / "c.pcapng", _comment(**changes))
+    assert main(["replay", path]) == 2
+    assert reason in capsys.readouterr().err
+
+
+def test_log_on_a_bad_session_description_warns_and_decodes(tmp_path, capsys):
+    path = _capture_file(tmp_path / "c.pcapng", MARK + "[]")
+    assert main(["log", path]) == 0
+    assert "not a JSON object" in capsys.readouterr().err

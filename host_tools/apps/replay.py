@@ -187,19 +187,28 @@ def _decode(capture: SessionCapture, psk: Optional[bytes]) -> list[DecodedFrame]
     return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
 
 
-def world_of(info: Optional[SessionInfo]) -> tuple[PlantSettings, dict[str, float], int]:
-    """The plant settings, parameters and seed a capture was recorded with; ReplayError if it does not say."""
+def world_of(info: Optional[SessionInfo], why_not: str = "") -> tuple[PlantSettings, dict[str, float], int]:
+    """The plant settings, parameters and seed a capture was recorded with; ReplayError if it does not say
+    (`why_not`: why the capture's description did not read, when `info` is None)."""
     if info is None:
-        raise ReplayError("the capture does not describe its session (not written by aspod)")
+        raise ReplayError(f"the capture does not describe its session: {why_not}" if why_not else
+                          "the capture does not describe its session (not written by aspod)")
     if "plant" not in info.settings or "params" not in info.settings:
         raise ReplayError(f"the capture was recorded by {info.tool or 'a tool'} without the world it ran against; "
                           "record with aspod sim --record or aspod demo --record")
     if not info.same_schema:
         raise ReplayError(info.schema_mismatch())
-    plant = PlantSettings.from_dict(info.settings["plant"])
+    try:
+        plant = PlantSettings.from_dict(info.settings["plant"])
+    except ValueError as exc:
+        raise ReplayError(f"the capture's plant settings: {exc}") from None
     params = info.settings["params"]
-    if not isinstance(params, dict) or not all(isinstance(v, (int, float)) for v in params.values()):
+    if not isinstance(params, dict):
         raise ReplayError("the capture's parameters are not a mapping of names to numbers")
+    for name, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not -1e300 < value < 1e300:
+            raise ReplayError(f"the capture's parameter {str(name)[:60]!r} is {str(value)[:60]}, not a number "
+                              "a parameter can be")
     return plant, {str(k): float(v) for k, v in params.items()}, int(info.seed or 0)
 
 
@@ -213,7 +222,7 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
     which the recording stamps only at the port)."""
     if capture.error is not None:
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
-    plant, recorded_params, seed = world_of(capture.info)
+    plant, recorded_params, seed = world_of(capture.info, capture.info_error)
     key = psk if psk is not None else BENCH_KEY
     actions, recorded = _split(_decode(capture, psk), [f.offset for f in capture.frames])
     host_commands = sum(a.message is not None for a in actions)
