@@ -1,4 +1,4 @@
-"""Bad session captures given to `aspod log` and `aspod replay`: refused with the reason, never a traceback or a hang."""
+"""Bad session captures given to `aspod log` and `aspod replay`: refused with the reason, never a traceback or hang."""
 from __future__ import annotations
 
 import json
@@ -8,8 +8,8 @@ import pytest
 
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from host_tools.cli.main import main
-from host_tools.sessions.capture import MARK, SessionInfo
-from host_tools.sessions.pcapng import MAX_CAPTURE_BYTES, OUTBOUND, PcapngWriter
+from host_tools.sessions.capture import MARK, WORLD, SessionInfo
+from host_tools.sessions.pcapng import LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, PcapngWriter
 from host_tools.worlds.settings import PlantSettings
 
 
@@ -95,3 +95,43 @@ def test_log_on_a_bad_session_description_warns_and_decodes(tmp_path, capsys):
     path = _capture_file(tmp_path / "c.pcapng", MARK + "[]")
     assert main(["log", path]) == 0
     assert "not a JSON object" in capsys.readouterr().err
+
+
+def _world_capture(path, *events: bytes) -> str:
+    with open(path, "wb") as f:
+        writer = PcapngWriter(f, comment=_comment())
+        writer.write_packet(writer.add_interface("link"), 0.5, b"\x01\x02", OUTBOUND)
+        world = writer.add_interface(WORLD, "", LINKTYPE_USER1)
+        for event in events:
+            writer.write_packet(world, 0.3, event)
+    return str(path)
+
+
+@pytest.mark.parametrize("event, reason", [
+    ({"action": "inject", "args": 5}, "args must be a list"), ({"action": "inject", "args": None}, "args must be"),
+    ({"action": "set_payload", "args": [10**400]}, "payload kg"),
+    ({"action": "set_payload", "args": [1e308]}, "0..1000"),
+    ({"action": "inject", "args": ["jam:j9"]}, "j9"), ({"control": {"op": "payload", "kg": 1e308}}, "0..1000"),
+    ({"control": {"op": "pause"}}, "pause"), ({"control": None}, "JSON object"), ({"args": ["x"]}, "action"),
+])
+def test_replay_refuses_a_world_event_the_control_endpoint_would_refuse(tmp_path, capsys, event, reason):
+    path = _world_capture(tmp_path / "w.pcapng", json.dumps({"action": "inject", "args": ["supply_sag"]}).encode(),
+                          json.dumps(event).encode())
+    assert main(["replay", path]) == 2
+    err = capsys.readouterr().err
+    assert "world event 1 " in err and reason in err
+
+
+@pytest.mark.parametrize("data", [b"[" * 60_000, b'{"a":' * 60_000, b"[1, 2]", b"\xff{}", b'{"action": NaN}'])
+def test_replay_refuses_a_world_event_that_does_not_parse_rather_than_leave_it_out(tmp_path, capsys, data):
+    assert main(["replay", _world_capture(tmp_path / "w.pcapng", data)]) == 2
+    assert "world event 0 (at byte" in capsys.readouterr().err
+
+
+def test_log_shows_odd_world_events_without_a_traceback(tmp_path, capsys):
+    path = _world_capture(tmp_path / "w.pcapng", *(json.dumps(e).encode() for e in (
+        {"action": "inject", "args": 5}, {"action": "inject", "args": None}, {"action": [1]},
+        {"control": {"op": "payload", "kg": 2}})), b"[" * 60_000)
+    assert main(["log", path]) == 0
+    out = capsys.readouterr().out
+    assert "inject(5)" in out and "inject(None)" in out and "control {'op': 'payload'" in out

@@ -38,6 +38,7 @@ from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionIn
 from host_tools.sessions.decode import DecodedFrame, SessionDecoder, format_value
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.bench_world import apply_params
+from host_tools.worlds.plant_control import check_world_event
 from host_tools.worlds.world import AFTER_THE_WORLD, LockstepBench
 
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
@@ -212,6 +213,18 @@ def world_of(info: Optional[SessionInfo], why_not: str = "") -> tuple[PlantSetti
     return plant, {str(k): float(v) for k, v in params.items()}, int(info.seed or 0)
 
 
+def check_world_events(capture: SessionCapture) -> None:
+    """ReplayError naming the first world event that does not parse or that the live control endpoint would refuse
+    (`plant_control.check_world_event`): a replay without it would report a divergence it caused itself."""
+    if capture.world_errors:
+        raise ReplayError(f"{capture.world_errors[0]}: replay cannot do it again")
+    for index, (_, event, offset) in enumerate(capture.world_events):
+        try:
+            check_world_event(event)
+        except ValueError as exc:
+            raise ReplayError(f"world event {index} (at byte {offset}) is refused: {exc}") from None
+
+
 def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
            tolerances: Tolerances = Tolerances()) -> ReplayReport:
     """Re-run `capture`'s host commands against a fresh world; compare; `params` override the recorded ones.
@@ -223,6 +236,7 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
     if capture.error is not None:
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
     plant, recorded_params, seed = world_of(capture.info, capture.info_error)
+    check_world_events(capture)
     key = psk if psk is not None else BENCH_KEY
     actions, recorded = _split(_decode(capture, psk), [f.offset for f in capture.frames])
     host_commands = sum(a.message is not None for a in actions)

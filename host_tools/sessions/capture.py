@@ -168,6 +168,7 @@ class SessionCapture:
     size: int
     world_events: list[tuple[float, dict, int]] = field(default_factory=list)   # (time, event, offset)
     info_error: str = ""          # why the section comment does not describe a session (info is then None)
+    world_errors: list[str] = field(default_factory=list)     # world events that do not parse (left out)
 
     @classmethod
     def read(cls, path: Path) -> "SessionCapture":
@@ -192,20 +193,34 @@ class SessionCapture:
                     warnings.append(mismatch)
         world = {i for i, iface in enumerate(pcap.interfaces) if iface.name == WORLD and iface.linktype == LINKTYPE_USER1}
         frames = [_frame(pcap, p) for p in pcap.packets if p.interface not in world]
-        events = []
+        events: list[tuple[float, dict, int]] = []
+        world_errors: list[str] = []
         for p in pcap.packets:
             if p.interface in world:
                 try:
                     event = _json_object(p.data.decode(), "it")
                 except ValueError as exc:
-                    warnings.append(f"world event at byte {p.offset} does not parse ({exc}); left out")
+                    world_errors.append(f"world event {len(events) + len(world_errors)} (at byte {p.offset}) does "
+                                        f"not parse ({exc})")
+                    warnings.append(f"{world_errors[-1]}; left out")
                     continue
                 events.append((p.time_s, event, p.offset))
         for p in pcap.packets:
             if p.interface not in world and p.direction not in FLAG_DIRECTION:
                 warnings.append(f"packet at byte {p.offset} has no direction; taken as controller -> host")
                 break
-        return cls(info, frames, pcap.error, warnings, pcap.size, events, info_error)
+        return cls(info, frames, pcap.error, warnings, pcap.size, events, info_error, world_errors)
+
+
+def describe_world_event(event: dict) -> str:
+    """A world event as one line of `aspod log`: `inject(jam:j2)`, `control {"op": ...}`; any JSON object."""
+    if "control" in event:
+        return "control " + _short(event["control"])
+    args = event.get("args", [])
+    shown = ", ".join(_short(a) if not isinstance(a, str) else a[:60] for a in args) if isinstance(args, list) \
+        else _short(args)
+    return f"{_short(event.get('action'))[:60] if not isinstance(event.get('action'), str) else event['action'][:60]}" \
+           f"({shown})"
 
 
 def _short(value: Any) -> str:
