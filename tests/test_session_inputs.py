@@ -135,3 +135,12 @@ def test_log_shows_odd_world_events_without_a_traceback(tmp_path, capsys):
     assert main(["log", path]) == 0
     out = capsys.readouterr().out
     assert "inject(5)" in out and "inject(None)" in out and "control {'op': 'payload'" in out
+
+
+@pytest.mark.parametrize("time_s", [1e5, 1e9])
+def test_replay_refuses_a_recording_longer_than_a_day_before_simulating(tmp_path, capsys, time_s):
+    with open(tmp_path / "t.pcapng", "wb") as f:
+        writer = PcapngWriter(f, comment=_comment())
+        writer.write_packet(writer.add_interface("link"), time_s, b"\x01\x02", OUTBOUND)
+    assert main(["replay", str(tmp_path / "t.pcapng")]) == 2
+    assert "86400 s" in capsys.readouterr().err

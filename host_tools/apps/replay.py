@@ -45,6 +45,7 @@ BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what a
 SUBMIT_EARLY_S = 1e-6
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
+MAX_SPAN_S = 86_400.0     # a day of simulated time: more than any session records; a later time is refused unsimulated
 TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
 # What measures the host machine or the link's own traffic, not the controller's behaviour: compared
 # only on the simulated clock, where they too are deterministic.
@@ -237,6 +238,10 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
     plant, recorded_params, seed = world_of(capture.info, capture.info_error)
     check_world_events(capture)
+    last = max([f.time_s for f in capture.frames] + [t for t, _, _ in capture.world_events], default=0.0)
+    if not last <= MAX_SPAN_S:
+        raise ReplayError(f"the capture's last frame or world event is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a "
+                          "day), the most a replay simulates")
     key = psk if psk is not None else BENCH_KEY
     actions, recorded = _split(_decode(capture, psk), [f.offset for f in capture.frames])
     host_commands = sum(a.message is not None for a in actions)
