@@ -38,12 +38,14 @@ from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionIn
 from host_tools.sessions.decode import DecodedFrame, SessionDecoder, format_value
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.bench_world import apply_params
+from host_tools.worlds.plant_control import check_world_event
 from host_tools.worlds.world import AFTER_THE_WORLD, LockstepBench
 
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
 SUBMIT_EARLY_S = 1e-6
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
+MAX_SPAN_S = 86_400.0     # a day of simulated time: more than any session records; a later time is refused unsimulated
 TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
 # What measures the host machine or the link's own traffic, not the controller's behaviour: compared
 # only on the simulated clock, where they too are deterministic.
@@ -187,20 +189,41 @@ def _decode(capture: SessionCapture, psk: Optional[bytes]) -> list[DecodedFrame]
     return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
 
 
-def world_of(info: Optional[SessionInfo]) -> tuple[PlantSettings, dict[str, float], int]:
-    """The plant settings, parameters and seed a capture was recorded with; ReplayError if it does not say."""
+def world_of(info: Optional[SessionInfo], why_not: str = "") -> tuple[PlantSettings, dict[str, float], int]:
+    """The plant settings, parameters and seed a capture was recorded with; ReplayError if it does not say
+    (`why_not`: why the capture's description did not read, when `info` is None)."""
     if info is None:
-        raise ReplayError("the capture does not describe its session (not written by aspod)")
+        raise ReplayError(f"the capture does not describe its session: {why_not}" if why_not else
+                          "the capture does not describe its session (not written by aspod)")
     if "plant" not in info.settings or "params" not in info.settings:
         raise ReplayError(f"the capture was recorded by {info.tool or 'a tool'} without the world it ran against; "
                           "record with aspod sim --record or aspod demo --record")
     if not info.same_schema:
         raise ReplayError(info.schema_mismatch())
-    plant = PlantSettings.from_dict(info.settings["plant"])
+    try:
+        plant = PlantSettings.from_dict(info.settings["plant"])
+    except ValueError as exc:
+        raise ReplayError(f"the capture's plant settings: {exc}") from None
     params = info.settings["params"]
-    if not isinstance(params, dict) or not all(isinstance(v, (int, float)) for v in params.values()):
+    if not isinstance(params, dict):
         raise ReplayError("the capture's parameters are not a mapping of names to numbers")
+    for name, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not -1e300 < value < 1e300:
+            raise ReplayError(f"the capture's parameter {str(name)[:60]!r} is {str(value)[:60]}, not a number "
+                              "a parameter can be")
     return plant, {str(k): float(v) for k, v in params.items()}, int(info.seed or 0)
+
+
+def check_world_events(capture: SessionCapture) -> None:
+    """ReplayError naming the first world event that does not parse or that the live control endpoint would refuse
+    (`plant_control.check_world_event`): a replay without it would report a divergence it caused itself."""
+    if capture.world_errors:
+        raise ReplayError(f"{capture.world_errors[0]}: replay cannot do it again")
+    for index, (_, event, offset) in enumerate(capture.world_events):
+        try:
+            check_world_event(event)
+        except ValueError as exc:
+            raise ReplayError(f"world event {index} (at byte {offset}) is refused: {exc}") from None
 
 
 def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
@@ -213,7 +236,12 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
     which the recording stamps only at the port)."""
     if capture.error is not None:
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
-    plant, recorded_params, seed = world_of(capture.info)
+    plant, recorded_params, seed = world_of(capture.info, capture.info_error)
+    check_world_events(capture)
+    last = max([f.time_s for f in capture.frames] + [t for t, _, _ in capture.world_events], default=0.0)
+    if not last <= MAX_SPAN_S:
+        raise ReplayError(f"the capture's last frame or world event is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a "
+                          "day), the most a replay simulates")
     key = psk if psk is not None else BENCH_KEY
     actions, recorded = _split(_decode(capture, psk), [f.offset for f in capture.frames])
     host_commands = sum(a.message is not None for a in actions)

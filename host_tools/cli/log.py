@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 from protocol import auth
+from protocol.files import InputFileError
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
-from host_tools.sessions.capture import SessionCapture
+from host_tools.sessions.capture import SessionCapture, describe_world_event
 from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, describe
 from host_tools.sessions.export import plot_session, write_csv
 from host_tools.sessions.stats import SessionStats
@@ -27,6 +28,9 @@ def read_capture(path: Path, prog: str) -> SessionCapture | None:
         return SessionCapture.read(path)
     except OSError as exc:
         log.error(f"{prog}: cannot read {path}: {exc.strerror or exc}")
+        return None
+    except InputFileError as exc:          # missing, unreadable, a FIFO or device, larger than MAX_CAPTURE_BYTES
+        log.error(f"{prog}: cannot read the capture {exc}")
         return None
 
 
@@ -79,8 +83,8 @@ def run_log(settings: LogSettings) -> int:
     if not (settings.stats or settings.csv is not None or settings.plot is not None):
         lines = [(d.time_s, describe(d, origin)) for d in shown]
         if not (settings.classes or settings.messages or settings.links or settings.errors_only):
-            lines += [(t, f"{t - origin:12.6f} world    {event.get('action')}"
-                          f"({', '.join(map(str, event.get('args', [])))})") for t, event, _ in capture.world_events]
+            lines += [(t, f"{t - origin:12.6f} world    {describe_world_event(event)}")
+                      for t, event, _ in capture.world_events]
         for _, line in sorted(lines, key=lambda item: item[0]):      # stable: frames and events in file order
             print(line, file=out)
     if capture.error is not None:

@@ -34,9 +34,9 @@ from protocol import auth
 from protocol.errors import KeyFileError, LinkError, shown
 
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+from host_tools.sessions.capture import SEED_MAX
 
 
-SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces: 0 .. 4294967295
 _KIND_NAMES = {int: "whole number", float: "number"}
 
 

@@ -17,17 +17,22 @@ world started, on a simulated clock; `paced`: the same, on a world paced to the 
 from __future__ import annotations
 
 import json
+import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Optional
 
+from protocol.files import read_bounded
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
 from host_tools.sessions.segments import SegmentCutter
-from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, OUTBOUND, CaptureError, Packet, PcapngReader,
-                                       PcapngWriter)
+from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, CaptureError, Packet,
+                                       PcapngReader, PcapngWriter)
 
 FORMAT_VERSION = 1
+SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces (the command line's --seed): 0 .. 4294967295
+MAX_JSON_DEPTH = 32      # a session description or world event nests a few levels; deeper is refused, not recursed
 MARK = "aspod-session "
 DIRECTION_FLAG = {Direction.TO_CONTROLLER: OUTBOUND, Direction.TO_HOST: INBOUND}
 FLAG_DIRECTION = {flag: direction for direction, flag in DIRECTION_FLAG.items()}
@@ -54,21 +59,34 @@ class SessionInfo:
 
     @classmethod
     def from_comment(cls, comment: str) -> "SessionInfo":
-        """Raises ValueError with the reason when the comment is not an aspod session's."""
+        """Raises ValueError with the reason (naming the field) when the comment is not an aspod session's.
+
+        Each field is checked by type and by the bounds the command line applies (the seed as --seed), since
+        `aspod replay` builds a world from them."""
         if not comment.startswith(MARK):
             raise ValueError("the capture's section comment does not describe an aspod session")
-        try:
-            doc = json.loads(comment[len(MARK):])
-            if doc.get("format") != FORMAT_VERSION:
-                raise ValueError(f"capture format {doc.get('format')!r}; this version reads {FORMAT_VERSION}")
-            info = cls(clock=str(doc["clock"]), tool=str(doc.get("tool", "")), settings=dict(doc.get("settings") or {}),
-                       seed=doc.get("seed"), protocol_version=int(doc["protocol_version"]),
-                       schema_hash=int(str(doc["schema_hash"]), 16))
-        except (KeyError, TypeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"the session description does not parse: {exc}") from None
-        if info.clock not in CLOCKS:
-            raise ValueError(f"clock {info.clock!r} is not one of {', '.join(CLOCKS)}")
-        return info
+        doc = _json_object(comment[len(MARK):], "the session description")
+        if doc.get("format") != FORMAT_VERSION or isinstance(doc.get("format"), bool):
+            raise ValueError(f"capture format {_short(doc.get('format'))}; this version reads {FORMAT_VERSION}")
+        for name in ("clock", "protocol_version", "schema_hash"):
+            if name not in doc:
+                raise ValueError(f"the session description does not parse: it has no {name!r}")
+        clock, tool, settings = doc["clock"], doc.get("tool", ""), doc.get("settings")
+        version, schema_hash, seed = doc["protocol_version"], doc["schema_hash"], doc.get("seed")
+        if not isinstance(clock, str) or clock not in CLOCKS:
+            raise ValueError(f"clock {_short(clock)} is not one of {', '.join(CLOCKS)}")
+        if not isinstance(tool, str):
+            raise ValueError(f"tool {_short(tool)} is not a string")
+        if settings is not None and not isinstance(settings, dict):
+            raise ValueError(f"settings {_short(settings)} is not a JSON object")
+        if isinstance(version, bool) or not isinstance(version, int) or not 0 <= version <= 0xFFFF:
+            raise ValueError(f"protocol_version {_short(version)} is not a whole number in 0..65535")
+        if not isinstance(schema_hash, str) or not re.fullmatch(r"[0-9a-fA-F]{1,16}", schema_hash):
+            raise ValueError(f"schema_hash {_short(schema_hash)} is not a 64-bit hexadecimal number")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX):
+            raise ValueError(f"seed {_short(seed)} is not a whole number in 0..{SEED_MAX} (as --seed)")
+        return cls(clock=clock, tool=tool, settings=dict(settings or {}), seed=seed, protocol_version=version,
+                   schema_hash=int(schema_hash, 16))
 
     @property
     def same_schema(self) -> bool:
@@ -149,43 +167,107 @@ class SessionCapture:
     warnings: list[str]
     size: int
     world_events: list[tuple[float, dict, int]] = field(default_factory=list)   # (time, event, offset)
+    info_error: str = ""          # why the section comment does not describe a session (info is then None)
+    world_errors: list[str] = field(default_factory=list)     # world events that do not parse (left out)
 
     @classmethod
     def read(cls, path: Path) -> "SessionCapture":
-        """Never raises for bad content; a missing or unreadable file raises OSError."""
-        return cls.parse(Path(path).read_bytes())
+        """Never raises for bad content; a file that is missing, unreadable, not a regular file (a FIFO, a
+        device, a directory) or larger than `pcapng.MAX_CAPTURE_BYTES` (256 MiB) raises `files.InputFileError`."""
+        return cls.parse(read_bounded(path, MAX_CAPTURE_BYTES))
 
     @classmethod
     def parse(cls, data: bytes) -> "SessionCapture":
         pcap = PcapngReader.parse(data)
         warnings: list[str] = []
         info: Optional[SessionInfo] = None
+        info_error = ""
         if pcap.interfaces or pcap.comment:
             try:
                 info = SessionInfo.from_comment(pcap.comment)
             except ValueError as exc:
+                info_error = str(exc)
                 warnings.append(f"{exc}; decoding it as this build's protocol")
             else:
                 if mismatch := info.schema_mismatch():
                     warnings.append(mismatch)
         world = {i for i, iface in enumerate(pcap.interfaces) if iface.name == WORLD and iface.linktype == LINKTYPE_USER1}
         frames = [_frame(pcap, p) for p in pcap.packets if p.interface not in world]
-        events = []
+        events: list[tuple[float, dict, int]] = []
+        world_errors: list[str] = []
         for p in pcap.packets:
             if p.interface in world:
                 try:
-                    event = json.loads(p.data)
-                    if not isinstance(event, dict):
-                        raise ValueError("not a JSON object")
+                    event = _json_object(p.data.decode(), "it")
                 except ValueError as exc:
-                    warnings.append(f"world event at byte {p.offset} does not parse ({exc}); left out")
+                    world_errors.append(f"world event {len(events) + len(world_errors)} (at byte {p.offset}) does "
+                                        f"not parse ({exc})")
+                    warnings.append(f"{world_errors[-1]}; left out")
                     continue
                 events.append((p.time_s, event, p.offset))
         for p in pcap.packets:
             if p.interface not in world and p.direction not in FLAG_DIRECTION:
                 warnings.append(f"packet at byte {p.offset} has no direction; taken as controller -> host")
                 break
-        return cls(info, frames, pcap.error, warnings, pcap.size, events)
+        return cls(info, frames, pcap.error, warnings, pcap.size, events, info_error, world_errors)
+
+
+def describe_world_event(event: dict) -> str:
+    """A world event as one line of `aspod log`: `inject(jam:j2)`, `control {"op": ...}`; any JSON object."""
+    if "control" in event:
+        return "control " + _short(event["control"])
+    args = event.get("args", [])
+    shown = ", ".join(_short(a) if not isinstance(a, str) else a[:60] for a in args) if isinstance(args, list) \
+        else _short(args)
+    return f"{_short(event.get('action'))[:60] if not isinstance(event.get('action'), str) else event['action'][:60]}" \
+           f"({shown})"
+
+
+def _short(value: Any) -> str:
+    """A value for an error message: repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _depth_ok(text: str) -> bool:
+    """Whether JSON `text` nests at most MAX_JSON_DEPTH brackets (counted outside strings), before it is parsed."""
+    depth, in_string, escaped = 0, False, False
+    for ch in text:
+        if in_string:
+            escaped, in_string = (False, True) if escaped else (ch == "\\", ch != '"')
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                return False
+        elif ch in "]}":
+            depth -= 1
+    return True
+
+
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {_short(text)} is out of range")
+    return value
+
+
+def _no_constant(text: str) -> Any:
+    raise ValueError(f"{text} is not a number JSON allows")
+
+
+def _json_object(text: str, what: str) -> dict:
+    """`text` as a JSON object: nesting at most MAX_JSON_DEPTH, finite numbers; ValueError naming `what` and why."""
+    if not _depth_ok(text):
+        raise ValueError(f"{what} nests deeper than {MAX_JSON_DEPTH} levels")
+    try:
+        doc = json.loads(text, parse_float=_finite, parse_constant=_no_constant)
+    except (ValueError, RecursionError) as exc:    # JSONDecodeError is a ValueError; so is an int of 4,300 digits
+        raise ValueError(f"{what} does not parse: {exc}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{what} is not a JSON object: {_short(doc)}")
+    return doc
 
 
 def _frame(pcap: PcapngReader, packet: Packet) -> CapturedFrame:

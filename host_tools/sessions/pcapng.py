@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Iterator, Optional
 
+from protocol.files import MIB, read_bounded
+
 SHB, IDB, EPB = 0x0A0D0D0A, 0x00000001, 0x00000006
 BYTE_ORDER_MAGIC = 0x1A2B3C4D
 OPT_END, OPT_COMMENT = 0, 1
@@ -30,6 +32,10 @@ NANOSECONDS = 9
 
 INBOUND, OUTBOUND = 1, 2      # epb_flags direction bits
 MAX_BLOCK = 1 << 20           # no block of ours comes near this; a larger length field is a broken file
+# The largest capture file read (`files.read_bounded`), far above what a session records (a frame is tens of
+# bytes plus 32 of pcapng; the demo's 3,220 frames make a few hundred KiB); anything larger, or not a regular
+# file (a FIFO, /dev/zero), is refused with `InputFileError`: never read until memory runs out, nor waited on.
+MAX_CAPTURE_BYTES = 256 * MIB
 
 
 class CaptureError(ValueError):
@@ -132,7 +138,9 @@ class PcapngReader:
 
     @classmethod
     def read(cls, path: Path) -> "PcapngReader":
-        return cls.parse(Path(path).read_bytes())
+        """Raises `files.InputFileError` (a ValueError) for a file that is missing, unreadable, not a regular
+        file or larger than MAX_CAPTURE_BYTES."""
+        return cls.parse(read_bounded(path, MAX_CAPTURE_BYTES))
 
     @classmethod
     def parse(cls, data: bytes) -> "PcapngReader":

@@ -130,6 +130,34 @@ def decode_request(line: bytes) -> Any:
         raise RequestError("not JSON this endpoint reads: nested too deeply") from None
 
 
+CHANGES = ("fault", "clear", "gravity", "payload", "object", "clouds")    # the ops a recording holds (on_change)
+
+
+def check_world_event(event: Any) -> None:
+    """A recorded world event (`LockstepBench.act`'s {"action", "args"} or `on_change`'s {"control": request})
+    checked as the live endpoint checks its requests (`check_request`: types, ranges, fault names), before a replay
+    does it; RequestError naming what is wrong."""
+    if not isinstance(event, dict):
+        raise RequestError(f"a world event is a JSON object, got {type(event).__name__}")
+    if "control" in event:
+        if set(event) != {"control"}:
+            raise RequestError("a control event holds only `control`")
+        op, _ = check_request(event["control"])
+        if op.name not in CHANGES:
+            raise RequestError(f"op {op.name} changes nothing a recording holds; recorded ops: {', '.join(CHANGES)}")
+        return
+    if set(event) - {"action", "args"} or not isinstance(event.get("action"), str):
+        raise RequestError("a world event is {\"action\": NAME, \"args\": [...]} or {\"control\": REQUEST}")
+    args = event.get("args", [])
+    if not isinstance(args, list):
+        raise RequestError(f"action {shown(event['action'], 40)}: args must be a list, got {type(args).__name__}")
+    try:
+        request = plant_actions.control_request(event["action"], *args)
+    except ValueError as exc:
+        raise RequestError(str(exc)) from None
+    check_request(request)
+
+
 def check_request(request: Any) -> tuple[Op, dict]:
     """The operation and its checked arguments (absent optional ones as None); RequestError naming what is wrong."""
     if not isinstance(request, dict):

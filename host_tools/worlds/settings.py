@@ -7,12 +7,12 @@ and hand a child `aspod plant` its options back through `to_argv()`.
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from datetime import datetime
 from typing import Optional, Sequence, Union
 
 from hil_sim.arm_params import GRAVITY_M_S2
+from host_tools.datetimes import check_range
 from hil_sim.sun import DEFAULT_START, TUCSON, CloudPassage, DateTimeLike, as_clouds, to_utc
 
 GRAVITY_MODES = tuple(GRAVITY_M_S2)     # "earth", "orbit"
@@ -41,7 +41,7 @@ class PlantSettings:
         if self.gravity not in GRAVITY_MODES:
             raise ValueError(f"unknown gravity {self.gravity!r}; known: {', '.join(GRAVITY_MODES)}")
         if isinstance(self.payload_kg, bool) or not isinstance(self.payload_kg, (int, float)) \
-                or not (math.isfinite(self.payload_kg) and 0 <= self.payload_kg <= PAYLOAD_MAX_KG):
+                or not 0 <= self.payload_kg <= PAYLOAD_MAX_KG:      # NaN compares false; a huge int fits no float
             raise ValueError(f"payload_kg must be in 0..{PAYLOAD_MAX_KG:g}, got {self.payload_kg!r}")
         object.__setattr__(self, "payload_kg", float(self.payload_kg))
         if not self.tracker:
@@ -99,11 +99,20 @@ class PlantSettings:
         if not isinstance(values, dict) or set(values) - known:
             raise ValueError(f"plant settings must be a mapping of {', '.join(sorted(known))}")
         values = dict(values)
+        if not isinstance(values.get("gravity", ""), str):
+            raise ValueError(f"plant gravity {values['gravity']!r} is not one of {', '.join(GRAVITY_MODES)}")
+        if not isinstance(values.get("tracker", True), bool):
+            raise ValueError(f"plant tracker {values['tracker']!r} is not true or false")
+        if not isinstance(values.get("clouds") or "", str):
+            raise ValueError("plant clouds must be a spec (a string), as --clouds takes")
         if values.get("start") is not None:
             try:
                 values["start"] = datetime.fromisoformat(str(values["start"]))
             except ValueError:
-                raise ValueError(f"plant start {values['start']!r} is not an ISO date-time") from None
+                raise ValueError(f"plant start {str(values['start'])[:60]!r} is not an ISO date-time") from None
+            if values["start"].tzinfo is None:
+                raise ValueError("plant start has no UTC offset")
+            check_range(values["start"].timestamp(), "plant start")     # as --sun-start: SetClock's range
         try:
             return cls(**values)
         except TypeError as exc:

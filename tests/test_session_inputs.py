@@ -1,0 +1,146 @@
+"""Bad session captures given to `aspod log` and `aspod replay`: refused with the reason, never a traceback or hang."""
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from protocol.messages import PROTOCOL_VERSION, SCHEMA
+from host_tools.cli.main import main
+from host_tools.sessions.capture import MARK, WORLD, SessionInfo
+from host_tools.sessions.pcapng import LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, PcapngWriter
+from host_tools.worlds.settings import PlantSettings
+
+
+@pytest.mark.parametrize("command", ["log", "replay"])
+def test_a_fifo_is_refused_not_waited_on(tmp_path, capsys, command):
+    fifo = tmp_path / "capture.pcapng"
+    os.mkfifo(fifo)
+    assert main([command, str(fifo)]) == 2
+    assert "FIFO" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["log", "replay"])
+def test_a_capture_larger_than_the_limit_is_refused_unread(tmp_path, capsys, command):
+    big = tmp_path / "big.pcapng"
+    with open(big, "wb") as f:
+        f.truncate(MAX_CAPTURE_BYTES + 1)          # sparse: nothing is written
+    assert main([command, str(big)]) == 2
+    assert "larger than 256 MiB" in capsys.readouterr().err
+
+
+GOOD = {"format": 1, "protocol_version": PROTOCOL_VERSION, "schema_hash": f"{SCHEMA.hash:016x}",
+        "clock": "simulated", "tool": "aspod bench", "seed": 2,
+        "settings": {"plant": PlantSettings().to_dict(), "params": {"j1_kp": 2.0}}}
+
+
+def _comment(**changes) -> str:
+    return MARK + json.dumps({**GOOD, **changes})
+
+
+def _capture_file(path, comment: str) -> str:
+    with open(path, "wb") as f:
+        writer = PcapngWriter(f, comment=comment)
+        writer.write_packet(writer.add_interface("link"), 0.5, b"\x01\x02", OUTBOUND)
+    return str(path)
+
+
+def test_a_good_session_description_reads():
+    assert SessionInfo.from_comment(_comment()).seed == 2
+
+
+@pytest.mark.parametrize("comment, reason", [
+    (MARK + "[]", "not a JSON object"), (MARK + "null", "not a JSON object"), (MARK + "5", "not a JSON object"),
+    (MARK + '"x"', "not a JSON object"), (MARK + "[" * 60_000, "nests deeper"),
+    (MARK + '{"a": ' + "{" * 5000 + "}" * 5000 + "}", "nests deeper"),
+    (MARK + json.dumps(GOOD).replace('"protocol_version": 1', '"protocol_version": 1e400'), "out of range"),
+    (_comment(protocol_version=1.9), "protocol_version"), (_comment(protocol_version="1"), "protocol_version"),
+    (_comment(seed=[1, 2]), "seed"), (_comment(seed={}), "seed"), (_comment(seed=2**100), "seed"),
+    (_comment(seed=3.7), "seed"), (_comment(seed=-1), "seed"), (_comment(seed=True), "seed"),
+    (_comment(clock=["simulated"]), "clock"), (_comment(schema_hash=5), "schema_hash"),
+    (_comment(settings=[1]), "settings"), (_comment(tool=7), "tool"),
+])
+def test_a_bad_session_description_is_refused_with_the_field_named(comment, reason):
+    with pytest.raises(ValueError, match=reason):
+        SessionInfo.from_comment(comment)
+
+
+@pytest.mark.parametrize("plant, reason", [
+    ({"start": "0001-01-01T00:00:00+00:00"}, "outside the controller clock's range"),
+    ({"start": "9999-01-01T00:00:00+00:00"}, "outside the controller clock's range"),
+    ({"start": "2026-01-01T00:00:00"}, "UTC offset"), ({"tracker": "no"}, "tracker"),
+    ({"gravity": ["earth"]}, "gravity"), ({"clouds": 5}, "clouds"), ({"payload_kg": 10**400}, "payload_kg"),
+    ({"payload_kg": float("nan")}, "payload_kg"),
+])
+def test_bad_plant_settings_are_refused_as_the_command_line_would(plant, reason):
+    with pytest.raises(ValueError, match=reason):
+        PlantSettings.from_dict({**PlantSettings().to_dict(), **plant})
+
+
+@pytest.mark.parametrize("changes, reason", [
+    ({"seed": [1, 2]}, "seed"), ({"seed": 2**100}, "seed"), ({"protocol_version": 1.9}, "protocol_version"),
+    ({"settings": {"plant": {**PlantSettings().to_dict(), "tracker": "no"}, "params": {}}}, "tracker"),
+    ({"settings": {"plant": PlantSettings().to_dict(), "params": {"j1_kp": 10**400}}}, "j1_kp"),
+    ({"settings": {"plant": {**PlantSettings().to_dict(), "start": "0001-01-01T00:00:00+00:00"}, "params": {}}},
+     "range"),
+])
+def test_replay_refuses_a_bad_session_description_naming_the_field(tmp_path, capsys, changes, reason):
+    path = _capture_file(tmp_path / "c.pcapng", _comment(**changes))
+    assert main(["replay", path]) == 2
+    assert reason in capsys.readouterr().err
+
+
+def test_log_on_a_bad_session_description_warns_and_decodes(tmp_path, capsys):
+    path = _capture_file(tmp_path / "c.pcapng", MARK + "[]")
+    assert main(["log", path]) == 0
+    assert "not a JSON object" in capsys.readouterr().err
+
+
+def _world_capture(path, *events: bytes) -> str:
+    with open(path, "wb") as f:
+        writer = PcapngWriter(f, comment=_comment())
+        writer.write_packet(writer.add_interface("link"), 0.5, b"\x01\x02", OUTBOUND)
+        world = writer.add_interface(WORLD, "", LINKTYPE_USER1)
+        for event in events:
+            writer.write_packet(world, 0.3, event)
+    return str(path)
+
+
+@pytest.mark.parametrize("event, reason", [
+    ({"action": "inject", "args": 5}, "args must be a list"), ({"action": "inject", "args": None}, "args must be"),
+    ({"action": "set_payload", "args": [10**400]}, "payload kg"),
+    ({"action": "set_payload", "args": [1e308]}, "0..1000"),
+    ({"action": "inject", "args": ["jam:j9"]}, "j9"), ({"control": {"op": "payload", "kg": 1e308}}, "0..1000"),
+    ({"control": {"op": "pause"}}, "pause"), ({"control": None}, "JSON object"), ({"args": ["x"]}, "action"),
+])
+def test_replay_refuses_a_world_event_the_control_endpoint_would_refuse(tmp_path, capsys, event, reason):
+    path = _world_capture(tmp_path / "w.pcapng", json.dumps({"action": "inject", "args": ["supply_sag"]}).encode(),
+                          json.dumps(event).encode())
+    assert main(["replay", path]) == 2
+    err = capsys.readouterr().err
+    assert "world event 1 " in err and reason in err
+
+
+@pytest.mark.parametrize("data", [b"[" * 60_000, b'{"a":' * 60_000, b"[1, 2]", b"\xff{}", b'{"action": NaN}'])
+def test_replay_refuses_a_world_event_that_does_not_parse_rather_than_leave_it_out(tmp_path, capsys, data):
+    assert main(["replay", _world_capture(tmp_path / "w.pcapng", data)]) == 2
+    assert "world event 0 (at byte" in capsys.readouterr().err
+
+
+def test_log_shows_odd_world_events_without_a_traceback(tmp_path, capsys):
+    path = _world_capture(tmp_path / "w.pcapng", *(json.dumps(e).encode() for e in (
+        {"action": "inject", "args": 5}, {"action": "inject", "args": None}, {"action": [1]},
+        {"control": {"op": "payload", "kg": 2}})), b"[" * 60_000)
+    assert main(["log", path]) == 0
+    out = capsys.readouterr().out
+    assert "inject(5)" in out and "inject(None)" in out and "control {'op': 'payload'" in out
+
+
+@pytest.mark.parametrize("time_s", [1e5, 1e9])
+def test_replay_refuses_a_recording_longer_than_a_day_before_simulating(tmp_path, capsys, time_s):
+    with open(tmp_path / "t.pcapng", "wb") as f:
+        writer = PcapngWriter(f, comment=_comment())
+        writer.write_packet(writer.add_interface("link"), time_s, b"\x01\x02", OUTBOUND)
+    assert main(["replay", str(tmp_path / "t.pcapng")]) == 2
+    assert "86400 s" in capsys.readouterr().err
