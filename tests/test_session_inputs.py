@@ -144,3 +144,16 @@ def test_replay_refuses_a_recording_longer_than_a_day_before_simulating(tmp_path
         writer.write_packet(writer.add_interface("link"), time_s, b"\x01\x02", OUTBOUND)
     assert main(["replay", str(tmp_path / "t.pcapng")]) == 2
     assert "86400 s" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command, option", [("log", "--csv"), ("replay", "--output")])
+def test_an_output_that_is_the_capture_itself_or_a_folder_is_refused_and_the_capture_kept(tmp_path, capsys, command,
+                                                                                      option):
+    capture = _capture_file(tmp_path / "c.pcapng", _comment())
+    kept = (tmp_path / "c.pcapng").read_bytes()
+    os.link(capture, tmp_path / "hard.pcapng")
+    for output, said in ((capture, "the input itself"), (tmp_path / "hard.pcapng", "the input itself"),
+                         (tmp_path, "a folder, not a file")):
+        assert main([command, capture, option, str(output)]) == 2, output
+        assert said in capsys.readouterr().err
+    assert (tmp_path / "c.pcapng").read_bytes() == kept

@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import sys
-from pathlib import Path
 
 from host_tools.apps.script_bench import run_script_bench
 from host_tools.cli.settings import BenchSettings
@@ -23,18 +21,9 @@ from host_tools.teleop.words import read_script, substitute
 log = logging.getLogger("aspod")
 
 
-def check_record(record: Path, script: Path) -> None:
-    """`--record FILE` (settings.py `record_path` checked it can be written): ValueError if FILE is the script
-    itself, which recording would replace."""
-    if record.exists() and script.exists() and os.path.samefile(record, script):
-        raise ValueError(f"--record {record}: that is the script itself; recording would replace it")
-
-
 def run_bench(settings: BenchSettings) -> int:
     try:
         lines = substitute(read_script(settings.script, option="script"), dict(settings.variables))
-        if settings.record is not None:
-            check_record(settings.record, settings.script)
     except (OSError, ValueError) as exc:
         log.error(f"aspod bench: {exc}")
         return EXIT_USAGE

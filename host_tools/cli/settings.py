@@ -326,19 +326,27 @@ def day_settings(args: argparse.Namespace) -> "DaySettings":
     return settings
 
 
-def record_path(path: Optional[Path]) -> Optional[Path]:
-    """A capture to write, checked before anything runs: a regular file that can be written, or none yet in a folder
-    that is there and can be written (a folder, /dev/full or a FIFO in its place is refused: ValueError)."""
+def output_file(path: Optional[Path], option: str, source: Optional[Path] = None) -> Optional[Path]:
+    """A file to write, checked before anything runs: a regular file that can be written, or none yet in a folder
+    that is there and can be written (a folder, /dev/full or a FIFO in its place is refused: ValueError), and not
+    `source`, the input it is made from."""
     if path is None:
         return None
     path = Path(path)
     if path.is_dir() or not path.parent.is_dir():
-        raise ValueError(f"--record {path}: " + ("a folder, not a file" if path.is_dir() else f"no folder {path.parent}"))
+        raise ValueError(f"{option} {path}: " + ("a folder, not a file" if path.is_dir() else f"no folder {path.parent}"))
     if os.path.lexists(path) and not path.is_file():
-        raise ValueError(f"--record {path}: not a regular file; a recording is written to a file")
+        raise ValueError(f"{option} {path}: not a regular file; it is written to a file")
     if not os.access(path if path.exists() else path.parent, os.W_OK):
-        raise ValueError(f"--record {path}: cannot be written (permission denied)")
+        raise ValueError(f"{option} {path}: cannot be written (permission denied)")
+    if source is not None and path.exists() and Path(source).exists() and os.path.samefile(path, source):
+        raise ValueError(f"{option} {path}: that is the input itself, which writing would replace")
     return path
+
+
+def record_path(path: Optional[Path]) -> Optional[Path]:
+    """A capture to write (`output_file` for --record)."""
+    return output_file(path, "--record")
 
 
 CAN_LOG_SUFFIXES = (".asc", ".blf", ".csv", ".log", ".trc", ".txt")
@@ -381,16 +389,14 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
         messages.append(by_lower[name.lower()])
     if args.plot is not None:
         check_plot_path(args.plot)
-    if args.csv is not None and str(args.csv) != "-" and not Path(args.csv).parent.is_dir():
-        raise ValueError(f"--csv {args.csv}: no folder {Path(args.csv).parent}")
+    if args.csv is not None and str(args.csv) != "-":
+        output_file(args.csv, "--csv", args.capture)
     return LogSettings(args.capture, classes, tuple(messages), tuple(args.link or ()), args.errors, args.stats,
                        args.csv, args.plot, args.key_file)
 
 
 def replay_settings(args: argparse.Namespace) -> ReplaySettings:
-    output = args.output
-    if output is not None and not Path(output).parent.is_dir():
-        raise ValueError(f"--output {output}: no folder {Path(output).parent}")
+    output = output_file(args.output, "--output", args.capture)
     return ReplaySettings(args.capture, tuple(dict(pairs(args.param or [], "--param")).items()), args.key_file,
                           args.json, output)
 
@@ -414,7 +420,7 @@ def bench_settings(args: argparse.Namespace) -> BenchSettings:
         default = PlantSettings().start if args.sun_start is None else to_utc(RealClock.wall_time())
         plant = plant.with_start(default)
     return BenchSettings(args.script, bench_world(args, plant), pairs(args.var, "--var", str), args.keep_going,
-                         args.json, record_path(args.record))
+                         args.json, output_file(args.record, "--record", args.script))
 
 
 def pairs(texts: list[str], option: str, kind=float) -> tuple[tuple[str, Any], ...]:
