@@ -94,6 +94,14 @@ def test_replay_refuses_what_it_cannot_replay(bench_capture, tmp_path):
         pairs(["j1_kp"], "--param")
 
 
+def test_a_replay_under_another_key_says_how_many_recorded_frames_do_not_verify(bench_capture):
+    capture = SessionCapture.read(bench_capture)
+    assert replay(capture).mac_failures == 0                 # no key given: the MACs are not checked
+    report = replay(capture, psk=bytes(32))
+    assert report.mac_failures > 50 and report.identical_bytes == 0
+    assert f"{report.mac_failures} recorded frames do not verify under the key given" in report.describe()
+
+
 def test_aspod_replay_command_json_and_exit_status(bench_capture, tmp_path, capsys):
     out = tmp_path / "replayed.pcapng"
     assert main(["replay", str(bench_capture), "--json", "--output", str(out)]) == 0

@@ -35,7 +35,7 @@ from protocol.link import LinkState
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
-from host_tools.sessions.decode import DecodedFrame, SessionDecoder, format_value
+from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, format_value
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.bench_world import apply_params
 from host_tools.worlds.plant_control import check_world_event
@@ -112,6 +112,7 @@ class ReplayReport:
     replayed: Optional[SessionCapture] = None
     replayed_bytes: bytes = b""             # the replay's own capture, as a file would hold it
     uncertainty_ms: float = 0.0             # real time: how uncertain the recording's command times are
+    mac_failures: int = 0                   # recorded frames whose MAC fails under the key given (none given: 0)
 
     @property
     def matches(self) -> bool:
@@ -127,6 +128,9 @@ class ReplayReport:
         if self.exact and self.controller_frames:
             lines.append(f"controller frames identical byte for byte: {self.identical_bytes} of "
                          f"{self.controller_frames}")
+        if self.mac_failures:
+            lines.append(f"{self.mac_failures} recorded frames do not verify under the key given: the recording was "
+                         f"made with another key (its commands were read without their MACs)")
         lines.append("match" if self.matches else self.divergence.describe())
         return "\n".join(lines)
 
@@ -243,7 +247,8 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         raise ReplayError(f"the capture's last frame or world event is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a "
                           "day), the most a replay simulates")
     key = psk if psk is not None else BENCH_KEY
-    actions, recorded = _split(_decode(capture, psk), [f.offset for f in capture.frames])
+    decoded = _decode(capture, psk)
+    actions, recorded = _split(decoded, [f.offset for f in capture.frames])
     host_commands = sum(a.message is not None for a in actions)
     actions = sorted(actions + [_Action(t, None, event, offset) for t, event, offset in capture.world_events],
                      key=lambda a: (a.time_s, a.offset))
@@ -266,7 +271,7 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         replayed_capture = SessionCapture.parse(data)
         _, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
     report = ReplayReport(exact=exact, commands=host_commands, replayed=replayed_capture, replayed_bytes=data,
-                          uncertainty_ms=uncertainty_ms)
+                          uncertainty_ms=uncertainty_ms, mac_failures=sum(d.mac == MAC_BAD for d in decoded))
     _compare(recorded, replayed, samples, report, tolerances, world.end_s - TAIL_S)
     return report
 

@@ -31,6 +31,7 @@ def run_replay(settings: ReplaySettings) -> int:
                           "replies": report.replies, "events": report.events, "telemetry": report.telemetry,
                           "telemetry_unmatched": report.telemetry_unmatched,
                           "identical_bytes": report.identical_bytes, "controller_frames": report.controller_frames,
+                          "mac_failures": report.mac_failures,
                           "divergence": None if d is None else {
                               "time_s": d.time_s, "message": d.message, "field": d.field,
                               "recorded": repr(d.recorded), "replayed": repr(d.replayed)}}, indent=1))
