@@ -33,9 +33,8 @@ class Waited:
 def test_an_inputs_own_time_leaves_out_what_it_waited_for_a_cpu():
     clock, waited = SimClock(100.0), Waited(5.0)
     watch = HangWatch(10.0, clock, waited)
-    assert watch.overdue() is None                        # no input running
-    with watch.input():
-        assert watch.overdue() is None                    # the first look: the CPU wait is counted from here
+    assert watch.overdue() is None                        # no input running; the watch looks: 5.0 s waited so far
+    with watch.input():                                   # the input's wait counts from that look
         clock.sleep_until(112.0)
         waited.value = 8.0                                # 12 s of wall time, 3 of them waiting for a CPU: 9 s
         assert watch.overdue() is None

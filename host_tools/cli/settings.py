@@ -269,7 +269,7 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
         hal_options = nodes.parse_bus_args(args.hal_arg or (), args.hal, "--hal-arg")
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
-                       hal_options=tuple(hal_options.items()), record=record_path(args.record),
+                       hal_options=tuple(hal_options.items()), record=output_file(args.record, "--record"),
                        can_log=can_log_path(args.can_log),
                        control=not args.no_control and (args.hal is None or args.control is not None),
                        control_path=args.control)
@@ -289,7 +289,7 @@ def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
-                          record=record_path(args.record), json=args.json, control=args.control)
+                          record=output_file(args.record, "--record"), json=args.json, control=args.control)
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":
@@ -297,7 +297,7 @@ def demo_settings(args: argparse.Namespace) -> "DemoSettings":
     if args.link and args.record is not None:
         raise ValueError("--record with --link: record with the teleop session instead (aspod teleop --record)")
     return DemoSettings(gravity=args.gravity, seed=args.seed, json=args.json, link=args.link, baud=args.baud,
-                        record=record_path(args.record))
+                        record=output_file(args.record, "--record"))
 
 
 def day_settings(args: argparse.Namespace) -> "DaySettings":
@@ -342,11 +342,6 @@ def output_file(path: Optional[Path], option: str, source: Optional[Path] = None
     if source is not None and path.exists() and Path(source).exists() and os.path.samefile(path, source):
         raise ValueError(f"{option} {path}: that is the input itself, which writing would replace")
     return path
-
-
-def record_path(path: Optional[Path]) -> Optional[Path]:
-    """A capture to write (`output_file` for --record)."""
-    return output_file(path, "--record")
 
 
 CAN_LOG_SUFFIXES = (".asc", ".blf", ".csv", ".log", ".trc", ".txt")
@@ -408,7 +403,7 @@ def proxy_settings(args: argparse.Namespace) -> ProxySettings:
         impairment = impairment.with_seed(args.seed)
     if args.host == args.controller and args.host != "pty":
         raise ValueError(f"--host and --controller are both {args.host}: the two sides must differ")
-    return ProxySettings(args.host, args.controller, impairment, args.baud, record_path(args.record),
+    return ProxySettings(args.host, args.controller, impairment, args.baud, output_file(args.record, "--record"),
                          args.key_file, not args.no_view)
 
 

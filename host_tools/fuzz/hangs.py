@@ -9,9 +9,10 @@ time counts). Past `hang_s` of its own time, the input is interrupted on the mai
 finding holds the inputs that led there and where it was stuck. A hang that blocks in a call without waiting for a
 CPU (a lock, a read) still counts, since blocked time is the input's own.
 
-Reading the kernel's count costs 13 µs, 6 % of a codec execution, so an input's start notes only the time; the
-count is read when the watch first looks at the input (within `POLL_S`), and the wait before that look counts as
-the input's own.
+Reading the kernel's count costs 13 µs, 6 % of a codec execution, so an input's start notes only the time and
+the count the watch read at its latest look (every `POLL_S`, and once as it starts). The wait between that look
+and the input's start is then left out of the input's time too: a hang is found a little late, by at most that,
+never early, however long the host keeps the watch itself from looking.
 
 libFuzzer's own timeout stays as the backstop, at `backstop_s(hang_s)` of wall time, for a hang the interrupt
 cannot reach (a loop in C that never returns to Python).
@@ -51,9 +52,8 @@ class HangWatch:
         self.clock = clock or RealClock()
         main_id = threading.main_thread().native_id
         self._waited_s = waited_s or (lambda: RealClock.cpu_wait_s(main_id))
-        self._started: Optional[tuple[float, int]] = None     # the running input's start and its number
-        self._count = 0                                        # inputs started
-        self._first_look: tuple[int, Optional[float]] = (0, None)   # an input's number, the CPU wait then
+        self._started: Optional[tuple[float, Optional[float]]] = None   # the running input's start, the wait then
+        self._looked: Optional[float] = None       # the main thread's CPU wait at the latest look
         self._fired = False
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
@@ -61,15 +61,14 @@ class HangWatch:
 
     # ---- the judgement (no thread, no signal: tests drive it with a SimClock) ----
     def overdue(self) -> Optional[str]:
-        """Why the running input is a hang, or None (none running, or still within its time)."""
+        """Why the running input is a hang, or None (none running, or still within its time). Each call is a look:
+        it reads the main thread's CPU wait, from which the next input counts."""
         started = self._started
+        self._looked = waited_now = self._waited_s()
         if started is None:
             return None
         wall = self.clock.now() - started[0]
-        waited_now = self._waited_s()
-        if self._first_look[0] != started[1]:
-            self._first_look = (started[1], waited_now)        # the first look at this input: its wait from here
-        waited_then = self._first_look[1]
+        waited_then = started[1]
         waited = 0.0 if waited_now is None or waited_then is None else max(0.0, waited_now - waited_then)
         own = wall - waited
         if own <= self.hang_s:
@@ -81,8 +80,7 @@ class HangWatch:
     def input(self) -> Iterator[None]:
         """Around one input: its time starts now and ends with the block."""
         self._fired = False
-        self._count += 1
-        self._started = (self.clock.now(), self._count)
+        self._started = (self.clock.now(), self._looked)
         try:
             yield
         finally:
@@ -90,8 +88,10 @@ class HangWatch:
 
     # ---- the watch ----
     def __enter__(self) -> "HangWatch":
+        self.overdue()           # the first look: the CPU wait the first input counts from
         if threading.current_thread() is not threading.main_thread():
-            return self          # a signal reaches only the main thread: here, libFuzzer's backstop alone
+            return self          # a signal reaches only the main thread: no watch (in a fuzzing child, libFuzzer's
+                                 # wall-clock backstop is still there)
         self._previous = signal.signal(_SIGNAL, self._interrupt)
         self._stop.clear()
         self._thread = threading.Thread(target=self._watch, name="aspod-hang-watch", daemon=True)

@@ -9,13 +9,12 @@ Two kinds, both exact in s (no numerical differentiation):
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
 
-from host_tools.plan.errors import PlanError
+from host_tools.plan.errors import PlanError, finite
 
 
 @dataclass(frozen=True)
@@ -97,17 +96,10 @@ def _numbers(value, what: str, n: Optional[int] = None) -> list:
     integer too large for a float, an infinity are not numbers here)."""
     if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n) or not value:
         raise PlanError("path", f"{what} must be a list of {n or 'one or more'} finite numbers")
-    out = []
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise PlanError("path", f"{what} must hold numbers, not {type(v).__name__} {v!r:.40}")
-        try:
-            f = float(v)
-        except OverflowError:
-            f = math.inf
-        if not math.isfinite(f):
-            raise PlanError("path", f"{what} must hold finite numbers (one is {str(v)[:40]})")
-        out.append(f)
+    out = [finite(v) for v in value]
+    if None in out:
+        v = value[out.index(None)]
+        raise PlanError("path", f"{what} must hold finite numbers, not {type(v).__name__} {str(v)[:40]}")
     return out
 
 

@@ -13,11 +13,10 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 from host_tools.plan.bounds import Limits
-from host_tools.plan.errors import PlanError
+from host_tools.plan.errors import PlanError, finite
 from host_tools.plan.example import LIMITS
 from host_tools.plan.model import GRAVITY, Held, two_arms
 from host_tools.plan.paths import path_from_dict
@@ -28,17 +27,8 @@ MAX_BYTES = 1 << 20
 KEYS = {"path", "arms", "object", "gravity", "limits"}
 
 
-def _finite(v) -> bool:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return False
-    try:
-        return math.isfinite(float(v))
-    except OverflowError:                                  # an integer too large for a float
-        return False
-
-
 def _numbers(value, n: int, what: str) -> tuple:
-    if not isinstance(value, (list, tuple)) or len(value) != n or not all(_finite(v) for v in value):
+    if not isinstance(value, (list, tuple)) or len(value) != n or not all(finite(v) is not None for v in value):
         raise PlanError("file", f"{what} must be a list of {n} finite numbers")
     return tuple(float(v) for v in value)
 
@@ -73,7 +63,7 @@ def problem_from_dict(spec: dict) -> Problem:
     if any(v <= 0 for v in size):
         raise PlanError("file", "object.size must be two lengths above 0")
     gravity = spec.get("gravity", GRAVITY)
-    if not _finite(gravity) or not 0 <= gravity <= 100:
+    if finite(gravity) is None or not 0 <= gravity <= 100:
         raise PlanError("file", "'gravity' is a number of m/s^2 from 0 to 100")
     separation = _numbers([arms.get("separation", 2.0)], 1, "arms.separation")[0]
     elbows = _numbers(arms.get("elbows", [1, 1]), 2, "arms.elbows")

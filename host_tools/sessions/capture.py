@@ -216,11 +216,11 @@ def describe_world_event(event: dict) -> str:
     """A world event as one line of `aspod log`: `inject(jam:j2)`, `control {"op": ...}`; any JSON object."""
     if "control" in event:
         return "control " + _short(event["control"])
+    def said(value: Any) -> str:
+        return value[:60] if isinstance(value, str) else _short(value)
     args = event.get("args", [])
-    shown = ", ".join(_short(a) if not isinstance(a, str) else a[:60] for a in args) if isinstance(args, list) \
-        else _short(args)
-    return f"{_short(event.get('action'))[:60] if not isinstance(event.get('action'), str) else event['action'][:60]}" \
-           f"({shown})"
+    shown = ", ".join(map(said, args)) if isinstance(args, list) else _short(args)
+    return f"{said(event.get('action'))}({shown})"
 
 
 def _short(value: Any) -> str:
