@@ -103,7 +103,7 @@ def _blackbox(settings: FuzzSettings) -> int:
     from host_tools.fuzz.blackbox import BlackBoxFuzzer, TargetGone
     from host_tools.fuzz.findings import check_writable_folder
     bb = settings.blackbox
-    check_writable_folder(bb.findings, "--findings")        # before the progress bar (the fuzzer checks it too)
+    check_writable_folder(bb.findings, "--findings")        # before any target starts (as in process)
     bar = _progress_bar(settings, bb.cases, "case")
     state = {"cases": 0}
 

@@ -521,7 +521,6 @@ class BlackBoxFuzzer:
         result = BlackBoxResult()
         start = _CLOCK.now()
         rng = random.Random(self.settings.seed)
-        findings_mod.check_writable_folder(self.settings.findings, "--findings")   # before any target starts
         session, health = self._open()
         try:
             while (self.settings.cases is None or result.cases < self.settings.cases) and (
