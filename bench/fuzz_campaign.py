@@ -2,11 +2,14 @@
 survive being stopped.
 
     python -m bench.fuzz_campaign DIR [--goal 10000000] [--chunk 1000000] [--jobs 2] [--targets a,b]
+                                      [--ledger FILE] [--first-seed N]
     python -m bench.fuzz_campaign DIR --report        # the totals so far, and each target's line coverage
 
 Each chunk is one `aspod fuzz TARGET --runs CHUNK/JOBS --jobs JOBS` with seeds of its own; its jobs are
 appended to DIR/ledger.jsonl when it ends, with the commit they ran. A chunk stopped half-way counts for
-nothing, and the next start goes on from the ledger. The targets share DIR/corpus (one folder each) and
+nothing, and the next start goes on from the ledger. The ledger defaults to DIR/ledger.jsonl; the campaign of
+record keeps it in the repository (`--ledger bench/fuzz_campaign_ledger.jsonl`), since a machine's folders do
+not outlive it. The targets share DIR/corpus (one folder each) and
 DIR/findings, so the campaign's coverage grows across chunks as a single run's would. The children run at
 the lowest priority (nice 19): the campaign uses what the machine does not.
 """
@@ -41,8 +44,10 @@ def read_ledger(path: Path) -> list[JobResult]:
             for line in path.read_text().splitlines() if line.strip()]
 
 
-def next_seed(jobs: list[JobResult], target: str) -> int:
-    return max((j.seed for j in jobs if j.target == target), default=0) + 1
+def next_seed(jobs: list[JobResult], target: str, first: int = 1) -> int:
+    """A seed no job of `target` in the ledger has used, and at least `first` (a ledger begun anew after one
+    was lost starts past the old one's seeds, so it does not rerun their inputs)."""
+    return max([first - 1] + [j.seed for j in jobs if j.target == target]) + 1
 
 
 def run_chunk(target: str, runs_per_job: int, jobs: int, seed: int, out: Path) -> list[dict]:
@@ -58,11 +63,11 @@ def run_chunk(target: str, runs_per_job: int, jobs: int, seed: int, out: Path) -
     return json.loads(done.stdout)["jobs"]
 
 
-def report(out: Path) -> None:
+def report(out: Path, ledger: Path) -> None:
     from host_tools.fuzz.coverage_report import line_coverage
     from host_tools.fuzz.targets import builtin_targets
     print(f"{'target':16} {'executions':>12} {'core-h':>7} {'exec/core-s':>11} {'findings':>8} {'errors':>6}  coverage")
-    for t in summarize(read_ledger(out / "ledger.jsonl")):
+    for t in summarize(read_ledger(ledger)):
         cov = line_coverage(t.target, out / "corpus" / t.target, builtin_targets()[t.target].covers)
         said = ", ".join(f"{file} {c['percent']}%" for file, c in cov.items())
         print(f"{t.target:16} {t.execs:>12,} {t.job_s / 3600:>7.2f} {t.execs_per_core_s:>11,.0f} "
@@ -76,13 +81,15 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--chunk", type=int, default=1_000_000, help="executions per chunk (all its jobs)")
     ap.add_argument("--jobs", type=int, default=2, help="jobs per chunk, one per core")
     ap.add_argument("--targets", default=",".join(TARGETS))
+    ap.add_argument("--ledger", type=Path, help="the ledger file (default DIR/ledger.jsonl)")
+    ap.add_argument("--first-seed", type=int, default=1, help="the lowest seed a new chunk may take")
     ap.add_argument("--report", action="store_true", help="print the totals and coverage, run nothing")
     args = ap.parse_args(argv)
     args.dir.mkdir(parents=True, exist_ok=True)
+    ledger = args.ledger or args.dir / "ledger.jsonl"
     if args.report:
-        report(args.dir)
+        report(args.dir, ledger)
         return 0
-    ledger = args.dir / "ledger.jsonl"
     commit = _commit()
     for target in args.targets.split(","):
         while True:
@@ -90,7 +97,7 @@ def main(argv: list[str]) -> int:
             done = sum(j.execs for j in jobs if j.target == target)
             if done >= args.goal:
                 break
-            rows = run_chunk(target, args.chunk // args.jobs, args.jobs, next_seed(jobs, target), args.dir)
+            rows = run_chunk(target, args.chunk // args.jobs, args.jobs, next_seed(jobs, target, args.first_seed), args.dir)
             if not rows:
                 return 1
             with ledger.open("a") as f:
