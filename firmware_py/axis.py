@@ -205,19 +205,21 @@ class AxisConfig:
 
 
 def motor_gains(kt_nm_a: float, r_ohm: float, gear_ratio: float, supply_v: float, inertia_kg_m2: float,
-                viscous_nm_s_rad: float = 0.0, vel_bandwidth_rad_s: float = 100.0) -> dict[str, float]:
+                viscous_nm_s_rad: float = 0.0, vel_bandwidth_rad_s: float = 100.0, efficiency: float = 1.0
+                ) -> dict[str, float]:
     """Feed-forward and loop gains (AxisConfig fields) from a DC motor behind a gear train.
 
-    Quasi-static armature (L/R much shorter than the tick): joint torque
-    tau = kt N (V duty - kt N w) / R, so holding torque tau takes duty tau R / (kt N V),
-    turning at w takes kt N w / V (back-EMF) plus viscous b w R / (kt N V), and
-    accelerating inertia J at a takes J a R / (kt N V). The velocity loop's plant is then
-    w' = b_u duty - a_emf w with b_u = kt N V / (R J); kv puts its closed-loop pole near the
-    requested bandwidth, the integral zero a quarter of it below, the position loop a fifth.
+    Quasi-static armature (L/R much shorter than the tick), a train passing `efficiency` of the
+    motor's torque: joint torque tau = eta kt N (V duty - kt N w) / R, so holding torque tau takes
+    duty tau R / (eta kt N V), turning at w takes kt N w / V (the back-EMF: the motor's own, no
+    efficiency in it) plus viscous b w R / (eta kt N V), and accelerating inertia J at a takes
+    J a R / (eta kt N V). The velocity loop's plant is then w' = b_u duty - a_emf w with
+    b_u = eta kt N V / (R J) and a_emf = eta (kt N)^2 / (R J); kv puts its closed-loop pole near
+    the requested bandwidth, the integral zero a quarter of it below, the position loop a fifth.
     """
-    torque_per_duty_nm = kt_nm_a * gear_ratio * supply_v / r_ohm
+    torque_per_duty_nm = efficiency * kt_nm_a * gear_ratio * supply_v / r_ohm
     b_u = torque_per_duty_nm / inertia_kg_m2
-    a_emf = (kt_nm_a * gear_ratio) ** 2 / (r_ohm * inertia_kg_m2)
+    a_emf = efficiency * (kt_nm_a * gear_ratio) ** 2 / (r_ohm * inertia_kg_m2)
     kv = max(vel_bandwidth_rad_s - a_emf, 0.25 * vel_bandwidth_rad_s) / b_u
     return {
         "ff_torque_duty_nm": 1.0 / torque_per_duty_nm,
@@ -540,7 +542,10 @@ class Axis:
         duty = self._limit(u, i_a, i_s, now)
         if self.mode is _FAULT:
             return 0.0
-        self._integ += self._dt * (self._ki * vel_err + (duty - u) * self._aw)
+        if mode is _HOLDING and -c.in_position_rad <= pos_err <= c.in_position_rad:
+            self._integ += self._dt * ((duty - u) * self._aw)   # held in position: static friction holds it
+        else:
+            self._integ += self._dt * (self._ki * vel_err + (duty - u) * self._aw)
         # stall: asking for more than it gets (saturated or current-limited) or for high duty, yet not moving
         if self._stall.held((duty != u or u >= c.stall_duty or u <= -c.stall_duty)
                             and -c.stall_vel_rad_s < vel < c.stall_vel_rad_s, now, c.stall_time_s):

@@ -255,7 +255,10 @@ def joints_tick(first: int, stop: int, now: float, fb_s: float, counts, currents
             open_since = (open_since if open_since == open_since else now) if open_circuit else NONE
             if now - open_since >= open_s:
                 return k                                     # OPEN_CIRCUIT
-            integ += dt * (ki * vel_err + (duty - u) * aw)   # back-calculation anti-windup
+            if mode == HOLDING and -in_position <= pos_err <= in_position:
+                integ += dt * ((duty - u) * aw)              # held in position: static friction holds it
+            else:
+                integ += dt * (ki * vel_err + (duty - u) * aw)   # back-calculation anti-windup
             # stall: asking for more than it gets (saturated or current-limited) or for high duty, yet not moving
             stalled = (duty != u or u >= stall_duty or u <= -stall_duty) and -stall_vel < vel_rad_s < stall_vel
             stall_since = (stall_since if stall_since == stall_since else now) if stalled else NONE

@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
+from firmware_py.arm_config import DRIVES, GRIPPER, MASSES, SUPPLY_NOMINAL_V, default_gains
 from hil_sim.arm import static_torques_nm
 from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS
 from protocol.hal import HalCodec
@@ -39,6 +39,21 @@ def test_drive_constants_match_the_plant(drive):
     assert drive.rad_per_count == pytest.approx(2 * math.pi / plant.counts_per_output_rev)
     # soft limits lie inside the limit switches
     assert plant.limit_lo_rad < math.radians(drive.soft_min_deg) < math.radians(drive.soft_max_deg) < plant.limit_hi_rad
+
+
+@pytest.mark.parametrize("drive", DRIVES, ids=lambda d: d.name)
+def test_feed_forwards_are_the_plants_motor_equations(drive):
+    """Turning at w takes duty kt N w / V against the back-EMF, the motor's own (no gear train's
+    efficiency in it); holding torque tau at the joint takes tau R / (eta kt N V). (The back-EMF's once
+    had the efficiency in it: 0.71 of the duty, and the velocity integrators carried the rest, which
+    outlived every stop.)"""
+    d = PLANT[drive.name].drive
+    gains = default_gains(drive)
+    v = SUPPLY_NOMINAL_V
+    torque_per_duty_nm = d.efficiency * d.motor.kt_nm_a * d.ratio * v / d.motor.r_ohm
+    assert gains["ff_torque_duty_nm"] == pytest.approx(1.0 / torque_per_duty_nm, rel=3e-3)
+    back_emf_duty_s_rad = gains["ff_vel_duty_s_rad"] - drive.viscous_nm_s_rad * gains["ff_torque_duty_nm"]
+    assert back_emf_duty_s_rad == pytest.approx(d.motor.kt_nm_a * d.ratio / v, rel=1e-6)
 
 
 def test_gripper_constants_match_the_plant():
