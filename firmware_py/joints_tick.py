@@ -42,6 +42,7 @@ The law (duty is the output; gains in duty units; angles joint-side, radians; ti
   bounds relax back toward +-1 by relax per tick
     duty     = clamp(u, duty_lo, duty_hi)
     integ   += dt * (ki * (vel_cmd - vel) + (duty - u) * aw)         (back-calculation, aw = 1 / tracking_s)
+               (HOLDING within in_position of its setpoint: the ki term left out, friction holds the joint)
   debounce (a condition true at every tick since `since`, for at least its time, faults):
     over-current |i_a| > i_trip_a; open circuit |duty| >= open_duty with |i_a| < open_a;
     stall (duty != u or |u| >= stall_duty) with |vel| < stall_vel

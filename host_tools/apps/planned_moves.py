@@ -20,14 +20,10 @@ from host_tools.apps.pick_place import SPEC_M, DemoFailed, PickAndPlace, StepRes
 from host_tools.client.trajectory import TrajectoryRefused, send_trajectory
 from host_tools.plan.errors import PlanError
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
-from protocol.states import MotionOutcome
 
 GRAVITY_M_S2 = {"earth": 9.80665, "orbit": 0.0}
 # the speed parameters' largest value (the same for every joint)
 PLANNED_SPEED_DPS = next(p.hi for p in parameter_table() if p.name == f"{ARM_JOINTS[0]}_speed_dps")
-# A joint that ends its trajectory a few hundredths of a degree off and stays there past the 3 s settle time
-# reports NOT_SETTLED (j3 does, 0.03 deg: docs/planning.md); the step's measure is the tip's error.
-SETTLED_OR_NOT = frozenset({MotionOutcome.DONE, MotionOutcome.NOT_SETTLED})
 
 
 @dataclass
@@ -70,7 +66,7 @@ class PlannedPickAndPlace(PickAndPlace):
         except (TrajectoryRefused, ValueError) as exc:
             raise DemoFailed(f"{step.name}: trajectory refused: {exc}") from exc
         started = {int(axis): motion for axis, motion in zip(TRAJECTORY_JOINTS, ids)}
-        outcomes = self._wait_motions(started, step.name, SETTLED_OR_NOT)
+        outcomes = self._wait_motions(started, step.name)
         result = PlannedStep(step.name, self.tip_error_m(step.tip_xyz_m), self.bench.clock.now() - start_s, outcomes,
                              move.duration_s)
         self.results.append(result)
