@@ -3,13 +3,16 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 
 import pytest
 
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
+from host_tools.apps.replay import WORLD_EVENT_LATE_S, ReplayError, check_world_events
 from host_tools.cli.main import main
-from host_tools.sessions.capture import MARK, WORLD, SessionInfo
-from host_tools.sessions.pcapng import LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, PcapngWriter
+from host_tools.sessions.capture import MARK, WORLD, SessionCapture, SessionInfo
+from host_tools.sessions.pcapng import (IF_TSRESOL, LINKTYPE_USER1, MAX_CAPTURE_BYTES, MAX_TSRESOL_EXP, NANOSECONDS,
+                                        OUTBOUND, PcapngReader, PcapngWriter)
 from host_tools.worlds.settings import PlantSettings
 
 
@@ -97,13 +100,14 @@ def test_log_on_a_bad_session_description_warns_and_decodes(tmp_path, capsys):
     assert "not a JSON object" in capsys.readouterr().err
 
 
-def _world_capture(path, *events: bytes) -> str:
+def _world_capture(path, *events: bytes, times: tuple[float, ...] = ()) -> str:
+    """A capture of one frame at 0.5 s and `events` on the world interface, at `times` (default: each at 0.3 s)."""
     with open(path, "wb") as f:
         writer = PcapngWriter(f, comment=_comment())
         writer.write_packet(writer.add_interface("link"), 0.5, b"\x01\x02", OUTBOUND)
         world = writer.add_interface(WORLD, "", LINKTYPE_USER1)
-        for event in events:
-            writer.write_packet(world, 0.3, event)
+        for event, time_s in zip(events, times or (0.3,) * len(events)):
+            writer.write_packet(world, time_s, event)
     return str(path)
 
 
@@ -157,3 +161,70 @@ def test_an_output_that_is_the_capture_itself_or_a_folder_is_refused_and_the_cap
         assert main([command, capture, option, str(output)]) == 2, output
         assert said in capsys.readouterr().err
     assert (tmp_path / "c.pcapng").read_bytes() == kept
+
+
+
+# ---- timestamps: an interface's resolution, world events' times ---------------------------------------------
+
+def _with_tsresol(path, exponent: int) -> tuple[bytes, int]:
+    """A capture whose link interface says its timestamps are in 10^-exponent s, and where that interface's
+    block starts (right after the section header)."""
+    data = open(_capture_file(path, _comment()), "rb").read()
+    nanoseconds = bytes([IF_TSRESOL, 0, 1, 0, NANOSECONDS])          # as PcapngWriter declares every interface
+    assert data.count(nanoseconds) == 1
+    return data.replace(nanoseconds, bytes([IF_TSRESOL, 0, 1, 0, exponent])), struct.unpack_from("<I", data, 4)[0]
+
+
+@pytest.mark.parametrize("exponent", [0x7f, MAX_TSRESOL_EXP + 1, 64])
+def test_an_interface_whose_timestamps_are_finer_than_picoseconds_is_refused_where_it_is_declared(
+        tmp_path, capsys, exponent):
+    data, at = _with_tsresol(tmp_path / "c.pcapng", exponent)
+    reader = PcapngReader.parse(data)
+    assert reader.error is not None and reader.error.offset == at
+    assert f"if_tsresol 10^-{exponent} s" in reader.error.reason and not reader.packets
+    (tmp_path / "c.pcapng").write_bytes(data)
+    assert main(["replay", str(tmp_path / "c.pcapng")]) == 2
+    assert f"breaks at byte {at}: if_tsresol 10^-{exponent} s" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("exponent", [0, 6, 9, MAX_TSRESOL_EXP])
+def test_an_interface_at_any_resolution_a_writer_uses_is_read(tmp_path, exponent):
+    data, _ = _with_tsresol(tmp_path / "c.pcapng", exponent)
+    reader = PcapngReader.parse(data)
+    assert reader.error is None
+    assert reader.packets[0].time_s == pytest.approx(0.5e9 / 10 ** exponent)      # 0.5 s written as nanoseconds
+
+
+def test_an_interface_resolution_that_is_not_one_byte_is_refused(tmp_path):
+    data = open(_capture_file(tmp_path / "c.pcapng", _comment()), "rb").read()
+    one_byte = bytes([IF_TSRESOL, 0, 1, 0, NANOSECONDS, 0, 0, 0])      # code, length, the byte, padding
+    data = data.replace(one_byte, bytes([IF_TSRESOL, 0, 2, 0, NANOSECONDS, 6, 0, 0]))
+    assert "if_tsresol of 2 bytes; the option is one byte" in PcapngReader.parse(data).error.reason
+
+
+@pytest.mark.parametrize("time_s, reason", [
+    (WORLD_EVENT_LATE_S + 0.6, f"more than {WORLD_EVENT_LATE_S:g} s after the last frame (0.5 s)"),
+    (90_000.0, "outside 0..86400 s"),
+])
+def test_replay_refuses_a_world_event_long_after_the_last_frame(tmp_path, capsys, time_s, reason):
+    path = _world_capture(tmp_path / "w.pcapng", json.dumps({"action": "inject", "args": ["supply_sag"]}).encode(),
+                          json.dumps({"action": "inject", "args": ["supply_sag"]}).encode(), times=(0.3, time_s))
+    assert main(["replay", path]) == 2
+    err = capsys.readouterr().err
+    assert "world event 1 (at byte" in err and reason in err
+
+
+@pytest.mark.parametrize("time_s", [-1.0, float("nan"), float("-inf")])
+def test_a_world_event_before_the_session_started_is_refused_with_its_index_and_offset(tmp_path, time_s):
+    capture = SessionCapture.read(_world_capture(tmp_path / "w.pcapng", b'{"action": "inject", "args": ["supply_sag"]}'))
+    (_, event, offset), = capture.world_events
+    capture.world_events[0] = (time_s, event, offset)
+    with pytest.raises(ReplayError, match=rf"world event 0 \(at byte {offset}\) is at {time_s:.6g} s: outside "
+                                          r"0\.\.86400 s"):
+        check_world_events(capture)
+
+
+def test_a_world_event_within_the_bounds_passes_the_check(tmp_path):
+    path = _world_capture(tmp_path / "w.pcapng", b'{"action": "inject", "args": ["supply_sag"]}',
+                          times=(WORLD_EVENT_LATE_S + 0.5,))
+    check_world_events(SessionCapture.read(path))          # an hour after the last frame, to the nanosecond

@@ -46,6 +46,11 @@ SUBMIT_EARLY_S = 1e-6
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
 MAX_SPAN_S = 86_400.0     # a day of simulated time: more than any session records; a later time is refused unsimulated
+# Nothing after a recording's last frame is compared, and no recording acts on its world long after its frames
+# end (a bench's last act comes before its last frames; heartbeats keep frames coming while a host is there): a
+# world event later than this after the last frame is a broken timestamp (an if_tsresol off by powers of ten), and
+# replaying it would only simulate up to it. Refused, as one before the session's start (0 s) is.
+WORLD_EVENT_LATE_S = 3600.0
 TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
 # What measures the host machine or the link's own traffic, not the controller's behaviour: compared
 # only on the simulated clock, where they too are deterministic.
@@ -223,11 +228,19 @@ def check_world_events(capture: SessionCapture) -> None:
     (`plant_control.check_world_event`): a replay without it would report a divergence it caused itself."""
     if capture.world_errors:
         raise ReplayError(f"{capture.world_errors[0]}: replay cannot do it again")
-    for index, (_, event, offset) in enumerate(capture.world_events):
+    last_frame = max((f.time_s for f in capture.frames), default=0.0)
+    for index, (time_s, event, offset) in enumerate(capture.world_events):
+        where = f"world event {index} (at byte {offset})"
+        if not 0.0 <= time_s <= MAX_SPAN_S:
+            raise ReplayError(f"{where} is at {time_s:.6g} s: outside 0..{MAX_SPAN_S:g} s (a day), the span a "
+                              "replay simulates")
+        if time_s > last_frame + WORLD_EVENT_LATE_S:
+            raise ReplayError(f"{where} is at {time_s:.6g} s: more than {WORLD_EVENT_LATE_S:g} s after the last "
+                              f"frame ({last_frame:.6g} s), a broken timestamp")
         try:
             check_world_event(event)
         except ValueError as exc:
-            raise ReplayError(f"world event {index} (at byte {offset}) is refused: {exc}") from None
+            raise ReplayError(f"{where} is refused: {exc}") from None
 
 
 def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
@@ -242,10 +255,10 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
     plant, recorded_params, seed = world_of(capture.info, capture.info_error)
     check_world_events(capture)
-    last = max([f.time_s for f in capture.frames] + [t for t, _, _ in capture.world_events], default=0.0)
+    last = max((f.time_s for f in capture.frames), default=0.0)
     if not last <= MAX_SPAN_S:
-        raise ReplayError(f"the capture's last frame or world event is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a "
-                          "day), the most a replay simulates")
+        raise ReplayError(f"the capture's last frame is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a day), the most "
+                          "a replay simulates")
     key = psk if psk is not None else BENCH_KEY
     decoded = _decode(capture, psk)
     actions, recorded = _split(decoded, [f.offset for f in capture.frames])
