@@ -10,7 +10,7 @@ import pytest
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from host_tools.apps.replay import WORLD_EVENT_LATE_S, ReplayError, check_world_events
 from host_tools.cli.main import main
-from host_tools.sessions.capture import MARK, WORLD, SessionCapture, SessionInfo
+from host_tools.sessions.capture import MARK, MAX_SETTING_CHARS, MAX_SETTING_ENTRIES, WORLD, SessionCapture, SessionInfo
 from host_tools.sessions.pcapng import (IF_TSRESOL, LINKTYPE_USER1, MAX_CAPTURE_BYTES, MAX_TSRESOL_EXP, NANOSECONDS,
                                         OUTBOUND, PcapngReader, PcapngWriter)
 from host_tools.worlds.settings import PlantSettings
@@ -53,6 +53,12 @@ def test_a_good_session_description_reads():
     assert SessionInfo.from_comment(_comment()).seed == 2
 
 
+def test_settings_at_their_bounds_read():
+    settings = {"params": {f"p{i:04}": 1.0 for i in range(MAX_SETTING_ENTRIES)}, "impairment": "x" * MAX_SETTING_CHARS,
+                "k" * MAX_SETTING_CHARS: ["y" * MAX_SETTING_CHARS] * MAX_SETTING_ENTRIES}
+    assert SessionInfo.from_comment(_comment(settings=settings, tool="t" * MAX_SETTING_CHARS)).settings == settings
+
+
 @pytest.mark.parametrize("comment, reason", [
     (MARK + "[]", "not a JSON object"), (MARK + "null", "not a JSON object"), (MARK + "5", "not a JSON object"),
     (MARK + '"x"', "not a JSON object"), (MARK + "[" * 60_000, "nests deeper"),
@@ -63,6 +69,14 @@ def test_a_good_session_description_reads():
     (_comment(seed=3.7), "seed"), (_comment(seed=-1), "seed"), (_comment(seed=True), "seed"),
     (_comment(clock=["simulated"]), "clock"), (_comment(schema_hash=5), "schema_hash"),
     (_comment(settings=[1]), "settings"), (_comment(tool=7), "tool"),
+    (_comment(settings={"params": {f"p{i}": 1.0 for i in range(MAX_SETTING_ENTRIES + 1)}}),
+     rf"settings\['params'\] holds {MAX_SETTING_ENTRIES + 1} entries; at most {MAX_SETTING_ENTRIES}"),
+    (_comment(settings={"faults": [["jam:j2", 1.0]] * 5000}), r"settings\['faults'\] holds 5000 entries"),
+    (_comment(settings={"impairment": "radio," * 1000}),
+     rf"settings\['impairment'\] is a string of 6000 characters; at most {MAX_SETTING_CHARS}"),
+    (_comment(settings={"params": {"k" * 2000: 1.0}}), r"a key in settings\['params'\] is a string of 2000"),
+    (_comment(settings={"a": {"b": ["x" * 1025]}}), r"settings\['a'\]\['b'\]\[0\] is a string of 1025"),
+    (_comment(tool="t" * 5000), "tool is a string of 5000 characters"),
 ])
 def test_a_bad_session_description_is_refused_with_the_field_named(comment, reason):
     with pytest.raises(ValueError, match=reason):
@@ -87,6 +101,8 @@ def test_bad_plant_settings_are_refused_as_the_command_line_would(plant, reason)
     ({"settings": {"plant": PlantSettings().to_dict(), "params": {"j1_kp": 10**400}}}, "j1_kp"),
     ({"settings": {"plant": {**PlantSettings().to_dict(), "start": "0001-01-01T00:00:00+00:00"}, "params": {}}},
      "range"),
+    ({"settings": {"plant": PlantSettings().to_dict(), "params": {f"p{i}": 1 for i in range(5000)}}},
+     "settings['params'] holds 5000 entries; at most"),
 ])
 def test_replay_refuses_a_bad_session_description_naming_the_field(tmp_path, capsys, changes, reason):
     path = _capture_file(tmp_path / "c.pcapng", _comment(**changes))
