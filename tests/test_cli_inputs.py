@@ -204,3 +204,30 @@ def test_a_bus_whose_driver_fails_in_its_own_way_is_a_link_problem_not_a_crash(e
     assert done.returncode == 3, done.stderr.decode()
     assert "cannot open the kvaser bus on channel '0'" in done.stderr.decode()
     assert "Traceback" not in done.stderr.decode()
+
+
+# ---- link addresses: a scheme pyserial does not know is bad input, not a lost link -----------------------------
+
+@pytest.mark.parametrize("args, option", [
+    (["teleop", "bogus://x"], ""),
+    (["teleop", f"radio={NOWHERE},optical=bogus://x"], ""),
+    (["fuzz", "--url", "bogus://x", "--time", "1"], ""),
+    (["proxy", "--controller", "bogus://x"], "--controller: "),
+    (["proxy", "--controller", "pty", "--host", "bogus://x"], "--host: "),
+    (["sim", "--port", "bogus://x"], ""),
+    (["sim", "--link", "radio=pty", "--link", "optical=bogus://x"], "--link optical: "),
+])
+def test_a_link_url_of_an_unknown_scheme_exits_2_naming_the_scheme_and_those_accepted(dev_env, args, option):
+    done = aspod(dev_env, *args)
+    err = done.stderr.decode()
+    assert done.returncode == 2, err
+    assert f"{option}bogus://x: unknown link scheme bogus://; a link is a device (/dev/pts/N) or a URL with one " \
+           "of the schemes " in err
+    assert "socket://" in err.split("schemes ")[1] and "rfc2217://" in err.split("schemes ")[1]
+    assert "ASPOD-LINK" not in done.stdout.decode()        # nothing was opened or served
+
+
+def test_a_socket_url_without_host_and_port_is_bad_input_too(dev_env):
+    done = aspod(dev_env, "teleop", "socket://127.0.0.1")
+    assert done.returncode == 2, done.stderr.decode()
+    assert "a socket link is socket://HOST:PORT, PORT a number 1..65535" in done.stderr.decode()

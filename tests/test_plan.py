@@ -4,8 +4,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -14,7 +16,8 @@ from host_tools.plan.bounds import Limits
 from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
 from host_tools.plan.errors import PlanError
 from host_tools.plan.example import REPORTED, report_problem
-from host_tools.plan.model import two_arms
+from host_tools.cli.main import main
+from host_tools.plan.model import Held, two_arms
 from host_tools.plan.paths import PiecewisePath, PolynomialPath
 from host_tools.plan.phase import Problem
 from host_tools.plan.problem_file import load_problem, problem_from_dict
@@ -221,3 +224,86 @@ def test_a_problem_file_is_read_bounded_a_fifo_or_deep_nesting_refused(tmp_path)
     big.write_text(" " * (2 << 20) + "{}")
     with pytest.raises(PlanError, match="larger than"):
         load_problem(big)
+
+
+# ---- extreme numbers: refused with a true reason, never a NaN in it, never numpy's RuntimeWarning -----------------
+
+REACHABLE = {"kind": "line", "start": [0.688, 0.331], "end": [1.716, 0.504]}
+
+
+def _plan_quietly(capsys, tmp_path, spec: dict, *options: str) -> tuple[int, str]:
+    """`aspod plan` on `spec` in this process: its exit status and stderr; fails on any RuntimeWarning."""
+    (tmp_path / "p.json").write_text(json.dumps(spec))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        status = main(["plan", "--problem", str(tmp_path / "p.json"), "--nodes", "200", *options])
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)], [str(w.message) for w in caught]
+    err = capsys.readouterr().err
+    assert "nan" not in err.lower().replace("nanos", "").split() and "RuntimeWarning" not in err
+    return status, err
+
+
+@pytest.mark.parametrize("section, key, value, said", [
+    ("arms", "masses", [1e300, 1e300], "arms.masses must be within -1e+06..1e+06, not 1e+300"),
+    ("arms", "lengths", [1e200, 1e200], "arms.lengths must be within -1000..1000, not 1e+200"),
+    ("arms", "separation", 1e9, "arms.separation must be within -1000..1000"),
+    ("object", "mass", 1e308, "object.mass must be within -1e+06..1e+06, not 1e+308"),
+    ("object", "size", [1e300, 1], "object.size must be within -1000..1000"),
+    ("limits", "symmetric", [1e300] * 4, "limits.symmetric must be within -1e+09..1e+09, not 1e+300"),
+    ("limits", "lower", [-1e308] * 4, "limits.lower must be within -1e+09..1e+09, not -1e+308"),
+    ("arms", "masses", [1e-300, 1], "arms.masses must be 0 or at least 0.001, not 1e-300"),
+    ("arms", "masses", [-1, 1], "arms.masses must be 0 or at least 0.001, not -1"),
+    ("object", "mass", 1e-12, "object.mass must be 0 or at least 0.001, not 1e-12"),
+    ("arms", "lengths", [1e-9, 1], "arms.lengths must be at least 0.001, not 1e-09"),
+    ("limits", "symmetric", [30, 1e-300, 35, 15], "joint 2's limits [-1e-300, 1e-300] are less than 0.001 apart"),
+    ("limits", "back_emf", [1e300] * 4, "limits.back_emf must be within -1e+06..1e+06"),
+])
+def test_magnitudes_far_beyond_any_arms_are_refused_naming_the_key(capsys, tmp_path, section, key, value, said):
+    status, err = _plan_quietly(capsys, tmp_path, {"path": REACHABLE, section: {key: value}})
+    assert status == 2 and said in err
+
+
+@pytest.mark.parametrize("spec", [
+    {"path": REACHABLE, "limits": {"symmetric": [1e-3] * 4}},
+    {"path": REACHABLE, "arms": {"masses": [1e-3, 1e-3]}, "object": {"mass": 1e-3}, "limits": {"symmetric": [1e-3] * 4}},
+    {"path": REACHABLE, "arms": {"masses": [1e6, 1e6]}, "object": {"mass": 1e6}},
+    {"path": REACHABLE, "limits": {"lower": [-30, -20, -35, 14.9], "upper": [30, 20, 35, 15]}},
+])
+def test_too_weak_to_hold_names_a_torque_outside_the_limits_it_names(capsys, tmp_path, spec):
+    status, err = _plan_quietly(capsys, tmp_path, spec, "--objective", "time")
+    assert status == 2, err
+    said = re.search(r"joint (\d) needs (\S+) N m against its limits \[(\S+), (\S+)\]", err)
+    assert said, err
+    needs, lo, hi = (float(said.group(k)) for k in (2, 3, 4))
+    assert not lo <= needs <= hi
+
+
+def test_the_largest_numbers_a_problem_file_takes_plan_or_are_refused_without_a_warning(capsys, tmp_path):
+    for masses, limits in (([1e6, 1e6], [1e9] * 4), ([0, 0], [1e9] * 4), ([1e-3, 1e-3], [1e-3] * 4),
+                           ([1e-3, 1e6], [1e9, 1e-3, 1, 1e9])):
+        status, err = _plan_quietly(capsys, tmp_path, {"path": REACHABLE, "arms": {"masses": masses},
+                                                       "object": {"mass": masses[0]}, "gravity": 100,
+                                                       "limits": {"symmetric": limits, "back_emf": [1e6] * 4}},
+                                    "--objective", "energy", "--dp-intervals", "20", "--dp-speeds", "21")
+        assert status in (0, 2) and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("system, limits", [
+    (two_arms(held=Held(1e308)), Limits.symmetric((30, 20, 35, 15))),
+    (two_arms(lengths=(1e200, 1e200)), Limits.symmetric((30, 20, 35, 15))),
+    (two_arms(), Limits.symmetric((30, 20, 35, 15), back_emf=(1e308,) * 4)),
+])
+def test_coefficients_that_overflow_are_refused_where_they_are_computed(system, limits):
+    """Past the problem file's bounds (built in code): the torques' terms are checked finite, not planned with."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(PlanError) as caught:
+            plan_time_optimal(Problem(system, PolynomialPath.line((0.688, 0.331), (1.716, 0.504)), limits), nodes=200)
+    assert caught.value.what in ("bounds", "reach") and "nan" not in str(caught.value), caught.value
+
+
+def test_a_plan_with_a_number_that_is_not_finite_is_found_where_it_is():
+    from host_tools.cli.plan import _not_finite
+    assert _not_finite({"a": [1.0, {"b": 2}], "c": None, "d": "nan"}) == ""
+    assert _not_finite({"a": [1.0, {"b": float("nan")}]}) == "a.1.b"
+    assert _not_finite({"time_optimal": {"costs": {"energy": np.float64("inf")}}}) == "time_optimal.costs.energy"

@@ -76,6 +76,13 @@ def test_outside_the_repository_on_the_lockstep_world(project):
     assert [s["text"] for s in script["steps"]] == ["enable", "moveby j2 1 1", "wait", "status"]
 
 
+def test_a_target_url_of_an_unknown_scheme_is_refused_naming_the_schemes_before_any_link_is_opened(project):
+    done, cases = run_pytest(project, "--aspod-target=bogus://x", "test_arm_bench.py")
+    assert done.returncode != 0 and not [c for c in cases.values() if c.find("failure") is None
+                                         and c.find("error") is None and c.find("skipped") is None]
+    assert "--aspod-target: bogus://x: unknown link scheme bogus://; a link is a device" in done.stdout + done.stderr
+
+
 @pytest.mark.pty
 def test_outside_the_repository_against_a_live_sim_its_plant_through_the_control_endpoint(project, sim_factory):
     sim = sim_factory("--pty", "--no-tracker")

@@ -15,6 +15,7 @@ from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from timebase import RealClock, SimClock
 from host_tools.client.lines import EMPTY_READY_LIMIT_S, READ_TIMEOUT_S, RedundantLines, parse_links
+from host_tools.worlds.ports import url_schemes
 from host_tools.client.live import HostClient
 from host_tools.sessions.redundancy import MEMORY, FrameMerger
 from host_tools.worlds.ports import PtyPort
@@ -226,3 +227,10 @@ def test_the_host_says_how_long_its_pump_was_held_up():
     finally:
         client.close()
         port.close()
+
+
+@pytest.mark.parametrize("url", ["bogus://x", "a=/dev/pts/3,b=BOGUS://x", "socket://:4000"])
+def test_a_link_address_pyserial_cannot_take_is_refused_when_parsed_before_anything_opens(url):
+    with pytest.raises(ValueError, match=r"unknown link scheme bogus://; .* socket://|a socket link is"):
+        parse_links(url)
+    assert {"socket", "loop", "rfc2217"} <= set(url_schemes())

@@ -79,6 +79,18 @@ def test_a_world_event_left_out_is_a_divergence(bench_capture, tmp_path):
     assert report.divergence.time_s >= 0.7
 
 
+@pytest.mark.parametrize("after_s", [0.5, 3600.0, 200_000.0])
+def test_a_world_event_after_the_last_frame_is_not_redone(bench_capture, after_s):
+    """A simulator keeps its control endpoint after the host has gone, so a recording may hold world events
+    long after its last frame; they cannot change what is compared, and are not redone (a jam would have
+    been a divergence, a day later a day of simulation)."""
+    capture = SessionCapture.read(bench_capture)
+    last_s = max(f.time_s for f in capture.frames)
+    capture.world_events.append((last_s + after_s, {"action": "inject", "args": ["jam:j1"]}, 1 << 40))
+    report = replay(capture)
+    assert report.matches, report.describe()
+
+
 def test_replay_refuses_what_it_cannot_replay(bench_capture, tmp_path):
     broken = tmp_path / "cut.pcapng"
     broken.write_bytes(bench_capture.read_bytes()[:-10])

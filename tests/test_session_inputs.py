@@ -3,13 +3,16 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 
 import pytest
 
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
+from host_tools.apps.replay import ReplayError, check_world_events
 from host_tools.cli.main import main
-from host_tools.sessions.capture import MARK, WORLD, SessionInfo
-from host_tools.sessions.pcapng import LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, PcapngWriter
+from host_tools.sessions.capture import MARK, MAX_SETTING_CHARS, MAX_SETTING_ENTRIES, WORLD, SessionCapture, SessionInfo
+from host_tools.sessions.pcapng import (IF_TSRESOL, LINKTYPE_USER1, MAX_CAPTURE_BYTES, MAX_TSRESOL_EXP, NANOSECONDS,
+                                        OUTBOUND, PcapngReader, PcapngWriter)
 from host_tools.worlds.settings import PlantSettings
 
 
@@ -50,6 +53,12 @@ def test_a_good_session_description_reads():
     assert SessionInfo.from_comment(_comment()).seed == 2
 
 
+def test_settings_at_their_bounds_read():
+    settings = {"params": {f"p{i:04}": 1.0 for i in range(MAX_SETTING_ENTRIES)}, "impairment": "x" * MAX_SETTING_CHARS,
+                "k" * MAX_SETTING_CHARS: ["y" * MAX_SETTING_CHARS] * MAX_SETTING_ENTRIES}
+    assert SessionInfo.from_comment(_comment(settings=settings, tool="t" * MAX_SETTING_CHARS)).settings == settings
+
+
 @pytest.mark.parametrize("comment, reason", [
     (MARK + "[]", "not a JSON object"), (MARK + "null", "not a JSON object"), (MARK + "5", "not a JSON object"),
     (MARK + '"x"', "not a JSON object"), (MARK + "[" * 60_000, "nests deeper"),
@@ -60,6 +69,14 @@ def test_a_good_session_description_reads():
     (_comment(seed=3.7), "seed"), (_comment(seed=-1), "seed"), (_comment(seed=True), "seed"),
     (_comment(clock=["simulated"]), "clock"), (_comment(schema_hash=5), "schema_hash"),
     (_comment(settings=[1]), "settings"), (_comment(tool=7), "tool"),
+    (_comment(settings={"params": {f"p{i}": 1.0 for i in range(MAX_SETTING_ENTRIES + 1)}}),
+     rf"settings\['params'\] holds {MAX_SETTING_ENTRIES + 1} entries; at most {MAX_SETTING_ENTRIES}"),
+    (_comment(settings={"faults": [["jam:j2", 1.0]] * 5000}), r"settings\['faults'\] holds 5000 entries"),
+    (_comment(settings={"impairment": "radio," * 1000}),
+     rf"settings\['impairment'\] is a string of 6000 characters; at most {MAX_SETTING_CHARS}"),
+    (_comment(settings={"params": {"k" * 2000: 1.0}}), r"a key in settings\['params'\] is a string of 2000"),
+    (_comment(settings={"a": {"b": ["x" * 1025]}}), r"settings\['a'\]\['b'\]\[0\] is a string of 1025"),
+    (_comment(tool="t" * 5000), "tool is a string of 5000 characters"),
 ])
 def test_a_bad_session_description_is_refused_with_the_field_named(comment, reason):
     with pytest.raises(ValueError, match=reason):
@@ -84,6 +101,8 @@ def test_bad_plant_settings_are_refused_as_the_command_line_would(plant, reason)
     ({"settings": {"plant": PlantSettings().to_dict(), "params": {"j1_kp": 10**400}}}, "j1_kp"),
     ({"settings": {"plant": {**PlantSettings().to_dict(), "start": "0001-01-01T00:00:00+00:00"}, "params": {}}},
      "range"),
+    ({"settings": {"plant": PlantSettings().to_dict(), "params": {f"p{i}": 1 for i in range(5000)}}},
+     "settings['params'] holds 5000 entries; at most"),
 ])
 def test_replay_refuses_a_bad_session_description_naming_the_field(tmp_path, capsys, changes, reason):
     path = _capture_file(tmp_path / "c.pcapng", _comment(**changes))
@@ -97,13 +116,14 @@ def test_log_on_a_bad_session_description_warns_and_decodes(tmp_path, capsys):
     assert "not a JSON object" in capsys.readouterr().err
 
 
-def _world_capture(path, *events: bytes) -> str:
+def _world_capture(path, *events: bytes, times: tuple[float, ...] = ()) -> str:
+    """A capture of one frame at 0.5 s and `events` on the world interface, at `times` (default: each at 0.3 s)."""
     with open(path, "wb") as f:
         writer = PcapngWriter(f, comment=_comment())
         writer.write_packet(writer.add_interface("link"), 0.5, b"\x01\x02", OUTBOUND)
         world = writer.add_interface(WORLD, "", LINKTYPE_USER1)
-        for event in events:
-            writer.write_packet(world, 0.3, event)
+        for event, time_s in zip(events, times or (0.3,) * len(events)):
+            writer.write_packet(world, time_s, event)
     return str(path)
 
 
@@ -157,3 +177,52 @@ def test_an_output_that_is_the_capture_itself_or_a_folder_is_refused_and_the_cap
         assert main([command, capture, option, str(output)]) == 2, output
         assert said in capsys.readouterr().err
     assert (tmp_path / "c.pcapng").read_bytes() == kept
+
+
+
+# ---- timestamps: an interface's resolution, world events' times ---------------------------------------------
+
+def _with_tsresol(path, exponent: int) -> tuple[bytes, int]:
+    """A capture whose link interface says its timestamps are in 10^-exponent s, and where that interface's
+    block starts (right after the section header)."""
+    data = open(_capture_file(path, _comment()), "rb").read()
+    nanoseconds = bytes([IF_TSRESOL, 0, 1, 0, NANOSECONDS])          # as PcapngWriter declares every interface
+    assert data.count(nanoseconds) == 1
+    return data.replace(nanoseconds, bytes([IF_TSRESOL, 0, 1, 0, exponent])), struct.unpack_from("<I", data, 4)[0]
+
+
+@pytest.mark.parametrize("exponent", [0x7f, MAX_TSRESOL_EXP + 1, 64])
+def test_an_interface_whose_timestamps_are_finer_than_picoseconds_is_refused_where_it_is_declared(
+        tmp_path, capsys, exponent):
+    data, at = _with_tsresol(tmp_path / "c.pcapng", exponent)
+    reader = PcapngReader.parse(data)
+    assert reader.error is not None and reader.error.offset == at
+    assert f"if_tsresol 10^-{exponent} s" in reader.error.reason and not reader.packets
+    (tmp_path / "c.pcapng").write_bytes(data)
+    assert main(["replay", str(tmp_path / "c.pcapng")]) == 2
+    assert f"breaks at byte {at}: if_tsresol 10^-{exponent} s" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("exponent", [0, 6, 9, MAX_TSRESOL_EXP])
+def test_an_interface_at_any_resolution_a_writer_uses_is_read(tmp_path, exponent):
+    data, _ = _with_tsresol(tmp_path / "c.pcapng", exponent)
+    reader = PcapngReader.parse(data)
+    assert reader.error is None
+    assert reader.packets[0].time_s == pytest.approx(0.5e9 / 10 ** exponent)      # 0.5 s written as nanoseconds
+
+
+def test_an_interface_resolution_that_is_not_one_byte_is_refused(tmp_path):
+    data = open(_capture_file(tmp_path / "c.pcapng", _comment()), "rb").read()
+    one_byte = bytes([IF_TSRESOL, 0, 1, 0, NANOSECONDS, 0, 0, 0])      # code, length, the byte, padding
+    data = data.replace(one_byte, bytes([IF_TSRESOL, 0, 2, 0, NANOSECONDS, 6, 0, 0]))
+    assert "if_tsresol of 2 bytes; the option is one byte" in PcapngReader.parse(data).error.reason
+
+
+@pytest.mark.parametrize("time_s", [-1.0, float("nan"), float("-inf")])
+def test_a_world_event_before_the_session_started_is_refused_with_its_index_and_offset(tmp_path, time_s):
+    capture = SessionCapture.read(_world_capture(tmp_path / "w.pcapng", b'{"action": "inject", "args": ["supply_sag"]}'))
+    (_, event, offset), = capture.world_events
+    capture.world_events[0] = (time_s, event, offset)
+    with pytest.raises(ReplayError, match=rf"world event 0 \(at byte {offset}\) is at {time_s:.6g} s: before the "
+                                          r"session started"):
+        check_world_events(capture)

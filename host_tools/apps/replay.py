@@ -223,11 +223,14 @@ def check_world_events(capture: SessionCapture) -> None:
     (`plant_control.check_world_event`): a replay without it would report a divergence it caused itself."""
     if capture.world_errors:
         raise ReplayError(f"{capture.world_errors[0]}: replay cannot do it again")
-    for index, (_, event, offset) in enumerate(capture.world_events):
+    for index, (time_s, event, offset) in enumerate(capture.world_events):
+        where = f"world event {index} (at byte {offset})"
+        if not 0.0 <= time_s <= math.inf:
+            raise ReplayError(f"{where} is at {time_s:.6g} s: before the session started (0 s)")
         try:
             check_world_event(event)
         except ValueError as exc:
-            raise ReplayError(f"world event {index} (at byte {offset}) is refused: {exc}") from None
+            raise ReplayError(f"{where} is refused: {exc}") from None
 
 
 def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
@@ -242,21 +245,23 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
     plant, recorded_params, seed = world_of(capture.info, capture.info_error)
     check_world_events(capture)
-    last = max([f.time_s for f in capture.frames] + [t for t, _, _ in capture.world_events], default=0.0)
+    last = max((f.time_s for f in capture.frames), default=0.0)
     if not last <= MAX_SPAN_S:
-        raise ReplayError(f"the capture's last frame or world event is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a "
-                          "day), the most a replay simulates")
+        raise ReplayError(f"the capture's last frame is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a day), the most "
+                          "a replay simulates")
     key = psk if psk is not None else BENCH_KEY
     decoded = _decode(capture, psk)
     actions, recorded = _split(decoded, [f.offset for f in capture.frames])
     host_commands = sum(a.message is not None for a in actions)
-    actions = sorted(actions + [_Action(t, None, event, offset) for t, event, offset in capture.world_events],
-                     key=lambda a: (a.time_s, a.offset))
+    # A world event after the replay's end cannot change what is compared, whenever it was recorded (a simulator
+    # keeps its control endpoint after the host has gone): not redone.
+    end_s = last + TAIL_S
+    actions = sorted(actions + [_Action(t, None, event, offset) for t, event, offset in capture.world_events
+                                if t <= end_s], key=lambda a: (a.time_s, a.offset))
     if not host_commands:
         raise ReplayError("the capture holds no host commands to replay")
     exact = capture.info.clock == "simulated"
-    world = _World(key, seed, plant, {**recorded_params, **(params or {})},
-                   end_s=max(f.time_s for f in capture.frames) + TAIL_S)
+    world = _World(key, seed, plant, {**recorded_params, **(params or {})}, end_s=end_s)
     data, samples = world.run(actions)
     replayed_capture = SessionCapture.parse(data)
     replayed_actions, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])

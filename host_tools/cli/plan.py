@@ -12,6 +12,9 @@ Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a gr
 from __future__ import annotations
 
 import json
+import math
+import warnings
+from typing import Any, Optional
 
 import numpy as np
 
@@ -21,7 +24,8 @@ from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
 from host_tools.plan.example import REPORTED, beside_report, report_problem
 from host_tools.plan.problem_file import load_problem
 from host_tools.plan.reach import plan_reach, sampled_torques
-from host_tools.plan.timeopt import plan_time_optimal
+from host_tools.plan.errors import PlanError
+from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
 
 
 def _reach_result(problem, settings: PlanSettings) -> dict:
@@ -44,12 +48,33 @@ def _reach_result(problem, settings: PlanSettings) -> dict:
 
 
 def run_plan(settings: PlanSettings) -> int:
+    """Plan; PlanError (exit 2) for a problem refused, or one whose plan came out with a number that is not finite
+    (numpy's RuntimeWarnings on the way are kept from the user: the result is checked instead)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        result, fastest = _plan(settings)
+    for w in caught:
+        if not issubclass(w.category, RuntimeWarning):      # anything else is said as it would have been
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    where = _not_finite(result)
+    if where:
+        raise PlanError("bounds", f"the plan's {where} came out as no finite number: the problem's masses, lengths "
+                                  "or limits are too far apart to plan with")
+    if settings.plot is not None and fastest is not None:
+        from host_tools.plan.plots import draw
+        files = draw(settings.plot, fastest, result.get("_cost"), REPORTED if settings.problem is None else ())
+        result["figures"] = [str(f) for f in files]
+    return _print(settings, result)
+
+
+def _plan(settings: PlanSettings) -> tuple[dict, Optional[TimeOptimal]]:
+    """The result (its "_cost": the DP plan, for the figures), and the phase plane's plan (None by reachability)."""
     example = settings.problem is None
     problem = report_problem(settings.gravity, settings.links) if example else load_problem(settings.problem)
     if settings.method == "reach":
-        return _print(settings, _with_cost(problem, settings, {
+        return _with_cost(problem, settings, {
             "problem": "the report's example" if example else str(settings.problem),
-            "model": _model(problem), "time_optimal": _reach_result(problem, settings)}))
+            "model": _model(problem), "time_optimal": _reach_result(problem, settings)}), None
     fastest = plan_time_optimal(problem, settings.nodes, settings.integrator)
     result = {
         "problem": "the report's example" if example else str(settings.problem),
@@ -64,12 +89,23 @@ def run_plan(settings: PlanSettings) -> int:
     }
     if example:
         result["beside_report"] = beside_report(fastest.switching_points)
-    result = _with_cost(problem, settings, result)
-    if settings.plot is not None:
-        from host_tools.plan.plots import draw
-        files = draw(settings.plot, fastest, result.pop("_cost", None), REPORTED if example else ())
-        result["figures"] = [str(f) for f in files]
-    return _print(settings, result)
+    return _with_cost(problem, settings, result), fastest
+
+
+def _not_finite(value: Any, where: str = "") -> str:
+    """Where in a result (dicts, lists, numbers) a number is NaN or infinite ("" if none is)."""
+    if isinstance(value, dict):
+        value = {k: v for k, v in value.items() if k != "_cost"}
+        items = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = enumerate(value)
+    else:
+        return where if isinstance(value, (float, np.floating)) and not math.isfinite(value) else ""
+    for key, item in items:
+        found = _not_finite(item, f"{where}.{key}" if where else str(key))
+        if found:
+            return found
+    return ""
 
 
 def _model(problem) -> dict:

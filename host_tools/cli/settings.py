@@ -80,6 +80,14 @@ class PortSettings:
         names = [name for name, _ in self.links]
         if len(set(names)) != len(names):
             raise ValueError(f"--link: each link needs a name of its own, got {', '.join(names)}")
+        from host_tools.worlds.ports import check_endpoint, check_url
+        if self.device is not None:
+            check_url(self.device)
+        for name, endpoint in self.links:
+            try:
+                check_endpoint(endpoint)
+            except ValueError as exc:
+                raise ValueError(f"--link {name}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -287,6 +295,8 @@ def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
 
 
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
+    from host_tools.client.lines import parse_links
+    parse_links(args.url)            # a link address pyserial cannot take is bad input, refused before any is opened
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
                           record=output_file(args.record, "--record"), json=args.json, control=args.control)
@@ -401,6 +411,12 @@ def proxy_settings(args: argparse.Namespace) -> ProxySettings:
     impairment = Impairment.parse(args.impair)
     if args.seed is not None:
         impairment = impairment.with_seed(args.seed)
+    from host_tools.worlds.ports import check_endpoint
+    for option, endpoint in (("--host", args.host), ("--controller", args.controller)):
+        try:
+            check_endpoint(endpoint)
+        except ValueError as exc:
+            raise ValueError(f"{option}: {exc}") from None
     if args.host == args.controller and args.host != "pty":
         raise ValueError(f"--host and --controller are both {args.host}: the two sides must differ")
     return ProxySettings(args.host, args.controller, impairment, args.baud, output_file(args.record, "--record"),
@@ -524,6 +540,9 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
                                                                              args.replay is None):
                 raise ValueError("--runs, --jobs, --coverage and --hang-s are for in-process targets; black-box takes "
                                  "--cases")
+            if args.url is not None:
+                from host_tools.worlds.ports import check_url
+                check_url(args.url)
             seconds = args.time if args.time is not None else (None if args.cases else 60.0)
             blackbox = BlackBoxSettings(args.url or "", command, args.baud, seconds, args.cases, args.seed,
                                         args.findings, skip=tuple(args.skip) if args.skip is not None

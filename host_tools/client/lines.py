@@ -16,6 +16,7 @@ from protocol.errors import LinkError
 from protocol.reasons import Reason
 from timebase import Clock
 from host_tools.sessions.redundancy import FrameMerger
+from host_tools.worlds.ports import check_url
 
 READ_SIZE = 4096
 READ_TIMEOUT_S = 0.001
@@ -23,29 +24,29 @@ EMPTY_READY_LIMIT_S = 1.0     # a link the selector finds ready that brings noth
 
 
 def parse_links(url: str) -> list[tuple[str, str]]:
-    """[(name, url)] of a (possibly comma-separated, possibly named) link address."""
+    """[(name, url)] of a (possibly comma-separated, possibly named) link address; ValueError naming what is
+    wrong with it (a link's scheme that pyserial does not know: `worlds.ports.check_url`), before anything is
+    opened."""
     items = [item.strip() for item in url.split(",")]
-    if len(items) == 1:
-        return [("link", items[0])]
     links = []
     for n, item in enumerate(items):
         name, sep, rest = item.partition("=")
-        if sep and name.isidentifier() and "://" not in name:
+        if len(items) == 1:
+            links.append(("link", item))
+        elif sep and name.isidentifier() and "://" not in name:
             links.append((name, rest))
         else:
             links.append((f"link{n}", item))
-    if any(not u for _, u in links) or len({n for n, _ in links}) != len(links):
+    if len(items) > 1 and (any(not u for _, u in links) or len({n for n, _ in links}) != len(links)):
         raise ValueError(f"{url}: links are NAME=URL or URL, comma-separated, each name once")
+    for _, link in links:
+        check_url(link)
     return links
 
 
 def _open(url: str, baud: int, timeout: float) -> serial.SerialBase:
-    if url.startswith("socket://"):      # pyserial's own complaint about a bad one names its logging options
-        host, sep, port = url[len("socket://"):].split("?", 1)[0].rpartition(":")
-        if not (sep and host and port.isdigit() and 1 <= int(port) <= 65535):
-            raise LinkError(Reason.NO_SESSION, f"cannot open {url}: a socket link is socket://HOST:PORT, "
-                                               "PORT a number 1..65535")
     try:
+        check_url(url)
         return serial.serial_for_url(url, baudrate=baud, timeout=timeout, write_timeout=2.0)
     except (serial.SerialException, ValueError) as exc:
         raise LinkError(Reason.NO_SESSION, f"cannot open {url}: {exc}") from exc

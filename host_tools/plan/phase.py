@@ -41,10 +41,19 @@ class Problem:
     #                                      the phase plane and the DP honour it, the reachability planner refuses it
 
     def terms(self, s) -> "Terms":
-        co = self.system.coefficients(self.path, s)
+        """The coefficients at `s`; PlanError "bounds" where they overflow a float (computed without numpy's
+        warnings, then checked: numbers too extreme to plan with are refused, never planned with NaNs)."""
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            co = self.system.coefficients(self.path, s)
+            d = self.limits.d(co.joints.q_s)
         if co.a.shape[1] != len(self.limits.lower):
             raise PlanError("bounds", f"{co.a.shape[1]} joints but {len(self.limits.lower)} limits")
-        return Terms(co.s, co.a, co.b, co.c, self.limits.d(co.joints.q_s), co.n, co.joints)
+        finite = np.isfinite(co.a).all(axis=1) & np.isfinite(co.b).all(axis=1) & np.isfinite(co.c).all(axis=1) \
+            & np.isfinite(d).all(axis=1) & np.isfinite(co.n).all(axis=1)
+        if not finite.all():
+            raise PlanError("bounds", f"the joints' torques at s = {float(np.asarray(co.s)[np.argmin(finite)]):.4g} "
+                                      "overflow a float: the arms' masses, lengths or path are too extreme to plan")
+        return Terms(co.s, co.a, co.b, co.c, d, co.n, co.joints)
 
 
 @dataclass(frozen=True)
@@ -154,7 +163,7 @@ def admissible_speeds(t: Terms, limits: Limits) -> Speeds:
     mids = np.concatenate([cuts[:, :1], (cuts[:, :-1] + cuts[:, 1:]) / 2], axis=1)       # rest, then each segment
     tol = 1e-9 * (limits.hi - limits.lo).max()
     ok = ((p[:, None, :] + q[:, None, :] * mids[..., None] + r[:, None, :] * mids[..., None] ** 2) >= -tol).all(-1)
-    static_ok = ok[:, 0]
+    static_ok = (p >= -tol).all(-1)            # rest, s' = 0: P alone (Q 0 and R 0 would be NaN times an overflow)
     seg_ok = ok[:, 1:]
     first_bad = np.where(seg_ok.all(axis=1), seg_ok.shape[1], np.argmin(seg_ok, axis=1))
     mvc = np.where(static_ok, cuts[np.arange(len(t.s)), np.minimum(first_bad, cuts.shape[1] - 1)], 0.0)
@@ -191,18 +200,22 @@ class PhaseGrid:
         self.fine = problem.terms(np.linspace(0.0, 1.0, 2 * nodes + 1))      # even: nodes, odd: midpoints
         self.t = self.fine.at(slice(0, None, 2))
         self.s = self.t.s
-        self.speeds = admissible_speeds(self.fine, problem.limits)
-        self.mvc_fine = np.minimum(self.speeds.mvc, problem.speed_cap)
-        self.mvc = self.mvc_fine[::2]
         lo, hi = problem.limits.lo, problem.limits.hi
         held = ((self.fine.c >= lo) & (self.fine.c <= hi)).all(axis=1)     # still, s' = s'' = 0
-        if not (held & self.speeds.static_ok).all():
-            k = int(np.argmin(held & self.speeds.static_ok))
+        if not held.all():          # checked first: the speeds' arithmetic is bounded by the limits only past it
+            k = int(np.argmin(held))
             u = self.fine.c[k]
-            worst = int(np.argmax(np.maximum(u - problem.limits.hi, problem.limits.lo - u)))
+            worst = int(np.argmax(np.maximum(u - hi, lo - u)))              # a joint outside its limits, by most
             raise PlanError("bounds", f"too weak to hold the object still at s = {self.fine.s[k]:.4g}: joint "
                                       f"{worst + 1} needs {u[worst]:.4g} N m against its limits "
-                                      f"[{problem.limits.lo[worst]:g}, {problem.limits.hi[worst]:g}]")
+                                      f"[{lo[worst]:g}, {hi[worst]:g}]")
+        self.speeds = admissible_speeds(self.fine, problem.limits)
+        if not self.speeds.static_ok.all():
+            raise PlanError("bounds", "the bounds on s'' overflow a float at s = "
+                                      f"{self.fine.s[int(np.argmin(self.speeds.static_ok))]:.4g}, where every joint "
+                                      "holds the object still within its limits: the problem is too extreme to plan")
+        self.mvc_fine = np.minimum(self.speeds.mvc, problem.speed_cap)
+        self.mvc = self.mvc_fine[::2]
         if (self.mvc >= SPEED_CAP).any():
             raise PlanError("bounds", "the limits do not bound the speed along this path (the maximum velocity "
                                       f"curve passes {SPEED_CAP:g} /s)")

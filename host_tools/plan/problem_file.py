@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from host_tools.plan.bounds import Limits
@@ -25,12 +26,24 @@ from protocol import files
 
 MAX_BYTES = 1 << 20
 KEYS = {"path", "arms", "object", "gravity", "limits"}
+# Magnitudes far beyond any arm's, within which the planner's arithmetic stays well inside a float (its torques
+# go as mass x length^2 x speed^2); beyond them a problem is refused, not computed into overflows and NaNs.
+# Below, a link's length and mass, and a joint's range of torque, are at least a millimetre, a gram (or nothing:
+# a massless link or object) and a milli-newton-metre: smaller ones are the planner's zeros and divisors.
+MAX_LENGTH_M, MIN_LENGTH_M = 1e3, 1e-3    # links, the arms' separation, the object's size and grasps: a kilometre
+MAX_MASS_KG, MIN_MASS_KG = 1e6, 1e-3      # links and the object: a thousand tonnes
+MAX_LIMIT, MIN_LIMIT_RANGE = 1e9, 1e-3    # torque limits, N m (or a motor's voltage, V)
+MAX_BACK_EMF = 1e6                        # back-emf constants, per joint
 
 
-def _numbers(value, n: int, what: str) -> tuple:
+def _numbers(value, n: int, what: str, bound: float) -> tuple:
+    """`n` finite numbers, each of magnitude at most `bound`; PlanError naming `what` else."""
     if not isinstance(value, (list, tuple)) or len(value) != n or not all(finite(v) is not None for v in value):
         raise PlanError("file", f"{what} must be a list of {n} finite numbers")
-    return tuple(float(v) for v in value)
+    numbers = tuple(float(v) for v in value)
+    if any(abs(v) > bound for v in numbers):
+        raise PlanError("file", f"{what} must be within -{bound:g}..{bound:g}, not {max(numbers, key=abs):g}")
+    return numbers
 
 
 SECTION_KEYS = {"arms": {"separation", "lengths", "masses", "elbows", "links"},
@@ -47,6 +60,13 @@ def _section(spec: dict, key: str) -> dict:
     return value
 
 
+def _at_least(numbers: tuple, least: float, what: str, zero: bool = False) -> tuple:
+    """`numbers`, each at least `least` (or 0 if `zero`); PlanError naming `what` else."""
+    if any(v < least and not (zero and v == 0) for v in numbers):
+        raise PlanError("file", f"{what} must be {'0 or ' if zero else ''}at least {least:g}, not {min(numbers):g}")
+    return numbers
+
+
 def problem_from_dict(spec: dict) -> Problem:
     if not isinstance(spec, dict):
         raise PlanError("file", "a problem is a JSON object")
@@ -59,36 +79,41 @@ def problem_from_dict(spec: dict) -> Problem:
     grasps = held.get("grasps", [[-0.125, 0], [0.125, 0]])
     if not isinstance(grasps, list) or len(grasps) != 2:
         raise PlanError("file", "object.grasps must be a list of two points [x, y]")
-    size = _numbers(held.get("size", [0.25, 0.1]), 2, "object.size")
+    size = _numbers(held.get("size", [0.25, 0.1]), 2, "object.size", MAX_LENGTH_M)
     if any(v <= 0 for v in size):
         raise PlanError("file", "object.size must be two lengths above 0")
     gravity = spec.get("gravity", GRAVITY)
     if finite(gravity) is None or not 0 <= gravity <= 100:
         raise PlanError("file", "'gravity' is a number of m/s^2 from 0 to 100")
-    separation = _numbers([arms.get("separation", 2.0)], 1, "arms.separation")[0]
-    elbows = _numbers(arms.get("elbows", [1, 1]), 2, "arms.elbows")
+    separation = _numbers([arms.get("separation", 2.0)], 1, "arms.separation", MAX_LENGTH_M)[0]
+    elbows = _numbers(arms.get("elbows", [1, 1]), 2, "arms.elbows", math.inf)
     if any(e not in (1.0, -1.0) for e in elbows):
         raise PlanError("file", "arms.elbows are +1 or -1 each (the sign of the elbow angle)")
-    system = two_arms(separation, _numbers(arms.get("lengths", [1, 1]), 2, "arms.lengths"),
-                      _numbers(arms.get("masses", [1, 1]), 2, "arms.masses"), tuple(int(e) for e in elbows),
-                      str(arms.get("links", "rod")),
-                      Held(_numbers([held.get("mass", 0.25)], 1, "object.mass")[0],
-                           size, tuple(_numbers(g, 2, "object.grasps[]") for g in grasps)),
+    lengths = _at_least(_numbers(arms.get("lengths", [1, 1]), 2, "arms.lengths", MAX_LENGTH_M), MIN_LENGTH_M,
+                        "arms.lengths")
+    masses = _at_least(_numbers(arms.get("masses", [1, 1]), 2, "arms.masses", MAX_MASS_KG), MIN_MASS_KG,
+                       "arms.masses", zero=True)
+    mass = _at_least(_numbers([held.get("mass", 0.25)], 1, "object.mass", MAX_MASS_KG), MIN_MASS_KG, "object.mass",
+                     zero=True)[0]
+    system = two_arms(separation, lengths, masses, tuple(int(e) for e in elbows), str(arms.get("links", "rod")),
+                      Held(mass, size, tuple(_numbers(g, 2, "object.grasps[]", MAX_LENGTH_M) for g in grasps)),
                       float(gravity))
     if len(system.held.grasps) != 2 or system.held.grasps[0] == system.held.grasps[1]:
         raise PlanError("file", "object.grasps needs two different points")
-    if system.held.mass < 0:
-        raise PlanError("file", "object.mass must not be negative")
     back_emf = limits.get("back_emf")
+    emf = None if back_emf is None else _numbers(back_emf, 4, "limits.back_emf", MAX_BACK_EMF)
     if "symmetric" in limits:
-        bounds = Limits.symmetric(_numbers(limits["symmetric"], 4, "limits.symmetric"),
-                                  None if back_emf is None else _numbers(back_emf, 4, "limits.back_emf"))
+        bounds = Limits.symmetric(_numbers(limits["symmetric"], 4, "limits.symmetric", MAX_LIMIT), emf)
     elif "lower" in limits or "upper" in limits:
-        bounds = Limits(_numbers(limits.get("lower"), 4, "limits.lower"), _numbers(limits.get("upper"), 4,
-                                                                                     "limits.upper"),
-                        None if back_emf is None else _numbers(back_emf, 4, "limits.back_emf"))
+        bounds = Limits(_numbers(limits.get("lower"), 4, "limits.lower", MAX_LIMIT),
+                        _numbers(limits.get("upper"), 4, "limits.upper", MAX_LIMIT), emf)
     else:
         bounds = Limits.symmetric(LIMITS)
+    narrow = [j for j in range(len(bounds.lower)) if bounds.upper[j] - bounds.lower[j] < MIN_LIMIT_RANGE]
+    if narrow:
+        j = narrow[0]
+        raise PlanError("file", f"joint {j + 1}'s limits [{bounds.lower[j]:g}, {bounds.upper[j]:g}] are less than "
+                                f"{MIN_LIMIT_RANGE:g} apart")
     return Problem(system, path_from_dict(spec["path"]), bounds)
 
 

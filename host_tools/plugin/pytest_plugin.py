@@ -106,6 +106,11 @@ def make_target(config: pytest.Config, directive: tuple[str, ...] = (), where: s
     world, variables = world_and_variables(config, directive, where)
     if url is None:
         return LockstepTarget(world, variables)
+    from host_tools.client.lines import parse_links
+    try:
+        parse_links(url)
+    except ValueError as exc:
+        raise pytest.UsageError(f"--aspod-target: {exc}") from None
     key_file = config.getoption("--aspod-key-file")
     psk = auth.load_key(key_file, "--aspod-key-file") if key_file else auth.load_key(auth.default_key_path(),
                                                                                      "development key")

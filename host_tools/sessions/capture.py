@@ -17,7 +17,6 @@ world started, on a simulated clock; `paced`: the same, on a world paced to the 
 from __future__ import annotations
 
 import json
-import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,14 +25,19 @@ from typing import Any, BinaryIO, Optional
 from protocol.files import read_bounded
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
+from host_tools import strict_json
 from host_tools.sessions.segments import SegmentCutter
 from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, CaptureError, Packet,
                                        PcapngReader, PcapngWriter)
 
 FORMAT_VERSION = 1
 SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces (the command line's --seed): 0 .. 4294967295
-MAX_JSON_DEPTH = 32      # a session description or world event nests a few levels; deeper is refused, not recursed
 MARK = "aspod-session "
+# A recording's settings (the plant, every controller parameter, an impairment's or a fault's description, ...) are
+# a few dozen short entries (aspod sim's: 73 parameters, 1.6 kB in all). Far above that they are refused, not built
+# into a world: entries of any one object or list, and characters of any one string or key (the tool's name too).
+MAX_SETTING_ENTRIES = 1024
+MAX_SETTING_CHARS = 1024
 DIRECTION_FLAG = {Direction.TO_CONTROLLER: OUTBOUND, Direction.TO_HOST: INBOUND}
 FLAG_DIRECTION = {flag: direction for direction, flag in DIRECTION_FLAG.items()}
 CLOCKS = ("simulated", "paced", "wall")
@@ -79,6 +83,8 @@ class SessionInfo:
             raise ValueError(f"tool {_short(tool)} is not a string")
         if settings is not None and not isinstance(settings, dict):
             raise ValueError(f"settings {_short(settings)} is not a JSON object")
+        _check_sizes(tool, "tool")
+        _check_sizes(settings, "settings")
         if isinstance(version, bool) or not isinstance(version, int) or not 0 <= version <= 0xFFFF:
             raise ValueError(f"protocol_version {_short(version)} is not a whole number in 0..65535")
         if not isinstance(schema_hash, str) or not re.fullmatch(r"[0-9a-fA-F]{1,16}", schema_hash):
@@ -229,41 +235,25 @@ def _short(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _depth_ok(text: str) -> bool:
-    """Whether JSON `text` nests at most MAX_JSON_DEPTH brackets (counted outside strings), before it is parsed."""
-    depth, in_string, escaped = 0, False, False
-    for ch in text:
-        if in_string:
-            escaped, in_string = (False, True) if escaped else (ch == "\\", ch != '"')
-        elif ch == '"':
-            in_string = True
-        elif ch in "[{":
-            depth += 1
-            if depth > MAX_JSON_DEPTH:
-                return False
-        elif ch in "]}":
-            depth -= 1
-    return True
-
-
-def _finite(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):
-        raise ValueError(f"number {_short(text)} is out of range")
-    return value
-
-
-def _no_constant(text: str) -> Any:
-    raise ValueError(f"{text} is not a number JSON allows")
+def _check_sizes(value: Any, where: str) -> None:
+    """ValueError naming the place in `value` (a JSON value) where an object or list holds more than
+    MAX_SETTING_ENTRIES entries, or a string or key more than MAX_SETTING_CHARS characters."""
+    if isinstance(value, str):
+        if len(value) > MAX_SETTING_CHARS:
+            raise ValueError(f"{where} is a string of {len(value)} characters; at most {MAX_SETTING_CHARS}")
+    elif isinstance(value, (dict, list)):
+        if len(value) > MAX_SETTING_ENTRIES:
+            raise ValueError(f"{where} holds {len(value)} entries; at most {MAX_SETTING_ENTRIES}")
+        for key, item in (value.items() if isinstance(value, dict) else enumerate(value)):
+            _check_sizes(key, f"a key in {where}")
+            _check_sizes(item, f"{where}[{_short(key)}]")
 
 
 def _json_object(text: str, what: str) -> dict:
-    """`text` as a JSON object: nesting at most MAX_JSON_DEPTH, finite numbers; ValueError naming `what` and why."""
-    if not _depth_ok(text):
-        raise ValueError(f"{what} nests deeper than {MAX_JSON_DEPTH} levels")
+    """`text` as a JSON object, read strictly (`strict_json.loads`); ValueError naming `what` and why."""
     try:
-        doc = json.loads(text, parse_float=_finite, parse_constant=_no_constant)
-    except (ValueError, RecursionError) as exc:    # JSONDecodeError is a ValueError; so is an int of 4,300 digits
+        doc = strict_json.loads(text)
+    except ValueError as exc:
         raise ValueError(f"{what} does not parse: {exc}") from None
     if not isinstance(doc, dict):
         raise ValueError(f"{what} is not a JSON object: {_short(doc)}")

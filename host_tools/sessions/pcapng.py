@@ -29,6 +29,11 @@ EPB_FLAGS = 2
 LINKTYPE_USER0 = 147          # "reserved for private use" (tcpdump.org link-layer types): our frames
 LINKTYPE_USER1 = 148          # the same, for a session's world events (JSON)
 NANOSECONDS = 9
+# if_tsresol (draft-ietf-opsawg-pcapng, section 4.2, "if_tsresol": one byte; MSB 0: the resolution is 10**-value
+# s, MSB 1: 2**-value s; absent: 10**-6). Writers use 6 (libpcap's microseconds) or 9 (nanoseconds); 12, the
+# picoseconds of the finest capture hardware, is the finest read: there a 64-bit count still spans 213 days,
+# beyond it a count that cannot even hold a day (10**-15: 5 hours) says the timestamps mean nothing.
+MAX_TSRESOL_EXP = 12
 
 INBOUND, OUTBOUND = 1, 2      # epb_flags direction bits
 MAX_BLOCK = 1 << 20           # no block of ours comes near this; a larger length field is a broken file
@@ -205,8 +210,13 @@ class PcapngReader:
                 elif code == IF_DESCRIPTION:
                     interface.description = value.decode()
                 elif code == IF_TSRESOL:
-                    if not value or value[0] & 0x80:
+                    if len(value) != 1:
+                        raise CaptureError(offset, f"if_tsresol of {len(value)} bytes; the option is one byte")
+                    if value[0] & 0x80:
                         raise CaptureError(offset, "if_tsresol in powers of 2 is not supported")
+                    if value[0] > MAX_TSRESOL_EXP:
+                        raise CaptureError(offset, f"if_tsresol 10^-{value[0]} s: timestamps finer than "
+                                                   f"10^-{MAX_TSRESOL_EXP} s (picoseconds) mean nothing")
                     interface.tsresol_exp = value[0]
             self.interfaces.append(interface)
         elif kind == EPB:

@@ -34,6 +34,7 @@ from protocol.errors import shown
 from protocol.states import ARM_CHANNELS
 from timebase import Clock, PacedClock
 
+from host_tools import strict_json
 from host_tools.worlds import plant_actions
 from host_tools.worlds.plant_state import plant_state
 from host_tools.worlds.settings import GRAVITY_MODES, PAYLOAD_MAX_KG
@@ -116,18 +117,14 @@ def error_reply(reason: str) -> dict:
 
 
 def decode_request(line: bytes) -> Any:
-    """One request line as JSON; RequestError if it is not (NaN and Infinity are not JSON, nor is a nest deeper
-    than Python can read)."""
-    def no_constant(name: str) -> None:
-        raise RequestError(f"{name} is not a number JSON knows")
+    """One request line as JSON, read strictly (`strict_json.loads`: no NaN or Infinity, no nest deeper than it
+    reads); RequestError if it is not."""
     try:
-        return json.loads(line.decode("utf-8"), parse_constant=no_constant)
+        return strict_json.loads(line.decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise RequestError(f"not UTF-8 text (byte {exc.start}: {exc.reason})") from None
-    except json.JSONDecodeError as exc:
-        raise RequestError(f"not JSON: {exc.msg} at character {exc.pos}") from None
-    except RecursionError:
-        raise RequestError("not JSON this endpoint reads: nested too deeply") from None
+    except ValueError as exc:
+        raise RequestError(str(exc)) from None
 
 
 CHANGES = ("fault", "clear", "gravity", "payload", "object", "clouds")    # the ops a recording holds (on_change)

@@ -180,6 +180,7 @@ class DevicePort:
 
     def __init__(self, url: str, baud: int) -> None:
         import serial   # only this port needs pyserial on the controller side
+        check_url(url)
         self._serial = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
         self.url = url
 
@@ -273,18 +274,67 @@ class RecordedPort:
         setattr(self._port, name, value)
 
 
+def url_schemes() -> tuple[str, ...]:
+    """The schemes pyserial opens (`socket`, `rfc2217`, `loop`, ...): the names of its URL handlers, found where
+    pyserial itself looks for them (`serial.protocol_handler_packages`)."""
+    import importlib
+    import pkgutil
+    import serial
+    names = set()
+    for package in serial.protocol_handler_packages:
+        for module in pkgutil.iter_modules(importlib.import_module(package).__path__):
+            if module.name.startswith("protocol_"):
+                names.add(module.name[len("protocol_"):])
+    return tuple(sorted(names))
+
+
+def check_url(url: str) -> None:
+    """A device path, or a pyserial URL whose scheme pyserial knows (a `socket://` one as HOST:PORT): ValueError
+    naming what is wrong, before anything is opened (pyserial's own complaint about a bad socket URL names its
+    logging options)."""
+    scheme, sep, rest = url.partition("://")
+    if not sep:
+        if not url:
+            raise ValueError("an empty link address: give a device (/dev/pts/N) or a URL (socket://HOST:PORT)")
+        return
+    scheme = scheme.lower()          # as pyserial reads it
+    if scheme not in url_schemes():
+        raise ValueError(f"{url}: unknown link scheme {scheme}://; a link is a device (/dev/pts/N) or a URL "
+                         f"with one of the schemes {', '.join(s + '://' for s in url_schemes())}")
+    if scheme == "socket":
+        host, sep, port = rest.split("?", 1)[0].rpartition(":")
+        if not (sep and host and port.isdigit() and 1 <= int(port) <= 65535):
+            raise ValueError(f"{url}: a socket link is socket://HOST:PORT, PORT a number 1..65535")
+
+
+def tcp_port(spec: str) -> Optional[int]:
+    """The port of an endpoint `tcp:PORT`, None for any other endpoint; ValueError naming a bad one."""
+    if not spec.startswith("tcp:"):
+        return None
+    try:
+        port = int(spec[4:])
+    except ValueError:
+        raise ValueError(f"{spec}: write tcp:PORT with a port number (tcp:0 picks a free one)") from None
+    if not 0 <= port <= 65535:
+        raise ValueError(f"{spec}: a TCP port is within 0..65535")
+    return port
+
+
+def check_endpoint(spec: str) -> None:
+    """`pty`, `tcp:PORT` or a device / pyserial URL (`check_url`): ValueError naming what is wrong."""
+    if spec != "pty" and tcp_port(spec) is None:
+        check_url(spec)
+
+
 def open_endpoint(spec: str, baud: int):
     """`pty` (a new pseudo-terminal pair), `tcp:PORT` (listen; tcp:0 picks a port) or a device / pyserial URL
-    (opened here): the port (read, write, close, url). ValueError or OSError naming `spec` if it cannot be."""
+    (opened here): the port (read, write, close, url). ValueError naming `spec` if it is none of them (before
+    anything is opened), OSError if it cannot be opened."""
+    check_endpoint(spec)
     if spec == "pty":
         return PtyPort()
-    if spec.startswith("tcp:"):
-        try:
-            port = int(spec[4:])
-        except ValueError:
-            raise ValueError(f"{spec}: write tcp:PORT with a port number (tcp:0 picks a free one)") from None
-        if not 0 <= port <= 65535:
-            raise ValueError(f"{spec}: a TCP port is within 0..65535")
+    port = tcp_port(spec)
+    if port is not None:
         return TcpServerPort(port)
     import serial
     try:
