@@ -25,6 +25,7 @@ re-simulated values.
 """
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import io
 import math
@@ -137,11 +138,28 @@ class ReplayReport:
 
 @dataclass
 class _Output:
-    """The controller's side of a session: replies by request, events in order, telemetry by uptime."""
+    """The controller's side of a session: replies by request, events in order, telemetry by uptime; and for every
+    frame that carries the controller's uptime, when it was written and that time less the uptime."""
     replies: dict[tuple[int, int, int], DecodedFrame] = field(default_factory=dict)
     events: list[DecodedFrame] = field(default_factory=list)
     telemetry: dict[tuple[str, int], DecodedFrame] = field(default_factory=dict)
     segments: list[bytes] = field(default_factory=list)
+    written: list[tuple[float, float]] = field(default_factory=list)     # (time written, minus the uptime), sorted
+    least_offset_s: float = 0.0                                         # the least of the second
+
+    def made_s(self, reply: DecodedFrame, asked_s: float) -> float:
+        """When the controller made `reply` to a request recorded at `asked_s`: when it was written, less how far
+        its writing lagged behind the controller then.
+
+        On a loaded machine a simulator's frames can reach its port tens of milliseconds after the controller
+        made them (the writing thread waits for a CPU while the world goes on), and the recording stamps them
+        when written. A frame that carries the controller's uptime shows that lag: its time written less its
+        uptime, above the least of that over the session. The lag of the first such frame written at or after the
+        reply is taken as the reply's (frames are written in the order made, so it lagged at least as much), and
+        never puts the reply before its request."""
+        at = bisect.bisect_left(self.written, (reply.time_s,))
+        lag_s = self.written[at][1] - self.least_offset_s if at < len(self.written) else 0.0
+        return reply.time_s - min(lag_s, max(0.0, reply.time_s - asked_s))
 
 
 @dataclass
@@ -175,6 +193,9 @@ def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action
                 actions.append(_Action(d.time_s, d.message, offset=offset, request=(session, cls, seq)))
             continue
         out.segments.append(d.frame.signed + d.frame.tag)
+        uptime_ms = d.fields().get("uptime_ms")
+        if isinstance(uptime_ms, int):
+            out.written.append((d.time_s, d.time_s - uptime_ms / 1000.0))
         if name == "HelloReply" and d.message.result == Reason.OK:
             session += 1
             hello_pending = False
@@ -185,6 +206,8 @@ def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action
             out.events.append(d)
         elif cls == MsgClass.TELEMETRY and "uptime_ms" in d.fields():
             out.telemetry.setdefault((name, d.message.uptime_ms), d)
+    out.written.sort()
+    out.least_offset_s = min((offset for _, offset in out.written), default=0.0)
     return actions, out
 
 
@@ -284,15 +307,15 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
 def _uncertainty_ms(actions: list[_Action], recorded: _Output, replayed_actions: list[_Action],
                     replayed: _Output) -> float:
     """How uncertain the recording is about when the real controller ran its commands, in ms: the most by which a
-    recorded answer came later after its request than the replay's did (at most MAX_UNCERTAINTY_MS). The real
-    controller ran the command somewhere in that time; on an idle machine it is a millisecond or two, on a
-    loaded one it can be tens, and the comparison's time windows widen by it."""
+    recorded answer was made later after its request than the replay's was (`_Output.made_s`; at most
+    MAX_UNCERTAINTY_MS). The real controller ran the command somewhere in that time; on an idle machine it is a
+    millisecond or two, on a loaded one it can be tens, and the comparison's time windows widen by it."""
     asked = {a.request: a.time_s for a in replayed_actions if a.request is not None}
     worst = 0.0
     for action in actions:
         key = action.request
         if key in recorded.replies and key in replayed.replies and key in asked:
-            real = recorded.replies[key].time_s - action.time_s
+            real = recorded.made_s(recorded.replies[key], action.time_s) - action.time_s
             replay_latency = replayed.replies[key].time_s - asked[key]
             worst = max(worst, real - replay_latency)
     return min(MAX_UNCERTAINTY_MS, worst * 1e3)
@@ -370,12 +393,14 @@ def _do(bench: LockstepBench, action: _Action) -> None:
 
 
 def _aligned(actions: list[_Action], recorded: _Output, replayed: _Output) -> list[_Action]:
-    """`actions` with each command moved by (recorded answer's time - replayed answer's time), in the same order."""
+    """`actions` with each command moved by (when the recorded answer was made - the replayed answer's time), in the
+    same order (`_Output.made_s`)."""
     out, floor = [], 0.0
     for action in actions:
         shift = 0.0
         if action.request is not None and action.request in recorded.replies and action.request in replayed.replies:
-            shift = recorded.replies[action.request].time_s - replayed.replies[action.request].time_s
+            made_s = recorded.made_s(recorded.replies[action.request], action.time_s)
+            shift = made_s - replayed.replies[action.request].time_s
         moved = max(floor, action.time_s + shift)
         out.append(dataclasses.replace(action, time_s=moved))
         floor = moved
