@@ -76,11 +76,17 @@ def test_outside_the_repository_on_the_lockstep_world(project):
     assert [s["text"] for s in script["steps"]] == ["enable", "moveby j2 1 1", "wait", "status"]
 
 
-def test_a_target_url_of_an_unknown_scheme_is_refused_naming_the_schemes_before_any_link_is_opened(project):
-    done, cases = run_pytest(project, "--aspod-target=bogus://x", "test_arm_bench.py")
-    assert done.returncode != 0 and not [c for c in cases.values() if c.find("failure") is None
-                                         and c.find("error") is None and c.find("skipped") is None]
-    assert "--aspod-target: bogus://x: unknown link scheme bogus://; a link is a device" in done.stdout + done.stderr
+@pytest.mark.parametrize("option, said", [
+    ("--aspod-target=bogus://x", "--aspod-target: bogus://x: unknown link scheme bogus://; a link is a device"),
+    ("--aspod-gravity=mars", "--aspod options: argument --gravity: invalid choice: 'mars'"),
+    ("--aspod-payload-kg=-1", "--aspod options: argument --payload-kg: -1.0 is outside 0.0..1000.0"),
+])
+def test_a_bad_option_is_the_runs_usage_error_said_once_before_anything_runs(project, option, said):
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", option,
+                           "test_arm_bench.py"], cwd=project, capture_output=True, text=True, timeout=300)
+    assert done.returncode == pytest.ExitCode.USAGE_ERROR, done.stdout[-2000:] + done.stderr[-2000:]
+    assert said in done.stderr and done.stderr.count(said) == 1, done.stderr
+    assert "passed" not in done.stdout and "error" not in done.stdout.lower()
 
 
 @pytest.mark.pty

@@ -20,6 +20,8 @@ what world it needs, as `aspod bench` takes it: `#! aspod bench --sun-start 2026
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import re
 from pathlib import Path
@@ -62,6 +64,25 @@ WORLD_LISTS = (("fault", "NAME[:CH]@T", "a plant fault at simulated time T (repe
 DEFAULT_SEED = "1"
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Bad --aspod options are the run's usage error, said once before anything is collected (pytest's exit
+    status 4), not an error in every test that asks for a target. Without them the plugin imports nothing more."""
+    lists = [option for option, _, _ in WORLD_LISTS]
+    given = [name for name in ("target", "seed", *(option for option, _, _ in WORLD_OPTIONS))
+             if config.getoption(f"--aspod-{name}", None) is not None]
+    given += [name for name in (*lists, "no-tracker") if config.getoption(f"--aspod-{name}", None)]
+    if not given:
+        return
+    world_and_variables(config)
+    url = config.getoption("--aspod-target")
+    if url is not None:
+        from host_tools.client.lines import parse_links
+        try:
+            parse_links(url)
+        except ValueError as exc:
+            raise pytest.UsageError(f"--aspod-target: {exc}") from None
+
+
 def bench_options(config: pytest.Config, directive: tuple[str, ...] = ()) -> tuple[list[str], list[str]]:
     """The world's `aspod bench` options: the seed's default, a script's directive, then this run's options
     (which win); and the variables (`--var` pairs)."""
@@ -88,10 +109,15 @@ def world_and_variables(config: pytest.Config, directive: tuple[str, ...] = (), 
     from host_tools.cli.settings import bench_settings
     argv, variables = bench_options(config, directive)
     argv += [x for pair in variables for x in ("--var", pair)]
+    said = io.StringIO()
     try:
-        settings = bench_settings(build_parser().parse_args(["bench", "-", *argv]))
+        with contextlib.redirect_stderr(said):        # argparse's usage is `aspod bench`'s, not this run's
+            args = build_parser().parse_args(["bench", "-", *argv])
+        settings = bench_settings(args)
     except SystemExit:
-        raise pytest.UsageError(f"{where}: the world's options do not parse (see above)") from None
+        why = said.getvalue().strip().splitlines()[-1:] or ["they do not parse"]
+        raise pytest.UsageError(f"{where}: {why[0].split('error: ', 1)[-1]} (as aspod bench takes it: "
+                                "--aspod-NAME here is its --NAME)") from None
     except ValueError as exc:
         raise pytest.UsageError(f"{where}: {exc}") from None
     return settings.world, dict(settings.variables)
@@ -106,11 +132,6 @@ def make_target(config: pytest.Config, directive: tuple[str, ...] = (), where: s
     world, variables = world_and_variables(config, directive, where)
     if url is None:
         return LockstepTarget(world, variables)
-    from host_tools.client.lines import parse_links
-    try:
-        parse_links(url)
-    except ValueError as exc:
-        raise pytest.UsageError(f"--aspod-target: {exc}") from None
     key_file = config.getoption("--aspod-key-file")
     psk = auth.load_key(key_file, "--aspod-key-file") if key_file else auth.load_key(auth.default_key_path(),
                                                                                      "development key")
