@@ -253,6 +253,7 @@ def _plan_quietly(capsys, tmp_path, spec: dict, *options: str) -> tuple[int, str
     ("limits", "lower", [-1e308] * 4, "limits.lower must be within -1e+09..1e+09, not -1e+308"),
     ("arms", "masses", [1e-300, 1], "arms.masses must be 0 or at least 0.001, not 1e-300"),
     ("arms", "masses", [-1, 1], "arms.masses must be 0 or at least 0.001, not -1"),
+    ("arms", "masses", [0, 1e-4], "arms.masses must be 0 or at least 0.001, not 0.0001"),
     ("object", "mass", 1e-12, "object.mass must be 0 or at least 0.001, not 1e-12"),
     ("arms", "lengths", [1e-9, 1], "arms.lengths must be at least 0.001, not 1e-09"),
     ("limits", "symmetric", [30, 1e-300, 35, 15], "joint 2's limits [-1e-300, 1e-300] are less than 0.001 apart"),

@@ -11,7 +11,7 @@ import pytest
 
 from protocol.messages import MESSAGES as M
 from protocol.states import Axis
-from host_tools.apps.replay import ReplayError, Tolerances, replay
+from host_tools.apps.replay import ReplayError, Tolerances, _decode, _split, replay
 from host_tools.cli.settings import pairs
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
@@ -164,3 +164,22 @@ def test_a_real_time_sim_recording_replays_within_tolerances_and_a_changed_gain_
     shown = subprocess.run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], capture_output=True,
                            text=True, timeout=120)
     assert shown.returncode == 1 and "first divergence at" in shown.stdout
+
+
+@pytest.mark.pty
+def test_the_lag_of_a_recordings_writing_is_measured_on_the_controllers_uptime_not_the_links(sim_factory, tmp_path):
+    """A Heartbeat's uptime_ms is the link's, counted on the link's clock (the wall clock under `aspod sim`), not
+    the controller's on the world's: at --speed 0.5 the two part by half a second a second, and taking the
+    Heartbeats put the least of (time written - uptime) 1.8 s too low, so every reply's lag came out near 1.8 s,
+    every reply was taken as made the moment its request came, and the recording's uncertainty as 0 ms."""
+    capture = tmp_path / "half.pcapng"
+    sim = sim_factory("--pty", "--record", str(capture), "--seed", "9", "--no-tracker", "--speed", "0.5")
+    done = sim.teleop("ping\nenable\ntelemetry 20\nmoveby j1 3 3\nwait\nping\nstatus\nquit\n")
+    assert done.returncode == 0, done.stderr.decode()
+    sim.stop()
+    recorded = SessionCapture.read(capture)
+    decoded = _decode(recorded, None)
+    _, out = _split(decoded, [f.offset for f in recorded.frames])
+    status = [d for d in decoded if d.name == "TelemetryStatus"]
+    floor_s = min(d.time_s - d.message.uptime_ms / 1000.0 for d in status)
+    assert out.least_offset_s > floor_s - 0.01, (out.least_offset_s, floor_s)      # within a few ms, not 1.8 s

@@ -194,7 +194,7 @@ def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action
             continue
         out.segments.append(d.frame.signed + d.frame.tag)
         uptime_ms = d.fields().get("uptime_ms")
-        if isinstance(uptime_ms, int):
+        if isinstance(uptime_ms, int) and name != "Heartbeat":    # a Heartbeat's is the link's, on the link's clock
             out.written.append((d.time_s, d.time_s - uptime_ms / 1000.0))
         if name == "HelloReply" and d.message.result == Reason.OK:
             session += 1

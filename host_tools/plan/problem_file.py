@@ -62,8 +62,9 @@ def _section(spec: dict, key: str) -> dict:
 
 def _at_least(numbers: tuple, least: float, what: str, zero: bool = False) -> tuple:
     """`numbers`, each at least `least` (or 0 if `zero`); PlanError naming `what` else."""
-    if any(v < least and not (zero and v == 0) for v in numbers):
-        raise PlanError("file", f"{what} must be {'0 or ' if zero else ''}at least {least:g}, not {min(numbers):g}")
+    below = [v for v in numbers if v < least and not (zero and v == 0)]
+    if below:
+        raise PlanError("file", f"{what} must be {'0 or ' if zero else ''}at least {least:g}, not {min(below):g}")
     return numbers
 
 
