@@ -46,6 +46,8 @@ BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what a
 SUBMIT_EARLY_S = 1e-6
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
+# a byte's time on the replayed world's line (World's 115200 baud, 10 bits a byte): how long a frame takes to write
+LINE_S_PER_BYTE = 10 / 115_200
 MAX_SPAN_S = 86_400.0     # a day of simulated time: more than any session records; a later time is refused unsimulated
 TAIL_S = 0.1          # replay runs this long past the recording's last frame (what came later is not compared)
 # What measures the host machine or the link's own traffic, not the controller's behaviour: compared
@@ -138,27 +140,21 @@ class ReplayReport:
 
 @dataclass
 class _Output:
-    """The controller's side of a session: replies by request, events in order, telemetry by uptime; and for every
-    frame that carries the controller's uptime, when it was written and that time less the uptime."""
+    """The controller's side of a session: replies by request, events in order, telemetry by uptime; and the
+    frames that show how late the writing was (`made_s`)."""
     replies: dict[tuple[int, int, int], DecodedFrame] = field(default_factory=dict)
     events: list[DecodedFrame] = field(default_factory=list)
     telemetry: dict[tuple[str, int], DecodedFrame] = field(default_factory=dict)
     segments: list[bytes] = field(default_factory=list)
-    written: list[tuple[float, float]] = field(default_factory=list)     # (time written, minus the uptime), sorted
-    least_offset_s: float = 0.0                                         # the least of the second
+    written: list[tuple[float, float]] = field(default_factory=list)   # (time written, how late), by time
+    session_starts: list[DecodedFrame] = field(default_factory=list)   # the HelloReplies that began one
 
     def made_s(self, reply: DecodedFrame, asked_s: float) -> float:
-        """When the controller made `reply` to a request recorded at `asked_s`: when it was written, less how far
-        its writing lagged behind the controller then.
-
-        On a loaded machine a simulator's frames can reach its port tens of milliseconds after the controller
-        made them (the writing thread waits for a CPU while the world goes on), and the recording stamps them
-        when written. A frame that carries the controller's uptime shows that lag: its time written less its
-        uptime, above the least of that over the session. The lag of the first such frame written at or after the
-        reply is taken as the reply's (frames are written in the order made, so it lagged at least as much), and
-        never puts the reply before its request."""
+        """When the controller made `reply` to a request recorded at `asked_s`: when it was written, less how late
+        the writing was then (the first frame at or after it that shows it: `_writing_lags`), never before the
+        request."""
         at = bisect.bisect_left(self.written, (reply.time_s,))
-        lag_s = self.written[at][1] - self.least_offset_s if at < len(self.written) else 0.0
+        lag_s = self.written[at][1] if at < len(self.written) else 0.0
         return reply.time_s - min(lag_s, max(0.0, reply.time_s - asked_s))
 
 
@@ -193,11 +189,9 @@ def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action
                 actions.append(_Action(d.time_s, d.message, offset=offset, request=(session, cls, seq)))
             continue
         out.segments.append(d.frame.signed + d.frame.tag)
-        uptime_ms = d.fields().get("uptime_ms")
-        if isinstance(uptime_ms, int) and name != "Heartbeat":    # a Heartbeat's is the link's, on the link's clock
-            out.written.append((d.time_s, d.time_s - uptime_ms / 1000.0))
         if name == "HelloReply" and d.message.result == Reason.OK:
             session += 1
+            out.session_starts.append(d)
             hello_pending = False
         elif cls in (MsgClass.COMMAND, MsgClass.URGENT):
             out.replies.setdefault((session, cls, seq), d)
@@ -206,9 +200,39 @@ def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action
             out.events.append(d)
         elif cls == MsgClass.TELEMETRY and "uptime_ms" in d.fields():
             out.telemetry.setdefault((name, d.message.uptime_ms), d)
-    out.written.sort()
-    out.least_offset_s = min((offset for _, offset in out.written), default=0.0)
+    out.written = _writing_lags(out)
     return actions, out
+
+
+def _writing_lags(out: _Output) -> list[tuple[float, float]]:
+    """(time written, how much later than usual for its kind) for the frames that show it, by time.
+
+    On a loaded machine a simulator's frames can reach its port tens of milliseconds after the controller made
+    them (the writing waits for a CPU while the world goes on), and the recording stamps them when written. A
+    frame carrying the controller's uptime shows by how much: its time written less its uptime, above what that
+    usually is for its kind. Telemetry comes often, so each kind's usual is its least over the session (a
+    TelemetryJoints waits for the TelemetryStatus made with it, and is longer on the line); a reply's or an
+    event's is the least of all, allowing for its own time on the line (LINE_S_PER_BYTE). Telemetry and replies
+    are made to be sent at once; an event counts only if it was made after its session began (one made before
+    waits for the session), and a frame sent again counts once, as first sent. A Heartbeat's uptime is the
+    link's own, on the wall clock, not the controller's: it does not count."""
+    def late_s(d: DecodedFrame) -> float:
+        return d.time_s - d.message.uptime_ms / 1000.0
+
+    telemetry = list(out.telemetry.values())
+    others = [d for d in out.replies.values() if "uptime_ms" in d.fields()]
+    usual: dict[str, float] = {}
+    for d in telemetry:
+        usual[d.name] = min(late_s(d), usual.get(d.name, math.inf))
+    if not telemetry and not others:
+        return []
+    least = min(late_s(d) - d.size * LINE_S_PER_BYTE for d in telemetry + others)
+    began = [d.time_s for d in out.session_starts]
+    others += [d for d in out.events if "uptime_ms" in d.fields()
+               and d.message.uptime_ms / 1000.0 + least >= max((t for t in began if t <= d.time_s), default=0.0)]
+    lags = [(d.time_s, late_s(d) - usual[d.name]) for d in telemetry]
+    lags += [(d.time_s, late_s(d) - d.size * LINE_S_PER_BYTE - least) for d in others]
+    return sorted(lags)
 
 
 def _decode(capture: SessionCapture, psk: Optional[bytes]) -> list[DecodedFrame]:
