@@ -214,7 +214,7 @@ def test_a_bus_whose_driver_fails_in_its_own_way_is_a_link_problem_not_a_crash(e
     (["fuzz", "--url", "bogus://x", "--time", "1"], ""),
     (["proxy", "--controller", "bogus://x"], "--controller: "),
     (["proxy", "--controller", "pty", "--host", "bogus://x"], "--host: "),
-    (["sim", "--port", "bogus://x"], ""),
+    (["sim", "--port", "bogus://x"], "--port: "),
     (["sim", "--link", "radio=pty", "--link", "optical=bogus://x"], "--link optical: "),
 ])
 def test_a_link_url_of_an_unknown_scheme_exits_2_naming_the_scheme_and_those_accepted(dev_env, args, option):
@@ -227,7 +227,11 @@ def test_a_link_url_of_an_unknown_scheme_exits_2_naming_the_scheme_and_those_acc
     assert "ASPOD-LINK" not in done.stdout.decode()        # nothing was opened or served
 
 
-def test_a_socket_url_without_host_and_port_is_bad_input_too(dev_env):
-    done = aspod(dev_env, "teleop", "socket://127.0.0.1")
+@pytest.mark.parametrize("url, said", [
+    ("socket://127.0.0.1", "a socket link is socket://HOST:PORT, PORT a number 1..65535"),
+    ("rfc2217://localhost", "an rfc2217 link is rfc2217://HOST:PORT, PORT a number 1..65535"),
+])
+def test_a_network_url_without_host_and_port_is_bad_input_too(dev_env, url, said):
+    done = aspod(dev_env, "teleop", url)
     assert done.returncode == 2, done.stderr.decode()
-    assert "a socket link is socket://HOST:PORT, PORT a number 1..65535" in done.stderr.decode()
+    assert said in done.stderr.decode()

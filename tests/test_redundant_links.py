@@ -51,6 +51,7 @@ def test_the_merger_forgets_old_frames_so_its_memory_stays_bounded():
 
 def test_link_addresses_parse_as_the_simulator_prints_them():
     assert parse_links("/dev/pts/3") == [("link", "/dev/pts/3")]
+    assert parse_links("radio=socket://127.0.0.1:4000") == [("radio", "socket://127.0.0.1:4000")]   # one, named
     assert parse_links("radio=/dev/pts/3,optical=socket://127.0.0.1:4000") == [
         ("radio", "/dev/pts/3"), ("optical", "socket://127.0.0.1:4000")]
     assert parse_links("/dev/pts/3,/dev/pts/4") == [("link0", "/dev/pts/3"), ("link1", "/dev/pts/4")]

@@ -82,7 +82,10 @@ class PortSettings:
             raise ValueError(f"--link: each link needs a name of its own, got {', '.join(names)}")
         from host_tools.worlds.ports import check_endpoint, check_url
         if self.device is not None:
-            check_url(self.device)
+            try:
+                check_url(self.device)
+            except ValueError as exc:
+                raise ValueError(f"--port: {exc}") from None
         for name, endpoint in self.links:
             try:
                 check_endpoint(endpoint)

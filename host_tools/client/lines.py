@@ -31,12 +31,10 @@ def parse_links(url: str) -> list[tuple[str, str]]:
     links = []
     for n, item in enumerate(items):
         name, sep, rest = item.partition("=")
-        if len(items) == 1:
-            links.append(("link", item))
-        elif sep and name.isidentifier() and "://" not in name:
+        if sep and name.isidentifier() and "://" not in name:
             links.append((name, rest))
         else:
-            links.append((f"link{n}", item))
+            links.append(("link" if len(items) == 1 else f"link{n}", item))
     if len(items) > 1 and (any(not u for _, u in links) or len({n for n, _ in links}) != len(links)):
         raise ValueError(f"{url}: links are NAME=URL or URL, comma-separated, each name once")
     for _, link in links:

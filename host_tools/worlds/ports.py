@@ -301,10 +301,11 @@ def check_url(url: str) -> None:
     if scheme not in url_schemes():
         raise ValueError(f"{url}: unknown link scheme {scheme}://; a link is a device (/dev/pts/N) or a URL "
                          f"with one of the schemes {', '.join(s + '://' for s in url_schemes())}")
-    if scheme == "socket":
+    if scheme in ("socket", "rfc2217"):
         host, sep, port = rest.split("?", 1)[0].rpartition(":")
         if not (sep and host and port.isdigit() and 1 <= int(port) <= 65535):
-            raise ValueError(f"{url}: a socket link is socket://HOST:PORT, PORT a number 1..65535")
+            article = "an" if scheme == "rfc2217" else "a"
+            raise ValueError(f"{url}: {article} {scheme} link is {scheme}://HOST:PORT, PORT a number 1..65535")
 
 
 def tcp_port(spec: str) -> Optional[int]:
