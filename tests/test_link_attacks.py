@@ -27,7 +27,13 @@ env, sim_factory = test_e2e.env, test_e2e.sim_factory       # the fixtures: a pr
 PORTS = [pytest.param(("--pty",), id="pty"), pytest.param(("--tcp", "0"), id="tcp")]
 LINE_BYTES_PER_S = 115200 / 10
 FLOOD_SHARE = 0.8
-RTT_BOUND_S = 1.0        # each command under the flood: measured median 15 ms (pty) / 43 ms (tcp), max 63 ms
+# Each command under the flood: measured median 15 ms (pty) / 43 ms (tcp), max 63 ms on an idle machine. On a
+# loaded one (three test workers on two cores beside a fuzz campaign) the median was 195 ms and two commands took
+# one retransmission (the initial RTO is 1 s): 1.01 and 1.11 s. Starving the session would be more: a command
+# unanswered past the link timeout (3 s). So: every command within 2.5 s (one retransmission and its wait), half
+# of them within 0.5 s.
+RTT_BOUND_S = 2.5
+RTT_MEDIAN_BOUND_S = 0.5
 CONNECT_BOUND_S = 3.0    # a new host under the flood: measured 0.14-0.24 s (before: none connected, commands failed)
 TELEOP_CONNECT_BOUND_S = 10.0   # the same from a teleop subprocess, which also competes for the CPU with the sim;
                                 # it missed 3 s once beside two busy loops on two cores
@@ -106,7 +112,8 @@ def test_a_flood_of_recorded_hellos_starves_neither_the_session_nor_a_new_host(t
                 handle = live.call(msg)
                 assert handle.ok, handle.describe()
                 rtts.append(handle.latency_s)
-        assert max(rtts) < RTT_BOUND_S, f"round trips: median {statistics.median(rtts):.3f} s, max {max(rtts):.3f} s"
+        said = f"round trips: median {statistics.median(rtts):.3f} s, max {max(rtts):.3f} s"
+        assert max(rtts) < RTT_BOUND_S and statistics.median(rtts) < RTT_MEDIAN_BOUND_S, said
         end = controller_rx(live, clock.now())
         # the line really was flooded: the flood offers 0.8 of the line; over this window of a second or two, a
         # stall of the tap or the simulator near its end is only caught up after it (a loaded CI run measured 0.59)
