@@ -49,7 +49,7 @@ class Drive:
     soft_max_deg: float
     home_dir: int = 1           # the home flag is active at and above home: seek it upward
     i_limit_a: float = 1.5
-    vel_bandwidth_rad_s: float = 30.0
+    vel_bandwidth_rad_s: float = 60.0   # the velocity loop's (docs/arm.md, Gains and Settling)
 
     @property
     def rad_per_count(self) -> float:
@@ -69,23 +69,12 @@ class Drive:
 # (J1 needs about 1.1 A against gravity at full stretch, the report's 285.6 oz-in) but cannot
 # drag its own spring-applied brake (1.5 x the rated output torque): a stuck brake then
 # stalls the joint instead of wearing the brake away.
-#
-# Loop bandwidths: 30 rad/s for J1 (38 kg m^2 reflected at its joint; it settles and holds quietly), 15 for the
-# mount; J2-J4 twice J1's. At 30 rad/s their position loops are too soft for their static friction: J3 stopped
-# 0.014 deg short of a 10 deg/s move's end (past the 0.0115 deg in-position band), stuck until its integrator
-# broke it free, and then slid 0.06 deg past (NOT_SETTLED); at 60 rad/s they end DONE from 3 to 30 deg/s,
-# Earth or orbit (docs/arm.md, "Settling").
-WRIST_AND_ELBOW_BANDWIDTH_RAD_S = 60.0
 DRIVES = (
     Drive("j1", 5.0 * OZ_IN_TO_NM, 6.0, 1600.0, 0.687, 38.40, 3.5, 4.35, -55.0, 85.0, i_limit_a=1.5),
-    Drive("j2", 5.0 * OZ_IN_TO_NM, 6.0, 600.0, 0.708, 5.40, 0.34, 0.61, -130.0, 130.0, i_limit_a=1.5,
-          vel_bandwidth_rad_s=WRIST_AND_ELBOW_BANDWIDTH_RAD_S),
-    Drive("j3", 3.5 * OZ_IN_TO_NM, 8.0, 300.0, 0.708, 0.72, 0.011, 0.072, -130.0, 130.0, i_limit_a=1.0,
-          vel_bandwidth_rad_s=WRIST_AND_ELBOW_BANDWIDTH_RAD_S),
-    Drive("j4", 2.5 * OZ_IN_TO_NM, 10.0, 200.0, 0.66, 0.12, 0.0005, 0.0052, -175.0, 175.0, i_limit_a=0.4,
-          vel_bandwidth_rad_s=WRIST_AND_ELBOW_BANDWIDTH_RAD_S),
-    Drive("mount", 8.0 * OZ_IN_TO_NM, 4.0, 1200.0, 0.665, 172.85, 15.8, 5.76, -165.0, 165.0, i_limit_a=1.2,
-          vel_bandwidth_rad_s=15.0),
+    Drive("j2", 5.0 * OZ_IN_TO_NM, 6.0, 600.0, 0.708, 5.40, 0.34, 0.61, -130.0, 130.0, i_limit_a=1.5),
+    Drive("j3", 3.5 * OZ_IN_TO_NM, 8.0, 300.0, 0.708, 0.72, 0.011, 0.072, -130.0, 130.0, i_limit_a=1.0),
+    Drive("j4", 2.5 * OZ_IN_TO_NM, 10.0, 200.0, 0.66, 0.12, 0.0005, 0.0052, -175.0, 175.0, i_limit_a=0.4),
+    Drive("mount", 8.0 * OZ_IN_TO_NM, 4.0, 1200.0, 0.665, 172.85, 15.8, 5.76, -165.0, 165.0, i_limit_a=1.2),
 )
 JOINTS = {d.name: d for d in DRIVES}
 
