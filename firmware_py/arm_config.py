@@ -150,7 +150,7 @@ def parameter_table() -> list[ParamSpec]:
         specs += [
             ParamSpec(f"{n}_min_deg", d.soft_min_deg, -360.0, 360.0, "deg", f"{n} soft limit, low side"),
             ParamSpec(f"{n}_max_deg", d.soft_max_deg, -360.0, 360.0, "deg", f"{n} soft limit, high side"),
-            ParamSpec(f"{n}_speed_dps", math.degrees(REPORT_JOINT_SPEED_RAD_S), 0.1, 30.0, "deg/s",
+            ParamSpec(f"{n}_speed_dps", math.degrees(REPORT_JOINT_SPEED_RAD_S), 0.1, highest_speed_dps(d), "deg/s",
                       f"{n} default and highest speed (report: 1/2 RPM = 3 deg/s)"),
             ParamSpec(f"{n}_acc_dps2", 3.0, 0.1, 100.0, "deg/s^2", f"{n} acceleration limit"),
             ParamSpec(f"{n}_kp", round(gains["kp_pos_1_s"], 4), 0.0, 1000.0, "1/s", f"{n} position loop gain"),
@@ -167,6 +167,16 @@ def parameter_table() -> list[ParamSpec]:
         ParamSpec("grip_timeout_s", 5.0, 0.5, 60.0, "s", "longest open or close before a GRIPPER fault"),
     ]
     return specs
+
+
+SPEED_PARAM_MAX_DPS = 30.0
+
+
+def highest_speed_dps(d: Drive) -> float:
+    """The most `<axis>_speed_dps` may be: 30 deg/s, and never faster than the motor turns unloaded at the
+    nominal supply, in whole deg/s (J1 28 for its 28.4, the mount 23 for its 23.7: exact on the wire's f32), a
+    speed no load lets it follow."""
+    return min(SPEED_PARAM_MAX_DPS, float(math.floor(math.degrees(d.no_load_speed_rad_s))))
 
 
 def default_gains(d: Drive) -> dict[str, float]:

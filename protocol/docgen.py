@@ -173,7 +173,8 @@ cache, never a second execution. A command refused with a `Nak` leaves the expec
 was: the host sends that number again (for `SEQUENCE_GAP`, from `expected_seq`).
 
 **The speed limit of `Move`, `MoveBy` and `Jog`** is the axis's `<axis>_speed_dps` parameter (j1 to j4
-and mount: 0.1 to 30 deg/s, default the report's 3 deg/s; `firmware_py/arm_config.py`
+and mount: 0.1 to 30 deg/s, no faster than the motor turns unloaded (J1 28, the mount 23), default the
+report's 3 deg/s; `firmware_py/arm_config.py`
 `parameter_table`), not the field's range of 0..360, which only bounds what decodes. A faster command is
 refused `OUT_OF_RANGE`, and its `MotionAccepted` says so: `limit` = `<axis>_speed_dps`, `limit_value`
 its value, `asked` the speed asked (`firmware_py/axis.py` `_check_move`, `jog`). A speed of 0 means that

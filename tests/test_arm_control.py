@@ -88,6 +88,17 @@ def test_a_fast_move_settles_and_is_held_still(bench, axis):
     assert max(held) - min(held) <= 0.0031      # one count of j3's encoder; the others' are finer
 
 
+def test_no_joint_may_be_set_faster_than_its_motor_turns_unloaded(bench):
+    """`<axis>_speed_dps` goes up to 30 deg/s, but never past the speed at which the motor's back-EMF meets the
+    nominal 28 V, in whole deg/s (the mount 23, J1 28): a Move at it could only end FOLLOWING_ERROR, whatever the load."""
+    assert bench.call(M["ParamSet"]("j2_speed_dps", 30.0)).ok
+    for name, highest in (("mount", 23.0), ("j1", 28.0)):
+        refused = bench.call(M["ParamSet"](f"{name}_speed_dps", highest + 0.1))
+        assert refused.reason is Reason.OUT_OF_RANGE, refused.describe()
+        assert bench.call(M["ParamGet"](f"{name}_speed_dps")).reply.value == pytest.approx(3.0)   # nothing changed
+        assert bench.call(M["ParamSet"](f"{name}_speed_dps", highest)).ok
+
+
 def test_absolute_moves_need_homing_then_respect_soft_limits(bench):
     refused = bench.call(M["Move"](int(Axis.J1), 10.0, 0))
     assert refused.reason is Reason.NOT_HOMED

@@ -470,6 +470,7 @@ def speed_rows(arm: ArmPlantParams = ARM_PLANT_PARAMS) -> list[Row]:
     configs = axis_configs()
     specs = {spec.name: spec for spec in arm_config.parameter_table()}
     speeds = {name: math.degrees(c.vel_limit_rad_s) for name, c in configs.items()}
+    highest = {name: specs[f"{name}_speed_dps"].hi for name in configs}
     j2 = configs["j2"]
     half = profiles.trapezoid(-HALF_PI, HALF_PI, j2.vel_limit_rad_s, j2.acc_limit_rad_s2).duration_s
     quarter = profiles.trapezoid(-HALF_PI, 0.0, j2.vel_limit_rad_s, j2.acc_limit_rad_s2).duration_s
@@ -482,7 +483,9 @@ def speed_rows(arm: ArmPlantParams = ARM_PLANT_PARAMS) -> list[Row]:
         Row("S1", "joint speed", "1/2 RPM (3 deg/s, 0.0524 rad/s) or lower (DEFLECTION AND MOMENT ANALYSIS)",
             f"{', '.join(sorted({f'{v:.1f}' for v in speeds.values()}))} deg/s "
             f"({configs['j1'].vel_limit_rad_s / RPM_TO_RAD_S:.2f} RPM) by default on {', '.join(speeds)} "
-            f"(`<axis>_speed_dps`); settable up to {specs['j1_speed_dps'].hi:.0f} deg/s",
+            f"(`<axis>_speed_dps`); settable up to {max(highest.values()):.0f} deg/s, "
+            + ", ".join(f"{n} {v:.0f}" for n, v in highest.items() if v < max(highest.values()))
+            + " (their motors' no-load speed at 28 V)",
             compare(speeds["j1"], 3.0, 1) + " by default"),
         Row("S2", "vertically down to vertically up (a half turn)",
             "\"1/2 RPM corresponds to a time of 30 seconds\" (Figure 7's text)",

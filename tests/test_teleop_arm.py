@@ -346,7 +346,7 @@ def test_params_shows_every_parameter_with_its_unit_range_and_description(arm_be
     bench, executed = arm_bench
     status, out, err, _ = bench_script(bench, "params\n")
     assert status == EXIT_OK, out + err
-    assert re.search(r"^  j1_speed_dps +3 deg/s +\[0\.1 \.\. 30\] +j1 ", out, re.M), out
+    assert re.search(r"^  j1_speed_dps +3 deg/s +\[0\.1 \.\. 28\] +j1 ", out, re.M), out
     assert re.search(r"^  supply_min_v +22 V +\[0 \.\. 60\] +supply below this is a fault \(nominal 28 V\)$", out,
                      re.M), out
     assert executed.count("ParamList") == len(bench.controller.params.order)

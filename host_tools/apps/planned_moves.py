@@ -5,7 +5,7 @@ Both runs go through the protocol on a `LockstepBench` (the simulated clock), as
 same scene, homing, grips and payloads. In the planned run each move of j1..j4 and the mount is planned by
 `apps/arm_plan.plan_move` from what the controller says (its current and speed limit parameters, read with
 ParamGet; its gravity), sent with `client/trajectory.send_trajectory`, and followed by the firmware. The joints' speed parameters are raised to what the planner
-may use (`PLANNED_SPEED_DPS`), since the controller refuses a trajectory faster than them. After each step the
+may use (`PLANNED_SPEED_DPS`, each its parameter's highest), since the controller refuses a trajectory faster than them. After each step the
 gripper tip's true position is compared with where the step should put it: the report's 1 cm.
 """
 from __future__ import annotations
@@ -22,8 +22,8 @@ from host_tools.plan.errors import PlanError
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 
 GRAVITY_M_S2 = {"earth": 9.80665, "orbit": 0.0}
-# the speed parameters' largest value (the same for every joint)
-PLANNED_SPEED_DPS = next(p.hi for p in parameter_table() if p.name == f"{ARM_JOINTS[0]}_speed_dps")
+# each joint's speed parameter at its largest value
+PLANNED_SPEED_DPS = {p.name[:-len("_speed_dps")]: p.hi for p in parameter_table() if p.name.endswith("_speed_dps")}
 
 
 @dataclass
@@ -43,7 +43,7 @@ class PlannedPickAndPlace(PickAndPlace):
     def prepare(self) -> None:
         super().prepare()
         for name in ARM_JOINTS:
-            self._call(M["ParamSet"](f"{name}_speed_dps", PLANNED_SPEED_DPS), f"raise {name}'s speed limit")
+            self._call(M["ParamSet"](f"{name}_speed_dps", PLANNED_SPEED_DPS[name]), f"raise {name}'s speed limit")
             self.speed_rad_s[name] = math.radians(self._call(M["ParamGet"](f"{name}_speed_dps"), "read it").value)
             self.current_a[name] = self._call(M["ParamGet"](f"{name}_i_lim_a"), f"read {name}'s current limit").value
 
