@@ -44,7 +44,7 @@ import numpy as np
 
 from host_tools.plan.bounds import Limits
 from host_tools.plan.errors import PlanError
-from host_tools.plan.phase import Problem, Terms
+from host_tools.plan.phase import SPEED_CAP, Problem, Terms, admissible_speeds
 from host_tools.plan import reach2
 from host_tools.plan.profile import Profile, profile_from_speeds
 from timebase.clock import RealClock
@@ -62,6 +62,10 @@ _END_SHARE = 0.25               # order 2: the last interval's x_{N-1} + h u_{N-
 FREE = float("inf")             # squeeze=FREE: the squeeze is unbounded
 Squeeze = Union[None, float, tuple]
 _TINY = 1e-12                   # a normalized coefficient below this does not bound the variable it multiplies
+EMF_ITERATIONS = 9              # back-emf limits: the most plans (the first guess and 8 re-linearizations)
+EMF_SETTLED = 1e-4              # ... done when the time changes by less than this share
+EMF_WIDTH = 0.25                # ... the first bracket around a plan's speeds: +/- this share of them
+EMF_WIDTH_MIN = 0.01            # ... halved each time down to this
 
 
 @dataclass(frozen=True)
@@ -79,6 +83,7 @@ class ReachPlan:
     solve_time_s: float             # all of it: coefficients, constraints, both passes
     profile: Profile
     order: int = 1                  # 2: u is s'' at the grid points (N + 1), linear in s between them
+    iterations: int = 0             # back-emf limits: how many linearized plans were made (0: none needed)
 
     @property
     def duration(self) -> float:
@@ -132,24 +137,53 @@ def _point_terms(problem: Problem, s: np.ndarray, fractions=(0.0, 0.5, 1.0)) -> 
     return tuple(found)
 
 
-def _rows(limits: Limits, s: np.ndarray, terms: tuple, guard: float, squeeze: Optional[tuple[float, float]]) -> tuple:
+def _rows(limits: Limits, s: np.ndarray, terms: tuple, guard: float, squeeze: Optional[tuple[float, float]],
+          emf: Optional[tuple] = None) -> tuple:
     """Every interval's constraints as rows  alpha x + beta u (+ mu lambda) <= gamma: the tuple (alpha, beta,
     [mu,] gamma) of (N, M) arrays, each row scaled so that its largest coefficient is 1. `terms`: the terms at
     each interval's start, midpoint and end. The first PAIRED rows bound the torques from above, the next PAIRED
-    the same from below (their coefficients negated), then x_i >= 0 and x_{i+1} >= 0 (and the squeeze's bounds)."""
+    the same from below (their coefficients negated), then x_i >= 0 and x_{i+1} >= 0 (and the squeeze's bounds).
+    `emf`: each interval's (v0, lo, hi) for a back-emf term d s' (`_emf_linear`), then the bracket's rows last."""
     h = np.diff(s)[:, None]
-    start, mid, end = terms
-    # each point's torque as coefficients of x_i, u_i, lambda_i and 1: x there is x_i + 2 u_i (offset)
-    points = [(t.b, t.a + 2 * off * t.b, t.n, t.c) for t, off in ((start, 0.0), (mid, h / 2), (end, h))]
     n = len(h)
     one, zero = np.ones((n, 1)), np.zeros((n, 1))
     extra = [(-one, zero, zero, zero), (-one, -2 * h, zero, zero)]     # x_i >= 0, x_{i+1} >= 0
     if squeeze is not None:
         extra += [(zero, zero, one, squeeze[1] * one), (zero, zero, -one, -squeeze[0] * one)]
-    rows = _guarded_rows(limits, points, guard, extra)
+    sides = [terms, terms]
+    if emf is not None:
+        sides = _emf_linear(terms, *emf)
+        lo2, hi2 = emf[1][:, None] ** 2, emf[2][:, None] ** 2        # the bracket lo^2 <= x <= hi^2, at both ends
+        extra += [(-one, zero, zero, -lo2), (one, zero, zero, hi2), (-one, -2 * h, zero, -lo2), (one, 2 * h, zero, hi2)]
+    # each point's torque as coefficients of x_i, u_i, lambda_i and 1: x there is x_i + 2 u_i (offset)
+    upper, lower = ([(t.b, t.a + 2 * off * t.b, t.n, t.c) for t, off in zip(side, (0.0, h / 2, h))] for side in sides)
+    rows = _guarded_rows(limits, upper, guard, extra, lower)
     if squeeze is None:
         del rows[2]
     return _normalized(_finite(rows))
+
+
+def _emf_linear(terms: tuple, v0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list:
+    """The terms at each interval's points with the back-emf term d s' = d sqrt(x) made linear in x, for the
+    upper limits and for the lower ones: each a tuple of `Terms` with b + d k1 for b and c + d k0 for c.
+
+    sqrt is concave: its tangent at v0 (sqrt(x) <= v0 / 2 + x / (2 v0), for every x) lies above it, its chord
+    over the bracket [lo^2, hi^2] (sqrt(x) >= lo hi / (lo + hi) + x / (lo + hi), for x in the bracket) below it.
+    An upper limit needs d sqrt(x) over-estimated: the tangent where d >= 0, the chord where d < 0; a lower limit
+    the other way round. With the same line all along an interval (d keeps its sign), the linearized quantity
+    is a smooth function of s above (below) the true one everywhere in it, and the curvature guard keeps it within
+    its limits as it keeps a torque; where d changes sign the line is chosen point by point, and d is near 0."""
+    v0 = np.maximum(v0, 1e-9)[:, None]
+    width = np.maximum(lo + hi, 1e-9)[:, None]
+    tangent, chord = (v0 / 2, 1 / (2 * v0)), (lo[:, None] * hi[:, None] / width, 1 / width)
+    out = []
+    for over in (True, False):          # upper limits: over-estimate d sqrt(x); lower limits: under-estimate it
+        side = []
+        for t in terms:
+            k0, k1 = (np.where((t.d >= 0) == over, a, b) for a, b in zip(tangent, chord))
+            side.append(Terms(t.s, t.a, t.b + t.d * k1, t.c + t.d * k0, t.d, t.n, t.joints))
+        out.append(tuple(side))
+    return out
 
 
 def _rows_order2(limits: Limits, s: np.ndarray, terms: tuple) -> tuple:
@@ -186,23 +220,24 @@ def _rows_order2(limits: Limits, s: np.ndarray, terms: tuple) -> tuple:
     return _normalized(rows)
 
 
-def _guarded_rows(limits: Limits, points: list, guard: float, extra: list) -> list:
+def _guarded_rows(limits: Limits, points: list, guard: float, extra: list, lower_points: Optional[list] = None) -> list:
     """Each point's torque (coefficients of the variables, then the constant) kept within the limits with the
     curvature guard's +/- guard D; the torques' upper rows first, then their lower rows, then `extra`. A list of
-    (N, M) arrays, one per variable and the right-hand side last."""
-    curvature = [p0 - 2 * p1 + p2 for p0, p1, p2 in zip(*points)]
+    (N, M) arrays, one per variable and the right-hand side last. `lower_points`: the lower rows' own points
+    (back-emf made linear the other way), `points` if None."""
     lo, hi = limits.lo, limits.hi
     width = len(points[0]) - 1
     upper: list[list] = [[] for _ in range(width + 1)]
     lower: list[list] = [[] for _ in range(width + 1)]
-    for p in points:
-        for sign in (guard, -guard):
-            g = [v + sign * d for v, d in zip(p, curvature)]
-            for k in range(width):
-                upper[k].append(g[k])                              # tau <= upper
-                lower[k].append(-g[k])                             # tau >= lower: the same row negated
-            upper[width].append(hi - g[width])
-            lower[width].append(g[width] - lo)
+    for side, pts in ((upper, points), (lower, points if lower_points is None else lower_points)):
+        curvature = [p0 - 2 * p1 + p2 for p0, p1, p2 in zip(*pts)]
+        flip = 1.0 if side is upper else -1.0
+        for p in pts:
+            for sign in (guard, -guard):
+                g = [v + sign * d for v, d in zip(p, curvature)]
+                for k in range(width):
+                    side[k].append(flip * g[k])                    # tau <= upper; tau >= lower, the row negated
+                side[width].append(hi - g[width] if side is upper else g[width] - lo)
     cols = [u + lw for u, lw in zip(upper, lower)]
     for row in extra:
         for k in range(width + 1):
@@ -377,26 +412,48 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
     if order == 2 and span is not None:
         raise PlanError("squeeze", "order 2 plans with the load shared, without the squeeze: use order 1 for a "
                                    "squeeze (eliminating it too would make each interval's rows 3-D polytopes)")
-    if problem.limits.state_dependent:
-        raise PlanError("bounds", "the reachability planner takes constant torque limits only (a back-emf term "
-                                  "d s' is not linear in x = s'^2): plan DC motors' limits with the phase-plane "
-                                  "method (--method phase)")
-    if np.isfinite(problem.speed_cap):
-        raise PlanError("bounds", "the reachability planner takes no speed cap (s' <= a ceiling): plan it with the "
-                                  "phase-plane method (--method phase)")
+    if order == 2 and np.isfinite(problem.speed_cap):
+        raise PlanError("bounds", "order 2 takes no speed cap (s' <= a ceiling: x is quadratic between grid points): "
+                                  "plan it with order 1 or the phase-plane method (--method phase)")
+    emf = problem.limits.state_dependent
+    if emf and order == 2:
+        raise PlanError("bounds", "order 2 takes constant torque limits only (a back-emf term d s' is not linear in "
+                                  "x = s'^2, and order 1 alone makes it so): plan DC motors' limits with order 1")
+    if emf and span is not None:
+        raise PlanError("squeeze", "the squeeze with back-emf limits is not built: plan DC motors' limits without "
+                                   "the squeeze (order 1), or constant torque limits with it")
     s = _grid(problem, placed_grid(problem, gridpoints) if placed else gridpoints)     # refused input first
-    h = np.diff(s)
     terms = _point_terms(problem, s, FRACTIONS2 if order == 2 else (0.0, 0.5, 1.0))
     setup = clock.precise_now() - started
     if order == 2:
         return _plan_order2(problem, s, terms, clock, started, setup)
-    rows3 = _rows(problem.limits, s, terms, guard, span)
-    if span is not None:
-        rows2 = _eliminate(rows3, 2)
-        static_lo, static_hi, empty = _x_range(_blocks(rows2, 1))
+    iterations = 0
+    if emf:
+        x, sets, iterations = _linearized(problem, s, terms, guard)
     else:
-        rows2 = rows3
-        static_lo, static_hi, empty = _x_range(_paired_blocks(rows2, 6 * len(problem.limits.lo)))
+        rows3 = _rows(problem.limits, s, terms, guard, span)
+        if span is not None:
+            rows2 = _eliminate(rows3, 2)
+            x, sets = _passes(problem, s, rows2, _blocks(rows2, 1))
+        else:
+            rows2 = rows3
+            x, sets = _passes(problem, s, rows2, _paired_blocks(rows2, 6 * len(problem.limits.lo)))
+    u = (x[1:] - x[:-1]) / (2 * np.diff(s))
+    lam = np.clip(_squeeze_values(rows3, x, u), *span) if span is not None else np.zeros(len(u))
+    solve = clock.precise_now() - started
+    terms = problem.terms(s)
+    profile = profile_from_speeds(terms, problem.limits, np.sqrt(x), getattr(problem.path, "breaks", ()),
+                                  squeeze=lam)
+    return ReachPlan(s, x, u, lam, sets, setup, solve, profile, iterations=iterations)
+
+
+def _passes(problem: Problem, s: np.ndarray, rows2: tuple, blocks: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Order 1's passes on rows in (x_i, u_i) (`blocks`: the same split by the sign of u's coefficient): each
+    interval's own x-range (under the speed cap), the controllable sets backwards, the greedy pass forwards.
+    Returns x at the grid points and the sets (N+1, 2); PlanError where the limits leave no way to the end."""
+    h = np.diff(s)
+    static_lo, static_hi, empty = _x_range(blocks)
+    static_hi = np.minimum(static_hi, problem.speed_cap ** 2)     # s' <= cap at both ends, so all along (x linear)
     if np.isinf(static_hi).any():
         raise PlanError("bounds", "the limits do not bound the speed along this path")
     backward = np.stack(_coupling(rows2, h), axis=1) * np.array([1.0, -1.0, -1.0])[:, None]    # (N, 3, M)
@@ -424,14 +481,44 @@ def plan_reach(problem: Problem, gridpoints: int = 100, squeeze: Squeeze = None,
         state[1] = xi
         u = min(float((state @ forward[i]).min()), (upper - xi) / hh[i])
         x[i + 1] = min(max(xi + hh[i] * u, lower), upper)
-    x = np.array(x)
-    u = (x[1:] - x[:-1]) / (2 * h)
-    lam = np.clip(_squeeze_values(rows3, x, u), *span) if span is not None else np.zeros(n)
-    solve = clock.precise_now() - started
-    terms = problem.terms(s)
-    profile = profile_from_speeds(terms, problem.limits, np.sqrt(x), getattr(problem.path, "breaks", ()),
-                                  squeeze=lam)
-    return ReachPlan(s, x, u, lam, sets, setup, solve, profile)
+    return np.array(x), sets
+
+
+def _linearized(problem: Problem, s: np.ndarray, terms: tuple, guard: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Order 1 with back-emf limits: the passes on constraints made linear (`_emf_linear`) around a guess of the
+    speeds, then around each plan's own, until the time settles. Every iterate is safe (the linear bounds are
+    conservative within the bracket its x is held to), and the fastest is kept. Returns x, the sets and the
+    number of plans made.
+
+    The first guess: the maximum velocity curve (`phase.admissible_speeds`, back-emf included) at each
+    interval's points, the bracket [0, its highest there], the tangent at half of that. Then, around a plan's
+    speeds v at an interval's ends: the bracket [min v (1 - w), max v (1 + w)], the tangent at their mean, w
+    halving from `EMF_WIDTH` to `EMF_WIDTH_MIN` (room to gain speed where the last plan was held back, and a
+    chord close to the curve), until the time changes by less than `EMF_SETTLED` or `EMF_ITERATIONS` plans."""
+    mvc = np.minimum(np.max([admissible_speeds(t, problem.limits).mvc for t in terms], axis=0), problem.speed_cap)
+    if (mvc >= SPEED_CAP).any():
+        raise PlanError("bounds", "the limits do not bound the speed along this path")
+    h = np.diff(s)
+    lo, hi, v0 = np.zeros_like(mvc), mvc, mvc / 2
+    best, width, duration = None, EMF_WIDTH, np.inf
+    for k in range(1, EMF_ITERATIONS + 1):
+        rows = _rows(problem.limits, s, terms, guard, None, (v0, lo, hi))
+        try:
+            x, sets = _passes(problem, s, rows, _blocks(rows, 1))
+        except PlanError:
+            if best is None:
+                raise
+            break                           # the bracket left no way to the end: keep the last plan
+        v = np.sqrt(x)
+        previous, duration = duration, float(np.sum(2 * h / (v[:-1] + v[1:])))
+        if best is None or duration < best[0]:
+            best = (duration, x, sets, k)
+        if abs(previous - duration) < EMF_SETTLED * duration:
+            break
+        low, high = np.minimum(v[:-1], v[1:]), np.maximum(v[:-1], v[1:])
+        lo, hi, v0 = low * (1 - width), high * (1 + width), (low + high) / 2
+        width = max(width / 2, EMF_WIDTH_MIN)
+    return best[1], best[2], k
 
 
 def _plan_order2(problem: Problem, s: np.ndarray, terms: tuple, clock, started: float, setup: float) -> ReachPlan:
@@ -485,10 +572,9 @@ def _squeeze_values(rows: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarra
     return np.where(lo <= hi, np.clip(0.0, lo, hi), (lo + hi) / 2)
 
 
-def sampled_torques(problem: Problem, plan: ReachPlan, per_interval: int = 50) -> tuple[np.ndarray, np.ndarray]:
-    """The torques along the planned motion, straight from the model's inverse dynamics and squeeze direction
-    (not from a, b, c): at both ends of every interval and `per_interval` points inside, each with that
-    interval's u (order 2: s'' linear between the grid points' u, x quadratic) and squeeze. Returns (s (M,), tau (M, dof))."""
+def _samples(plan: ReachPlan, per_interval: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """s, x, u and the squeeze at both ends of every interval and `per_interval` points inside (an interval's end
+    seen from inside it), with that interval's u (order 2: s'' linear between the grid points' u, x quadratic)."""
     frac = np.linspace(0.0, 1.0, per_interval + 2)
     s0, s1 = plan.s[:-1, None], plan.s[1:, None]
     s = s0 + frac * (s1 - s0)
@@ -500,8 +586,24 @@ def sampled_torques(problem: Problem, plan: ReachPlan, per_interval: int = 50) -
     else:
         x = np.clip(plan.x[:-1, None] + 2 * plan.u[:, None] * (s - s0), 0.0, None).ravel()
         u = np.repeat(plan.u, frac.size)
-    lam, s = np.repeat(plan.squeeze, frac.size), s.ravel()
+    return s.ravel(), x, u, np.repeat(plan.squeeze, frac.size)
+
+
+def sampled_torques(problem: Problem, plan: ReachPlan, per_interval: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """The bounded quantities along the planned motion, straight from the model's inverse dynamics and squeeze
+    direction (not from a, b, c), plus the back-emf term d s' of DC motors' limits (0 for constant torque
+    limits): at `_samples`' points, each with its interval's u and squeeze. Returns (s (M,), tau (M, dof))."""
+    s, x, u, lam = _samples(plan, per_interval)
     system = problem.system
     jp = system.joint_path(problem.path, s)
-    tau = system.inverse_dynamics(jp.q, jp.q_s * np.sqrt(x)[:, None], jp.q_s * u[:, None] + jp.q_ss * x[:, None])
-    return s, tau + lam[:, None] * system.squeeze_direction(jp.q)
+    sd = np.sqrt(x)[:, None]
+    tau = system.inverse_dynamics(jp.q, jp.q_s * sd, jp.q_s * u[:, None] + jp.q_ss * x[:, None])
+    return s, tau + lam[:, None] * system.squeeze_direction(jp.q) + problem.limits.d(jp.q_s) * sd
+
+
+def sampled_efforts(problem: Problem, plan: ReachPlan, per_interval: int = 50) -> tuple[np.ndarray, np.ndarray]:
+    """The same from the model's coefficients, a s'' + b s'^2 + d s' + c + lambda n at `_samples`' points, for a
+    model without inverse dynamics (ASPOD's arm, `host_tools/apps/arm_plan.py`). Returns (s (M,), effort (M, dof))."""
+    s, x, u, lam = _samples(plan, per_interval)
+    t = problem.terms(s)
+    return s, t.effort(np.sqrt(x), u) + lam[:, None] * t.n
