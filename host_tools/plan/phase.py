@@ -38,7 +38,7 @@ class Problem:
     path: object
     limits: Limits
     speed_cap: float = float("inf")      # s' never above this (a joint speed limit on a straight joint-space path);
-    #                                      the phase plane and the DP honour it, the reachability planner refuses it
+    #                                      the phase plane, the DP and the reachability planner (order 1) honour it
 
     def terms(self, s) -> "Terms":
         """The coefficients at `s`; PlanError "bounds" where they overflow a float (computed without numpy's

@@ -7,8 +7,9 @@
      "limits":  {"symmetric": [30, 20, 35, 15]}}
 
 `limits` may instead give "lower" and "upper", and "back_emf" (per joint) for DC motors' voltage limits
-(bounds.py). Paths: "line" (start, end), "polynomial" (x, y: coefficients, lowest power first), "piecewise"
-(knots, pieces). Anything else, or a value of the wrong kind, is refused with the reason.
+(bounds.py; both minimum-time methods plan them, --method reach with order 1 only). Paths: "line" (start, end),
+"polynomial" (x, y: coefficients, lowest power first), "piecewise" (knots, pieces). Anything else, or a value of
+the wrong kind, is refused with the reason.
 """
 from __future__ import annotations
 

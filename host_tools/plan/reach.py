@@ -30,8 +30,16 @@ not by sampled points and a guard. Second order in h; on grid points placed wher
 needs 200-3200. No squeeze with it (`PlanError` "squeeze"). Order 1 stays the default: it takes the squeeze,
 and needs no compiler to be fast.
 
-Only constant torque limits: with a back-emf term d s' = d sqrt(x) the torque is no longer linear in x, and
-the planner refuses such limits (`PlanError` "bounds") rather than plan them unsafely.
+**Back-emf limits** (DC motors, order 1 only): the bounded quantity a u + b x + d sqrt(x) + c is not linear in x.
+sqrt is concave, so on each interval `_emf_linear` puts in its place, for each bounded quantity and side, the
+line that makes the constraint stricter: its tangent (above sqrt everywhere) where d sqrt(x) must be over-estimated
+(an upper limit with d >= 0, a lower one with d < 0), its chord over a bracket [lo^2, hi^2] (below sqrt there)
+where it must be under-estimated, with lo^2 <= x <= hi^2 added at both ends of the interval as half-planes. Every
+plan so made keeps the true limits (`sampled_torques` adds d s'). `_linearized` plans first around the maximum
+velocity curve, then around each plan's own speeds (tangent at their mean, the bracket +/- 25 % of them, halved each
+time down to 1 %) until the time changes by less than 0.01 % (3 to 5 plans on the report's path and ASPOD's arm),
+and keeps the fastest. A speed cap is x <= cap^2 at the grid points (x is linear between them). Order 2 and the
+squeeze with back-emf limits are refused (`PlanError`), and order 2 with a speed cap.
 """
 from __future__ import annotations
 
