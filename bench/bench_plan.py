@@ -16,10 +16,13 @@ with collocation and toppra with interpolation (solver wrapper "seidel"). The ro
 the worst excess between grid points, the time per grid point (all of it, the model's coefficients included, and
 the passes alone: toppra's `compute_parameterization` against this planner without its coefficients). Then the
 squeeze: on vertical paths with gravity on, the minimum time with the load shared without squeeze against the
-squeeze free (and bounded by 20 N), each checked by the torques straight from the model. `--quick`: the example and one random path, 20 and 100 points, one vertical path.
+squeeze free (and bounded by 20 N), each checked by the torques straight from the model. Then the example's path
+with DC motors' back-emf limits: this planner (order 1) beside the phase-plane planner. `--quick`: the example
+and one random path, 20 and 100 points, one vertical path.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -51,6 +54,7 @@ SQUEEZE_BOUND = 20.0            # N
 class PlanBench:
     rows: list = field(default_factory=list)          # dicts: problem, planner, gridpoints, figures
     squeeze: list = field(default_factory=list)
+    back_emf: list = field(default_factory=list)      # dicts: the DC-motor rows
     points_for_goal: dict = field(default_factory=dict)   # problem -> grid points for GOAL_TIME (None: > dense)
     error: Optional[str] = None
 
@@ -169,6 +173,33 @@ def _squeeze_rows(bench: PlanBench, quick: bool) -> None:
               f"{100 * row['excess']:7.4f}% {row['solve_ms']:9.0f}")
 
 
+EMF = (2.0, 1.5, 2.0, 1.5)       # back-emf constants for the DC-motor rows: |tau + K q'| within the example's limits
+EMF_GRIDS = (50, 100, 1000)
+EMF_PHASE_NODES = 4000
+
+
+def _back_emf_rows(bench: PlanBench, quick: bool) -> None:
+    """The report's path with DC motors' limits: this planner (order 1, the back-emf made linear and re-linearized)
+    beside the phase-plane planner, which plans them exactly on its own grid; excess from the model's dynamics."""
+    problem = dataclasses.replace(report_problem(), limits=Limits.symmetric(LIMITS, back_emf=EMF))
+    nodes = QUICK_DENSE if quick else EMF_PHASE_NODES
+    phase = plan_time_optimal(problem, nodes).duration
+    print()
+    print(f"  Back-emf limits (DC motors, K = {', '.join(f'{k:g}' for k in EMF)}) on the report's path: this planner "
+          f"beside the phase-plane planner at {nodes} nodes, {phase:.5f} s")
+    print(f"  {'grid':>6} {'time':>10} {'over phase':>11} {'plans':>6} {'excess':>11} {'ms':>7}")
+    for n in EMF_GRIDS[:2] if quick else EMF_GRIDS:
+        plan = plan_reach(problem, n)
+        _, effort = sampled_torques(problem, plan, 10 if quick else PER_INTERVAL)        # tau + K q' s'
+        excess = max(0.0, float(np.max(np.maximum(effort - problem.limits.hi, problem.limits.lo - effort)
+                                       / problem.limits.hi)))
+        row = {"gridpoints": n, "duration_s": plan.duration, "over_phase": plan.duration / phase - 1,
+               "plans": plan.iterations, "excess": excess, "ms": 1e3 * plan.solve_time_s}
+        bench.back_emf.append(row)
+        print(f"  {n:>6} {plan.duration:9.5f}s {100 * row['over_phase']:+10.3f}% {plan.iterations:>6} "
+              f"{100 * excess:10.6f}% {row['ms']:7.1f}")
+
+
 def main(quick: bool = False) -> PlanBench:
     bench = PlanBench()
     rng = np.random.default_rng(SEED)
@@ -215,6 +246,7 @@ def main(quick: bool = False) -> PlanBench:
               "grid points, % of the limit; us/point: all of the planning per grid point, the model's "
               "coefficients included; passes: without them)")
         _squeeze_rows(bench, quick)
+        _back_emf_rows(bench, quick)
     except (PlanError, ValueError) as exc:
         bench.error = f"{type(exc).__name__}: {exc}"
         print(f"  FAILED: {bench.error}")

@@ -478,3 +478,4 @@ def test_the_command_plans_a_problem_file_with_back_emf_by_reachability(tmp_path
         out[method] = json.loads(done.stdout)["time_optimal"]
     assert out["reach"]["method"] == "reach" and out["reach"]["worst_violation_between_nodes"] <= 1e-9
     assert 0 < out["reach"]["duration_s"] / out["phase"]["duration_s"] - 1 < 0.02
+    assert 2 <= out["reach"]["back_emf_plans"] <= reach.EMF_ITERATIONS and "back_emf_plans" not in out["phase"]

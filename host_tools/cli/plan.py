@@ -42,6 +42,8 @@ def _reach_result(problem, settings: PlanSettings) -> dict:
            "squeeze": None if settings.squeeze is None else {
                "bound_n": None if np.isinf(settings.squeeze) else settings.squeeze,
                "max_n": round(float(np.abs(plan.squeeze).max()), 4)}}
+    if plan.iterations:                                  # back-emf limits: the linearized plans it took
+        out["back_emf_plans"] = plan.iterations
     if settings.squeeze is None and plan.order == 1:     # costs_of takes s'' constant between the nodes
         out["costs"] = costs_of(problem.terms(plan.s), plan.profile.sd)
     return out
