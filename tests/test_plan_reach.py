@@ -479,3 +479,15 @@ def test_the_command_plans_a_problem_file_with_back_emf_by_reachability(tmp_path
     assert out["reach"]["method"] == "reach" and out["reach"]["worst_violation_between_nodes"] <= 1e-9
     assert 0 < out["reach"]["duration_s"] / out["phase"]["duration_s"] - 1 < 0.02
     assert 2 <= out["reach"]["back_emf_plans"] <= reach.EMF_ITERATIONS and "back_emf_plans" not in out["phase"]
+
+
+@pytest.mark.parametrize("scale", [10, 40])
+def test_a_large_back_emf_is_planned_not_refused(scale):
+    """With K ten or forty times MOTORS' the first guess's tangent (at half the maximum velocity curve) over-states
+    d s' at rest by d mvc / 4, enough to leave no way to the end: it is lowered until a plan is found (the path
+    is plannable: a tangent at a quarter of the curve plans it), and the plan keeps the limits."""
+    problem = dataclasses.replace(report_problem(), limits=Limits.symmetric(
+        LIMITS, back_emf=tuple(scale * k for k in MOTORS.back_emf)))
+    plan = plan_reach(problem, 100)
+    assert plan.iterations <= reach.EMF_ITERATIONS and np.all(plan.x[1:-1] > 0)
+    assert _model_excess(problem, plan) <= 1e-9 and _model_excess(problem, plan, sampled_efforts) <= 1e-9

@@ -514,6 +514,9 @@ def _linearized(problem: Problem, s: np.ndarray, terms: tuple, guard: float) -> 
         try:
             x, sets = _passes(problem, s, rows, _blocks(rows, 1))
         except PlanError:
+            if best is None and k < EMF_ITERATIONS and v0.max() > 1e-3 * mvc.max():
+                v0 = v0 / 2                 # the first guess's tangent too high at rest (d v0 / 2 there): lower it
+                continue
             if best is None:
                 raise
             break                           # the bracket left no way to the end: keep the last plan
