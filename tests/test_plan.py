@@ -308,3 +308,22 @@ def test_a_plan_with_a_number_that_is_not_finite_is_found_where_it_is():
     assert _not_finite({"a": [1.0, {"b": 2}], "c": None, "d": "nan"}) == ""
     assert _not_finite({"a": [1.0, {"b": float("nan")}]}) == "a.1.b"
     assert _not_finite({"time_optimal": {"costs": {"energy": np.float64("inf")}}}) == "time_optimal.costs.energy"
+
+
+def test_a_maximum_velocity_curve_that_cannot_be_followed_is_refused_not_planned_past_the_limits():
+    """A back-and-forth path with gravity and DC motors: every switching-point candidate between s = 0.32 and
+    0.74 is discarded, so the lowest of the curves there was the maximum velocity curve itself, rising at
+    s'' = +164 where only -216..-215 is admissible: a 'plan' 517 % over a limit (found by the review of
+    2026-11-24). Now refused with the span and the way out; the reachability planner plans it within its limits."""
+    from host_tools.plan.reach import sampled_torques
+    problem = problem_from_dict({"path": {"kind": "polynomial", "x": [0.9, 1.0, -1.0], "y": [0.5, 0.2, 0.0]},
+                                 "gravity": 9.81, "limits": {"symmetric": [30, 20, 35, 15],
+                                                             "back_emf": [2, 1.5, 2, 1.5]}})
+    with pytest.raises(PlanError) as refused:
+        plan_time_optimal(problem, 1000)
+    assert refused.value.what == "switching" and "--method reach" in refused.value.reason
+    span = [float(v) for v in re.findall(r"s = ([\d.]+) to ([\d.]+)", refused.value.reason)[0]]
+    assert 0.3 < span[0] < 0.55 < 0.73 < span[1] < 0.75
+    plan = plan_reach(problem, 200)
+    _, effort = sampled_torques(problem, plan, 20)
+    assert np.all(np.abs(effort) <= np.array([30, 20, 35, 15]) * (1 + 1e-9))

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
+from host_tools.plan.errors import PlanError
 from host_tools.plan.phase import Curve, PhaseGrid, Problem, accel_bounds, admissible_speeds, zero_inertia
 from host_tools.plan.profile import Profile, profile_from_speeds
 
@@ -112,6 +113,33 @@ def _limit_curves(grid: PhaseGrid, point: SwitchingPoint, integrator: str, label
     return (back, forth), ""
 
 
+MVC_FOLLOWED = 1e-7     # a node this close below the maximum velocity curve is on it
+MVC_SLOPE_SLACK = 1e-3  # how far (relative) an interval along it may ask beyond [alpha, beta]: rounding only
+
+
+def _check_no_mvc_followed(grid: PhaseGrid, x: np.ndarray) -> None:
+    """PlanError where the lowest of the curves leaves the profile on the maximum velocity curve for an interval
+    whose s'' (the curve's own slope) no admissible s'' is: a switching point the candidates above miss.
+
+    Every candidate in such a stretch was discarded, and no limit curve passes below the MVC there, so the
+    "lowest of all curves and the MVC" is the MVC itself, which a torque-limited MVC only admits at isolated
+    points (seen: a back-and-forth path with gravity and DC motors, from s = 0.549 to 0.737, the MVC rising at
+    s'' = +164 where only -216..-215 is admissible, 517 % over a limit). Refused, not planned past the limits."""
+    on = x >= grid.mvc ** 2 * (1 - MVC_FOLLOWED)
+    along = np.nonzero(on[:-1] & on[1:])[0]
+    if not len(along):
+        return
+    sdd = (x[along + 1] - x[along]) / (2 * grid.h)
+    alpha, beta = accel_bounds(grid.t.at(along), grid.problem.limits, grid.mvc[along])
+    scale = np.maximum(1.0, np.maximum(np.abs(alpha), np.abs(beta)))
+    bad = along[(np.maximum(alpha - sdd, sdd - beta) > MVC_SLOPE_SLACK * scale)]
+    if len(bad):
+        raise PlanError("switching", f"the profile would follow the maximum velocity curve from s = "
+                                     f"{grid.s[bad[0]]:.4g} to {grid.s[bad[-1] + 1]:.4g}, where the curve cannot "
+                                     "be followed within the limits: a switching point this planner's search does "
+                                     "not find there; plan it by reachability (--method reach)")
+
+
 def plan_time_optimal(problem: Problem, nodes: int = 1000, integrator: str = "rk4") -> TimeOptimal:
     """The minimum-time rest-to-rest profile along the path."""
     grid = PhaseGrid(problem, nodes)
@@ -132,6 +160,7 @@ def plan_time_optimal(problem: Problem, nodes: int = 1000, integrator: str = "rk
     curves.append(grid.integrate(grid.nodes, 0.0, -1, integrator, "end (alpha, backwards)"))
     for curve in curves:
         x[curve.index] = np.minimum(x[curve.index], curve.x)
+    _check_no_mvc_followed(grid, x)
     profile = profile_from_speeds(grid.t, problem.limits, np.sqrt(np.maximum(x, 0.0)),
                                   getattr(problem.path, "breaks", ()))
     return TimeOptimal(grid, integrator, profile, points, curves)
