@@ -100,6 +100,8 @@ def test_a_bench_world_takes_timed_faults_an_impairment_parameters_and_variables
     (["--fault", "supply_sag@5-2"], "cleared after"), (["--var", "speed"], "NAME=VALUE"),
     (["--var", "speed=1", "--var", "other=2"], "uses no ${other}"), ([], "no value for ${speed}"),
     (["--var", "speed=1", "--param", "j2_kp=1e9"], "j2_kp"), (["--var", "speed=1", "--impairment", "stormy"], "stormy"),
+    (["--var", "speed=1", "--param", "nosuch=1"], "--param nosuch: the controller has no such parameter"),
+    (["--var", "speed=1", "--param", "mount_speed_dps=30"], "--param mount_speed_dps=30.0 outside 0.1..23.0 deg/s"),
 ])
 def test_a_bad_bench_world_is_refused_with_its_reason(tmp_path, capsys, args, reason):
     path = tmp_path / "s.txt"
