@@ -22,6 +22,7 @@ from host_tools.plan.example import LIMITS, report_problem
 from host_tools.plan.model import two_arms
 from host_tools.plan.paths import PiecewisePath, PolynomialPath
 from host_tools.plan.phase import Problem
+from host_tools.plan.problem_file import problem_from_dict
 from host_tools.plan import reach
 from host_tools.plan.reach import FREE, placed_grid, plan_reach, sampled_efforts, sampled_torques
 from host_tools.plan.timeopt import plan_time_optimal
@@ -491,3 +492,23 @@ def test_a_large_back_emf_is_planned_not_refused(scale):
     plan = plan_reach(problem, 100)
     assert plan.iterations <= reach.EMF_ITERATIONS and np.all(plan.x[1:-1] > 0)
     assert _model_excess(problem, plan) <= 1e-9 and _model_excess(problem, plan, sampled_efforts) <= 1e-9
+
+
+def test_an_interval_whose_torque_peaks_between_its_checked_points_is_halved_until_none_passes_a_limit():
+    """A path near a straight elbow (found by the review of 2026-11-24): at 50 grid points the plain plan passes a
+    limit by 119 % between the three points the curvature guard judges; `plan_reach_checked` halves the failing
+    intervals and plans again, and the command uses it."""
+    spec = {"path": {"kind": "polynomial", "x": [1.0562185334088652, -0.10708225883952903, 0.1215744005946885,
+                                                 -0.963448834994663],
+                     "y": [0.5963777812952635, -0.24106344581749123, -0.6158637233985644, 0.2475368754268598]},
+            "gravity": 0.0, "limits": {"lower": [-19.512755639943702, -21.213401270058295, -35.95825360663395,
+                                                 -16.083045476090465],
+                                       "upper": [5.751235669701698, 33.91781713699078, 7.164642738075047,
+                                                 8.254719743177992]}}
+    problem = problem_from_dict(spec)
+    assert _model_excess(problem, plan_reach(problem, 50)) > 1.0
+    plan, excess, rounds = reach.plan_reach_checked(problem, 50)
+    assert excess == 0.0 and 1 <= rounds <= reach.REFINE_ROUNDS and len(plan.s) > 50
+    assert _model_excess(problem, plan) <= 1e-9                   # at 50 points inside every interval, not 20
+    unchanged, excess, rounds = reach.plan_reach_checked(report_problem(), 50)
+    assert rounds == 0 and excess == 0.0 and unchanged.duration == plan_reach(report_problem(), 50).duration

@@ -23,7 +23,7 @@ from host_tools.exit_codes import EXIT_OK
 from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
 from host_tools.plan.example import REPORTED, beside_report, report_problem
 from host_tools.plan.problem_file import load_problem
-from host_tools.plan.reach import plan_reach, sampled_torques
+from host_tools.plan.reach import plan_reach_checked
 from host_tools.plan.errors import PlanError
 from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
 
@@ -31,13 +31,11 @@ from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
 def _reach_result(problem, settings: PlanSettings) -> dict:
     """The reachability planner's minimum time, on nodes + 1 grid points (order 2: placed where time is lost), its
     excess checked between them."""
-    plan = plan_reach(problem, settings.nodes + 1, settings.squeeze, order=settings.order,
-                      placed=settings.order == 2)
-    _, tau = sampled_torques(problem, plan, 20)
-    lo, hi = problem.limits.lo, problem.limits.hi
-    excess = float(max(0.0, np.max((tau - hi) / np.abs(hi)), np.max((lo - tau) / np.abs(lo))))
+    plan, excess, rounds = plan_reach_checked(problem, settings.nodes + 1, settings.squeeze, order=settings.order,
+                                              placed=settings.order == 2)
     out = {"method": "reach", "order": plan.order, "nodes": len(plan.s) - 1, "duration_s": round(plan.duration, 6),
-           "worst_violation_between_nodes": excess, "saturated_time": round(plan.profile.saturated_time, 4),
+           "worst_violation_between_nodes": excess, "refined": rounds,
+           "saturated_time": round(plan.profile.saturated_time, 4),
            "solve_time_s": round(plan.solve_time_s, 4),
            "squeeze": None if settings.squeeze is None else {
                "bound_n": None if np.isinf(settings.squeeze) else settings.squeeze,
