@@ -154,6 +154,22 @@ def test_only_and_skip_that_leave_no_command_are_refused_before_the_target_start
     assert not (tmp_path / "pid").exists()
 
 
+@pytest.mark.parametrize("command, said", [("no-such-program-xyz --pty", "no program no-such-program-xyz"),
+                                            ("./nowhere/target", "no program ./nowhere/target"),
+                                            ("aspod sim 'unclosed", "No closing quotation")])
+def test_a_target_command_that_cannot_be_run_is_refused_before_anything_starts(tmp_path, command, said):
+    done = aspod("fuzz", "--target-cmd", command, "--cases", "2", cwd=tmp_path)
+    assert done.returncode == 2 and f"--target-cmd {command}: {said}" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr and not any(tmp_path.iterdir())
+
+
+def test_a_target_that_ends_before_its_link_says_why(tmp_path):
+    """Its own complaint (here aspod sim's usage error) is in the error, not only its exit status."""
+    done = aspod("fuzz", "--target-cmd", "aspod sim --pty --no-such-option", "--cases", "2", cwd=tmp_path)
+    assert done.returncode == 3 and "aspod sim (pid" in done.stderr, done.stderr
+    assert "unrecognized arguments: --no-such-option" in done.stderr and "Traceback" not in done.stderr
+
+
 @pytest.mark.parametrize("ready", ["ASPOD-LINK socket://127.0.0.1:1", "ASPOD-LINK", "something else",
                                    "ASPOD-LINK /nonexistent/tty"])
 def test_a_target_started_whose_link_cannot_be_opened_is_stopped(tmp_path, ready):

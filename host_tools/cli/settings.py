@@ -7,7 +7,6 @@ Nothing below `cli/` sees a Namespace. The types the worlds and apps use live wi
 from __future__ import annotations
 
 import argparse
-import sys
 import math
 import os
 import shlex
@@ -527,8 +526,23 @@ class FuzzSettings:
     hang_s: float = HANG_S             # in process and in-process replay: an input's own time past which it hangs
 
 
+def _target_command(text: str) -> tuple[str, ...]:
+    """--target-cmd's words, as a shell would split them; `aspod` is the aspod of this Python, wherever the shell's
+    PATH points. ValueError naming a line that does not split or a program that is not there."""
+    import shutil
+    from host_tools.worlds.child import ASPOD
+    try:
+        command = tuple(shlex.split(text))
+    except ValueError as exc:
+        raise ValueError(f"--target-cmd {text}: {exc} (it is split as a shell would)") from None
+    if command and command[0] == "aspod":
+        return ASPOD + command[1:]
+    if command and shutil.which(command[0]) is None:
+        raise ValueError(f"--target-cmd {text}: no program {command[0]} (not a file that can be run, nor on PATH)")
+    return command
+
+
 def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
-    import shlex
     from host_tools.campaign.engine import EngineSettings
     from host_tools.fuzz.blackbox import BlackBoxSettings
     from host_tools.fuzz.campaign import CampaignPlan
@@ -543,9 +557,7 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
         raise ValueError("in-process TARGETs, or --url/--target-cmd (black-box), or --replay FILE [MODULE:FACTORY]: "
                          "one at a time")
     if live or (args.replay is not None and not args.targets):
-        command = tuple(shlex.split(args.target_cmd)) if args.target_cmd else ()
-        if command and command[0] == "aspod":       # the aspod of this Python, wherever the shell's PATH points
-            command = (sys.executable, "-m", "host_tools.cli.main") + command[1:]
+        command = _target_command(args.target_cmd) if args.target_cmd else ()
         if live:
             if args.runs is not None or args.jobs != 1 or args.coverage or (args.hang_s is not None and
                                                                              args.replay is None):

@@ -138,8 +138,10 @@ class Session:
         self.line = None
         self.url = settings.url
         if settings.command:
-            from host_tools.worlds.child import Child
-            self.child = Child(list(settings.command[1:]), command=settings.command[:1])
+            from host_tools.worlds.child import ASPOD, Child
+            command = settings.command
+            self.child = (Child(list(command[len(ASPOD):])) if command[:len(ASPOD)] == ASPOD   # named aspod sim
+                          else Child(list(command[1:]), command=command[:1]))
         try:
             self._connect()
         except BaseException:        # no session: a target we started is stopped, not left running

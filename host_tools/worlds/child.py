@@ -28,6 +28,8 @@ PIPE, DEVNULL = subprocess.PIPE, subprocess.DEVNULL
 LINE_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 10.0
 EOF_EXIT_WAIT_S = 5.0
+STDERR_TAIL_BYTES = 4096     # of an ended child's stderr, quoted in the ChildError
+STDERR_TAIL_WAIT_S = 1.0     # for each read of it
 
 
 class ChildError(OSError):
@@ -93,10 +95,29 @@ class Child:
                     except subprocess.TimeoutExpired:
                         status = None
                     ended = f"ended ({describe_exit(status)})" if status is not None else "closed its output"
+                    if status is not None:
+                        self.seen.extend(self._stderr_left())
                     raise ChildError(f"{self.name} (pid {self.pid}) {ended} (so far {bytes(data)!r}; "
                                      f"stderr so far {self.seen})")
                 data += byte
         return data.decode(errors="replace").rstrip("\n")
+
+    def _stderr_left(self, limit: int = STDERR_TAIL_BYTES) -> list[str]:
+        """The lines an ended child left on its stderr pipe (the reason it gives for ending), at most the last
+        `limit` bytes; [] if stderr is not ours to read. Bounded in time too: a grandchild may hold the pipe."""
+        pipe = self.proc.stderr
+        if pipe is None or self._follower is not None:
+            return []
+        data = bytearray()
+        with selectors.DefaultSelector() as sel:
+            sel.register(pipe, selectors.EVENT_READ)
+            while sel.select(STDERR_TAIL_WAIT_S):
+                chunk = pipe.read(4096)
+                if not chunk:
+                    break
+                data += chunk
+                del data[:-limit]
+        return data.decode(errors="replace").splitlines()
 
     def ready(self, prefix: str, timeout_s: float = LINE_TIMEOUT_S) -> str:
         """The next stdout line, which must start with `prefix` (its ready line); ChildError else."""
