@@ -1,5 +1,5 @@
 """JSON text from outside read strictly: a capture's session description and world events, the simulator's
-control requests.
+control requests, a plan's problem file, a fuzz finding.
 
 `loads(text)` refuses with a ValueError saying why what `json.loads` would take and a caller would then trip
 over: nesting deeper than MAX_DEPTH (checked before parsing, never recursed into), NaN and Infinity (not JSON),

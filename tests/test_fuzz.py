@@ -104,6 +104,11 @@ def test_findings_that_are_not_findings_are_refused_with_a_reason(tmp_path):
         bad.write_text(text)
         with pytest.raises(findings.FindingError):
             findings.load(bad)
+    for text, said in (("[" * 100_000, "nests deeper than 32 levels"),
+                       ('{"format": "aspod-fuzz-finding/1", "seed": NaN}', "NaN is not a number JSON allows")):
+        bad.write_text(text)
+        with pytest.raises(findings.FindingError, match=said):       # read as strictly as every JSON from outside
+            findings.load(bad)
     done = aspod("fuzz", "--replay", str(bad), cwd=tmp_path)
     assert done.returncode == 2 and "bad.json" in done.stderr
 

@@ -218,8 +218,13 @@ def test_a_problem_file_is_read_bounded_a_fifo_or_deep_nesting_refused(tmp_path)
         load_problem(fifo)                          # refused without opening it: no writer, no hang
     deep = tmp_path / "deep.json"
     deep.write_text("[" * 100_000 + "]" * 100_000)
-    with pytest.raises(PlanError, match="nested too deeply"):
+    with pytest.raises(PlanError, match="nests deeper than 32 levels"):
         load_problem(deep)
+    for text, said in (('{"gravity": NaN}', "NaN is not a number JSON allows"), ('{"gravity": 1e400}', "out of range"),
+                       ("\udcff", "not a problem file"), ('{"path": ', "not JSON")):
+        (tmp_path / "bad.json").write_text(text, errors="surrogateescape")
+        with pytest.raises(PlanError, match=said):
+            load_problem(tmp_path / "bad.json")
     big = tmp_path / "big.json"
     big.write_text(" " * (2 << 20) + "{}")
     with pytest.raises(PlanError, match="larger than"):

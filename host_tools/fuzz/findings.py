@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Callable, Optional
 
+from host_tools import strict_json
 from protocol import files
 
 from host_tools.fuzz.hangs import HANG_S, Hang, HangWatch
@@ -134,10 +135,10 @@ def check_writable_folder(path: Path, what: str) -> None:
 def load(path: Path) -> Finding:
     """A finding file; FindingError with the reason for anything else."""
     try:
-        data = json.loads(files.read_bounded(path, FINDING_LIMIT).decode("utf-8"))
+        data = strict_json.loads(files.read_bounded(path, FINDING_LIMIT).decode("utf-8"))
     except files.InputFileError as exc:
         raise FindingError(str(exc)) from None
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+    except ValueError as exc:         # not UTF-8, not JSON, nested too deeply, a number out of range
         raise FindingError(f"{path}: not a finding file ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise FindingError(f"{path}: not a finding file (no \"format\": \"{FORMAT}\")")

@@ -13,10 +13,10 @@ the wrong kind, is refused with the reason.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
+from host_tools import strict_json
 from host_tools.plan.bounds import Limits
 from host_tools.plan.errors import PlanError, finite
 from host_tools.plan.example import LIMITS
@@ -121,11 +121,9 @@ def problem_from_dict(spec: dict) -> Problem:
 
 def load_problem(path: Path) -> Problem:
     try:
-        spec = json.loads(files.read_bounded(path, MAX_BYTES).decode("utf-8"))
+        spec = strict_json.loads(files.read_bounded(path, MAX_BYTES).decode("utf-8"))
     except files.InputFileError as e:
         raise PlanError("file", str(e)) from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise PlanError("file", f"{path} is not JSON: {e}") from None
-    except RecursionError:
-        raise PlanError("file", f"{path} is nested too deeply to be a problem") from None
+    except ValueError as e:           # not UTF-8, not JSON, nested too deeply, a number out of range
+        raise PlanError("file", f"{path} is not a problem file: {e}") from None
     return problem_from_dict(spec)
