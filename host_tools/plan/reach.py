@@ -599,10 +599,9 @@ def plan_reach_checked(problem: Problem, gridpoints, squeeze: Squeeze = None, or
     (near a singularity: d = K q_s rose from 15.8 to 788 inside one interval of 8; a path near a straight elbow
     at 50 grid points) can peak past its limit between them: 96 % and 119 % over, found by the review of
     2026-11-24. Halving the interval brings the three points close enough."""
-    grid = placed_grid(problem, gridpoints) if placed else gridpoints
-    rounds = 0
-    while True:
-        plan = plan_reach(problem, grid, squeeze, order=order)
+    grid, rounds = gridpoints, 0
+    while True:    # the first plan places its own points (placed: their time in its setup and solve times)
+        plan = plan_reach(problem, grid, squeeze, order=order, placed=placed and rounds == 0)
         _, tau = sampled_torques(problem, plan, REFINE_PER_INTERVAL)
         lo, hi = problem.limits.lo, problem.limits.hi
         over = np.maximum((tau - hi) / np.abs(hi), (lo - tau) / np.abs(lo)).max(axis=1)
