@@ -90,6 +90,15 @@ def test_version_completion_and_help(capsys):
     assert done.value.code == 2 and "invalid choice: 'fish'" in capsys.readouterr().err
 
 
+def test_the_help_examples_name_only_files_the_repository_has():
+    """A newcomer copies them: a script under benches/ that was renamed would fail at once."""
+    from host_tools.cli.main import EXAMPLES
+    root = Path(__file__).resolve().parent.parent
+    named = {word for lines in EXAMPLES.values() for line in lines for word in line.split()
+             if word.startswith("benches/")}
+    assert named and sorted(w for w in named if not (root / w).is_file()) == []
+
+
 def test_log_levels_and_the_log_file(tmp_path, capsys):
     log = logging.getLogger("aspod")
     try:

@@ -227,7 +227,7 @@ EXAMPLES = {
     "campaign": ["aspod campaign benches/test_pick_and_place.py --seeds 1000 --draw payload_kg=0..2.5 "
                  "--draw fault=none,jam:j2,open_circuit:j1,encoder_dropout:j3 --draw fault_at_s=1..20 "
                  "--group-by fault --plot m.worst_error_mm:payload_kg",
-                 "aspod campaign benches/tracker_dial.aspod --vary sun_start=2026-01-15T10:00-07:00..2026-12-15T10:00-07:00/12 "
+                 "aspod campaign benches/campaigns/tracker_dial.txt --vary sun_start=2026-01-15T10:00-07:00..2026-12-15T10:00-07:00/12 "
                  "--vary dial=5,10,20 --scheduler tcp://10.0.0.5:8786"],
     "demo": ["aspod demo", "aspod demo --json --gravity orbit", "aspod demo --link"],
     "tracker-day": ["aspod tracker-day --mode feedforward --date 2026-12-21 --plot day.png"],
