@@ -184,16 +184,6 @@ class ArmController:
         return lambda pos: float(gravity_nm[index])
 
     # ---- parameters ----
-    def check_param(self, name: str, value: float) -> Optional[str]:
-        """Veto a value that would make an axis's configuration inconsistent (e.g. min above max)."""
-        for drive in DRIVES:
-            if name.startswith(drive.name + "_"):
-                try:
-                    arm_config.axis_config(drive, self.params.values(), self.dt_s, override=(name, value))
-                except ValueError as exc:
-                    return str(exc)
-        return None
-
     def param_changed(self, name: str, value: float) -> None:
         for drive in DRIVES:
             if name.startswith(drive.name + "_") or name in ("encoder_stale_s", "current_stale_s"):

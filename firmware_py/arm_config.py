@@ -184,6 +184,18 @@ def default_gains(d: Drive) -> dict[str, float]:
                        d.viscous_nm_s_rad, vel_bandwidth_rad_s=d.vel_bandwidth_rad_s, efficiency=d.efficiency)
 
 
+def check_param(values: dict[str, float], dt_s: float, name: str, value: float) -> Optional[str]:
+    """Why `name` = `value` would make a joint's configuration inconsistent (e.g. its minimum above its maximum),
+    given the other parameter `values`; None if it would not."""
+    for drive in DRIVES:
+        if name.startswith(drive.name + "_"):
+            try:
+                axis_config(drive, values, dt_s, override=(name, value))
+            except ValueError as exc:
+                return str(exc)
+    return None
+
+
 def axis_config(d: Drive, values: dict[str, float], dt_s: float, override: Optional[tuple[str, float]] = None
                 ) -> AxisConfig:
     """The AxisConfig of joint `d` from the parameter values (with one value overridden, to check it)."""

@@ -54,7 +54,8 @@ from kernels import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.trajectory import TrajectoryBuffer, knot_of
-from firmware_py.tracker.task import TrackerController, parameter_table as tracker_parameter_table
+from firmware_py.tracker.task import TrackerController, check_param as tracker_check_param
+from firmware_py.tracker.task import parameter_table as tracker_parameter_table
 from firmware_py.uart import PacedUart
 
 TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
@@ -123,6 +124,14 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
     ] + arm_config.parameter_table() + tracker_parameter_table()
 
 
+def check_param(params: ParamStore, config: ControllerConfig, name: str, value: float) -> Optional[str]:
+    """Why `name` = `value` would not fit the other parameters in `params` (a joint's minimum above its maximum,
+    the tracker's hysteresis past its deadband, trk_ff neither 0 nor 1); None if it would. The controller's veto
+    of a ParamSet, and the command line's check of --param before a world is built."""
+    return (arm_config.check_param(params.values(), config.arm_period_s, name, value)
+            or tracker_check_param(params, name, value))
+
+
 class Controller:
     def __init__(self, psk: bytes, uart: PacedUart, hal: ControllerHal,
                  config: Optional[ControllerConfig] = None,
@@ -132,8 +141,7 @@ class Controller:
         self.uart = uart
         self.hal = hal
         self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed,
-                                 check=lambda name, value: (self.arm.check_param(name, value)
-                                                            or self.tracker.check_param(name, value)))
+                                 check=lambda name, value: check_param(self.params, self.config, name, value))
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
                                  on_motion_done=self._motion_done, stopwatch=stopwatch, on_late=self._loop_late,
                                  fused_joints=self.config.fused_joints, compiled_joints=self.config.compiled_joints)

@@ -102,6 +102,8 @@ def test_a_bench_world_takes_timed_faults_an_impairment_parameters_and_variables
     (["--var", "speed=1", "--param", "j2_kp=1e9"], "j2_kp"), (["--var", "speed=1", "--impairment", "stormy"], "stormy"),
     (["--var", "speed=1", "--param", "nosuch=1"], "--param nosuch: the controller has no such parameter"),
     (["--var", "speed=1", "--param", "mount_speed_dps=30"], "--param mount_speed_dps=30.0 outside 0.1..23.0 deg/s"),
+    (["--var", "speed=1", "--param", "j2_max_deg=10", "--param", "j2_min_deg=20"],      # the firmware's own veto
+     "--param j2_min_deg=20.0: j2: soft_min_rad must be below soft_max_rad"),
 ])
 def test_a_bad_bench_world_is_refused_with_its_reason(tmp_path, capsys, args, reason):
     path = tmp_path / "s.txt"

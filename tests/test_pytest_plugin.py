@@ -81,6 +81,7 @@ def test_outside_the_repository_on_the_lockstep_world(project):
     ("--aspod-gravity=mars", "--aspod options: argument --gravity: invalid choice: 'mars'"),
     ("--aspod-payload-kg=-1", "--aspod options: argument --payload-kg: -1.0 is outside 0.0..1000.0"),
     ("--aspod-param=nosuch=1", "--aspod options: --param nosuch: the controller has no such parameter"),
+    ("--aspod-param=trk_ff=0.5", "--aspod options: --param trk_ff=0.5: 0 (relay logic) or 1 (feed-forward)"),
 ])
 def test_a_bad_option_is_the_runs_usage_error_said_once_before_anything_runs(project, option, said):
     done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", option,

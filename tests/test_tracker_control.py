@@ -323,7 +323,7 @@ def test_the_dial_reads_as_a_ten_bit_adc():
 def test_parameters_that_would_break_the_hysteresis_are_refused():
     tracker, _hal, _ = make()
     store = tracker.params
-    store._check = tracker.check_param            # as the controller wires it
+    store._check = lambda name, value: T.check_param(store, name, value)     # as the controller wires it
     assert store.set("trk_hyst_mv", 3.0)[0] is Reason.OUT_OF_RANGE            # above the 2 mV deadband
     assert store.set("trk_deadband_mv", 1.0)[0] is Reason.OUT_OF_RANGE        # below the 1.5 mV hysteresis
     assert store.set("trk_ff", 0.5)[0] is Reason.OUT_OF_RANGE

@@ -25,6 +25,17 @@ _FF_FALLBACK = int(TrackerWarning.FF_FALLBACK)
 _LIMIT = (int(TrackerWarning.LIMIT_AZ), int(TrackerWarning.LIMIT_EL))
 
 
+def check_param(p: ParamStore, name: str, value: float) -> Optional[str]:
+    """Why `name` = `value` would not fit the tracker's other parameters in `p`; None if it would."""
+    if name == "trk_hyst_mv" and value > p["trk_deadband_mv"]:
+        return f"the hysteresis may not exceed trk_deadband_mv ({p['trk_deadband_mv']:g} mV)"
+    if name == "trk_deadband_mv" and value < p["trk_hyst_mv"]:
+        return f"the deadband may not be below trk_hyst_mv ({p['trk_hyst_mv']:g} mV)"
+    if name == "trk_ff" and value not in (0.0, 1.0):
+        return "0 (relay logic) or 1 (feed-forward)"
+    return None
+
+
 def parameter_table() -> list[ParamSpec]:
     """The tracker's parameters (the controller adds them to its table)."""
     return [
@@ -85,16 +96,6 @@ class TrackerController(BoxCommands, RelayLogic):
         self._last_now = 0.0
 
     # ---- parameters ----
-    def check_param(self, name: str, value: float) -> Optional[str]:
-        p = self.params
-        if name == "trk_hyst_mv" and value > p["trk_deadband_mv"]:
-            return f"the hysteresis may not exceed trk_deadband_mv ({p['trk_deadband_mv']:g} mV)"
-        if name == "trk_deadband_mv" and value < p["trk_hyst_mv"]:
-            return f"the deadband may not be below trk_hyst_mv ({p['trk_hyst_mv']:g} mV)"
-        if name == "trk_ff" and value not in (0.0, 1.0):
-            return "0 (relay logic) or 1 (feed-forward)"
-        return None
-
     def param_changed(self, name: str, value: float) -> None:
         if name in ("trk_lat_deg", "trk_lon_deg", "trk_press_hpa", "trk_air_temp_c"):
             self._eph = None               # the sun again at the next step

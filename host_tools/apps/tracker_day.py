@@ -270,10 +270,8 @@ def run_day(settings: DaySettings, progress: Optional[TextIO] = None) -> DayResu
     plant.set_angles(min(max(az, settings.plant_params.az.limit_ccw_deg), settings.plant_params.az.limit_cw_deg),
                      min(max(el, settings.plant_params.el.limit_ccw_deg), settings.plant_params.el.limit_cw_deg))
     hal = DayHal()
-    checks: list = []
-    store = ParamStore(firmware.parameter_table(), check=lambda name, value: checks[0](name, value))
+    store = ParamStore(firmware.parameter_table(), check=lambda name, value: firmware.check_param(store, name, value))
     tracker = firmware.TrackerController(hal, store, STEP_S, allowed=lambda: True)
-    checks.append(tracker.check_param)
     for name, value in (*settings.params, ("trk_ff", 1.0 if settings.mode == "feedforward" else 0.0)):
         reason, detail = store.set(name, value)
         if reason is not Reason.OK:

@@ -314,7 +314,7 @@ def demo_settings(args: argparse.Namespace) -> "DemoSettings":
 
 def day_settings(args: argparse.Namespace) -> "DaySettings":
     """DaySettings from `aspod tracker-day`'s arguments; ValueError with the reason for anything wrong."""
-    from firmware_py.tracker.task import parameter_table
+    from firmware_py.tracker.task import check_param, parameter_table
 
     from host_tools.apps.tracker_day import DaySettings, parse_clock, parse_date, parse_dial, parse_param
     settings = DaySettings(mode=args.mode, dial_pct=parse_dial(args.dial), day=parse_date(args.date),
@@ -322,7 +322,7 @@ def day_settings(args: argparse.Namespace) -> "DaySettings":
                            start=parse_clock(args.start) if args.start else None,
                            end=parse_clock(args.end) if args.end else None,
                            params=tuple(parse_param(p) for p in args.param or ()))
-    check_params(settings.params, parameter_table(), "the tracker")    # before the day's sun is computed
+    check_params(settings.params, parameter_table(), "the tracker", check_param)    # before the day's sun is computed
     if args.plot is not None:
         check_plot_path(args.plot)
     return settings
@@ -426,18 +426,19 @@ def bench_settings(args: argparse.Namespace) -> BenchSettings:
                          args.json, output_file(args.record, "--record", args.script))
 
 
-def check_params(params, table, whose: str) -> None:
-    """ValueError for the first `--param` (name, value) that `table` has no parameter of, or whose value is outside
-    its declared range, before anything is built."""
+def check_params(params, table, whose: str, check) -> None:
+    """ValueError for the first `--param` (name, value) that `table` has no parameter of, whose value is outside
+    its declared range, or that `check(store, name, value)` (the firmware's own veto, given the values set before
+    it) refuses, before anything is built."""
     from firmware_py.params import ParamStore
     from protocol.reasons import Reason
     names = {spec.name for spec in table}
-    ranges = ParamStore(table)
+    store = ParamStore(table, check=lambda name, value: check(store, name, value))
     for name, value in params:
         if name not in names:
             known = f"it has {', '.join(sorted(names))}" if len(names) <= 20 else "teleop's `params` lists its own"
             raise ValueError(f"--param {name}: {whose} has no such parameter; {known}")
-        reason, detail = ranges.set(name, value)
+        reason, detail = store.set(name, value)
         if reason is not Reason.OK:
             raise ValueError(f"--param {detail}")
 
@@ -460,10 +461,12 @@ def pairs(texts: list[str], option: str, kind=float) -> tuple[tuple[str, Any], .
 def bench_world(args: argparse.Namespace, plant: PlantSettings) -> "WorldSettings":
     """The lock-step world of `aspod bench` (and of the plugin's options): seed, plant, timed faults,
     impairment, parameters. ValueError naming what is wrong."""
-    from firmware_py.controller import ControllerConfig, parameter_table
+    from firmware_py.controller import ControllerConfig, check_param, parameter_table
     from host_tools.worlds.bench_world import TimedFault, WorldSettings
     params = pairs(args.param, "--param")
-    check_params(params, parameter_table(ControllerConfig()), "the controller")
+    config = ControllerConfig()
+    check_params(params, parameter_table(config), "the controller",
+                 lambda store, name, value: check_param(store, config, name, value))
     return WorldSettings(args.seed, plant, tuple(TimedFault.parse(f) for f in args.fault), args.impairment, params)
 
 
