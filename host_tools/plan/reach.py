@@ -592,8 +592,8 @@ def plan_reach_checked(problem: Problem, gridpoints, squeeze: Squeeze = None, or
                        placed: bool = False) -> tuple[ReachPlan, float, int]:
     """`plan_reach`, its bounded quantities then checked straight from the model (`sampled_torques`) at
     REFINE_PER_INTERVAL points inside every interval; each interval where one passes its limit is halved and the
-    plan made again, at most REFINE_ROUNDS times. Returns the plan, its worst excess (a share of the limit; 0
-    unless the rounds ran out) and how many rounds it took.
+    plan made again, at most REFINE_ROUNDS times. Returns the plan, its worst excess (a share of the limit; at most
+    REFINE_SLACK, rounding, unless the rounds ran out) and how many rounds it took.
 
     The curvature guard judges an interval at three points, and a bounded quantity that bends sharply inside it
     (near a singularity: d = K q_s rose from 15.8 to 788 inside one interval of 8; a path near a straight elbow
