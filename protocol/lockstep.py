@@ -52,7 +52,7 @@ class SyncTap(BusView):
         super().__init__(bus)
         self.sync_id = sync_id
         self.on_sync = on_sync
-        self._held: deque[can.Message] = deque()
+        self._held: deque[Any] = deque()    # can.Message, or a can.CanError met while waiting
         self.dropped = 0
 
     def _seen(self, msg: Optional[can.Message]) -> Optional[can.Message]:
@@ -63,12 +63,22 @@ class SyncTap(BusView):
 
     def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
         if self._held:
-            return self._held.popleft()
+            held = self._held.popleft()
+            if isinstance(held, can.CanError):
+                raise held                  # met while waiting: the node's poll counts it (bus_errors)
+            return held
         return self._seen(self.bus.recv(timeout))
 
     def wait(self, timeout_s: float) -> bool:
-        """Block up to `timeout_s` for one frame; True if one came (held for the node's next poll)."""
-        msg = self._seen(self.bus.recv(max(0.0, timeout_s)))
+        """Block up to `timeout_s` for one frame; True if one came (held for the node's next poll).
+
+        A `can.CanError` from the bus (udp_multicast: a datagram on the port that is not a frame) is
+        held in the frame's place and raised at the node's next poll, which counts it in `bus_errors`
+        as it does the errors its own reads meet; the wait itself never raises it."""
+        try:
+            msg: Any = self._seen(self.bus.recv(max(0.0, timeout_s)))
+        except can.CanError as exc:
+            msg = exc
         if msg is None:
             return False
         if len(self._held) >= MAX_HELD_FRAMES:

@@ -234,3 +234,48 @@ def test_lock_step_goes_on_through_the_32_bit_wrap_of_the_tick():
     assert pair.follower.resyncs == 0 and pair.follower.plant_tick == (pair.node.tick - 1) % wrap
     assert pair.control.tasks["arm"].stats.runs >= 99
     assert not pair.controller.supervisor.faults
+
+
+class FailingReads(BusView):
+    """Its next `count` reads made within the lock-step wait (`armed`) raise what udp_multicast raises for a
+    datagram that is not a frame."""
+
+    def __init__(self, bus) -> None:
+        super().__init__(bus)
+        self.count = 0
+        self.armed = False
+
+    def recv(self, timeout=None):
+        if self.count and self.armed:
+            self.count -= 1
+            raise can.CanOperationError("could not unpack received message")
+        return self.bus.recv(timeout)
+
+
+@pytest.mark.parametrize("side", ["plant", "controller"])
+def test_a_read_error_met_while_waiting_for_the_sync_is_a_bus_error_not_a_crash(side):
+    """A junk datagram on a udp_multicast port makes python-can's recv raise CanOperationError; met in the
+    lock-step wait (not the node's poll) it ended `aspod plant` / `aspod firmware` with a traceback."""
+    pair = Pair()
+    assert pair.run_until(lambda: pair.node.tick >= 50)
+    tap = pair.leader.tap if side == "plant" else pair.follower.tap
+    node = pair.node if side == "plant" else pair.controller.hal
+    tap.bus = failing = FailingReads(tap.bus)
+    wait = tap.wait
+
+    def armed_wait(timeout_s):
+        failing.armed = True
+        try:
+            return wait(timeout_s)
+        finally:
+            failing.armed = False
+    tap.wait = armed_wait
+    for _ in range(3):
+        failing.count = 2
+        pair.run_until(lambda: failing.count == 0, 1000)
+        for _ in range(5):
+            pair.turn()
+    tick = pair.node.tick
+    assert pair.run_until(lambda: pair.node.tick >= tick + 200)
+    assert node.bus_errors == 6 and isinstance(node.last_bus_error, can.CanOperationError)
+    assert not pair.controller.supervisor.faults
