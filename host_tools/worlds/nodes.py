@@ -134,6 +134,12 @@ def open_bus(interface: str, channel: str, *, node: Optional[str] = None, bitrat
         options.setdefault("protocol", can.CanProtocol.CAN_FD)
     else:
         options.setdefault("fd", True)
+        if options["fd"] is not True:
+            raise ValueError(f"fd={options['fd']!r}: the HAL bus is always CAN FD (MOTOR_CMD has 16 data bytes, "
+                             "MOTOR_FB 48)")
+    if "can_filters" in options:
+        raise ValueError("can_filters: the HAL nodes read every frame on the bus (they count the ones they do "
+                         "not take); a filter would hide frames from them")
     if interface == "udp_multicast":
         _check_udp_multicast(channel, options)
     try:
@@ -162,6 +168,9 @@ def _check_udp_multicast(channel: str, options: dict[str, Any]) -> None:
     port = options.get("port", UDP_MULTICAST_DEFAULT_PORT)
     if not isinstance(port, int) or isinstance(port, bool) or not 1 <= port <= 65535:
         raise ValueError(f"udp_multicast: port {port!r} is not a whole number in 1..65535")
+    hops = options.get("hop_limit", 1)
+    if not isinstance(hops, int) or isinstance(hops, bool) or not 0 <= hops <= 255:
+        raise ValueError(f"udp_multicast: hop_limit {hops!r} is not a whole number in 0..255")
 
 
 def fresh_udp_multicast() -> tuple[str, int]:
