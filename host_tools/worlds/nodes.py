@@ -60,6 +60,9 @@ class BusOpenError(OSError):
     """The interface exists but the bus cannot be opened here (no driver, no device, no network)."""
 
 
+MAX_ECHOES_PER_RECV = 256     # own echoes one `recv` drops at most before it returns None (as if nothing waited)
+
+
 class OwnEchoFilter(BusView):
     """A bus that drops the frames the DBC declares as sent by `node` (its own echoes).
 
@@ -67,7 +70,9 @@ class OwnEchoFilter(BusView):
     frames are counted in `own_echoes`; everything else (frames of the other node,
     undeclared IDs, error frames) passes, so bad frames are still counted by the node.
     Everything but `recv` is the wrapped bus's own. A positive `recv` timeout restarts
-    after each dropped echo (the HAL nodes only ever poll with timeout 0).
+    after each dropped echo (the HAL nodes only ever poll with timeout 0). After `MAX_ECHOES_PER_RECV` echoes
+    in a row it returns None: a flood of frames with the node's own IDs (another node sending them) left the
+    node's poll in this loop for as long as it lasted (a plant stalled 20 s, its controller HAL_STALE).
     """
 
     def __init__(self, bus: can.BusABC, node: str, codec: Optional[HalCodec] = None) -> None:
@@ -81,12 +86,13 @@ class OwnEchoFilter(BusView):
         self.own_echoes = 0
 
     def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
-        while True:
+        for _ in range(MAX_ECHOES_PER_RECV):
             msg = self.bus.recv(timeout)
             if (msg is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame
                     or msg.arbitration_id not in self.own_ids):
                 return msg
             self.own_echoes += 1
+        return None     # a stream of frames with the node's own IDs (another node sending them) must not starve it
 
 
 def own_echoes(bus: Any) -> int:
