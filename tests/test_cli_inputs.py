@@ -253,3 +253,11 @@ def test_bus_keywords_the_hal_cannot_work_with_are_refused_before_the_bus_opens(
     with pytest.raises(ValueError) as refused:
         nodes.open_bus("udp_multicast", "239.74.200.99", node="PLANT", port=45099, **options)
     assert message in str(refused.value)
+
+
+def test_a_udp_multicast_group_with_a_scope_is_refused_before_the_bus_opens():
+    """'ff02::1%lo' passed the multicast check and failed in python-can's inet_pton: exit 3, 'could not create or
+    configure socket (illegal IP address string passed to inet_pton)', as if the network were missing."""
+    from host_tools.worlds import nodes
+    with pytest.raises(ValueError, match="takes no scope"):
+        nodes.open_bus("udp_multicast", "ff02::1%lo", node="PLANT", port=45099)

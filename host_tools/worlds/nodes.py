@@ -171,6 +171,9 @@ def _check_udp_multicast(channel: str, options: dict[str, Any]) -> None:
     if group is None or not group.is_multicast:
         raise ValueError(f"udp_multicast: channel {channel!r} is not a multicast group address "
                          "(IPv4 224.0.0.0/4, e.g. 239.74.163.2, or IPv6 ff00::/8)")
+    if getattr(group, "scope_id", None):
+        raise ValueError(f"udp_multicast: channel {channel!r}: python-can's udp_multicast takes no scope "
+                         "(%interface) in the group address")
     port = options.get("port", UDP_MULTICAST_DEFAULT_PORT)
     if not isinstance(port, int) or isinstance(port, bool) or not 1 <= port <= 65535:
         raise ValueError(f"udp_multicast: port {port!r} is not a whole number in 1..65535")
