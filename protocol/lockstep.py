@@ -52,7 +52,7 @@ class SyncTap(BusView):
         super().__init__(bus)
         self.sync_id = sync_id
         self.on_sync = on_sync
-        self._held: deque[can.Message] = deque()
+        self._held: deque[Any] = deque()    # can.Message, or a can.CanError met while waiting
         self.dropped = 0
 
     def _seen(self, msg: Optional[can.Message]) -> Optional[can.Message]:
@@ -63,12 +63,22 @@ class SyncTap(BusView):
 
     def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
         if self._held:
-            return self._held.popleft()
+            held = self._held.popleft()
+            if isinstance(held, can.CanError):
+                raise held                  # met while waiting: the node's poll counts it (bus_errors)
+            return held
         return self._seen(self.bus.recv(timeout))
 
     def wait(self, timeout_s: float) -> bool:
-        """Block up to `timeout_s` for one frame; True if one came (held for the node's next poll)."""
-        msg = self._seen(self.bus.recv(max(0.0, timeout_s)))
+        """Block up to `timeout_s` for one frame; True if one came (held for the node's next poll).
+
+        A `can.CanError` from the bus (udp_multicast: a datagram on the port that is not a frame) is
+        held in the frame's place and raised at the node's next poll, which counts it in `bus_errors`
+        as it does the errors its own reads meet; the wait itself never raises it."""
+        try:
+            msg: Any = self._seen(self.bus.recv(max(0.0, timeout_s)))
+        except can.CanError as exc:
+            msg = exc
         if msg is None:
             return False
         if len(self._held) >= MAX_HELD_FRAMES:
@@ -103,10 +113,12 @@ class LockstepFollower(Clock):
         self._grant_base_s = 0.0           # granted = base + ticks * period since the first PLANT_SYNC
         self._grant_ticks = 0
         self._half_tick_s = 0.0005
+        self._period_s = 0.001             # the tick's length the last granting PLANT_SYNC said
         self.plant_tick: Optional[int] = None
         self.plant_lockstep: Optional[bool] = None   # what the last PLANT_SYNC said
         self._answered = True              # CTRL_SYNC sent for the last PLANT_SYNC
         self.resyncs = 0                   # ticks that jumped (a new plant, lost frames beyond MAX_SYNC_GAP_TICKS)
+        self.old_syncs = 0                 # PLANT_SYNCs up to MAX_SYNC_GAP_TICKS behind the last: answered, granted nothing
         self.syncs_sent = 0
         self.send_errors = 0
         wall_now = wall.now()
@@ -125,7 +137,6 @@ class LockstepFollower(Clock):
             return                          # the node's poll counts it as a bad frame
         tick = int(tick)
         period_s = max(1, int(period_us)) * 1e-6
-        self._half_tick_s = period_s / 2
         self.plant_lockstep = bool(lockstep)
         last = self.plant_tick
         if last is not None:
@@ -134,12 +145,24 @@ class LockstepFollower(Clock):
                 if self._answered:
                     self._send_done()
                 return
+            if 0 < (last - tick) & 0xFFFF_FFFF <= MAX_SYNC_GAP_TICKS:
+                # a tick just behind the last: a frame replayed or overtaken on the bus, not a new tick. It grants
+                # nothing (taken as a new plant it granted a tick, and the plant's re-offer of its own tick that
+                # the answer drew one more: two ticks ahead of the plant per such frame). It is answered, so a
+                # plant counting again from below the last tick (restarted within its first ticks) is followed.
+                self.old_syncs += 1
+                self._send_sync((tick + 1) & 0xFFFF_FFFF)
+                return
             if gap > MAX_SYNC_GAP_TICKS:
                 self.resyncs += 1
                 gap = 1
+            if period_s != self._period_s:  # ticks from here on are this long: those granted keep their length
+                self._grant_base_s, self._grant_ticks = self._granted_s, 0
         else:
             gap = 1
             self._grant_base_s, self._grant_ticks = self._now - period_s, 0   # the first tick grants the present moment
+        self._period_s = period_s
+        self._half_tick_s = period_s / 2
         self.plant_tick = tick
         self._grant_ticks += gap
         self._granted_s = self._grant_base_s + self._grant_ticks * period_s   # counted, not summed (no drift)

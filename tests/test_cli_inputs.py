@@ -235,3 +235,29 @@ def test_a_network_url_without_host_and_port_is_bad_input_too(dev_env, url, said
     done = aspod(dev_env, "teleop", url)
     assert done.returncode == 2, done.stderr.decode()
     assert said in done.stderr.decode()
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"fd": False}, "fd=False: the HAL bus is always CAN FD"),
+    ({"can_filters": "x"}, "can_filters: the HAL nodes read every frame"),
+    ({"hop_limit": "abc"}, "udp_multicast: hop_limit 'abc' is not a whole number in 0..255"),
+    ({"hop_limit": -1}, "udp_multicast: hop_limit -1 is not a whole number in 0..255"),
+    ({"hop_limit": 999}, "udp_multicast: hop_limit 999 is not a whole number in 0..255"),
+    ({"hop_limit": float("nan")}, "udp_multicast: hop_limit nan is not a whole number in 0..255"),
+])
+def test_bus_keywords_the_hal_cannot_work_with_are_refused_before_the_bus_opens(options, message):
+    """--bus-arg fd=false opened a classic bus on which the plant could send no MOTOR_FB (it waited for ever,
+    counting bus errors); can_filters=x opened the bus and crashed the node with a TypeError at its first frame;
+    a bad hop_limit was exit 3, 'its python-can driver failed ...; is the vendor's library installed?'."""
+    from host_tools.worlds import nodes
+    with pytest.raises(ValueError) as refused:
+        nodes.open_bus("udp_multicast", "239.74.200.99", node="PLANT", port=45099, **options)
+    assert message in str(refused.value)
+
+
+def test_a_udp_multicast_group_with_a_scope_is_refused_before_the_bus_opens():
+    """'ff02::1%lo' passed the multicast check and failed in python-can's inet_pton: exit 3, 'could not create or
+    configure socket (illegal IP address string passed to inet_pton)', as if the network were missing."""
+    from host_tools.worlds import nodes
+    with pytest.raises(ValueError, match="takes no scope"):
+        nodes.open_bus("udp_multicast", "ff02::1%lo", node="PLANT", port=45099)

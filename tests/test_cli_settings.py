@@ -133,3 +133,14 @@ def test_the_sims_control_endpoint_is_on_by_default_and_not_with_hal():
         build_parser().parse_args(["sim", "--control", "/tmp/c.sock", "--no-control"])
     teleop = build_parser().parse_args(["teleop", "/dev/pts/3", "--control", "/tmp/c.sock"])
     assert teleop_settings(teleop).control == Path("/tmp/c.sock")
+
+
+def test_hal_channel_and_hal_arg_without_hal_are_refused():
+    """`aspod sim --hal-channel 239.1.1.1` (no --hal) ran the one-process world and said nothing of the channel."""
+    def sim(*argv: str):
+        return sim_settings(build_parser().parse_args(["sim", *argv]))
+    with pytest.raises(ValueError, match="^--hal-channel without --hal"):
+        sim("--hal-channel", "239.1.1.1")
+    with pytest.raises(ValueError, match="^--hal-channel and --hal-arg without --hal"):
+        sim("--hal-channel", "239.1.1.1", "--hal-arg", "port=45000")
+    assert sim("--hal", "udp_multicast", "--hal-channel", "239.1.1.1").hal_channel == "239.1.1.1"

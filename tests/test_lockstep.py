@@ -234,3 +234,83 @@ def test_lock_step_goes_on_through_the_32_bit_wrap_of_the_tick():
     assert pair.follower.resyncs == 0 and pair.follower.plant_tick == (pair.node.tick - 1) % wrap
     assert pair.control.tasks["arm"].stats.runs >= 99
     assert not pair.controller.supervisor.faults
+
+
+class FailingReads(BusView):
+    """Its next `count` reads made within the lock-step wait (`armed`) raise what udp_multicast raises for a
+    datagram that is not a frame."""
+
+    def __init__(self, bus) -> None:
+        super().__init__(bus)
+        self.count = 0
+        self.armed = False
+
+    def recv(self, timeout=None):
+        if self.count and self.armed:
+            self.count -= 1
+            raise can.CanOperationError("could not unpack received message")
+        return self.bus.recv(timeout)
+
+
+@pytest.mark.parametrize("side", ["plant", "controller"])
+def test_a_read_error_met_while_waiting_for_the_sync_is_a_bus_error_not_a_crash(side):
+    """A junk datagram on a udp_multicast port makes python-can's recv raise CanOperationError; met in the
+    lock-step wait (not the node's poll) it ended `aspod plant` / `aspod firmware` with a traceback."""
+    pair = Pair()
+    assert pair.run_until(lambda: pair.node.tick >= 50)
+    tap = pair.leader.tap if side == "plant" else pair.follower.tap
+    node = pair.node if side == "plant" else pair.controller.hal
+    tap.bus = failing = FailingReads(tap.bus)
+    wait = tap.wait
+
+    def armed_wait(timeout_s):
+        failing.armed = True
+        try:
+            return wait(timeout_s)
+        finally:
+            failing.armed = False
+    tap.wait = armed_wait
+    for _ in range(3):
+        failing.count = 2
+        pair.run_until(lambda: failing.count == 0, 1000)
+        for _ in range(5):
+            pair.turn()
+    tick = pair.node.tick
+    assert pair.run_until(lambda: pair.node.tick >= tick + 200)
+    assert node.bus_errors == 6 and isinstance(node.last_bus_error, can.CanOperationError)
+    assert not pair.controller.supervisor.faults
+
+
+SYNC_LAYOUT = HalCodec().layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
+
+
+def test_a_plant_sync_replayed_from_just_behind_grants_no_time():
+    """A PLANT_SYNC a few ticks behind the last (replayed, or overtaken on the bus) was taken as a new plant:
+    it granted a tick, and the plant's re-offer that its answer drew one more. 25 of them put the controller
+    50 ms ahead of the plant's feedback: HAL_STALE (ENCODER_STALE) with a healthy plant."""
+    pair = Pair()
+    assert pair.run_until(lambda: pair.node.tick >= 200)
+    for back in [1] * 30 + [2, 5, 100]:
+        pair.plant_bus.send(SYNC_LAYOUT.message(((pair.node.tick - 1 - back) % 2 ** 32, 1, 1000)))
+        for _ in range(3):
+            pair.turn()
+    tick = pair.node.tick
+    assert pair.run_until(lambda: pair.node.tick >= tick + 300)
+    assert pair.follower.now() == pytest.approx((pair.node.tick - 1) * 0.001, abs=0.0015)
+    assert not pair.controller.supervisor.faults
+    assert pair.follower.old_syncs == 33 and pair.follower.resyncs == 0
+
+
+def test_a_plant_sync_with_another_period_does_not_rescale_the_ticks_already_granted():
+    """`granted = base + ticks * period` took the period of the last frame for every tick since the first: one
+    PLANT_SYNC saying 65535 us at tick 7000 granted 458 s at once (and 1 us took the grant back to 7 ms)."""
+    plant_end, controller_end = open_local_pair()
+    follower = LockstepFollower(controller_end, SimClock(1000.0))
+    try:
+        for tick, period_us in [*((t, 1000) for t in range(7001)), (7001, 65535), (7002, 1000), (7003, 1)]:
+            plant_end.send(SYNC_LAYOUT.message((tick, 1, period_us)))
+            follower.tap.recv(timeout=0)
+        assert follower._granted_s == pytest.approx(7.000 + 0.065535 + 0.001 + 0.000001, abs=1e-9)
+    finally:
+        plant_end.shutdown()
+        controller_end.shutdown()

@@ -311,3 +311,29 @@ def test_own_echo_filter_drops_only_what_the_node_declares_as_its_own():
     finally:
         bus.shutdown()
         other.shutdown()
+
+
+def test_own_echo_filter_returns_to_the_node_during_a_flood_of_its_own_ids():
+    """A third node flooding frames with the plant's own IDs (0x200 as fast as it could, over udp_multicast) kept
+    the plant's poll inside OwnEchoFilter.recv for the whole flood: no tick, no re-offer for 20 s, the controller
+    in HAL_STALE. Each recv now drops at most MAX_ECHOES_PER_RECV echoes, then returns None."""
+    class Babbler(can.BusABC):
+        def __init__(self) -> None:
+            self.reads = 0
+            super().__init__(channel="babbler")
+
+        def _recv_internal(self, timeout):
+            self.reads += 1
+            assert self.reads < 100_000, "the filter never returned"
+            return can.Message(arbitration_id=0x200, data=bytes(48), is_fd=True, is_extended_id=False), False
+
+        def send(self, msg, timeout=None) -> None:
+            pass
+
+    raw = Babbler()
+    bus = nodes.OwnEchoFilter(raw, nodes.PLANT)
+    try:
+        assert bus.recv(timeout=0) is None and bus.recv(timeout=0.5) is None
+        assert raw.reads == bus.own_echoes == 2 * nodes.MAX_ECHOES_PER_RECV
+    finally:
+        bus.shutdown()

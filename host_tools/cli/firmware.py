@@ -165,7 +165,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
         if controller is not None:
             counters = nodes.hal_counters(controller.hal)
             if follower is not None:
-                counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs,
+                counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs, old_syncs=follower.old_syncs,
                                 rtf=f"{follower.timing().rtf_total:.2f}")
             log.info(f"{prog}: HAL counters {nodes.format_counters(counters)}")
     return 0

@@ -275,6 +275,11 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
     if args.hal is not None and args.record is not None:
         raise ValueError("--record with --hal is not built yet: record in the one-process world (without --hal), "
                          "or with aspod teleop --record")
+    if args.hal is None and (args.hal_channel is not None or args.hal_arg):
+        given = " and ".join(name for name, value in (("--hal-channel", args.hal_channel), ("--hal-arg", args.hal_arg))
+                             if value)
+        raise ValueError(f"{given} without --hal: they set the bus of a plant in a process of its own "
+                         "(--hal INTERFACE); without --hal the plant runs in this process on a private bus")
     if args.hal is not None:
         hal_options = nodes.parse_bus_args(args.hal_arg or (), args.hal, "--hal-arg")
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),

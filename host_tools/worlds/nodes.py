@@ -60,6 +60,9 @@ class BusOpenError(OSError):
     """The interface exists but the bus cannot be opened here (no driver, no device, no network)."""
 
 
+MAX_ECHOES_PER_RECV = 256     # own echoes one `recv` drops at most before it returns None (as if nothing waited)
+
+
 class OwnEchoFilter(BusView):
     """A bus that drops the frames the DBC declares as sent by `node` (its own echoes).
 
@@ -67,7 +70,9 @@ class OwnEchoFilter(BusView):
     frames are counted in `own_echoes`; everything else (frames of the other node,
     undeclared IDs, error frames) passes, so bad frames are still counted by the node.
     Everything but `recv` is the wrapped bus's own. A positive `recv` timeout restarts
-    after each dropped echo (the HAL nodes only ever poll with timeout 0).
+    after each dropped echo (the HAL nodes only ever poll with timeout 0). After `MAX_ECHOES_PER_RECV` echoes
+    in a row it returns None: a flood of frames with the node's own IDs (another node sending them) left the
+    node's poll in this loop for as long as it lasted (a plant stalled 20 s, its controller HAL_STALE).
     """
 
     def __init__(self, bus: can.BusABC, node: str, codec: Optional[HalCodec] = None) -> None:
@@ -81,12 +86,13 @@ class OwnEchoFilter(BusView):
         self.own_echoes = 0
 
     def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
-        while True:
+        for _ in range(MAX_ECHOES_PER_RECV):
             msg = self.bus.recv(timeout)
             if (msg is None or msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame
                     or msg.arbitration_id not in self.own_ids):
                 return msg
             self.own_echoes += 1
+        return None     # a stream of frames with the node's own IDs (another node sending them) must not starve it
 
 
 def own_echoes(bus: Any) -> int:
@@ -134,6 +140,12 @@ def open_bus(interface: str, channel: str, *, node: Optional[str] = None, bitrat
         options.setdefault("protocol", can.CanProtocol.CAN_FD)
     else:
         options.setdefault("fd", True)
+        if options["fd"] is not True:
+            raise ValueError(f"fd={options['fd']!r}: the HAL bus is always CAN FD (MOTOR_CMD has 16 data bytes, "
+                             "MOTOR_FB 48)")
+    if "can_filters" in options:
+        raise ValueError("can_filters: the HAL nodes read every frame on the bus (they count the ones they do "
+                         "not take); a filter would hide frames from them")
     if interface == "udp_multicast":
         _check_udp_multicast(channel, options)
     try:
@@ -159,9 +171,15 @@ def _check_udp_multicast(channel: str, options: dict[str, Any]) -> None:
     if group is None or not group.is_multicast:
         raise ValueError(f"udp_multicast: channel {channel!r} is not a multicast group address "
                          "(IPv4 224.0.0.0/4, e.g. 239.74.163.2, or IPv6 ff00::/8)")
+    if getattr(group, "scope_id", None):
+        raise ValueError(f"udp_multicast: channel {channel!r}: python-can's udp_multicast takes no scope "
+                         "(%interface) in the group address")
     port = options.get("port", UDP_MULTICAST_DEFAULT_PORT)
     if not isinstance(port, int) or isinstance(port, bool) or not 1 <= port <= 65535:
         raise ValueError(f"udp_multicast: port {port!r} is not a whole number in 1..65535")
+    hops = options.get("hop_limit", 1)
+    if not isinstance(hops, int) or isinstance(hops, bool) or not 0 <= hops <= 255:
+        raise ValueError(f"udp_multicast: hop_limit {hops!r} is not a whole number in 0..255")
 
 
 def fresh_udp_multicast() -> tuple[str, int]:
