@@ -41,17 +41,20 @@ from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
-from protocol.states import ARM_AXES, Axis, ControllerState, Fault, FaultCause, GripAction, TimingIssue, TimingMode
+from protocol.states import (ARM_AXES, ARM_CHANNELS, Axis, ControllerState, Fault, FaultCause, GripAction,
+                             TimingIssue, TimingMode)
 from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 from timebase.scheduler import Scheduler
 
-from firmware_py import arm_config
+from firmware_py import arm_config, standstill
+from firmware_py.arm_config import DRIVES
 from firmware_py.arm import ArmController, Measured, MotionStart
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from kernels import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
+from firmware_py.standstill import StandstillWatch, Uncommanded
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.trajectory import TrajectoryBuffer, knot_of
 from firmware_py.tracker.task import TrackerController, check_param as tracker_check_param
@@ -121,7 +124,7 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
         ParamSpec("temp_warn_c", 5.0, 0, 40, "degC",
                   "warn (TemperatureWarning, TEMP_LOW/TEMP_HIGH) within this of temp_min_c or temp_max_c"),
-    ] + arm_config.parameter_table() + tracker_parameter_table()
+    ] + standstill.parameter_table() + arm_config.parameter_table() + tracker_parameter_table()
 
 
 def check_param(params: ParamStore, config: ControllerConfig, name: str, value: float) -> Optional[str]:
@@ -178,6 +181,10 @@ class Controller:
                                                                    or self._plant_silent()))
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
+        self._watched = [(ARM_CHANNELS.index(drive.name), self.arm.joints[drive.name]) for drive in DRIVES]
+        self.standstill = StandstillWatch(self.params, [k for k, _ in self._watched])
+        self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
+        self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
         missing = [s.name for s in SCHEMA.by_id.values()
                    if s.direction is Direction.TO_CONTROLLER and s.cls in (MsgClass.COMMAND, MsgClass.URGENT)
                    and s.name not in _HANDLERS]
@@ -348,12 +355,23 @@ class Controller:
             return now + cfg.health_period_s
         if self.hal.is_stale(now, stale_s):
             self._trip(Fault.HAL_STALE, now, Reason.HAL_STALE, self._hal_input_age(now))
+        self._standstill_check(now)
         if self._supply_low():
             sup.enter_safe_state(Fault.SUPPLY_LOW, now)
         if self._temp_out_of_range():
             sup.enter_safe_state(Fault.OVER_TEMPERATURE, now)
         self._temperature_warnings(now)
         return now + cfg.health_period_s
+
+    def _standstill_check(self, now: float) -> None:
+        """Outputs off: a joint that moves or a motor that draws current is driven by something else
+        (firmware_py/standstill.py): UNCOMMANDED_MOTION, and the sim's log names the joint."""
+        currents = self.hal.inputs.currents_a
+        moved = self.standstill.check(now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in self._watched],
+                                      [a.vel_rad_s for _, a in self._watched], [currents[k] for k, _ in self._watched])
+        if moved is not None:
+            self.uncommanded = moved
+            self._trip(Fault.UNCOMMANDED_MOTION, now, Reason.UNCOMMANDED_MOTION)
 
     def _temperature_warnings(self, now: float) -> None:
         """TemperatureWarning once per crossing of the warning band inside temp_min_c / temp_max_c."""

@@ -23,6 +23,7 @@ FAULT_REASON: dict[Fault, Reason] = {
     Fault.SUPPLY_LOW: Reason.SUPPLY_LOW,
     Fault.OVER_TEMPERATURE: Reason.OVER_TEMPERATURE,
     Fault.SCHEDULER_OVERRUN: Reason.HOST_OVERLOADED,
+    Fault.UNCOMMANDED_MOTION: Reason.UNCOMMANDED_MOTION,
 }
 
 SAFE_STATES = (ControllerState.FAULT, ControllerState.ESTOP)

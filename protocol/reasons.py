@@ -57,6 +57,7 @@ class Reason(enum.IntEnum):
     TRAJ_ORDER = 45
     TRAJ_COUNT = 46
     TRAJ_ENDPOINTS = 47
+    UNCOMMANDED_MOTION = 48
 
     @property
     def doc(self) -> str:
@@ -175,6 +176,8 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.TRAJ_ENDPOINTS: ("a trajectory must start where each joint holds (within 0.1 deg) at rest and end at "
                             "rest: a first or last knot's speed above 0.01 deg/s, or a first position away from "
                             "the joint's", "plan from the joints' present positions, starting and ending at rest"),
+    Reason.UNCOMMANDED_MOTION: ("a joint moved, or a motor drew current, with the controller's outputs off",
+                                "find what drives it (the HAL bus, a driver, a brake), then reset once it is still"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

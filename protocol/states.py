@@ -32,6 +32,7 @@ class Fault(enum.IntFlag):
     HOMING_FAILED = 1 << 10
     OPEN_CIRCUIT = 1 << 11
     GRIPPER = 1 << 12
+    UNCOMMANDED_MOTION = 1 << 13
 
 
 FAULT_DOCS: dict[Fault, tuple[str, str]] = {
@@ -63,6 +64,11 @@ FAULT_DOCS: dict[Fault, tuple[str, str]] = {
                          "check the motor, its connector and its fuse, then `reset`"),
     Fault.GRIPPER: ("the gripper reached neither its end switch nor a grip in time",
                     "check the gripper's switches and motor, then `reset`"),
+    Fault.UNCOMMANDED_MOTION: ("with the outputs off (brakes on, nothing driven) a joint moved further than "
+                               "still_deg or a motor drew more than still_current_a: something the "
+                               "controller did not command drives it (another node on the HAL bus, a motor driver "
+                               "that does not obey, a brake that does not hold)",
+                               "find what drives it, then `reset` once the joints are still"),
 }
 
 assert set(FAULT_DOCS) == {f for f in Fault if f != Fault.NONE}

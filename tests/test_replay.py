@@ -141,7 +141,9 @@ def test_a_real_time_recording_whose_frames_reached_the_port_late_replays_within
     it was answered 50 ms after it came in, though j2's stop shows the controller acted on it within about 3 ms.
     Replay took the late answer for a late arrival, moved the Stop 42 ms later and so j2's stop 170 ms later:
     a divergence the controller had not made. Now the lag of the writing, which every frame carrying the uptime
-    shows, is taken off the answer's time (`_Output.made_s`)."""
+    shows, is taken off the answer's time (`_Output.made_s`). (Its description's schema hash was moved to the schema
+    of Reason.UNCOMMANDED_MOTION, a reason added with no message's layout changed: the recording is otherwise as
+    made, and could not be made again at will.)"""
     report = replay(SessionCapture.read(Path(__file__).parent / "data" / "replay_late_writes.pcapng"))
     assert report.matches, report.describe()
     assert report.commands == 8 and report.events == 4 and report.uncertainty_ms < 10

@@ -1,0 +1,99 @@
+"""Standstill monitoring: while the controller's outputs are off, no joint moves and no motor draws current.
+
+With the outputs off (IDLE, FAULT, ESTOP: every channel braked, nothing driven; CTRL_OUTPUTS says so every
+10 ms) a joint that moves, or a motor that draws current, is driven by something the controller did not
+command: another node on the HAL bus sending MOTOR_CMD and CTRL_OUTPUTS, a motor driver that does not obey,
+a brake that does not hold its load. Industrial drives watch for the same (IEC 61800-5-2's "safe operating
+stop" monitors a stopped axis for motion). The controller faults UNCOMMANDED_MOTION instead of reporting the
+arm idle while it moves.
+
+The health task (100 Hz) calls `check`. After the outputs go off, each joint has `still_settle_s` to brake to
+rest (slower than STILL_DPS: the mount from its top speed takes about 1 s and 11 deg); where it rests is its
+anchor. A joint further than `still_deg` from its anchor, one not at rest when its time is up, or a motor current
+above `still_current_a` on two checks running after that, trips. After a trip the anchors move to where the
+joints are, so that motion that goes on is seen again; `reset` is refused while it does (`still_moving`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+from firmware_py.params import ParamSpec, ParamStore
+
+STILL_DPS = 0.5      # a joint slower than this (its estimated speed) is at rest
+
+
+def parameter_table() -> list[ParamSpec]:
+    return [
+        ParamSpec("still_deg", 0.5, 0.01, 30.0, "deg",
+                  "outputs off: a joint moving further than this faults (UNCOMMANDED_MOTION)"),
+        ParamSpec("still_current_a", 0.5, 0.01, 50.0, "A",
+                  "outputs off: a motor current above this on two health checks running faults "
+                  "(UNCOMMANDED_MOTION)"),
+        ParamSpec("still_settle_s", 2.0, 0.05, 60.0, "s",
+                  "after the outputs go off, the time a joint has to brake to rest (UNCOMMANDED_MOTION if it is "
+                  "not)"),
+    ]
+
+
+@dataclass(frozen=True)
+class Uncommanded:
+    """What tripped: the channel (HAL order), and what was seen there, for people."""
+
+    channel: int
+    detail: str
+
+
+class StandstillWatch:
+    """The joints' standstill while the outputs are off. `channels` are the HAL channel indices watched."""
+
+    def __init__(self, params: ParamStore, channels: Sequence[int]) -> None:
+        self.params = params
+        self.channels = tuple(channels)
+        self._off_since: Optional[float] = None
+        self._anchor: list[Optional[float]] = [None] * len(self.channels)   # where each joint came to rest [rad]
+        self._current_seen = [False] * len(self.channels)
+        self._last_speeds: list[float] = [0.0] * len(self.channels)
+        self._last_current = False
+
+    def check(self, now: float, outputs_on: bool, positions_rad: Sequence[float], speeds_rad_s: Sequence[float],
+              currents_a: Sequence[float]) -> Optional[Uncommanded]:
+        """None while all is still (or the outputs are on, or the joints are still braking); what moved else.
+        The sequences are the watched channels', in the order of `channels`."""
+        n = len(self.channels)
+        if outputs_on:
+            self._off_since, self._anchor = None, [None] * n
+            self._current_seen, self._last_current = [False] * n, False
+            return None
+        if self._off_since is None:
+            self._off_since = now
+        p = self.params
+        self._last_speeds = list(speeds_rad_s)
+        settled = now - self._off_since >= p["still_settle_s"]
+        limit_rad, limit_a = math.radians(p["still_deg"]), p["still_current_a"]
+        over = [settled and abs(i) > limit_a for i in currents_a]
+        found: Optional[Uncommanded] = None
+        for i, k in enumerate(self.channels):
+            pos, speed_dps = positions_rad[i], math.degrees(speeds_rad_s[i])
+            anchor = self._anchor[i]
+            if anchor is None:
+                if abs(speed_dps) < STILL_DPS:
+                    self._anchor[i] = pos
+                elif settled and found is None:
+                    found = Uncommanded(k, f"still turning at {speed_dps:+.1f} deg/s {p['still_settle_s']:g} s "
+                                           "after the outputs went off (still_settle_s)")
+            elif found is None and abs(pos - anchor) > limit_rad:
+                found = Uncommanded(k, f"moved {math.degrees(pos - anchor):+.2f} deg with the outputs off "
+                                       f"(still_deg {p['still_deg']:g})")
+            if found is None and over[i] and self._current_seen[i]:
+                found = Uncommanded(k, f"drew {currents_a[i]:+.2f} A with the outputs off "
+                                       f"(still_current_a {limit_a:g})")
+        self._current_seen, self._last_current = over, any(over)
+        if found is not None:
+            self._anchor = list(positions_rad)        # motion that goes on is seen again from here
+        return found
+
+    def still_moving(self) -> bool:
+        """Whether the last check saw a joint turning or a motor drawing current (`reset` waits until neither)."""
+        return self._last_current or any(abs(math.degrees(v)) >= STILL_DPS for v in self._last_speeds)

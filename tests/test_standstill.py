@@ -1,0 +1,120 @@
+"""Standstill monitoring (firmware_py/standstill.py): with the outputs off, a joint that moves or a motor that draws
+current faults UNCOMMANDED_MOTION, as a rogue node on the HAL bus showed it did not (the attack of 2026-11-25: a
+third node sending CTRL_OUTPUTS and MOTOR_CMD drove J1 at 3.2 A in FAULT, and moved it 0.6 deg while the
+controller said IDLE, faults none)."""
+from __future__ import annotations
+
+import math
+
+
+from firmware_py.hal import ControllerHal
+from firmware_py.params import ParamStore
+from firmware_py.standstill import StandstillWatch, parameter_table
+from host_tools.cli import firmware as firmware_cli
+from host_tools.worlds.local_bus import LocalBus
+from protocol.messages import MESSAGES as M
+from protocol.reasons import Reason
+from protocol.states import ARM_CHANNELS, ControllerState, Fault
+
+J2 = ARM_CHANNELS.index("j2")
+
+
+def _watch() -> StandstillWatch:
+    return StandstillWatch(ParamStore(parameter_table()), [0, 1])
+
+
+def test_a_joint_moving_with_the_outputs_off_trips_once_it_has_come_to_rest_or_its_time_is_up():
+    watch, rest = _watch(), [0.0, 0.0]
+    turning = [math.radians(20.0), 0.0]
+    assert watch.check(0.0, True, [1.0, 2.0], turning, rest) is None           # outputs on: nothing watched
+    assert watch.check(0.1, False, [1.0, 2.0], turning, rest) is None          # braking: j0 not at rest yet
+    assert watch.check(1.5, False, [1.2, 2.0], turning, rest) is None          # still within still_settle_s (2 s)
+    assert watch.check(1.6, False, [1.3, 2.0], rest, rest) is None            # at rest: its anchor
+    assert watch.check(2.5, False, [1.3 + math.radians(0.4), 2.0], rest, rest) is None
+    seen = watch.check(2.6, False, [1.3 + math.radians(0.6), 2.0], rest, rest)
+    assert seen is not None and seen.channel == 0 and "moved +0.60 deg" in seen.detail
+    # anchored again where it was seen: only motion that goes on trips again
+    assert watch.check(2.7, False, [1.3 + math.radians(0.7), 2.0], rest, rest) is None
+    assert watch.check(3.0, True, [0.0, 0.0], rest, rest) is None              # outputs on again: a new watch
+    assert watch.check(3.1, False, [5.0, 5.0], turning, rest) is None
+    seen = watch.check(5.2, False, [5.5, 5.0], turning, rest)                 # never at rest: its time is up
+    assert seen is not None and seen.channel == 0 and "still turning at +20.0 deg/s 2 s after" in seen.detail
+
+
+def test_a_current_with_the_outputs_off_trips_on_the_second_check_running():
+    watch, rest, pos = _watch(), [0.0, 0.0], [0.0, 0.0]
+    assert watch.check(0.0, False, pos, rest, [0.0, 0.9]) is None
+    assert watch.check(1.0, False, pos, rest, [0.0, 0.9]) is None             # within still_settle_s: braking
+    assert watch.check(2.01, False, pos, rest, [0.0, 0.9]) is None            # one sample: a spike
+    assert watch.check(2.02, False, pos, rest, [0.0, 0.1]) is None
+    assert watch.check(2.03, False, pos, rest, [0.0, 0.9]) is None
+    seen = watch.check(2.04, False, pos, rest, [0.0, -0.8])
+    assert seen is not None and seen.channel == 1 and "drew -0.80 A" in seen.detail
+    assert watch.still_moving()
+    watch.check(2.05, False, pos, rest, [0.0, 0.0])
+    assert not watch.still_moving()
+    watch.check(2.06, False, pos, [0.0, math.radians(1.0)], [0.0, 0.0])
+    assert watch.still_moving()                                               # turning at 1 deg/s
+
+
+class Rogue:
+    """A third node on the world's HAL bus: it turns the outputs on and drives one channel every millisecond."""
+
+    def __init__(self, bench, channel: int, duty: float) -> None:
+        self.bus = LocalBus(bench.world.controller_bus.local_channel, carries_values=True)
+        self.hal = ControllerHal(self.bus)
+        self.duty = [0.0] * len(ARM_CHANNELS)
+        self.duty[channel] = duty
+        self.on = False
+        bench.world.scheduler.add("rogue", self.step, period_s=0.001, priority=50)
+
+    def step(self, now: float) -> float:
+        while self.bus.recv() is not None:       # what the others send: read and let go (its queue stays empty)
+            pass
+        if self.on:
+            n = len(ARM_CHANNELS)
+            self.hal.send_outputs(enabled=True, brake=False)
+            self.hal.send_motor_command(self.duty, [True] * n, [False] * n)
+        return now + 0.001
+
+
+def test_a_rogue_node_driving_a_joint_while_the_controller_is_idle_faults_uncommanded_motion(bench, monkeypatch):
+    sup, plant = bench.controller.supervisor, bench.world.plant
+    said: list[str] = []
+    monkeypatch.setattr(firmware_cli.log, "info", said.append)
+    firmware_cli.log_states(bench.controller, "aspod sim")                   # as the simulator logs them
+    rogue = Rogue(bench, J2, 0.8)
+    bench.run_for(1.0)
+    assert sup.state is ControllerState.IDLE and bench.controller.standstill.still_moving() is False
+    start_rad = plant.arm.pos_rad[1]
+    rogue.on = True
+    assert bench.wait_until(lambda: sup.state is ControllerState.FAULT, 2.0), \
+        f"j2 moved {math.degrees(plant.arm.pos_rad[1] - start_rad):+.2f} deg unseen"
+    assert sup.faults == Fault.UNCOMMANDED_MOTION and sup.safe_reason is Reason.UNCOMMANDED_MOTION
+    assert bench.controller.uncommanded.channel == J2
+    assert any("IDLE -> FAULT (UNCOMMANDED_MOTION)" in line for line in said), said
+    assert any(line.startswith("aspod sim: j2 moved +0.5") for line in said), said
+    assert abs(math.degrees(plant.arm.pos_rad[1] - start_rad)) < 2.0         # seen within a couple of degrees
+    assert bench.call(M["Reset"]()).reason is Reason.UNCOMMANDED_MOTION      # refused while it is driven
+    rogue.on = False
+    bench.run_for(0.5)
+    assert bench.call(M["Reset"]()).reason is Reason.OK
+    assert sup.state is ControllerState.IDLE
+    bench.run_for(1.5)                                                        # and stays so: the joint is still
+    assert sup.state is ControllerState.IDLE
+
+
+def test_a_safe_state_entered_at_top_speed_is_no_uncommanded_motion(bench):
+    """An e-stop while the mount turns at its top speed (23 deg/s): it brakes for about 1 s and 11 deg, the
+    slowest of the joints to stop; then it rests, and nothing more latches."""
+    sup, k = bench.controller.supervisor, ARM_CHANNELS.index("mount")
+    assert bench.call(M["Enable"]()).reason is Reason.OK
+    assert bench.call(M["ParamSet"]("mount_speed_dps", 23.0)).reason is Reason.OK
+    assert bench.call(M["MoveBy"](k, 300.0, 0)).reason is Reason.OK
+    bench.run_for(8.5)
+    assert abs(bench.controller.arm.velocity(k)) > 22.0
+    assert bench.call(M["EStop"]()).reason is Reason.OK
+    at = bench.controller.arm.position(k)
+    bench.run_for(4.0)
+    assert abs(bench.controller.arm.position(k) - at) > 5.0                   # it braked a long way
+    assert sup.state is ControllerState.ESTOP and sup.faults == Fault.ESTOP
