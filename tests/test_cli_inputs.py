@@ -240,6 +240,7 @@ def test_a_network_url_without_host_and_port_is_bad_input_too(dev_env, url, said
 @pytest.mark.parametrize("options, message", [
     ({"fd": False}, "fd=False: the HAL bus is always CAN FD"),
     ({"can_filters": "x"}, "can_filters: the HAL nodes read every frame"),
+    ({"receive_own_messages": True}, "receive_own_messages: a HAL node does not take its own frames"),
     ({"hop_limit": "abc"}, "udp_multicast: hop_limit 'abc' is not a whole number in 0..255"),
     ({"hop_limit": -1}, "udp_multicast: hop_limit -1 is not a whole number in 0..255"),
     ({"hop_limit": 999}, "udp_multicast: hop_limit 999 is not a whole number in 0..255"),
@@ -248,7 +249,8 @@ def test_a_network_url_without_host_and_port_is_bad_input_too(dev_env, url, said
 def test_bus_keywords_the_hal_cannot_work_with_are_refused_before_the_bus_opens(options, message):
     """--bus-arg fd=false opened a classic bus on which the plant could send no MOTOR_FB (it waited for ever,
     counting bus errors); can_filters=x opened the bus and crashed the node with a TypeError at its first frame;
-    a bad hop_limit was exit 3, 'its python-can driver failed ...; is the vendor's library installed?'."""
+    a bad hop_limit was exit 3, 'its python-can driver failed ...; is the vendor's library installed?'; and
+    receive_own_messages=true exit 3, python-can's 'receiving own messages is not yet implemented'."""
     from host_tools.worlds import nodes
     with pytest.raises(ValueError) as refused:
         nodes.open_bus("udp_multicast", "239.74.200.99", node="PLANT", port=45099, **options)

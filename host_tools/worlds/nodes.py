@@ -146,6 +146,9 @@ def open_bus(interface: str, channel: str, *, node: Optional[str] = None, bitrat
     if "can_filters" in options:
         raise ValueError("can_filters: the HAL nodes read every frame on the bus (they count the ones they do "
                          "not take); a filter would hide frames from them")
+    if options.get("receive_own_messages"):
+        raise ValueError("receive_own_messages: a HAL node does not take its own frames (it drops the echoes some "
+                         "interfaces give; udp_multicast cannot give them at all)")
     if interface == "udp_multicast":
         _check_udp_multicast(channel, options)
     try:
