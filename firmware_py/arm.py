@@ -390,6 +390,11 @@ class ArmController:
 
     # ---- faults ----
     def _axis_fault(self, k: int, bits: AxisError, now: float) -> None:
+        if self.channels[k].errors & AxisError.ENCODER_GLITCH:
+            # since its glitch the estimator refuses the axis's counts (until reset), so they age: that is the
+            # ENCODER fault latched, not a HAL input gone stale (it was HAL_STALE too, with a FaultReport saying
+            # the count was 50 ms old while counts kept coming)
+            bits &= ~AxisError.ENCODER_STALE
         fault, reason = fault_of(int(bits))
         measured = None
         if reason in (Reason.ENCODER_STALE, Reason.CURRENT_STALE):

@@ -54,6 +54,7 @@ from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
 from kernels import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
+from firmware_py.axis import AxisError
 from firmware_py.standstill import StandstillWatch, Uncommanded
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.trajectory import TrajectoryBuffer, knot_of
@@ -133,6 +134,9 @@ def check_param(params: ParamStore, config: ControllerConfig, name: str, value: 
     of a ParamSet, and the command line's check of --param before a world is built."""
     return (arm_config.check_param(params.values(), config.arm_period_s, name, value)
             or tracker_check_param(params, name, value))
+
+
+ENCODER_FAULTS = AxisError.ENCODER_GLITCH | AxisError.ENCODER_STALE    # a joint's position not to be judged by
 
 
 class Controller:
@@ -366,9 +370,10 @@ class Controller:
     def _standstill_check(self, now: float) -> None:
         """Outputs off: a joint that moves or a motor that draws current is driven by something else
         (firmware_py/standstill.py): UNCOMMANDED_MOTION, and the sim's log names the joint."""
-        currents = self.hal.inputs.currents_a
-        moved = self.standstill.check(now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in self._watched],
-                                      [a.vel_rad_s for _, a in self._watched], [currents[k] for k, _ in self._watched])
+        currents, joints = self.hal.inputs.currents_a, self._watched
+        moved = self.standstill.check(now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints],
+                                      [a.vel_rad_s for _, a in joints], [currents[k] for k, _ in joints],
+                                      [not a.errors & ENCODER_FAULTS for _, a in joints])
         if moved is not None:
             self.uncommanded = moved
             self._trip(Fault.UNCOMMANDED_MOTION, now, Reason.UNCOMMANDED_MOTION)

@@ -58,9 +58,11 @@ class StandstillWatch:
         self._last_current = False
 
     def check(self, now: float, outputs_on: bool, positions_rad: Sequence[float], speeds_rad_s: Sequence[float],
-              currents_a: Sequence[float]) -> Optional[Uncommanded]:
+              currents_a: Sequence[float], encoders_ok: Sequence[bool]) -> Optional[Uncommanded]:
         """None while all is still (or the outputs are on, or the joints are still braking); what moved else.
-        The sequences are the watched channels', in the order of `channels`."""
+        The sequences are the watched channels', in the order of `channels`. A joint whose encoder is faulted
+        (`encoders_ok` False: a count that jumped or stopped, ENCODER or HAL_STALE) is not judged by its
+        position, which is the encoder's fault; it is anchored again once its encoder is trusted and it rests."""
         n = len(self.channels)
         if outputs_on:
             self._off_since, self._anchor = None, [None] * n
@@ -77,7 +79,9 @@ class StandstillWatch:
         for i, k in enumerate(self.channels):
             pos, speed_dps = positions_rad[i], math.degrees(speeds_rad_s[i])
             anchor = self._anchor[i]
-            if anchor is None:
+            if not encoders_ok[i]:
+                self._anchor[i] = None
+            elif anchor is None:
                 if abs(speed_dps) < STILL_DPS:
                     self._anchor[i] = pos
                 elif settled and found is None:

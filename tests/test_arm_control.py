@@ -243,6 +243,23 @@ def test_each_fault_reaches_its_bit_and_the_safe_state_in_time(bench, name, chan
     assert bench.call(M["MoveBy"](int(axis), 1.0, 0)).reason is Reason.FAULT_LATCHED
 
 
+@pytest.mark.parametrize("moving", [False, True])
+def test_an_encoder_glitch_latches_encoder_alone_at_rest_or_moving(bench, moving):
+    """After a glitch the estimator refuses the joint's counts until reset, so they age past encoder_stale_s: that
+    was HAL_STALE as well, with a FaultReport saying the count was old while counts kept coming; and, with the
+    outputs off, the jump (14.6 deg, and back when it clears) was taken for uncommanded motion."""
+    if moving:
+        start(bench, M["MoveBy"](int(Axis.J2), 30.0, 0))
+    bench.run_for(1.5)
+    bench.world.plant.inject("encoder_glitch", "j2")
+    bench.run_for(2.0)
+    bench.world.plant.clear("encoder_glitch", "j2")
+    bench.run_for(3.0)
+    sup = bench.controller.supervisor
+    assert sup.state is ControllerState.FAULT and sup.faults == Fault.ENCODER, repr(Fault(sup.faults))
+    assert not [e for e in bench.events if e.spec.name == "FaultReport"]
+
+
 def test_over_temperature_reaches_the_safe_state():
     # a box with a 10 s thermal time constant instead of 300 s, so the test takes seconds
     params = replace(PlantParams(), thermal_capacity_j_per_c=20.0)

@@ -19,6 +19,9 @@ from protocol.states import ARM_CHANNELS, ControllerState, Fault
 J2 = ARM_CHANNELS.index("j2")
 
 
+OK2 = [True, True]      # both encoders trusted
+
+
 def _watch() -> StandstillWatch:
     return StandstillWatch(ParamStore(parameter_table()), [0, 1])
 
@@ -26,34 +29,34 @@ def _watch() -> StandstillWatch:
 def test_a_joint_moving_with_the_outputs_off_trips_once_it_has_come_to_rest_or_its_time_is_up():
     watch, rest = _watch(), [0.0, 0.0]
     turning = [math.radians(20.0), 0.0]
-    assert watch.check(0.0, True, [1.0, 2.0], turning, rest) is None           # outputs on: nothing watched
-    assert watch.check(0.1, False, [1.0, 2.0], turning, rest) is None          # braking: j0 not at rest yet
-    assert watch.check(1.5, False, [1.2, 2.0], turning, rest) is None          # still within still_settle_s (2 s)
-    assert watch.check(1.6, False, [1.3, 2.0], rest, rest) is None            # at rest: its anchor
-    assert watch.check(2.5, False, [1.3 + math.radians(0.4), 2.0], rest, rest) is None
-    seen = watch.check(2.6, False, [1.3 + math.radians(0.6), 2.0], rest, rest)
+    assert watch.check(0.0, True, [1.0, 2.0], turning, rest, OK2) is None           # outputs on: nothing watched
+    assert watch.check(0.1, False, [1.0, 2.0], turning, rest, OK2) is None          # braking: j0 not at rest yet
+    assert watch.check(1.5, False, [1.2, 2.0], turning, rest, OK2) is None          # still within still_settle_s (2 s)
+    assert watch.check(1.6, False, [1.3, 2.0], rest, rest, OK2) is None            # at rest: its anchor
+    assert watch.check(2.5, False, [1.3 + math.radians(0.4), 2.0], rest, rest, OK2) is None
+    seen = watch.check(2.6, False, [1.3 + math.radians(0.6), 2.0], rest, rest, OK2)
     assert seen is not None and seen.channel == 0 and "moved +0.60 deg" in seen.detail
     # anchored again where it was seen: only motion that goes on trips again
-    assert watch.check(2.7, False, [1.3 + math.radians(0.7), 2.0], rest, rest) is None
-    assert watch.check(3.0, True, [0.0, 0.0], rest, rest) is None              # outputs on again: a new watch
-    assert watch.check(3.1, False, [5.0, 5.0], turning, rest) is None
-    seen = watch.check(5.2, False, [5.5, 5.0], turning, rest)                 # never at rest: its time is up
+    assert watch.check(2.7, False, [1.3 + math.radians(0.7), 2.0], rest, rest, OK2) is None
+    assert watch.check(3.0, True, [0.0, 0.0], rest, rest, OK2) is None              # outputs on again: a new watch
+    assert watch.check(3.1, False, [5.0, 5.0], turning, rest, OK2) is None
+    seen = watch.check(5.2, False, [5.5, 5.0], turning, rest, OK2)                 # never at rest: its time is up
     assert seen is not None and seen.channel == 0 and "still turning at +20.0 deg/s 2 s after" in seen.detail
 
 
 def test_a_current_with_the_outputs_off_trips_on_the_second_check_running():
     watch, rest, pos = _watch(), [0.0, 0.0], [0.0, 0.0]
-    assert watch.check(0.0, False, pos, rest, [0.0, 0.9]) is None
-    assert watch.check(1.0, False, pos, rest, [0.0, 0.9]) is None             # within still_settle_s: braking
-    assert watch.check(2.01, False, pos, rest, [0.0, 0.9]) is None            # one sample: a spike
-    assert watch.check(2.02, False, pos, rest, [0.0, 0.1]) is None
-    assert watch.check(2.03, False, pos, rest, [0.0, 0.9]) is None
-    seen = watch.check(2.04, False, pos, rest, [0.0, -0.8])
+    assert watch.check(0.0, False, pos, rest, [0.0, 0.9], OK2) is None
+    assert watch.check(1.0, False, pos, rest, [0.0, 0.9], OK2) is None             # within still_settle_s: braking
+    assert watch.check(2.01, False, pos, rest, [0.0, 0.9], OK2) is None            # one sample: a spike
+    assert watch.check(2.02, False, pos, rest, [0.0, 0.1], OK2) is None
+    assert watch.check(2.03, False, pos, rest, [0.0, 0.9], OK2) is None
+    seen = watch.check(2.04, False, pos, rest, [0.0, -0.8], OK2)
     assert seen is not None and seen.channel == 1 and "drew -0.80 A" in seen.detail
     assert watch.still_moving()
-    watch.check(2.05, False, pos, rest, [0.0, 0.0])
+    watch.check(2.05, False, pos, rest, [0.0, 0.0], OK2)
     assert not watch.still_moving()
-    watch.check(2.06, False, pos, [0.0, math.radians(1.0)], [0.0, 0.0])
+    watch.check(2.06, False, pos, [0.0, math.radians(1.0)], [0.0, 0.0], OK2)
     assert watch.still_moving()                                               # turning at 1 deg/s
 
 
@@ -118,3 +121,16 @@ def test_a_safe_state_entered_at_top_speed_is_no_uncommanded_motion(bench):
     bench.run_for(4.0)
     assert abs(bench.controller.arm.position(k) - at) > 5.0                   # it braked a long way
     assert sup.state is ControllerState.ESTOP and sup.faults == Fault.ESTOP
+
+
+def test_a_joint_whose_encoder_is_faulted_is_not_judged_by_its_position():
+    """An encoder glitch moves the count, not the joint: ENCODER names it; the watch anchors the joint again once
+    its encoder is trusted (after reset) and it rests."""
+    watch, rest, cur = _watch(), [0.0, 0.0], [0.0, 0.0]
+    watch.check(0.0, False, [1.0, 2.0], rest, cur, OK2)
+    watch.check(2.0, False, [1.0, 2.0], rest, cur, OK2)
+    assert watch.check(2.1, False, [1.3, 2.0], rest, cur, [False, True]) is None     # the count jumped
+    assert watch.check(2.2, False, [1.0, 2.0], rest, cur, [False, True]) is None     # and back
+    assert watch.check(2.3, False, [1.3, 2.0], rest, cur, OK2) is None              # trusted again: anchored here
+    seen = watch.check(2.4, False, [1.3 + math.radians(1.0), 2.0], rest, cur, OK2)
+    assert seen is not None and seen.channel == 0
