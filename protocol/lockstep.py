@@ -22,6 +22,11 @@ as they pass, whoever reads them; `LockstepFollower` is the controller's clock a
 wall_deadline)` (`timebase.scheduler.run_live`): they wait on the bus for the sync they
 need, on the wall clock given to them, and return in time for the wall-clock tasks (the link
 to the host, the parent-process watch) that share their thread.
+
+Lock-step knows one plant and one controller per bus. `PlantsWatch` (fed by the follower's `on_tick`)
+and `ControllersWatch` (fed by the leader's `on_answer`) tell from the sync frames when a second
+plant or controller shares it, for the node to say so on its log (docs/separate_processes.md, "One
+pair per bus"); they change nothing the clocks do.
 """
 from __future__ import annotations
 
@@ -37,6 +42,13 @@ from timebase import Clock, PacedClock, RateMeter, TimingReport
 REOFFER_S = 0.1          # the plant sends its last PLANT_SYNC again after this long without an answer
 MAX_SYNC_GAP_TICKS = 100  # a PLANT_SYNC further ahead than this (or behind) is a new plant: resynchronise
 MAX_HELD_FRAMES = 4096    # frames read while waiting, kept for the node's next poll
+# A second node on the bus (`PlantsWatch`, `ControllersWatch`): said when BURST_COUNT of its signs come within
+# BURST_WINDOW_S of wall time; again only once none has come for BURST_QUIET_S, and never within BURST_REPEAT_S.
+BURST_COUNT = 10
+BURST_WINDOW_S = 2.0
+BURST_QUIET_S = 5.0
+BURST_REPEAT_S = 30.0
+ANSWER_CREDIT = 16        # PLANT_SYNCs a plant has sent that may still be answered (ControllersWatch)
 
 
 class SyncTap(BusView):
@@ -126,6 +138,7 @@ class LockstepFollower(Clock):
         self._first_grant: Optional[tuple[float, float]] = None
         self._hello_s = -math.inf          # wall time CTRL_SYNC(0) was last sent, before the first PLANT_SYNC
         self.meter = RateMeter(wall_now, 0.0)
+        self.on_tick: Optional[Callable[[int], None]] = None    # shown every PLANT_SYNC's tick (a PlantsWatch)
 
     def now(self) -> float:
         return self._now
@@ -136,6 +149,8 @@ class LockstepFollower(Clock):
         except ValueError:
             return                          # the node's poll counts it as a bad frame
         tick = int(tick)
+        if self.on_tick is not None:
+            self.on_tick(tick)
         period_s = max(1, int(period_us)) * 1e-6
         self.plant_lockstep = bool(lockstep)
         last = self.plant_tick
@@ -245,6 +260,7 @@ class LockstepLeader(Clock):
         self.controller_tick = 0           # the highest tick the controller has released
         self.reoffers = 0
         self.ignored = 0                   # CTRL_SYNC for ticks this plant never published
+        self.on_answer: Optional[Callable[[int], None]] = None  # shown every CTRL_SYNC's tick (a ControllersWatch)
         self._waiting_since: Optional[float] = None
         self._offered_s = 0.0              # wall time of the last PLANT_SYNC sent again
 
@@ -256,6 +272,8 @@ class LockstepLeader(Clock):
             (tick,) = self._done.unpack(msg.data)
         except ValueError:
             return
+        if self.on_answer is not None:
+            self.on_answer(int(tick))
         published = round(self.pace.now() / self.period_s)    # the plant's last tick: its time is that tick's
         # the frame carries the tick modulo 2**32 (49.7 days at 1 kHz): take the one nearest the plant's
         tick = published + ((int(tick) - published + 0x8000_0000) & 0xFFFF_FFFF) - 0x8000_0000
@@ -297,3 +315,124 @@ class LockstepLeader(Clock):
     def timing(self) -> TimingReport:
         report = self.pace.timing()
         return TimingReport("lockstep", report.rtf_recent, report.rtf_total, report.lag_s, report.slipped_s)
+
+
+class BurstWatch:
+    """Says when events come in a burst: `count` of them within `window_s` (the time is the caller's).
+
+    `note(now)` records one event and is True when it is time to say so: the first time the burst is
+    seen; then not again while the events go on, and once they have stopped (none for `quiet_s`) and
+    come back, not before `repeat_s` after the last time it said so. `in_window` is how many events
+    the window held at the last note.
+    """
+
+    def __init__(self, count: int = BURST_COUNT, window_s: float = BURST_WINDOW_S, quiet_s: float = BURST_QUIET_S,
+                 repeat_s: float = BURST_REPEAT_S) -> None:
+        if count < 1 or not window_s > 0:
+            raise ValueError(f"count must be >= 1 and window_s > 0, got {count}, {window_s}")
+        self.count, self.window_s, self.quiet_s, self.repeat_s = count, window_s, quiet_s, repeat_s
+        self._times: deque[float] = deque(maxlen=count)
+        self._last_s = -math.inf           # the last event
+        self._said_s = -math.inf           # the last time it said so
+        self._on = False                   # said so, and the events have not stopped since
+        self.events = 0
+        self.said = 0
+        self.in_window = 0
+
+    def note(self, now: float) -> bool:
+        self.events += 1
+        if now - self._last_s >= self.quiet_s:
+            self._on = False               # they had stopped: this is a new burst, if it becomes one
+        self._last_s = now
+        times = self._times
+        times.append(now)
+        while times and now - times[0] > self.window_s:
+            times.popleft()
+        self.in_window = len(times)
+        if self._on or len(times) < self.count or now - self._said_s < self.repeat_s:
+            return False
+        self._on = True
+        self._said_s = now
+        self.said += 1
+        return True
+
+
+class PlantsWatch:
+    """The controller's view of PLANT_SYNC: are two plants ticking on this bus?
+
+    One plant's ticks only ever go forward: by one, by more when frames are lost (beyond
+    `MAX_SYNC_GAP_TICKS` a resync), or back once when the plant restarts from 0 (a resync, or up to
+    `MAX_SYNC_GAP_TICKS` old syncs while the new plant catches up with the last tick, each tick ahead
+    of the one before). Two plants interleave theirs, and the tick goes back at every change from the
+    one ahead to the one behind: `BURST_COUNT` steps back within `BURST_WINDOW_S` (`BurstWatch`) are
+    said. A frame replayed or overtaken on the bus goes back once too. Feed `seen(tick, now)` every
+    PLANT_SYNC's tick (`LockstepFollower.on_tick`) with the wall time; it returns the line to log when
+    it is time to say so.
+    """
+
+    def __init__(self, burst: Optional[BurstWatch] = None) -> None:
+        self.burst = burst or BurstWatch()
+        self._last: Optional[int] = None
+        self.steps_back = 0
+
+    def seen(self, tick: int, now: float) -> Optional[str]:
+        last, self._last = self._last, tick
+        if last is None:
+            return None
+        back = (last - tick) & 0xFFFF_FFFF
+        if back == 0 or back >= 0x8000_0000:
+            return None                     # the same tick again, or one ahead of it
+        self.steps_back += 1
+        if not self.burst.note(now):
+            return None
+        burst = self.burst
+        return (f"PLANT_SYNC from two plants (ticks near {last} and near {tick}; the tick went back "
+                f"{burst.in_window} times in {burst.window_s:g} s): another aspod plant (or another node sending "
+                "PLANT_SYNC) on this bus? the controller's time runs ahead of either plant's; give each pair its "
+                "own --channel / --bus-arg port")
+
+
+class ControllersWatch:
+    """The plant's view of CTRL_SYNC: is more than one controller answering its ticks, or one answering another plant?
+
+    One controller answers each PLANT_SYNC it receives at most once (a new tick once it has run it, the
+    same tick again or one just behind at once), so a plant alone with it gets at most as many CTRL_SYNCs as
+    it has sent PLANT_SYNCs (its ticks and its re-offers), fewer when frames are lost; a controller
+    starting adds a CTRL_SYNC(0) or two ("I am here"). Two controllers answer every tick twice; a
+    controller that also follows another plant answers that plant's ticks too. Feed `answer(now, offered,
+    others)` every CTRL_SYNC (`LockstepLeader.on_answer`) with the wall time, the PLANT_SYNCs sent so far
+    and, if known, how many frames with the plant's own IDs it has received beyond those it sent (its
+    own echoes on udp_multicast, `nodes.own_echoes` less `frames_sent`: above 0, another plant). Each
+    answer uses up one PLANT_SYNC sent (at most `ANSWER_CREDIT` are kept, so a long wait alone does not
+    hide a later second controller); answers beyond them are said after `BURST_COUNT` within
+    `BURST_WINDOW_S` (`BurstWatch`), naming another plant if `others` grew since it last said so, else
+    another controller. It returns the line to log when it is time to say so.
+    """
+
+    def __init__(self, burst: Optional[BurstWatch] = None, credit: int = ANSWER_CREDIT) -> None:
+        self.burst = burst or BurstWatch()
+        self.max_credit = credit
+        self._offered = 0
+        self._credit = 0
+        self._others_said = 0
+        self.unasked = 0                    # CTRL_SYNCs beyond the PLANT_SYNCs sent
+
+    def answer(self, now: float, offered: int, others: int = 0) -> Optional[str]:
+        self._credit = min(self.max_credit, self._credit + max(0, offered - self._offered))
+        self._offered = offered
+        if self._credit > 0:
+            self._credit -= 1
+            return None
+        self.unasked += 1
+        if not self.burst.note(now):
+            return None
+        burst = self.burst
+        seen = (f"{burst.in_window} CTRL_SYNC answers in {burst.window_s:g} s beyond the PLANT_SYNCs this plant "
+                "sent; it re-offers its ticks, sync_resends climbs")
+        plant, self._others_said = others > self._others_said, max(self._others_said, others)
+        if plant:
+            return (f"another plant's frames on this bus ({seen}; {others} frames with this plant's IDs that it did "
+                    "not send): another aspod plant on this bus? its controller follows both; give each pair its "
+                    "own --channel / --bus-arg port")
+        return (f"CTRL_SYNC from two controllers ({seen}): another aspod firmware on this bus? both drive this "
+                "plant; give each pair its own --channel / --bus-arg port")

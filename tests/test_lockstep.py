@@ -17,10 +17,11 @@ from timebase.scheduler import Scheduler
 from firmware_py.uart import PacedUart
 from host_tools.worlds.ports import BufferPort
 from host_tools.worlds.settings import PlantSettings
-from host_tools.worlds.local_bus import open_local_pair
+from host_tools.worlds.local_bus import LocalBus, open_local_pair
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from protocol.hal import BusView, HalCodec
-from protocol.lockstep import REOFFER_S, LockstepFollower, LockstepLeader
+from protocol.lockstep import (MAX_SYNC_GAP_TICKS, REOFFER_S, BurstWatch, ControllersWatch, LockstepFollower,
+                               LockstepLeader, PlantsWatch)
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, Fault, FaultCause, MotionOutcome
@@ -314,3 +315,133 @@ def test_a_plant_sync_with_another_period_does_not_rescale_the_ticks_already_gra
     finally:
         plant_end.shutdown()
         controller_end.shutdown()
+
+
+# --- a second node on the bus: said on the log (PlantsWatch on the controller, ControllersWatch on the plant) ---
+
+def _interleaved(ahead: int, behind: int, count: int, start_s: float = 0.0, step_s: float = 0.001):
+    """(tick, wall time) of two plants' PLANT_SYNCs as a controller following both sees them."""
+    for i in range(count):
+        yield ahead + i, start_s + 2 * i * step_s
+        yield behind + i, start_s + (2 * i + 1) * step_s
+
+
+def test_plants_watch_says_two_plants_once_by_their_ticks_and_again_only_after_they_stopped_and_came_back():
+    watch = PlantsWatch()
+    lines = [(now, line) for tick, now in _interleaved(5000, 100, 500) if (line := watch.seen(tick, now))]
+    assert len(lines) == 1 and lines[0][0] < 0.1                  # said at once, and once only
+    assert "two plants (ticks near 50" in lines[0][1] and "and near 1" in lines[0][1]
+    assert "another aspod plant" in lines[0][1] and "--channel" in lines[0][1]
+    # they stop (one plant alone for 10 s), then come back: said again, but never within BURST_REPEAT_S of the last
+    alone = [watch.seen(5500 + i, 1.0 + i * 0.001) for i in range(10_000)]
+    again = [now for tick, now in _interleaved(16_000, 200, 500, start_s=12.0) if watch.seen(tick, now)]
+    assert not any(alone) and again == []                          # 12 s after the first: too soon
+    later = [now for tick, now in _interleaved(40_000, 300, 500, start_s=40.0) if watch.seen(tick, now)]
+    assert len(later) == 1 and watch.burst.said == 2
+
+
+def test_plants_watch_is_silent_for_what_one_plant_does_restarts_lost_frames_replays_and_the_wrap():
+    watch = PlantsWatch()
+    ticks: list[int] = []
+    ticks += range(0, 5000)                          # a plant ...
+    ticks += range(0, 5000)                          # ... restarted (a resync)
+    ticks += range(0, 50)                            # ... and again within its first ticks
+    ticks += [t for t in range(0, 3000) if t % 7]    # frames lost: gaps below MAX_SYNC_GAP_TICKS ...
+    ticks += range(3000 + MAX_SYNC_GAP_TICKS * 5, 4000 + MAX_SYNC_GAP_TICKS * 5)   # ... and beyond: a resync
+    ticks += [4500, 4500, 4500, 4499, 4501]          # re-offers of a tick, and one replayed from just behind
+    ticks += [(2 ** 32 - 300 + t) % 2 ** 32 for t in range(600)]   # 32-bit wrap (after a jump back: a resync)
+    lines = [watch.seen(tick, i * 0.0001) for i, tick in enumerate(ticks)]   # all within 2.5 s of wall time
+    assert not any(lines) and watch.steps_back == 5
+
+
+def test_controllers_watch_says_two_controllers_or_another_plant_and_nothing_for_one_controller():
+    one = ControllersWatch()
+    offered = 0
+    for i in range(20_000):                          # one controller: every PLANT_SYNC answered once ...
+        offered += 1
+        if i % 500 == 0:                             # ... a re-offer now and then, answered too ...
+            offered += 1
+            assert one.answer(i * 0.001, offered) is None
+        if i % 300 != 0:                             # ... and answers lost
+            assert one.answer(i * 0.001, offered) is None
+    for _ in range(100_000):                         # a plant alone for long: its re-offers are never answered ...
+        offered += 1
+    assert one.answer(30.0, offered) is None and one.answer(30.0, offered) is None   # ... then a new controller
+    assert one.unasked == 0
+    two = ControllersWatch()
+    offered, lines = 0, []
+    for i in range(1000):                            # two controllers: every PLANT_SYNC answered twice
+        offered += 1
+        lines += [line for _ in range(2) if (line := two.answer(i * 0.001, offered))]
+    assert len(lines) == 1 and "two controllers" in lines[0] and "another aspod firmware" in lines[0]
+    assert two.unasked >= 900
+    other = ControllersWatch()
+    lines = [line for i in range(1000)
+             if (line := other.answer(i * 0.001, i // 2, others=i // 3))]   # another plant's ticks answered too
+    assert len(lines) == 1 and "another aspod plant" in lines[0]
+
+
+def test_controllers_watch_credit_is_bounded_so_a_long_wait_alone_hides_no_second_controller():
+    watch = ControllersWatch()
+    offered = 100_000                                # the plant waited alone, re-offering, for hours
+    lines = []
+    for i in range(200):
+        offered += 1
+        lines += [line for _ in range(2) if (line := watch.answer(i * 0.001, offered))]
+    assert len(lines) == 1 and watch.unasked < 200
+
+
+def test_burst_watch_needs_count_within_window_and_goes_quiet_before_it_says_again():
+    burst = BurstWatch(count=3, window_s=1.0, quiet_s=5.0, repeat_s=30.0)
+    assert [burst.note(t) for t in (0.0, 1.5, 3.0, 4.5)] == [False] * 4     # never 3 within 1 s
+    assert [burst.note(t) for t in (10.0, 10.2, 10.4, 10.6)] == [False, False, True, False]
+    assert [burst.note(t) for t in (13.0, 13.1, 13.2)] == [False] * 3       # goes on: not again
+    assert [burst.note(t) for t in (20.0, 20.1, 20.2)] == [False] * 3       # stopped 6.8 s, back: too soon
+    assert [burst.note(t) for t in (41.0, 41.1, 41.2)] == [False, False, True]   # stopped, back, 30 s later
+    with pytest.raises(ValueError):
+        BurstWatch(count=0)
+
+
+def test_a_second_plant_on_the_bus_is_said_by_the_controller_a_plant_restart_is_not():
+    pair = Pair()
+    watch = PlantsWatch()
+    lines: list[str] = []
+    pair.follower.on_tick = lambda tick: lines.extend(filter(None, [watch.seen(tick, pair.wall.now())]))
+    assert pair.run_until(lambda: pair.node.tick >= 300)
+    pair.start_plant(seed=2)                         # a new plant process on the same bus: one resync
+    assert pair.run_until(lambda: pair.node.tick >= 300)
+    assert pair.follower.resyncs == 1 and lines == []
+    other = LocalBus(pair.plant_bus.local_channel)   # a second plant, its ticks far ahead of this one's
+    try:
+        for i in range(30):                          # the controller answers its ticks: this plant waits, re-offers
+            other.send(SYNC_LAYOUT.message((9000 + i, 1, 1000)))
+            pair.wall.advance_by(REOFFER_S)
+            for _ in range(3):
+                pair.turn()
+    finally:
+        other.shutdown()
+    assert len(lines) == 1 and "ticks near 90" in lines[0]
+    assert pair.follower.resyncs > 1              # what the follower grants is its own business: unchanged
+
+
+def test_a_second_controller_on_the_bus_is_said_by_the_plant_one_controller_is_not():
+    pair = Pair()
+    watch = ControllersWatch()
+    lines: list[str] = []
+    pair.leader.on_answer = lambda tick: lines.extend(filter(None, [watch.answer(
+        pair.wall.now(), pair.node.tick + pair.node.sync_resends)]))
+    assert pair.run_until(lambda: pair.node.tick >= 300)
+    pair.controller_bus.count = 1                   # a lost CTRL_SYNC: the plant re-offers its tick
+    for _ in range(5):
+        pair.turn()
+    pair.wall.advance_by(REOFFER_S)
+    assert pair.run_until(lambda: pair.node.tick >= 600)
+    assert lines == [] and watch.unasked == 0 and pair.node.sync_resends >= 1
+    second = LockstepFollower(LocalBus(pair.plant_bus.local_channel), pair.wall)   # a second controller
+    try:
+        for _ in range(200):
+            pair.turn()
+            second.advance(math.inf, pair.wall.now())   # it answers every tick it sees
+    finally:
+        second.tap.shutdown()
+    assert len(lines) == 1 and "two controllers" in lines[0]

@@ -192,6 +192,28 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
         client.wait_for(lambda: False, 0.1)
     assert reset.ok
     assert status(client).state == ControllerState.IDLE
+    client.close()
+    code, rest = firmware.stop()                           # a plant restarted: one resync, nothing to say
+    assert code == 0 and "sync_steps_back=1 " in rest, rest   # its tick went back once (a resync or old syncs)
+    assert "two plants" not in rest and not any("two plants" in line for line in firmware.seen)
+
+
+def test_a_second_controller_or_plant_on_a_pairs_bus_is_said_on_stderr(multicast_works, procs, tmp_path, params_file):
+    """Both are accepted as they are (the lock-step counters climb); each is said by the node that can see it."""
+    group, port = nodes.fresh_udp_multicast()
+    bus = ("--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={port}")
+    plant = start_plant(procs, group, port)
+    firmware = procs("firmware", *bus, "--pty", "--params", str(params_file))
+    link_of(firmware)
+    firmware.wait_stderr(r"BOOT -> IDLE \(OK\)")
+    second = procs("firmware", *bus, "--pty", "--params", str(tmp_path / "params2.json"))
+    link_of(second)
+    plant.wait_stderr(r"aspod plant: CTRL_SYNC from two controllers \(.*another aspod firmware on this bus\?")
+    code, _ = second.stop()
+    assert code == 0
+    start_plant(procs, group, port)
+    firmware.wait_stderr(r"aspod firmware: PLANT_SYNC from two plants \(ticks near \d+ and near \d+.*"
+                         r"another aspod plant")
 
 
 def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_works, procs, clients, params_file):

@@ -35,7 +35,7 @@ from firmware_py.uart import PacedUart, Port
 from host_tools.worlds.ports import DevicePort, PtyPort, RedundantPort, TcpServerPort, open_endpoint
 from protocol import auth, files
 from protocol.link import LinkConfig
-from protocol.lockstep import LockstepFollower
+from protocol.lockstep import LockstepFollower, PlantsWatch
 from protocol.reasons import Reason
 from protocol.states import ARM_CHANNELS, Fault
 from timebase import RealClock
@@ -133,6 +133,9 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
     bus = nodes.open_bus(bus_settings.interface, bus_settings.channel, node=nodes.CONTROLLER, **bus_settings.kwargs)
     wall = RealClock()
     follower = LockstepFollower(bus, wall) if timing == "lockstep" else None
+    plants = PlantsWatch()
+    if follower is not None:                # a second plant on this bus: said on stderr (not a fault)
+        follower.on_tick = lambda tick: warn(prog, plants.seen(tick, wall.now()))
     uart = None
     controller: Optional[Controller] = None
     baud, paced = port_settings.baud, port_settings.paced
@@ -166,9 +169,15 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
             counters = nodes.hal_counters(controller.hal)
             if follower is not None:
                 counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs, old_syncs=follower.old_syncs,
-                                rtf=f"{follower.timing().rtf_total:.2f}")
+                                sync_steps_back=plants.steps_back, rtf=f"{follower.timing().rtf_total:.2f}")
             log.info(f"{prog}: HAL counters {nodes.format_counters(counters)}")
     return 0
+
+
+def warn(prog: str, line: Optional[str]) -> None:
+    """`line`, if there is one, as a warning of `prog` on stderr."""
+    if line:
+        log.warning(f"{prog}: {line}")
 
 
 def log_states(controller: Controller, prog: str) -> None:

@@ -37,7 +37,7 @@ from typing import Callable, Optional
 
 from timebase.scheduler import Scheduler, run_live
 from hil_sim.sun import TUCSON, SunTable
-from protocol.lockstep import LockstepLeader
+from protocol.lockstep import ControllersWatch, LockstepLeader
 from timebase import PacedClock, RealClock
 
 from host_tools.cli.settings import PlantRunSettings
@@ -94,10 +94,14 @@ def run_plant(settings: PlantRunSettings) -> int:
     lockstep = settings.timing == "lockstep"
     node = None
     leader: Optional[LockstepLeader] = None
+    controllers = ControllersWatch()
     started_s = wall.now()
     try:
         if lockstep:
             leader = LockstepLeader(bus, pace, nodes.PLANT_PERIOD_S, reoffer=lambda: node.resend_sync())
+            # a second controller (or plant) on this bus: said on stderr
+            leader.on_answer = lambda tick: _warn(controllers.answer(
+                wall.now(), node.tick + node.sync_resends, nodes.own_echoes(leader.tap) - node.frames_sent))
         node = nodes.build_plant_node(leader.tap if leader else bus, settings.seed, None, plant, lockstep=lockstep)
         scheduler = Scheduler(leader or pace)
         scheduler.add("plant", node.step, period_s=node.period_s)
@@ -123,12 +127,18 @@ def run_plant(settings: PlantRunSettings) -> int:
                         "output_expiries": node.plant.commanded.expiries,
                         "rtf": f"{timing.rtf_total:.2f}", "slipped_s": f"{timing.slipped_s:.3f}"}
             if leader is not None:
-                counters.update(sync_resends=node.sync_resends, held_dropped=leader.tap.dropped)
+                counters.update(sync_resends=node.sync_resends, held_dropped=leader.tap.dropped,
+                                unasked_syncs=controllers.unasked)
             log.info(f"aspod plant: stopped after {wall.now() - started_s:.1f} s; counters "
                      f"{nodes.format_counters(counters)}")
             if node.last_bus_error is not None:
                 log.warning(f"aspod plant: last bus error: {node.last_bus_error}")
     return 0
+
+
+def _warn(line: Optional[str]) -> None:
+    if line:
+        log.warning(f"aspod plant: {line}")
 
 
 def _waiting_note(leader: LockstepLeader, node) -> Callable[[float], Optional[float]]:
