@@ -129,6 +129,16 @@ def test_a_script_with_an_unknown_command_sends_nothing_and_names_it(sim_factory
         client.close()
 
 
+def test_a_client_whose_simulator_has_gone_closes_without_an_error(sim_factory):
+    """The pty's other end gone, pyserial's reset_input_buffer raises termios.error (not an OSError), which
+    HostClient.close let out."""
+    sim = sim_factory("--pty")
+    client = sim.client()
+    assert client.call(M["Ping"](1)).ok
+    sim.stop()
+    client.close()
+
+
 def test_a_failing_command_makes_the_script_exit_non_zero(sim_factory):
     sim = sim_factory("--pty")
     done = sim.teleop("estop\nenable\nping\n")

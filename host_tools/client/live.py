@@ -6,6 +6,7 @@ its single outcome; telemetry and events are kept and handed to listeners.
 """
 from __future__ import annotations
 
+import termios
 import threading
 from typing import Callable, Optional
 
@@ -155,8 +156,8 @@ class HostClient:
             try:
                 self._flush(self.clock.now())
                 self.line.reset_input_buffer()
-            except (serial.SerialException, OSError):
-                pass                          # the port is gone already: nothing more can be sent
+            except (serial.SerialException, OSError, termios.error):
+                pass                          # the port is gone already (a pty's tcflush: termios.error)
         self.line.close()
         if self.capture is not None:
             self.capture.close()
