@@ -10,8 +10,9 @@ arm idle while it moves.
 The health task (100 Hz) calls `check`. After the outputs go off, each joint has `still_settle_s` to brake to
 rest (slower than STILL_DPS: the mount from its top speed takes about 1 s and 11 deg); where it rests is its
 anchor. A joint further than `still_deg` from its anchor, one not at rest when its time is up, or a motor current
-above `still_current_a` on two checks running after that, trips. After a trip the anchors move to where the
-joints are, so that motion that goes on is seen again; `reset` is refused while it does (`still_moving`).
+above `still_current_a` on two checks running after that, trips. After a trip the anchors of the joints at rest
+(and of the one that tripped) move to where they are, so that motion that goes on is seen again; a joint still
+braking keeps braking unjudged until it rests. `reset` is refused while a joint turns (`still_moving`).
 """
 from __future__ import annotations
 
@@ -95,7 +96,11 @@ class StandstillWatch:
                                        f"(still_current_a {limit_a:g})")
         self._current_seen, self._last_current = over, any(over)
         if found is not None:
-            self._anchor = list(positions_rad)        # motion that goes on is seen again from here
+            # motion that goes on is seen again from here: the joints anchored, and the one that tripped; a joint
+            # still braking (or with its encoder faulted) is anchored only once it rests, as before
+            tripped = self.channels.index(found.channel)
+            self._anchor = [pos if (self._anchor[i] is not None or i == tripped) else None
+                            for i, pos in enumerate(positions_rad)]
         return found
 
     def still_moving(self) -> bool:

@@ -134,3 +134,20 @@ def test_a_joint_whose_encoder_is_faulted_is_not_judged_by_its_position():
     assert watch.check(2.3, False, [1.3, 2.0], rest, cur, OK2) is None              # trusted again: anchored here
     seen = watch.check(2.4, False, [1.3 + math.radians(1.0), 2.0], rest, cur, OK2)
     assert seen is not None and seen.channel == 0
+
+
+def test_a_trip_does_not_anchor_a_joint_still_braking():
+    """After j0 trips, j1 (still braking within still_settle_s) is not anchored where it happened to be: its
+    braking travel is no uncommanded motion, and the trip stays j0's (it was anchored mid-brake and named
+    for the next 0.5 deg of its braking)."""
+    watch, cur = _watch(), [0.0, 0.0]
+    rest, braking = [0.0, 0.0], [0.0, math.radians(20.0)]
+    watch.check(0.0, False, [1.0, 2.0], braking, cur, OK2)                     # j0 at rest: anchored; j1 braking
+    seen = watch.check(0.1, False, [1.0 + math.radians(0.6), 2.0], braking, cur, OK2)
+    assert seen is not None and seen.channel == 0
+    for n in range(1, 6):                                                      # j1 brakes on, 0.2 deg a check
+        pos1 = 2.0 + math.radians(0.2 * n)
+        assert watch.check(0.1 + 0.01 * n, False, [1.0 + math.radians(0.6), pos1], braking, cur, OK2) is None
+    assert watch.check(0.2, False, [1.0 + math.radians(0.6), pos1], rest, cur, OK2) is None     # j1 at rest
+    seen = watch.check(0.3, False, [1.0 + math.radians(0.6), pos1 + math.radians(0.6)], rest, cur, OK2)
+    assert seen is not None and seen.channel == 1                                # from where it came to rest
