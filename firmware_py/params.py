@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional
@@ -47,6 +48,19 @@ class ParamSpec:
                 raise ValueError(f"parameter {self.name}: {problem} (ParamValue.{what} is {wire.type})")
 
 
+def _f32(x: float) -> float:
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+def _at_an_end(value: float, lo: float, hi: float) -> float:
+    """An end of [lo, hi] for a value that misses it only as the link's f32 carries it (ParamSet 0.01 arrives as
+    0.0099999998, below a minimum of 0.01, and was refused); the value itself otherwise."""
+    for end in (lo, hi):
+        if value != end and abs(value - end) <= 1e-6 * max(1.0, abs(end)) and _f32(value) == _f32(end):
+            return end
+    return value
+
+
 class ParamStore:
     """Values by name; `on_change(name, value)` applies a value when it is set or loaded.
 
@@ -77,6 +91,8 @@ class ParamStore:
         spec = self.specs.get(name)
         if spec is None:
             return Reason.UNKNOWN_PARAM, f"no parameter {name!r}"
+        if isinstance(value, (int, float)) and math.isfinite(value):
+            value = _at_an_end(value, spec.lo, spec.hi)
         if not isinstance(value, (int, float)) or not math.isfinite(value) or not spec.lo <= value <= spec.hi:
             return Reason.OUT_OF_RANGE, f"{name}={value} outside {spec.lo}..{spec.hi} {spec.unit}".rstrip()
         problem = self._check(name, float(value))

@@ -114,6 +114,20 @@ def test_parameters_over_the_link_and_across_a_reboot(tmp_path):
         rebooted.close()
 
 
+def test_a_range_end_that_the_link_carries_as_an_f32_is_that_end(bench):
+    """ParamSet's value is an f32: 0.01 arrives as 0.0099999998, below a minimum of 0.01, and the end a parameter's
+    own description gives was refused (still_deg, still_current_a, hal_stale_s 0.005; the review of 2026-11-25).
+    A value that misses an end only by that rounding is the end; one below it, by more, is still refused."""
+    for name, end in (("still_deg", 0.01), ("still_current_a", 0.01), ("hal_stale_s", 0.005), ("still_deg", 30.0)):
+        done = bench.call(M["ParamSet"](name, end))
+        assert done.ok, (name, end, done.reason)
+        assert bench.controller.params[name] == end                         # the end itself, not its f32
+    assert bench.call(M["ParamSet"]("still_deg", 0.0099)).reason is Reason.OUT_OF_RANGE
+    store = ParamStore([ParamSpec("x", 1.0, 0.01, 2.0, "", "a test")])
+    assert store.set("x", 0.009999999776482582)[0] is Reason.OK and store["x"] == 0.01
+    assert store.set("x", 0.00999)[0] is Reason.OUT_OF_RANGE and store["x"] == 0.01
+
+
 def test_link_timeout_parameter_applies_to_the_watchdog(tmp_path):
     bench = LockstepBench(seed=3, controller_config=ControllerConfig(params_path=tmp_path / "p.json"))
     try:
