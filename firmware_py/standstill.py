@@ -10,7 +10,8 @@ arm idle while it moves.
 The health task (100 Hz) calls `check`. After the outputs go off, each joint has `still_settle_s` to brake to
 rest (slower than STILL_DPS: the mount from its top speed takes about 1 s and 11 deg); where it rests is its
 anchor. A joint further than `still_deg` from its anchor, one not at rest when its time is up, or a motor current
-above `still_current_a` on two checks running after that, trips. After a trip the anchors of the joints at rest
+above `still_current_a` on two checks running, trips. The current is judged from the moment the outputs go off: a
+braked motor whose bridge is off draws none, braking or not (0.0 A in every stop the review of 2026-11-25 made). After a trip the anchors of the joints at rest
 (and of the one that tripped) move to where they are, so that motion that goes on is seen again; a joint still
 braking keeps braking unjudged until it rests. `reset` is refused while a joint turns (`still_moving`).
 """
@@ -32,9 +33,9 @@ def parameter_table() -> list[ParamSpec]:
         ParamSpec("still_current_a", 0.5, 0.01, 50.0, "A",
                   "outputs off: a motor current above this on two health checks running faults "
                   "(UNCOMMANDED_MOTION)"),
-        ParamSpec("still_settle_s", 2.0, 0.05, 60.0, "s",
+        ParamSpec("still_settle_s", 2.0, 1.5, 60.0, "s",
                   "after the outputs go off, the time a joint has to brake to rest (UNCOMMANDED_MOTION if it is "
-                  "not)"),
+                  "not); the mount takes 1 s from its top speed"),
     ]
 
 
@@ -75,7 +76,7 @@ class StandstillWatch:
         self._last_speeds = list(speeds_rad_s)
         settled = now - self._off_since >= p["still_settle_s"]
         limit_rad, limit_a = math.radians(p["still_deg"]), p["still_current_a"]
-        over = [settled and abs(i) > limit_a for i in currents_a]
+        over = [abs(i) > limit_a for i in currents_a]
         found: Optional[Uncommanded] = None
         for i, k in enumerate(self.channels):
             pos, speed_dps = positions_rad[i], math.degrees(speeds_rad_s[i])

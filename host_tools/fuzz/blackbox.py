@@ -47,8 +47,8 @@ from host_tools.fuzz.grammar import TO_CONTROLLER, RandomDraw, draw_payload, dra
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
-# what a moving arm may latch, whatever the link does (UNCOMMANDED_MOTION too: a case may set still_settle_s to
-# 0.05 s and then disable a joint at speed, which brakes for longer than that)
+# what a moving arm may latch, whatever the link does (UNCOMMANDED_MOTION too: a case may set still_deg to 0.01 deg,
+# 1.5 times the drift a held mount showed after a lost link)
 MOTION_FAULTS = (Fault.ENCODER | Fault.STALL | Fault.FOLLOWING_ERROR | Fault.OVER_CURRENT | Fault.HOMING_FAILED
                  | Fault.OPEN_CIRCUIT | Fault.GRIPPER | Fault.UNCOMMANDED_MOTION)
 COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT))
