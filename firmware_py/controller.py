@@ -41,8 +41,8 @@ from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
-from protocol.states import (ARM_AXES, ARM_CHANNELS, Axis, ControllerState, Fault, FaultCause, GripAction,
-                             TimingIssue, TimingMode)
+from protocol.states import (ARM_AXES, ARM_CHANNELS, TRACKER_AXES, Axis, ControllerState, Fault, FaultCause,
+                             GripAction, TimingIssue, TimingMode)
 from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 from timebase.scheduler import Scheduler
@@ -186,7 +186,8 @@ class Controller:
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
         self._watched = [(ARM_CHANNELS.index(drive.name), self.arm.joints[drive.name]) for drive in DRIVES]
-        self.standstill = StandstillWatch(self.params, [k for k, _ in self._watched])
+        self.standstill = StandstillWatch(self.params, [ARM_CHANNELS[k] for k, _ in self._watched]
+                                          + [f"tracker {axis}" for axis in TRACKER_AXES])
         self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
         self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
         missing = [s.name for s in SCHEMA.by_id.values()
@@ -368,12 +369,17 @@ class Controller:
         return now + cfg.health_period_s
 
     def _standstill_check(self, now: float) -> None:
-        """Outputs off: a joint that moves or a motor that draws current is driven by something else
-        (firmware_py/standstill.py): UNCOMMANDED_MOTION, and the sim's log names the joint."""
-        currents, joints = self.hal.inputs.currents_a, self._watched
-        moved = self.standstill.check(now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints],
-                                      [a.vel_rad_s for _, a in joints], [currents[k] for k, _ in joints],
-                                      [not a.errors & ENCODER_FAULTS for _, a in joints])
+        """Outputs off: a joint or a tracker axis that moves, or a motor that draws current, is driven by something
+        else (firmware_py/standstill.py): UNCOMMANDED_MOTION, and the sim's log names the joint or axis. The
+        tracker's axes are judged by their angles (TRACKER_POS, while it comes: a plant without a tracker sends
+        none)."""
+        inputs, joints = self.hal.inputs, self._watched
+        angles = [math.radians(a) for a in inputs.tracker_angles_deg]
+        tracker_ok = inputs.pos_s is not None and now - inputs.pos_s <= self.params["trk_stale_s"]
+        moved = self.standstill.check(
+            now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints] + angles,
+            [a.vel_rad_s for _, a in joints] + [None, None], [inputs.currents_a[k] for k, _ in joints] + [None, None],
+            [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
         if moved is not None:
             self.uncommanded = moved
             self._trip(Fault.UNCOMMANDED_MOTION, now, Reason.UNCOMMANDED_MOTION)

@@ -1,4 +1,5 @@
-"""Standstill monitoring: while the controller's outputs are off, no joint moves and no motor draws current.
+"""Standstill monitoring: while the controller's outputs are off, no joint or solar-tracker axis moves and no motor
+draws current.
 
 With the outputs off (IDLE, FAULT, ESTOP: every channel braked, nothing driven; CTRL_OUTPUTS says so every
 10 ms) a joint that moves, or a motor that draws current, is driven by something the controller did not
@@ -41,30 +42,35 @@ def parameter_table() -> list[ParamSpec]:
 
 @dataclass(frozen=True)
 class Uncommanded:
-    """What tripped: the channel (HAL order), and what was seen there, for people."""
+    """What tripped: the channel (its name: j1, mount, tracker az, ...), and what was seen there, for people."""
 
-    channel: int
+    channel: str
     detail: str
 
 
 class StandstillWatch:
-    """The joints' standstill while the outputs are off. `channels` are the HAL channel indices watched."""
+    """The standstill of the named `channels` while the outputs are off.
 
-    def __init__(self, params: ParamStore, channels: Sequence[int]) -> None:
+    A channel given no speed (None: the solar tracker's axes, whose angles come at 0.01 deg) is anchored where it
+    is once `still_settle_s` has passed (the tracker, at most 0.59 deg/s, brakes at once); one given no current
+    (None) is judged by its position alone."""
+
+    def __init__(self, params: ParamStore, channels: Sequence[str]) -> None:
         self.params = params
         self.channels = tuple(channels)
         self._off_since: Optional[float] = None
-        self._anchor: list[Optional[float]] = [None] * len(self.channels)   # where each joint came to rest [rad]
+        self._anchor: list[Optional[float]] = [None] * len(self.channels)   # where each channel came to rest [rad]
         self._current_seen = [False] * len(self.channels)
         self._last_speeds: list[float] = [0.0] * len(self.channels)
         self._last_current = False
 
-    def check(self, now: float, outputs_on: bool, positions_rad: Sequence[float], speeds_rad_s: Sequence[float],
-              currents_a: Sequence[float], encoders_ok: Sequence[bool]) -> Optional[Uncommanded]:
+    def check(self, now: float, outputs_on: bool, positions_rad: Sequence[float],
+              speeds_rad_s: Sequence[Optional[float]], currents_a: Sequence[Optional[float]],
+              encoders_ok: Sequence[bool]) -> Optional[Uncommanded]:
         """None while all is still (or the outputs are on, or the joints are still braking); what moved else.
-        The sequences are the watched channels', in the order of `channels`. A joint whose encoder is faulted
-        (`encoders_ok` False: a count that jumped or stopped, ENCODER or HAL_STALE) is not judged by its
-        position, which is the encoder's fault; it is anchored again once its encoder is trusted and it rests."""
+        The sequences are the watched channels', in the order of `channels`. A channel whose position sensor is
+        faulted (`encoders_ok` False: a count that jumped or stopped, ENCODER or HAL_STALE; no angle yet) is not
+        judged by its position, which is the sensor's fault; it is anchored again once it is trusted and rests."""
         n = len(self.channels)
         if outputs_on:
             self._off_since, self._anchor = None, [None] * n
@@ -73,32 +79,35 @@ class StandstillWatch:
         if self._off_since is None:
             self._off_since = now
         p = self.params
-        self._last_speeds = list(speeds_rad_s)
+        self._last_speeds = [0.0 if v is None else v for v in speeds_rad_s]
         settled = now - self._off_since >= p["still_settle_s"]
         limit_rad, limit_a = math.radians(p["still_deg"]), p["still_current_a"]
-        over = [abs(i) > limit_a for i in currents_a]
+        over = [i is not None and abs(i) > limit_a for i in currents_a]
         found: Optional[Uncommanded] = None
-        for i, k in enumerate(self.channels):
-            pos, speed_dps = positions_rad[i], math.degrees(speeds_rad_s[i])
+        for i, name in enumerate(self.channels):
+            pos, speed = positions_rad[i], speeds_rad_s[i]
             anchor = self._anchor[i]
             if not encoders_ok[i]:
                 self._anchor[i] = None
             elif anchor is None:
-                if abs(speed_dps) < STILL_DPS:
+                if speed is None:
+                    if settled:
+                        self._anchor[i] = pos
+                elif abs(math.degrees(speed)) < STILL_DPS:
                     self._anchor[i] = pos
                 elif settled and found is None:
-                    found = Uncommanded(k, f"still turning at {speed_dps:+.1f} deg/s {p['still_settle_s']:g} s "
-                                           "after the outputs went off (still_settle_s)")
+                    found = Uncommanded(name, f"still turning at {math.degrees(speed):+.1f} deg/s "
+                                              f"{p['still_settle_s']:g} s after the outputs went off (still_settle_s)")
             elif found is None and abs(pos - anchor) > limit_rad:
-                found = Uncommanded(k, f"moved {math.degrees(pos - anchor):+.2f} deg with the outputs off "
-                                       f"(still_deg {p['still_deg']:g})")
+                found = Uncommanded(name, f"moved {math.degrees(pos - anchor):+.2f} deg with the outputs off "
+                                          f"(still_deg {p['still_deg']:g})")
             if found is None and over[i] and self._current_seen[i]:
-                found = Uncommanded(k, f"drew {currents_a[i]:+.2f} A with the outputs off "
-                                       f"(still_current_a {limit_a:g})")
+                found = Uncommanded(name, f"drew {currents_a[i]:+.2f} A with the outputs off "
+                                          f"(still_current_a {limit_a:g})")
         self._current_seen, self._last_current = over, any(over)
         if found is not None:
-            # motion that goes on is seen again from here: the joints anchored, and the one that tripped; a joint
-            # still braking (or with its encoder faulted) is anchored only once it rests, as before
+            # motion that goes on is seen again from here: the channels anchored, and the one that tripped; a joint
+            # still braking (or with its sensor faulted) is anchored only once it rests, as before
             tripped = self.channels.index(found.channel)
             self._anchor = [pos if (self._anchor[i] is not None or i == tripped) else None
                             for i, pos in enumerate(positions_rad)]

@@ -23,7 +23,7 @@ OK2 = [True, True]      # both encoders trusted
 
 
 def _watch() -> StandstillWatch:
-    return StandstillWatch(ParamStore(parameter_table()), [0, 1])
+    return StandstillWatch(ParamStore(parameter_table()), ["j1", "j2"])
 
 
 def test_a_joint_moving_with_the_outputs_off_trips_once_it_has_come_to_rest_or_its_time_is_up():
@@ -35,13 +35,13 @@ def test_a_joint_moving_with_the_outputs_off_trips_once_it_has_come_to_rest_or_i
     assert watch.check(1.6, False, [1.3, 2.0], rest, rest, OK2) is None            # at rest: its anchor
     assert watch.check(2.5, False, [1.3 + math.radians(0.4), 2.0], rest, rest, OK2) is None
     seen = watch.check(2.6, False, [1.3 + math.radians(0.6), 2.0], rest, rest, OK2)
-    assert seen is not None and seen.channel == 0 and "moved +0.60 deg" in seen.detail
+    assert seen is not None and seen.channel == "j1" and "moved +0.60 deg" in seen.detail
     # anchored again where it was seen: only motion that goes on trips again
     assert watch.check(2.7, False, [1.3 + math.radians(0.7), 2.0], rest, rest, OK2) is None
     assert watch.check(3.0, True, [0.0, 0.0], rest, rest, OK2) is None              # outputs on again: a new watch
     assert watch.check(3.1, False, [5.0, 5.0], turning, rest, OK2) is None
     seen = watch.check(5.2, False, [5.5, 5.0], turning, rest, OK2)                 # never at rest: its time is up
-    assert seen is not None and seen.channel == 0 and "still turning at +20.0 deg/s 2 s after" in seen.detail
+    assert seen is not None and seen.channel == "j1" and "still turning at +20.0 deg/s 2 s after" in seen.detail
 
 
 def test_a_current_with_the_outputs_off_trips_on_the_second_check_running_from_the_start():
@@ -49,13 +49,13 @@ def test_a_current_with_the_outputs_off_trips_on_the_second_check_running_from_t
     watch, rest, pos = _watch(), [0.0, 0.0], [0.0, 0.0]
     assert watch.check(0.0, False, pos, rest, [0.0, 0.9], OK2) is None
     seen = watch.check(0.01, False, pos, rest, [0.0, 0.9], OK2)
-    assert seen is not None and seen.channel == 1 and "drew +0.90 A" in seen.detail
+    assert seen is not None and seen.channel == "j2" and "drew +0.90 A" in seen.detail
     watch = _watch()
     assert watch.check(2.01, False, pos, rest, [0.0, 0.9], OK2) is None            # one sample: a spike
     assert watch.check(2.02, False, pos, rest, [0.0, 0.1], OK2) is None
     assert watch.check(2.03, False, pos, rest, [0.0, 0.9], OK2) is None
     seen = watch.check(2.04, False, pos, rest, [0.0, -0.8], OK2)
-    assert seen is not None and seen.channel == 1 and "drew -0.80 A" in seen.detail
+    assert seen is not None and seen.channel == "j2" and "drew -0.80 A" in seen.detail
     assert watch.still_moving()
     watch.check(2.05, False, pos, rest, [0.0, 0.0], OK2)
     assert not watch.still_moving()
@@ -97,7 +97,7 @@ def test_a_rogue_node_driving_a_joint_while_the_controller_is_idle_faults_uncomm
     assert bench.wait_until(lambda: sup.state is ControllerState.FAULT, 2.0), \
         f"j2 moved {math.degrees(plant.arm.pos_rad[1] - start_rad):+.2f} deg unseen"
     assert sup.faults == Fault.UNCOMMANDED_MOTION and sup.safe_reason is Reason.UNCOMMANDED_MOTION
-    assert bench.controller.uncommanded.channel == J2
+    assert bench.controller.uncommanded.channel == "j2"
     assert any("IDLE -> FAULT (UNCOMMANDED_MOTION)" in line for line in said), said
     assert any(line.startswith("aspod sim: j2 drew +") for line in said), said          # its current, at once
     assert abs(math.degrees(plant.arm.pos_rad[1] - start_rad)) < 0.5         # seen before it is far (0.05 deg)
@@ -136,7 +136,7 @@ def test_a_joint_whose_encoder_is_faulted_is_not_judged_by_its_position():
     assert watch.check(2.2, False, [1.0, 2.0], rest, cur, [False, True]) is None     # and back
     assert watch.check(2.3, False, [1.3, 2.0], rest, cur, OK2) is None              # trusted again: anchored here
     seen = watch.check(2.4, False, [1.3 + math.radians(1.0), 2.0], rest, cur, OK2)
-    assert seen is not None and seen.channel == 0
+    assert seen is not None and seen.channel == "j1"
 
 
 def test_a_trip_does_not_anchor_a_joint_still_braking():
@@ -147,10 +147,44 @@ def test_a_trip_does_not_anchor_a_joint_still_braking():
     rest, braking = [0.0, 0.0], [0.0, math.radians(20.0)]
     watch.check(0.0, False, [1.0, 2.0], braking, cur, OK2)                     # j0 at rest: anchored; j1 braking
     seen = watch.check(0.1, False, [1.0 + math.radians(0.6), 2.0], braking, cur, OK2)
-    assert seen is not None and seen.channel == 0
+    assert seen is not None and seen.channel == "j1"
     for n in range(1, 6):                                                      # j1 brakes on, 0.2 deg a check
         pos1 = 2.0 + math.radians(0.2 * n)
         assert watch.check(0.1 + 0.01 * n, False, [1.0 + math.radians(0.6), pos1], braking, cur, OK2) is None
     assert watch.check(0.2, False, [1.0 + math.radians(0.6), pos1], rest, cur, OK2) is None     # j1 at rest
     seen = watch.check(0.3, False, [1.0 + math.radians(0.6), pos1 + math.radians(0.6)], rest, cur, OK2)
-    assert seen is not None and seen.channel == 1                                # from where it came to rest
+    assert seen is not None and seen.channel == "j2"                                # from where it came to rest
+
+
+def test_a_rogue_node_turning_the_solar_tracker_while_the_controller_is_idle_faults_uncommanded_motion(bench):
+    """The same attack on the tracker: a third node sending TRACKER_CMD (motor power, a relay closed, brakes off)
+    turned it 5.8 deg in 10 s, unseen, while the controller said IDLE. Its angles (TRACKER_POS, 0.01 deg) are
+    watched as the joints' are; the tracker turns at most 0.59 deg/s, so it is seen within a second or so of
+    still_settle_s."""
+    sup, tracker = bench.controller.supervisor, bench.world.plant.tracker
+    bus = LocalBus(bench.world.controller_bus.local_channel, carries_values=True)
+    rogue = ControllerHal(bus)
+
+    def drive(now: float) -> float:
+        while bus.recv() is not None:
+            pass
+        rogue.send_tracker_command([[True, False], [False, False]], [False, False], True, True, [1.0, 0.0])
+        return now + 0.001
+    bench.run_for(1.0)
+    start_deg = tracker.angle_deg[0]
+    bench.world.scheduler.add("rogue", drive, period_s=0.001, priority=50)
+    assert bench.wait_until(lambda: sup.state is ControllerState.FAULT, 5.0), \
+        f"the tracker turned {tracker.angle_deg[0] - start_deg:+.2f} deg unseen"
+    assert sup.faults == Fault.UNCOMMANDED_MOTION and bench.controller.uncommanded.channel == "tracker az"
+    assert "moved +0.5" in bench.controller.uncommanded.detail
+    assert tracker.angle_deg[0] - start_deg < 2.0
+
+
+def test_a_world_without_the_tracker_is_not_watched_there():
+    """No TRACKER_POS (a plant without the tracker): the tracker's angles are NaN, not judged; the arm still is."""
+    watch = StandstillWatch(ParamStore(parameter_table()), ["j1", "tracker az"])
+    nan = float("nan")
+    for t in (0.0, 2.0, 3.0):
+        assert watch.check(t, False, [0.0, nan], [0.0, None], [0.0, None], [True, False]) is None
+    seen = watch.check(4.0, False, [0.1, nan], [0.0, None], [0.0, None], [True, False])
+    assert seen is not None and seen.channel == "j1"

@@ -37,7 +37,7 @@ from protocol import auth, files
 from protocol.link import LinkConfig
 from protocol.lockstep import LockstepFollower, PlantsWatch
 from protocol.reasons import Reason
-from protocol.states import ARM_CHANNELS, Fault
+from protocol.states import Fault
 from timebase import RealClock
 
 from host_tools.worlds import nodes
@@ -189,7 +189,7 @@ def log_states(controller: Controller, prog: str) -> None:
             log.info(f"{prog}: the link until then: {describe_link(controller)}")
         if reason is Reason.UNCOMMANDED_MOTION and controller.uncommanded is not None:
             seen = controller.uncommanded
-            log.info(f"{prog}: {ARM_CHANNELS[seen.channel]} {seen.detail}")
+            log.info(f"{prog}: {seen.channel} {seen.detail}")
 
     def log_report(msg) -> None:
         log.info(f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}")
