@@ -6,15 +6,19 @@ from __future__ import annotations
 
 import math
 import shutil
+import struct
 import subprocess
 
 import pytest
 
+from protocol import framing
+from protocol.framing import HEADER
 from protocol.messages import SCHEMA
-from protocol.schema import MsgClass
+from protocol.schema import Direction, MsgClass
 from host_tools.cli.main import main
 from host_tools.sessions.capture import SessionCapture
 from host_tools.sessions.decode import SessionDecoder
+from host_tools.sessions.pcapng import OUTBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
 from tests.test_session_capture import PSK, record_session
 
@@ -92,3 +96,47 @@ def test_tshark_marks_a_corrupted_frame_and_goes_on(capture_and_dissector, tmp_p
     assert len(rows) == len(capture.frames)
     assert rows[5]["_ws.expert.message"] != "" or rows[5]["aspod.crc_good"] in ("0", "False")
     assert all(r["aspod.crc_good"] in ("1", "True") for i, r in enumerate(rows) if i != 5)
+
+
+@needs_tshark
+def test_tshark_marks_what_aspod_log_refuses_in_frames_whose_crc_is_good(capture_and_dissector, tmp_path):
+    """A frame with a good CRC is not yet a message: a version or must-understand flag this protocol does not
+    speak, a field value the codec refuses (an enum out of its values, a NaN, a declared range, a str16 of
+    bytes that are no name and no terminator), or a packet cut short in the capture. The dissector said nothing
+    about any of these (each showed as a good message); now each has an expert note, as `aspod log` an error."""
+    _, lua = capture_and_dissector
+    ping_id, ping = SCHEMA.encode(SCHEMA["Ping"].type(7))
+    header = HEADER.pack
+
+    def frame(body: bytes) -> bytes:
+        return framing.seal(body)[1:-1]
+
+    def message(name: str, payload: bytes, version: int = 1, flags: int = 0) -> bytes:
+        spec = SCHEMA[name]
+        return frame(header(version, flags, int(spec.cls), 1, 1, spec.id, len(payload)) + payload)
+
+    good = message("Ping", ping)
+    cases = [
+        ("good", good, None),
+        ("version 2", message("Ping", ping, version=2), None),
+        ("flags 0x40", message("Ping", ping, flags=0x40), None),
+        ("enum out of range", message("Pong", bytes([200]) + bytes(8)), None),
+        ("NaN", message("ParamSet", b"x" + bytes(15) + struct.pack("<f", math.nan)), None),
+        ("str16 not a name, no terminator", message("ParamGet", b"\xff\xfe\xc3\x28" * 4), None),
+        ("outside the declared range", message("SetClock", bytes(6)), None),
+        ("cut short in the capture", good, len(good) + 100),
+    ]
+    path = tmp_path / "refused.pcapng"
+    with open(path, "wb") as out:
+        pcap = PcapngWriter(out)
+        link = pcap.add_interface("link")
+        for i, (_, data, original) in enumerate(cases):
+            pcap.write_packet(link, i * 0.01, data, OUTBOUND, original_length=original)
+    rows = tshark_fields(lua, path)
+    decoder = SessionDecoder(None)
+    assert len(rows) == len(cases)
+    for (what, data, original), row in zip(cases, rows):
+        refused = decoder.decode(data, 0.0, "link", Direction.TO_CONTROLLER, original).error
+        assert bool(refused) == (what != "good"), what
+        assert (row["_ws.expert.message"] != "") == bool(refused), (what, refused, row)
+    assert rows[0]["aspod.message"] == "Ping"

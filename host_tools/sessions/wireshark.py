@@ -5,7 +5,9 @@ Wireshark (Analyze > Reload Lua Plugins, or the file in the personal plugins fol
 every frame: the COBS decoding, the header (`aspod.class`, `aspod.seq`, `aspod.ack`,
 `aspod.msg_id`, `aspod.counter`, `aspod.tag`), the CRC-32 checked, and each message's fields
 under `aspod.<message>.<field>` (lower case: `aspod.telemetryjoints.j1_pos`) with their units
-and enum names. A frame that does not decode is marked with an expert note saying why. MACs are
+and enum names. A frame that `aspod log` refuses is marked with an expert note saying why: not COBS,
+longer than any frame or cut short in the capture, bad CRC or length, a version or must-understand flag
+not spoken, an undeclared message, a field value the codec refuses (`MessageSpec.decode`). MACs are
 not checked (Lua has no HMAC here and the dissector holds no key): `aspod log --key-file` does.
 
 The dissector claims pcapng's link type USER0 (147), the one session captures are written with.
@@ -51,6 +53,22 @@ def _protofield(spec: MessageSpec, fld: Field, tables: dict[str, str]) -> str:
     return f"ProtoField.bytes({_lua_string(abbrev)}, {label})"
 
 
+def _check(fld: Field) -> str:
+    """The Lua table saying what the project's codec refuses in `fld` (`MessageSpec.decode`), or "nil"."""
+    if fld.enum is not None:
+        return f'{{"enum", vs_{fld.enum.__name__}}}'
+    if fld.type == "bool":
+        return '{"int", 0, 1}'
+    if fld.type == "f32":
+        bounds = "" if fld.range is None else f", {float(fld.range[0])!r}, {float(fld.range[1])!r}"
+        return '{"f32"' + bounds + "}"
+    if fld.is_text:
+        return '{"name"}' if fld.type.startswith("str") else '{"text"}'
+    if fld.range is not None and fld.type in _INT_FIELDS:
+        return f'{{"int", {int(fld.range[0])}, {int(fld.range[1])}, {"true" if fld.type.startswith("i") else "false"}}}'
+    return "nil"
+
+
 def _size(fld: Field) -> int:
     return fld.text_size if fld.type.startswith(("bytes", "str", "text")) else \
         {"u8": 1, "i8": 1, "bool": 1, "u16": 2, "i16": 2, "u32": 4, "i32": 4, "f32": 4, "u64": 8}[fld.type]
@@ -66,7 +84,7 @@ def generate_dissector(schema=SCHEMA) -> str:
         for fld in spec.fields:
             key = f"{spec.name}.{fld.name}"
             field_lines.append(f"pf[{_lua_string(key)}] = {_protofield(spec, fld, tables)}")
-            layout.append(f"{{{_lua_string(key)}, {offset}, {_size(fld)}}}")
+            layout.append(f"{{{_lua_string(key)}, {offset}, {_size(fld)}, {_check(fld)}}}")
             offset += _size(fld)
         message_lines.append(f"messages[{spec.id}] = {{name = {_lua_string(spec.name)}, size = {offset}, "
                              f"fields = {{{', '.join(layout)}}}}}")
@@ -77,7 +95,8 @@ def generate_dissector(schema=SCHEMA) -> str:
         version=PROTOCOL_VERSION, schema_hash=f"{schema.hash:016x}", classes=classes, names=names,
         enum_tables=enum_tables, fields="\n".join(field_lines), messages="\n".join(message_lines),
         header=framing.HEADER_SIZE, counter=framing.COUNTER_SIZE, tag=framing.TAG_SIZE, crc=framing.CRC_SIZE,
-        auth=framing.FLAG_AUTH, max_payload=framing.MAX_PAYLOAD)
+        auth=framing.FLAG_AUTH, max_payload=framing.MAX_PAYLOAD, frame_version=framing.VERSION,
+        must_understand=framing.MUST_UNDERSTAND_MASK & ~framing.KNOWN_FLAGS, max_encoded=framing.MAX_ENCODED)
 
 
 def write_dissector(path: Optional[str] = None) -> str:
@@ -96,6 +115,7 @@ _TEMPLATE = """\
 local aspod = Proto("aspod", "ASPOD link")
 local SCHEMA_HASH = "{schema_hash}"
 local HEADER, COUNTER, TAG, CRC, FLAG_AUTH, MAX_PAYLOAD = {header}, {counter}, {tag}, {crc}, {auth}, {max_payload}
+local VERSION, UNKNOWN_MUST_UNDERSTAND, MAX_ENCODED = {frame_version}, {must_understand}, {max_encoded}
 
 local vs_class = {classes}
 local vs_msg = {names}
@@ -127,13 +147,17 @@ local ef_bad_frame = ProtoExpert.new("aspod.bad_frame", "Not a frame", expert.gr
 local ef_bad_crc = ProtoExpert.new("aspod.bad_crc", "CRC-32 mismatch", expert.group.CHECKSUM, expert.severity.ERROR)
 local ef_bad_length = ProtoExpert.new("aspod.bad_length", "Length does not match", expert.group.MALFORMED,
                                       expert.severity.ERROR)
+local ef_unsupported = ProtoExpert.new("aspod.unsupported", "Version or flags not understood",
+                                      expert.group.MALFORMED, expert.severity.ERROR)
+local ef_out_of_range = ProtoExpert.new("aspod.out_of_range", "Value the codec refuses", expert.group.MALFORMED,
+                                        expert.severity.ERROR)
 local ef_unknown = ProtoExpert.new("aspod.unknown_message", "Message id not declared", expert.group.UNDECODED,
                                    expert.severity.WARN)
 
 local plist = {{}}
 for _, v in pairs(pf) do table.insert(plist, v) end
 aspod.fields = plist
-aspod.experts = {{ef_bad_frame, ef_bad_crc, ef_bad_length, ef_unknown}}
+aspod.experts = {{ef_bad_frame, ef_bad_crc, ef_bad_length, ef_unsupported, ef_out_of_range, ef_unknown}}
 
 local bits = bit32 or bit
 local band, bxor, rshift = bits.band, bits.bxor, bits.rshift
@@ -178,6 +202,39 @@ local function cobs_decode(ba)
     return out
 end
 
+-- what `MessageSpec.decode` refuses in a field (check: its `_check` table), else nil
+local function field_problem(r, check)
+    local kind = check[1]
+    if kind == "enum" then
+        local v = r:le_uint()
+        if check[2][v] == nil then return v .. " is not one of its values" end
+    elseif kind == "int" then
+        local v = check[4] and r:le_int() or r:le_uint()
+        if v < check[2] or v > check[3] then return v .. " is outside [" .. check[2] .. ", " .. check[3] .. "]" end
+    elseif kind == "f32" then
+        local v = r:le_float()
+        if v ~= v or v == math.huge or v == -math.huge then return "not a finite number (" .. tostring(v) .. ")" end
+        if check[2] and (v < check[2] or v > check[3]) then
+            return v .. " is outside [" .. check[2] .. ", " .. check[3] .. "]"
+        end
+    else    -- "name" ([A-Za-z0-9_.-]) or "text" (printable ASCII), then only zeros
+        local ba, ended = r:bytes(), false
+        for i = 0, ba:len() - 1 do
+            local c = ba:get_index(i)
+            if c == 0 then
+                ended = true
+            elseif ended then
+                return "a byte other than zero after the end of the " .. kind
+            elseif kind == "text" and (c < 0x20 or c > 0x7E) then
+                return string.format("byte 0x%02x is not printable ASCII", c)
+            elseif kind == "name" and not string.char(c):find("^[A-Za-z0-9_.%-]$") then
+                return string.format("byte 0x%02x is not in a name (A-Z a-z 0-9 _ . -)", c)
+            end
+        end
+    end
+    return nil
+end
+
 local f_direction = nil
 pcall(function() f_direction = Field.new("frame.packet_flags_direction") end)
 
@@ -190,6 +247,13 @@ function aspod.dissector(tvb, pinfo, tree)
     if f_direction then
         local d = f_direction()
         if d then arrow = (d.value == 2) and "H>C " or ((d.value == 1) and "C>H " or "") end
+    end
+    if tvb:reported_len() ~= tvb:len() or tvb:len() > MAX_ENCODED then
+        local why = tvb:reported_len() .. " bytes between delimiters, longer than any frame"
+        if tvb:reported_len() ~= tvb:len() then why = why .. " (" .. tvb:len() .. " captured)" end
+        root:add_proto_expert_info(ef_bad_frame, why)
+        pinfo.cols.info = arrow .. "not a frame: too long"
+        return
     end
     local raw, err = cobs_decode(tvb:bytes())
     if not raw then
@@ -237,6 +301,17 @@ function aspod.dissector(tvb, pinfo, tree)
         pinfo.cols.info = info .. " [BAD LENGTH]"
         return
     end
+    if rt(0, 1):uint() ~= VERSION then
+        root:add_proto_expert_info(ef_unsupported, "version " .. rt(0, 1):uint() .. ", the protocol is " .. VERSION)
+        pinfo.cols.info = info .. " [UNSUPPORTED VERSION]"
+        return
+    end
+    if band(flags, UNKNOWN_MUST_UNDERSTAND) ~= 0 then
+        ft:add_proto_expert_info(ef_unsupported, string.format("unknown must-understand flags 0x%02x",
+                                 band(flags, UNKNOWN_MUST_UNDERSTAND)))
+        pinfo.cols.info = info .. " [UNSUPPORTED FLAGS]"
+        return
+    end
     if authenticated then
         root:add_le(pf.counter, rt(at, COUNTER))
         at = at + COUNTER
@@ -247,7 +322,13 @@ function aspod.dissector(tvb, pinfo, tree)
         local mt = root:add(rt(at, length), spec.name)
         if length == spec.size then
             for _, f in ipairs(spec.fields) do
-                mt:add_le(pf[f[1]], rt(at + f[2], f[3]))
+                local r = rt(at + f[2], f[3])
+                local item = mt:add_le(pf[f[1]], r)
+                local why = f[4] and field_problem(r, f[4])
+                if why then
+                    item:add_proto_expert_info(ef_out_of_range, f[1] .. "=" .. why)
+                    info = info .. " [OUT OF RANGE]"
+                end
             end
         else
             mt:add_proto_expert_info(ef_bad_length, spec.name .. " takes " .. spec.size .. " payload bytes, got " ..
