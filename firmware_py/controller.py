@@ -55,7 +55,7 @@ from firmware_py.hal import ControllerHal
 from kernels import compiled_by_default
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.axis import AxisError
-from firmware_py.standstill import StandstillWatch, Uncommanded
+from firmware_py.standstill import ForeignCommands, StandstillWatch, Uncommanded
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.trajectory import TrajectoryBuffer, knot_of
 from firmware_py.tracker.task import TrackerController, check_param as tracker_check_param
@@ -188,6 +188,7 @@ class Controller:
         self._watched = [(ARM_CHANNELS.index(drive.name), self.arm.joints[drive.name]) for drive in DRIVES]
         self.standstill = StandstillWatch(self.params, [ARM_CHANNELS[k] for k, _ in self._watched]
                                           + [f"tracker {axis}" for axis in TRACKER_AXES])
+        self.foreign = ForeignCommands()
         self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
         self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
         missing = [s.name for s in SCHEMA.by_id.values()
@@ -380,6 +381,8 @@ class Controller:
             now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints] + angles,
             [a.vel_rad_s for _, a in joints] + [None, None], [inputs.currents_a[k] for k, _ in joints] + [None, None],
             [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
+        foreign = self.foreign.check(self.hal.foreign_frames())
+        moved = moved or foreign
         if moved is not None:
             self.uncommanded = moved
             self._trip(Fault.UNCOMMANDED_MOTION, now, Reason.UNCOMMANDED_MOTION)

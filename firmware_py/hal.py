@@ -86,6 +86,7 @@ class ControllerHal(HalEndpoint):
     def __init__(self, bus: can.BusABC, codec: Optional[HalCodec] = None,
                  max_frames_per_poll: int = 256) -> None:
         super().__init__(bus, codec, max_frames_per_poll)
+        self.sends_as("CONTROLLER")
         self.inputs = HalInputs()
         self.alive = 0           # value the next CTRL_OUTPUTS frame will carry
         self.motor_alive = 0     # value the next MOTOR_CMD frame will carry

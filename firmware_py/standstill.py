@@ -116,3 +116,22 @@ class StandstillWatch:
     def still_moving(self) -> bool:
         """Whether the last check saw a joint turning or a motor drawing current (`reset` waits until neither)."""
         return self._last_current or any(abs(math.degrees(v)) >= STILL_DPS for v in self._last_speeds)
+
+
+class ForeignCommands:
+    """Commands for the hardware that another node sends: frames with the controller's own IDs (MOTOR_CMD,
+    CTRL_OUTPUTS, TRACKER_CMD, CTRL_SYNC) that it did not send, in any state, outputs on or off. Fed the HAL's
+    `foreign_frames()` count at every health check; more of them on two checks running (a node sending them
+    at 100 Hz or faster) trips, one stray frame does not."""
+
+    def __init__(self) -> None:
+        self.seen = 0
+        self._grew = False
+
+    def check(self, foreign_frames: int) -> Optional[Uncommanded]:
+        grew, self._grew = foreign_frames > self.seen and self._grew, foreign_frames > self.seen
+        self.seen = foreign_frames
+        if not grew:
+            return None
+        return Uncommanded("HAL bus", f"another node sends this controller's own frames (MOTOR_CMD, CTRL_OUTPUTS, "
+                                      f"TRACKER_CMD or CTRL_SYNC): {foreign_frames} so far")

@@ -433,7 +433,23 @@ class HalEndpoint:
         self.bus_errors = 0
         self.last_bus_error: Optional[can.CanError] = None
         self.sent_by_name: dict[str, int] = {}
+        self.own_id_frames = 0     # frames with an ID this endpoint sends (`own_ids`) that came from another node
+        self.own_ids: frozenset[int] = frozenset()
         self._listeners: dict[int, tuple[FrameLayout, Handler]] = {}
+
+    def sends_as(self, node: str) -> None:
+        """The DBC node this endpoint is: frames with the IDs that node sends, when they come in, came from
+        another node (`own_id_frames`): on a bus that gives a node its own frames back, a filter drops those
+        first (host_tools/worlds/nodes.py OwnEchoFilter)."""
+        self.own_ids = frozenset(m.frame_id for m in self.codec.database.messages if node in (m.senders or ()))
+
+    def foreign_frames(self) -> int:
+        """Frames with this node's own IDs that another node sent: those that reached the endpoint, and, on a bus
+        that gives a node its own frames back and drops them (`own_echoes`), the echoes beyond the frames sent
+        through it (`own_sent`: the lock-step CTRL_SYNCs too, which do not pass through the endpoint)."""
+        echoes, sent = getattr(self.bus, "own_echoes", 0), getattr(self.bus, "own_sent", 0)
+        beyond = echoes - sent if isinstance(echoes, int) and isinstance(sent, int) else 0
+        return self.own_id_frames + max(0, beyond)
 
     def on_frame(self, name: str, handler: Handler, order: Optional[Sequence[str]] = None) -> FrameLayout:
         """Listen to frames `name`, their values in `order` (default: as declared); returns the layout."""
@@ -470,7 +486,10 @@ class HalEndpoint:
         return read
 
     def _not_listened_to(self, msg: Union[can.Message, ValueFrame]) -> None:
-        """A frame no handler takes: a declared one passes, anything else is a bad frame."""
+        """A frame no handler takes: a declared one passes (one with this node's own ID counted), anything else
+        is a bad frame."""
+        if msg.arbitration_id in self.own_ids and not msg.is_extended_id:
+            self.own_id_frames += 1
         if self.codec.decode(msg) is None:
             self.bad_frames += 1
 

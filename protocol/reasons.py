@@ -176,7 +176,8 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.TRAJ_ENDPOINTS: ("a trajectory must start where each joint holds (within 0.1 deg) at rest and end at "
                             "rest: a first or last knot's speed above 0.01 deg/s, or a first position away from "
                             "the joint's", "plan from the joints' present positions, starting and ending at rest"),
-    Reason.UNCOMMANDED_MOTION: ("a joint moved, or a motor drew current, with the controller's outputs off",
+    Reason.UNCOMMANDED_MOTION: ("a joint or tracker axis moved, or a motor drew current, with the controller's "
+                                "outputs off; or another node sent the controller's own frames on the HAL bus",
                                 "find what drives it (the HAL bus, a driver, a brake), then reset once it is still"),
 }
 

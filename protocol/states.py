@@ -64,10 +64,12 @@ FAULT_DOCS: dict[Fault, tuple[str, str]] = {
                          "check the motor, its connector and its fuse, then `reset`"),
     Fault.GRIPPER: ("the gripper reached neither its end switch nor a grip in time",
                     "check the gripper's switches and motor, then `reset`"),
-    Fault.UNCOMMANDED_MOTION: ("with the outputs off (brakes on, nothing driven) a joint moved further than "
-                               "still_deg or a motor drew more than still_current_a: something the "
-                               "controller did not command drives it (another node on the HAL bus, a motor driver "
-                               "that does not obey, a brake that does not hold)",
+    Fault.UNCOMMANDED_MOTION: ("with the outputs off (brakes on, nothing driven) a joint or tracker axis moved "
+                               "further than still_deg or a motor drew more than still_current_a, or, in any "
+                               "state, another node sent the controller's own frames (MOTOR_CMD, CTRL_OUTPUTS, "
+                               "TRACKER_CMD): something the controller did not command drives the hardware (another "
+                               "node on the HAL bus, a driver or relay that does not obey, a brake that does not "
+                               "hold)",
                                "find what drives it, then `reset` once the joints are still"),
 }
 

@@ -9,8 +9,9 @@ import math
 
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamStore
-from firmware_py.standstill import StandstillWatch, parameter_table
+from firmware_py.standstill import ForeignCommands, StandstillWatch, parameter_table
 from host_tools.cli import firmware as firmware_cli
+from hil_sim.tracker import TrackerCommand
 from host_tools.worlds.local_bus import LocalBus
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -156,12 +157,11 @@ def test_a_trip_does_not_anchor_a_joint_still_braking():
     assert seen is not None and seen.channel == "j2"                                # from where it came to rest
 
 
-def test_a_rogue_node_turning_the_solar_tracker_while_the_controller_is_idle_faults_uncommanded_motion(bench):
-    """The same attack on the tracker: a third node sending TRACKER_CMD (motor power, a relay closed, brakes off)
-    turned it 5.8 deg in 10 s, unseen, while the controller said IDLE. Its angles (TRACKER_POS, 0.01 deg) are
-    watched as the joints' are; the tracker turns at most 0.59 deg/s, so it is seen within a second or so of
-    still_settle_s."""
-    sup, tracker = bench.controller.supervisor, bench.world.plant.tracker
+def test_a_rogue_node_on_the_hal_bus_is_seen_by_its_frames_in_any_state(bench):
+    """A third node sending the controller's own frames (here TRACKER_CMD: motor power, a relay closed, brakes
+    off; it turned the tracker 5.8 deg in 10 s, unseen, while the controller said IDLE) is seen by its frames
+    within two health checks, whatever it drives and whether the outputs are on or off."""
+    sup = bench.controller.supervisor
     bus = LocalBus(bench.world.controller_bus.local_channel, carries_values=True)
     rogue = ControllerHal(bus)
 
@@ -170,9 +170,25 @@ def test_a_rogue_node_turning_the_solar_tracker_while_the_controller_is_idle_fau
             pass
         rogue.send_tracker_command([[True, False], [False, False]], [False, False], True, True, [1.0, 0.0])
         return now + 0.001
-    bench.run_for(1.0)
-    start_deg = tracker.angle_deg[0]
+    assert bench.call(M["Enable"]()).reason is Reason.OK                     # outputs on: motion is no sign
+    bench.run_for(0.5)
+    start_s = bench.clock.now()
     bench.world.scheduler.add("rogue", drive, period_s=0.001, priority=50)
+    assert bench.wait_until(lambda: sup.state is ControllerState.FAULT, 1.0)
+    assert bench.clock.now() - start_s < 0.05
+    assert sup.faults == Fault.UNCOMMANDED_MOTION and bench.controller.uncommanded.channel == "HAL bus"
+    assert "another node sends this controller's own frames" in bench.controller.uncommanded.detail
+
+
+def test_a_tracker_that_turns_with_the_outputs_off_faults_uncommanded_motion(bench):
+    """A welded relay (the tracker's hardware obeys no command; no frame on the bus says so): its angles
+    (TRACKER_POS, 0.01 deg) are watched as the joints' are; it turns at most 0.59 deg/s, so it is seen within
+    a second or so of still_settle_s."""
+    sup, tracker = bench.controller.supervisor, bench.world.plant.tracker
+    bench.run_for(1.0)
+    welded = TrackerCommand(relay_cw_az=True, brake_az=False, sensor_power=True, motor_power=True, duty_az=1.0)
+    bench.world.plant.tracker_commands.current = lambda now: welded
+    start_deg = tracker.angle_deg[0]
     assert bench.wait_until(lambda: sup.state is ControllerState.FAULT, 5.0), \
         f"the tracker turned {tracker.angle_deg[0] - start_deg:+.2f} deg unseen"
     assert sup.faults == Fault.UNCOMMANDED_MOTION and bench.controller.uncommanded.channel == "tracker az"
@@ -188,3 +204,12 @@ def test_a_world_without_the_tracker_is_not_watched_there():
         assert watch.check(t, False, [0.0, nan], [0.0, None], [0.0, None], [True, False]) is None
     seen = watch.check(4.0, False, [0.1, nan], [0.0, None], [0.0, None], [True, False])
     assert seen is not None and seen.channel == "j1"
+
+
+def test_foreign_frames_trip_on_two_checks_running_and_one_stray_frame_does_not():
+    watch = ForeignCommands()
+    assert watch.check(0) is None and watch.check(1) is None                # one stray frame (a replay)
+    assert watch.check(1) is None and watch.check(1) is None
+    assert watch.check(12) is None                                            # a node sending them: first check
+    seen = watch.check(25)
+    assert seen is not None and seen.channel == "HAL bus" and "25 so far" in seen.detail

@@ -84,6 +84,12 @@ class OwnEchoFilter(BusView):
         self.node = node
         self.own_ids = own
         self.own_echoes = 0
+        self.own_sent = 0       # frames with the node's own IDs sent through this filter (each may echo once)
+
+    def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
+        self.bus.send(msg, timeout)
+        if msg.arbitration_id in self.own_ids:
+            self.own_sent += 1
 
     def recv(self, timeout: Optional[float] = None) -> Optional[can.Message]:
         for _ in range(MAX_ECHOES_PER_RECV):
