@@ -199,7 +199,8 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
 
 
 def test_a_second_controller_or_plant_on_a_pairs_bus_is_said_on_stderr(multicast_works, procs, tmp_path, params_file):
-    """Both are accepted as they are (the lock-step counters climb); each is said by the node that can see it."""
+    """Each is said by the node that can see it; a second controller's frames, with the first's own IDs, fault
+    the first (UNCOMMANDED_MOTION: two controllers drive one plant)."""
     group, port = nodes.fresh_udp_multicast()
     bus = ("--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={port}")
     plant = start_plant(procs, group, port)
@@ -209,6 +210,8 @@ def test_a_second_controller_or_plant_on_a_pairs_bus_is_said_on_stderr(multicast
     second = procs("firmware", *bus, "--pty", "--params", str(tmp_path / "params2.json"))
     link_of(second)
     plant.wait_stderr(r"aspod plant: CTRL_SYNC from two controllers \(.*another aspod firmware on this bus\?")
+    firmware.wait_stderr(r"IDLE -> FAULT \(UNCOMMANDED_MOTION\)")
+    firmware.wait_stderr(r"aspod firmware: HAL bus another node sends this controller's own frames")
     code, _ = second.stop()
     assert code == 0
     start_plant(procs, group, port)
