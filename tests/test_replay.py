@@ -149,6 +149,19 @@ def test_a_real_time_recording_whose_frames_reached_the_port_late_replays_within
     assert report.commands == 8 and report.events == 4 and report.uncertainty_ms < 10
 
 
+def test_a_command_is_never_replayed_before_the_recorded_controller_could_have_had_it():
+    """tests/data/replay_stop_before_request.pcapng is the session of the test below, recorded with two busy loops
+    and a fuzz campaign beside it (it failed 1 run in 6 so; once in CI beside the campaign, that capture not
+    kept). The Stop reached the port at 2.731 s and was answered at 2.740; the writing looked late, so its answer
+    was taken as made the moment the Stop came, and replay moved the Stop 8 ms earlier to answer then: the replayed
+    controller had it 5 ms before the recorded one did, and j2's stop ended 16 ms early (MotionDone at uptime
+    2760 against 2776; the telemetry's 10 ms window missed it). A command now goes no earlier than its own time on
+    the line before it was recorded."""
+    report = replay(SessionCapture.read(Path(__file__).parent / "data" / "replay_stop_before_request.pcapng"))
+    assert report.matches, report.describe()
+    assert report.commands == 8 and report.events == 4
+
+
 @pytest.mark.pty
 def test_a_real_time_sim_recording_replays_within_tolerances_and_a_changed_gain_diverges(sim_factory, tmp_path):
     capture = tmp_path / "sim.pcapng"

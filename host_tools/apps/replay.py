@@ -165,6 +165,7 @@ class _Action:
     world_event: Optional[dict] = None      # something done to the plant outside the link
     offset: int = 0                         # where it is in the capture: actions at one time keep this order
     request: Optional[tuple[int, int, int]] = None     # a command's (session, class, seq): its reply's key
+    line_s: float = 0.0                     # a command's own time on the line
 
 
 def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action], _Output]:
@@ -186,7 +187,8 @@ def _split(frames: list[DecodedFrame], offsets: list[int]) -> tuple[list[_Action
                 hello_pending = True
             elif cls in (MsgClass.COMMAND, MsgClass.URGENT) and (session, cls, seq) not in seen_requests:
                 seen_requests.add((session, cls, seq))
-                actions.append(_Action(d.time_s, d.message, offset=offset, request=(session, cls, seq)))
+                actions.append(_Action(d.time_s, d.message, offset=offset, request=(session, cls, seq),
+                                       line_s=d.size * LINE_S_PER_BYTE))
             continue
         out.segments.append(d.frame.signed + d.frame.tag)
         if name == "HelloReply" and d.message.result == Reason.OK:
@@ -418,13 +420,15 @@ def _do(bench: LockstepBench, action: _Action) -> None:
 
 def _aligned(actions: list[_Action], recorded: _Output, replayed: _Output) -> list[_Action]:
     """`actions` with each command moved by (when the recorded answer was made - the replayed answer's time), in the
-    same order (`_Output.made_s`)."""
+    same order (`_Output.made_s`); never so early that the replayed controller would have it before the recorded
+    one did: the recording stamps a command when it reached the controller's port, and the replayed one reaches
+    it its own time on the line after it is written."""
     out, floor = [], 0.0
     for action in actions:
         shift = 0.0
         if action.request is not None and action.request in recorded.replies and action.request in replayed.replies:
             made_s = recorded.made_s(recorded.replies[action.request], action.time_s)
-            shift = made_s - replayed.replies[action.request].time_s
+            shift = max(made_s - replayed.replies[action.request].time_s, -action.line_s)
         moved = max(floor, action.time_s + shift)
         out.append(dataclasses.replace(action, time_s=moved))
         floor = moved
