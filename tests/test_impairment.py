@@ -30,7 +30,8 @@ def test_presets_and_pairs_parse_and_bad_words_are_named():
     assert (custom.ber, custom.drop, custom.blocks, custom.baud) == (1e-5, 0.01, ((5.0, 2.0),), 9600)
     for bad, words in (("sunny", "no impairment preset"), ("drop=2", "probability"), ("drop=x", "drop=NUMBER"),
                        ("fade=30", "START+DURATION"), ("warp=9", "no such impairment"), ("", "empty"),
-                       ("fade_every_s=10", "fade_s"), ("fade=5+0", "duration > 0"), ("latency_ms=-1", ">= 0")):
+                       ("fade_every_s=10", "fade_s"), ("fade=5+0", "duration > 0"), ("latency_ms=-1", ">= 0"),
+                       ("block_every_s=1e-300,block_s=1e-300", "at least 0.1 s")):    # (drawn for ever)
         with pytest.raises(ValueError, match=re.escape(words)):
             Impairment.parse(bad)
 
@@ -143,3 +144,55 @@ def test_the_proxy_and_the_lockstep_line_give_the_same_frames_the_same_fates():
     assert bytes(controller.outbox) == expected and expected
     assert proxy.link.to_controller.stats == reference.to_controller.stats
     assert reference.to_controller.stats.faded > 0 and reference.to_controller.stats.dropped > 0
+
+
+class _Source(_Pipe):
+    """A side that always has more to say: `read` hands out the next bytes of an endless stream of frames and
+    counts them (what it has not been asked for stays with it, as in a full line's buffer)."""
+
+    def __init__(self, frame: bytes) -> None:
+        super().__init__()
+        self.frame, self.given = frame, bytearray()
+
+    def read(self, max_bytes: int) -> bytes:
+        while len(self.inbox) < max_bytes:
+            self.inbox += self.frame
+        data = super().read(max_bytes)
+        self.given += data
+        return data
+
+
+class _Stuck(_Pipe):
+    """A side that takes nothing until `stuck` is cleared."""
+    stuck = True
+
+    def write(self, data: bytes) -> int:
+        return 0 if self.stuck else super().write(data)
+
+
+@pytest.mark.parametrize("spec", ["clean", "latency_ms=10000", "baud=9600"])
+def test_a_flood_towards_a_side_that_does_not_keep_up_is_held_back_not_kept_without_bound(spec):
+    """A host that floods a controller that takes nothing (or a link far slower than the flood, or one that holds
+    every frame ten seconds): the proxy stops reading the host once a bounded amount is held, and loses nothing:
+    once the controller takes again and the link delivers, it gets every byte the proxy read, in order."""
+    from host_tools.apps.proxy import MAX_HELD_BYTES, Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Source(frames(1, size=0)[0]), _Stuck()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment.parse(spec)), clock=clock)
+    for _ in range(3000):                       # 3000 reads of 4 KiB would be 12 MiB
+        clock.advance_by(0.001)
+        proxy.step()
+    held = proxy.link.to_controller.held_bytes + len(proxy.controller.outgoing)
+    assert len(host.given) <= 2 * MAX_HELD_BYTES and held <= 2 * MAX_HELD_BYTES
+    controller.stuck = False
+    for _ in range(3000):
+        clock.advance_by(100.0)
+        proxy.step()
+        if len(controller.outbox) > 3 * MAX_HELD_BYTES:
+            break
+    assert len(controller.outbox) > 3 * MAX_HELD_BYTES           # reading went on once the controller took
+    delivered = bytes(controller.outbox).replace(b"\x00", b"")
+    given = bytes(host.given).replace(b"\x00", b"")
+    assert given.startswith(delivered)          # what it read, in order, nothing lost on the way
+    assert proxy.link.to_controller.stats.dropped == 0

@@ -27,10 +27,14 @@ from timebase import Clock, RealClock
 
 from host_tools.sessions.capture import CaptureWriter
 from host_tools.sessions.decode import SessionDecoder, describe
-from host_tools.sessions.impairment import Fate, ImpairedLink
+from host_tools.sessions.impairment import Fate, ImpairedLine, ImpairedLink
 
 log = logging.getLogger("aspod")
 READ_SIZE = 4096
+WRITE_SIZE = 65536         # offered to a port at once
+MAX_HELD_BYTES = 1 << 20   # one direction's bytes in the link and for its port: beyond, its source is not read
+MAX_HELD_FRAMES = 16384    # (and its frames in the link), so a side that does not read, or a flood faster than
+                           # the link's pacing, holds the writer back as a full line would, and nothing grows
 IDLE_S = 0.0005            # the loop's sleep when nothing is due sooner: the latency the proxy itself adds
 
 
@@ -75,7 +79,7 @@ class Proxy:
         if not side.outgoing:
             return
         try:
-            written = side.port.write(bytes(side.outgoing))
+            written = side.port.write(bytes(side.outgoing[:WRITE_SIZE]))
         except OSError as exc:
             raise EndpointGone(side.name, side.port.url, str(exc) or type(exc).__name__) from None
         del side.outgoing[:written]
@@ -83,8 +87,11 @@ class Proxy:
     def step(self) -> float:
         """Move what is there and what is due; returns the time (link time) when something is next due."""
         t = self.clock.now() - self.origin
-        for source, line, direction in ((self.host, self.link.to_controller, Direction.TO_CONTROLLER),
-                                        (self.controller, self.link.to_host, Direction.TO_HOST)):
+        for source, line, direction, target in (
+                (self.host, self.link.to_controller, Direction.TO_CONTROLLER, self.controller),
+                (self.controller, self.link.to_host, Direction.TO_HOST, self.host)):
+            if self._full(line, target):
+                continue         # left in the source's buffer until the far side takes what is held
             data = self._read(source)
             if data:
                 for fate in line.send(data, t):
@@ -93,6 +100,10 @@ class Proxy:
             target.outgoing += line.receive(t)
             self._write(target)
         return self.link.next_due_s()
+
+    @staticmethod
+    def _full(line: ImpairedLine, target: _Side) -> bool:
+        return line.held_bytes + len(target.outgoing) >= MAX_HELD_BYTES or line.in_flight >= MAX_HELD_FRAMES
 
     def _show(self, fate: Fate, direction: Direction, t: float) -> None:
         self.frames += 1
