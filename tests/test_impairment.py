@@ -196,3 +196,42 @@ def test_a_flood_towards_a_side_that_does_not_keep_up_is_held_back_not_kept_with
     given = bytes(host.given).replace(b"\x00", b"")
     assert given.startswith(delivered)          # what it read, in order, nothing lost on the way
     assert proxy.link.to_controller.stats.dropped == 0
+
+
+class _FullDisk:
+    """A file that takes `room` bytes, then fails as a full disk does (on write, flush and close)."""
+    name = "full.pcapng"
+
+    def __init__(self, room: int) -> None:
+        self.room, self.data = room, bytearray()
+
+    def write(self, data: bytes) -> int:
+        if len(self.data) + len(data) > self.room:
+            raise OSError(28, "No space left on device")
+        self.data += data
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        raise OSError(28, "No space left on device")
+
+
+def test_a_capture_that_cannot_be_written_stops_but_the_link_goes_on():
+    """--record on a disk that fills: the capture stops (the proxy says so), every frame still passes."""
+    from host_tools.apps.proxy import Proxy
+    from host_tools.sessions.capture import CaptureWriter, SessionInfo
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    capture = CaptureWriter(_FullDisk(4096), SessionInfo(clock="wall", tool="aspod proxy"))
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock, capture=capture, capture_name="--record x")
+    sent = frames(200)
+    for frame in sent:
+        clock.advance_by(0.01)
+        host.inbox += frame
+        proxy.step()
+    proxy.close()
+    assert "--record x cannot be written (No space left on device)" in proxy.capture_failed
+    assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(sent).replace(b"\x00", b"")

@@ -58,7 +58,7 @@ class Proxy:
 
     def __init__(self, host_port, controller_port, link: ImpairedLink, *, clock: Optional[Clock] = None,
                  view: Optional[TextIO] = None, capture: Optional[CaptureWriter] = None,
-                 psk: Optional[bytes] = None) -> None:
+                 psk: Optional[bytes] = None, capture_name: str = "the capture") -> None:
         self.clock = clock or RealClock()
         self.origin = self.clock.now()
         self.link = link
@@ -66,6 +66,8 @@ class Proxy:
         self.controller = _Side("controller", controller_port)
         self.view = view
         self.capture = capture
+        self.capture_name = capture_name
+        self.capture_failed = ""          # why the capture stopped, if it could not be written
         self.decoder = SessionDecoder(psk)
         self.frames = 0
 
@@ -109,7 +111,13 @@ class Proxy:
         self.frames += 1
         note = fate.describe()
         if self.capture is not None:
-            self.capture.write("link", direction, fate.sent, RealClock.wall_time(), comment=note)
+            try:
+                self.capture.write("link", direction, fate.sent, RealClock.wall_time(), comment=note)
+            except OSError as exc:        # a full disk, say: the capture stops there, the link goes on
+                self.capture_failed = f"{self.capture_name} cannot be written ({exc.strerror or exc}): it holds " \
+                                      f"the frames before frame {self.frames}, cut short"
+                log.error(f"aspod proxy: {self.capture_failed}; the link goes on")
+                self._close_capture()
         if self.view is not None:
             segment = fate.sent.strip(b"\x00")
             decoded = self.decoder.decode(segment, t, "link", direction)
@@ -136,6 +144,13 @@ class Proxy:
                 side.port.close()
             except OSError:
                 pass
-        if self.capture is not None:
-            self.capture.close()
+        self._close_capture()
+
+    def _close_capture(self) -> None:
+        capture, self.capture = self.capture, None
+        if capture is not None:
+            try:
+                capture.close()
+            except OSError:               # the last bytes cannot be written either: said when writing failed
+                pass
 
