@@ -235,3 +235,43 @@ def test_a_capture_that_cannot_be_written_stops_but_the_link_goes_on():
     proxy.close()
     assert "--record x cannot be written (No space left on device)" in proxy.capture_failed
     assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(sent).replace(b"\x00", b"")
+
+
+class _Clients(_Pipe):
+    """A tcp: side: `generation` counts changes of client, as TcpServerPort's does."""
+    generation = 0
+
+
+def test_a_new_client_on_the_proxys_line_does_not_finish_the_old_ones_half_frame():
+    """A host leaves (or is displaced) halfway through a frame; the next client's first bytes start a frame of its
+    own: the controller never gets one frame spliced from two clients' bytes."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Clients(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock)
+    old, new = frames(2, size=0)
+    host.inbox += old[:len(old) // 2]
+    proxy.step()
+    host.generation += 1
+    host.inbox += new.lstrip(b"\x00")          # its first frame, without a leading delimiter
+    clock.advance_by(0.01)
+    proxy.step()
+    assert bytes(controller.outbox) == b"\x00" + new.strip(b"\x00") + b"\x00"
+
+
+def test_the_proxys_summary_counts_what_stopping_it_leaves_undelivered():
+    """Frames still held by a long latency when the proxy stops are named in its summary, not passed over."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment.parse("latency_ms=10000")), clock=clock)
+    for frame in frames(3):
+        host.inbox += frame
+        clock.advance_by(0.01)
+        proxy.step()
+    assert not controller.outbox
+    assert "host -> controller: 3 frames" in proxy.summary()
+    assert "not delivered at the end: 3 frames in flight" in proxy.summary()
+    assert "not delivered" not in proxy.summary().splitlines()[1]          # the other way: nothing held

@@ -128,3 +128,15 @@ def test_a_controller_that_reads_nothing_neither_hangs_the_proxy_nor_makes_it_gr
         proxy.stop(signal.SIGKILL)
         for s in sockets:
             s.close()
+
+
+def test_two_new_endpoints_of_the_same_kind_are_two_sides():
+    """`pty` and `tcp:0` make a new endpoint each time (tcp:0 a free port each): both sides may ask for one; the
+    same fixed port twice is refused."""
+    from host_tools.cli import settings
+    from host_tools.cli.main import build_parser
+    for endpoint in ("pty", "tcp:0"):
+        args = build_parser().parse_args(["proxy", "--host", endpoint, "--controller", endpoint])
+        assert (settings.proxy_settings(args).host, settings.proxy_settings(args).controller) == (endpoint, endpoint)
+    with pytest.raises(ValueError, match="must differ"):
+        settings.proxy_settings(build_parser().parse_args(["proxy", "--host", "tcp:7000", "--controller", "tcp:7000"]))

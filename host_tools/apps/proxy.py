@@ -51,6 +51,7 @@ class _Side:
     name: str            # "host" or "controller"
     port: object
     outgoing: bytearray = field(default_factory=bytearray)   # delivered by the link, not yet taken by the port
+    generation: int = 0  # the port's client (a tcp: side counts changes of client): the one the link cuts for
 
 
 class Proxy:
@@ -95,6 +96,10 @@ class Proxy:
             if self._full(line, target):
                 continue         # left in the source's buffer until the far side takes what is held
             data = self._read(source)
+            generation = getattr(source.port, "generation", 0)
+            if generation != source.generation:     # a new client: the old one's half frame is not its
+                source.generation = generation
+                line.restart()
             if data:
                 for fate in line.send(data, t):
                     self._show(fate, direction, t)
@@ -131,11 +136,15 @@ class Proxy:
 
     def summary(self) -> str:
         lines = []
-        for name, line in (("host -> controller", self.link.to_controller), ("controller -> host", self.link.to_host)):
+        for name, line, target in (("host -> controller", self.link.to_controller, self.controller),
+                                   ("controller -> host", self.link.to_host, self.host)):
             s = line.stats
             lines.append(f"{name}: {s.frames} frames ({s.bytes_in} B in, {s.bytes_out} B out); lost: {s.dropped} "
                          f"dropped, {s.faded} in fades, {s.blocked} in blockages; {s.duplicated} duplicated; "
                          f"{s.bits_flipped} bits flipped")
+            if line.in_flight or target.outgoing:       # what stopping the proxy leaves undelivered
+                lines[-1] += (f"; not delivered at the end: {line.in_flight} frames in flight, "
+                              f"{len(target.outgoing)} B the {target.name} had not taken")
         return "\n".join(lines)
 
     def close(self) -> None:

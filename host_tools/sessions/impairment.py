@@ -240,6 +240,11 @@ class ImpairedLine:
         self.stats.bytes_in += len(data)
         return [self._decide(b"\x00" + segment + b"\x00", now) for segment, _ in self._cutter.feed(data)]
 
+    def restart(self) -> None:
+        """Forget the unfinished frame: its writer is gone (another client took the line), and its bytes are not
+        the beginning of the next writer's first frame."""
+        self._cutter.reset()
+
     def _decide(self, frame: bytes, now: float) -> Fate:
         spec, rng, stats = self.spec, self._rng, self.stats
         stats.frames += 1
