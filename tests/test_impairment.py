@@ -275,3 +275,36 @@ def test_the_proxys_summary_counts_what_stopping_it_leaves_undelivered():
     assert "host -> controller: 3 frames" in proxy.summary()
     assert "not delivered at the end: 3 frames in flight" in proxy.summary()
     assert "not delivered" not in proxy.summary().splitlines()[1]          # the other way: nothing held
+
+
+def test_a_live_view_nobody_reads_neither_stalls_the_link_nor_the_proxy():
+    """The view's reader stops (a paused pager, a full pipe): its lines are skipped and counted; every frame
+    still passes (before: the proxy blocked in print, the link with it, deaf to Ctrl-C)."""
+    import os
+    import threading
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    read_end, write_end = os.pipe()
+    view = os.fdopen(write_end, "w")
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock, view=view)
+    sent = frames(3000)                        # some 80 B of view each: several times a pipe's 64 KiB
+
+    def forward() -> None:
+        for frame in sent:
+            host.inbox += frame
+            clock.advance_by(0.001)
+            proxy.step()
+    worker = threading.Thread(target=forward, daemon=True)
+    worker.start()
+    worker.join(timeout=120)
+    stuck = worker.is_alive()
+    os.close(read_end)                         # (a stuck print now fails, and the thread ends)
+    try:
+        view.close()
+    except OSError:
+        pass
+    assert not stuck
+    assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(sent).replace(b"\x00", b"")
+    assert proxy.view_skipped > 0 and "frames not shown" in proxy.summary()

@@ -19,6 +19,7 @@ next one may come.
 from __future__ import annotations
 
 import logging
+import select
 from dataclasses import dataclass, field
 from typing import Callable, Optional, TextIO
 
@@ -66,6 +67,7 @@ class Proxy:
         self.host = _Side("host", host_port)
         self.controller = _Side("controller", controller_port)
         self.view = view
+        self.view_skipped = 0             # lines the view's reader had no room for (a paused pager, say)
         self.capture = capture
         self.capture_name = capture_name
         self.capture_failed = ""          # why the capture stopped, if it could not be written
@@ -123,10 +125,26 @@ class Proxy:
                                       f"the frames before frame {self.frames}, cut short"
                 log.error(f"aspod proxy: {self.capture_failed}; the link goes on")
                 self._close_capture()
-        if self.view is not None:
+        if self.view is not None and self._view_has_room():
             segment = fate.sent.strip(b"\x00")
             decoded = self.decoder.decode(segment, t, "link", direction)
             print(describe(decoded) + (f"  [{note}]" if note else ""), file=self.view, flush=True)
+
+    def _view_has_room(self) -> bool:
+        """Whether the view can take a line now: a reader that stops reading it (a paused pager, a full pipe) must
+        neither stall the link nor make the proxy deaf to Ctrl-C, so the lines it has no room for are skipped."""
+        try:
+            fd = self.view.fileno()
+        except (AttributeError, OSError, ValueError):   # not a file (a test's buffer): it always has room
+            return True
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        if poll.poll(0):
+            return True
+        if not self.view_skipped:
+            log.warning("aspod proxy: the live view's reader is not keeping up: lines are skipped, the link goes on")
+        self.view_skipped += 1
+        return False
 
     def run(self, should_stop: Callable[[], bool]) -> None:
         while not should_stop():
@@ -145,6 +163,8 @@ class Proxy:
             if line.in_flight or target.outgoing:       # what stopping the proxy leaves undelivered
                 lines[-1] += (f"; not delivered at the end: {line.in_flight} frames in flight, "
                               f"{len(target.outgoing)} B the {target.name} had not taken")
+        if self.view_skipped:
+            lines.append(f"live view: {self.view_skipped} frames not shown (its reader did not keep up)")
         return "\n".join(lines)
 
     def close(self) -> None:
