@@ -308,3 +308,25 @@ def test_a_live_view_nobody_reads_neither_stalls_the_link_nor_the_proxy():
     assert not stuck
     assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(sent).replace(b"\x00", b"")
     assert proxy.view_skipped > 0 and "frames not shown" in proxy.summary()
+
+
+def test_a_new_client_does_not_wait_behind_the_backlog_of_the_one_it_replaced():
+    """A host floods a slow controller, then another client takes the line: its frames go next, not after the
+    megabyte the old one left held (on a 115200 baud controller, a minute and a half of garbage)."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Clients(), _Stuck()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock)
+    host.inbox += frames(1, size=0)[0] * 20000
+    for _ in range(100):
+        clock.advance_by(0.001)
+        proxy.step()
+    host.inbox.clear()
+    host.generation += 1
+    mine = frames(3, size=0)
+    host.inbox += b"".join(mine)
+    controller.stuck = False
+    clock.advance_by(0.001)
+    proxy.step()
+    assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(mine).replace(b"\x00", b"")

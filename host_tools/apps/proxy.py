@@ -99,9 +99,13 @@ class Proxy:
                 continue         # left in the source's buffer until the far side takes what is held
             data = self._read(source)
             generation = getattr(source.port, "generation", 0)
-            if generation != source.generation:     # a new client: the old one's half frame is not its
+            if generation != source.generation:     # a new client: what the old one left is not its
                 source.generation = generation
-                line.restart()
+                forgotten = line.restart() + len(target.outgoing)
+                target.outgoing.clear()
+                if forgotten:
+                    log.info(f"aspod proxy: a new {source.name} client: {forgotten} B the previous one wrote, "
+                             "not yet delivered, are dropped")
             if data:
                 for fate in line.send(data, t):
                     self._show(fate, direction, t)

@@ -240,10 +240,14 @@ class ImpairedLine:
         self.stats.bytes_in += len(data)
         return [self._decide(b"\x00" + segment + b"\x00", now) for segment, _ in self._cutter.feed(data)]
 
-    def restart(self) -> None:
-        """Forget the unfinished frame: its writer is gone (another client took the line), and its bytes are not
-        the beginning of the next writer's first frame."""
+    def restart(self) -> int:
+        """Forget the unfinished frame and the frames not yet delivered: their writer is gone (another client took
+        the line); the next one's bytes neither finish its half frame nor wait behind its backlog (as the paced
+        UART drops what it held of a client that left). Returns the bytes forgotten."""
         self._cutter.reset()
+        forgotten, self.held_bytes = self.held_bytes, 0
+        self._queue.clear()
+        return forgotten
 
     def _decide(self, frame: bytes, now: float) -> Fate:
         spec, rng, stats = self.spec, self._rng, self.stats
