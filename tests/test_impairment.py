@@ -30,7 +30,8 @@ def test_presets_and_pairs_parse_and_bad_words_are_named():
     assert (custom.ber, custom.drop, custom.blocks, custom.baud) == (1e-5, 0.01, ((5.0, 2.0),), 9600)
     for bad, words in (("sunny", "no impairment preset"), ("drop=2", "probability"), ("drop=x", "drop=NUMBER"),
                        ("fade=30", "START+DURATION"), ("warp=9", "no such impairment"), ("", "empty"),
-                       ("fade_every_s=10", "fade_s"), ("fade=5+0", "duration > 0"), ("latency_ms=-1", ">= 0")):
+                       ("fade_every_s=10", "fade_s"), ("fade=5+0", "duration > 0"), ("latency_ms=-1", ">= 0"),
+                       ("block_every_s=1e-300,block_s=1e-300", "at least 0.1 s")):    # (drawn for ever)
         with pytest.raises(ValueError, match=re.escape(words)):
             Impairment.parse(bad)
 
@@ -143,3 +144,189 @@ def test_the_proxy_and_the_lockstep_line_give_the_same_frames_the_same_fates():
     assert bytes(controller.outbox) == expected and expected
     assert proxy.link.to_controller.stats == reference.to_controller.stats
     assert reference.to_controller.stats.faded > 0 and reference.to_controller.stats.dropped > 0
+
+
+class _Source(_Pipe):
+    """A side that always has more to say: `read` hands out the next bytes of an endless stream of frames and
+    counts them (what it has not been asked for stays with it, as in a full line's buffer)."""
+
+    def __init__(self, frame: bytes) -> None:
+        super().__init__()
+        self.frame, self.given = frame, bytearray()
+
+    def read(self, max_bytes: int) -> bytes:
+        while len(self.inbox) < max_bytes:
+            self.inbox += self.frame
+        data = super().read(max_bytes)
+        self.given += data
+        return data
+
+
+class _Stuck(_Pipe):
+    """A side that takes nothing until `stuck` is cleared."""
+    stuck = True
+
+    def write(self, data: bytes) -> int:
+        return 0 if self.stuck else super().write(data)
+
+
+@pytest.mark.parametrize("spec", ["clean", "latency_ms=10000", "baud=9600"])
+def test_a_flood_towards_a_side_that_does_not_keep_up_is_held_back_not_kept_without_bound(spec):
+    """A host that floods a controller that takes nothing (or a link far slower than the flood, or one that holds
+    every frame ten seconds): the proxy stops reading the host once a bounded amount is held, and loses nothing:
+    once the controller takes again and the link delivers, it gets every byte the proxy read, in order."""
+    from host_tools.apps.proxy import MAX_HELD_BYTES, Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Source(frames(1, size=0)[0]), _Stuck()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment.parse(spec)), clock=clock)
+    for _ in range(3000):                       # 3000 reads of 4 KiB would be 12 MiB
+        clock.advance_by(0.001)
+        proxy.step()
+    held = proxy.link.to_controller.held_bytes + len(proxy.controller.outgoing)
+    assert len(host.given) <= 2 * MAX_HELD_BYTES and held <= 2 * MAX_HELD_BYTES
+    controller.stuck = False
+    for _ in range(3000):
+        clock.advance_by(100.0)
+        proxy.step()
+        if len(controller.outbox) > 3 * MAX_HELD_BYTES:
+            break
+    assert len(controller.outbox) > 3 * MAX_HELD_BYTES           # reading went on once the controller took
+    delivered = bytes(controller.outbox).replace(b"\x00", b"")
+    given = bytes(host.given).replace(b"\x00", b"")
+    assert given.startswith(delivered)          # what it read, in order, nothing lost on the way
+    assert proxy.link.to_controller.stats.dropped == 0
+
+
+class _FullDisk:
+    """A file that takes `room` bytes, then fails as a full disk does (on write, flush and close)."""
+    name = "full.pcapng"
+
+    def __init__(self, room: int) -> None:
+        self.room, self.data = room, bytearray()
+
+    def write(self, data: bytes) -> int:
+        if len(self.data) + len(data) > self.room:
+            raise OSError(28, "No space left on device")
+        self.data += data
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        raise OSError(28, "No space left on device")
+
+
+def test_a_capture_that_cannot_be_written_stops_but_the_link_goes_on():
+    """--record on a disk that fills: the capture stops (the proxy says so), every frame still passes."""
+    from host_tools.apps.proxy import Proxy
+    from host_tools.sessions.capture import CaptureWriter, SessionInfo
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    capture = CaptureWriter(_FullDisk(4096), SessionInfo(clock="wall", tool="aspod proxy"))
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock, capture=capture, capture_name="--record x")
+    sent = frames(200)
+    for frame in sent:
+        clock.advance_by(0.01)
+        host.inbox += frame
+        proxy.step()
+    proxy.close()
+    assert "--record x cannot be written (No space left on device)" in proxy.capture_failed
+    assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(sent).replace(b"\x00", b"")
+
+
+class _Clients(_Pipe):
+    """A tcp: side: `generation` counts changes of client, as TcpServerPort's does."""
+    generation = 0
+
+
+def test_a_new_client_on_the_proxys_line_does_not_finish_the_old_ones_half_frame():
+    """A host leaves (or is displaced) halfway through a frame; the next client's first bytes start a frame of its
+    own: the controller never gets one frame spliced from two clients' bytes."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Clients(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock)
+    old, new = frames(2, size=0)
+    host.inbox += old[:len(old) // 2]
+    proxy.step()
+    host.generation += 1
+    host.inbox += new.lstrip(b"\x00")          # its first frame, without a leading delimiter
+    clock.advance_by(0.01)
+    proxy.step()
+    assert bytes(controller.outbox) == b"\x00" + new.strip(b"\x00") + b"\x00"
+
+
+def test_the_proxys_summary_counts_what_stopping_it_leaves_undelivered():
+    """Frames still held by a long latency when the proxy stops are named in its summary, not passed over."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment.parse("latency_ms=10000")), clock=clock)
+    for frame in frames(3):
+        host.inbox += frame
+        clock.advance_by(0.01)
+        proxy.step()
+    assert not controller.outbox
+    assert "host -> controller: 3 frames" in proxy.summary()
+    assert "not delivered at the end: 3 frames in flight" in proxy.summary()
+    assert "not delivered" not in proxy.summary().splitlines()[1]          # the other way: nothing held
+
+
+def test_a_live_view_nobody_reads_neither_stalls_the_link_nor_the_proxy():
+    """The view's reader stops (a paused pager, a full pipe): its lines are skipped and counted; every frame
+    still passes (before: the proxy blocked in print, the link with it, deaf to Ctrl-C)."""
+    import os
+    import threading
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    read_end, write_end = os.pipe()
+    view = os.fdopen(write_end, "w")
+    clock = SimClock()
+    host, controller = _Pipe(), _Pipe()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock, view=view)
+    sent = frames(3000)                        # some 80 B of view each: several times a pipe's 64 KiB
+
+    def forward() -> None:
+        for frame in sent:
+            host.inbox += frame
+            clock.advance_by(0.001)
+            proxy.step()
+    worker = threading.Thread(target=forward, daemon=True)
+    worker.start()
+    worker.join(timeout=120)
+    stuck = worker.is_alive()
+    os.close(read_end)                         # (a stuck print now fails, and the thread ends)
+    try:
+        view.close()
+    except OSError:
+        pass
+    assert not stuck
+    assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(sent).replace(b"\x00", b"")
+    assert proxy.view_skipped > 0 and "frames not shown" in proxy.summary()
+
+
+def test_a_new_client_does_not_wait_behind_the_backlog_of_the_one_it_replaced():
+    """A host floods a slow controller, then another client takes the line: its frames go next, not after the
+    megabyte the old one left held (on a 115200 baud controller, a minute and a half of garbage)."""
+    from host_tools.apps.proxy import Proxy
+    from timebase import SimClock
+    clock = SimClock()
+    host, controller = _Clients(), _Stuck()
+    proxy = Proxy(host, controller, ImpairedLink(Impairment()), clock=clock)
+    host.inbox += frames(1, size=0)[0] * 20000
+    for _ in range(100):
+        clock.advance_by(0.001)
+        proxy.step()
+    host.inbox.clear()
+    host.generation += 1
+    mine = frames(3, size=0)
+    host.inbox += b"".join(mine)
+    controller.stuck = False
+    clock.advance_by(0.001)
+    proxy.step()
+    assert bytes(controller.outbox).replace(b"\x00", b"") == b"".join(mine).replace(b"\x00", b"")

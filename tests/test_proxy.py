@@ -93,3 +93,50 @@ def test_proxy_refuses_bad_arguments_by_name(env):
                         (["--controller", "/no/such/device"], "/no/such/device")):
         done = subprocess.run(ASPOD + ["proxy", *args], capture_output=True, text=True, env=env, timeout=60)
         assert done.returncode in (2, 3) and words in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_controller_that_reads_nothing_neither_hangs_the_proxy_nor_makes_it_grow(env):
+    """The controller's end (a socket:// URL the proxy opens) takes nothing while the host floods: the proxy holds
+    a bounded amount and stops reading the host (its writes wait, as on a full line), and it still stops at
+    Ctrl-C. (pyserial's non-blocking write used to spin for ever on a peer that reads nothing, deaf to signals.)"""
+    import socket
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    proxy = Child(["proxy", "--controller", f"socket://127.0.0.1:{listener.getsockname()[1]}", "--host", "tcp:0",
+                   "--no-view"], env=env)
+    sockets = [listener]
+    try:
+        line = read_line(proxy)
+        assert line.startswith("ASPOD-LINK socket://127.0.0.1:"), line
+        sockets.append(listener.accept()[0])          # the controller's end: never read
+        host = socket.create_connection(("127.0.0.1", int(line.rsplit(":", 1)[1])), timeout=5)
+        sockets.append(host)
+        frame = b"\x00" + bytes(range(1, 41)) + b"\x00"
+        sent = 0
+        try:
+            while sent < 64 * 1024 * 1024:             # until the proxy stops taking (a socket timeout)
+                host.sendall(frame * 1000)
+                sent += len(frame) * 1000
+        except socket.timeout:
+            pass
+        assert sent < 64 * 1024 * 1024                 # held back: it did not read everything
+        status, err = proxy.stop(signal.SIGINT, timeout_s=20)
+        assert status == 0, err
+        assert "host -> controller:" in err and "Traceback" not in err
+    finally:
+        proxy.stop(signal.SIGKILL)
+        for s in sockets:
+            s.close()
+
+
+def test_two_new_endpoints_of_the_same_kind_are_two_sides():
+    """`pty` and `tcp:0` make a new endpoint each time (tcp:0 a free port each): both sides may ask for one; the
+    same fixed port twice is refused."""
+    from host_tools.cli import settings
+    from host_tools.cli.main import build_parser
+    for endpoint in ("pty", "tcp:0"):
+        args = build_parser().parse_args(["proxy", "--host", endpoint, "--controller", endpoint])
+        assert (settings.proxy_settings(args).host, settings.proxy_settings(args).controller) == (endpoint, endpoint)
+    with pytest.raises(ValueError, match="must differ"):
+        settings.proxy_settings(build_parser().parse_args(["proxy", "--host", "tcp:7000", "--controller", "tcp:7000"]))

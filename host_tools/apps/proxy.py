@@ -19,6 +19,7 @@ next one may come.
 from __future__ import annotations
 
 import logging
+import select
 from dataclasses import dataclass, field
 from typing import Callable, Optional, TextIO
 
@@ -27,10 +28,14 @@ from timebase import Clock, RealClock
 
 from host_tools.sessions.capture import CaptureWriter
 from host_tools.sessions.decode import SessionDecoder, describe
-from host_tools.sessions.impairment import Fate, ImpairedLink
+from host_tools.sessions.impairment import Fate, ImpairedLine, ImpairedLink
 
 log = logging.getLogger("aspod")
 READ_SIZE = 4096
+WRITE_SIZE = 65536         # offered to a port at once
+MAX_HELD_BYTES = 1 << 20   # one direction's bytes in the link and for its port: beyond, its source is not read
+MAX_HELD_FRAMES = 16384    # (and its frames in the link), so a side that does not read, or a flood faster than
+                           # the link's pacing, holds the writer back as a full line would, and nothing grows
 IDLE_S = 0.0005            # the loop's sleep when nothing is due sooner: the latency the proxy itself adds
 
 
@@ -47,6 +52,7 @@ class _Side:
     name: str            # "host" or "controller"
     port: object
     outgoing: bytearray = field(default_factory=bytearray)   # delivered by the link, not yet taken by the port
+    generation: int = 0  # the port's client (a tcp: side counts changes of client): the one the link cuts for
 
 
 class Proxy:
@@ -54,14 +60,17 @@ class Proxy:
 
     def __init__(self, host_port, controller_port, link: ImpairedLink, *, clock: Optional[Clock] = None,
                  view: Optional[TextIO] = None, capture: Optional[CaptureWriter] = None,
-                 psk: Optional[bytes] = None) -> None:
+                 psk: Optional[bytes] = None, capture_name: str = "the capture") -> None:
         self.clock = clock or RealClock()
         self.origin = self.clock.now()
         self.link = link
         self.host = _Side("host", host_port)
         self.controller = _Side("controller", controller_port)
         self.view = view
+        self.view_skipped = 0             # lines the view's reader had no room for (a paused pager, say)
         self.capture = capture
+        self.capture_name = capture_name
+        self.capture_failed = ""          # why the capture stopped, if it could not be written
         self.decoder = SessionDecoder(psk)
         self.frames = 0
 
@@ -75,7 +84,7 @@ class Proxy:
         if not side.outgoing:
             return
         try:
-            written = side.port.write(bytes(side.outgoing))
+            written = side.port.write(bytes(side.outgoing[:WRITE_SIZE]))
         except OSError as exc:
             raise EndpointGone(side.name, side.port.url, str(exc) or type(exc).__name__) from None
         del side.outgoing[:written]
@@ -83,9 +92,20 @@ class Proxy:
     def step(self) -> float:
         """Move what is there and what is due; returns the time (link time) when something is next due."""
         t = self.clock.now() - self.origin
-        for source, line, direction in ((self.host, self.link.to_controller, Direction.TO_CONTROLLER),
-                                        (self.controller, self.link.to_host, Direction.TO_HOST)):
+        for source, line, direction, target in (
+                (self.host, self.link.to_controller, Direction.TO_CONTROLLER, self.controller),
+                (self.controller, self.link.to_host, Direction.TO_HOST, self.host)):
+            if self._full(line, target):
+                continue         # left in the source's buffer until the far side takes what is held
             data = self._read(source)
+            generation = getattr(source.port, "generation", 0)
+            if generation != source.generation:     # a new client: what the old one left is not its
+                source.generation = generation
+                forgotten = line.restart() + len(target.outgoing)
+                target.outgoing.clear()
+                if forgotten:
+                    log.info(f"aspod proxy: a new {source.name} client: {forgotten} B the previous one wrote, "
+                             "not yet delivered, are dropped")
             if data:
                 for fate in line.send(data, t):
                     self._show(fate, direction, t)
@@ -94,15 +114,41 @@ class Proxy:
             self._write(target)
         return self.link.next_due_s()
 
+    @staticmethod
+    def _full(line: ImpairedLine, target: _Side) -> bool:
+        return line.held_bytes + len(target.outgoing) >= MAX_HELD_BYTES or line.in_flight >= MAX_HELD_FRAMES
+
     def _show(self, fate: Fate, direction: Direction, t: float) -> None:
         self.frames += 1
         note = fate.describe()
         if self.capture is not None:
-            self.capture.write("link", direction, fate.sent, RealClock.wall_time(), comment=note)
-        if self.view is not None:
+            try:
+                self.capture.write("link", direction, fate.sent, RealClock.wall_time(), comment=note)
+            except OSError as exc:        # a full disk, say: the capture stops there, the link goes on
+                self.capture_failed = f"{self.capture_name} cannot be written ({exc.strerror or exc}): it holds " \
+                                      f"the frames before frame {self.frames}, cut short"
+                log.error(f"aspod proxy: {self.capture_failed}; the link goes on")
+                self._close_capture()
+        if self.view is not None and self._view_has_room():
             segment = fate.sent.strip(b"\x00")
             decoded = self.decoder.decode(segment, t, "link", direction)
             print(describe(decoded) + (f"  [{note}]" if note else ""), file=self.view, flush=True)
+
+    def _view_has_room(self) -> bool:
+        """Whether the view can take a line now: a reader that stops reading it (a paused pager, a full pipe) must
+        neither stall the link nor make the proxy deaf to Ctrl-C, so the lines it has no room for are skipped."""
+        try:
+            fd = self.view.fileno()
+        except (AttributeError, OSError, ValueError):   # not a file (a test's buffer): it always has room
+            return True
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        if poll.poll(0):
+            return True
+        if not self.view_skipped:
+            log.warning("aspod proxy: the live view's reader is not keeping up: lines are skipped, the link goes on")
+        self.view_skipped += 1
+        return False
 
     def run(self, should_stop: Callable[[], bool]) -> None:
         while not should_stop():
@@ -112,11 +158,17 @@ class Proxy:
 
     def summary(self) -> str:
         lines = []
-        for name, line in (("host -> controller", self.link.to_controller), ("controller -> host", self.link.to_host)):
+        for name, line, target in (("host -> controller", self.link.to_controller, self.controller),
+                                   ("controller -> host", self.link.to_host, self.host)):
             s = line.stats
             lines.append(f"{name}: {s.frames} frames ({s.bytes_in} B in, {s.bytes_out} B out); lost: {s.dropped} "
                          f"dropped, {s.faded} in fades, {s.blocked} in blockages; {s.duplicated} duplicated; "
                          f"{s.bits_flipped} bits flipped")
+            if line.in_flight or target.outgoing:       # what stopping the proxy leaves undelivered
+                lines[-1] += (f"; not delivered at the end: {line.in_flight} frames in flight, "
+                              f"{len(target.outgoing)} B the {target.name} had not taken")
+        if self.view_skipped:
+            lines.append(f"live view: {self.view_skipped} frames not shown (its reader did not keep up)")
         return "\n".join(lines)
 
     def close(self) -> None:
@@ -125,6 +177,13 @@ class Proxy:
                 side.port.close()
             except OSError:
                 pass
-        if self.capture is not None:
-            self.capture.close()
+        self._close_capture()
+
+    def _close_capture(self) -> None:
+        capture, self.capture = self.capture, None
+        if capture is not None:
+            try:
+                capture.close()
+            except OSError:               # the last bytes cannot be written either: said when writing failed
+                pass
 

@@ -9,7 +9,7 @@ import sys
 from protocol import auth
 from host_tools.apps.proxy import EndpointGone, Proxy
 from host_tools.cli.settings import ProxySettings
-from host_tools.exit_codes import EXIT_LINK, EXIT_OK
+from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.sessions.impairment import ImpairedLink
 from host_tools.worlds.ports import open_endpoint
@@ -30,7 +30,7 @@ def run_proxy(settings: ProxySettings) -> int:
         capture = CaptureWriter.create(settings.record, SessionInfo(clock="wall", tool="aspod proxy", settings={
             "host": settings.host, "controller": settings.controller, "impairment": settings.impairment.describe()}))
     proxy = Proxy(host, controller, ImpairedLink(settings.impairment), capture=capture, psk=psk,
-                  view=sys.stdout if settings.view else None)
+                  view=sys.stdout if settings.view else None, capture_name=f"--record {settings.record}")
     print(f"ASPOD-LINK {host.url}", flush=True)
     log.info(f"aspod proxy: {host.url} (host) <-> {controller.url} (controller); link: "
              f"{settings.impairment.describe()}; Ctrl-C stops")
@@ -46,4 +46,7 @@ def run_proxy(settings: ProxySettings) -> int:
     finally:
         proxy.close()
         log.info(f"aspod proxy: {proxy.frames} frames\n{proxy.summary()}")
+    if proxy.capture_failed and status == EXIT_OK:
+        log.error(f"aspod proxy: {proxy.capture_failed}")
+        status = EXIT_FAILED
     return status

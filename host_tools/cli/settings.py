@@ -414,7 +414,7 @@ def proxy_settings(args: argparse.Namespace) -> ProxySettings:
             check_endpoint(endpoint)
         except ValueError as exc:
             raise ValueError(f"{option}: {exc}") from None
-    if args.host == args.controller and args.host != "pty":
+    if args.host == args.controller and args.host not in ("pty", "tcp:0"):     # (each of those is a new one)
         raise ValueError(f"--host and --controller are both {args.host}: the two sides must differ")
     return ProxySettings(args.host, args.controller, impairment, args.baud, output_file(args.record, "--record"),
                          args.key_file, not args.no_view)

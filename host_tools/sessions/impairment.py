@@ -42,6 +42,7 @@ PRESETS: dict[str, dict] = {
 }
 FADE, BLOCKAGE = "fade", "blockage"
 KEPT_PAST_S = 120.0            # outages that ended this long before the latest question are forgotten
+MIN_OUTAGE_EVERY_S = 0.1       # random outages' least mean gap: each is kept (KEPT_PAST_S) and looked through
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,9 @@ class Impairment:
                                                                               self.block_s)):
             if every and not mean:
                 raise ValueError(f"{kind}_every_s={every} needs a mean duration, {kind}_s")
+            if 0 < every < MIN_OUTAGE_EVERY_S:
+                raise ValueError(f"{kind}_every_s={every}: at least {MIN_OUTAGE_EVERY_S:g} s between {kind}s on "
+                                 "average (or 0: none)")
         for start, duration in self.fades + self.blocks:
             if not (math.isfinite(start) and math.isfinite(duration) and start >= 0 and duration > 0):
                 raise ValueError(f"an outage {start}+{duration}: start >= 0 and duration > 0, in seconds")
@@ -228,12 +232,22 @@ class ImpairedLine:
         self._cutter = SegmentCutter()
         self._queue: list[tuple[float, bytes]] = []        # (due, bytes), due non-decreasing
         self._last_due = 0.0
+        self.held_bytes = 0                                 # the bytes in `_queue`
         self.stats = LineStats()
 
     def send(self, data: bytes, now: float) -> list[Fate]:
         """Take written bytes; the fates of the frames they complete."""
         self.stats.bytes_in += len(data)
         return [self._decide(b"\x00" + segment + b"\x00", now) for segment, _ in self._cutter.feed(data)]
+
+    def restart(self) -> int:
+        """Forget the unfinished frame and the frames not yet delivered: their writer is gone (another client took
+        the line); the next one's bytes neither finish its half frame nor wait behind its backlog (as the paced
+        UART drops what it held of a client that left). Returns the bytes forgotten."""
+        self._cutter.reset()
+        forgotten, self.held_bytes = self.held_bytes, 0
+        self._queue.clear()
+        return forgotten
 
     def _decide(self, frame: bytes, now: float) -> Fate:
         spec, rng, stats = self.spec, self._rng, self.stats
@@ -269,6 +283,7 @@ class ImpairedLine:
             due += len(fate.delivered) * 10 / spec.baud
         self._last_due = fate.due_s = due
         self._queue.append((due, fate.delivered))
+        self.held_bytes += len(fate.delivered)
         return fate
 
     def receive(self, now: float) -> bytes:
@@ -280,6 +295,7 @@ class ImpairedLine:
             return b""
         out = b"".join(data for _, data in self._queue[:n])
         del self._queue[:n]
+        self.held_bytes -= len(out)
         self.stats.bytes_out += len(out)
         return out
 

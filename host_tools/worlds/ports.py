@@ -188,7 +188,17 @@ class DevicePort:
         return self._serial.read(max_bytes)
 
     def write(self, data: bytes) -> int:
+        """What the device takes now (0 if it takes nothing). pyserial's own non-blocking write spins until the
+        device takes a first byte (it retries EAGAIN), so a device or socket that is not read would hold the
+        caller for ever, deaf to Ctrl-C: asked first whether it can take any."""
+        import select
         import serial
+        fileno = getattr(self._serial, "fileno", None)
+        if fileno is not None:
+            poll = select.poll()          # (poll, not select: any descriptor number)
+            poll.register(fileno(), select.POLLOUT)
+            if not poll.poll(0):
+                return 0
         try:
             return self._serial.write(data) or 0
         except serial.SerialTimeoutException:
