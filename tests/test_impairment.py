@@ -24,14 +24,15 @@ def run_line(spec: Impairment, sends: list[tuple[float, bytes]], until_s: float 
 
 
 def test_presets_and_pairs_parse_and_bad_words_are_named():
-    radio = Impairment.parse("radio,seed=4,fade=60+30")
-    assert (radio.name, radio.seed, radio.latency_ms, radio.fades) == ("radio", 4, 20.0, ((60.0, 30.0),))
+    radio = Impairment.parse("radio,seed=4,fade=60+30,fade=90+5,latency_ms=50")     # a preset's value overridden
+    assert (radio.name, radio.seed, radio.latency_ms, radio.fades) == ("radio", 4, 50.0, ((60.0, 30.0), (90.0, 5.0)))
     custom = Impairment.parse("ber=1e-5, drop=0.01, block=5+2, baud=9600")
     assert (custom.ber, custom.drop, custom.blocks, custom.baud) == (1e-5, 0.01, ((5.0, 2.0),), 9600)
     for bad, words in (("sunny", "no impairment preset"), ("drop=2", "probability"), ("drop=x", "drop=NUMBER"),
                        ("fade=30", "START+DURATION"), ("warp=9", "no such impairment"), ("", "empty"),
                        ("fade_every_s=10", "fade_s"), ("fade=5+0", "duration > 0"), ("latency_ms=-1", ">= 0"),
-                       ("block_every_s=1e-300,block_s=1e-300", "at least 0.1 s")):    # (drawn for ever)
+                       ("block_every_s=1e-300,block_s=1e-300", "at least 0.1 s"),    # (drawn for ever)
+                       ("drop=0.1,drop=0.2", "drop given twice (drop=0.1, drop=0.2): give it once")):  # not the last
         with pytest.raises(ValueError, match=re.escape(words)):
             Impairment.parse(bad)
 

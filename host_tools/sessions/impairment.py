@@ -103,9 +103,14 @@ class Impairment:
             values.update(PRESETS[name])
         types = {f.name: f.type for f in fields(cls)}
         fades, blocks = [], []
+        given: dict[str, str] = {}
         for word in words:
             key, sep, value = word.partition("=")
             key = key.strip()
+            if key in given and key not in ("fade", "block"):
+                raise ValueError(f"{key} given twice ({given[key]}, {word}): give it once (a preset's value is "
+                                 "overridden by giving the key after it)")
+            given[key] = word
             try:
                 if not sep:
                     raise ValueError
