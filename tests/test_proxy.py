@@ -11,6 +11,7 @@ import threading
 import pytest
 
 from protocol import auth
+from protocol.messages import MESSAGES as M
 from host_tools.sessions.capture import SessionCapture
 from host_tools.sessions.decode import MAC_OK, SessionDecoder
 from host_tools.worlds.child import Child
@@ -140,3 +141,36 @@ def test_two_new_endpoints_of_the_same_kind_are_two_sides():
         assert (settings.proxy_settings(args).host, settings.proxy_settings(args).controller) == (endpoint, endpoint)
     with pytest.raises(ValueError, match="must differ"):
         settings.proxy_settings(build_parser().parse_args(["proxy", "--host", "tcp:7000", "--controller", "tcp:7000"]))
+
+
+def test_a_tcp_host_with_a_live_session_is_not_displaced_by_a_new_connection(sim_factory, env):
+    """As aspod sim's own TCP port does: a connection that comes while the host's frames flow is closed at once
+    (the proxy attack of 2026-11-25: any new connection took the line from a host mid-session); once the host has
+    gone, the next one is taken."""
+    import socket
+    from host_tools.client.live import HostClient
+    sim = sim_factory("--pty", "--no-tracker")
+    proxy, url, _ = start_proxy(env, sim.url, "--host", "tcp:0", "--no-view")
+    host, port = url.removeprefix("socket://").rsplit(":", 1)
+    psk = auth.load_key(sim.key_path)
+    first = HostClient(url, psk)
+    try:
+        first.connect()
+        assert first.call(M["Ping"](1)).ok
+        intruder = socket.create_connection((host, int(port)), timeout=10)
+        try:
+            intruder.settimeout(10)
+            assert intruder.recv(1) == b""                     # closed at once
+        finally:
+            intruder.close()
+        assert first.call(M["Ping"](2)).ok                    # the host keeps its line
+    finally:
+        first.close()
+    second = HostClient(url, psk)
+    try:
+        second.connect()
+        assert second.call(M["Ping"](3)).ok
+    finally:
+        second.close()
+    status, err = proxy.stop(signal.SIGINT, timeout_s=10)
+    assert status == 0, err

@@ -19,10 +19,13 @@ next one may come.
 from __future__ import annotations
 
 import logging
+import math
 import select
 from dataclasses import dataclass, field
 from typing import Callable, Optional, TextIO
 
+from protocol.errors import ParseError
+from protocol.framing import decode_frame
 from protocol.schema import Direction
 from timebase import Clock, RealClock
 
@@ -36,6 +39,7 @@ WRITE_SIZE = 65536         # offered to a port at once
 MAX_HELD_BYTES = 1 << 20   # one direction's bytes in the link and for its port: beyond, its source is not read
 MAX_HELD_FRAMES = 16384    # (and its frames in the link), so a side that does not read, or a flood faster than
                            # the link's pacing, holds the writer back as a full line would, and nothing grows
+HOST_LIVE_S = 3.0          # a TCP host that sent a good frame this recently is not displaced by a new connection
 IDLE_S = 0.0005            # the loop's sleep when nothing is due sooner: the latency the proxy itself adds
 
 
@@ -73,6 +77,28 @@ class Proxy:
         self.capture_failed = ""          # why the capture stopped, if it could not be written
         self.decoder = SessionDecoder(psk)
         self.frames = 0
+        # A TCP host port takes a new connection in place of a client without a live session, never of one with
+        # (host_tools/worlds/ports.py): the proxy knows no session, so a client whose frames pass their CRC is
+        # live while it sent one within HOST_LIVE_S (the link's default timeout). Its token is new for each client.
+        self._host_frame_s = -math.inf
+        self._host_token: Optional[object] = None
+        if hasattr(host_port, "live_session"):
+            host_port.live_session = self._host_session
+
+    def _host_session(self) -> Optional[object]:
+        live = self.clock.now() - self.origin - self._host_frame_s <= HOST_LIVE_S
+        return self._host_token if live else None
+
+    def _host_sent(self, fates: list[Fate], t: float) -> None:
+        """Note a good frame from the host (its CRC passes): its client is live."""
+        for fate in fates:
+            try:
+                decode_frame(fate.sent.strip(b"\x00"))
+            except ParseError:
+                continue
+            self._host_frame_s = t
+            if self._host_token is None:
+                self._host_token = object()
 
     def _read(self, side: _Side) -> bytes:
         try:
@@ -101,13 +127,18 @@ class Proxy:
             generation = getattr(source.port, "generation", 0)
             if generation != source.generation:     # a new client: what the old one left is not its
                 source.generation = generation
+                if source is self.host:
+                    self._host_token, self._host_frame_s = None, -math.inf     # the new client is not live yet
                 forgotten = line.restart() + len(target.outgoing)
                 target.outgoing.clear()
                 if forgotten:
                     log.info(f"aspod proxy: a new {source.name} client: {forgotten} B the previous one wrote, "
                              "not yet delivered, are dropped")
             if data:
-                for fate in line.send(data, t):
+                fates = line.send(data, t)
+                if source is self.host:
+                    self._host_sent(fates, t)
+                for fate in fates:
                     self._show(fate, direction, t)
         for line, target in ((self.link.to_controller, self.controller), (self.link.to_host, self.host)):
             target.outgoing += line.receive(t)
