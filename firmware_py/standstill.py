@@ -11,10 +11,10 @@ arm idle while it moves.
 The health task (100 Hz) calls `check`. After the outputs go off, each joint has `still_settle_s` to brake to
 rest (slower than STILL_DPS: the mount from its top speed takes about 1 s and 11 deg); where it rests is its
 anchor. A joint further than `still_deg` from its anchor, one not at rest when its time is up, or a motor current
-above `still_current_a` on two checks running, trips. The current is judged from the moment the outputs go off: a
-braked motor whose bridge is off draws none, braking or not (0.0 A in every stop the review of 2026-11-25 made). After a trip the anchors of the joints at rest
-(and of the one that tripped) move to where they are, so that motion that goes on is seen again; a joint still
-braking keeps braking unjudged until it rests. `reset` is refused while a joint turns (`still_moving`).
+above `still_current_a` on two checks running, trips. The current is judged from the moment the outputs go off:
+a braked motor whose bridge is off draws none, braking or not (0.0 A in every stop the review of 2026-11-25
+made). After a trip the anchors of the joints at rest (and of the one that tripped) move to where they are, so
+that motion that goes on is seen again; a joint still braking keeps braking unjudged until it rests. `reset` is refused while a joint turns (`still_moving`).
 """
 from __future__ import annotations
 
@@ -62,7 +62,6 @@ class StandstillWatch:
         self._anchor: list[Optional[float]] = [None] * len(self.channels)   # where each channel came to rest [rad]
         self._current_seen = [False] * len(self.channels)
         self._last_speeds: list[float] = [0.0] * len(self.channels)
-        self._last_current = False
 
     def check(self, now: float, outputs_on: bool, positions_rad: Sequence[float],
               speeds_rad_s: Sequence[Optional[float]], currents_a: Sequence[Optional[float]],
@@ -74,7 +73,7 @@ class StandstillWatch:
         n = len(self.channels)
         if outputs_on:
             self._off_since, self._anchor = None, [None] * n
-            self._current_seen, self._last_current = [False] * n, False
+            self._current_seen = [False] * n
             return None
         if self._off_since is None:
             self._off_since = now
@@ -104,7 +103,7 @@ class StandstillWatch:
             if found is None and over[i] and self._current_seen[i]:
                 found = Uncommanded(name, f"drew {currents_a[i]:+.2f} A with the outputs off "
                                           f"(still_current_a {limit_a:g})")
-        self._current_seen, self._last_current = over, any(over)
+        self._current_seen = over
         if found is not None:
             # motion that goes on is seen again from here: the channels anchored, and the one that tripped; a joint
             # still braking (or with its sensor faulted) is anchored only once it rests, as before
@@ -115,7 +114,7 @@ class StandstillWatch:
 
     def still_moving(self) -> bool:
         """Whether the last check saw a joint turning or a motor drawing current (`reset` waits until neither)."""
-        return self._last_current or any(abs(math.degrees(v)) >= STILL_DPS for v in self._last_speeds)
+        return any(self._current_seen) or any(abs(math.degrees(v)) >= STILL_DPS for v in self._last_speeds)
 
 
 class ForeignCommands:

@@ -41,6 +41,7 @@ class PlantNode(HalEndpoint):
             if value is not None and not value > 0:
                 raise ValueError(f"{name} must be > 0, got {value}")
         super().__init__(bus, codec, max_frames_per_step)
+        self.sends_as("PLANT")
         codec = self.codec
         self.plant = plant
         self.period_s = period_s

@@ -97,6 +97,10 @@ class HalCodec:
             self._by_name[spec.name] = spec
             self._by_id[spec.frame_id] = spec
 
+    def ids_sent_by(self, node: str) -> frozenset[int]:
+        """The frame IDs the DBC declares as sent by `node` (CONTROLLER, PLANT)."""
+        return frozenset(m.frame_id for m in self.database.messages if node in (m.senders or ()))
+
     @property
     def names(self) -> tuple[str, ...]:
         """Declared message names, in frame-ID (priority) order."""
@@ -441,7 +445,7 @@ class HalEndpoint:
         """The DBC node this endpoint is: frames with the IDs that node sends, when they come in, came from
         another node (`own_id_frames`): on a bus that gives a node its own frames back, a filter drops those
         first (host_tools/worlds/nodes.py OwnEchoFilter)."""
-        self.own_ids = frozenset(m.frame_id for m in self.codec.database.messages if node in (m.senders or ()))
+        self.own_ids = self.codec.ids_sent_by(node)
 
     def foreign_frames(self) -> int:
         """Frames with this node's own IDs that another node sent: those that reached the endpoint, and, on a bus

@@ -401,8 +401,8 @@ class ControllersWatch:
     starting adds a CTRL_SYNC(0) or two ("I am here"). Two controllers answer every tick twice; a
     controller that also follows another plant answers that plant's ticks too. Feed `answer(now, offered,
     others)` every CTRL_SYNC (`LockstepLeader.on_answer`) with the wall time, the PLANT_SYNCs sent so far
-    and, if known, how many frames with the plant's own IDs it has received beyond those it sent (its
-    own echoes on udp_multicast, `nodes.own_echoes` less `frames_sent`: above 0, another plant). Each
+    and, if known, how many frames with the plant's own IDs it has received that it did not send
+    (`HalEndpoint.foreign_frames`: above 0, another plant). Each
     answer uses up one PLANT_SYNC sent (at most `ANSWER_CREDIT` are kept, so a long wait alone does not
     hide a later second controller); answers beyond them are said after `BURST_COUNT` within
     `BURST_WINDOW_S` (`BurstWatch`), naming another plant if `others` grew since it last said so, else

@@ -82,7 +82,8 @@ class Proxy:
         # live while it sent one within HOST_LIVE_S (the link's default timeout). Its token is new for each client.
         self._host_frame_s = -math.inf
         self._host_token: Optional[object] = None
-        if hasattr(host_port, "live_session"):
+        self._host_serves_clients = hasattr(host_port, "live_session")
+        if self._host_serves_clients:
             host_port.live_session = self._host_session
 
     def _host_session(self) -> Optional[object]:
@@ -136,7 +137,7 @@ class Proxy:
                              "not yet delivered, are dropped")
             if data:
                 fates = line.send(data, t)
-                if source is self.host:
+                if source is self.host and self._host_serves_clients:
                     self._host_sent(fates, t)
                 for fate in fates:
                     self._show(fate, direction, t)

@@ -101,7 +101,7 @@ def run_plant(settings: PlantRunSettings) -> int:
             leader = LockstepLeader(bus, pace, nodes.PLANT_PERIOD_S, reoffer=lambda: node.resend_sync())
             # a second controller (or plant) on this bus: said on stderr
             leader.on_answer = lambda tick: _warn(controllers.answer(
-                wall.now(), node.tick + node.sync_resends, nodes.own_echoes(leader.tap) - node.frames_sent))
+                wall.now(), node.tick + node.sync_resends, node.foreign_frames()))
         node = nodes.build_plant_node(leader.tap if leader else bus, settings.seed, None, plant, lockstep=lockstep)
         scheduler = Scheduler(leader or pace)
         scheduler.add("plant", node.step, period_s=node.period_s)

@@ -77,7 +77,7 @@ class OwnEchoFilter(BusView):
 
     def __init__(self, bus: can.BusABC, node: str, codec: Optional[HalCodec] = None) -> None:
         codec = codec or HalCodec()
-        own = frozenset(m.frame_id for m in codec.database.messages if node in (m.senders or ()))
+        own = codec.ids_sent_by(node)
         if not own:
             raise ValueError(f"no HAL frame is declared as sent by {node!r}; nodes: {', '.join(NODES)}")
         super().__init__(bus)

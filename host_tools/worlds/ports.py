@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import errno
 import os
+import select
 import socket
 import termios
 import tty
@@ -191,7 +192,6 @@ class DevicePort:
         """What the device takes now (0 if it takes nothing). pyserial's own non-blocking write spins until the
         device takes a first byte (it retries EAGAIN), so a device or socket that is not read would hold the
         caller for ever, deaf to Ctrl-C: asked first whether it can take any."""
-        import select
         import serial
         fileno = getattr(self._serial, "fileno", None)
         if fileno is not None:
