@@ -381,7 +381,7 @@ class Controller:
             now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints] + angles,
             [a.vel_rad_s for _, a in joints] + [None, None], [inputs.currents_a[k] for k, _ in joints] + [None, None],
             [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
-        foreign = self.foreign.check(self.hal.foreign_frames())
+        foreign = self.foreign.check(now, self.hal.foreign_frames())
         moved = moved or foreign
         if moved is not None:
             self.uncommanded = moved

@@ -19,6 +19,7 @@ that motion that goes on is seen again; a joint still braking keeps braking unju
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -120,17 +121,32 @@ class StandstillWatch:
 class ForeignCommands:
     """Commands for the hardware that another node sends: frames with the controller's own IDs (MOTOR_CMD,
     CTRL_OUTPUTS, TRACKER_CMD, CTRL_SYNC) that it did not send, in any state, outputs on or off. Fed the HAL's
-    `foreign_frames()` count at every health check; more of them on two checks running (a node sending them
-    at 100 Hz or faster) trips, one stray frame does not."""
+    `foreign_frames()` count at every health check; more than STRAY_FRAMES of them within WINDOW_S trips, a
+    stray frame or two (a restarted node's last frames still on their way) does not.
+
+    The count is judged by its high-water mark: on a bus that echoes a node's frames back, the count is the echoes
+    beyond the frames sent, which dips while the node's own echoes are on their way, and a dip and its recovery
+    are not new frames. A node sending them every 20 ms is seen at its third, at 40 ms; one sending fewer than three
+    a second is not seen by its frames (a command of the controller's own replaces each within 10 ms, and with
+    the outputs off `StandstillWatch` sees what it moves)."""
+
+    WINDOW_S = 1.0
+    STRAY_FRAMES = 2
 
     def __init__(self) -> None:
-        self.seen = 0
-        self._grew = False
+        self.seen = 0                                       # the high-water mark of the count
+        self._recent: deque[tuple[float, int]] = deque()    # (when, the mark then) for the marks within WINDOW_S
 
-    def check(self, foreign_frames: int) -> Optional[Uncommanded]:
-        grew, self._grew = foreign_frames > self.seen and self._grew, foreign_frames > self.seen
+    def check(self, now: float, foreign_frames: int) -> Optional[Uncommanded]:
+        while self._recent and now - self._recent[0][0] > self.WINDOW_S:
+            self._recent.popleft()
+        if foreign_frames <= self.seen:
+            return None
+        before = self._recent[0][1] if self._recent else self.seen   # the mark as the window opened
+        self._recent.append((now, self.seen))
         self.seen = foreign_frames
-        if not grew:
+        if foreign_frames - before <= self.STRAY_FRAMES:
             return None
         return Uncommanded("HAL bus", f"another node sends this controller's own frames (MOTOR_CMD, CTRL_OUTPUTS, "
-                                      f"TRACKER_CMD or CTRL_SYNC): {foreign_frames} so far")
+                                      f"TRACKER_CMD or CTRL_SYNC): {foreign_frames - before} in "
+                                      f"{self.WINDOW_S:g} s, {foreign_frames} so far")
