@@ -7,6 +7,7 @@ there. The same policy through the real `aspod sim --tcp` is in tests/test_e2e.p
 """
 from __future__ import annotations
 
+import select
 import socket
 
 import pytest
@@ -117,3 +118,26 @@ def test_a_session_that_was_live_before_the_client_connected_is_not_the_clients(
     assert port.refused == 0 and closed_by_peer(squatter)
     genuine.close()
     settle(uart, 0.0, lambda: port.generation == 2, "the genuine host's leaving is seen")
+
+
+def test_a_burst_of_connections_is_completed_by_the_kernel_before_any_is_taken():
+    """32 connections at once, before the port reads: each completes at once (the listen backlog holds them),
+    none waits for its SYN to be sent again, 1 s later, as the sixth did with a backlog of 4 (300 connections one
+    after another took 52 s). The kernel completes them: no bound here depends on this process being scheduled."""
+    port = TcpServerPort(0)
+    clients = [socket.socket() for _ in range(32)]
+    try:
+        for sock in clients:
+            sock.setblocking(False)
+            sock.connect_ex(("127.0.0.1", port.port))
+        pending, clock = list(clients), RealClock()
+        deadline = clock.now() + 0.9                # the first SYN retransmission comes at 1 s
+        while pending and clock.now() < deadline:
+            _, ready, _ = select.select([], pending, [], max(0.0, deadline - clock.now()))
+            pending = [sock for sock in pending if sock not in ready]
+        assert not pending, f"{len(pending)} of 32 connections not completed within 0.9 s"
+        assert all(sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0 for sock in clients)
+    finally:
+        for sock in clients:
+            sock.close()
+        port.close()
