@@ -12,6 +12,7 @@ from firmware_py.params import ParamStore
 from firmware_py.standstill import ForeignCommands, StandstillWatch, parameter_table
 from host_tools.cli import firmware as firmware_cli
 from hil_sim.tracker import TrackerCommand
+from host_tools.worlds import nodes
 from host_tools.worlds.local_bus import LocalBus
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -234,3 +235,29 @@ def test_foreign_frames_count_that_dips_and_recovers_is_not_new_frames():
     assert all(watch.check(0.01 * k, k % 2) is None for k in range(6000))
     assert watch.check(60.5, 2) is None and watch.check(61.6, 3) is None
     assert watch.check(61.7, 5) is not None                                  # three within the second
+
+def test_on_an_interface_that_gives_no_echoes_another_nodes_frames_with_the_controllers_ids_are_counted():
+    """python-can's virtual interface, as socketcan by default, gives a sender none of its own frames and every
+    other node's: no echo filter is put in the way (`open_bus`), so a rogue's MOTOR_CMD and CTRL_OUTPUTS reach
+    the controller's HAL and are counted as foreign, while its own sends are not."""
+    channel = f"standstill-{id(object())}"
+    ours = ControllerHal(nodes.open_bus("virtual", channel, node="CONTROLLER", between_processes=False))
+    rogue_bus = nodes.open_bus("virtual", channel, node="CONTROLLER", between_processes=False)
+    rogue = ControllerHal(rogue_bus)
+    try:
+        n = len(ARM_CHANNELS)
+        for _ in range(3):
+            ours.send_outputs(enabled=False, brake=True)
+            ours.send_motor_command([0.0] * n, [False] * n, [True] * n)
+        ours.poll(0.0)
+        assert ours.foreign_frames() == 0                        # its own frames are not another node's
+        for _ in range(3):
+            rogue.send_outputs(enabled=True, brake=False)
+            rogue.send_motor_command([0.8] * n, [True] * n, [False] * n)
+        ours.poll(0.0)
+        assert ours.foreign_frames() == 6
+        watch = ForeignCommands()
+        assert watch.check(0.0, ours.foreign_frames()) is not None
+    finally:
+        ours.bus.shutdown()
+        rogue_bus.shutdown()
