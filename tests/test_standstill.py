@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 
 from firmware_py.hal import ControllerHal
 from firmware_py.params import ParamStore
@@ -65,11 +66,24 @@ def test_a_current_with_the_outputs_off_trips_on_the_second_check_running_from_t
     assert watch.still_moving()                                               # turning at 1 deg/s
 
 
+@pytest.fixture
+def third_node(bench):
+    """Factory: a third node's bus on the world's HAL bus (`LocalBus`), shut down after the test."""
+    buses: list[LocalBus] = []
+
+    def open_third() -> LocalBus:
+        buses.append(LocalBus(bench.world.controller_bus.local_channel, carries_values=True))
+        return buses[-1]
+    yield open_third
+    for bus in buses:
+        bus.shutdown()
+
+
 class Rogue:
     """A third node on the world's HAL bus: it turns the outputs on and drives one channel every millisecond."""
 
-    def __init__(self, bench, channel: int, duty: float) -> None:
-        self.bus = LocalBus(bench.world.controller_bus.local_channel, carries_values=True)
+    def __init__(self, bench, bus: LocalBus, channel: int, duty: float) -> None:
+        self.bus = bus
         self.hal = ControllerHal(self.bus)
         self.duty = [0.0] * len(ARM_CHANNELS)
         self.duty[channel] = duty
@@ -86,12 +100,12 @@ class Rogue:
         return now + 0.001
 
 
-def test_a_rogue_node_driving_a_joint_while_the_controller_is_idle_faults_uncommanded_motion(bench, monkeypatch):
+def test_a_rogue_node_driving_a_joint_while_the_controller_is_idle_faults_uncommanded_motion(bench, third_node, monkeypatch):
     sup, plant = bench.controller.supervisor, bench.world.plant
     said: list[str] = []
     monkeypatch.setattr(firmware_cli.log, "info", said.append)
     firmware_cli.log_states(bench.controller, "aspod sim")                   # as the simulator logs them
-    rogue = Rogue(bench, J2, 0.8)
+    rogue = Rogue(bench, third_node(), J2, 0.8)
     # its frames would trip at the first health check (the next test); hidden here, as a driver wired to another
     # master shows none, so that what is judged is the joint
     monkeypatch.setattr(bench.controller.hal, "foreign_frames", lambda: 0)
@@ -161,12 +175,12 @@ def test_a_trip_does_not_anchor_a_joint_still_braking():
     assert seen is not None and seen.channel == "j2"                                # from where it came to rest
 
 
-def test_a_rogue_node_on_the_hal_bus_is_seen_by_its_frames_in_any_state(bench):
+def test_a_rogue_node_on_the_hal_bus_is_seen_by_its_frames_in_any_state(bench, third_node):
     """A third node sending the controller's own frames (here TRACKER_CMD: motor power, a relay closed, brakes
     off; it turned the tracker 5.8 deg in 10 s, unseen, while the controller said IDLE) is seen by its frames
     at the first health check, whatever it drives and whether the outputs are on or off."""
     sup = bench.controller.supervisor
-    bus = LocalBus(bench.world.controller_bus.local_channel, carries_values=True)
+    bus = third_node()
     rogue = ControllerHal(bus)
 
     def drive(now: float) -> float:
