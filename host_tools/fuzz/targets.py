@@ -253,11 +253,18 @@ class TeleopTarget(Target):
     covers = ("host_tools/teleop/words.py", "host_tools/teleop/sim_words.py")
 
     def __init__(self) -> None:
-        from host_tools.teleop import words
+        from host_tools.teleop import sim_words, words
+        from host_tools.worlds.plant_control import OPS
+        from hil_sim.faults import FAULT_NAMES
+        from protocol.states import ARM_CHANNELS
         self.words = words
-        self.vocabulary = list(words._ALL_WORDS) + ["j1", "j2", "mount", "all", "az", "el", "both", "open", "close",
-                                                   "on", "off", "now", "aligned", "2000-01-01T00:00", "1e39",
-                                                   "nan", "-inf", "0x10", "'", '"', "\\", "#", "${X}", "--", "ok"]
+        # the `sim` words' own vocabulary, from their declaration: without it a `sim` line never named an op, and
+        # its arguments' parsing went unfuzzed (sim_words.py 30.5 % after 10^7 executions)
+        sim_vocabulary = (list(OPS) + list(FAULT_NAMES) + list(ARM_CHANNELS) + list(sim_words.SWITCH_WORDS)
+                          + [sim_words.NULL_WORD] + [c for op in OPS.values() for a in op.args for c in a.choices])
+        self.vocabulary = list(words._ALL_WORDS) + sim_vocabulary + [
+            "j1", "j2", "mount", "all", "az", "el", "both", "open", "close", "on", "off", "now", "aligned",
+            "2000-01-01T00:00", "1e39", "nan", "-inf", "0x10", "'", '"', "\\", "#", "${X}", "--", "ok"]
 
     def _line(self, draw: Draw) -> str:
         if draw.pick(4) == 0:
