@@ -210,3 +210,38 @@ def test_the_teleop_targets_words_include_the_sim_words_from_their_declaration()
     finally:
         target.close()
     assert not missing, missing
+
+
+_TRACED = """
+import json, sys
+import atheris
+from host_tools.fuzz.child import INSTRUMENTED, load_for_fuzzing
+with atheris.instrument_imports(include=INSTRUMENTED):
+    target = load_for_fuzzing(sys.argv[1])
+
+def traced(module):
+    # functions of `module` whose code calls atheris' coverage hooks (a function with no branch and no
+    # comparison has none to call, so a module counts if any of its functions does)
+    found = 0
+    for obj in vars(module).values():
+        for fn in [obj, *vars(obj).values()] if isinstance(obj, type) else [obj]:
+            code = getattr(fn, "__code__", None)
+            if code is not None and getattr(fn, "__module__", None) == module.__name__:
+                found += bool({"_trace_branch", "_trace_cmp"} & set(code.co_names))
+    return found
+
+print(json.dumps({path: traced(sys.modules[path.removesuffix(".py").replace("/", ".")])
+                  for path in target.covers}))
+target.close()
+"""
+
+
+@pytest.mark.parametrize("name", sorted(builtin_targets()))
+def test_every_file_a_target_covers_is_instrumented_for_the_coverage_guided_fuzzer(name):
+    """As `aspod fuzz`'s child loads it: the files a target covers run instrumented, so libFuzzer sees their
+    branches. The controller, protocol/controller_link.py, host_link.py and the HAL decoders did not until
+    2026-11-25: they were first imported when the harness first built the target's world, after atheris' hook."""
+    done = subprocess.run([sys.executable, "-c", _TRACED, name], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    traced = json.loads(done.stdout.splitlines()[-1])
+    assert traced and all(n > 0 for n in traced.values()), traced

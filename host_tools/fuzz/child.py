@@ -10,6 +10,7 @@ reports it. An input past HANG_S seconds of its own time (not counting the time 
 CPU: host_tools/fuzz/hangs.py) is interrupted and saved the same way, as a hang. Running out of memory, or a hang
 the interrupt cannot reach, is left to libFuzzer's own artifact, which `aspod fuzz` turns into a finding.
 """
+import importlib
 import sys
 
 from timebase import RealClock
@@ -62,12 +63,26 @@ class Harness:
         print(f"ASPOD-FINDING {path}", file=sys.stderr, flush=True)
 
 
+def load_for_fuzzing(spec: str):
+    """The target, with every module it runs imported now, so that the caller's import hook instruments them: the
+    files it covers (`Target.covers`) and, for a stateful target, what `fresh` builds. A module first imported
+    later runs uninstrumented and libFuzzer is blind to its branches: so it was, until 2026-11-25, for the
+    controller and protocol/controller_link.py (controller-link), protocol/host_link.py (host-link) and the HAL
+    decoders (hal), whose worlds were first built by the harness's first `fresh`."""
+    from host_tools.fuzz.targets import load_target
+    target = load_target(spec)
+    for path in getattr(target, "covers", ()):
+        importlib.import_module(path.removesuffix(".py").replace("/", "."))
+    if getattr(target, "stateful", False):
+        target.fresh()
+    return target
+
+
 def main(argv: list[str]) -> None:
     from pathlib import Path
     spec, findings_dir, hang_s, libfuzzer_args = argv[0], Path(argv[1]), float(argv[2]), argv[3:]
     with atheris.instrument_imports(include=INSTRUMENTED + [spec.split(":")[0]] * (":" in spec)):
-        from host_tools.fuzz.targets import load_target
-        target = load_target(spec)
+        target = load_for_fuzzing(spec)
     with HangWatch(hang_s) as watch:
         harness = Harness(target, spec, findings_dir, watch)
         atheris.Setup([sys.argv[0]] + libfuzzer_args, harness)
