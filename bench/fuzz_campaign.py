@@ -2,8 +2,8 @@
 survive being stopped.
 
     python -m bench.fuzz_campaign DIR [--goal 10000000] [--chunk 1000000] [--jobs 2] [--targets a,b]
-                                      [--ledger FILE] [--first-seed N]
-    python -m bench.fuzz_campaign DIR --report        # the totals so far, and each target's line coverage
+                                      [--ledger FILE] [--first-seed N] [--since REV]
+    python -m bench.fuzz_campaign DIR --report [--since REV]   # the totals so far, each target's line coverage
 
 Each chunk is one `aspod fuzz TARGET --runs CHUNK/JOBS --jobs JOBS` with seeds of its own; its jobs are
 appended to DIR/ledger.jsonl when it ends, with the commit they ran. A chunk stopped half-way counts for
@@ -11,7 +11,9 @@ nothing, and the next start goes on from the ledger. The ledger defaults to DIR/
 record keeps it in the repository (`--ledger bench/fuzz_campaign_ledger.jsonl`), since a machine's folders do
 not outlive it. The targets share DIR/corpus (one folder each) and
 DIR/findings, so the campaign's coverage grows across chunks as a single run's would. The children run at
-the lowest priority (nice 19): the campaign uses what the machine does not.
+the lowest priority (nice 19): the campaign uses what the machine does not. `--since REV` counts (and reports)
+only the chunks that ran at REV or a commit after it: a harness mended at REV starts its targets' count afresh
+(02afed8: controller-link, host-link and hal had run with their code under test uninstrumented).
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import subprocess
 import sys
 from dataclasses import fields
 from pathlib import Path
+from typing import Optional
 
 from host_tools.fuzz.campaign import summarize
 from host_tools.fuzz.inprocess import JobResult
@@ -44,6 +47,22 @@ def read_ledger(path: Path) -> list[JobResult]:
             for line in path.read_text().splitlines() if line.strip()]
 
 
+def since(jobs: list[JobResult], commits: list[str], rev: str) -> list[JobResult]:
+    """The jobs whose commit (`commits`, row by row) is `rev` or comes after it (git: `rev` is its ancestor)."""
+    def after(commit: str) -> bool:
+        return subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", rev, commit],
+                              capture_output=True).returncode == 0
+    verdicts = {c: after(c) for c in set(commits)}
+    return [job for job, commit in zip(jobs, commits) if verdicts[commit]]
+
+
+def ledger_commits(path: Path) -> list[str]:
+    """The commit of each row of the ledger, in order."""
+    if not path.exists():
+        return []
+    return [json.loads(line).get("commit", "unknown") for line in path.read_text().splitlines() if line.strip()]
+
+
 def next_seed(jobs: list[JobResult], target: str, first: int = 1) -> int:
     """A seed no job of `target` in the ledger has used, and at least `first` (a ledger begun anew after one
     was lost starts past the old one's seeds, so it does not rerun their inputs)."""
@@ -63,11 +82,17 @@ def run_chunk(target: str, runs_per_job: int, jobs: int, seed: int, out: Path) -
     return json.loads(done.stdout)["jobs"]
 
 
-def report(out: Path, ledger: Path) -> None:
+def counted(ledger: Path, rev: Optional[str]) -> list[JobResult]:
+    """The ledger's jobs that count: all of them, or those at `rev` and after."""
+    jobs = read_ledger(ledger)
+    return jobs if rev is None else since(jobs, ledger_commits(ledger), rev)
+
+
+def report(out: Path, ledger: Path, rev: Optional[str]) -> None:
     from host_tools.fuzz.coverage_report import line_coverage
     from host_tools.fuzz.targets import builtin_targets
     print(f"{'target':16} {'executions':>12} {'core-h':>7} {'exec/core-s':>11} {'findings':>8} {'errors':>6}  coverage")
-    for t in summarize(read_ledger(ledger)):
+    for t in summarize(counted(ledger, rev)):
         cov = line_coverage(t.target, out / "corpus" / t.target, builtin_targets()[t.target].covers)
         said = ", ".join(f"{file} {c['percent']}%" for file, c in cov.items())
         print(f"{t.target:16} {t.execs:>12,} {t.job_s / 3600:>7.2f} {t.execs_per_core_s:>11,.0f} "
@@ -83,18 +108,24 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--targets", default=",".join(TARGETS))
     ap.add_argument("--ledger", type=Path, help="the ledger file (default DIR/ledger.jsonl)")
     ap.add_argument("--first-seed", type=int, default=1, help="the lowest seed a new chunk may take")
+    ap.add_argument("--since", metavar="REV", help="count only the chunks run at REV or after it")
     ap.add_argument("--report", action="store_true", help="print the totals and coverage, run nothing")
     args = ap.parse_args(argv)
     args.dir.mkdir(parents=True, exist_ok=True)
     ledger = args.ledger or args.dir / "ledger.jsonl"
+    if args.since is not None:
+        known = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", args.since + "^{commit}"],
+                               capture_output=True)
+        if known.returncode != 0:
+            ap.error(f"--since {args.since}: not a commit of this repository")
     if args.report:
-        report(args.dir, ledger)
+        report(args.dir, ledger, args.since)
         return 0
     commit = _commit()
     for target in args.targets.split(","):
         while True:
             jobs = read_ledger(ledger)
-            done = sum(j.execs for j in jobs if j.target == target)
+            done = sum(j.execs for j in counted(ledger, args.since) if j.target == target)
             if done >= args.goal:
                 break
             rows = run_chunk(target, args.chunk // args.jobs, args.jobs, next_seed(jobs, target, args.first_seed), args.dir)

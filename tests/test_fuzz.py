@@ -245,3 +245,17 @@ def test_every_file_a_target_covers_is_instrumented_for_the_coverage_guided_fuzz
     assert done.returncode == 0, done.stderr[-2000:]
     traced = json.loads(done.stdout.splitlines()[-1])
     assert traced and all(n > 0 for n in traced.values()), traced
+
+
+def test_the_campaign_counts_since_a_commit_only_the_chunks_run_at_it_or_after(tmp_path):
+    """`python -m bench.fuzz_campaign --since REV`: a harness mended at REV starts its targets' count afresh."""
+    from bench import fuzz_campaign
+    head = subprocess.run(["git", "-C", str(fuzz_campaign.ROOT), "rev-parse", "--short", "HEAD"],
+                          capture_output=True, text=True).stdout.strip()
+    row = {"target": "hal", "seed": 1, "execs": 500000, "wall_s": 50.0, "execs_per_s": 1e4, "cov": 1, "ft": 1,
+           "corpus": 1, "findings": [], "error": ""}
+    ledger = tmp_path / "ledger.jsonl"
+    ledger.write_text("".join(json.dumps({**row, "seed": seed, "commit": commit}) + "\n"
+                              for seed, commit in ((1, "0000000"), (2, head), (3, head))))
+    assert [j.seed for j in fuzz_campaign.counted(ledger, None)] == [1, 2, 3]
+    assert [j.seed for j in fuzz_campaign.counted(ledger, head)] == [2, 3]     # an unknown commit is not after
