@@ -15,6 +15,7 @@ from host_tools.fuzz import findings
 from host_tools.fuzz.grammar import TO_CONTROLLER, interesting
 from host_tools.fuzz.inprocess import JobSettings, run_job
 from host_tools.fuzz.targets import builtin_targets, load_target
+from protocol.errors import ParseError
 from protocol.messages import SCHEMA
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -259,3 +260,23 @@ def test_the_campaign_counts_since_a_commit_only_the_chunks_run_at_it_or_after(t
                               for seed, commit in ((1, "0000000"), (2, head), (3, head))))
     assert [j.seed for j in fuzz_campaign.counted(ledger, None)] == [1, 2, 3]
     assert [j.seed for j in fuzz_campaign.counted(ledger, head)] == [2, 3]     # an unknown commit is not after
+
+
+def test_the_controller_link_target_names_its_controllers_parameters_in_param_set():
+    """A parameter's name is the controller's, not the declaration's: the target gives its controller's names to
+    the grammar (`Words`), without which no ParamSet of the first campaign's 10^7 executions set a parameter."""
+    from host_tools.fuzz.grammar import RandomDraw, draw_payload
+    target = load_target("controller-link")
+    try:
+        target.fresh()
+        names = set(target.bench.controller.params.order)
+        draw, spec = RandomDraw(random.Random(2)), SCHEMA["ParamSet"]
+        named = []
+        for _ in range(400):
+            try:
+                named.append(spec.decode(draw_payload(spec, draw, target.words)).name)
+            except ParseError:           # a payload wrong on purpose
+                pass
+    finally:
+        target.close()
+    assert len(names & set(named)) >= 10, sorted(set(named))[:20]

@@ -7,13 +7,18 @@ such values with the field's struct code and none of the codec's checks, so a pa
 
 Every choice comes from a `Draw`: `FdpDraw` over atheris' FuzzedDataProvider (in process: the coverage-guided
 engine steers the choices), `RandomDraw` over a seeded `random.Random` (black-box: the same seed, the same cases).
+
+Texts whose valid values the declaration cannot know (a parameter's name is the controller's, not the protocol's)
+come from `Words`, a dictionary by field name, as libFuzzer's `-dict` gives words: without it no `ParamSet`
+named a parameter, and the first campaign never set one (firmware_py/controller.py `_param_changed` unrun).
 """
 from __future__ import annotations
 
 import math
 import random
 import struct
-from typing import Any, Protocol as TypingProtocol, Sequence
+from types import MappingProxyType
+from typing import Any, Mapping, Protocol as TypingProtocol, Sequence
 
 from protocol.messages import SCHEMA
 from protocol.schema import Direction, Field, MessageSpec
@@ -23,6 +28,9 @@ _INT_LIMITS = {"b": (-2**7, 2**7 - 1), "B": (0, 2**8 - 1), "h": (-2**15, 2**15 -
                "?": (0, 1)}
 _F32 = struct.Struct("<f")
 F32_MAX = 3.4028234663852886e38
+
+Words = Mapping[str, Sequence[str]]       # valid texts by field name (a parameter's name: its controller's)
+NO_WORDS: Words = MappingProxyType({})
 
 TO_CONTROLLER = tuple(s for s in SCHEMA.by_id.values() if s.direction in (Direction.TO_CONTROLLER, Direction.BOTH))
 TO_HOST = tuple(s for s in SCHEMA.by_id.values() if s.direction in (Direction.TO_HOST, Direction.BOTH))
@@ -165,9 +173,13 @@ def pack_raw(spec: MessageSpec, values: Sequence[Any]) -> bytes:
     return b"".join(out)
 
 
-def draw_valid(fld: Field, draw: Draw) -> Any:
+def draw_valid(fld: Field, draw: Draw, words: Words = NO_WORDS) -> Any:
     """A value the declaration allows: an enum member, a number in range (a quarter of the time one of the range's
-    own ends, which are valid and where off-by-ones live); a field with no declared rule, any value."""
+    own ends, which are valid and where off-by-ones live), a text of `words` (three times in four) for a text
+    field they name; a field with no declared rule, any value."""
+    known = words.get(fld.name) if fld.is_text else None
+    if known and draw.pick(4):
+        return known[draw.pick(len(known))]
     if fld.enum is not None and not fld.is_text:
         members = [int(m) for m in fld.enum]
         return members[draw.pick(len(members))]
@@ -181,7 +193,7 @@ def draw_valid(fld: Field, draw: Draw) -> Any:
     return draw_value(fld, draw)
 
 
-def draw_payload(spec: MessageSpec, draw: Draw) -> bytes:
+def draw_payload(spec: MessageSpec, draw: Draw, words: Words = NO_WORDS) -> bytes:
     """A payload for `spec`: bytes of any length (1 in 8); every field from the grammar (3 in 8); or every field
     valid but one, which comes from the grammar (half): a message that decodes, and so reaches its handler, with
     one field at or beyond its edge (a fuzzer of single fields, as boofuzz mutates one primitive at a time)."""
@@ -191,5 +203,5 @@ def draw_payload(spec: MessageSpec, draw: Draw) -> bytes:
     if how <= 3 or not spec.fields:
         return pack_raw(spec, [draw_value(f, draw) for f in spec.fields])
     odd = draw.pick(len(spec.fields))
-    return pack_raw(spec, [draw_value(f, draw) if i == odd else draw_valid(f, draw)
+    return pack_raw(spec, [draw_value(f, draw) if i == odd else draw_valid(f, draw, words)
                            for i, f in enumerate(spec.fields)])

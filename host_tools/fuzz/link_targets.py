@@ -29,7 +29,7 @@ from protocol.messages import SCHEMA
 from protocol.reliable import Verdict
 from protocol.schema import MsgClass, MessageSpec
 
-from host_tools.fuzz.grammar import TO_CONTROLLER, TO_HOST, Draw, FdpDraw, draw_payload
+from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, TO_HOST, Draw, FdpDraw, Words, draw_payload
 from host_tools.fuzz.targets import Target, check
 
 MACS = ("good", "good", "good", "good", "stale-counter", "other-key", "handshake-key", "flipped", "none")
@@ -88,6 +88,7 @@ class _LinkTarget(Target):
     stateful = True
     fresh_every = 500          # a world costs about 15 ms to build and connect
     specs: tuple[MessageSpec, ...] = ()
+    words: Words = NO_WORDS    # valid texts the declaration cannot know, by field name (`grammar.Words`)
     bench = None
     _dir = None
     MAX_FRAMES = 12
@@ -149,7 +150,8 @@ class _LinkTarget(Target):
         how = SEQS[draw.pick(len(SEQS))]
         seq = {"expected": expected, "duplicate": (expected - 1 - draw.pick(4)) & 0xFFFF,
                "gap": (expected + 1 + draw.pick(4)) & 0xFFFF}.get(how, draw.int_in(0, 0xFFFF))
-        recipe = FrameRecipe(spec, cls, seq, draw_payload(spec, draw)[:MAX_PAYLOAD], MACS[draw.pick(len(MACS))])
+        recipe = FrameRecipe(spec, cls, seq, draw_payload(spec, draw, self.words)[:MAX_PAYLOAD],
+                             MACS[draw.pick(len(MACS))])
         if draw.pick(16) == 0:
             recipe.version = draw.int_in(0, 255)
         if draw.pick(16) == 0:
@@ -243,6 +245,10 @@ class ControllerLinkTarget(_LinkTarget):
     covers = ("protocol/link.py", "protocol/controller_link.py", "protocol/reliable.py", "protocol/framing.py",
               "protocol/schema.py", "firmware_py/controller.py")
     specs = TO_CONTROLLER
+
+    def fresh(self) -> None:
+        super().fresh()
+        self.words = {"name": tuple(self.bench.controller.params.order)}    # ParamGet's and ParamSet's
 
     def sender(self):
         host = self.bench.host
