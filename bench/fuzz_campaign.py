@@ -93,8 +93,12 @@ def report(out: Path, ledger: Path, rev: Optional[str]) -> None:
     from host_tools.fuzz.targets import builtin_targets
     print(f"{'target':16} {'executions':>12} {'core-h':>7} {'exec/core-s':>11} {'findings':>8} {'errors':>6}  coverage")
     for t in summarize(counted(ledger, rev)):
-        cov = line_coverage(t.target, out / "corpus" / t.target, builtin_targets()[t.target].covers)
-        said = ", ".join(f"{file} {c['percent']}%" for file, c in cov.items())
+        corpus = out / "corpus" / t.target
+        if corpus.is_dir():
+            cov = line_coverage(t.target, corpus, builtin_targets()[t.target].covers)
+            said = ", ".join(f"{file} {c['percent']}%" for file, c in cov.items())
+        else:       # the ledger is the repository's; the corpus is the folder's, and may not be on this machine
+            said = f"not measured: no corpus at {corpus}"
         print(f"{t.target:16} {t.execs:>12,} {t.job_s / 3600:>7.2f} {t.execs_per_core_s:>11,.0f} "
               f"{t.findings:>8} {t.errors:>6}  {said}")
 

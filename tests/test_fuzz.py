@@ -262,6 +262,20 @@ def test_the_campaign_counts_since_a_commit_only_the_chunks_run_at_it_or_after(t
     assert [j.seed for j in fuzz_campaign.counted(ledger, head)] == [2, 3]     # an unknown commit is not after
 
 
+def test_the_campaign_report_says_when_a_targets_corpus_is_not_on_this_machine(tmp_path, capsys):
+    """The ledger of record lives in the repository, the corpus in the campaign's folder: on a new machine the
+    folder is gone, and `--report` said so with a traceback from coverage.py's child."""
+    from bench import fuzz_campaign
+    row = {"target": "hal", "seed": 7, "execs": 500000, "wall_s": 50.0, "execs_per_s": 1e4, "cov": 1, "ft": 1,
+           "corpus": 1, "findings": [], "error": "", "commit": "0000000"}
+    ledger = tmp_path / "ledger.jsonl"
+    ledger.write_text(json.dumps(row) + "\n")
+    assert fuzz_campaign.main([str(tmp_path / "campaign"), "--ledger", str(ledger), "--report"]) == 0
+    line = [x for x in capsys.readouterr().out.splitlines() if x.startswith("hal ")]
+    assert len(line) == 1 and "500,000" in line[0]
+    assert f"not measured: no corpus at {tmp_path / 'campaign' / 'corpus' / 'hal'}" in line[0]
+
+
 def test_the_controller_link_target_names_its_controllers_parameters_in_param_set():
     """A parameter's name is the controller's, not the declaration's: the target gives its controller's names to
     the grammar (`Words`), without which no ParamSet of the first campaign's 10^7 executions set a parameter."""
