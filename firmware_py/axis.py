@@ -199,9 +199,15 @@ class AxisConfig:
 
     @property
     def tracking_s(self) -> float:
+        """The back-calculation time constant: as configured, else kv/ki (infinite with no integral), and never
+        below one tick, where one tick's correction would take more than the whole excess. kv = 0 is in its
+        parameter's range: kv/ki was then 0, and `Axis.reconfigure` divided by it (a ParamSet crashed the
+        firmware; found by the fuzz campaign on 2026-11-27)."""
         if self.aw_tracking_s is not None:
             return self.aw_tracking_s
-        return self.kv_duty_s_rad / self.ki_duty_rad if self.ki_duty_rad > 0 else math.inf
+        if not self.ki_duty_rad > 0:
+            return math.inf
+        return max(self.kv_duty_s_rad / self.ki_duty_rad, self.estimator.dt_s)
 
 
 def motor_gains(kt_nm_a: float, r_ohm: float, gear_ratio: float, supply_v: float, inertia_kg_m2: float,

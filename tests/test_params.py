@@ -165,3 +165,31 @@ def test_a_path_that_is_no_parameter_file_is_not_read_and_defaults_stay(tmp_path
 def test_a_missing_file_means_defaults_without_a_problem(tmp_path):
     store = ParamStore(SPECS, tmp_path / "absent.json")
     assert store.load() == [] and store["gain"] == 1.0
+
+
+def test_every_parameter_at_either_end_of_its_range_is_taken_or_refused_and_the_controller_runs_on(bench):
+    """A ParamSet in range must never crash the controller. The fuzz campaign's controller-link target (its
+    grammar naming real parameters since 8fd1c39) found `j1_kv 0`: the anti-windup time constant kv/ki became
+    0 and the axis' reconfigure divided by it (ZeroDivisionError, the whole firmware down, from one command).
+    Each parameter is set to each end of its declared range over the link, the world runs on, and it is set back."""
+    params = bench.controller.params
+    defaults = params.values()
+    for name in params.order:
+        spec = params.specs[name]
+        for end in (spec.lo, spec.hi):
+            done = bench.call(M["ParamSet"](name, end))
+            assert done.outcome is not None and done.reason in (Reason.OK, Reason.OUT_OF_RANGE), (name, end, done)
+            bench.run_for(0.02)
+            assert bench.call(M["ParamSet"](name, defaults[name])).ok, (name, "set back")
+    assert bench.call(M["Ping"](7)).reply.token == 7
+
+
+def test_a_joint_with_no_velocity_gain_moves_without_dividing_by_zero(bench):
+    """kv = 0 (in range: an integral-only velocity loop) leaves the anti-windup a time constant of one tick."""
+    assert bench.call(M["ParamSet"]("j2_kv", 0.0)).ok
+    joint = bench.controller.arm.joints["j2"]
+    assert joint.config.tracking_s == joint.config.estimator.dt_s
+    assert bench.call(M["Enable"]()).ok
+    assert bench.call(M["MoveBy"](2, 1.0, 0.0)).ok
+    bench.run_for(1.0)
+    assert bench.call(M["Ping"](8)).reply.token == 8
