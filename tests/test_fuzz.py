@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import random
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from host_tools.fuzz import findings
 from host_tools.fuzz.grammar import TO_CONTROLLER, interesting
 from host_tools.fuzz.inprocess import JobSettings, run_job
 from host_tools.fuzz.targets import builtin_targets, load_target
+from protocol import auth
 from protocol.errors import ParseError
 from protocol.messages import SCHEMA
 
@@ -23,7 +25,12 @@ PLANTED_CODEC = "host_tools.fuzz.planted:planted_codec_target"
 
 
 def aspod(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    """`aspod ARGS` in `cwd`, with a private per-user config beside it and its development key (a fresh machine
+    has none: without it a command given no --key-file stops at the key, before what the test is about)."""
+    config = cwd.parent / f"{cwd.name}-config"
+    auth.load_or_create_dev_key(config / "aspod" / "dev.key")
+    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "XDG_CONFIG_HOME": str(config)})
 
 
 def test_the_grammar_holds_each_fields_boundaries_and_one_beyond():
@@ -294,3 +301,43 @@ def test_the_controller_link_target_names_its_controllers_parameters_in_param_se
     finally:
         target.close()
     assert len(names & set(named)) >= 10, sorted(set(named))[:20]
+
+
+@pytest.mark.pty
+def test_black_box_learns_the_targets_parameters_sets_them_and_sets_them_back_after_each_case(tmp_path):
+    """A parameter's name is the controller's: the black-box fuzzer reads the target's table (ParamList) and draws
+    ParamGet's and ParamSet's names from it. Before, it drew names from the grammar alone, and no ParamSet of a run
+    set a parameter. What a case's ParamSets change is set back after its health check, so every case (and a
+    finding replayed alone on a fresh target) starts from the configuration the target was found in: the table read
+    afterwards through a new session is the table found."""
+    from host_tools.client.params import read_param_table
+    from host_tools.fuzz.blackbox import BlackBoxFuzzer, BlackBoxSettings, Session
+    from host_tools.worlds.child import Child
+    from host_tools.worlds.world import LockstepBench
+    from protocol import auth
+    psk = bytes(range(32))
+    key = tmp_path / "k.key"
+    auth.write_key(key, psk)
+    bench = LockstepBench(seed=0)
+    try:
+        order = tuple(bench.controller.params.order)
+    finally:
+        bench.close()
+    sim = Child(["sim", "--pty", "--no-pacing", "--key-file", str(key)])
+    try:
+        url = sim.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
+        settings = BlackBoxSettings(url=url, seconds=None, cases=40, seed=3, findings=tmp_path / "found",
+                                    only=("ParamSet",))
+        fuzzer = BlackBoxFuzzer(settings, psk)
+        result = fuzzer.run()
+        session = Session(settings, psk)
+        try:
+            after = read_param_table(session, 10.0)
+        finally:
+            session.close()
+    finally:
+        sim.stop()
+    assert result.findings == [] and result.cases == 40
+    assert fuzzer.params.words["name"] == order
+    assert result.params_put_back >= 3 and not fuzzer.params.stuck, (result, fuzzer.params.stuck)
+    assert after.failed is None and {r.name: r.value for r in after.replies} == fuzzer.params.found

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from host_tools.client.params import ParamTable
 from host_tools.fuzz import blackbox, findings
 from host_tools.fuzz.grammar import RandomDraw
+from protocol import auth
 from timebase import RealClock
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -20,7 +22,12 @@ GOOD_STEP = {"kind": "command", "delay_s": 0.0, "msg": "BoxDial", "payload": "00
 
 
 def aspod(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    """`aspod ARGS` in `cwd`, with a private per-user config beside it and its development key (a fresh machine
+    has none: without it a command given no --key-file stops at the key, before what the test is about)."""
+    config = cwd.parent / f"{cwd.name}-config"
+    auth.load_or_create_dev_key(config / "aspod" / "dev.key")
+    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "XDG_CONFIG_HOME": str(config)})
 
 
 def finding_file(tmp_path: Path, **fields) -> Path:
@@ -212,6 +219,7 @@ def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypat
             return ""
 
     fuzzer = blackbox.BlackBoxFuzzer(blackbox.BlackBoxSettings(url="fake", cases=1, findings=tmp_path), b"k" * 32)
+    fuzzer.params = blackbox.TargetParams(ParamTable())       # as the first `_open` leaves it: here, none read
     monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), None))
     monkeypatch.setattr(blackbox, "run_case", lambda *a: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
 

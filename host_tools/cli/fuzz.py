@@ -125,13 +125,15 @@ def _blackbox(settings: FuzzSettings) -> int:
         log.error(f"aspod fuzz: finding {path}")
     figures = {"cases": result.cases, "steps": result.steps, "wall_s": round(result.wall_s, 2),
                "cases_per_s": round(result.cases_per_s, 2), "restarts": result.restarts, "findings": result.findings,
-               "unsaved": len(result.unsaved)}
+               "unsaved": len(result.unsaved), "params_put_back": result.params_put_back}
     if settings.as_json:
         print(json.dumps(figures, indent=1))
     else:
         print(f"black-box: {result.cases} cases ({result.steps} steps) in {result.wall_s:.1f} s, "
               f"{result.cases_per_s:.1f} cases/s, {len(result.findings)} findings"
-              + (f", {len(result.unsaved)} not saved (on stderr)" if result.unsaved else ""))
+              + (f", {len(result.unsaved)} not saved (on stderr)" if result.unsaved else "")
+              + (f"; {result.params_put_back} parameters set back after the case that changed them"
+                 if result.params_put_back else ""))
     return EXIT_FAILED if result.findings or result.unsaved else EXIT_OK
 
 

@@ -26,10 +26,12 @@ its steps on fresh targets.
 from __future__ import annotations
 
 import json
+import math
 import random
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Callable, Optional
 
 from protocol.framing import MAX_ENCODED, MAX_PAYLOAD
@@ -43,7 +45,8 @@ from timebase import RealClock
 
 from host_tools.client.lines import SerialLine
 from host_tools.fuzz import findings as findings_mod
-from host_tools.fuzz.grammar import TO_CONTROLLER, RandomDraw, draw_payload, draw_value, pack_raw
+from host_tools.client.params import ParamTable, read_param_table
+from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
@@ -116,6 +119,7 @@ class BlackBoxResult:
     findings: list[str] = field(default_factory=list)
     unsaved: list[dict] = field(default_factory=list)     # findings that could not be saved (on stderr)
     restarts: int = 0
+    params_put_back: int = 0     # parameters an accepted ParamSet changed, set back after its case
     error: str = ""
 
     @property
@@ -208,6 +212,12 @@ class Session:
             if out:
                 self.write(out)
 
+    def call(self, msg, timeout_s: float):
+        """Send `msg` in sequence and pump until it has an outcome or `timeout_s` passes; its handle (done or not)."""
+        handle = self.host.submit(msg, self.clock.now())
+        self.pump_until(lambda: handle.done, timeout_s)
+        return handle
+
     def pump_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
         end = _CLOCK.now() + timeout_s
         while not done():
@@ -239,7 +249,7 @@ class Case:
         self.steps = steps
 
     @classmethod
-    def draw(cls, draw: RandomDraw, settings: BlackBoxSettings) -> "Case":
+    def draw(cls, draw: RandomDraw, settings: BlackBoxSettings, words: Words = NO_WORDS) -> "Case":
         commands = settings.commands
         steps = []
         for _ in range(1 + draw.pick(settings.max_steps)):
@@ -247,12 +257,12 @@ class Case:
             step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(4) else draw.pick(DELAY_MAX_MS + 1) / 1000.0}
             if kind == "command":
                 spec = commands[draw.pick(len(commands))]
-                step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex())
+                step.update(msg=spec.name, payload=draw_payload(spec, draw, words)[:MAX_PAYLOAD].hex())
             elif kind == "frame":
                 spec = TO_CONTROLLER[draw.pick(len(TO_CONTROLLER))]
                 step.update(msg=spec.name, cls=int(spec.cls) if draw.pick(8) else draw.int_in(0, 255),
                             seq=FRAME_SEQS[draw.pick(len(FRAME_SEQS))], offset=draw.pick(OFFSET_MAX + 1),
-                            any_seq=draw.int_in(0, 0xFFFF), payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex(),
+                            any_seq=draw.int_in(0, 0xFFFF), payload=draw_payload(spec, draw, words)[:MAX_PAYLOAD].hex(),
                             mac=MACS[4 + draw.pick(len(MACS) - 4)] if draw.pick(2) else "good",
                             version=1 if draw.pick(8) else draw.int_in(0, 255),
                             flags=0x10 if draw.pick(8) else draw.int_in(0, 255),
@@ -427,8 +437,8 @@ class HealthCheck:
 
     def _call(self, msg):
         s = self.session
-        handle = s.host.submit(msg, s.clock.now())
-        if not s.pump_until(lambda: handle.done, s.settings.health_timeout_s):
+        handle = s.call(msg, s.settings.health_timeout_s)
+        if not handle.done:
             status = s.exited()
             raise TargetGone(f"{msg.spec.name} not answered within {s.settings.health_timeout_s:.0f} s"
                              + (f" (the target exited with status {status})" if status is not None else "")
@@ -436,6 +446,10 @@ class HealthCheck:
         if not handle.ok:
             raise TargetGone(f"{msg.spec.name}: {handle.describe()}")
         return handle.reply
+
+    def rebase(self) -> None:
+        """The status now is what the next case is judged against (after commands of the fuzzer's own)."""
+        self.last = self._status()
 
     def _status(self):
         status = self._call(SCHEMA["GetStatus"].type())
@@ -484,6 +498,62 @@ class HealthCheck:
         return bool(new) and not new & ~allowed
 
 
+class TargetParams:
+    """The target's parameter table as the fuzzer found it (ParamList, at the first session).
+
+    Its names are the grammar's words for ParamGet's and ParamSet's `name` (a parameter's name is the controller's,
+    not the declaration's: without them no ParamSet reaches a parameter). After each case's health check, every
+    parameter an accepted ParamSet of the case changed is set back to the value found, so every case starts from
+    the configuration the target was found in, as a finding replayed alone on a fresh target does. A target that
+    does not list its parameters is fuzzed without them, and says so on stderr."""
+
+    def __init__(self, table: ParamTable) -> None:
+        self.found = {r.name: r.value for r in table.replies}      # as ParamValue carries them (f32)
+        self.words: Words = MappingProxyType({"name": table.names}) if table.names else NO_WORDS
+        self.put_back = 0                   # parameters set back after a case changed them
+        self.stuck: set[str] = set()        # parameters that could not be set back (said once each)
+
+    @classmethod
+    def read(cls, session: Session) -> "TargetParams":
+        table = read_param_table(session, session.settings.health_timeout_s)
+        if table.failed is not None:
+            print(f"aspod fuzz: the target's parameters not read past {len(table.replies)} "
+                  f"({table.failed.describe()}); ParamGet and ParamSet draw names from the grammar alone",
+                  file=sys.stderr)
+        return cls(table)
+
+    def changed_by(self, handles: list) -> list[str]:
+        """The parameters an accepted ParamSet of the case left at another value than the one found."""
+        return sorted({h.reply.name for spec, _payload, h in handles
+                       if spec.name == "ParamSet" and h.ok and h.reply.name in self.found
+                       and not _same_f32(h.reply.value, self.found[h.reply.name])})
+
+    def restore(self, session: Session, handles: list) -> bool:
+        """Set back what the case changed (in two passes: a limit may be refused until its partner is back);
+        True if any ParamSet was sent."""
+        left = {name: None for name in self.changed_by(handles)}
+        sent = bool(left)
+        for _ in range(2):
+            tried, left = left, {}
+            for name in tried:
+                handle = session.call(SCHEMA["ParamSet"].type(name=name, value=self.found[name]),
+                                      session.settings.health_timeout_s)
+                if handle.ok:
+                    self.put_back += 1
+                else:
+                    left[name] = handle
+        for name, handle in left.items():
+            if name not in self.stuck:
+                self.stuck.add(name)
+                print(f"aspod fuzz: {name} could not be set back to {self.found[name]:g} after a case changed it "
+                      f"({handle.describe()}); later cases run with it changed", file=sys.stderr)
+        return sent
+
+
+def _same_f32(a: float, b: float) -> bool:
+    return a == b or (math.isnan(a) and math.isnan(b))
+
+
 def _decodes(spec, payload: bytes) -> bool:
     try:
         spec.decode(payload)
@@ -492,11 +562,14 @@ def _decodes(spec, payload: bytes) -> bool:
         return False
 
 
-def run_case(case: Case, session: Session, health: HealthCheck, seed: int) -> Optional[findings_mod.Failure]:
-    """Run `case` and the health check; the failure, or None."""
+def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
+             params: TargetParams) -> Optional[findings_mod.Failure]:
+    """Run `case` and the health check, then set back the parameters it changed; the failure, or None."""
     try:
         handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
         problem = health.check(handles, maybe)
+        if problem is None and params.restore(session, handles):
+            health.rebase()
     except TargetGone as exc:
         end = _CLOCK.now() + EXIT_WAIT_S
         while session.child is not None and session.exited() is None and _CLOCK.now() < end:
@@ -512,11 +585,16 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int) -> Op
 class BlackBoxFuzzer:
     def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
         self.settings, self.psk = settings, psk
+        self.params: Optional[TargetParams] = None     # read at the first session
 
     def _open(self) -> tuple[Session, HealthCheck]:
         session = Session(self.settings, self.psk)
         try:
-            return session, HealthCheck(session)
+            health = HealthCheck(session)
+            if self.params is None:
+                self.params = TargetParams.read(session)
+                health.rebase()              # the ParamLists counted: a case's count starts after them
+            return session, health
         except BaseException:        # its first status not had: our target is stopped, not left running
             session.close()
             raise
@@ -530,8 +608,8 @@ class BlackBoxFuzzer:
             while (self.settings.cases is None or result.cases < self.settings.cases) and (
                     self.settings.seconds is None or _CLOCK.now() - start < self.settings.seconds):
                 case_seed = rng.getrandbits(32)
-                case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings)
-                failure = run_case(case, session, health, case_seed)
+                case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings, self.params.words)
+                failure = run_case(case, session, health, case_seed, self.params)
                 result.cases += 1
                 result.steps += len(case.steps)
                 if failure is not None:
@@ -555,7 +633,7 @@ class BlackBoxFuzzer:
                         break                  # not ours to restart: the target is as the case left it
                     result.restarts += 1
                     session, health = self._open()
-                result.wall_s = _CLOCK.now() - start
+                result.wall_s, result.params_put_back = _CLOCK.now() - start, self.params.put_back
                 on_case(result)
         finally:
             session.close()
@@ -571,7 +649,7 @@ class BlackBoxFuzzer:
         except TargetGone as exc:
             return findings_mod.Failure("hang", f"TargetGone: {exc}", "", "health")
         try:
-            return run_case(Case([dict(s) for s in finding.steps]), session, health, seed)
+            return run_case(Case([dict(s) for s in finding.steps]), session, health, seed, self.params)
         finally:
             session.close()
 

@@ -33,10 +33,11 @@ from prompt_toolkit.layout import Layout, Window
 from prompt_toolkit.layout.controls import FormattedTextControl
 from prompt_toolkit.patch_stdout import StdoutProxy
 
+from protocol.host_link import CommandHandle
 from protocol.link import LinkState
-from protocol.messages import SCHEMA
 from protocol.states import SWITCH_POSITIONS, ControllerState, MotionOutcome, Switch
 
+from host_tools.client.params import read_param_table
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.teleop import format as teleop_format
 from host_tools.teleop import words as teleop_words
@@ -121,16 +122,12 @@ class ParamNames:
             self._thread = threading.Thread(target=self.read, name="aspod-param-names", daemon=True)
             self._thread.start()
 
-    def read(self) -> bool:
-        replies, index, count = [], 0, 1
-        while index < count:
-            handle = self.client.call(SCHEMA["ParamList"].type(index), 5.0)
-            if not handle.ok:
-                return False
-            replies.append(handle.reply)
-            count, index = handle.reply.count, index + 1
-        self.replies = replies
-        return True
+    def read(self) -> Optional[CommandHandle]:
+        """Read the table; None, or the ParamList that failed (the names stay as they were)."""
+        table = read_param_table(self.client, 5.0)
+        if table.failed is None:
+            self.replies = table.replies
+        return table.failed
 
 
 class TeleopCompleter(Completer):
@@ -390,9 +387,9 @@ class TeleopConsole:
             live_block(self.session.telemetry, block, seconds)
             return True
         if word == "params":
-            if not self.params.read():
-                handle = self.client.call(SCHEMA["ParamList"].type(0), 5.0)
-                self.console.line(format_outcome(handle))
+            failed = self.params.read()
+            if failed is not None:
+                self.console.line(format_outcome(failed))
                 return False
             self.console.lines([line for reply in self.params.replies
                                 for line in teleop_format.param_lines(reply, teleop_format.WIDTH)])

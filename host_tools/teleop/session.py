@@ -47,6 +47,7 @@ from protocol.schema import Message
 from protocol.states import TimingMode
 from timebase import RealClock
 
+from host_tools.client.params import read_param_table
 from host_tools.datetimes import utc_text
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 from host_tools.teleop import sim_words
@@ -428,17 +429,12 @@ def expected_lines(step: Step, handle, lines: list[str]) -> tuple[bool, list[str
 
 def list_params(client, console: Console) -> bool:
     """Every parameter, read one by one with ParamList: value, unit, range and what it does."""
-    index, count = 0, 1
-    while index < count:
-        handle = client.call(SCHEMA["ParamList"].type(index))
-        if not handle.ok:
-            console.line(format_outcome(handle))
-            return False
-        reply = handle.reply
-        count = reply.count
+    table = read_param_table(client)
+    for reply in table.replies:
         console.lines(param_lines(reply))
-        index += 1
-    return True
+    if table.failed is not None:
+        console.line(format_outcome(table.failed))
+    return table.failed is None
 
 
 def link_report(client) -> str:
