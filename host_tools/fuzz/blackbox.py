@@ -601,9 +601,9 @@ class BlackBoxFuzzer:
 
     def run(self, on_case: Callable[[BlackBoxResult], None] = lambda r: None) -> BlackBoxResult:
         result = BlackBoxResult()
-        start = _CLOCK.now()
         rng = random.Random(self.settings.seed)
         session, health = self._open()
+        start = _CLOCK.now()        # after the first session: reading 76 parameters takes 2.6 s at 115200 baud
         try:
             while (self.settings.cases is None or result.cases < self.settings.cases) and (
                     self.settings.seconds is None or _CLOCK.now() - start < self.settings.seconds):
