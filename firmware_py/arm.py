@@ -52,6 +52,7 @@ assert [ARM_CHANNELS.index(drive.name) for drive in DRIVES] == sorted(ARM_CHANNE
 # The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
 LIMIT_PARAMETER = {"min": "{axis}_min_deg", "max": "{axis}_max_deg", "speed": "{axis}_speed_dps",
                    "acceleration": "{axis}_acc_dps2"}
+_IN_MOTION = (AxisMode.MOVING, AxisMode.JOGGING, AxisMode.HOMING)     # a profile planned with the limits runs
 
 
 @dataclass(frozen=True)
@@ -184,6 +185,18 @@ class ArmController:
         return lambda pos: float(gravity_nm[index])
 
     # ---- parameters ----
+    def in_motion_by(self, name: str) -> Optional[str]:
+        """The joint whose running motion was planned with parameter `name` (its speed or acceleration limit), or
+        None. Such a limit changes only while its joint holds or is idle: a running profile keeps the limits it was
+        planned with, so a lower speed let the loop's clamp hold the joint back until FOLLOWING_ERROR tripped, and a
+        lower acceleration made a jog's stop at the soft limit take minutes, past the limit into the hard stop
+        (an attack on 2026-11-27)."""
+        for drive in DRIVES:
+            if name in (f"{drive.name}_speed_dps", f"{drive.name}_acc_dps2") and \
+                    self.joints[drive.name].mode in _IN_MOTION:
+                return drive.name
+        return None
+
     def param_changed(self, name: str, value: float) -> None:
         for drive in DRIVES:
             if name.startswith(drive.name + "_") or name in ("encoder_stale_s", "current_stale_s"):

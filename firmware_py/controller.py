@@ -107,9 +107,10 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
     return [
         ParamSpec("link_timeout_s", config.link.link_timeout_s, max(0.05, config.link.heartbeat_s * 1.5), 3600, "s",
                   "safe state after this long without a valid frame"),
-        ParamSpec("telemetry_hz", 10, 0, 200, "Hz", "telemetry rate at boot (SetTelemetryRate changes it live)"),
-        ParamSpec("hal_stale_s", 0.2, 0.005, 10, "s",
-                  "analog inputs (ANALOG_IN, every 10 ms) older than this are a fault (HAL_STALE)"),
+        ParamSpec("telemetry_hz", 10, 0, 200, "Hz",
+                  "telemetry rate at boot, a whole number (SetTelemetryRate changes it live)"),
+        ParamSpec("hal_stale_s", 0.2, 0.02, 10, "s",
+                  "analog inputs (ANALOG_IN, every 10 ms) older than this are a fault (HAL_STALE; two periods at least)"),
         ParamSpec("loop_late_warn_s", 0.01, 0.001, 10, "s",
                   "on the wall clock only: the motor loop starting this late warns (TimingWarning LOOP_LATE)"),
         ParamSpec("loop_late_max_s", 0.1, 0.002, 60, "s",
@@ -130,10 +131,28 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
 
 def check_param(params: ParamStore, config: ControllerConfig, name: str, value: float) -> Optional[str]:
     """Why `name` = `value` would not fit the other parameters in `params` (a joint's minimum above its maximum,
-    the tracker's hysteresis past its deadband, trk_ff neither 0 nor 1); None if it would. The controller's veto
-    of a ParamSet, and the command line's check of --param before a world is built."""
-    return (arm_config.check_param(params.values(), config.arm_period_s, name, value)
+    the tracker's hysteresis past its deadband, trk_ff neither 0 nor 1, the controller's own pairs); None if it
+    would. The controller's veto of a ParamSet, and the command line's check of --param before a world is built."""
+    return (_check_own_param(params, name, value)
+            or arm_config.check_param(params.values(), config.arm_period_s, name, value)
             or tracker_check_param(params, name, value))
+
+
+# (lower, upper): the lower must stay below the upper. A warning at or past its fault's level switched the fault off
+# (the motor loop's lateness is judged against loop_late_max_s only once past loop_late_warn_s); a minimum
+# temperature above the maximum latched OVER_TEMPERATURE for good (both found by an attack on 2026-11-27).
+_ORDERED_PAIRS = (("loop_late_warn_s", "loop_late_max_s"), ("temp_min_c", "temp_max_c"))
+
+
+def _check_own_param(params: ParamStore, name: str, value: float) -> Optional[str]:
+    if name == "telemetry_hz" and value != int(value):
+        return "a whole number of frames per second"     # (a fraction was kept, and cut to 0 Hz at boot)
+    for lower, upper in _ORDERED_PAIRS:
+        if name == lower and not value < params[upper]:
+            return f"must be below {upper} ({params[upper]:g})"
+        if name == upper and not value > params[lower]:
+            return f"must be above {lower} ({params[lower]:g})"
+    return None
 
 
 ENCODER_FAULTS = AxisError.ENCODER_GLITCH | AxisError.ENCODER_STALE    # a joint's position not to be judged by
@@ -527,6 +546,8 @@ class Controller:
 
     @handles("ParamSet")
     def _param_set(self, msg: Message, now: float) -> Message:
+        if self.arm.in_motion_by(msg.name) is not None:
+            return self._param_value(Reason.BUSY, msg.name)
         reason, _detail = self.params.set(msg.name, msg.value)
         return self._param_value(reason, msg.name)
 

@@ -122,11 +122,27 @@ class ParamStore:
         except (UnicodeDecodeError, ValueError, RecursionError) as exc:
             problems.append(f"{self.path}: {exc}; all parameters keep their defaults")
             return problems
+        refused: dict[str, str] = {}
+        pending = {}
         for name, value in data["params"].items():
-            reason, detail = self.set(name, value) if isinstance(value, (int, float)) and not isinstance(
-                value, bool) else (Reason.OUT_OF_RANGE, f"{name}: {value!r} is not a number")
-            if reason is not Reason.OK:
-                problems.append(f"{self.path}: {detail}; kept the default")
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                pending[name] = value
+            else:
+                refused[name] = f"{name}: {value!r} is not a number"
+        # in passes: a value the veto refuses against a partner's default (a minimum above the default maximum)
+        # is taken once the file's own partner is in. One pass in table order lost a saved, consistent set.
+        while pending:
+            left = {}
+            for name, value in pending.items():
+                reason, detail = self.set(name, value)
+                if reason is not Reason.OK:
+                    left[name], refused[name] = value, detail
+                else:
+                    refused.pop(name, None)
+            if len(left) == len(pending):
+                break
+            pending = left
+        problems.extend(f"{self.path}: {detail}; kept the default" for detail in refused.values())
         return problems
 
     def save(self) -> tuple[Reason, str]:

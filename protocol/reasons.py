@@ -135,7 +135,8 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.SOFT_LIMIT: ("the target lies beyond the joint's soft limit, or a motion stopped at it",
                         "choose a target inside the limits (parameters <axis>_min_deg and <axis>_max_deg)"),
     Reason.BUSY: ("the axis is homing; for a trajectory, a joint is not holding still (another motion runs), or a "
-                  "trajectory is running and its knots cannot change", "wait for it to finish, or `stop` it first"),
+                  "trajectory is running and its knots cannot change; for a joint's speed or acceleration "
+                  "parameter, the joint is in a motion planned with it", "wait for it to finish, or `stop` it first"),
     Reason.ENCODER_FAULT: ("an encoder count jumped further than its joint can move",
                            "check the encoder, reset, then home again"),
     Reason.STALL: ("a joint was driven hard but did not move", "clear the jam or the brake, then reset"),

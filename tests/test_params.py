@@ -116,9 +116,10 @@ def test_parameters_over_the_link_and_across_a_reboot(tmp_path):
 
 def test_a_range_end_that_the_link_carries_as_an_f32_is_that_end(bench):
     """ParamSet's value is an f32: 0.01 arrives as 0.0099999998, below a minimum of 0.01, and the end a parameter's
-    own description gives was refused (still_deg, still_current_a, hal_stale_s 0.005; the review of 2026-11-25).
+    own description gives was refused (still_deg, still_current_a, hal_stale_s 0.005; the review of 2026-11-25;
+    hal_stale_s's minimum is 0.02 since 2026-11-27, two of ANALOG_IN's periods).
     A value that misses an end only by that rounding is the end; one below it, by more, is still refused."""
-    for name, end in (("still_deg", 0.01), ("still_current_a", 0.01), ("hal_stale_s", 0.005), ("still_deg", 30.0)):
+    for name, end in (("still_deg", 0.01), ("still_current_a", 0.01), ("hal_stale_s", 0.02), ("still_deg", 30.0)):
         done = bench.call(M["ParamSet"](name, end))
         assert done.ok, (name, end, done.reason)
         assert bench.controller.params[name] == end                         # the end itself, not its f32
@@ -193,3 +194,60 @@ def test_a_joint_with_no_velocity_gain_moves_without_dividing_by_zero(bench):
     assert bench.call(M["MoveBy"](2, 1.0, 0.0)).ok
     bench.run_for(1.0)
     assert bench.call(M["Ping"](8)).reply.token == 8
+
+
+def test_a_saved_consistent_set_comes_back_whole_after_a_reboot(tmp_path):
+    """The file is loaded in passes: a value the veto refuses against its partner's default (a deadband below the
+    default hysteresis, a minimum above the default maximum) is taken once the file's own partner is in. One pass in
+    table order kept the defaults for them, and said so only in load_problems (an attack on 2026-11-27)."""
+    path = tmp_path / "params.json"
+    chosen = (("trk_hyst_mv", 0.5), ("trk_deadband_mv", 1.0), ("j1_max_deg", 200.0), ("j1_min_deg", 150.0))
+    first = LockstepBench(seed=1, controller_config=ControllerConfig(params_path=path))
+    try:
+        assert first.connect()
+        for name, value in chosen:
+            assert first.call(M["ParamSet"](name, value)).ok, name
+        assert first.call(M["ParamSave"]()).ok
+    finally:
+        first.close()
+    rebooted = LockstepBench(seed=1, controller_config=ControllerConfig(params_path=path))
+    try:
+        params = rebooted.controller.params
+        assert params.load_problems == []
+        assert {name: params[name] for name, _ in chosen} == dict(chosen)
+    finally:
+        rebooted.close()
+
+
+def test_pairs_that_would_switch_a_fault_off_or_latch_one_for_good_are_refused(bench):
+    """A lateness warning at or past its fault's level (the fault was never reached), a minimum temperature above
+    the maximum (OVER_TEMPERATURE for good), a fractional telemetry rate (cut to 0 Hz at boot): refused, and
+    nothing changes."""
+    for name, value in (("loop_late_warn_s", 0.1), ("loop_late_max_s", 0.01), ("temp_min_c", 45.0),
+                        ("temp_max_c", -10.0), ("telemetry_hz", 0.5)):
+        before = bench.controller.params.values()
+        done = bench.call(M["ParamSet"](name, value))
+        assert done.reason is Reason.OUT_OF_RANGE, (name, value, done.reason)
+        assert bench.controller.params.values() == before
+    assert bench.call(M["ParamSet"]("loop_late_warn_s", 0.05)).ok
+    assert bench.call(M["ParamSet"]("telemetry_hz", 20.0)).ok
+
+
+def test_a_joints_speed_and_acceleration_do_not_change_under_a_motion_planned_with_them(bench):
+    """A running profile keeps the limits it was planned with: a lower speed set mid-move let the loop's clamp
+    hold the joint back until FOLLOWING_ERROR, and a lower acceleration made a jog's stop at the soft limit take
+    minutes, past the limit into the hard stop (an attack on 2026-11-27). Refused BUSY while the joint moves (its
+    gains and the other joints' limits are not), taken once it holds."""
+    assert bench.call(M["Enable"]()).ok
+    assert bench.call(M["MoveBy"](0, 5.0, 0.0)).ok
+    bench.run_for(0.3)
+    for name in ("j1_speed_dps", "j1_acc_dps2"):
+        done = bench.call(M["ParamSet"](name, 0.5))
+        assert done.reason is Reason.BUSY, (name, done.reason)
+        assert bench.controller.params[name] != 0.5
+    assert bench.call(M["ParamSet"]("j2_speed_dps", 2.0)).ok
+    assert bench.call(M["ParamSet"]("j1_kp", bench.controller.params["j1_kp"])).ok
+    bench.run_for(3.0)
+    assert bench.controller.supervisor.state is ControllerState.ENABLED
+    assert bench.controller.arm.joints["j1"].mode.name == "HOLDING"
+    assert bench.call(M["ParamSet"]("j1_speed_dps", 0.5)).ok
