@@ -11,7 +11,9 @@ CPU: host_tools/fuzz/hangs.py) is interrupted and saved the same way, as a hang.
 the interrupt cannot reach, is left to libFuzzer's own artifact, which `aspod fuzz` turns into a finding.
 """
 import importlib
+import importlib.util
 import sys
+from pathlib import Path
 
 from timebase import RealClock
 
@@ -24,8 +26,43 @@ _CLOCK = RealClock()           # the wall clock (timebase: the one module that r
 PROGRESS_EVERY_S = 1.0       # how often the job says how many inputs it has run (libFuzzer's own lines thin out)
 
 # the code under test; the plant, the clock and the worlds that carry it are not (their coverage would only
-# slow every execution down)
+# slow every execution down, and count the plant's branches as the target's)
 INSTRUMENTED = ["protocol", "firmware_py", "hil_sim.hal_node", "host_tools.teleop", "host_tools.fuzz.planted"]
+
+
+def _under(module: str, names) -> bool:
+    return any(module == n or module.startswith(n + ".") for n in names)
+
+
+def modules_not_under_test(instrumented: list[str]) -> list[str]:
+    """Every module of `instrumented`'s top-level packages that is not itself named there (or inside one named).
+    atheris' `include` keeps only a name's top-level package (what comes before the first dot), so until
+    2026-11-27 `hil_sim.hal_node` instrumented all of hil_sim, the plant included, and `host_tools.teleop` all of
+    host_tools: the worlds, the sessions, this harness and its grammar. Its `exclude` takes whole module names,
+    so they are listed here, from the files (nothing is imported: a module imported before the hook would run
+    uninstrumented)."""
+    out = []
+    for top in sorted({name.split(".")[0] for name in instrumented}):
+        spec = importlib.util.find_spec(top)
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        for root in spec.submodule_search_locations:
+            for path in sorted(Path(root).rglob("*.py")):
+                parts = [top, *path.relative_to(root).with_suffix("").parts]
+                if parts[-1] == "__init__":
+                    parts.pop()
+                module = ".".join(parts)
+                if not _under(module, instrumented) and not any(n.startswith(module + ".") for n in instrumented):
+                    out.append(module)
+    return out
+
+
+def instrumenting(spec: str):
+    """atheris' import hook for the target `spec`: the code under test, nothing else of ours; for your own target
+    (`module:factory`), its whole top-level package, as atheris takes it."""
+    own = [spec.split(":")[0]] if ":" in spec else []
+    exclude = [m for m in modules_not_under_test(INSTRUMENTED) if not _under(m, own)]
+    return atheris.instrument_imports(include=INSTRUMENTED + own, exclude=exclude)
 
 
 class Harness:
@@ -81,7 +118,7 @@ def load_for_fuzzing(spec: str):
 def main(argv: list[str]) -> None:
     from pathlib import Path
     spec, findings_dir, hang_s, libfuzzer_args = argv[0], Path(argv[1]), float(argv[2]), argv[3:]
-    with atheris.instrument_imports(include=INSTRUMENTED + [spec.split(":")[0]] * (":" in spec)):
+    with instrumenting(spec):
         target = load_for_fuzzing(spec)
     with HangWatch(hang_s) as watch:
         harness = Harness(target, spec, findings_dir, watch)
