@@ -52,7 +52,6 @@ assert [ARM_CHANNELS.index(drive.name) for drive in DRIVES] == sorted(ARM_CHANNE
 # The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
 LIMIT_PARAMETER = {"min": "{axis}_min_deg", "max": "{axis}_max_deg", "speed": "{axis}_speed_dps",
                    "acceleration": "{axis}_acc_dps2"}
-_IN_MOTION = (AxisMode.MOVING, AxisMode.JOGGING, AxisMode.HOMING)     # a profile planned with the limits runs
 
 
 @dataclass(frozen=True)
@@ -192,8 +191,7 @@ class ArmController:
         lower acceleration made a jog's stop at the soft limit take minutes, past the limit into the hard stop
         (an attack on 2026-11-27)."""
         for drive in DRIVES:
-            if name in (f"{drive.name}_speed_dps", f"{drive.name}_acc_dps2") and \
-                    self.joints[drive.name].mode in _IN_MOTION:
+            if name in (f"{drive.name}_speed_dps", f"{drive.name}_acc_dps2") and self.joints[drive.name].in_motion:
                 return drive.name
         return None
 

@@ -142,7 +142,7 @@ class AxisConfig:
     kp_pos_1_s: float = 20.0             # position loop [rad/s per rad]
     kv_duty_s_rad: float = 0.3           # velocity loop P [duty per rad/s]
     ki_duty_rad: float = 5.0             # velocity loop I [duty per rad]
-    aw_tracking_s: Optional[float] = None  # back-calculation time constant; None: kv/ki
+    aw_tracking_s: Optional[float] = None  # back-calculation time constant; None: kv/ki, at least one tick
     vel_cmd_limit_rad_s: Optional[float] = None  # clamp on the position loop's output; None: 2 * vel_limit
     ff_vel_duty_s_rad: float = 0.0       # duty per rad/s of setpoint velocity (back-EMF, viscous)
     ff_acc_duty_s2_rad: float = 0.0      # duty per rad/s^2 of setpoint acceleration (inertia)
@@ -241,6 +241,7 @@ def motor_gains(kt_nm_a: float, r_ohm: float, gear_ratio: float, supply_v: float
 _IDLE, _MOVING, _JOGGING, _HOMING, _HOLDING, _FAULT = (AxisMode.IDLE, AxisMode.MOVING, AxisMode.JOGGING,
                                                        AxisMode.HOMING, AxisMode.HOLDING, AxisMode.FAULT)
 _DRIVEN = frozenset((_MOVING, _JOGGING, _HOMING, _HOLDING))
+_IN_MOTION = frozenset((_MOVING, _JOGGING, _HOMING))     # a profile planned with the limits runs
 _SOFT_LIMIT = int(AxisError.SOFT_LIMIT)
 _CURRENT_LIMITED = int(AxisError.CURRENT_LIMITED)
 STAGES = ("estimator", "controller", "output")
@@ -312,6 +313,11 @@ class Axis:
         self._lo_rad, self._hi_rad = c.soft_min_rad, c.soft_max_rad
 
     # ---- queries ----
+    @property
+    def in_motion(self) -> bool:
+        """Moving, jogging or homing: a profile planned with the axis's limits is running (stopping included)."""
+        return self.mode in _IN_MOTION
+
     @property
     def errors(self) -> AxisError:
         return AxisError(self._err)
@@ -461,7 +467,7 @@ class Axis:
 
     def stop(self, now: float, outcome: MotionOutcome = MotionOutcome.STOPPED) -> None:
         """Decelerate at the acceleration limit, then hold (accepted in any state)."""
-        if self.mode not in (_MOVING, _JOGGING, _HOMING):
+        if not self.in_motion:
             return
         p, v, _ = self._setpoint(now)
         profile = profiles.stop(p, v, self.config.acc_limit_rad_s2)

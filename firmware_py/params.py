@@ -4,8 +4,10 @@ A save writes the whole set to a temporary file beside the target, flushes and f
 it, renames it over the target (atomic on POSIX) and fsyncs the directory, so a crash
 at any point leaves either the previous set or the new one, never a mix or nothing.
 A load never crashes the controller: a missing file means defaults; an unreadable or
-malformed file, an unknown name or an out-of-range value is reported and skipped,
-and that parameter keeps its default. The file is read through `protocol.files`: what is
+malformed file, an unknown name, an out-of-range value or one the controller's veto refuses
+(a minimum above its maximum) is reported and skipped, and that parameter keeps its default.
+The file is applied in passes (`set_all`), so values that depend on each other come back
+whichever of them the file names first. The file is read through `protocol.files`: what is
 not a regular file (a FIFO, a device, a directory) or is larger than PARAMS_FILE_LIMIT is
 not read at all (reported; the defaults stay), so a load can neither hang nor fill memory.
 """
@@ -91,6 +93,9 @@ class ParamStore:
         spec = self.specs.get(name)
         if spec is None:
             return Reason.UNKNOWN_PARAM, f"no parameter {name!r}"
+        if isinstance(value, int) and not isinstance(value, bool) and not -2**63 <= value < 2**63:
+            return Reason.OUT_OF_RANGE, (f"{name}: a whole number of {len(str(abs(value)))} digits, outside "
+                                         f"{spec.lo}..{spec.hi} {spec.unit}").rstrip()
         if isinstance(value, (int, float)) and math.isfinite(value):
             value = _at_an_end(value, spec.lo, spec.hi)
         if not isinstance(value, (int, float)) or not math.isfinite(value) or not spec.lo <= value <= spec.hi:
@@ -122,28 +127,34 @@ class ParamStore:
         except (UnicodeDecodeError, ValueError, RecursionError) as exc:
             problems.append(f"{self.path}: {exc}; all parameters keep their defaults")
             return problems
+        refused = self.set_all(data["params"].items())
+        problems.extend(f"{self.path}: {detail}; kept the default" for detail in refused.values())
+        return problems
+
+    def set_all(self, items) -> dict[str, str]:
+        """Set every (name, value) of `items`, in passes: a value the veto refuses against a partner's present
+        value (a minimum above the default maximum) is taken once its own partner, later in `items`, is in. One
+        pass in order lost a saved, consistent set at boot (an attack on 2026-11-27). What is still refused, by
+        name, with the reason; a value that is not a number (a JSON text, a boolean) is refused as such."""
         refused: dict[str, str] = {}
-        pending = {}
-        for name, value in data["params"].items():
+        pending: dict[str, float] = {}
+        for name, value in items:
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 pending[name] = value
             else:
                 refused[name] = f"{name}: {value!r} is not a number"
-        # in passes: a value the veto refuses against a partner's default (a minimum above the default maximum)
-        # is taken once the file's own partner is in. One pass in table order lost a saved, consistent set.
         while pending:
             left = {}
             for name, value in pending.items():
                 reason, detail = self.set(name, value)
-                if reason is not Reason.OK:
-                    left[name], refused[name] = value, detail
-                else:
+                if reason is Reason.OK:
                     refused.pop(name, None)
+                else:
+                    left[name], refused[name] = value, detail
             if len(left) == len(pending):
                 break
             pending = left
-        problems.extend(f"{self.path}: {detail}; kept the default" for detail in refused.values())
-        return problems
+        return refused
 
     def save(self) -> tuple[Reason, str]:
         if self.path is None:

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import os
 import random
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,20 +12,10 @@ import pytest
 from host_tools.client.params import ParamTable
 from host_tools.fuzz import blackbox, findings
 from host_tools.fuzz.grammar import RandomDraw
-from protocol import auth
 from timebase import RealClock
+from aspod_cli import aspod
 
-ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 GOOD_STEP = {"kind": "command", "delay_s": 0.0, "msg": "BoxDial", "payload": "0000c84202"}
-
-
-def aspod(*args: str, cwd: Path, timeout: float = 120) -> subprocess.CompletedProcess:
-    """`aspod ARGS` in `cwd`, with a private per-user config beside it and its development key (a fresh machine
-    has none: without it a command given no --key-file stops at the key, before what the test is about)."""
-    config = cwd.parent / f"{cwd.name}-config"
-    auth.load_or_create_dev_key(config / "aspod" / "dev.key")
-    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, "XDG_CONFIG_HOME": str(config)})
 
 
 def finding_file(tmp_path: Path, **fields) -> Path:
@@ -231,3 +219,36 @@ def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypat
     assert result.findings == [] and len(result.unsaved) == 1 and "No space left on device" in err
     shown = json.loads(err[err.index("{"):])
     assert shown == result.unsaved[0] and shown["failure"]["error"] == "HealthCheck: wrong" and shown["steps"]
+
+
+class _BenchSession:
+    """The fuzzer's session's `call` and settings, on a lock-step bench: a real controller, on the simulated clock."""
+
+    def __init__(self, bench) -> None:
+        self.bench, self.settings = bench, blackbox.BlackBoxSettings(url="lockstep", cases=1)
+
+    def call(self, msg, timeout_s: float):
+        return self.bench.call(msg, timeout_s)
+
+
+def test_a_parameter_that_cannot_be_set_back_yet_is_owed_and_set_back_after_a_later_case(bench, capsys):
+    """A case set j1's speed, then started a jog still running at its end: the set-back is refused BUSY (a joint's
+    speed does not change under its motion). It is owed, said once, and set back after the next case, once the joint
+    holds; it was put among the 'stuck' and never tried again, and every later case ran with it changed."""
+    from host_tools.client.params import read_param_table
+    from protocol.messages import MESSAGES as M, SCHEMA
+    session = _BenchSession(bench)
+    params = blackbox.TargetParams(read_param_table(session, 5.0))
+    found = params.found["j1_speed_dps"]
+    assert bench.call(M["Enable"]()).ok
+    payload = SCHEMA["ParamSet"].encode(M["ParamSet"]("j1_speed_dps", 2.0))
+    handles = [(SCHEMA["ParamSet"], payload, bench.call(M["ParamSet"]("j1_speed_dps", 2.0)))]
+    assert bench.call(M["Jog"](0, 1.0)).ok
+    assert params.restore(session, blackbox.Case([]), handles)
+    assert params.owed == {"j1_speed_dps"} and params.put_back == 0
+    assert "j1_speed_dps could not be set back" in capsys.readouterr().err
+    assert bench.call(M["Stop"]()).ok
+    bench.run_for(3.0)
+    assert params.restore(session, blackbox.Case([]), [])
+    assert params.owed == set() and params.put_back == 1
+    assert bench.controller.params["j1_speed_dps"] == pytest.approx(found, rel=1e-6)

@@ -433,19 +433,18 @@ def bench_settings(args: argparse.Namespace) -> BenchSettings:
 
 def check_params(params, table, whose: str, check) -> None:
     """ValueError for the first `--param` (name, value) that `table` has no parameter of, whose value is outside
-    its declared range, or that `check(store, name, value)` (the firmware's own veto, given the values set before
-    it) refuses, before anything is built."""
+    its declared range, or that `check(store, name, value)` (the firmware's own veto, given the others, set in
+    passes as the firmware sets them) refuses, before anything is built."""
     from firmware_py.params import ParamStore
-    from protocol.reasons import Reason
     names = {spec.name for spec in table}
     store = ParamStore(table, check=lambda name, value: check(store, name, value))
-    for name, value in params:
+    for name, _value in params:
         if name not in names:
             known = f"it has {', '.join(sorted(names))}" if len(names) <= 20 else "teleop's `params` lists its own"
             raise ValueError(f"--param {name}: {whose} has no such parameter; {known}")
-        reason, detail = store.set(name, value)
-        if reason is not Reason.OK:
-            raise ValueError(f"--param {detail}")
+    refused = store.set_all(params)
+    if refused:
+        raise ValueError(f"--param {next(iter(refused.values()))}")
 
 
 def pairs(texts: list[str], option: str, kind=float) -> tuple[tuple[str, Any], ...]:

@@ -7,7 +7,7 @@ a controller that says more than `MAX_PARAMS` (a u16 allows 65,535) is read no f
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Callable, Optional
 
 from protocol.host_link import CommandHandle
 from protocol.messages import SCHEMA
@@ -30,14 +30,19 @@ class ParamTable:
         return tuple(r.name for r in self.replies)
 
 
-def read_param_table(client: Caller, timeout_s: float = 30.0) -> ParamTable:
-    """Every parameter, read one by one with ParamList (at most `MAX_PARAMS`); it stops at the first that fails."""
+def read_param_table(client: Caller, timeout_s: float = 30.0,
+                     on_reply: Callable[[Message], None] = lambda reply: None) -> ParamTable:
+    """Every parameter, read one by one with ParamList (at most `MAX_PARAMS`), each reply also given to `on_reply`
+    as it comes; it stops at the first that fails. A controller with no parameters refuses index 0 with a count of
+    0: an empty table, not a failure."""
     table, count = ParamTable(), 1
     while len(table.replies) < min(count, MAX_PARAMS):
         handle = client.call(SCHEMA["ParamList"].type(len(table.replies)), timeout_s)
         if not handle.ok:
-            table.failed = handle
+            empty = not table.replies and handle.reply is not None and getattr(handle.reply, "count", None) == 0
+            table.failed = None if empty else handle
             break
         table.replies.append(handle.reply)
+        on_reply(handle.reply)
         count = handle.reply.count
     return table

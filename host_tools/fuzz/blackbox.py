@@ -14,6 +14,10 @@ sequence numbers right. Each case is a few steps drawn from a seeded generator (
     burst     several commands written at once;  silence   no byte (not even a heartbeat) for 50-80 % of the
               controller's link timeout, which must not count it as lost
 
+At the first session the fuzzer reads the target's parameter table (ParamList): its names are the grammar's
+words for ParamGet and ParamSet, and after each case what the case's ParamSets changed is set back, so every case
+starts from the configuration found (`TargetParams`).
+
 After each case, the health check: a Ping through the session answered with its token; GetStatus with the
 controller's uptime rising, its commands-executed counter moved by exactly the commands that ran (those whose
 payload decodes, each once), and its state changed only if a command of the case was accepted, or into FAULT
@@ -447,9 +451,17 @@ class HealthCheck:
             raise TargetGone(f"{msg.spec.name}: {handle.describe()}")
         return handle.reply
 
-    def rebase(self) -> None:
-        """The status now is what the next case is judged against (after commands of the fuzzer's own)."""
-        self.last = self._status()
+    def rebase(self) -> Optional[str]:
+        """The status now is what the next case is judged against (after commands of the fuzzer's own: the
+        parameter table read, a case's parameters set back). What is wrong if the state or faults changed since
+        the last check for no cause outside the target (reading or setting back parameters must not), else None."""
+        before, self.last = self.last, self._status()
+        changed = (self.last.state, self.last.faults) != (before.state, before.faults)
+        if changed and not (self.last.state == ControllerState.FAULT
+                            and self._explained(self.last.faults & ~before.faults)):
+            return (f"state {before.state}/faults {before.faults:#x} became {self.last.state}/"
+                    f"{self.last.faults:#x}")
+        return None
 
     def _status(self):
         status = self._call(SCHEMA["GetStatus"].type())
@@ -503,36 +515,55 @@ class TargetParams:
 
     Its names are the grammar's words for ParamGet's and ParamSet's `name` (a parameter's name is the controller's,
     not the declaration's: without them no ParamSet reaches a parameter). After each case's health check, every
-    parameter an accepted ParamSet of the case changed is set back to the value found, so every case starts from
-    the configuration the target was found in, as a finding replayed alone on a fresh target does. A target that
-    does not list its parameters is fuzzed without them, and says so on stderr."""
+    parameter a ParamSet of the case may have changed is set back to the value found, so every case starts from
+    the configuration the target was found in, as a finding replayed alone on a fresh target does. One that cannot
+    be set back yet (BUSY: its joint still moves) is owed, and tried again after every case until it is. A target
+    that does not list its parameters is fuzzed without them, and says so on stderr."""
 
     def __init__(self, table: ParamTable) -> None:
         self.found = {r.name: r.value for r in table.replies}      # as ParamValue carries them (f32)
         self.words: Words = MappingProxyType({"name": table.names}) if table.names else NO_WORDS
         self.put_back = 0                   # parameters set back after a case changed them
-        self.stuck: set[str] = set()        # parameters that could not be set back (said once each)
+        self.owed: set[str] = set()         # changed, not yet set back
+        self._said: set[str] = set()        # owed parameters said on stderr (once each)
 
     @classmethod
     def read(cls, session: Session) -> "TargetParams":
         table = read_param_table(session, session.settings.health_timeout_s)
         if table.failed is not None:
             print(f"aspod fuzz: the target's parameters not read past {len(table.replies)} "
-                  f"({table.failed.describe()}); ParamGet and ParamSet draw names from the grammar alone",
-                  file=sys.stderr)
+                  f"({table.failed.describe()}); ParamGet and ParamSet draw names from the "
+                  f"{len(table.replies)} read and the grammar", file=sys.stderr)
         return cls(table)
 
-    def changed_by(self, handles: list) -> list[str]:
-        """The parameters an accepted ParamSet of the case left at another value than the one found."""
-        return sorted({h.reply.name for spec, _payload, h in handles
-                       if spec.name == "ParamSet" and h.ok and h.reply.name in self.found
-                       and not _same_f32(h.reply.value, self.found[h.reply.name])})
+    def values_after(self, session: Session, case: "Case", handles: list) -> dict[str, float]:
+        """What each parameter the case may have changed holds now: the last accepted ParamSet's reply says, and
+        ParamGet asks where nothing does (a ParamSet not answered, a crafted ParamSet frame, which may run whatever
+        its class, a parameter owed from before)."""
+        now: dict[str, float] = {}
+        unsure = set(self.owed)
+        for spec, payload, h in handles:
+            if spec.name == "ParamSet" and h.ok:
+                now[h.reply.name] = h.reply.value          # the handles are in the order sent: the last one holds
+            elif spec.name == "ParamSet" and not h.done:
+                unsure.add(_param_name(payload))
+        unsure |= {_param_name(bytes.fromhex(step["payload"])) for step in case.steps
+                   if step["kind"] == "frame" and step.get("msg") == "ParamSet"}
+        for name in sorted(n for n in unsure if n in self.found):
+            handle = session.call(SCHEMA["ParamGet"].type(name=name), session.settings.health_timeout_s)
+            if handle.ok:
+                now[name] = handle.reply.value
+        return {name: value for name, value in now.items() if name in self.found}
 
-    def restore(self, session: Session, handles: list) -> bool:
+    def restore(self, session: Session, case: "Case", handles: list) -> bool:
         """Set back what the case changed (in two passes: a limit may be refused until its partner is back);
-        True if any ParamSet was sent."""
-        left = {name: None for name in self.changed_by(handles)}
-        sent = bool(left)
+        True if the fuzzer sent any command of its own here."""
+        asked = bool(self.owed) or any(s["kind"] == "frame" and s.get("msg") == "ParamSet" for s in case.steps) \
+            or any(spec.name == "ParamSet" and not h.done for spec, _payload, h in handles)
+        left = {name: None for name, value in self.values_after(session, case, handles).items()
+                if not _same_f32(value, self.found[name])}
+        sent = asked or bool(left)
+        self.owed -= {name for name in self.owed if name not in left}
         for _ in range(2):
             tried, left = left, {}
             for name in tried:
@@ -540,14 +571,23 @@ class TargetParams:
                                       session.settings.health_timeout_s)
                 if handle.ok:
                     self.put_back += 1
+                    self.owed.discard(name)
                 else:
                     left[name] = handle
         for name, handle in left.items():
-            if name not in self.stuck:
-                self.stuck.add(name)
+            self.owed.add(name)
+            if name not in self._said:
+                self._said.add(name)
                 print(f"aspod fuzz: {name} could not be set back to {self.found[name]:g} after a case changed it "
-                      f"({handle.describe()}); later cases run with it changed", file=sys.stderr)
+                      f"({handle.describe()}); tried again after each case", file=sys.stderr)
         return sent
+
+
+def _param_name(payload: bytes) -> Optional[str]:
+    try:
+        return SCHEMA["ParamSet"].decode(payload).name
+    except Exception:          # noqa: BLE001 (a payload the controller refuses names nothing it set)
+        return None
 
 
 def _same_f32(a: float, b: float) -> bool:
@@ -568,8 +608,10 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
     try:
         handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
         problem = health.check(handles, maybe)
-        if problem is None and params.restore(session, handles):
-            health.rebase()
+        if problem is None and params.restore(session, case, handles):
+            problem = health.rebase()
+            if problem is not None:
+                problem = f"while the fuzzer set back the case's parameters: {problem}"
     except TargetGone as exc:
         end = _CLOCK.now() + EXIT_WAIT_S
         while session.child is not None and session.exited() is None and _CLOCK.now() < end:
@@ -593,7 +635,8 @@ class BlackBoxFuzzer:
             health = HealthCheck(session)
             if self.params is None:
                 self.params = TargetParams.read(session)
-                health.rebase()              # the ParamLists counted: a case's count starts after them
+                health.rebase()     # the ParamLists counted: a case's count starts after them (a state change
+                #                     while they were read is the target's own, and becomes the first baseline)
             return session, health
         except BaseException:        # its first status not had: our target is stopped, not left running
             session.close()

@@ -58,11 +58,13 @@ def modules_not_under_test(instrumented: list[str]) -> list[str]:
 
 
 def instrumenting(spec: str):
-    """atheris' import hook for the target `spec`: the code under test, nothing else of ours; for your own target
-    (`module:factory`), its whole top-level package, as atheris takes it."""
-    own = [spec.split(":")[0]] if ":" in spec else []
+    """atheris' import hook for the target `spec`: the code under test, nothing else of ours. For your own target
+    (`module:factory`): the whole package its module is in (its top-level package, as atheris takes it, where
+    that is not one of ours)."""
+    module = spec.split(":")[0] if ":" in spec else None
+    own = [module.rpartition(".")[0] or module] if module else []
     exclude = [m for m in modules_not_under_test(INSTRUMENTED) if not _under(m, own)]
-    return atheris.instrument_imports(include=INSTRUMENTED + own, exclude=exclude)
+    return atheris.instrument_imports(include=INSTRUMENTED + [module] * bool(module), exclude=exclude)
 
 
 class Harness:
@@ -116,7 +118,6 @@ def load_for_fuzzing(spec: str):
 
 
 def main(argv: list[str]) -> None:
-    from pathlib import Path
     spec, findings_dir, hang_s, libfuzzer_args = argv[0], Path(argv[1]), float(argv[2]), argv[3:]
     with instrumenting(spec):
         target = load_for_fuzzing(spec)

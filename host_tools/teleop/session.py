@@ -429,9 +429,7 @@ def expected_lines(step: Step, handle, lines: list[str]) -> tuple[bool, list[str
 
 def list_params(client, console: Console) -> bool:
     """Every parameter, read one by one with ParamList: value, unit, range and what it does."""
-    table = read_param_table(client)
-    for reply in table.replies:
-        console.lines(param_lines(reply))
+    table = read_param_table(client, on_reply=lambda reply: console.lines(param_lines(reply)))
     if table.failed is not None:
         console.line(format_outcome(table.failed))
     return table.failed is None

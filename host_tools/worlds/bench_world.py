@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from typing import Optional
 
 from hil_sim.faults import fault_key, resolve
-from protocol.reasons import Reason
 
 from host_tools.sessions.impairment import Impairment
 from host_tools.worlds.settings import PlantSettings
@@ -108,13 +107,12 @@ class WorldSettings:
 
 
 def apply_params(bench: LockstepBench, params) -> None:
-    """Set controller parameters by name before a run; ValueError naming the first one refused (then some of
-    the others may be set: build the bench again)."""
+    """Set controller parameters by name before a run (in passes, as a parameter file is loaded); ValueError
+    naming the first one refused (then some of the others may be set: build the bench again)."""
     store = bench.controller.params
-    for name, value in params:
-        reason, detail = store.set(name, value)
-        if reason is not Reason.OK:
-            raise ValueError(f"parameter {detail}")
+    refused = store.set_all(params)
+    if refused:
+        raise ValueError(f"parameter {next(iter(refused.values()))}")
     bench.controller.telemetry_hz = int(store["telemetry_hz"])
 
 
