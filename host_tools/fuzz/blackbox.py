@@ -536,10 +536,10 @@ class TargetParams:
                   f"{len(table.replies)} read and the grammar", file=sys.stderr)
         return cls(table)
 
-    def values_after(self, session: Session, case: "Case", handles: list) -> dict[str, float]:
+    def values_after(self, session: Session, case: "Case", handles: list) -> tuple[dict[str, float], bool]:
         """What each parameter the case may have changed holds now: the last accepted ParamSet's reply says, and
         ParamGet asks where nothing does (a ParamSet not answered, a crafted ParamSet frame, which may run whatever
-        its class, a parameter owed from before)."""
+        its class, a parameter owed from before); and whether it sent any ParamGet."""
         now: dict[str, float] = {}
         unsure = set(self.owed)
         for spec, payload, h in handles:
@@ -549,19 +549,18 @@ class TargetParams:
                 unsure.add(_param_name(payload))
         unsure |= {_param_name(bytes.fromhex(step["payload"])) for step in case.steps
                    if step["kind"] == "frame" and step.get("msg") == "ParamSet"}
-        for name in sorted(n for n in unsure if n in self.found):
+        asked = sorted(n for n in unsure if n in self.found)
+        for name in asked:
             handle = session.call(SCHEMA["ParamGet"].type(name=name), session.settings.health_timeout_s)
             if handle.ok:
                 now[name] = handle.reply.value
-        return {name: value for name, value in now.items() if name in self.found}
+        return {name: value for name, value in now.items() if name in self.found}, bool(asked)
 
     def restore(self, session: Session, case: "Case", handles: list) -> bool:
         """Set back what the case changed (in two passes: a limit may be refused until its partner is back);
         True if the fuzzer sent any command of its own here."""
-        asked = bool(self.owed) or any(s["kind"] == "frame" and s.get("msg") == "ParamSet" for s in case.steps) \
-            or any(spec.name == "ParamSet" and not h.done for spec, _payload, h in handles)
-        left = {name: None for name, value in self.values_after(session, case, handles).items()
-                if not _same_f32(value, self.found[name])}
+        values, asked = self.values_after(session, case, handles)
+        left = {name: None for name, value in values.items() if not _same_f32(value, self.found[name])}
         sent = asked or bool(left)
         self.owed -= {name for name in self.owed if name not in left}
         for _ in range(2):

@@ -21,7 +21,7 @@ import os
 import textwrap
 import threading
 from pathlib import Path
-from typing import Callable, Iterable, Optional
+from typing import Callable, Iterable, Optional, Sequence
 
 from prompt_toolkit import PromptSession
 from prompt_toolkit.application import Application
@@ -37,7 +37,7 @@ from protocol.host_link import CommandHandle
 from protocol.link import LinkState
 from protocol.states import SWITCH_POSITIONS, ControllerState, MotionOutcome, Switch
 
-from host_tools.client.params import read_param_table
+from host_tools.client.params import ParamTable, read_param_table
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.teleop import format as teleop_format
 from host_tools.teleop import words as teleop_words
@@ -103,12 +103,16 @@ class ParamNames:
 
     def __init__(self, client) -> None:
         self.client = client
-        self.replies: list = []
+        self.table = ParamTable()           # empty until the whole table is read
         self._thread: Optional[threading.Thread] = None
 
     @property
-    def names(self) -> list[str]:
-        return [r.name for r in self.replies]
+    def replies(self) -> list:
+        return self.table.replies
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.table.names
 
     def meta(self, name: str) -> str:
         """`unit  description` of a parameter, "" for another word or before the list has come."""
@@ -126,7 +130,7 @@ class ParamNames:
         """Read the table; None, or the ParamList that failed (the names stay as they were)."""
         table = read_param_table(self.client, 5.0)
         if table.failed is None:
-            self.replies = table.replies
+            self.table = table
         return table.failed
 
 
@@ -134,7 +138,7 @@ class TeleopCompleter(Completer):
     """words.completions, with what the console knows besides: parameter names, each switch's own positions,
     and no axis a motion command is refused for."""
 
-    def __init__(self, param_names: Callable[[], list[str]] = lambda: [],
+    def __init__(self, param_names: Callable[[], Sequence[str]] = lambda: (),
                  param_meta: Callable[[str], str] = lambda name: "") -> None:
         self.param_names = param_names
         self.param_meta = param_meta      # a parameter's unit and description, shown beside it in the menu
