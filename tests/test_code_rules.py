@@ -72,7 +72,23 @@ def test_only_the_clock_module_reads_os_time_or_sleeps():
                 if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "time" \
                         and node.attr in ("time", "sleep", "monotonic", "perf_counter", "time_ns", "monotonic_ns"):
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} time.{node.attr}")
+                elif _reads_the_date(node):
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno} {ast.unparse(node)}")
     assert offenders == []
+
+
+def _reads_the_date(node: ast.AST) -> bool:
+    """A call that reads today's date or time itself: `time.strftime(fmt)`, `time.localtime()` and the like with
+    no timestamp given, `datetime.now()`, `datetime.utcnow()`, `date.today()` (give them
+    `RealClock.wall_time()` instead)."""
+    if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+            and isinstance(node.func.value, ast.Name)):
+        return False
+    owner, name, given = node.func.value.id, node.func.attr, len(node.args) + len(node.keywords)
+    if owner == "time":
+        return (name == "strftime" and given < 2) or (name in ("localtime", "gmtime", "ctime", "asctime")
+                                                      and given == 0)
+    return owner in ("datetime", "date") and name in ("now", "utcnow", "today")
 
 
 def test_no_unused_imports_or_undefined_names():

@@ -505,7 +505,7 @@ def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
     out = args.out
     if out is None:
         from datetime import datetime, timezone
-        out = Path(f"campaign-{datetime.now(timezone.utc):%Y%m%d-%H%M%S}")
+        out = Path(f"campaign-{datetime.fromtimestamp(RealClock.wall_time(), timezone.utc):%Y%m%d-%H%M%S}")
     if out.exists() and (not out.is_dir() or any(out.glob("rows.*")) or (out / "campaign.json").exists()):
         raise ValueError(f"--out {out}: it already holds a campaign (or is not a folder); give another")
     group_by = args.group_by

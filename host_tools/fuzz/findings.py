@@ -105,7 +105,7 @@ class Finding:
 
     def save(self, folder: Path) -> Path:
         folder.mkdir(parents=True, exist_ok=True)
-        self.found_at = self.found_at or time.strftime("%Y-%m-%dT%H:%M:%S")
+        self.found_at = self.found_at or time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(_CLOCK.wall_time()))
         path = folder / self.name()
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(self.to_json(), indent=1) + "\n")
