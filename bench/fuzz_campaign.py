@@ -3,7 +3,7 @@ survive being stopped.
 
     python -m bench.fuzz_campaign DIR [--goal 10000000] [--chunk 1000000] [--jobs 2] [--targets a,b]
                                       [--ledger FILE] [--first-seed N] [--since REV]
-    python -m bench.fuzz_campaign DIR --report [--since REV]   # the totals so far, each target's line coverage
+    python -m bench.fuzz_campaign DIR --report [--since REV] [--targets a,b]   # the totals, each line coverage
 
 Each chunk is one `aspod fuzz TARGET --runs CHUNK/JOBS --jobs JOBS` with seeds of its own; its jobs are
 appended to DIR/ledger.jsonl when it ends, with the commit they ran. A chunk stopped half-way counts for
@@ -88,11 +88,13 @@ def counted(ledger: Path, rev: Optional[str]) -> list[JobResult]:
     return jobs if rev is None else since(jobs, ledger_commits(ledger), rev)
 
 
-def report(out: Path, ledger: Path, rev: Optional[str]) -> None:
+def report(out: Path, ledger: Path, rev: Optional[str], targets: list[str]) -> None:
     from host_tools.fuzz.coverage_report import line_coverage
     from host_tools.fuzz.targets import builtin_targets
     print(f"{'target':16} {'executions':>12} {'core-h':>7} {'exec/core-s':>11} {'findings':>8} {'errors':>6}  coverage")
     for t in summarize(counted(ledger, rev)):
+        if t.target not in targets:
+            continue
         corpus = out / "corpus" / t.target
         if corpus.is_dir():
             cov = line_coverage(t.target, corpus, builtin_targets()[t.target].covers)
@@ -113,7 +115,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--ledger", type=Path, help="the ledger file (default DIR/ledger.jsonl)")
     ap.add_argument("--first-seed", type=int, default=1, help="the lowest seed a new chunk may take")
     ap.add_argument("--since", metavar="REV", help="count only the chunks run at REV or after it")
-    ap.add_argument("--report", action="store_true", help="print the totals and coverage, run nothing")
+    ap.add_argument("--report", action="store_true", help="print the totals and coverage (of --targets), run nothing")
     args = ap.parse_args(argv)
     args.dir.mkdir(parents=True, exist_ok=True)
     ledger = args.ledger or args.dir / "ledger.jsonl"
@@ -123,7 +125,7 @@ def main(argv: list[str]) -> int:
         if known.returncode != 0:
             ap.error(f"--since {args.since}: not a commit of this repository")
     if args.report:
-        report(args.dir, ledger, args.since)
+        report(args.dir, ledger, args.since, args.targets.split(","))
         return 0
     commit = _commit()
     for target in args.targets.split(","):

@@ -281,6 +281,20 @@ def test_the_campaign_report_says_when_a_targets_corpus_is_not_on_this_machine(t
     assert f"not measured: no corpus at {tmp_path / 'campaign' / 'corpus' / 'hal'}" in line[0]
 
 
+def test_the_campaign_report_reports_only_the_targets_asked_for(tmp_path, capsys):
+    """`--report --targets a,b` measures only those (a corpus's coverage takes minutes; the others' corpora may be
+    growing in a campaign beside)."""
+    from bench import fuzz_campaign
+    rows = [{"target": t, "seed": 7, "execs": 500000, "wall_s": 50.0, "execs_per_s": 1e4, "cov": 1, "ft": 1,
+             "corpus": 1, "findings": [], "error": "", "commit": "0000000"} for t in ("hal", "codec")]
+    ledger = tmp_path / "ledger.jsonl"
+    ledger.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert fuzz_campaign.main([str(tmp_path / "campaign"), "--ledger", str(ledger), "--report",
+                               "--targets", "codec"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [x.split()[0] for x in out[1:]] == ["codec"]
+
+
 def test_the_controller_link_target_names_its_controllers_parameters_in_param_set():
     """A parameter's name is the controller's, not the declaration's: the target gives its controller's names to
     the grammar (`Words`), without which no ParamSet of the first campaign's 10^7 executions set a parameter."""
