@@ -117,18 +117,22 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--since", metavar="REV", help="count only the chunks run at REV or after it")
     ap.add_argument("--report", action="store_true", help="print the totals and coverage (of --targets), run nothing")
     args = ap.parse_args(argv)
-    args.dir.mkdir(parents=True, exist_ok=True)
     ledger = args.ledger or args.dir / "ledger.jsonl"
     if args.since is not None:
         known = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", "--quiet", args.since + "^{commit}"],
                                capture_output=True)
         if known.returncode != 0:
             ap.error(f"--since {args.since}: not a commit of this repository")
+    targets = args.targets.split(",")
+    unknown = [t for t in targets if t not in TARGETS]
+    if unknown:
+        ap.error(f"--targets: no target named {', '.join(unknown)}; the targets are {', '.join(TARGETS)}")
+    args.dir.mkdir(parents=True, exist_ok=True)
     if args.report:
-        report(args.dir, ledger, args.since, args.targets.split(","))
+        report(args.dir, ledger, args.since, targets)
         return 0
     commit = _commit()
-    for target in args.targets.split(","):
+    for target in targets:
         while True:
             jobs = read_ledger(ledger)
             done = sum(j.execs for j in counted(ledger, args.since) if j.target == target)

@@ -295,6 +295,19 @@ def test_the_campaign_report_reports_only_the_targets_asked_for(tmp_path, capsys
     assert [x.split()[0] for x in out[1:]] == ["codec"]
 
 
+def test_the_campaign_refuses_a_target_it_does_not_have_saying_which(tmp_path, capsys):
+    """A misspelt `--targets` name is refused with the names there are, not reported as an empty table."""
+    from bench import fuzz_campaign
+    ledger = tmp_path / "ledger.jsonl"
+    with pytest.raises(SystemExit) as exit_:
+        fuzz_campaign.main([str(tmp_path / "campaign"), "--ledger", str(ledger), "--report",
+                            "--targets", "codec,host-lnk"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "no target named host-lnk" in err and "host-link" in err
+    assert not ledger.exists() and not (tmp_path / "campaign").exists()
+
+
 def test_the_controller_link_target_names_its_controllers_parameters_in_param_set():
     """A parameter's name is the controller's, not the declaration's: the target gives its controller's names to
     the grammar (`Words`), without which no ParamSet of the first campaign's 10^7 executions set a parameter."""
