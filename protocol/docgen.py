@@ -166,6 +166,11 @@ expected value) and `REPLAY` (a duplicate older than the reply cache) (`controll
 `UNAUTHENTICATED`, `BAD_MAC` and `NO_SESSION` (at most {LinkConfig.nak_rate_per_s:.0f} a second). A
 bad CRC or COBS and a replayed counter are never answered.
 
+**The host takes a command's answer in one of two shapes only:** its declared reply, or a `Result`
+refusing it (a `result` other than `OK`). Any other reply at the command's sequence number ends the
+command `REJECTED` with `UNKNOWN_MESSAGE`, the detail naming what came (`protocol/host_link.py`
+`_complete`): a caller must never read a message of another shape as its answer.
+
 **Only a reply uses up a sequence number.** A command answered with its reply, refused or not, is
 executed-and-answered: the receiver's next expected number moves on by one
 (`protocol/reliable.py` `ReliableReceiver.accept`) and a resend of it gets the same reply from the

@@ -268,6 +268,14 @@ class HostLink(LinkEndpoint):
             handle._finish(Outcome.REJECTED, exc.reason, now, detail=f"unreadable reply: {exc.detail}")
             return
         result = reply[0] if reply.spec.fields and reply.spec.fields[0].name == "result" else Reason.OK
+        expected = handle.spec.reply
+        if reply.spec.name != expected and (reply.spec.name != "Result" or result == Reason.OK):
+            # a command is answered by its own reply, or refused by a Result: anything else is the peer's error,
+            # and taking it as the answer would hand the caller a message of the wrong shape
+            handle._finish(Outcome.REJECTED, Reason.UNKNOWN_MESSAGE, now, reply,
+                           detail=f"{reply.spec.name} in answer to {handle.spec.name}, which {expected} answers "
+                                  f"(or a Result refusing it)")
+            return
         if result == Reason.OK:
             handle._finish(Outcome.SUCCEEDED, Reason.OK, now, reply)
         else:

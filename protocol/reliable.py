@@ -94,6 +94,10 @@ class ReliableSender:
     def outstanding(self) -> int:
         return len(self._inflight) + len(self._waiting)
 
+    def in_flight_seqs(self) -> list[int]:
+        """The sequence numbers sent and not yet answered, oldest first."""
+        return list(self._inflight)
+
     def next_due_s(self) -> float:
         """When `due` may next return something: -inf if frames wait for the window (at once, or as
         soon as an answer opens it), the earliest retransmission timer, inf if nothing is in flight."""

@@ -76,6 +76,54 @@ def test_the_controller_link_target_reaches_the_handlers_with_frames_it_signed()
         target.close()
 
 
+def test_the_host_link_target_forges_replies_to_commands_in_flight_that_end_them():
+    """Forged replies take the sequence numbers in flight: some end a command, as a success or as a refusal (a
+    reply that says no or does not decode), before the controller's own reply comes and is ignored."""
+    from protocol.reliable import Outcome
+    target = load_target("host-link")
+    rng = random.Random(5)
+    try:
+        target.fresh()
+        ended = set()
+        for _ in range(400):
+            target.one_input(rng.randbytes(80))
+            ended |= {h.outcome for h in target.pings if h.done}
+        assert Outcome.REJECTED in ended, ended
+        assert all(h.reply.spec.name == "Pong" for h in target.pings if h.outcome is Outcome.SUCCEEDED)
+    finally:
+        target.close()
+
+
+def test_the_host_refuses_an_authenticated_reply_of_another_commands_type_saying_which():
+    """Seen once the host-link target's forged replies met commands in flight (2026-11-28): nothing checked a
+    reply's type, so a Result saying OK (or any reply saying OK) in answer to a Ping ended it a success with no Pong
+    in it. A command is answered by its own reply or refused by a Result; anything else ends it REJECTED, and the
+    controller's own reply, coming after, changes nothing."""
+    from host_tools.fuzz.link_targets import FrameRecipe, build
+    from protocol.reliable import Outcome
+    from protocol.reasons import Reason
+    from protocol.schema import MsgClass
+    target = load_target("host-link")
+    try:
+        target.fresh()
+        bench, host = target.bench, target.bench.host
+        now = bench.clock.now()
+        ping = host.submit(SCHEMA["Ping"].type(token=7), now)
+        host.poll(now)
+        [seq] = host._commands.in_flight_seqs()
+        result = SCHEMA["Result"]
+        recipe = FrameRecipe(result, int(MsgClass.COMMAND), seq, result.encode(result.type(int(Reason.OK))))
+        session, handshake = target.sender()
+        host.feed(build(recipe, session, host.session, handshake, target.ack_value(), None), now)
+        assert ping.outcome is Outcome.REJECTED and ping.reason is Reason.UNKNOWN_MESSAGE, ping.describe()
+        assert "Result in answer to Ping, which Pong answers" in ping.detail
+        bench.run_for(0.05)                                   # the controller's Pong comes, and is too late
+        assert ping.reason is Reason.UNKNOWN_MESSAGE
+        assert bench.call(SCHEMA["Ping"].type(token=8), 1.0).ok   # the session goes on
+    finally:
+        target.close()
+
+
 def test_a_planted_off_by_one_in_the_codec_is_found_minimized_and_replayed(tmp_path):
     """The codec's length check off by one (host_tools/fuzz/planted.py): found by the round-trip oracle within
     20,000 executions, shrunk to a few bytes, and `aspod fuzz --replay` says it still fails."""

@@ -26,7 +26,7 @@ from typing import Optional
 from protocol.framing import COUNTER_MAX, FLAG_AUTH, HEADER, MAX_ENCODED, MAX_PAYLOAD, TAG_SIZE, VERSION, mac_key, seal
 from protocol.link import HANDSHAKE_IDS, LinkState
 from protocol.messages import SCHEMA
-from protocol.reliable import Verdict
+from protocol.reliable import Outcome, Verdict
 from protocol.schema import MsgClass, MessageSpec
 
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, TO_HOST, Draw, FdpDraw, Words, draw_payload
@@ -286,10 +286,34 @@ class HostLinkTarget(_LinkTarget):
               "protocol/schema.py")
     specs = TO_HOST
 
+    def fresh(self) -> None:
+        super().fresh()
+        self.pings: list = []       # the last commands sent, for a test to see how they ended
+
     def one_input(self, data: bytes) -> None:
         if self.bench is not None and self.bench.host.outstanding < 4:   # commands for replies to answer
-            self.bench.host.submit(SCHEMA["Ping"].type(token=len(data)), self.bench.clock.now())
+            now = self.bench.clock.now()
+            self.pings = (self.pings + [self.bench.host.submit(SCHEMA["Ping"].type(token=len(data)), now)])[-16:]
+            self.bench.host.poll(now)   # in flight at once: a forged reply may meet it before the controller's
         super().one_input(data)
+
+    def feed(self, wire: bytes, recipe: Optional[FrameRecipe]) -> None:
+        super().feed(wire, recipe)
+        for handle in self.pings:
+            check(handle.outcome is not Outcome.SUCCEEDED or handle.reply.spec.name == "Pong",
+                  "a command succeeds only by its own reply",
+                  lambda: f"Ping ended {handle.outcome.value} by a {handle.reply.spec.name}")
+
+    def recipe(self, draw: Draw) -> FrameRecipe:
+        """The base recipe; a reply takes, one time in two, the sequence number of a command in flight (a random
+        one matches 1 in 65,536, so forged replies met no command in the first 10^7 executions)."""
+        recipe = super().recipe(draw)
+        host = self.bench.host
+        sender = {int(MsgClass.COMMAND): host._commands, int(MsgClass.URGENT): host._urgent}.get(recipe.cls)
+        seqs = sender.in_flight_seqs() if sender is not None else []
+        if seqs and draw.pick(2):
+            recipe.seq = seqs[draw.pick(len(seqs))]
+        return recipe
 
     def sender(self):
         link = self.bench.controller.link
