@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from host_tools.fuzz import planted
-from host_tools.fuzz.hangs import HangWatch
+from host_tools.fuzz.hangs import Hang, HangWatch
 from timebase import RealClock, SimClock
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -42,6 +42,23 @@ def test_an_inputs_own_time_leaves_out_what_it_waited_for_a_cpu():
         why = watch.overdue()
         assert why is not None and "11.0 s of its own time" in why and "1.0 s of it waiting for a CPU" in why
     assert watch.overdue() is None                        # ended
+
+
+def test_a_look_that_counted_a_wait_the_kernel_had_not_yet_added_does_not_leave_the_input_running_for_ever():
+    clock, waited = SimClock(), Waited(0.0)
+    watch = HangWatch(1.0, clock, waited)
+    watch.overdue()
+    with watch.input():
+        clock.sleep_until(1.01)                # the watch looks while the main thread waits on a run queue, 20 ms so
+        assert watch.look()                    # far, which the kernel adds only when the thread gets its CPU
+        assert not watch.look()                # one interrupt at a time
+        waited.value = 0.02                    # the main thread runs, interrupted: 0.99 s of its own, within its time
+        watch.interrupt()
+        clock.sleep_until(1.1)                 # the watch looks again, and this time the input is past its time
+        assert watch.look()
+        with pytest.raises(Hang, match="1.1 s of its own time"):
+            watch.interrupt()
+    assert not watch.look()                    # no input running
 
 
 def test_where_the_kernel_does_not_say_the_wall_time_counts():

@@ -14,6 +14,12 @@ the count the watch read at its latest look (every `POLL_S`, and once as it star
 and the input's start is then left out of the input's time too: a hang is found a little late, by at most that,
 never early, however long the host keeps the watch itself from looking.
 
+The watch's look is only a trigger; the interrupt, on the main thread, judges again, and that judgement decides. The
+two can differ: the kernel adds a wait to run_delay only when the waiting thread gets its CPU, so a look taken while
+the main thread sits on a run queue counts that wait as the input's own (up to 20 ms under load, measured). When the
+interrupt finds the input within its time after all, the watch is armed again and looks on; otherwise the input
+would never be interrupted, and a replayed hang would hang the replay.
+
 libFuzzer's own timeout stays as the backstop, at `backstop_s(hang_s)` of wall time, for a hang the interrupt
 cannot reach (a loop in C that never returns to Python).
 """
@@ -54,7 +60,7 @@ class HangWatch:
         self._waited_s = waited_s or (lambda: RealClock.cpu_wait_s(main_id))
         self._started: Optional[tuple[float, Optional[float]]] = None   # the running input's start, the wait then
         self._looked: Optional[float] = None       # the main thread's CPU wait at the latest look
-        self._fired = False
+        self._fired_for: Optional[tuple[float, Optional[float]]] = None   # the input the watch interrupted
         self._stop = threading.Event()
         self._thread: Optional[threading.Thread] = None
         self._previous = None
@@ -79,7 +85,6 @@ class HangWatch:
     @contextmanager
     def input(self) -> Iterator[None]:
         """Around one input: its time starts now and ends with the block."""
-        self._fired = False
         self._started = (self.clock.now(), self._looked)
         try:
             yield
@@ -108,12 +113,27 @@ class HangWatch:
 
     def _watch(self) -> None:
         while not self._stop.wait(POLL_S):
-            why = self.overdue()
-            if why is not None and not self._fired:
-                self._fired = True
+            if self.look():
                 signal.pthread_kill(threading.main_thread().ident, _SIGNAL)
 
+    def look(self) -> bool:
+        """One look of the watch: whether to interrupt the main thread now (once per input, until the interrupt
+        finds it within its time after all)."""
+        started = self._started
+        if started is None or started is self._fired_for or self.overdue() is None:
+            return False
+        self._fired_for = started
+        return True
+
+    def interrupt(self) -> None:
+        """On the main thread, interrupted by the watch: raise `Hang` if the running input is past its time, judged
+        again now (it may have ended since the watch looked, or been within its time: see the module's docstring);
+        else arm the watch again."""
+        why = self.overdue()
+        if why is None:
+            self._fired_for = None
+            return
+        raise Hang(why)
+
     def _interrupt(self, signum, frame) -> None:
-        why = self.overdue()                # judged again: the input may have ended since the watch looked
-        if why is not None:
-            raise Hang(why)
+        self.interrupt()
