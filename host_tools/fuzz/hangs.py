@@ -119,8 +119,8 @@ class HangWatch:
     def look(self) -> bool:
         """One look of the watch: whether to interrupt the main thread now (once per input, until the interrupt
         finds it within its time after all)."""
-        started = self._started
-        if started is None or started is self._fired_for or self.overdue() is None:
+        started, why = self._started, self.overdue()      # every look reads the CPU wait the next input counts from
+        if started is None or why is None or started is self._fired_for:
             return False
         self._fired_for = started
         return True
