@@ -330,7 +330,7 @@ class ArmController:
             self.hal.send_motor_command(duty, [not b for b in brake], brake)
         else:
             self._send_braked()
-        self._report_motion_ends(now)
+        self.report_motion_ends(now)
         return now + self.dt_s
 
     def _tick_bank(self, now: float, inputs: HalInputs, fb_s: float) -> list[float]:
@@ -374,7 +374,7 @@ class ArmController:
                 duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
         return duty
 
-    def _report_motion_ends(self, now: float) -> None:
+    def report_motion_ends(self, now: float) -> None:
         """Report each motion that ended since the last tick, and one a newer command replaced."""
         if [(channel.motion_id, channel.outcome) for channel in self.channels] == self._reported:
             return                          # the usual tick: nothing started or ended

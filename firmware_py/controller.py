@@ -95,8 +95,13 @@ class ControllerConfig:
     fused_joints: bool = True         # the joints' hot path fused (firmware_py/joints_tick.py); False: Axis.update
     # ... and compiled by numba (firmware_py/joints_compiled.py); default: the environment, ASPOD_COMPILED=1 (kernels/)
     compiled_joints: bool = field(default_factory=compiled_by_default)
+    # who this controller is, 8 bytes (HelloReply's controller_id; its handshake NAKs are bound to it): fixed, a
+    # restarted controller is recognised at once by its host; None: new at each start (docs/protocol_security.md)
+    controller_id: Optional[bytes] = None
 
     def __post_init__(self) -> None:
+        if self.controller_id is not None and len(self.controller_id) != 8:
+            raise ValueError(f"ControllerConfig: controller_id must be 8 bytes, not {len(self.controller_id)}")
         for name in ("comms_period_s", "hal_period_s", "arm_period_s", "health_period_s", "boot_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0")
@@ -192,7 +197,7 @@ class Controller:
         self.supervisor = Supervisor(on_change=self._state_changed)
         self.link = ControllerLink(psk, self._execute, dataclasses.replace(self.config.link,
                                    link_timeout_s=self.params["link_timeout_s"]), nonce_source=nonce_source,
-                                   on_link_lost=self._link_lost)
+                                   on_link_lost=self._link_lost, controller_id=self.config.controller_id)
         self.comms = CommsTask(self.link, uart, self.config.comms_period_s)
         self._outputs_period_s = hal.codec.cycle_time_s("CTRL_OUTPUTS") or 0.01
         self._outputs_sent = False
@@ -574,6 +579,22 @@ class Controller:
         """Every axis decelerates at its limit and holds; accepted in any state."""
         self.arm.stop_all(now)
         return M["Result"](int(Reason.OK))
+
+    # ---- the session's end ----
+    @handles("Close")
+    def _close(self, msg: Message, now: float) -> Message:
+        """The host's clean end: every motion stopped, outputs off and brakes on as in the safe state but with no
+        fault (ENABLED becomes IDLE; a latched fault stays), the motions' ends and SessionClosed sent in this
+        session, and the session left to linger for the host's last acknowledgements (`ControllerLink.close_session`).
+        The next session starts at the parameter's telemetry rate."""
+        sup = self.supervisor
+        sup.close_session(now)
+        self.arm.report_motion_ends(now)
+        self.telemetry_hz = int(self.params["telemetry_hz"])
+        self._report(M["SessionClosed"](msg.why, int(sup.state), int(sup.faults), self.uptime_ms(now)))
+        self.link.close_session()
+        return M["Closed"](int(Reason.OK), int(sup.state), int(sup.faults), self.link.last_event_seq,
+                           int(self.link.config.link_timeout_s * 1000))
 
     # ---- the solar tracker's control box and the clock ----
     def _box_state(self, reason: Reason) -> Message:

@@ -100,6 +100,15 @@ class Supervisor:
             self._set(ControllerState.IDLE, Reason.HOST_REQUEST, now)
         return Reason.OK
 
+    def close_session(self, now: float) -> None:
+        """The host closed its session: every hook runs (motion stopped, outputs off, brakes on) as in the safe
+        state, but nothing is latched; ENABLED becomes IDLE (reason SESSION_CLOSED), a latched FAULT or ESTOP
+        stays as it is (a close is no reset)."""
+        for _name, hook in self._hooks:
+            hook()
+        if self.state is ControllerState.ENABLED:
+            self._set(ControllerState.IDLE, Reason.SESSION_CLOSED, now)
+
     def estop(self, now: float) -> Reason:
         self.enter_safe_state(Fault.ESTOP, now, Reason.HOST_REQUEST)
         return Reason.OK

@@ -30,6 +30,8 @@ KEY_BYTES = 32
 KEY_FILE_LIMIT = 4 * files.KIB   # a key is 64 hex digits; room for comment lines, not for a mistaken file
 MIN_KEY_BYTES = 16
 NONCE_BYTES = 16
+CONTROLLER_ID_BYTES = 8
+COOKIE_BYTES = 8
 TO_CONTROLLER = b"h2c"
 TO_HOST = b"c2h"
 
@@ -59,6 +61,20 @@ def session_keys(psk: bytes, host_nonce: bytes, controller_nonce: bytes, is_cont
     c2h = _derive(psk, b"session/" + TO_HOST + nonces)
     c2h, h2c = MacKey(c2h), MacKey(h2c)
     return DirectionKeys(tx=c2h, rx=h2c) if is_controller else DirectionKeys(tx=h2c, rx=c2h)
+
+
+def nak_key(psk: bytes, controller_id: bytes) -> MacKey:
+    """The key a controller signs its handshake NAKs with (`Nak(NO_SESSION)` and friends, sent with no session):
+    bound to its identity, so that a host believes only its own session's controller when it says it has no
+    session. Another controller holding the same key answers under another identity, whose NAKs do not verify."""
+    return MacKey(_derive(psk, b"nak/" + TO_HOST + controller_id))
+
+
+def hello_cookie(secret: bytes, host_nonce: bytes, epoch: int) -> bytes:
+    """The cookie a controller gives a Hello's nonce in time slot `epoch`: an HMAC under a secret of its own, so it
+    keeps no state for the Hellos it has only answered with a cookie (as TCP's SYN cookies, DTLS's
+    HelloVerifyRequest, RFC 6347 4.2.1, and IKEv2's COOKIE, RFC 7296 2.6)."""
+    return hmac.digest(secret, b"aspod/v1/cookie" + host_nonce + epoch.to_bytes(8, "little", signed=True), "sha256")[:COOKIE_BYTES]
 
 
 def new_nonce() -> bytes:

@@ -9,6 +9,12 @@ called when a session has seen no valid frame for `link_timeout_s`.
 Handshake answers are bounded, because a Hello signed with the handshake key can be
 recorded and played back at any rate (docs/protocol_security.md):
 
+- a Hello must echo a fresh cookie: one without is answered only with a `HelloCookie`, made
+  statelessly from its nonce and the time (`auth.hello_cookie`, valid 4 to 8 s), at most
+  `COOKIE_RATE_PER_S` a second, `MAX_WAITING_COOKIES` waiting; the nonce given fewest cookies so
+  far goes first and the one given most leaves when the list is full (ties broken by a keyed
+  hash the attacker cannot predict), so recordings played back again lose to a new host; a
+  recorded Hello's cookie is stale by then, so recordings never wait for a session;
 - a Hello whose nonce already opened a session that a host adopted is a replay: counted,
   never answered (the last `COMPLETED_MEMORY` such nonces are remembered);
 - the Hellos to answer wait in a short list, one per nonce (`MAX_WAITING_HELLOS`); a nonce
@@ -22,6 +28,14 @@ recorded and played back at any rate (docs/protocol_security.md):
   answering its Hello again does not extend that, so recordings played back cannot hold
   the places for ever.
 
+A session ends with the host's `Close` (`close_session`, called by the controller's handler):
+no more telemetry, heartbeats or watchdog; the session stays only for the host's last
+acknowledgements and a repeated Close (its cached `Closed`), and is forgotten when every
+event is acknowledged or after the link timeout (the linger). Other commands in it are
+refused (`SESSION_CLOSED`). The controller's handshake NAKs (with no session) are signed
+with a key bound to its identity (`auth.nak_key`, `controller_id` in HelloReply), so that
+another controller holding the same key cannot end this one's session.
+
 Events survive fades and new sessions: those a session did not acknowledge are offered
 again in the next one, behind an `EventsCarriedOver` event that says how many of them an
 earlier host was sent (it may have seen them, its acknowledgement lost) and how many were
@@ -29,6 +43,7 @@ lost for want of room (`MAX_UNDELIVERED_EVENTS`).
 """
 from __future__ import annotations
 
+import hmac
 import itertools
 import math
 from collections import OrderedDict
@@ -38,11 +53,11 @@ from typing import Callable, Optional
 from protocol import auth
 from protocol.errors import ParseError
 from protocol.framing import Frame
-from protocol.link import (HELLO_ID, HELLO_REPLY_ID, PRIO_HEARTBEAT, PRIO_RELIABLE, PRIO_TELEMETRY, PRIO_URGENT,
+from protocol.link import (HELLO_ID, HELLO_REPLY_ID, NAK_ID, PRIO_HEARTBEAT, PRIO_RELIABLE, PRIO_TELEMETRY, PRIO_URGENT,
                            LinkConfig, LinkEndpoint, LinkState, Session, TokenBucket, _Outgoing)
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
-from protocol.reliable import Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
+from protocol.reliable import SEQ_MOD, Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
 from protocol.schema import Message, MsgClass, Schema
 
 CommandHandler = Callable[[Message, bool, float], Message]
@@ -54,6 +69,12 @@ HELLO_BURST = 2               # HelloReplies at once before `hello_rate_per_s` h
 HELLO_MEMORY = 256            # nonces answered, with how often (the least often answered goes first)
 COMPLETED_MEMORY = 256        # nonces of adopted sessions: a Hello bearing one is a replay
 MAX_UNDELIVERED_EVENTS = 64   # events kept for the next session
+VOUCH_KEY_OR_RECORDING, VOUCH_KEY, VOUCH_LIVE_SESSION = 1, 2, 3     # `vouch`: what a frame proves of its sender
+COOKIE_EPOCH_S = 4.0          # a cookie is valid in the slot of this length it was made in and the next one
+COOKIE_RATE_PER_S = 64.0      # HelloCookie answers a second (a flood at the whole line rate is about 180 Hellos)
+COOKIE_BURST = 8
+MAX_WAITING_COOKIES = 8       # Hellos waiting for a HelloCookie, one per nonce
+COOKIE_MEMORY = 1024          # nonces given cookies, with how often (the least often goes first, the most often leaves)
 CARRIED_OVER = SCHEMA["EventsCarriedOver"]
 
 
@@ -78,8 +99,20 @@ class ControllerLink(LinkEndpoint):
     def __init__(self, psk: bytes, handler: CommandHandler, config: Optional[LinkConfig] = None,
                  schema: Schema = SCHEMA, nonce_source: Callable[[], bytes] = auth.new_nonce,
                  on_link_lost: Callable[[float], None] = lambda now: None,
-                 on_session: Callable[[float], None] = lambda now: None) -> None:
+                 on_session: Callable[[float], None] = lambda now: None,
+                 controller_id: Optional[bytes] = None) -> None:
         super().__init__(psk, config, schema, nonce_source)
+        # who this controller is (HelloReply): given, or new at each start; its handshake NAKs are bound to it
+        self.controller_id = controller_id if controller_id is not None else self._nonce()[:auth.CONTROLLER_ID_BYTES]
+        if len(self.controller_id) != auth.CONTROLLER_ID_BYTES:
+            raise ValueError(f"controller_id must be {auth.CONTROLLER_ID_BYTES} bytes")
+        self._nak_tx = auth.nak_key(psk, self.controller_id)
+        self._cookie_secret = self._nonce()
+        self._cookies: "OrderedDict[bytes, tuple[int, bytes]]" = OrderedDict()   # waiting: nonce -> (order, tie)
+        self._cookied: "OrderedDict[bytes, int]" = OrderedDict()      # nonce -> cookies given it
+        self._cookie_answers = TokenBucket(COOKIE_RATE_PER_S, COOKIE_BURST)
+        self._closing_since: Optional[float] = None     # CLOSING: when the linger began (None: at the next poll)
+        self._seen_s = 0.0                               # the link's time at its last feed or poll (`vouch`)
         self._handler = handler
         self._on_link_lost = on_link_lost
         self._on_session = on_session
@@ -120,6 +153,9 @@ class ControllerLink(LinkEndpoint):
             self.stats.replays += 1
             self.stats.count(Reason.REPLAY)
             return
+        if not self._cookie_fresh(nonce, hello.cookie, now):
+            self._offer_cookie(nonce)
+            return
         answered = self._answered.get(nonce)
         if nonce in self._waiting or (answered is not None and now - answered[1] < HELLO_REANSWER_S):
             self.stats.hellos_dropped += 1
@@ -137,6 +173,72 @@ class ControllerLink(LinkEndpoint):
             del self._waiting[max(self._waiting.values(), key=self._hello_rank).host_nonce]
             self.stats.hellos_dropped += 1
         self.on_work()
+
+    def _cookie_fresh(self, host_nonce: bytes, cookie: bytes, now: float) -> bool:
+        """Whether `cookie` is the one this controller gave `host_nonce` in this time slot or the last."""
+        epoch = math.floor(now / COOKIE_EPOCH_S)
+        return any(hmac.compare_digest(cookie, auth.hello_cookie(self._cookie_secret, host_nonce, e))
+                   for e in (epoch, epoch - 1))
+
+    def _offer_cookie(self, host_nonce: bytes) -> None:
+        """Queue a HelloCookie for `host_nonce` (once while it waits); when the list is full, the nonce given most
+        cookies so far leaves it (a tie: by a keyed hash of the nonce, which no one outside can predict)."""
+        if host_nonce in self._cookies:
+            return
+        tie = hmac.digest(self._cookie_secret, b"tie" + host_nonce, "sha256")[:4]
+        self._cookies[host_nonce] = (next(self._arrivals), tie)
+        if len(self._cookies) > MAX_WAITING_COOKIES:
+            del self._cookies[max(self._cookies, key=lambda n: (self._cookied.get(n, 0), self._cookies[n][1]))]
+            self.stats.hellos_dropped += 1
+        self.on_work()
+
+    def _answer_cookie(self, now: float) -> Optional[bytes]:
+        """The HelloCookie to send now, signed, to the nonce given fewest so far (then the first come); None if
+        none waits or the rate says not yet."""
+        if not self._cookies or not self._cookie_answers.take(now):
+            return None
+        host_nonce = min(self._cookies, key=lambda n: (self._cookied.get(n, 0), self._cookies[n][0]))
+        del self._cookies[host_nonce]
+        self._cookied[host_nonce] = self._cookied.pop(host_nonce, 0) + 1
+        if len(self._cookied) > COOKIE_MEMORY:
+            self._cookied.popitem(last=False)
+        spec = SCHEMA["HelloCookie"]
+        cookie = auth.hello_cookie(self._cookie_secret, host_nonce, math.floor(now / COOKIE_EPOCH_S))
+        return self._sign(_Outgoing(MsgClass.LINK, 0, spec.id, spec.encode(spec.type(host_nonce, cookie)),
+                                    handshake=True), now)
+
+    def vouch(self, frame: Frame) -> int:
+        """What a frame seen on a connection that does not hold the line yet says of its sender, for a port that
+        admits connections (host_tools/worlds/ports.py `TcpServerPort`); nothing changes here. 3: a new frame of the
+        live session (its host); 2: a new frame of a pending session, or a Hello with a fresh cookie (a host that
+        holds the key now); 1: a Hello that verifies (the key, or a recording of it); 0: nothing. At the time of
+        the link's last `feed` or `poll`."""
+        if frame.counter is None:
+            return 0
+        session = self.session
+        if session is not None and frame.counter > session.rx_counter and frame.verify(session.keys.rx):
+            return VOUCH_LIVE_SESSION
+        if frame.msg_id == HELLO_ID:
+            if not frame.verify(self._handshake.rx):
+                return 0
+            try:
+                hello = self.schema.decode(frame.msg_id, frame.payload)
+            except ParseError:
+                return VOUCH_KEY_OR_RECORDING
+            fresh = hello.host_nonce not in self._completed and \
+                self._cookie_fresh(hello.host_nonce, hello.cookie, self._seen_s)
+            return VOUCH_KEY if fresh else VOUCH_KEY_OR_RECORDING
+        if any(frame.counter > p.session.rx_counter and frame.verify(p.session.keys.rx)
+               for p in self._pending.values()):
+            return VOUCH_KEY
+        return 0
+
+    def feed(self, data: bytes, now: float) -> None:
+        self._seen_s = now
+        super().feed(data, now)
+
+    def _handshake_tx_key(self, msg_id: int):
+        return self._nak_tx if msg_id == NAK_ID else self._handshake.tx
 
     def _hello_rank(self, hello: _Hello) -> tuple[int, int]:
         """Who is answered first: the nonce answered least often, then the earliest."""
@@ -159,7 +261,7 @@ class ControllerLink(LinkEndpoint):
             self._answered.popitem(last=False)
         reply = SCHEMA["HelloReply"].type(
             int(hello.result), PROTOCOL_VERSION, self.schema.hash, hello.host_nonce, controller_nonce,
-            int(self.config.link_timeout_s * 1000), int(self.config.heartbeat_s * 1000))
+            int(self.config.link_timeout_s * 1000), int(self.config.heartbeat_s * 1000), self.controller_id)
         return self._sign(_Outgoing(MsgClass.LINK, 0, HELLO_REPLY_ID, SCHEMA["HelloReply"].encode(reply),
                                     handshake=True), now)
 
@@ -185,16 +287,20 @@ class ControllerLink(LinkEndpoint):
         return pending
 
     def _hellos_ready_s(self) -> float:
-        """When a waiting Hello may next be answered (inf: none waits)."""
+        """When a waiting Hello may next be answered, with a HelloReply or a HelloCookie (inf: none waits)."""
+        ready = self._cookie_answers.ready_s() if self._cookies else math.inf
         if not self._waiting:
-            return math.inf
-        return max(self._hello_answers.ready_s(), min(self._may_answer_s(h) for h in self._waiting.values()))
+            return ready
+        return min(ready, max(self._hello_answers.ready_s(),
+                              min(self._may_answer_s(h) for h in self._waiting.values())))
 
     def take_frame(self, now: float, telemetry: bool = True) -> Optional[bytes]:
         """`LinkEndpoint.take_frame`, with the answers to Hellos after the session's replies and events."""
         wire = self._take_from(self._before_hellos, now)
         if wire is None and self._waiting:
             wire = self._answer_hello(now)
+        if wire is None and self._cookies:
+            wire = self._answer_cookie(now)
         if wire is None:
             wire = self._take_from(self._after_hellos if telemetry else self._after_hellos_no_telemetry, now)
         return wire
@@ -221,6 +327,7 @@ class ControllerLink(LinkEndpoint):
             self._completed.popitem(last=False)
         self.session = session
         self.state = LinkState.UP
+        self._closing_since = None
         self._new_channels()
         self._carry_over_events()
         self._next_heartbeat_s = None
@@ -265,6 +372,9 @@ class ControllerLink(LinkEndpoint):
         receiver = self._commands if cls == MsgClass.COMMAND else self._urgent
         prio = PRIO_RELIABLE if cls == MsgClass.COMMAND else PRIO_URGENT
         verdict = receiver.classify(frame.seq)
+        if verdict is not Verdict.DUPLICATE and self.state is LinkState.CLOSING:
+            self._refuse(frame, Reason.SESSION_CLOSED, now, expected=receiver.expected)   # its Close came first
+            return
         if verdict is Verdict.GAP:
             if receiver.should_nak_gap():
                 self._refuse(frame, Reason.SEQUENCE_GAP, now, expected=receiver.expected)
@@ -311,7 +421,42 @@ class ControllerLink(LinkEndpoint):
     def quiet(self) -> bool:
         return self.link_lost   # nobody is listening: do not fill the line with heartbeats
 
+    # ---- the session's end ----
+    @property
+    def last_event_seq(self) -> int:
+        """The sequence number the last event submitted in this session has or will have."""
+        return (self._events.next_seq + self._events.waiting - 1) % SEQ_MOD
+
+    def close_session(self) -> None:
+        """The host's Close was executed: the session says nothing more of its own (no telemetry, heartbeats or
+        watchdog) and lingers, for the host's last acknowledgements and a repeated Close, until every event is
+        acknowledged or the link timeout has passed (from the next `poll`); then it is forgotten."""
+        if self.session is not None:
+            self.state = LinkState.CLOSING
+            self._closing_since = None
+            for periodic in self._after_hellos:      # heartbeats and telemetry queued before the Close: not sent
+                periodic.clear()
+
+    def _linger_over(self, now: float) -> bool:
+        if self._closing_since is None:
+            self._closing_since = now
+        replies_out = not (self._queues[PRIO_URGENT] or self._queues[PRIO_RELIABLE])
+        return (replies_out and self._events.outstanding == 0) or now - self._closing_since >= self.config.link_timeout_s
+
+    def _forget_session(self) -> None:
+        """The closed session is gone: the events its host did not acknowledge wait for the next one."""
+        self._undelivered.extend(self._events.take_failed())
+        self._keep_undelivered()
+        self.session = None
+        self.state = LinkState.NO_SESSION
+        self._closing_since = None
+        self._new_channels()
+
     # ---- events and timers ----
+    def send_telemetry(self, msg: Message) -> None:
+        if self.state is not LinkState.CLOSING:
+            super().send_telemetry(msg)
+
     def send_event(self, msg: Message) -> None:
         """Queue an event for reliable delivery (kept across sessions until delivered)."""
         spec = msg.spec
@@ -330,11 +475,15 @@ class ControllerLink(LinkEndpoint):
         if self._events.suspended:
             return -math.inf
         timer = min(timer, self._events.next_due_s())
+        if self.state is LinkState.CLOSING:
+            return -math.inf if self._closing_since is None else \
+                min(timer, self._closing_since + self.config.link_timeout_s)
         if self.last_valid_rx_s is not None and not self.link_lost:
             timer = min(timer, self.last_valid_rx_s + self.config.link_timeout_s)
         return timer
 
     def poll(self, now: float) -> None:
+        self._seen_s = now
         super().poll(now)
         if self.session is None:
             return
@@ -346,6 +495,10 @@ class ControllerLink(LinkEndpoint):
         self.stats.retransmits = self._events.retransmits
         if self._events.rtt.srtt_s is not None:
             self.stats.srtt_us = int(self._events.rtt.srtt_s * 1e6)
+        if self.state is LinkState.CLOSING:
+            if self._linger_over(now):
+                self._forget_session()
+            return
         if self.last_valid_rx_s is not None and now - self.last_valid_rx_s > self.config.link_timeout_s:
             if not self.link_lost:
                 self.link_lost = True

@@ -7,7 +7,8 @@ when the committed file differs from what this prints.
 from __future__ import annotations
 
 from protocol import auth, framing
-from protocol.controller_link import (HELLO_REANSWER_S, MAX_PENDING_SESSIONS, MAX_UNDELIVERED_EVENTS, MAX_WAITING_HELLOS,
+from protocol.controller_link import (COOKIE_EPOCH_S, COOKIE_RATE_PER_S, HELLO_REANSWER_S, MAX_PENDING_SESSIONS,
+                                      MAX_UNDELIVERED_EVENTS, MAX_WAITING_COOKIES, MAX_WAITING_HELLOS,
                                       PENDING_MIN_LIFE_S)
 from protocol.host_link import SENT_TAGS
 from protocol.link import NAK_TAG_BYTES, LinkConfig
@@ -65,19 +66,27 @@ least 16 bytes). Without one, `aspod sim` creates a development key at
 `$XDG_CONFIG_HOME/aspod/dev.key` (default `~/.config/aspod/dev.key`, mode 0600) and the
 host tools default to the same file.
 
-1. The host sends `Hello` with its protocol version, its schema hash and a fresh 16-byte
-   nonce, signed with the handshake key `HMAC(psk, "aspod/v1/handshake/h2c")`.
-2. The controller answers `HelloReply` (handshake key `.../c2h`) echoing the host nonce,
-   with its own fresh nonce, or with `SCHEMA_MISMATCH` / `UNSUPPORTED_VERSION` and both
-   hashes and versions, so a mismatch is refused by name rather than read as noise.
-3. Both derive per-direction session keys `HMAC(psk, "aspod/v1/session/<dir>" | host
+1. The host sends `Hello` with its protocol version, its schema hash, a fresh 16-byte
+   nonce and a zero cookie, signed with the handshake key `HMAC(psk, "aspod/v1/handshake/h2c")`.
+2. The controller answers a `Hello` without a fresh cookie with `HelloCookie` (handshake key
+   `.../c2h`): the nonce and an {auth.COOKIE_BYTES}-byte cookie, `HMAC(secret, "aspod/v1/cookie" | nonce |
+   slot)` under a secret of its own, the slot being its time in {COOKIE_EPOCH_S:g} s steps (signed 64-bit
+   little-endian); it keeps nothing for it. The host sends its `Hello` again at once with that cookie.
+3. The controller answers a `Hello` whose cookie is that of its nonce in the present slot or the last
+   one (so {COOKIE_EPOCH_S:g} to {2 * COOKIE_EPOCH_S:g} s old at most) with `HelloReply`, echoing the host nonce,
+   with its own fresh nonce and its identity (`controller_id`), or with `SCHEMA_MISMATCH` /
+   `UNSUPPORTED_VERSION` and both hashes and versions, so a mismatch is refused by name rather than
+   read as noise.
+4. Both derive per-direction session keys `HMAC(psk, "aspod/v1/session/<dir>" | host
    nonce | controller nonce)`. The controller keeps the new session *pending* and
    adopts it when the first frame signed with its key arrives (the host sends a
    `Heartbeat` at once), so a replayed `Hello` cannot displace a live session.
 
 A `Hello` can be recorded and played back, so the controller bounds its answers: a
 `Hello` whose nonce opened a session a host adopted is a replay (counted, never
-answered); a nonce is answered at most once in {HELLO_REANSWER_S:g} s; the answers go out at
+answered); a recorded `Hello`'s cookie is stale, so it gets only a `HelloCookie` (at most
+{COOKIE_RATE_PER_S:g} a second, {MAX_WAITING_COOKIES} waiting, the nonce given fewest cookies first and the one given
+most dropped when they are full) and never waits for a session; a nonce is answered at most once in {HELLO_REANSWER_S:g} s; the answers go out at
 most {LinkConfig.hello_rate_per_s:g} a second, after the live session's replies and events, the nonce
 answered least often first; at most {MAX_WAITING_HELLOS} wait, and at most {MAX_PENDING_SESSIONS} sessions are
 pending, none evicted within {PENDING_MIN_LIFE_S:g} s of its answer. A host that is up therefore keeps its round trip
@@ -90,12 +99,37 @@ committed only after the MAC verifies, so a forged frame with a huge counter can
 block genuine traffic. A frame recorded in an earlier session fails the MAC in a new
 one, whichever end restarted; keys differ per direction, so a frame reflected back to
 its sender fails too. A controller that has no session answers frames with
-`NO_SESSION`, signed with the handshake key; a host that receives such a NAK while up
-starts a new session (its unanswered commands end `FAILED`/`SESSION_RESET`). Since such
-a NAK could be recorded and played back, every NAK echoes the first {NAK_TAG_BYTES} bytes of the
-refused frame's tag (`refused_tag`), and a host that is up believes a handshake NAK only
-if that is the tag of one of the last {SENT_TAGS} frames it sent in this session; any other
-is counted as a replay and ignored ([protocol_security.md](protocol_security.md)).
+`NO_SESSION`, signed with its *NAK key* `HMAC(psk, "aspod/v1/nak/c2h" | controller_id)`; a
+host that receives such a NAK while up starts a new session (its unanswered commands end
+`FAILED`/`SESSION_RESET`). It verifies it under the NAK key of the `controller_id` its
+`HelloReply` named, so that another controller holding the same key, shown a copy of the
+host's frame, cannot end the session. Since such a NAK could be recorded and played back,
+every NAK echoes the first {NAK_TAG_BYTES} bytes of the refused frame's tag (`refused_tag`), and a host
+that is up believes a handshake NAK only if that is the tag of one of the last {SENT_TAGS} frames it
+sent in this session; any other is counted as a replay and ignored
+([protocol_security.md](protocol_security.md)).
+
+## Closing a session
+
+A host that is done sends `Close` (a command: in order after every command it sent before,
+exactly once). The controller stops every motion and goes to its safe state without a fault
+(outputs off, brakes on; ENABLED becomes IDLE; a latched FAULT or ESTOP stays latched: a close
+is no reset), starts the next session's telemetry at the parameter's rate, sends the motions'
+`MotionDone`s and `SessionClosed` (the session's last event), and answers `Closed` with the state,
+the faults, `last_event_seq` (the `SessionClosed`'s sequence number) and `linger_ms`. From then on
+the session sends no telemetry or heartbeat, has no link watchdog, and refuses every new command
+or urgent request with `Nak(SESSION_CLOSED)`; a `Close` sent again is a duplicate, answered with
+the cached `Closed`. It lingers for the host's acknowledgements: when every event is acknowledged
+(and the `Closed` is out), or after `linger_ms` (the link timeout), the controller forgets it.
+Events the host never acknowledged wait for the next session, as after any session.
+
+The host waits for `Closed` and for every event up to `last_event_seq`, acknowledges them (an
+`Ack`) and leaves. If the controller has already forgotten the session (its `Closed` was lost),
+the host's repeated `Close` gets a `Nak(NO_SESSION)` under the controller's NAK key echoing its tag,
+or a `Nak(SESSION_CLOSED)`, and the host takes either as the end. A host that leaves without a
+`Close` (killed, or its line cut) is a lost link: the controller latches `LINK_LOST` after the
+link timeout. `why` says why the host closes (`CloseWhy`): `DONE`, `STOPPED` (a signal),
+`ERROR`.
 
 ## Classes and delivery
 
@@ -218,11 +252,12 @@ is HMAC-SHA256 with that key, truncated to {framing.TAG_SIZE} bytes.
 
 **Counters.** Each direction of a session starts afresh with its new keys: the first frame may carry
 any counter (0 will do), each later one a larger one, little-endian in its {framing.COUNTER_SIZE} bytes. The
-handshake frames (`Hello`, `HelloReply`, and a `Nak` signed with the handshake key) are not
-counter-checked (a replayed `Hello` is defeated by the nonces, `protocol_security.md`); the controller's
+handshake frames (`Hello`, `HelloCookie`, `HelloReply`, and a `Nak` signed with the controller's NAK key)
+are not counter-checked (a replayed `Hello` is defeated by the nonces, `protocol_security.md`); the controller's
 handshake counter runs on for its whole life, so its `HelloReply` counters are not 1 in each session.
 
-**`seq` and `ack` of LINK frames.** `Hello`, `HelloReply`, `Heartbeat`, `Ack` and `Nak` carry `seq` 0,
+**`seq` and `ack` of LINK frames.** `Hello`, `HelloCookie`, `HelloReply`, `Heartbeat`, `Ack` and `Nak` carry
+`seq` 0,
 and a receiver ignores it. The `ack` field of a session frame is the last number its sender received in
 order from the peer's reliable stream: the host acknowledges events, the controller commands (urgent
 requests are answered, not acknowledged). A handshake frame belongs to no session and carries
@@ -233,11 +268,14 @@ carries the ack) at once; the controller resends an event after its retransmissi
 **The schema hash** in `Hello` and `HelloReply` is a `u64`: the number shown in the header of this
 document, packed little-endian like every field.
 
-**Timing.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s until a `HelloReply` comes;
+**Timing.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s until a `HelloReply` comes, and at
+once with the cookie of each `HelloCookie` for its nonce (an echo, not counted among its
+{LinkConfig.hello_tries} tries);
 both ends send a `Heartbeat` when they have sent nothing for {LinkConfig.heartbeat_s:g} s; the
 controller takes its safe state (LINK_LOST) after {LinkConfig.link_timeout_s:g} s without a valid frame
-(the parameter `link_timeout_s`). There is no goodbye: a host that leaves is a lost link, and the next
-host finds the controller in FAULT with LINK_LOST latched and sends `Reset` before `Enable`.
+(the parameter `link_timeout_s`). A host that leaves closes its session (`Close`, above): the next host
+finds the controller IDLE. A host that leaves without a `Close` is a lost link, and the next host finds the
+controller in FAULT with LINK_LOST latched and sends `Reset` before `Enable`.
 
 **Motion ids are per axis**: each axis numbers its motions from 1, so a `MotionDone` is matched on
 `axis` and `motion_id` together. `Home` with axis all starts one motion per axis, named in

@@ -12,6 +12,18 @@ session is up the host acts on one (a new handshake) only if it echoes the tag o
 the host sent in this session (it keeps the last `SENT_TAGS`); any other is a replay,
 counted and ignored.
 
+The controller's handshake NAKs are signed with a key bound to its identity (`controller_id` in its
+HelloReply, `auth.nak_key`): a NAK made by another controller that holds the key, for a frame copied to
+it, does not verify here.
+
+Every Hello is answered first with a `HelloCookie`, which the host echoes in a second Hello at once (the
+controller answers only Hellos with a fresh cookie: recordings never wait for a session).
+
+`close(now, why)` ends the session cleanly: a `Close` after every command already submitted; the
+state is CLOSING until the controller's `Closed` and every event up to its `last_event_seq` have come,
+then CLOSED (the last acknowledgement queued). A host that goes silent without a Close is a lost link
+to the controller, latched as a fault.
+
 Events come to `on_event(msg, now)` once each. An `EventsCarriedOver(count)` says that the
 next `count` were sent to an earlier session, whose host may have seen them (its
 acknowledgement lost); while `on_event` handles one of those,
@@ -26,12 +38,13 @@ from typing import Callable, Optional
 from protocol import auth
 from protocol.errors import EncodeError, ParseError
 from protocol.framing import Frame
-from protocol.link import (HELLO_REPLY_ID, NAK_TAG_BYTES, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint,
+from protocol.link import (HELLO_COOKIE_ID, HELLO_REPLY_ID, NAK_TAG_BYTES, PRIO_RELIABLE, PRIO_URGENT, LinkConfig, LinkEndpoint,
                            LinkState, Session)
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
-from protocol.reliable import Outcome, Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict
+from protocol.reliable import Outcome, Pending, ReliableReceiver, ReliableSender, RttEstimator, Verdict, seq_delta
 from protocol.schema import Message, MessageSpec, MsgClass, Schema
+from protocol.states import CloseWhy
 
 SENT_TAGS = 64    # tags of the last frames sent in this session that a handshake NAK may echo
 
@@ -87,6 +100,32 @@ class Refusal:
     detail: str
 
 
+@dataclass
+class HandshakeSeen:
+    """What a connect attempt heard (to say why a handshake did not complete): handshake frames that verified
+    under this key (answers to this host's Hellos, or to others'), and this host's cookies."""
+
+    verified: int = 0          # HelloReply and HelloCookie frames that verified, whoever they answer
+    for_others: int = 0        # ... of which answered another host's Hello
+    cookies: int = 0           # HelloCookie answers to this host's nonce
+
+    def why_not_up(self, hellos: int, auth_errors: int, bytes_rx: int) -> str:
+        """Why a connect found no session, as far as the line shows it."""
+        if bytes_rx == 0:
+            return f"nothing came back to {hellos} Hello frame(s): no controller answers on this line"
+        if self.verified == 0 and auth_errors:
+            return (f"{auth_errors} frame(s) came and none verifies under this key: the two ends have different keys "
+                    "(--key-file)")
+        if self.cookies:
+            return (f"the controller answered {self.cookies} of {hellos} Hello frame(s) with a cookie but not with a "
+                    f"session ({self.for_others} answers to other hosts' Hellos seen): the line or the controller is "
+                    "busy (a flood of Hellos?)")
+        if self.for_others:
+            return (f"the controller answered {self.for_others} other Hello(s) but none of this host's {hellos}: "
+                    "the line is busy (a flood of recorded Hellos, or other hosts connecting)")
+        return f"no answer to {hellos} Hello frame(s) (frames came, none a handshake answer)"
+
+
 class HostLink(LinkEndpoint):
     is_controller = False
 
@@ -102,6 +141,11 @@ class HostLink(LinkEndpoint):
         self.last_telemetry: Optional[Message] = None
         self.peer_stats_s: Optional[float] = None          # when the peer's last Heartbeat arrived
         self.sessions_started = 0
+        self.handshake_seen = HandshakeSeen()
+        self.closed: Optional[Message] = None             # the controller's Closed, once the close is answered
+        self._close: Optional[CommandHandle] = None
+        self._nak_rx = None                               # the key of this session's controller's handshake NAKs
+        self._cookie = bytes(auth.COOKIE_BYTES)
         self._hello_nonce: Optional[bytes] = None
         self._hello_due_s: Optional[float] = None
         self._hello_tries = 0
@@ -129,27 +173,43 @@ class HostLink(LinkEndpoint):
         self._sent_tags.clear()
         self.session = None
         self.refusal = None
+        self.closed, self._close, self._nak_rx = None, None, None
+        self.handshake_seen = HandshakeSeen()
         self.state = LinkState.CONNECTING
         self._hello_nonce = self._nonce()
+        self._cookie = bytes(auth.COOKIE_BYTES)
         self._hello_tries = 0
         self._hello_due_s = now
         self.on_work()
 
-    def _send_hello(self, now: float) -> None:
-        self._hello_tries += 1
+    @property
+    def hellos_sent(self) -> int:
+        return self._hello_tries
+
+    def _send_hello(self, now: float, count: bool = True) -> None:
+        """Send the Hello (again); `count`: it uses up one of `hello_tries` (not the echo of a fresh cookie)."""
+        self._hello_tries += count
         self._hello_due_s = now + self.config.initial_rto_s
-        hello = SCHEMA["Hello"].type(PROTOCOL_VERSION, self.schema.hash, self._hello_nonce)
+        hello = SCHEMA["Hello"].type(PROTOCOL_VERSION, self.schema.hash, self._hello_nonce, self._cookie)
         self._queue(PRIO_URGENT, MsgClass.LINK, 0, SCHEMA["Hello"].id, SCHEMA["Hello"].encode(hello),
                     handshake=True)
 
     def _handle_handshake(self, frame: Frame, now: float) -> None:
-        if frame.msg_id != HELLO_REPLY_ID:
+        if frame.msg_id not in (HELLO_REPLY_ID, HELLO_COOKIE_ID):
             return
         reply = self._decode(frame)
         if reply is None:
             return
+        self.handshake_seen.verified += 1
         if self.state is not LinkState.CONNECTING or reply.host_nonce != self._hello_nonce:
+            self.handshake_seen.for_others += 1
             self.stats.replays += 1   # an answer to some other Hello: stale or replayed
+            return
+        if frame.msg_id == HELLO_COOKIE_ID:
+            self.handshake_seen.cookies += 1
+            if reply.cookie != self._cookie:
+                self._cookie = reply.cookie
+                self._send_hello(now, count=False)     # at once: the cookie is valid for seconds only
             return
         self.controller_info = reply
         self._hello_due_s = None
@@ -162,6 +222,7 @@ class HostLink(LinkEndpoint):
             return
         self.session = Session(auth.session_keys(self._psk, reply.host_nonce, reply.controller_nonce, False),
                                reply.host_nonce, reply.controller_nonce)
+        self._nak_rx = auth.nak_key(self._psk, reply.controller_id)
         self.state = LinkState.UP
         self.sessions_started += 1
         # speak at least three times within the controller's link timeout, whatever ours says
@@ -175,7 +236,7 @@ class HostLink(LinkEndpoint):
         anything else is a recorded NAK played back, which must not end a live session.
         """
         super()._handle_handshake_nak(frame, now)
-        if self.state is not LinkState.UP:
+        if self.state not in (LinkState.UP, LinkState.CLOSING):
             return
         nak = self._decode(frame)
         if nak is None:
@@ -184,7 +245,14 @@ class HostLink(LinkEndpoint):
             self.stats.replays += 1
             self.stats.count(Reason.REPLAY)
             return
-        self.connect(now)
+        if self.state is LinkState.CLOSING:
+            self._closed(now)       # the controller has forgotten the session (it closed it; the answer was lost)
+        else:
+            self.connect(now)
+
+    def _verifies_handshake_nak(self, frame: Frame) -> bool:
+        """Only this session's controller's handshake NAKs are believed (signed under its identity's key)."""
+        return self._nak_rx is not None and frame.verify(self._nak_rx)
 
     def _sent_in_session(self, tag: bytes) -> None:
         self._sent_tags.append(tag[:NAK_TAG_BYTES])
@@ -207,7 +275,8 @@ class HostLink(LinkEndpoint):
             return handle
         if self.state is not LinkState.UP:
             reason = Reason.LINK_SUSPENDED if self.state is LinkState.SUSPENDED else (
-                self.refusal.reason if self.refusal else Reason.NO_SESSION)
+                Reason.SESSION_CLOSED if self.state in (LinkState.CLOSING, LinkState.CLOSED) else (
+                    self.refusal.reason if self.refusal else Reason.NO_SESSION))
             handle._finish(Outcome.FAILED, reason, now, detail=f"link is {self.state.value}")
             return handle
         try:
@@ -247,6 +316,33 @@ class HostLink(LinkEndpoint):
                 self.state = LinkState.SUSPENDED
                 self._fail_all(Reason.LINK_SUSPENDED, now, f"no answer after {self.config.retry_limit} sends")
                 return
+
+    def close(self, now: float, why: CloseWhy = CloseWhy.DONE) -> CommandHandle:
+        """End the session cleanly: a Close after every command submitted before it (see the module's doc).
+        Refused at once (its handle says why) if the link is not up."""
+        handle = self.submit(SCHEMA["Close"].type(int(why)), now)
+        if not handle.done:
+            self._close = handle
+            self.state = LinkState.CLOSING
+        return handle
+
+    def _check_closed(self, now: float) -> None:
+        """CLOSING: done when the Close is answered and every event up to the session's last has come."""
+        handle = self._close
+        if handle is None or not handle.done:
+            return
+        if not handle.ok:
+            if self.state is LinkState.CLOSING:        # refused: the session goes on (a retry limit suspends it)
+                self.state = LinkState.UP
+            return
+        if seq_delta(self._events.last_in_order, handle.reply.last_event_seq) >= 0:
+            self._closed(now)
+
+    def _closed(self, now: float) -> None:
+        self.closed = self._close.reply if self._close is not None and self._close.ok else None
+        self.state = LinkState.CLOSED
+        self.send_message(SCHEMA["Ack"].type(), PRIO_RELIABLE)     # the last events' acknowledgement
+        self._fail_all(Reason.SESSION_CLOSED, now, "the session was closed")
 
     def abandon(self, now: float, detail: str) -> None:
         """The transport is gone: every outstanding command fails, and the link is suspended."""
@@ -295,6 +391,8 @@ class HostLink(LinkEndpoint):
             self._event(frame, spec, now)
         else:
             self._link(frame, spec, now)
+        if self.state is LinkState.CLOSING:
+            self._check_closed(now)
 
     def _link(self, frame: Frame, spec, now: float) -> None:
         if spec.name not in ("Heartbeat", "Nak"):
@@ -306,6 +404,9 @@ class HostLink(LinkEndpoint):
             self.peer_stats, self.peer_stats_s = msg, now
             return
         self.stats.naks_rx += 1
+        if msg.reason == Reason.SESSION_CLOSED and self.state is LinkState.CLOSING:
+            self._closed(now)
+            return
         if msg.reason == Reason.SEQUENCE_GAP:
             sender = self._commands if msg.refused_class == MsgClass.COMMAND else None
             if sender is not None:
@@ -357,8 +458,10 @@ class HostLink(LinkEndpoint):
                 self._hello_due_s = None
             else:
                 self._send_hello(now)
-        if self.state is LinkState.UP:
+        if self.state in (LinkState.UP, LinkState.CLOSING):
             self._pump(now)
+        if self.state is LinkState.CLOSING:
+            self._check_closed(now)
         self.stats.retransmits = self._retransmits_before + self._commands.retransmits + self._urgent.retransmits
         if self._commands.rtt.srtt_s is not None:
             self.stats.srtt_us = int(self._commands.rtt.srtt_s * 1e6)
@@ -368,7 +471,7 @@ class HostLink(LinkEndpoint):
         timer = super().next_timer_s()
         if self.state is LinkState.CONNECTING and self._hello_due_s is not None:
             timer = min(timer, self._hello_due_s)
-        if self.state is LinkState.UP:
+        if self.state in (LinkState.UP, LinkState.CLOSING):
             timer = min(timer, self._urgent.next_due_s(), self._commands.next_due_s())
         return timer
 

@@ -34,8 +34,9 @@ from protocol.schema import Direction, Message, MsgClass, Schema
 
 HELLO_ID = SCHEMA["Hello"].id
 HELLO_REPLY_ID = SCHEMA["HelloReply"].id
+HELLO_COOKIE_ID = SCHEMA["HelloCookie"].id
 NAK_ID = SCHEMA["Nak"].id
-HANDSHAKE_IDS = frozenset({HELLO_ID, HELLO_REPLY_ID})
+HANDSHAKE_IDS = frozenset({HELLO_ID, HELLO_REPLY_ID, HELLO_COOKIE_ID})
 NAK_TAG_BYTES = SCHEMA["Nak"].fields[-1].text_size    # how much of the refused frame's tag a NAK echoes
 
 # Transmit priorities: lower goes first.
@@ -142,6 +143,8 @@ class LinkState(enum.Enum):
     UP = "up"
     REFUSED = "refused"        # the controller refused the handshake (schema or version)
     SUSPENDED = "suspended"    # host: retry limit reached; reconnect to go on
+    CLOSING = "closing"        # a Close was sent (host) or executed (controller): the session's last words
+    CLOSED = "closed"          # host: the controller answered the Close and every event of the session came
 
 
 @dataclass
@@ -229,7 +232,7 @@ class LinkEndpoint:
             return
         session = self._session_for(frame)
         if session is None:
-            if frame.msg_id == NAK_ID and frame.verify(self._handshake.rx):
+            if frame.msg_id == NAK_ID and self._verifies_handshake_nak(frame):
                 self._accepted(frame, now, alive=False)
                 self._handle_handshake_nak(frame, now)
                 return
@@ -295,6 +298,10 @@ class LinkEndpoint:
     def _handle_handshake(self, frame: Frame, now: float) -> None:
         raise NotImplementedError
 
+    def _verifies_handshake_nak(self, frame: Frame) -> bool:
+        """Whether a NAK outside any session is signed by a peer this end believes (the host: its controller)."""
+        return frame.verify(self._handshake.rx)
+
     def _handle_handshake_nak(self, frame: Frame, now: float) -> None:
         self.stats.naks_rx += 1
 
@@ -349,7 +356,7 @@ class LinkEndpoint:
         """`out` signed for the wire and counted; None if the session it was meant for is gone."""
         if out.handshake:
             self._handshake_tx_counter += 1
-            key, counter = self._handshake.tx, self._handshake_tx_counter
+            key, counter = self._handshake_tx_key(out.msg_id), self._handshake_tx_counter
         elif self.session is not None and self.session.tx_counter < COUNTER_MAX:
             self.session.tx_counter += 1
             key, counter = self.session.keys.tx, self.session.tx_counter
@@ -367,6 +374,10 @@ class LinkEndpoint:
         self.stats.frames_tx += 1
         self.stats.bytes_tx += len(wire)
         return wire
+
+    def _handshake_tx_key(self, msg_id: int):
+        """The key a frame sent outside any session is signed with."""
+        return self._handshake.tx
 
     def _sent_in_session(self, tag: bytes) -> None:
         """A frame signed with the session key went out with `tag` (the host remembers the last few)."""

@@ -58,6 +58,7 @@ class Reason(enum.IntEnum):
     TRAJ_COUNT = 46
     TRAJ_ENDPOINTS = 47
     UNCOMMANDED_MOTION = 48
+    SESSION_CLOSED = 49
 
     @property
     def doc(self) -> str:
@@ -180,6 +181,9 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.UNCOMMANDED_MOTION: ("a joint or tracker axis moved, or a motor drew current, with the controller's "
                                 "outputs off; or another node sent the controller's own frames on the HAL bus",
                                 "find what drives it (the HAL bus, a driver, a brake), then reset once it is still"),
+    Reason.SESSION_CLOSED: ("the host closed its session (Close): the controller stopped every motion and went to "
+                            "its safe state without a fault, IDLE; a frame of the closed session is refused",
+                            "none for a close; to go on, open a new session (Hello; teleop: `connect`)"),
 }
 
 assert set(_TABLE) == set(Reason), "every reason needs a doc and a remedy"

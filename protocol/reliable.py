@@ -94,6 +94,11 @@ class ReliableSender:
     def outstanding(self) -> int:
         return len(self._inflight) + len(self._waiting)
 
+    @property
+    def waiting(self) -> int:
+        """Submitted, not sent yet (the window is full): no sequence number yet."""
+        return len(self._waiting)
+
     def in_flight_seqs(self) -> list[int]:
         """The sequence numbers sent and not yet answered, oldest first."""
         return list(self._inflight)

@@ -217,6 +217,14 @@ assert set(TRACKER_WARNING_DOCS) == {w for w in TrackerWarning if w != TrackerWa
 
 # ---- time: how the controller's clock relates to the wall clock, and what it measured ----
 
+class CloseWhy(enum.IntEnum):
+    """Why a host closes its session (Close, SessionClosed): for the controller's log and the capture."""
+
+    DONE = 0       # the host's work is done: teleop's quit or Ctrl-D, the end of a script, a bench or a test run
+    STOPPED = 1    # the host was told to stop: SIGTERM, Ctrl-C
+    ERROR = 2      # the host ends on an error of its own (an exception)
+
+
 class TimingMode(enum.IntEnum):
     """Where the controller's time comes from (TelemetryStatus, Status; docs/realtime.md)."""
 

@@ -25,7 +25,6 @@ from firmware_py.uart import Port
 from host_tools.worlds.ports import DevicePort, PtyPort, TcpServerPort
 from protocol.errors import ParseError
 from protocol.framing import Frame, decode_frame
-from protocol.host_link import HostLink
 from timebase import RealClock
 
 MAX_BACKLOG = 256 * 1024     # bytes held for a side that does not read before they are dropped
@@ -46,14 +45,6 @@ def decoded(data: bytes) -> list[tuple[Frame, bytes]]:
         except ParseError:
             pass
     return out
-
-
-def recorded_hello(psk: bytes, nonce: bytes) -> bytes:
-    """The Hello a genuine host with this nonce sends, as an attacker records it off the line."""
-    host = HostLink(psk, nonce_source=lambda: nonce)
-    host.connect(0.0)
-    host.poll(0.0)
-    return host.take_all(0.0)
 
 
 class _Direction:

@@ -15,6 +15,7 @@ from protocol.schema import MsgClass
 Ping, Pong, EStop, Result = (SCHEMA[n].type for n in ("Ping", "Pong", "EStop", "Result"))
 KEY = bytes(range(32))
 OTHER_KEY = bytes(range(1, 33))
+CONTROLLER_ID = b"ctrl-one"     # the controller's identity, kept through its restarts in these tests
 
 
 class Wire:
@@ -30,11 +31,14 @@ class Wire:
         self.to_host: list[bytes] = []
         self.now = 0.0
 
-    def new_controller(self, key: bytes, rng: random.Random) -> ControllerLink:
-        return ControllerLink(key, self._execute, nonce_source=lambda: rng.randbytes(16))
+    def new_controller(self, key: bytes, rng: random.Random, controller_id: bytes = CONTROLLER_ID) -> ControllerLink:
+        return ControllerLink(key, self._execute, nonce_source=lambda: rng.randbytes(16), controller_id=controller_id)
 
     def _execute(self, msg, urgent, now):
         self.executed.append(msg)
+        if msg.spec.name == "Close":          # as the controller's handler: the link lingers, then forgets
+            self.controller.close_session()
+            return SCHEMA["Closed"].type(0, 1, 0, self.controller.last_event_seq, 3000)
         return Pong(0, msg.token, 0) if msg.spec.name == "Ping" else Result(0)
 
     def step(self, n: int = 1) -> None:
@@ -245,10 +249,10 @@ def test_a_nak_is_never_answered_with_a_nak():
 
 
 def handshake_naks(chunks: list[bytes]) -> list[bytes]:
-    """The NAKs signed with the controller's handshake key among recorded chunks, each as its wire bytes."""
+    """The NAKs signed with the controller's handshake NAK key among recorded chunks, each as its wire bytes."""
     from protocol import auth
     from protocol.framing import decode_frame
-    key = auth.handshake_keys(KEY, is_controller=True).tx
+    key = auth.nak_key(KEY, CONTROLLER_ID)
     frames = [b"\x00" + s + b"\x00" for chunk in chunks for s in chunk.split(b"\x00") if s]
     return [w for w in frames if (f := decode_frame(w[1:-1])).msg_id == SCHEMA["Nak"].id and f.verify(key)]
 
@@ -270,6 +274,25 @@ def test_a_recorded_handshake_nak_does_not_reset_a_live_session():
     assert wire.host.state is LinkState.UP and wire.host.sessions_started == 2
     assert wire.host.stats.replays == replays + 3 * len(naks)
     assert wire.host.stats.reasons[Reason.REPLAY] >= 3 * len(naks)
+
+
+def test_another_controller_holding_the_key_cannot_end_the_session_with_a_nak_made_to_order():
+    """A second controller with the same key and no session NAKs (NO_SESSION) any frame copied to it, echoing its
+    tag; injected on the host's line, that NAK must not end the session: it is signed under the other controller's
+    identity, not under this session's controller's."""
+    wire = session_with_commands()
+    other = wire.new_controller(KEY, random.Random(9), controller_id=b"ctrl-two")
+    handle = wire.host.submit(Ping(7), wire.now)
+    sent = wire.host.take_all(wire.now)
+    other.feed(sent, wire.now)                   # the attacker copies the host's frame to the other controller
+    made_to_order = other.take_all(wire.now)
+    assert made_to_order
+    wire.controller.feed(sent, wire.now)         # and lets the genuine one through
+    wire.host.feed(made_to_order, wire.now)      # the NAK reaches the host first
+    wire.step(200)
+    assert handle.ok and handle.reply.token == 7
+    assert wire.host.state is LinkState.UP and wire.host.sessions_started == 1
+    assert wire.executed[-1] == Ping(7)
 
 
 def test_a_nak_echoes_the_tag_of_the_frame_it_refuses():

@@ -14,7 +14,8 @@ import pytest
 
 import test_e2e
 from host_tools.client.live import HostClient
-from line_tap import LineTap, decoded, recorded_hello
+from bench.bench_handshake import recorded_hello
+from line_tap import LineTap, decoded
 from protocol import auth
 from protocol.link import LinkState
 from protocol.messages import MESSAGES as M, SCHEMA

@@ -1,8 +1,8 @@
 """The lock-step world gives, for a seed, the very bytes it gave before its tick path was made faster.
 
-`tests/data/lockstep_reference.json` holds what the world of commit 2d3728d (the tick path before
-it was made faster: packed CAN frames between the nodes, the arm plant as its per-concept
-classes) sent the host in a fixed session, hashed per simulated second, and the plant's state at
+`tests/data/lockstep_reference.json` holds what the world with the tick path of commit 2d3728d (the
+tick path before it was made faster: packed CAN frames between the nodes, the arm plant as its
+per-concept classes) sent the host in a fixed session, hashed per simulated second, and the plant's state at
 the end, written exactly (`float.hex`). The session: connect, telemetry at 10 Hz, enable, home
 all axes (the home and limit switches, the gripper's stall), then the lock-step bench's moving
 world (bench/bench_lockstep.py) for three segments: every joint jogged, the gripper closed and
@@ -10,7 +10,9 @@ opened, the tracker's control box in manual with its dials and direction switch 
 
 A faster tick path must compute the same thing, to the bit: a change that moves one rounding
 moves these bytes. Regenerate the file only for a change meant to alter what is simulated, and
-say so in its commit:
+say so in its commit. It was regenerated once since 2d3728d, with the tick path unchanged, for
+issue 34's handshake (the cookie's round trip moves every command 14 ms later; the controller's
+identity and cookie secret come from the seeded nonces before the session's; a new schema hash):
 
     python -m tests.test_same_bytes_as_before > tests/data/lockstep_reference.json
 """

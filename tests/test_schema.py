@@ -274,7 +274,7 @@ def test_bytes_field_of_wrong_length_is_an_encode_error(length):
     """A 16-byte nonce given 15 or 17 bytes must be refused, not padded or cut silently."""
     hello = SCHEMA["Hello"]
     with pytest.raises(EncodeError):
-        hello.encode(hello.type(1, SCHEMA.hash, bytes(range(1, length + 1))))
+        hello.encode(hello.type(1, SCHEMA.hash, bytes(range(1, length + 1)), bytes(8)))
 
 
 @settings(max_examples=100, deadline=None)

@@ -103,7 +103,7 @@ def test_a_real_session_decodes_every_frame_and_verifies_every_mac_with_the_key(
     decoded = [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
     assert decoded and all(d.error == "" and d.mac == MAC_OK for d in decoded)
     names = [d.name for d in decoded]
-    assert names[:2] == ["Hello", "HelloReply"]
+    assert names[:4] == ["Hello", "HelloCookie", "Hello", "HelloReply"]
     pongs = [d.message.token for d in decoded if d.name == "Pong"]
     assert pongs == [0, 1, 2, 3, 4]
     telemetry = [d for d in decoded if d.frame.cls == MsgClass.TELEMETRY]

@@ -80,7 +80,9 @@ def third_node(bench):
 
 
 class Rogue:
-    """A third node on the world's HAL bus: it turns the outputs on and drives one channel every millisecond."""
+    """A third node on the world's HAL bus: it turns the outputs on and drives one channel every millisecond, on
+    the world's tick after the controller's arm task and before the plant's (priorities 0 and 10), so that the
+    plant takes its command as the last word each tick (as a rogue sending more often would make it)."""
 
     def __init__(self, bench, bus: LocalBus, channel: int, duty: float) -> None:
         self.bus = bus
@@ -88,7 +90,8 @@ class Rogue:
         self.duty = [0.0] * len(ARM_CHANNELS)
         self.duty[channel] = duty
         self.on = False
-        bench.world.scheduler.add("rogue", self.step, period_s=0.001, priority=50)
+        scheduler = bench.world.scheduler
+        scheduler.add("rogue", self.step, scheduler.tasks["arm"].wake_s, period_s=0.001, priority=7)
 
     def step(self, now: float) -> float:
         while self.bus.recv() is not None:       # what the others send: read and let go (its queue stays empty)

@@ -137,12 +137,15 @@ class _LinkTarget(Target):
 
     def session_up(self) -> bool:
         bench = self.bench
-        return (bench.host.state is LinkState.UP and bench.controller.link.session is not None
+        return (bench.host.state is LinkState.UP and bench.controller.link.state is LinkState.UP
+                and bench.controller.link.session is not None
                 and bench.host.session is not None
                 and bench.controller.link.session.host_nonce == bench.host.session.host_nonce)
 
     def recipe(self, draw: Draw) -> FrameRecipe:
         spec = self.specs[draw.pick(len(self.specs))]
+        if spec.name == "Close" and draw.pick(8):      # a Close ends the session: the input's later frames are only
+            spec = self.specs[draw.pick(len(self.specs))]  # refused, so it is drawn an eighth as often as the others
         cls = int(spec.cls) if draw.pick(8) else draw.int_in(0, 255)
         if spec.id in SCHEMA.reply_ids and cls == spec.cls and draw.pick(2):
             cls = int(MsgClass.URGENT)
@@ -175,6 +178,8 @@ class _LinkTarget(Target):
         rx = self.receiver_for(recipe.cls)
         if rx is None:
             return "link"
+        if self.receiver().state is LinkState.CLOSING:
+            return "refused"        # the session's Close ran: nothing after it runs (SESSION_CLOSED)
         return "runs" if rx.classify(recipe.seq) is Verdict.NEW else "refused"
 
     def feed(self, wire: bytes, recipe: Optional[FrameRecipe]) -> None:

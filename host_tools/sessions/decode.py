@@ -69,6 +69,7 @@ class SessionDecoder:
             self._handshake = {Direction.TO_CONTROLLER: hs.tx, Direction.TO_HOST: hs.rx}
         self._hellos: deque[bytes] = deque(maxlen=SESSIONS_KEPT)
         self._sessions: deque[dict[Direction, MacKey]] = deque(maxlen=SESSIONS_KEPT)
+        self._nak_keys: deque[MacKey] = deque(maxlen=SESSIONS_KEPT)     # the controllers' (HelloReply's identity)
 
     def decode(self, segment: bytes, time_s: float, link: str, direction: Direction,
                original_length: Optional[int] = None) -> DecodedFrame:
@@ -92,15 +93,22 @@ class SessionDecoder:
             self._follow_handshake(out.message)
         return out
 
+    def mac_verdict(self, frame: Frame, direction: Direction) -> str:
+        """The MAC verdict of `frame` under the keys followed so far, nothing learned from it."""
+        return self._check_mac(frame, direction)
+
     def _check_mac(self, frame: Frame, direction: Direction) -> str:
         if frame.counter is None:
             return MAC_NONE
         if self._psk is None:
             return MAC_UNCHECKED
-        if frame.cls == MsgClass.LINK and frame.msg_id in (HELLO_ID, HELLO_REPLY_ID):
+        if frame.cls == MsgClass.LINK and frame.msg_id in HANDSHAKE_IDS:
             return MAC_OK if frame.verify(self._handshake[direction]) else MAC_BAD
         for keys in reversed(self._sessions):
             if frame.verify(keys[direction]):
+                return MAC_OK
+        if frame.msg_id == NAK_ID and direction is Direction.TO_HOST:     # a controller's NAK with no session
+            if any(frame.verify(key) for key in self._nak_keys):
                 return MAC_OK
         return MAC_BAD
 
@@ -113,10 +121,11 @@ class SessionDecoder:
         elif name == "HelloReply" and message.host_nonce in self._hellos:
             keys = auth.session_keys(self._psk, message.host_nonce, message.controller_nonce, is_controller=False)
             self._sessions.append({Direction.TO_CONTROLLER: keys.tx, Direction.TO_HOST: keys.rx})
+            self._nak_keys.append(auth.nak_key(self._psk, message.controller_id))
 
 
-HELLO_ID = SCHEMA["Hello"].id
-HELLO_REPLY_ID = SCHEMA["HelloReply"].id
+HANDSHAKE_IDS = frozenset(SCHEMA[name].id for name in ("Hello", "HelloReply", "HelloCookie"))
+NAK_ID = SCHEMA["Nak"].id
 
 
 def format_value(value: Any) -> str:

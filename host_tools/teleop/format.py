@@ -14,7 +14,7 @@ from typing import Optional, TextIO
 from protocol.host_link import CommandHandle
 from protocol.reasons import Reason, reason_name
 from protocol.schema import Field, Message
-from protocol.states import FAULT_CAUSE_DOCS, Axis, Fault, FaultCause, TimingIssue, TimingMode
+from protocol.states import FAULT_CAUSE_DOCS, Axis, CloseWhy, ControllerState, Fault, FaultCause, TimingIssue, TimingMode
 
 WIDTH = 96          # wrap long docs to fit a 100-column terminal
 INDENT = "     "    # continuation lines line up under the text after "ok   " / "FAIL "
@@ -197,6 +197,9 @@ def describe_report(msg: Message) -> str:
             return (f"TIMING below real time: the world ran at {msg.value:.2f}x real time over the last second "
                     f"(rtf_warn {msg.limit:.2f}): the host is too slow, so simulated time slows down with it; "
                     "nothing is faulted")
+    if msg.spec.name == "SessionClosed":
+        return (f"the host closed its session ({enum_word(CloseWhy, msg.why)}): every motion stopped, outputs off, "
+                f"brakes on; {enum_word(ControllerState, msg.state).upper()}, faults {format_faults(msg.faults)}")
     return format_message(msg)
 
 

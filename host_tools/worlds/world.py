@@ -31,6 +31,7 @@ from protocol.auth import new_nonce
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
 from protocol.schema import Direction
+from protocol.states import CloseWhy
 from timebase import Clock, PacedClock, RealClock, SimClock
 
 from host_tools.worlds.local_bus import open_local_pair
@@ -291,6 +292,14 @@ class LockstepBench:
         handle = self.host.submit(msg, self.clock.now())
         self.wait_until(lambda: handle.done, timeout_s)
         return handle
+
+    def close_session(self, why: CloseWhy = CloseWhy.DONE, timeout_s: float = 5.0) -> bool:
+        """End the host's session cleanly (`HostLink.close`) and run until it is closed: True once CLOSED."""
+        if self.host.state is not LinkState.UP:
+            return self.host.state is LinkState.CLOSED
+        self.host.close(self.clock.now(), why)
+        self.wait_until(lambda: self.host.state is not LinkState.CLOSING, timeout_s)
+        return self.host.state is LinkState.CLOSED
 
     def close(self) -> None:
         self.world.close()
