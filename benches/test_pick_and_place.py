@@ -9,8 +9,9 @@ from host_tools.apps import pick_place
 
 
 def test_every_step_of_the_pick_and_place_lands_within_a_centimetre(aspod_target):
-    if not aspod_target.can_fault:        # the positioning error is measured on the plant's true gripper
-        pytest.skip("needs the plant's true state (the lock-step world)")
+    if not hasattr(aspod_target, "bench"):     # the positioning error is measured on the plant's true gripper
+        pytest.skip("needs the lock-step world: the demo scene's kinematics against the plant's true gripper, "
+                    "in process")
     demo = pick_place.PickAndPlace.on_bench(aspod_target.bench)
     demo.prepare()
     worst_mm = 0.0

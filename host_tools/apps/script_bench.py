@@ -54,6 +54,7 @@ def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool
                                 plant=state, faults=faults)
         if err is None:
             result["problems"] = problems.getvalue().splitlines()
+        client.close()                  # the session ends as a host's does, in the capture too
         return ScriptRun(status, result, session.summary())
     finally:
         bench.close()

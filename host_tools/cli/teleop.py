@@ -1,8 +1,14 @@
-"""The `aspod teleop` command: connect, then a script or an interactive console."""
+"""The `aspod teleop` command: connect, then a script or an interactive console, then close the session.
+
+Every way out closes the session cleanly (`HostClient.close`: an authenticated Close, so the controller goes
+to IDLE rather than latching LINK_LOST): `quit`, Ctrl-D, the end of a script (DONE), Ctrl-C or SIGTERM
+(STOPPED), an exception (ERROR).
+"""
 from __future__ import annotations
 
 import json
 import logging
+import signal
 import sys
 
 from host_tools.cli.settings import TeleopSettings
@@ -14,9 +20,18 @@ from host_tools.teleop.console import interactive_console
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import TeleopError, check_script, run_script
 from host_tools.teleop.words import read_script
+from protocol.states import CloseWhy
 
 
 log = logging.getLogger("aspod")
+
+
+class Stopped(KeyboardInterrupt):
+    """SIGTERM: stop as on Ctrl-C, closing the session on the way out (exit 143)."""
+
+
+def _stop(signum, frame) -> None:
+    raise Stopped()
 
 
 def run_teleop(args: TeleopSettings, psk: bytes) -> int:
@@ -48,6 +63,8 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
         if control is not None:
             control.close()
         raise
+    why = CloseWhy.DONE
+    previous = signal.signal(signal.SIGTERM, _stop)
     try:
         client.connect(args.connect_timeout_s)
         info = client.link.controller_info
@@ -71,6 +88,18 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
         if args.summary or lines is None:
             print(session.summary(), flush=True)
         return status
+    except Stopped:
+        why = CloseWhy.STOPPED
+        return 128 + signal.SIGTERM
+    except KeyboardInterrupt:
+        why = CloseWhy.STOPPED
+        raise
+    except BaseException:
+        why = CloseWhy.ERROR
+        raise
     finally:
-        client.close()
+        try:
+            client.close(why)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
 

@@ -20,6 +20,7 @@ from protocol.errors import LinkError
 from protocol.host_link import CommandHandle
 from protocol.reasons import Reason
 from protocol.schema import Message
+from protocol.states import CloseWhy
 from timebase import Clock, TimingReport
 
 from host_tools.worlds.world import LockstepBench
@@ -87,5 +88,6 @@ class BenchClient:
         self.bench.wait_until(predicate, timeout_s)
         return predicate()
 
-    def close(self) -> None:
-        pass
+    def close(self, why: CloseWhy = CloseWhy.DONE) -> None:
+        """Close the session cleanly, on the simulated clock (the bench itself is its owner's to close)."""
+        self.bench.close_session(why)

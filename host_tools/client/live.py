@@ -17,12 +17,15 @@ from protocol.host_link import CommandHandle, HostLink
 from protocol.link import LinkConfig, LinkState
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message
+from protocol.states import CloseWhy
 from timebase import Clock, RealClock
 
 from host_tools.client.control import ControlClient
 from host_tools.client.lines import open_lines
 from host_tools.sessions.capture import CaptureWriter
 
+CLOSE_WAIT_MIN_S = 1.0
+CLOSE_WAIT_MAX_S = 30.0
 
 
 class HostClient:
@@ -117,12 +120,15 @@ class HostClient:
         with self._cond:
             if self.link.state is LinkState.UP:
                 return
-            if self.link.refusal is not None and self.link.refusal.reason is not Reason.LINK_SUSPENDED:
-                raise LinkError(self.link.refusal.reason, self.link.refusal.detail)
-            if self.link.stats.auth_errors:
-                raise LinkError(Reason.BAD_MAC, f"{self.url} answers, but none of its {self.link.stats.auth_errors} "
-                                "frame(s) verify under this key: the two ends have different keys (--key-file)")
-            raise LinkError(Reason.LINK_SUSPENDED, self.io_error or f"no answer from {self.url} in {timeout_s} s")
+            link = self.link
+            if link.refusal is not None and link.refusal.reason is not Reason.LINK_SUSPENDED:
+                raise LinkError(link.refusal.reason, link.refusal.detail)
+            if self.io_error is not None:
+                raise LinkError(Reason.LINK_SUSPENDED, self.io_error)
+            seen = link.handshake_seen
+            why = seen.why_not_up(link.hellos_sent, link.stats.auth_errors, link.stats.bytes_rx)
+            reason = Reason.BAD_MAC if seen.verified == 0 and link.stats.auth_errors else Reason.LINK_SUSPENDED
+            raise LinkError(reason, f"{self.url}: no session in {timeout_s:g} s: {why}")
 
     def submit(self, msg: Message) -> CommandHandle:
         with self._cond:
@@ -142,14 +148,44 @@ class HostClient:
         self.wait_for(lambda: handle.done, timeout_s)
         return handle
 
-    def close(self) -> None:
-        """Stop the pump, send what the link still has queued, then close the port.
+    def close_session(self, why: CloseWhy = CloseWhy.DONE) -> bool:
+        """End the session cleanly (`HostLink.close`): a Close after the commands already sent, then the
+        controller's events up to its last; True once it is CLOSED. Waits at most `close_wait_s` (the
+        controller's link timeout, twice: a controller that answers nothing for so long has long faulted)."""
+        with self._cond:
+            if self.link.state is not LinkState.UP or self.io_error is not None or not self._thread.is_alive():
+                return self.link.state is LinkState.CLOSED
+            now = self.clock.now()
+            self.link.close(now, why)
+            try:
+                self._flush(now)
+            except (serial.SerialException, OSError) as exc:
+                self.io_error = str(exc)
+                self.link.abandon(now, f"{self.url}: {exc}")
+                return False
+        return self.wait_for(lambda: self.link.state is not LinkState.CLOSING, self.close_wait_s()) and \
+            self.link.state is LinkState.CLOSED
+
+    def close_wait_s(self) -> float:
+        info = self.link.controller_info
+        timeout_s = info.link_timeout_ms / 1000.0 if info is not None else 3.0
+        return min(CLOSE_WAIT_MAX_S, max(CLOSE_WAIT_MIN_S, 2 * timeout_s))
+
+    def close(self, why: CloseWhy = CloseWhy.DONE) -> None:
+        """Close the session (`close_session`, if it is up), stop the pump, send what the link still has queued,
+        then close the port.
 
         What is queued may be the Acks of the last events: without them the controller offers those events
         again to the next host (marked as from an earlier session, but a host should not leave them behind).
         Unread input is discarded first, so that a TCP connection ends with FIN after the last bytes rather
         than with a reset, which may discard what is still in flight.
         """
+        try:
+            self.close_session(why)
+        finally:
+            self._shut()
+
+    def _shut(self) -> None:
         self._stop = True
         self._thread.join(timeout=2.0)
         with self._cond:

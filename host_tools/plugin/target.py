@@ -29,6 +29,8 @@ from pathlib import Path
 from typing import Any, Callable, Optional
 
 from protocol.host_link import CommandHandle
+from protocol.link import LinkState
+from protocol.messages import MESSAGES as M
 from protocol.schema import Message
 
 from host_tools.apps.fault_reaction import reactions
@@ -40,6 +42,9 @@ from host_tools.plugin.errors import CannotFault
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import run_script
 from host_tools.worlds.bench_world import WorldSettings, build_bench
+
+
+UNDO_WAIT_S = 10.0        # a live bench's end: how long the controller may refuse the reset of a fault it injected
 
 
 @dataclass
@@ -54,6 +59,8 @@ class Target:
 
     def __post_init__(self) -> None:
         self.client.telemetry_listeners.append(lambda msg, now: self.telemetry.__setitem__(msg.spec.name, msg))
+        self._injected: list[tuple[str, Optional[str]]] = []     # plant faults this bench injected, not cleared
+        self._held = False                                        # this bench paused the simulator
 
     @property
     def events(self) -> list[Message]:
@@ -113,9 +120,12 @@ class Target:
 
     def inject(self, fault: str, channel: Optional[str] = None) -> None:
         self.sim({"op": "fault", "name": fault, "channel": channel})
+        self._injected.append((fault, channel))
 
     def clear(self, fault: str, channel: Optional[str] = None) -> None:
         self.sim({"op": "clear", "name": fault, "channel": channel})
+        if (fault, channel) in self._injected:
+            self._injected.remove((fault, channel))
 
     def act(self, name: str, *args) -> None:
         self.sim(plant_actions.control_request(name, *args))
@@ -123,24 +133,47 @@ class Target:
     def true_state(self) -> dict:
         return self.sim({"op": "state"})["state"]
 
-    def _held(self, request: dict) -> dict:
+    def _held_request(self, request: dict) -> dict:
         if self.control is not None and not self.pausable:
             raise CannotFault(plant_control.NO_PAUSE)
         return self.sim(request)
 
     def pause(self) -> None:
         """Hold the simulator's time: the plant and the controller's loops stand still, the link stays up."""
-        self._held({"op": "pause"})
+        self._held_request({"op": "pause"})
+        self._held = True
 
     def resume(self) -> None:
-        self._held({"op": "resume"})
+        self._held_request({"op": "resume"})
+        self._held = False
 
     def step(self, seconds: float) -> float:
         """Run a held simulator `seconds` further (as fast as it goes); returns its time then."""
-        return self._held({"op": "step", "seconds": seconds})["time_s"]
+        return self._held_request({"op": "step", "seconds": seconds})["time_s"]
 
     def close(self) -> None:
-        self.client.close()
+        """Leave the simulator as the bench found it, then close the session (`HostClient.close`: the controller
+        goes IDLE, no fault): its time resumed if the bench held it, the plant faults it injected cleared, and the
+        controller's fault they latched reset, so that the next bench, or the next run, starts clean."""
+        try:
+            self._undo()
+        finally:
+            self.client.close()
+
+    def _undo(self) -> None:
+        if self.control is None or not (self._held or self._injected):
+            return
+        if self._held:
+            self.resume()
+        faulted = bool(self._injected)
+        for fault, channel in list(self._injected):
+            self.clear(fault, channel)
+        if faulted and self.client.link.state is LinkState.UP:
+            # the fault's cause may take a moment to go (a joint coming to rest): the controller says so (reset
+            # refused) until it has
+            deadline = self.now() + UNDO_WAIT_S
+            while not self.call(M["Reset"]()).ok and self.now() < deadline:
+                self.wait_until(lambda: False, 0.1)
 
     def close_record(self) -> dict:
         """Close the target; what the test's record keeps of it."""
