@@ -14,11 +14,19 @@ import pytest
 
 from firmware_py.uart import PacedUart
 from host_tools.worlds.ports import TcpServerPort
+from bench.bench_handshake import recorded_hello
+from protocol.messages import SCHEMA
 from timebase import RealClock
 
 pytestmark = pytest.mark.pty
 WAIT_S = 10.0        # loopback moves bytes in microseconds; this bound only ends a test that would hang
 BYTE_S = 10 / 9600   # one byte on the wire at 9600 baud
+HELLO = recorded_hello(b"tcp-port-test-key-0123456789", b"\x07" * 16)     # a frame the test's `vouch` believes
+
+
+def hello_proves_a_key(frame) -> int:
+    """The port's judge here: a Hello proves 1 (as `ControllerLink.vouch` says of a Hello that verifies)."""
+    return 1 if frame.msg_id == SCHEMA["Hello"].id else 0
 
 
 def until(predicate, what: str):
@@ -58,6 +66,7 @@ def delivered_after(uart: PacedUart, n: int, now: float) -> tuple[bytes, float]:
 @pytest.fixture
 def line():
     port = TcpServerPort(0)
+    port.vouch = hello_proves_a_key
     uart = PacedUart(port, 9600)
     sockets: list[socket.socket] = []
 
@@ -77,12 +86,51 @@ def test_a_client_without_a_session_is_displaced_and_what_it_left_in_the_uart_is
     first, now = delivered_after(uart, 50, 0.0)     # some are delivered, most wait in the UART
     assert set(first) == {1} and uart.rx_busy
     new = connect()
+    new.sendall(HELLO)                   # it proves a key (the old one proved nothing)
     settle(uart, now, lambda: port.connections == 2, "the new client is taken")
     assert uart.discarded_rx_bytes > 1000
     new.sendall(b"\x02" * 10)
-    got, now = delivered_after(uart, 10, now)
-    assert got == b"\x02" * 10                       # none of the old client's held bytes
+    got, now = delivered_after(uart, len(HELLO) + 10, now)
+    assert got == HELLO + b"\x02" * 10                # its Hello, sent while it waited, first; none of the old's
     assert closed_by_peer(old)
+
+
+def test_a_client_that_proves_nothing_never_displaces_one_in_its_handshake(line):
+    """The finding: a keyless local loop connecting every 5 ms kept every reconnecting host off `aspod sim --tcp`
+    (0 of 4), each connection displacing the last. Now newcomers wait, and one that proves nothing takes the line
+    from no one; the candidates are bounded."""
+    port, uart, connect = line
+    squatter = connect()
+    settle(uart, 0.0, lambda: port.connections == 1, "a free line: the first comer takes it")
+    genuine = connect()
+    genuine.sendall(HELLO)
+    settle(uart, 0.0, lambda: port.connections == 2, "a Hello displaces a client that proved nothing")
+    assert closed_by_peer(squatter)
+    loop = [connect() for _ in range(3 * TcpServerPort.MAX_CANDIDATES)]     # the keyless loop
+    settle(uart, 0.0, lambda: port.dropped >= 2 * TcpServerPort.MAX_CANDIDATES, "the candidates stay bounded")
+    assert port.connections == 2 and len(port._candidates) <= TcpServerPort.MAX_CANDIDATES
+    genuine.sendall(b"\x05" * 5)
+    got, _ = delivered_after(uart, len(HELLO) + 5, 0.0)
+    assert got == HELLO + b"\x05" * 5                 # the host still holds the line
+    for sock in loop:
+        sock.close()
+
+
+def test_a_link_of_several_admits_only_the_live_sessions_host(line):
+    port, uart, connect = line
+    port.live_only = True
+    port.live_session = lambda: "a session the other links carry"
+    port.vouch = lambda frame: {SCHEMA["Hello"].id: 2, SCHEMA["Ping"].id: 3}.get(frame.msg_id, 0)
+    stranger = connect()
+    stranger.sendall(HELLO)              # holds the key now, but is not the session's host
+    settle(uart, 0.0, lambda: len(port._candidates) == 1 and port._candidates[0].proof == 2, "heard")
+    assert port.connections == 0
+    from protocol.framing import encode_frame
+    from protocol.schema import MsgClass
+    host = connect()
+    host.sendall(encode_frame(MsgClass.COMMAND, 0, 0, SCHEMA["Ping"].id, bytes(4), key=b"k" * 32, counter=1))
+    settle(uart, 0.0, lambda: port.connections == 1, "the session's host is taken")
+    assert port._client is not None and port._candidates and port._candidates[0].proof == 2
 
 
 def test_a_client_that_brought_a_live_session_keeps_the_line_and_the_newcomer_is_closed_at_once(line):
@@ -101,6 +149,7 @@ def test_a_client_that_brought_a_live_session_keeps_the_line_and_the_newcomer_is
     assert got == b"\x03" * 5 and port.connections == 1 and port.generation == 0
     live[0] = None                       # the link timed out: no live session any more
     newcomer = connect()
+    newcomer.sendall(HELLO)
     settle(uart, now, lambda: port.connections == 2, "a newcomer displaces a host whose link timed out")
     assert closed_by_peer(genuine)
     newcomer.close()
@@ -114,6 +163,7 @@ def test_a_session_that_was_live_before_the_client_connected_is_not_the_clients(
     squatter = connect()
     settle(uart, 0.0, lambda: port.connections == 1, "the squatter is taken")
     genuine = connect()
+    genuine.sendall(HELLO)
     settle(uart, 0.0, lambda: port.connections == 2, "the genuine host displaces it")
     assert port.refused == 0 and closed_by_peer(squatter)
     genuine.close()
@@ -141,3 +191,28 @@ def test_a_burst_of_connections_is_completed_by_the_kernel_before_any_is_taken()
         for sock in clients:
             sock.close()
         port.close()
+
+
+def test_a_host_reconnects_to_aspod_sim_through_a_keyless_loop_connecting_every_5_ms(tmp_path):
+    """The finding, through the real `aspod sim --tcp`: a local loop that connects every 5 ms (and sends nothing)
+    kept every reconnecting host off (0 of 4). Now each of four connects in a row succeeds while it runs."""
+    from tests import test_e2e
+    from bench.bench_handshake import ConnectLoop
+    from host_tools.client.live import HostClient
+    from protocol import auth
+    from protocol.messages import MESSAGES as M
+    env = {**test_e2e.os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
+    sim = test_e2e.Sim(env, "--tcp", "0", "--no-tracker")
+    try:
+        psk = auth.load_key(sim.key_path)
+        with ConnectLoop(sim.url) as loop:
+            for attempt in range(4):
+                client = HostClient(sim.url, psk)
+                try:
+                    client.connect(timeout_s=30)
+                    assert client.call(M["Ping"](attempt)).ok
+                finally:
+                    client.close()
+        assert loop.count > 100                 # the loop ran all along
+    finally:
+        sim.stop()

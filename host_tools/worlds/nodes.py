@@ -241,13 +241,14 @@ def build_controller(psk: bytes, uart: PacedUart, bus: can.BusABC, config: Optio
                      nonce_source: Callable[[], bytes] = new_nonce) -> Controller:
     """The controller with its HAL on `bus` and its link on `uart`; `controller.attach(scheduler)` starts it.
 
-    A port that guards its line against takeover (`TcpServerPort.live_session`) is told here
-    about the controller's session: every world (`aspod sim`, `aspod firmware`, `World`) builds
+    A port that guards its line against takeover (`TcpServerPort.live_session`, `vouch`) is told here
+    about the controller's session and how to judge a newcomer's frames: every world (`aspod sim`, `aspod firmware`, `World`) builds
     its controller through this function, after it opened the port."""
     controller = Controller(psk, uart, ControllerHal(bus), config, nonce_source=nonce_source)
     if hasattr(uart.port, "live_session"):
         link = controller.link
         uart.port.live_session = lambda: link.session if link.session is not None and not link.link_lost else None
+        uart.port.vouch = link.vouch
     return controller
 
 

@@ -11,14 +11,19 @@ line's baud rate.
 from __future__ import annotations
 
 import errno
+import math
 import os
 import select
 import socket
 import termios
 import tty
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Optional
 
+from protocol.controller_link import VOUCH_LIVE_SESSION
+from protocol.framing import Frame, FrameReceiver
 from protocol.schema import Direction
+from timebase import Clock, RealClock
 from host_tools.sessions.redundancy import FrameMerger
 
 if TYPE_CHECKING:
@@ -63,29 +68,56 @@ class PtyPort:
                 pass
 
 
+@dataclass(eq=False)
+class _Candidate:
+    """A connection waiting for the line: what it sent (kept, not delivered) and what that proved."""
+
+    sock: socket.socket
+    since_s: float
+    rx: FrameReceiver = field(default_factory=FrameReceiver)
+    sent: bytearray = field(default_factory=bytearray)
+    proof: int = 0              # the most any of its frames proved (`vouch`)
+    proof_s: float = math.inf   # when it proved that much
+
+
 class TcpServerPort:
-    """Listens on 127.0.0.1:`port`; one client at a time is the line's other end.
+    """Listens on 127.0.0.1:`port`; one client at a time is the line's other end, admitted by what it proves.
 
-    Who holds the line: a new connection never displaces a client that carries a live
-    authenticated session; a client that has not brought one (no session since it connected, or
-    its session's link timed out) is displaced by a newer connection, so that an idle squatter
-    cannot lock the genuine host out either. A refused connection is closed at once and counted
-    in `refused`. The port learns about sessions from `live_session`, assigned by whoever builds
-    the controller (host_tools/worlds/nodes.py `build_controller`): it returns a token naming the live
-    session (or None when there is none, or its link timed out). The client "brought" the session
-    if the token is not the one that was live when the client connected.
+    - A client that brought the live authenticated session keeps the line: a newcomer is closed at once and
+      counted in `refused`. The port learns about sessions from `live_session` (a token naming the live
+      session, or None) and judges frames with `vouch(frame) -> int`, both assigned by whoever builds the
+      controller (host_tools/worlds/nodes.py `build_controller`; `ControllerLink.vouch`): 1 a Hello that
+      verifies (the key, or a recording of it), 2 a host that holds the key now (a Hello with a fresh cookie,
+      a frame of a pending session), 3 the live session's host. The client "brought" the session if the
+      token is not the one that was live when it connected.
+    - Otherwise a newcomer waits as a *candidate* (at most `MAX_CANDIDATES`, each at most `CANDIDATE_WAIT_S`):
+      its bytes are read and kept (at most `CANDIDATE_BYTES`) but not delivered, and its frames judged. The
+      line goes to the candidate that proved most (the first to prove it among equals) when that is more
+      than the present client proved; a client's proof counts for `HANDSHAKE_GRACE_S` (a handshake's time),
+      unless it brought the live session. So a client that proves nothing never displaces one in its
+      handshake (a keyless loop connecting every few ms cannot keep a host off), and an idle squatter holds
+      the line only until someone proves anything. A free line goes to the first candidate at once, whatever
+      it proved (a line no one is on serves anyone, as a serial port would). With the candidates full, the
+      oldest that sent nothing leaves, else the oldest that proved least (counted in `dropped`).
+    - `live_only` (a link of several, `RedundantPort`): while a session is live, only its host is admitted.
 
-    Every change of client (a new one, or the present one closing) increments `generation`: the
-    paced UART then discards what it still held of the old client's bytes (`PacedUart.receive`),
-    so that nothing the old client wrote reaches the controller as if the new one had sent it.
+    A promoted candidate's bytes are the first the line delivers from it, so its Hello is not lost. Every
+    change of client (a new one, or the present one closing) increments `generation`: the paced UART then
+    discards what it still held of the old client's bytes (`PacedUart.receive`), so that nothing the old
+    client wrote reaches the controller as if the new one had sent it.
     """
 
-    MAX_ACCEPTS_PER_READ = 8    # connections taken (or refused) per read: a flood cannot stall the comms task
+    MAX_ACCEPTS_PER_READ = 8    # connections taken per read: a flood cannot stall the comms task
     # connections the kernel completes before they are taken: with 4, a sixth connection within one read waited for
     # its SYN to be sent again, 1 s later (300 connections one after another: 51 waited, 52 s in all; with 64: 3, 3 s)
     LISTEN_BACKLOG = 64
+    MAX_CANDIDATES = 16
+    CANDIDATE_WAIT_S = 10.0     # a candidate not admitted by then is closed
+    CANDIDATE_BYTES = 4096      # what a candidate sent, kept for the line (its handshake needs less than 200 B)
+    HANDSHAKE_GRACE_S = 3.0     # how long what a client proved keeps it on the line without a live session
 
-    def __init__(self, port: int, host: str = "127.0.0.1") -> None:
+    def __init__(self, port: int, host: str = "127.0.0.1", clock: Optional[Clock] = None) -> None:
+        self._clock = clock or RealClock()
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._listener.bind((host, port))
@@ -93,12 +125,18 @@ class TcpServerPort:
         self._listener.setblocking(False)
         self._client: Optional[socket.socket] = None
         self._session_at_connect: object = None    # the live session's token when the client connected
+        self._holder = _Candidate(socket.socket(), 0.0)     # what the client on the line proved (a placeholder)
+        self._holder.sock.close()
+        self._candidates: list[_Candidate] = []
         self.port = self._listener.getsockname()[1]
         self.url = f"socket://{host}:{self.port}"
         self.live_session: Callable[[], object] = lambda: None
+        self.vouch: Callable[[Frame], int] = lambda frame: 0
+        self.live_only = False
         self.on_refused: Callable[[str], None] = lambda peer: None   # told "host:port" of each refused
         self.connections = 0     # clients that became the line's other end
         self.refused = 0         # connections closed at once: the present client carries a live session
+        self.dropped = 0         # candidates closed: too many waited, or one waited too long
         self.generation = 0      # changes of client (connected, replaced, gone)
 
     def client_has_session(self) -> bool:
@@ -108,7 +146,8 @@ class TcpServerPort:
         token = self.live_session()
         return token is not None and token is not self._session_at_connect
 
-    def _accept(self) -> None:
+    # ---- who holds the line ----
+    def _accept(self, now: float) -> None:
         for _ in range(self.MAX_ACCEPTS_PER_READ):
             try:
                 client, addr = self._listener.accept()
@@ -123,10 +162,70 @@ class TcpServerPort:
                 continue
             client.setblocking(False)
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._drop_client()
-            self._client = client
-            self._session_at_connect = self.live_session()
-            self.connections += 1
+            if len(self._candidates) >= self.MAX_CANDIDATES:
+                self._drop(min(self._candidates, key=lambda c: (bool(c.sent), c.proof, c.since_s)))
+            self._candidates.append(_Candidate(client, now))
+
+    def _drop(self, candidate: _Candidate) -> None:
+        self._candidates.remove(candidate)
+        candidate.sock.close()
+        self.dropped += 1
+
+    def _hear_candidates(self) -> None:
+        """Read what each candidate sent (kept, judged); one that closed is forgotten."""
+        for candidate in list(self._candidates):
+            try:
+                data = candidate.sock.recv(self.CANDIDATE_BYTES)
+            except (BlockingIOError, InterruptedError):
+                continue
+            except OSError:
+                data = b""
+            if not data:
+                self._candidates.remove(candidate)
+                candidate.sock.close()
+                continue
+            candidate.sent += data
+            del candidate.sent[:-self.CANDIDATE_BYTES]
+            self._judge(candidate, data)
+
+    def _judge(self, who: _Candidate, data: bytes) -> None:
+        for frame in who.rx.feed(data):
+            if isinstance(frame, Frame):
+                proof = self.vouch(frame)
+                if proof > who.proof:
+                    who.proof, who.proof_s = proof, self._clock.now()
+
+    def _holder_proof(self, now: float) -> int:
+        """What the client on the line proved, as far as it still counts (0: no client)."""
+        if self._client is None:
+            return -1
+        if now - self._holder.proof_s > self.HANDSHAKE_GRACE_S:
+            return 0
+        return self._holder.proof
+
+    def _admit(self, now: float) -> Optional[bytes]:
+        """Give the line to the candidate that earned it, if one did: its bytes so far (None: nobody new)."""
+        stale = [c for c in self._candidates if now - c.since_s > self.CANDIDATE_WAIT_S]
+        if self.client_has_session():           # the line is taken for the session's life: no one waits for it
+            stale = list(self._candidates)
+            self.refused += len(stale)
+            self.dropped -= len(stale)
+        for candidate in stale:
+            self._drop(candidate)
+        if not self._candidates:
+            return None
+        needed = self._holder_proof(now) + 1    # a free line (-1 + 1): anyone, the one that proved most first
+        if self.live_only and self.live_session() is not None:
+            needed = max(needed, VOUCH_LIVE_SESSION)
+        best = max(self._candidates, key=lambda c: (c.proof, -c.proof_s, -c.since_s))
+        if best.proof < needed:
+            return None
+        self._candidates.remove(best)
+        self._drop_client()
+        self._client, self._holder = best.sock, best
+        self._session_at_connect = self.live_session()
+        self.connections += 1
+        return bytes(best.sent)
 
     def _drop_client(self) -> None:
         if self._client is not None:
@@ -135,11 +234,19 @@ class TcpServerPort:
             self.generation += 1
 
     def read(self, max_bytes: int) -> bytes:
-        """The present client's bytes; then new connections are taken or refused. Bytes of a client that
-        left or was replaced during this read are not returned (they were not the new client's)."""
+        """The present client's bytes, judged while it has no live session; then newcomers are taken, heard and
+        perhaps admitted. Bytes of a client that left or was replaced during this read are not returned (they
+        were not the new client's); a client admitted in it brings what it sent while it waited."""
+        now = self._clock.now()
         generation = self.generation
         data = self._receive(max_bytes) if self._client is not None else b""
-        self._accept()     # after the present client's end of stream, if it came, was seen
+        if data and not self.client_has_session():
+            self._judge(self._holder, data)
+        self._accept(now)     # after the present client's end of stream, if it came, was seen
+        self._hear_candidates()
+        admitted = self._admit(now)
+        if admitted is not None:
+            return admitted
         return data if self.generation == generation else b""
 
     def _receive(self, max_bytes: int) -> bytes:
@@ -176,6 +283,9 @@ class TcpServerPort:
     def close(self) -> None:
         if self._client is not None:
             self._client.close()
+        for candidate in self._candidates:
+            candidate.sock.close()
+        self._candidates.clear()
         self._listener.close()
 
 
@@ -377,6 +487,9 @@ class RedundantPort:
         self._ready = bytearray()
         self.lost_bytes = {name: 0 for name in self.ports}
         self.url = ",".join(f"{name}={port.url}" for name, port in self.ports.items())
+        for port in self.ports.values():
+            if hasattr(port, "live_only"):     # a TCP link of several: while the session lives, its host only
+                port.live_only = True
 
     @property
     def live_session(self):
@@ -387,6 +500,19 @@ class RedundantPort:
         for port in self.ports.values():
             if hasattr(port, "live_session"):
                 port.live_session = value
+
+    @property
+    def vouch(self):
+        for port in self.ports.values():
+            if hasattr(port, "vouch"):
+                return port.vouch
+        raise AttributeError("vouch: no link of this line admits connections")
+
+    @vouch.setter
+    def vouch(self, value) -> None:
+        for port in self.ports.values():
+            if hasattr(port, "vouch"):
+                port.vouch = value
 
     def read(self, max_bytes: int) -> bytes:
         now = self._clock.now()
