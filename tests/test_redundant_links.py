@@ -4,6 +4,7 @@ times): every command runs exactly once and none is lost. Plus the merger alone:
 from __future__ import annotations
 
 import re
+import signal
 import select
 
 import pytest
@@ -235,3 +236,91 @@ def test_a_link_address_pyserial_cannot_take_is_refused_when_parsed_before_anyth
     with pytest.raises(ValueError, match=r"unknown link scheme bogus://; .* socket://|a socket link is"):
         parse_links(url)
     assert {"socket", "loop", "rfc2217"} <= set(url_schemes())
+
+
+@pytest.mark.pty
+def test_a_dropped_optical_link_is_taken_up_again_by_the_host_and_admitted_for_the_session_only(sim_factory, env):
+    """The finding: the host never took a failed link up again, and the controller's port then served any local
+    client. Now the host opens it again every second while its line is open (`RedundantLines`), and the
+    controller's optical port, while the session lives, admits only a connection its host's frames come over."""
+    import socket
+    from tests.test_proxy import start_proxy
+    sim = sim_factory("--link", "radio=pty", "--link", "optical=tcp:0", "--no-tracker")
+    links = dict(parse_links(sim.url))
+    with socket.socket() as probe:               # a port for the optical link's proxy, the same across its restart
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    optical, optical_url, _ = start_proxy(env, links["optical"], "--host", f"tcp:{port}", "--no-view")
+    client = HostClient(f"radio={links['radio']},optical={optical_url}", auth.load_key(sim.key_path))
+    clock = RealClock()
+    try:
+        client.connect(timeout_s=60)
+        assert client.call(M["Ping"](1)).ok
+        optical.stop(signal.SIGKILL, timeout_s=10)        # the beam is cut: the host's optical link fails
+        deadline = clock.now() + 60
+        while "optical" not in client.line.failed and clock.now() < deadline:
+            assert client.call(M["Ping"](2)).ok            # the radio carries the session meanwhile
+        assert "optical" in client.line.failed, client.line.health()
+        stranger = socket.create_connection(links["optical"].removeprefix("socket://").rsplit(":", 1), timeout=10)
+        stranger.sendall(b"\x00garbage\x00")               # a local client on the free optical port: not admitted
+        optical, _, _ = start_proxy(env, links["optical"], "--host", f"tcp:{port}", "--no-view")
+        carried = client.line.merger.paths["optical"].frames
+        deadline = clock.now() + 60
+        while client.line.merger.paths["optical"].frames <= carried + 3 and clock.now() < deadline:
+            assert client.call(M["Ping"](3)).ok
+        assert client.line.reopened >= 1 and "optical" not in client.line.failed, client.line.health()
+        assert client.line.merger.paths["optical"].frames > carried + 3      # the controller answers over it again
+        stranger.settimeout(30)
+        assert stranger.recv(1) == b""                       # it waited as a candidate, then was closed
+        stranger.close()
+    finally:
+        client.close()
+        optical.stop(signal.SIGINT, timeout_s=10)
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("line, said", [
+    ("silent", "nothing came back to"),
+    ("busy", "with a cookie but not with a session"),      # only other hosts' answers and its own cookies: not a key problem
+    ("other key", "different keys"),
+])
+def test_a_handshake_that_fails_says_which_way_it_failed(line, said):
+    """The finding: a starved handshake was reported as "the two ends have different keys". Now an unanswered
+    Hello, a busy line and a MAC failure under this key are told apart (protocol/host_link.py `HandshakeSeen`)."""
+    import threading
+    from protocol.controller_link import ControllerLink
+    from bench.bench_handshake import recorded_hello
+    key = b"diagnosis-test-key-0123456789abc"
+    controller_end = PtyPort()
+    stop = threading.Event()
+    if line != "silent":
+        answering = ControllerLink(key if line == "busy" else b"another-key-0123456789abcdef012", lambda *a: None)
+        for n in range(4):
+            answering.feed(recorded_hello(key, bytes([n]) * 16), 0.0)
+        others = answering.take_all(0.0)
+
+        def cookies_only(data: bytes) -> bytes:     # a controller too busy to answer with a session
+            from protocol.framing import decode_frame
+            kept = [s for s in data.split(b"\x00") if s and decode_frame(s).msg_id != SCHEMA["HelloReply"].id]
+            return b"".join(b"\x00" + s + b"\x00" for s in kept)
+
+        def answer() -> None:         # other hosts' cookies, and a cookie for whatever this host sends
+            while not stop.wait(0.05):
+                data = controller_end.read(4096)
+                if data and line == "busy":
+                    answering.feed(data, 0.0)
+                    controller_end.write(cookies_only(answering.take_all(0.0)) + others)
+                elif line != "busy":
+                    controller_end.write(others)
+        threading.Thread(target=answer, daemon=True).start()
+    client = HostClient(controller_end.url, key)
+    try:
+        with pytest.raises(LinkError) as refused:
+            client.connect(timeout_s=2.0)
+        assert said in str(refused.value), str(refused.value)
+        if line != "other key":
+            assert "different keys" not in str(refused.value)
+    finally:
+        stop.set()
+        client.close()
+        controller_end.close()

@@ -21,6 +21,7 @@ from host_tools.worlds.ports import check_url
 READ_SIZE = 4096
 READ_TIMEOUT_S = 0.001
 EMPTY_READY_LIMIT_S = 1.0     # a link the selector finds ready that brings nothing for this long is taken for gone
+REOPEN_S = 1.0                # a failed link of several is opened again this often while the line is open
 
 
 def parse_links(url: str) -> list[tuple[str, str]]:
@@ -87,8 +88,10 @@ class SerialLine:
 class RedundantLines:
     """Several pyserial ports as one line: each frame written on all, the first copy of each frame read kept.
 
-    A link that fails (its device gone, its socket closed) is dropped from the set and said in `health`;
-    the line fails only when the last one does.
+    A link that fails (its device gone, its socket closed) is dropped from the set and said in `health`, and
+    opened again every `REOPEN_S` while the line is open (a dropped optical link comes back when its beam
+    does; the controller admits the connection once a frame of the session comes over it); the line fails
+    only when the last link does.
     """
 
     def __init__(self, links: list[tuple[str, str]], baud: int, clock: Clock) -> None:
@@ -102,7 +105,11 @@ class RedundantLines:
             self.close()
             raise
         self.merger = FrameMerger([name for name, _ in links])
+        self._urls = dict(links)
+        self._baud = baud
         self.failed: dict[str, str] = {}
+        self.reopened = 0                              # links opened again after they failed
+        self._reopen_s = 0.0
         self._empty_since: dict[str, float] = {}      # links found ready that read nothing, since when
         self._selector = selectors.DefaultSelector()
         for name, port in self.ports.items():
@@ -110,6 +117,7 @@ class RedundantLines:
 
     def _fail(self, name: str, exc: Exception) -> None:
         self.failed[name] = str(exc) or type(exc).__name__
+        self._reopen_s = self._clock.now() + REOPEN_S
         port = self.ports.pop(name)
         try:
             self._selector.unregister(port.fileno())
@@ -126,6 +134,7 @@ class RedundantLines:
         nothing, or on EAGAIN) is no proof of that: taken for a closed link, it would drop the link for the rest of
         the session. Such a read waits out `READ_TIMEOUT_S` (a link that stays ready would otherwise make every read
         return at once: a busy loop), and a link ready with nothing to read for `EMPTY_READY_LIMIT_S` is dropped."""
+        self._reopen_failed()
         out, came = bytearray(), False
         empty: dict[str, float] = {}
         for key, _ in self._selector.select(READ_TIMEOUT_S):
@@ -149,6 +158,23 @@ class RedundantLines:
         if empty and not came:
             self._clock.sleep(READ_TIMEOUT_S)
         return bytes(out)
+
+    def _reopen_failed(self) -> None:
+        """Open the failed links again, at most every `REOPEN_S`; one that opens rejoins the line."""
+        if not self.failed or self._clock.now() < self._reopen_s:
+            return
+        self._reopen_s = self._clock.now() + REOPEN_S
+        for name in list(self.failed):
+            try:
+                port = _open(self._urls[name], self._baud, 0)
+            except LinkError as exc:
+                self.failed[name] = str(exc)
+                continue
+            del self.failed[name]
+            self.ports[name] = port
+            self.merger.reset(name)
+            self._selector.register(port.fileno(), selectors.EVENT_READ, name)
+            self.reopened += 1
 
     def write(self, data: bytes) -> None:
         for name, port in list(self.ports.items()):
