@@ -174,3 +174,68 @@ def test_a_tcp_host_with_a_live_session_is_not_displaced_by_a_new_connection(sim
         second.close()
     status, err = proxy.stop(signal.SIGINT, timeout_s=10)
     assert status == 0, err
+
+
+def test_with_the_key_a_keyless_client_sending_well_formed_frames_does_not_hold_the_tcp_slot(sim_factory, env):
+    """The finding: a keyless client sending CRC-valid frames held the proxy's TCP slot (each kept it "live"), and
+    no host could come in. With --key-file only frames whose MAC verifies count; without it the proxy cannot tell
+    (docs/sessions.md)."""
+    import socket
+    from protocol.framing import encode_frame
+    from protocol.schema import MsgClass
+    from host_tools.client.live import HostClient
+    sim = sim_factory("--pty", "--no-tracker")
+    proxy, url, _ = start_proxy(env, sim.url, "--host", "tcp:0", "--no-view", "--key-file", str(sim.key_path))
+    host, port = url.removeprefix("socket://").rsplit(":", 1)
+    squatter = socket.create_connection((host, int(port)), timeout=10)
+    stop = threading.Event()
+
+    def squat() -> None:              # a well-formed frame every 50 ms, signed with a key of its own
+        counter = 1
+        while not stop.wait(0.05):
+            try:
+                squatter.sendall(encode_frame(MsgClass.COMMAND, 0, 0, M["Ping"].spec.id, bytes(4),
+                                              key=b"squatter-key-0123456789abcdef0", counter=counter))
+            except OSError:
+                return
+            counter += 1
+    threading.Thread(target=squat, daemon=True).start()
+    try:
+        client = HostClient(url, auth.load_key(sim.key_path))
+        try:
+            client.connect()
+            assert client.call(M["Ping"](1)).ok
+        finally:
+            client.close()
+    finally:
+        stop.set()
+        squatter.close()
+    status, err = proxy.stop(signal.SIGINT, timeout_s=10)
+    assert status == 0, err
+
+
+def test_a_stopped_proxy_delivers_what_is_in_flight_so_a_hosts_close_reaches_the_controller(sim_factory, env):
+    """Stopped while a host's Close is in its latency, the proxy delivers it before it closes: the session ends
+    closed, not lost (before, the frames in flight died with the proxy and the controller latched LINK_LOST)."""
+    from host_tools.client.live import HostClient
+    sim = sim_factory("--pty", "--no-tracker")
+    proxy, url, view = start_proxy(env, sim.url, "--impair", "latency_ms=700")
+    client = HostClient(url, auth.load_key(sim.key_path))
+    closing = threading.Thread(target=client.close, daemon=True)
+    try:
+        client.connect(timeout_s=60)
+        assert client.call(M["Ping"](1)).ok
+        closing.start()
+        clock = test_e2e.RealClock()
+        deadline = clock.now() + 60
+        while not any(b"Close(" in line for line in view) and clock.now() < deadline:
+            clock.sleep(0.01)             # the proxy shows the Close as it takes it in, before its latency
+        assert any(b"Close(" in line for line in view), b"".join(view)[-2000:]
+        proxy.proc.send_signal(signal.SIGTERM)
+        status, err = proxy.stop(signal.SIGTERM, timeout_s=30)
+        assert status == 0, err
+        closing.join(timeout=30)
+    finally:
+        if closing.ident is None:        # it failed before the close began
+            client.close()
+    sim.child.wait_stderr(r"the host closed its session \(done\)")

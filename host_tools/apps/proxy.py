@@ -14,7 +14,15 @@ every frame as it was sent, each lost or damaged one with a comment saying what 
 
 When an endpoint the proxy opened goes away (the controller exits, the device is unplugged), it says
 which and stops with EXIT_LINK. A host that closes its pty or TCP connection is not an error: the
-next one may come.
+next one may come. Stopped (SIGINT, SIGTERM), it reads nothing more and delivers what is in flight
+(`drain`, at most `DRAIN_S`) before it closes, so that a host's Close passing through is not cut off.
+
+A TCP host side admits clients as the controller's TCP port does (host_tools/worlds/ports.py
+`TcpServerPort`): a client that proves nothing never displaces one that proved something. With the
+key (`--key-file`) only frames whose MAC verifies prove anything and keep a client live (a Hello: a
+key, or a recording of one; a frame of a session the proxy saw begin: the session's host). Without
+the key the proxy cannot tell: any frame whose CRC passes counts, so a client that sends well-formed
+frames of its own holds the slot as well as a genuine host would (docs/sessions.md).
 """
 from __future__ import annotations
 
@@ -25,12 +33,12 @@ from dataclasses import dataclass, field
 from typing import Callable, Optional, TextIO
 
 from protocol.errors import ParseError
-from protocol.framing import decode_frame
+from protocol.framing import Frame, decode_frame
 from protocol.schema import Direction
 from timebase import Clock, RealClock
 
 from host_tools.sessions.capture import CaptureWriter
-from host_tools.sessions.decode import SessionDecoder, describe
+from host_tools.sessions.decode import HANDSHAKE_IDS, MAC_OK, DecodedFrame, SessionDecoder, describe
 from host_tools.sessions.impairment import Fate, ImpairedLine, ImpairedLink
 
 log = logging.getLogger("aspod")
@@ -41,6 +49,7 @@ MAX_HELD_FRAMES = 16384    # (and its frames in the link), so a side that does n
                            # the link's pacing, holds the writer back as a full line would, and nothing grows
 HOST_LIVE_S = 3.0          # a TCP host that sent a good frame this recently is not displaced by a new connection
 IDLE_S = 0.0005            # the loop's sleep when nothing is due sooner: the latency the proxy itself adds
+DRAIN_S = 2.0              # stopped: how long what is in flight may still take to be delivered
 
 
 class EndpointGone(Exception):
@@ -76,6 +85,7 @@ class Proxy:
         self.capture_name = capture_name
         self.capture_failed = ""          # why the capture stopped, if it could not be written
         self.decoder = SessionDecoder(psk)
+        self._psk = psk
         self.frames = 0
         # A TCP host port takes a new connection in place of a client without a live session, never of one with
         # (host_tools/worlds/ports.py): the proxy knows no session, so a client whose frames pass their CRC is
@@ -85,18 +95,33 @@ class Proxy:
         self._host_serves_clients = hasattr(host_port, "live_session")
         if self._host_serves_clients:
             host_port.live_session = self._host_session
+            host_port.vouch = self._vouch
 
     def _host_session(self) -> Optional[object]:
         live = self.clock.now() - self.origin - self._host_frame_s <= HOST_LIVE_S
         return self._host_token if live else None
 
-    def _host_sent(self, fates: list[Fate], t: float) -> None:
-        """Note a good frame from the host (its CRC passes): its client is live."""
-        for fate in fates:
-            try:
-                decode_frame(fate.sent.strip(b"\x00"))
-            except ParseError:
-                continue
+    def _vouch(self, frame: Frame) -> int:
+        """What a frame from a client waiting for the host side proves (`TcpServerPort.vouch`): without the key,
+        any frame 1; with it, a Hello that verifies 1, a frame of a session seen to begin 2, else nothing."""
+        if self._psk is None:
+            return 1
+        if self.decoder.mac_verdict(frame, Direction.TO_CONTROLLER) != MAC_OK:
+            return 0
+        return 1 if frame.msg_id in HANDSHAKE_IDS else 2
+
+    def _host_sent(self, decoded: list[Optional[DecodedFrame]], fates: list[Fate], t: float) -> None:
+        """Note a good frame from the host: its client is live. Good: with the key, its MAC verifies; without it,
+        its CRC passes (anyone can make such a frame: the docs say so)."""
+        for d, fate in zip(decoded, fates):
+            if self._psk is not None:
+                if d is None or d.frame is None or d.mac != MAC_OK:
+                    continue
+            else:
+                try:
+                    decode_frame(fate.sent.strip(b"\x00"))
+                except ParseError:
+                    continue
             self._host_frame_s = t
             if self._host_token is None:
                 self._host_token = object()
@@ -137,20 +162,43 @@ class Proxy:
                              "not yet delivered, are dropped")
             if data:
                 fates = line.send(data, t)
+                decoded = [self._decode(fate, direction, t) for fate in fates]
                 if source is self.host and self._host_serves_clients:
-                    self._host_sent(fates, t)
-                for fate in fates:
-                    self._show(fate, direction, t)
+                    self._host_sent(decoded, fates, t)
+                for fate, d in zip(fates, decoded):
+                    self._show(fate, direction, d)
+        self._deliver(t)
+        return self.link.next_due_s()
+
+    def _deliver(self, t: float) -> None:
         for line, target in ((self.link.to_controller, self.controller), (self.link.to_host, self.host)):
             target.outgoing += line.receive(t)
             self._write(target)
-        return self.link.next_due_s()
+
+    def drain(self, within_s: float = DRAIN_S) -> None:
+        """Stopping: read nothing more, deliver what is in flight (at most `within_s`, the link's latency and
+        pacing), so that a frame already sent, a host's Close say, reaches its end."""
+        deadline = self.clock.now() + within_s
+        while self.clock.now() < deadline:
+            t = self.clock.now() - self.origin
+            self._deliver(t)
+            if not (self.link.to_controller.in_flight or self.link.to_host.in_flight
+                    or self.host.outgoing or self.controller.outgoing):
+                return
+            due = self.link.next_due_s()
+            self.clock.sleep(max(0.0, min(IDLE_S, due - t)))
+
+    def _decode(self, fate: Fate, direction: Direction, t: float) -> Optional[DecodedFrame]:
+        """The frame as sent, decoded (MAC verified with the key), when the view or the key needs it."""
+        if self.view is None and self._psk is None:
+            return None
+        return self.decoder.decode(fate.sent.strip(b"\x00"), t, "link", direction)
 
     @staticmethod
     def _full(line: ImpairedLine, target: _Side) -> bool:
         return line.held_bytes + len(target.outgoing) >= MAX_HELD_BYTES or line.in_flight >= MAX_HELD_FRAMES
 
-    def _show(self, fate: Fate, direction: Direction, t: float) -> None:
+    def _show(self, fate: Fate, direction: Direction, decoded: Optional[DecodedFrame]) -> None:
         self.frames += 1
         note = fate.describe()
         if self.capture is not None:
@@ -161,9 +209,7 @@ class Proxy:
                                       f"the frames before frame {self.frames}, cut short"
                 log.error(f"aspod proxy: {self.capture_failed}; the link goes on")
                 self._close_capture()
-        if self.view is not None and self._view_has_room():
-            segment = fate.sent.strip(b"\x00")
-            decoded = self.decoder.decode(segment, t, "link", direction)
+        if self.view is not None and decoded is not None and self._view_has_room():
             print(describe(decoded) + (f"  [{note}]" if note else ""), file=self.view, flush=True)
 
     def _view_has_room(self) -> bool:

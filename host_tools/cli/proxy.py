@@ -40,6 +40,7 @@ def run_proxy(settings: ProxySettings) -> int:
     status = EXIT_OK
     try:
         proxy.run(lambda: bool(stopping))
+        proxy.drain()                 # stopped: what is in flight (a host's Close, say) still reaches its end
     except EndpointGone as exc:
         log.error(f"aspod proxy: {exc}")
         status = EXIT_LINK
