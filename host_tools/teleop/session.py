@@ -23,10 +23,12 @@ script shows that an interlock holds); `clock now` is read from the host's UTC w
 (`wall_time`, the one wall clock: timebase.RealClock.wall_time unless a bench gives its own).
 
 Waiting (`wait all`, `wait aligned`): the timeout counts the controller's own time when it says
-its time is simulated (paced or lock-step: TelemetryStatus `timing`), so that a host too slow
-for real time slows the wait down with the world instead of failing a script that would pass on
-a faster machine; a controller whose telemetry stops for `TELEMETRY_SILENCE_S` ends the wait.
-On real time, or without telemetry, it counts the wall clock.
+its time is simulated (paced or lock-step: `timing` in TelemetryStatus or Status), so that a host
+too slow for real time slows the wait down with the world instead of failing a script that would
+pass on a faster machine. The controller's time is its telemetry's, or, before the first
+TelemetryStatus of a session and whenever telemetry is silent for `STATUS_POLL_S`, a GetStatus's:
+so the first wait of a session counts it too. A controller that answers neither for
+`TELEMETRY_SILENCE_S` ends the wait. On real time it counts the wall clock.
 
 Modules: teleop_words (parsing, help), teleop_format (output), teleop_motion (motions and
 their ends), teleop_watch (live telemetry), teleop_box (the control box), teleop_clock
@@ -67,7 +69,8 @@ __all__ = ["LOCAL_COMMANDS", "Session", "Step", "TeleopError",
 
 BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
 ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
-TELEMETRY_SILENCE_S = 15.0   # a wait in the controller's time ends if no telemetry comes for this long (wall)
+TELEMETRY_SILENCE_S = 15.0   # a wait in the controller's time ends if nothing tells that time for this long (wall)
+STATUS_POLL_S = 1.0          # ... and it asks (GetStatus) when telemetry has been silent for this long (wall)
 SIMULATED_TIMINGS = (TimingMode.PACED, TimingMode.LOCKSTEP)
 EARLIER_SESSION_NOTE = " (from an earlier session; may have been seen already)"
 
@@ -291,27 +294,44 @@ class Session:
         clock's.
         """
         client, cache = self.client, self.telemetry
-        status = cache.status
         clock = client.clock
         start_wall = clock.now()
+        status = cache.status or self._asked_status()
         if status is None or status.timing not in SIMULATED_TIMINGS:
             held = client.wait_for(predicate, timeout_s)
             return held, clock.now() - start_wall, ""
-        start_ms = status.uptime_ms
+        start_ms = latest_ms = status.uptime_ms
+
+        def controller_ms() -> int:
+            latest = cache.status
+            return max(latest_ms, latest.uptime_ms) if latest is not None else latest_ms
 
         def waited_s() -> float:
-            return (cache.status.uptime_ms - start_ms) / 1000.0
+            return (controller_ms() - start_ms) / 1000.0
 
+        silent_since = clock.now()
         while True:
             seen = cache.received
             if client.wait_for(lambda: predicate() or waited_s() >= timeout_s or cache.received != seen,
-                               TELEMETRY_SILENCE_S):
+                               STATUS_POLL_S):
                 if predicate():
                     return True, waited_s(), ""
                 if waited_s() >= timeout_s:
                     return False, waited_s(), ""
+                silent_since = clock.now()
                 continue
-            return predicate(), waited_s(), f"no telemetry for {TELEMETRY_SILENCE_S:g} s (wall clock)"
+            asked = self._asked_status()          # telemetry is silent (off, or not begun): ask the controller
+            if asked is not None:
+                latest_ms = max(latest_ms, asked.uptime_ms)
+                silent_since = clock.now()
+            elif clock.now() - silent_since >= TELEMETRY_SILENCE_S:
+                return predicate(), waited_s(), (f"no telemetry and no answer to GetStatus for "
+                                                 f"{TELEMETRY_SILENCE_S:g} s (wall clock)")
+
+    def _asked_status(self) -> Optional[Message]:
+        """The controller's Status now (its time and its timing), or None if it does not answer."""
+        handle = self.client.call(SCHEMA["GetStatus"].type(), timeout_s=TELEMETRY_SILENCE_S)
+        return handle.reply if handle.ok else None
 
     def wait_aligned(self, step: Step) -> bool:
         """Until ALIGNED_READINGS TelemetryTracker in a row, all come after this line began, report a pointing
