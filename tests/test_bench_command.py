@@ -185,7 +185,7 @@ def test_a_record_over_the_script_or_to_a_folder_or_a_device_is_refused_before_t
     script.write_text(SCRIPT)
     (tmp_path / "adir").mkdir()
     os.link(script, tmp_path / "hard.txt")
-    for record, said in ((script, "the input itself"), (tmp_path / "hard.txt", "the input itself"),
+    for record, said in ((script, "an input of this run"), (tmp_path / "hard.txt", "an input of this run"),
                          (tmp_path / "adir", "a folder, not a file"), ("/dev/full", "not a regular file"),
                          (tmp_path / "nowhere" / "r.pcapng", "no folder")):
         assert main(["bench", str(script), "--record", str(record)]) == 2, record

@@ -189,16 +189,6 @@ def test_the_findings_folder_is_checked_before_the_target_starts(tmp_path):
     assert not (tmp_path / "pid").exists() and (tmp_path / "afile").read_text() == ""
 
 
-def test_check_writable_folder(tmp_path):
-    findings.check_writable_folder(tmp_path / "a" / "b", "--findings")
-    assert (tmp_path / "a" / "b").is_dir() and not any((tmp_path / "a" / "b").iterdir())
-    (tmp_path / "f").write_text("keep")
-    for path, said in ((tmp_path / "f", "not a folder"), (tmp_path / "f" / "x", "cannot be made")):
-        with pytest.raises(ValueError, match=said):
-            findings.check_writable_folder(path, "--findings")
-    assert (tmp_path / "f").read_text() == "keep"
-
-
 def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypatch, capsys):
     class FakeSession:
         url, child = "fake", None

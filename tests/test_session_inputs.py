@@ -172,7 +172,7 @@ def test_an_output_that_is_the_capture_itself_or_a_folder_is_refused_and_the_cap
     capture = _capture_file(tmp_path / "c.pcapng", _comment())
     kept = (tmp_path / "c.pcapng").read_bytes()
     os.link(capture, tmp_path / "hard.pcapng")
-    for output, said in ((capture, "the input itself"), (tmp_path / "hard.pcapng", "the input itself"),
+    for output, said in ((capture, "an input of this run"), (tmp_path / "hard.pcapng", "an input of this run"),
                          (tmp_path, "a folder, not a file")):
         assert main([command, capture, option, str(output)]) == 2, output
         assert said in capsys.readouterr().err

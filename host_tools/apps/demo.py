@@ -16,7 +16,6 @@ import json
 import logging
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Optional
 
 from protocol import auth
@@ -26,6 +25,7 @@ from protocol.reasons import Reason
 from host_tools.apps import pick_place
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
+from host_tools.outputs import Output
 from host_tools.teleop.session import run_script
 from host_tools.worlds.child import Child, ChildError
 
@@ -59,7 +59,7 @@ class DemoSettings:
     json: bool = False
     link: bool = False
     baud: int = 115200
-    record: Optional[Path] = None     # the session's capture (on the simulated clock: aspod replay re-runs it exactly)
+    record: Optional[Output] = None   # the session's capture (on the simulated clock: aspod replay re-runs it exactly)
 
 
 def run_demo(settings: DemoSettings) -> int:

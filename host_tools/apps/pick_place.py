@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -27,6 +26,7 @@ from protocol.states import Axis, GripAction, MotionOutcome
 from timebase import RealClock
 
 from host_tools.apps.kinematics import DEMO_SCENE, Scene, Step, steps
+from host_tools.outputs import Output
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.worlds.world import LockstepBench
 from host_tools.worlds.settings import PlantSettings
@@ -164,13 +164,16 @@ class PickAndPlace:
         self.bench.close()
 
 
-def run(gravity: str = "earth", seed: int = 0, progress=None, record: Optional[Path] = None) -> dict:
-    """Run the whole demo; return the report (see `aspod demo --json`). With `record`, the session's capture."""
+def run(gravity: str = "earth", seed: int = 0, progress=None, record: Optional[Output] = None) -> dict:
+    """Run the whole demo; return the report (see `aspod demo --json`). With `record`, the session's capture, put in
+    place when the demo ends (a run that raises, Ctrl-C say, leaves it as it was)."""
     wall0 = RealClock.precise_now()
     demo = PickAndPlace(gravity, seed)
+    writer = None
     if record is not None:
-        demo.bench.record(CaptureWriter.create(record, SessionInfo(
-            clock="simulated", tool="aspod demo", seed=seed, settings=demo.bench.settings())))
+        writer = CaptureWriter.create(record, SessionInfo(clock="simulated", tool="aspod demo", seed=seed,
+                                                          settings=demo.bench.settings()))
+        demo.bench.record(writer)
     error: Optional[str] = None
     try:
         demo.prepare()
@@ -180,6 +183,10 @@ def run(gravity: str = "earth", seed: int = 0, progress=None, record: Optional[P
                 progress(result)
     except DemoFailed as exc:
         error = str(exc)
+    except BaseException:
+        if writer is not None:
+            writer.discard()
+        raise
     finally:
         sim_time_s = demo.bench.clock.now()
         wall_time_s = RealClock.precise_now() - wall0

@@ -205,8 +205,10 @@ class Proxy:
             try:
                 self.capture.write("link", direction, fate.sent, RealClock.wall_time(), comment=note)
             except OSError as exc:        # a full disk, say: the capture stops there, the link goes on
-                self.capture_failed = f"{self.capture_name} cannot be written ({exc.strerror or exc}): it holds " \
-                                      f"the frames before frame {self.frames}, cut short"
+                kept = "" if self.capture.partial is None else \
+                    f"; the destination is left as it was, and {self.capture.partial} holds them"
+                self.capture_failed = f"{self.capture_name} cannot be written ({exc.strerror or exc}): the frames " \
+                                      f"before frame {self.frames} are kept, cut short{kept}"
                 log.error(f"aspod proxy: {self.capture_failed}; the link goes on")
                 self._close_capture()
         if self.view is not None and decoded is not None and self._view_has_room():

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import io
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Optional, TextIO
 
 from timebase import RealClock
 
 from host_tools.apps.fault_reaction import reactions
 from host_tools.client.bench import BenchClient
+from host_tools.outputs import Output
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import run_script
@@ -31,14 +31,17 @@ class ScriptRun:
 
 def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool = False,
                      out: Optional[TextIO] = None, err: Optional[TextIO] = None,
-                     capture: Optional[Path] = None, script: Optional[str] = None) -> ScriptRun:
+                     capture: Optional[Output] = None, script: Optional[str] = None) -> ScriptRun:
     """Run `lines` on a world built as `world` says. `out`: where each line's output goes as it runs (None:
     nowhere but the record); `err`: the script's problems (None: into the record's `problems`); `capture`:
-    a session capture of the link, on the simulated clock. ValueError if the world cannot be built."""
+    a session capture of the link, on the simulated clock, put in place when the run ends (a run that raises,
+    Ctrl-C say, leaves it as it was). ValueError if the world cannot be built."""
     bench = build_bench(world)
+    writer = None
     if capture is not None:
-        bench.record(CaptureWriter.create(capture, SessionInfo(clock="simulated", tool="aspod bench",
-                                                               seed=world.seed, settings=bench.settings())))
+        writer = CaptureWriter.create(capture, SessionInfo(clock="simulated", tool="aspod bench", seed=world.seed,
+                                                           settings=bench.settings()))
+        bench.record(writer)
     wall0 = RealClock.precise_now()
     problems = io.StringIO() if err is None else err
     try:
@@ -56,5 +59,9 @@ def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool
             result["problems"] = problems.getvalue().splitlines()
         client.close()                  # the session ends as a host's does, in the capture too
         return ScriptRun(status, result, session.summary())
+    except BaseException:
+        if writer is not None:
+            writer.discard()
+        raise
     finally:
         bench.close()

@@ -43,7 +43,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from datetime import date, datetime, time as clock_time, timedelta
-from typing import Optional, Sequence, TextIO
+from typing import BinaryIO, Optional, Sequence, TextIO, Union
 
 import numpy as np
 
@@ -58,6 +58,8 @@ from protocol.reasons import Reason
 from protocol.states import Switch, SwitchPosition, TrackerAxis
 from protocol.units import DEG
 from timebase import RealClock
+
+from host_tools.outputs import Output
 
 MODES = ("relay", "feedforward")
 MIN_ELEVATION_DEG = 5.0      # the day's window: the sun above this (the photocells see a usable beam)
@@ -336,8 +338,8 @@ def label(result: DayResult) -> str:
             f"{summary['relay_switchings']} switchings")
 
 
-def plot_days(results: Sequence[DayResult], path: str, title: Optional[str] = None) -> None:
-    """Pointing error and lag over the day, one line per run, to a PNG at `path`."""
+def plot_days(results: Sequence[DayResult], path: Union[str, BinaryIO], title: Optional[str] = None) -> None:
+    """Pointing error and lag over the day, one line per run, to a PNG (`path`: a name, or a binary file)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -366,7 +368,7 @@ def plot_days(results: Sequence[DayResult], path: str, title: Optional[str] = No
     s = first.settings
     fig.suptitle(title or f"ASPOD solar tracker, {s.site.name}, {s.day.isoformat()}"
                  + (f", clouds {s.clouds}" if s.clouds else ""))
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, format="png", dpi=110)
     plt.close(fig)
 
 
@@ -430,14 +432,15 @@ def parse_param(text: str) -> tuple[str, float]:
         raise ValueError(f"--param {text!r}: {value!r} is not a number") from None
 
 
-def run_tracker_day(settings: DaySettings, *, as_json: bool = False, plot: Optional[str] = None) -> int:
+def run_tracker_day(settings: DaySettings, *, as_json: bool = False, plot: Optional[Output] = None) -> int:
     """`aspod tracker-day`: the day, its summary on stdout (or one JSON object), the plot if asked."""
     import json
     progress = sys.stderr if sys.stderr.isatty() else None
     result = run_day(settings, progress)
     summary = result.summary()
     if plot is not None:
-        plot_days([result], str(plot))
+        with plot.open() as png:
+            plot_days([result], png)
         summary["plot"] = str(plot)
     if as_json:
         print(json.dumps(summary, indent=1))

@@ -44,13 +44,9 @@ def _progress_bar(settings: FuzzSettings, total, unit: str):
 def _inprocess(settings: FuzzSettings) -> int:
     from host_tools.fuzz.campaign import run_campaign, summarize
     from host_tools.fuzz.targets import load_target
-    from host_tools.fuzz.findings import check_writable_folder
     plan = settings.plan
     for name in plan.targets:
         load_target(name).close()            # an unknown target: refused before anything starts
-    check_writable_folder(plan.findings, "--findings")     # a finding made and then not saved would be lost
-    for name in plan.targets:
-        check_writable_folder(plan.corpus(name), "--corpus")   # libFuzzer would only skip what it cannot keep
     jobs = plan.jobs()
     total = sum(j.runs for j in jobs) if plan.runs is not None else None
     bar = _progress_bar(settings, total, "exec")
@@ -101,9 +97,7 @@ def _inprocess(settings: FuzzSettings) -> int:
 
 def _blackbox(settings: FuzzSettings) -> int:
     from host_tools.fuzz.blackbox import BlackBoxFuzzer, TargetGone
-    from host_tools.fuzz.findings import check_writable_folder
     bb = settings.blackbox
-    check_writable_folder(bb.findings, "--findings")        # before any target starts (as in process)
     bar = _progress_bar(settings, bb.cases, "case")
     state = {"cases": 0}
 

@@ -70,17 +70,17 @@ def run_log(settings: LogSettings) -> int:
         for d in shown:
             stats.add(d)
         print(stats.report(), file=out)
-    if settings.csv is not None:
-        if str(settings.csv) == "-":
-            write_csv(shown, out, origin)
-        else:
-            with open(settings.csv, "w", newline="") as table:
-                rows = write_csv(shown, table, origin)
-            print(f"# {rows} rows written to {settings.csv}", file=out)
+    if settings.csv_to_stdout:
+        write_csv(shown, out, origin)
+    elif settings.csv is not None:
+        with settings.csv.open(text=True) as table:
+            rows = write_csv(shown, table, origin)
+        print(f"# {rows} rows written to {settings.csv}", file=out)
     if settings.plot is not None:
-        plot_session(shown, str(settings.plot), origin, title=Path(settings.capture).name)
+        with settings.plot.open() as png:
+            plot_session(shown, png, origin, title=Path(settings.capture).name)
         print(f"# plot written to {settings.plot}", file=out)
-    if not (settings.stats or settings.csv is not None or settings.plot is not None):
+    if not (settings.stats or settings.csv is not None or settings.csv_to_stdout or settings.plot is not None):
         lines = [(d.time_s, describe(d, origin)) for d in shown]
         if not (settings.classes or settings.messages or settings.links or settings.errors_only):
             lines += [(t, f"{t - origin:12.6f} world    {describe_world_event(event)}")

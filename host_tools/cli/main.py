@@ -267,7 +267,7 @@ def _version() -> str:
 
 
 def add_logging_args(parser: argparse.ArgumentParser) -> None:
-    """-v, -q, --log-file: before the command or after it (`aspod -v sim`, `aspod sim -v`)."""
+    """-v, -q, --log-file and --force: before the command or after it (`aspod -v sim`, `aspod sim -v`)."""
     group = parser.add_argument_group("logging")
     group.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                        help="more diagnostics on stderr (repeatable: -vv for debug)")
@@ -275,6 +275,10 @@ def add_logging_args(parser: argparse.ArgumentParser) -> None:
                        help="fewer diagnostics on stderr: -q warnings and errors only, -qq errors only")
     group.add_argument("--log-file", type=Path, default=argparse.SUPPRESS, metavar="PATH",
                        help="also write the diagnostics, time-stamped, to PATH (appended)")
+    outputs = parser.add_argument_group("output files")
+    outputs.add_argument("--force", action="store_true", default=argparse.SUPPRESS,
+                         help="write an output over an existing file that is not of its kind (a capture over a text "
+                              "file, say); an output never replaces an input of the same run (docs/sessions.md)")
 
 
 def setup_logging(verbose: int = 0, quiet: int = 0, log_file: Optional[Path] = None) -> None:
@@ -638,8 +642,7 @@ def run_command(args: argparse.Namespace) -> int:
         return run_demo(settings.demo_settings(args))
     if args.command == "tracker-day":
         from host_tools.apps.tracker_day import run_tracker_day
-        return run_tracker_day(settings.day_settings(args), as_json=args.json,
-                               plot=None if args.plot is None else str(args.plot))
+        return run_tracker_day(settings.day_settings(args), as_json=args.json, plot=settings.day_plot(args))
     if args.command == "log":
         from host_tools.cli.log import run_log
         return run_log(settings.log_settings(args))
@@ -651,7 +654,7 @@ def run_command(args: argparse.Namespace) -> int:
         return run_replay(settings.replay_settings(args))
     if args.command == "wireshark":
         from host_tools.cli.wireshark import run_wireshark
-        return run_wireshark(args.output)
+        return run_wireshark(settings.wireshark_output(args))
     if args.command == "completion":
         import shtab
         print(shtab.complete(build_parser(), shell=args.shell))
@@ -676,6 +679,10 @@ def with_script_directive(args: argparse.Namespace, argv: Sequence[str]) -> argp
     return build_parser().parse_args([*argv[:at], *directive, *argv[at:]])
 
 
+def _terminated(signum, frame) -> None:
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
@@ -686,11 +693,26 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             print(f"aspod bench: {args.script}: {exc}", file=sys.stderr)
             return EXIT_USAGE
     args.argv = tuple(argv)            # the command line as given (a campaign keeps it in its record)
+    from host_tools.cli.settings import claims
     try:
+        claims(args)                            # --log-file: not an input, a folder, a file of another kind, ...
         setup_logging(getattr(args, "verbose", 0), getattr(args, "quiet", 0), getattr(args, "log_file", None))
-    except OSError as exc:                      # --log-file a folder, or in a folder that is not there
+    except ValueError as exc:
+        print(f"aspod: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:                      # (claimed, then taken away)
         print(f"aspod: --log-file: cannot write {exc.filename}: {exc.strerror}", file=sys.stderr)
         return EXIT_USAGE
+    # SIGTERM ends a command as an error would, through every `finally`: a live capture is put in place whole, an
+    # output half written is removed (host_tools/outputs.py). Commands that run until stopped set their own.
+    before = signal.signal(signal.SIGTERM, _terminated)
+    try:
+        return _run(args)
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+def _run(args: argparse.Namespace) -> int:
     log = logging.getLogger("aspod")
     try:
         return run_command(args)

@@ -24,7 +24,7 @@ def run_replay(settings: ReplaySettings) -> int:
         log.error(f"aspod replay: {settings.capture}: {exc}")
         return EXIT_USAGE
     if settings.output is not None and report.replayed is not None:
-        settings.output.write_bytes(report.replayed_bytes)
+        settings.output.write_bytes(report.replayed_bytes)        # whole, or not at all
     if settings.json:
         d = report.divergence
         print(json.dumps({"match": report.matches, "exact": report.exact, "commands": report.commands,

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from hil_sim.sun import TUCSON, as_clouds, to_utc
 from timebase import RealClock
 
 from host_tools.fuzz.hangs import HANG_S
+from host_tools.outputs import PNG, Claims, Output
 from host_tools.worlds import nodes
 from host_tools.worlds.settings import PlantSettings, TIMINGS
 
@@ -113,7 +113,7 @@ class TeleopSettings:
     keep_going: bool = False
     connect_timeout_s: float = 10.0
     summary: bool = False
-    record: Optional[Path] = None        # a session capture (pcapng) of every frame both ways
+    record: Optional[Output] = None      # a session capture (pcapng) of every frame both ways
     json: bool = False                   # a script's run as one JSON object (host_tools/teleop/record.py)
     control: Optional[Path] = None       # the simulator's control endpoint (None: found from the URL, if any)
 
@@ -127,9 +127,10 @@ class LogSettings:
     links: tuple[str, ...] = ()          # link names; empty: every link
     errors_only: bool = False
     stats: bool = False
-    csv: Optional[Path] = None
-    plot: Optional[Path] = None
+    csv: Optional[Output] = None
+    plot: Optional[Output] = None
     key_file: Optional[Path] = None
+    csv_to_stdout: bool = False          # `--csv -`
 
 
 @dataclass(frozen=True)
@@ -140,7 +141,7 @@ class BenchSettings:
     variables: tuple[tuple[str, str], ...] = ()
     keep_going: bool = False
     json: bool = False
-    record: Optional[Path] = None
+    record: Optional[Output] = None
 
 
 @dataclass(frozen=True)
@@ -150,7 +151,7 @@ class ProxySettings:
     controller: str
     impairment: "Impairment"
     baud: int = 115200
-    record: Optional[Path] = None
+    record: Optional[Output] = None
     key_file: Optional[Path] = None
     view: bool = True
 
@@ -162,7 +163,7 @@ class ReplaySettings:
     params: tuple[tuple[str, float], ...] = ()
     key_file: Optional[Path] = None
     json: bool = False
-    output: Optional[Path] = None
+    output: Optional[Output] = None
 
 
 @dataclass(frozen=True)
@@ -176,8 +177,8 @@ class SimSettings:
     hal: Optional[str] = None
     hal_channel: Optional[str] = None
     hal_options: tuple[tuple[str, Any], ...] = ()
-    record: Optional[Path] = None        # a session capture (pcapng) of the controller's line
-    can_log: Optional[Path] = None       # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
+    record: Optional[Output] = None      # a session capture (pcapng) of the controller's line
+    can_log: Optional[Output] = None     # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
     control: bool = False                # serve the control endpoint (aspod sim: unless --no-control or --hal) ...
     control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/control_server.py)
 
@@ -282,10 +283,11 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
                          "(--hal INTERFACE); without --hal the plant runs in this process on a private bus")
     if args.hal is not None:
         hal_options = nodes.parse_bus_args(args.hal_arg or (), args.hal, "--hal-arg")
+    outputs = claims(args)
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
-                       hal_options=tuple(hal_options.items()), record=output_file(args.record, "--record"),
-                       can_log=can_log_path(args.can_log),
+                       hal_options=tuple(hal_options.items()), record=capture_output(outputs, args.record),
+                       can_log=can_log_output(outputs, args.can_log),
                        control=not args.no_control and (args.hal is None or args.control is not None),
                        control_path=args.control)
 
@@ -306,7 +308,8 @@ def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     parse_links(args.url)            # a link address pyserial cannot take is bad input, refused before any is opened
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
-                          record=output_file(args.record, "--record"), json=args.json, control=args.control)
+                          record=capture_output(claims(args), args.record), json=args.json,
+                          control=args.control)
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":
@@ -314,7 +317,7 @@ def demo_settings(args: argparse.Namespace) -> "DemoSettings":
     if args.link and args.record is not None:
         raise ValueError("--record with --link: record with the teleop session instead (aspod teleop --record)")
     return DemoSettings(gravity=args.gravity, seed=args.seed, json=args.json, link=args.link, baud=args.baud,
-                        record=output_file(args.record, "--record"))
+                        record=capture_output(claims(args), args.record))
 
 
 def day_settings(args: argparse.Namespace) -> "DaySettings":
@@ -328,51 +331,53 @@ def day_settings(args: argparse.Namespace) -> "DaySettings":
                            end=parse_clock(args.end) if args.end else None,
                            params=tuple(parse_param(p) for p in args.param or ()))
     check_params(settings.params, parameter_table(), "the tracker", check_param)    # before the day's sun is computed
-    if args.plot is not None:
-        check_plot_path(args.plot)
     return settings
 
 
-def output_file(path: Optional[Path], option: str, source: Optional[Path] = None) -> Optional[Path]:
-    """A file to write, checked before anything runs: a regular file that can be written, or none yet in a folder
-    that is there and can be written (a folder, /dev/full or a FIFO in its place is refused: ValueError), and not
-    `source`, the input it is made from."""
+def day_plot(args: argparse.Namespace) -> Optional[Output]:
+    """`aspod tracker-day --plot`."""
+    return claims(args).file(args.plot, "--plot", PNG)
+
+
+INPUTS = {             # the Namespace's file inputs, and what they are to the run
+    "key_file": "the key file (--key-file)", "params": "the parameter file (--params)", "script": "the script",
+    "capture": "the capture", "problem": "the problem file (--problem)", "replay": "the finding (--replay)",
+    "bench": "the bench", "control": "the control endpoint's socket (--control)"}
+
+
+def run_inputs(args: argparse.Namespace) -> list[tuple[str, Path]]:
+    """Every file the run reads, which no output of it may replace: those named for it, and the development key and
+    parameter file that commands fall back to (in the per-user config folder)."""
+    from protocol import auth
+    named = [(what, Path(str(getattr(args, name)).split("::")[0])) for name, what in INPUTS.items()
+             if getattr(args, name, None) is not None]
+    key = auth.default_key_path()
+    return named + [("the development key", key), ("the parameter file", key.with_name("params.json"))]
+
+
+def claims(args: argparse.Namespace) -> Claims:
+    """The run's outputs are claimed here (host_tools/outputs.py): against its inputs, each other and, first, the
+    --log-file (appended to: claimed before logging starts, host_tools/cli/main.py)."""
+    from host_tools.outputs import LOG_FILE
+    outputs = Claims(run_inputs(args), force=getattr(args, "force", False))
+    outputs.file(getattr(args, "log_file", None), "--log-file", LOG_FILE)
+    return outputs
+
+
+def capture_output(outputs: Claims, path: Optional[Path], option: str = "--record") -> Optional[Output]:
+    from host_tools.sessions.capture import CAPTURE
+    return outputs.file(path, option, CAPTURE)
+
+
+def can_log_output(outputs: Claims, path: Optional[Path]) -> Optional[Output]:
+    """A python-can log file: a suffix its `Logger` writes (which says the kind of file it is)."""
     if path is None:
         return None
+    from host_tools.worlds.can_log import KINDS
     path = Path(path)
-    if path.is_dir() or not path.parent.is_dir():
-        raise ValueError(f"{option} {path}: " + ("a folder, not a file" if path.is_dir() else f"no folder {path.parent}"))
-    if os.path.lexists(path) and not path.is_file():
-        raise ValueError(f"{option} {path}: not a regular file; it is written to a file")
-    if not os.access(path if path.exists() else path.parent, os.W_OK):
-        raise ValueError(f"{option} {path}: cannot be written (permission denied)")
-    if source is not None and path.exists() and Path(source).exists() and os.path.samefile(path, source):
-        raise ValueError(f"{option} {path}: that is the input itself, which writing would replace")
-    return path
-
-
-CAN_LOG_SUFFIXES = (".asc", ".blf", ".csv", ".log", ".trc", ".txt")
-
-
-def can_log_path(path: Optional[Path]) -> Optional[Path]:
-    """A python-can log file: a suffix its `Logger` writes and a folder that exists."""
-    if path is None:
-        return None
-    path = Path(path)
-    if path.suffix.lower() not in CAN_LOG_SUFFIXES:
-        raise ValueError(f"--can-log {path}: python-can writes {', '.join(CAN_LOG_SUFFIXES)}; name the file so")
-    if not path.parent.is_dir():
-        raise ValueError(f"--can-log {path}: no folder {path.parent}")
-    return path
-
-
-def check_plot_path(path) -> None:
-    """A PNG path whose folder exists, checked before a run rather than after it."""
-    path = Path(path)
-    if path.suffix.lower() != ".png":
-        raise ValueError(f"--plot {path}: the plot is a PNG file; name it *.png")
-    if not path.parent.is_dir():
-        raise ValueError(f"--plot {path}: no folder {path.parent}")
+    if path.suffix.lower() not in KINDS:
+        raise ValueError(f"--can-log {path}: python-can writes {', '.join(KINDS)}; name the file so")
+    return outputs.file(path, "--can-log", KINDS[path.suffix.lower()])
 
 
 def log_settings(args: argparse.Namespace) -> LogSettings:
@@ -389,18 +394,25 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
         if name.lower() not in by_lower:
             raise ValueError(f"--message {name}: no such message (see docs/protocol.md)")
         messages.append(by_lower[name.lower()])
-    if args.plot is not None:
-        check_plot_path(args.plot)
-    if args.csv is not None and str(args.csv) != "-":
-        output_file(args.csv, "--csv", args.capture)
+    from host_tools.sessions.export import CSV
+    outputs = claims(args)
+    plot = outputs.file(args.plot, "--plot", PNG)
+    to_stdout = args.csv is not None and str(args.csv) == "-"
+    csv = None if to_stdout else outputs.file(args.csv, "--csv", CSV)
     return LogSettings(args.capture, classes, tuple(messages), tuple(args.link or ()), args.errors, args.stats,
-                       args.csv, args.plot, args.key_file)
+                       csv, plot, args.key_file, to_stdout)
 
 
 def replay_settings(args: argparse.Namespace) -> ReplaySettings:
-    output = output_file(args.output, "--output", args.capture)
+    output = capture_output(claims(args), args.output, "--output")
     return ReplaySettings(args.capture, tuple(dict(pairs(args.param or [], "--param")).items()), args.key_file,
                           args.json, output)
+
+
+def wireshark_output(args: argparse.Namespace) -> Optional[Output]:
+    """`aspod wireshark --output` (None: standard output)."""
+    from host_tools.sessions.wireshark import DISSECTOR
+    return claims(args).file(args.output, "--output", DISSECTOR)
 
 
 def proxy_settings(args: argparse.Namespace) -> ProxySettings:
@@ -416,7 +428,7 @@ def proxy_settings(args: argparse.Namespace) -> ProxySettings:
             raise ValueError(f"{option}: {exc}") from None
     if args.host == args.controller and args.host not in ("pty", "tcp:0"):     # (each of those is a new one)
         raise ValueError(f"--host and --controller are both {args.host}: the two sides must differ")
-    return ProxySettings(args.host, args.controller, impairment, args.baud, output_file(args.record, "--record"),
+    return ProxySettings(args.host, args.controller, impairment, args.baud, capture_output(claims(args), args.record),
                          args.key_file, not args.no_view)
 
 
@@ -428,7 +440,7 @@ def bench_settings(args: argparse.Namespace) -> BenchSettings:
         default = PlantSettings().start if args.sun_start is None else to_utc(RealClock.wall_time())
         plant = plant.with_start(default)
     return BenchSettings(args.script, bench_world(args, plant), pairs(args.var, "--var", str), args.keep_going,
-                         args.json, output_file(args.record, "--record", args.script))
+                         args.json, capture_output(claims(args), args.record))
 
 
 def check_params(params, table, whose: str, check) -> None:
@@ -506,8 +518,9 @@ def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
     if out is None:
         from datetime import datetime, timezone
         out = Path(f"campaign-{datetime.fromtimestamp(RealClock.wall_time(), timezone.utc):%Y%m%d-%H%M%S}")
-    if out.exists() and (not out.is_dir() or any(out.glob("rows.*")) or (out / "campaign.json").exists()):
-        raise ValueError(f"--out {out}: it already holds a campaign (or is not a folder); give another")
+    claims(args).folder(out, "--out")
+    if out.exists() and (any(out.glob("rows.*")) or (out / "campaign.json").exists()):
+        raise ValueError(f"--out {out}: it already holds a campaign; give another")
     group_by = args.group_by
     if group_by is None and "fault" in matrix.axes:
         group_by = "fault"
@@ -574,6 +587,7 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
                 from host_tools.worlds.ports import check_url
                 check_url(args.url)
             seconds = args.time if args.time is not None else (None if args.cases else 60.0)
+            claims(args).folder(args.findings, "--findings")     # a finding made and then not saved would be lost
             blackbox = BlackBoxSettings(args.url or "", command, args.baud, seconds, args.cases, args.seed,
                                         args.findings, skip=tuple(args.skip) if args.skip is not None
                                         else ("ParamSave",), only=tuple(args.only),
@@ -593,6 +607,10 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
     seconds = args.time if args.time is not None else (None if args.runs else 60.0)
     plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed,
                         common["hang_s"])
+    outputs = claims(args)
+    outputs.folder(plan.findings, "--findings")
+    for name in plan.targets:
+        outputs.folder(plan.corpus(name), "--corpus")        # libFuzzer would only skip what it cannot keep
     return FuzzSettings("inprocess", plan=plan, engine=EngineSettings(args.workers, args.scheduler, args.serial),
                         **common)
 
@@ -630,6 +648,7 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--order is the reachability planner's: give --method reach")
     if args.order == 2 and args.squeeze is not None:
         raise ValueError("--order 2 plans with the load shared, without the squeeze: give --order 1 for --squeeze")
+    claims(args).folder(args.plot, "--plot")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
                         args.method, args.squeeze, args.order)

@@ -64,12 +64,6 @@ def run_sim(settings: SimSettings) -> int:
                   controller_config=config, plant=plant, link_clock=wall)
     params = world.controller.params
     apply_command_line(world.controller, settings.controller, "aspod sim")
-    if settings.record is not None:
-        world.record_link(CaptureWriter.create(settings.record, session_info(settings, plant, world)))
-        log.info(f"aspod sim: recording the link to {settings.record} (aspod log {settings.record})")
-    if settings.can_log is not None:
-        world.log_hal_bus(settings.can_log)
-        log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
     log_states(world.controller, "aspod sim")
     stopping = []
 
@@ -83,6 +77,7 @@ def run_sim(settings: SimSettings) -> int:
     control = None
     try:
         control = serve_control(settings, plant, world, port.url)
+        record_outputs(settings, plant, world)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
         if control is not None:
@@ -96,6 +91,18 @@ def run_sim(settings: SimSettings) -> int:
             control.close()
         world.close()
     return 0
+
+
+def record_outputs(settings: SimSettings, plant: PlantSettings, world: World) -> None:
+    """--record and --can-log, begun when nothing before the run can fail any more (a run that never started leaves
+    them as they were); each is written to a temporary file and put in place when the world closes, a stop by
+    SIGINT or SIGTERM included (host_tools/outputs.py)."""
+    if settings.record is not None:
+        world.record_link(CaptureWriter.create(settings.record, session_info(settings, plant, world)))
+        log.info(f"aspod sim: recording the link to {settings.record} (aspod log {settings.record})")
+    if settings.can_log is not None:
+        world.log_hal_bus(settings.can_log)
+        log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
 
 
 def serve_control(settings: SimSettings, plant: PlantSettings, world: World, link_url: str) -> Optional[ControlServer]:

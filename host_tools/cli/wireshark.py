@@ -2,14 +2,14 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 from typing import Optional
 
 from host_tools.exit_codes import EXIT_OK
+from host_tools.outputs import Output
 from host_tools.sessions.wireshark import generate_dissector
 
 
-def run_wireshark(output: Optional[Path]) -> int:
+def run_wireshark(output: Optional[Output]) -> int:
     text = generate_dissector()
     if output is None:
         sys.stdout.write(text)

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 import time
 
 from timebase import RealClock
@@ -111,25 +109,6 @@ class Finding:
         tmp.write_text(json.dumps(self.to_json(), indent=1) + "\n")
         tmp.replace(path)
         return path
-
-
-def check_writable_folder(path: Path, what: str) -> None:
-    """`path` a folder this process can write in (made if missing, a probe file written and removed), before
-    anything starts that would want to save there; ValueError with the reason else (`what`: the option, say)."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise ValueError(f"{what} {path}: not a folder") from None
-    except OSError as exc:
-        raise ValueError(f"{what} {path}: cannot be made ({exc.strerror or exc})") from None
-    if not path.is_dir():
-        raise ValueError(f"{what} {path}: not a folder")
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".aspod-probe-", dir=path)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise ValueError(f"{what} {path}: cannot write in it ({exc.strerror or exc})") from None
 
 
 def load(path: Path) -> Finding:

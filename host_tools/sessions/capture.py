@@ -18,17 +18,19 @@ from __future__ import annotations
 
 import json
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO, Optional
+from typing import Any, BinaryIO, Optional, Union
 
 from protocol.files import read_bounded
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
 from host_tools import strict_json
+from host_tools.outputs import Kind, Output, Pending, begins, unclaimed
 from host_tools.sessions.segments import SegmentCutter
-from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, CaptureError, Packet,
-                                       PcapngReader, PcapngWriter)
+from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, SHB, CaptureError,
+                                       Packet, PcapngReader, PcapngWriter)
 
 FORMAT_VERSION = 1
 SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces (the command line's --seed): 0 .. 4294967295
@@ -42,6 +44,9 @@ DIRECTION_FLAG = {Direction.TO_CONTROLLER: OUTBOUND, Direction.TO_HOST: INBOUND}
 FLAG_DIRECTION = {flag: direction for direction, flag in DIRECTION_FLAG.items()}
 CLOCKS = ("simulated", "paced", "wall")
 WORLD = "world"       # the interface of world events: JSON objects, link type USER1 (Wireshark shows them as data)
+# What --record and replay's --output write, and may write over: a pcapng file, which begins with its Section Header
+# Block's type (the same four bytes in either byte order); ours or any other tool's.
+CAPTURE = Kind("a pcapng capture", begins(SHB.to_bytes(4, "little")))
 
 
 @dataclass
@@ -112,38 +117,83 @@ class CaptureWriter:
     Bytes are cut into frames per link and direction (`SegmentCutter`); each frame is written with
     the time its closing delimiter was seen. The file is flushed after every frame, so a session
     that ends abruptly leaves a capture that reads up to its last frame.
+
+    Made by `create`, it writes a temporary file beside its destination (host_tools/outputs.py):
+    `close` puts the capture in place, whole; `discard` leaves the destination as it was. A
+    capture that could not be written (a full disk: `write` raised) is not put in place by
+    `close`: its temporary is left, holding the frames before the failure, at `partial`.
     """
 
-    def __init__(self, stream: BinaryIO, info: SessionInfo, links: tuple[str, ...] = ("link",)) -> None:
-        self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=f"aspod {info.tool}".strip())
+    def __init__(self, stream: BinaryIO, info: SessionInfo, links: tuple[str, ...] = ("link",),
+                 pending: Optional[Pending] = None) -> None:
+        self._pending = pending
         self._stream = stream
+        self.failed = False
+        self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=f"aspod {info.tool}".strip())
         self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}") for name in links}
         self._taps = {(name, d): SegmentCutter() for name in links for d in DIRECTION_FLAG}
         self.frames = 0
         self._world: Optional[int] = None
+        stream.flush()              # a capture of no frame yet is a capture too: killed now, it reads
 
     @classmethod
-    def create(cls, path: Path, info: SessionInfo, links: tuple[str, ...] = ("link",)) -> "CaptureWriter":
-        return cls(open(path, "wb"), info, links)
+    def create(cls, output: Union[Output, Path], info: SessionInfo, links: tuple[str, ...] = ("link",)
+               ) -> "CaptureWriter":
+        """A capture into `output` (claimed by the command's settings; a plain path is written the same way)."""
+        pending = unclaimed(output, CAPTURE).open()
+        try:
+            return cls(pending.file, info, links, pending)
+        except BaseException:
+            pending.discard()
+            raise
+
+    @property
+    def partial(self) -> Optional[Path]:
+        """The temporary file the capture is written to until `close` (None: a stream given by the caller)."""
+        return None if self._pending is None else self._pending.path
 
     def write(self, link: str, direction: Direction, data: bytes, time_s: float, comment: str = "") -> None:
         if not data:
             return
         iface = self._links[link]
-        for segment, length in self._taps[(link, direction)].feed(data):
-            self._pcap.write_packet(iface, time_s, segment, DIRECTION_FLAG[direction], comment, length)
-            self.frames += 1
-        self._stream.flush()
+        with self._failing():
+            for segment, length in self._taps[(link, direction)].feed(data):
+                self._pcap.write_packet(iface, time_s, segment, DIRECTION_FLAG[direction], comment, length)
+                self.frames += 1
+            self._stream.flush()
 
     def note(self, event: dict[str, Any], time_s: float) -> None:
         """A world event (something done to the plant outside the link), as JSON on the `world` interface."""
-        if self._world is None:
-            self._world = self._pcap.add_interface(WORLD, "events in the world outside the link", LINKTYPE_USER1)
-        self._pcap.write_packet(self._world, time_s, json.dumps(event, sort_keys=True).encode())
-        self._stream.flush()
+        with self._failing():
+            if self._world is None:
+                self._world = self._pcap.add_interface(WORLD, "events in the world outside the link", LINKTYPE_USER1)
+            self._pcap.write_packet(self._world, time_s, json.dumps(event, sort_keys=True).encode())
+            self._stream.flush()
+
+    @contextmanager
+    def _failing(self):
+        try:
+            yield
+        except OSError:
+            self.failed = True
+            raise
 
     def close(self) -> None:
-        self._stream.close()
+        """The capture is complete: into its place. Failed, or if it cannot be put in place (OSError), its
+        temporary is left at `partial` with every frame written."""
+        if self._pending is None:
+            self._stream.close()
+        elif self.failed:
+            self._pending.keep()
+        else:
+            self._pending.commit(keep_on_error=True)
+
+    def discard(self) -> None:
+        """The run failed before its capture meant anything: the temporary removed, the destination as it was."""
+        if self._pending is None:
+            self._stream.close()
+        else:
+            self._pending.discard()
 
 
 @dataclass

@@ -2,13 +2,16 @@
 from __future__ import annotations
 
 import csv
-from typing import Iterable, Sequence, TextIO
+from typing import BinaryIO, Iterable, Sequence, TextIO, Union
 
 from protocol.schema import MsgClass
 from protocol.states import ARM_AXES
+from host_tools.outputs import Kind, begins
 from host_tools.sessions.decode import ARROW, DecodedFrame, format_value
 
 HEAD = ["time_s", "link", "direction", "class", "seq", "message"]
+CSV = Kind("a CSV table of aspod log's (its first line begins `" + ",".join(HEAD) + "`)",
+           begins(",".join(HEAD).encode()))
 
 
 def write_csv(frames: Sequence[DecodedFrame], out: TextIO, origin_s: float = 0.0) -> int:
@@ -43,8 +46,9 @@ def _series(frames: Iterable[DecodedFrame], message: str, fields: Sequence[str],
     return t, ys
 
 
-def plot_session(frames: Sequence[DecodedFrame], path: str, origin_s: float = 0.0, title: str = "") -> None:
-    """Four panels against the session's time: joint positions, motor currents, the tracker's pointing error,
+def plot_session(frames: Sequence[DecodedFrame], path: Union[str, BinaryIO], origin_s: float = 0.0,
+                 title: str = "") -> None:
+    """To a PNG file (a name, or a binary file): four panels against the session's time: joint positions, motor currents, the tracker's pointing error,
     and link health (frames that failed to decode or verify, telemetry gaps). A panel whose telemetry the
     session did not carry says so instead of staying blank."""
     import matplotlib
@@ -84,5 +88,5 @@ def plot_session(frames: Sequence[DecodedFrame], path: str, origin_s: float = 0.
         panel.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, format="png", dpi=110)
     plt.close(fig)

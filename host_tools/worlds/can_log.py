@@ -7,21 +7,40 @@ packed now, `ValueFrame.data`), stamped with the world's time, through `can.Logg
 suffix chooses the format (.blf, .asc, .log, .csv, .trc, .txt), and `cantools decode`,
 `python -m can.viewer`, `python -m can.player` and `cantools plot` read it with
 `protocol/hal.dbc`.
+
+The log is written to a temporary file with the same suffix beside it and put in place by
+`stop` (host_tools/outputs.py), so a run that is killed leaves the destination as it was.
 """
 from __future__ import annotations
-
-from pathlib import Path
 
 import can
 
 from timebase import Clock
 
+from host_tools.outputs import Kind, Output, begins
+
+# What python-can's Logger writes for each suffix, known by how the file begins (an existing --can-log file that
+# begins otherwise is not overwritten without --force).
+KINDS = {
+    ".asc": Kind("a Vector ASC log (it begins `date `)", begins(b"date ")),
+    ".blf": Kind("a Vector BLF log", begins(b"LOGG")),
+    ".csv": Kind("a python-can CSV log", begins(b"timestamp,arbitration_id,")),
+    ".log": Kind("a candump log (lines such as `(1.500000) plant 123#0102`)", begins(b"(")),
+    ".trc": Kind("a PCAN trace", begins(b";$FILEVERSION")),
+    ".txt": Kind("a python-can text log (lines that begin `Timestamp:`)", begins(b"Timestamp:")),
+}
+
 
 class HalBusLog:
-    """Logs what `buses` send from now on; `stop()` closes the file."""
+    """Logs what `buses` send from now on; `stop()` closes the file and puts it in place."""
 
-    def __init__(self, path: Path, clock: Clock, buses: dict[str, can.BusABC]) -> None:
-        self._logger = can.Logger(str(path))
+    def __init__(self, output: Output, clock: Clock, buses: dict[str, can.BusABC]) -> None:
+        self._pending = output.open()
+        try:
+            self._logger = can.Logger(str(self._pending.path))     # the temporary's suffix picks the format
+        except BaseException:
+            self._pending.discard()
+            raise
         self._clock = clock
         self.frames = 0
         for channel, bus in buses.items():
@@ -43,4 +62,9 @@ class HalBusLog:
         bus.send = logged_send       # the HAL endpoints look `send` up on the bus at every frame
 
     def stop(self) -> None:
-        self._logger.stop()
+        try:
+            self._logger.stop()
+        except BaseException:
+            self._pending.keep()
+            raise
+        self._pending.commit(keep_on_error=True)

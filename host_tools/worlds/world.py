@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import math
 import random
-from pathlib import Path
 from typing import Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
 from timebase.scheduler import Scheduler, poll_tick, run_live
 from firmware_py.uart import PacedUart, Port
+from host_tools.outputs import Output
 from host_tools.sessions.capture import CaptureWriter
 from host_tools.sessions.impairment import ImpairedLine, ImpairedLink, Impairment
 from host_tools.worlds import plant_actions
@@ -76,9 +76,9 @@ class World:
         self.link_scheduler = Scheduler(link_clock) if link_clock is not None else self.scheduler
         self.controller.attach(self.scheduler, self.link_scheduler)
 
-    def log_hal_bus(self, path: Path) -> HalBusLog:
-        """Write every HAL frame from now on to `path` through python-can's Logger (`close` stops it)."""
-        self.hal_log = HalBusLog(path, self.clock, {"plant": self.plant_bus, "controller": self.controller_bus})
+    def log_hal_bus(self, output: Output) -> HalBusLog:
+        """Write every HAL frame from now on to `output` through python-can's Logger (`close` puts it in place)."""
+        self.hal_log = HalBusLog(output, self.clock, {"plant": self.plant_bus, "controller": self.controller_bus})
         return self.hal_log
 
     def record_link(self, capture: CaptureWriter) -> None:
