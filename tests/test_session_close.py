@@ -150,3 +150,59 @@ def test_a_recorded_close_played_back_in_a_later_session_does_nothing():
     wire.step(100)
     assert len(wire.executed) == ran and wire.controller.state is LinkState.UP
     assert wire.call(M["Ping"](3)).ok
+
+
+# ---- through the real interface: `aspod sim` and `aspod teleop` as processes over a pty ----
+
+import re                                                        # noqa: E402
+import signal                                                    # noqa: E402
+
+import pytest                                                    # noqa: E402
+
+from host_tools.worlds.child import PIPE, Child                 # noqa: E402
+from tests import test_e2e                                       # noqa: E402
+
+env, sim_factory = test_e2e.env, test_e2e.sim_factory            # the fixtures, shared
+SESSION = "enable\nhome all\nwait all 120\nmoveby j1 5\nwait all 60\nstatus\nquit\n"
+
+
+@pytest.mark.pty
+def test_two_scripted_teleop_sessions_in_a_row_need_no_reset(sim_factory):
+    """The finding: every session ended in LINK_LOST, so the second one's `enable` was refused until a `reset`."""
+    sim = sim_factory("--pty", "--no-tracker")
+    for run in range(2):
+        done = sim.teleop(SESSION, timeout_s=600)
+        out = done.stdout.decode()
+        assert done.returncode == 0, f"session {run + 1}: {done.stderr.decode()}{out[-2000:]}"
+        assert "state=ENABLED" in out and "FAULT" not in out
+        sim.child.wait_stderr(r"ENABLED -> IDLE \(SESSION_CLOSED\)")
+        sim.child.seen.clear()
+    assert "LINK_LOST" not in "".join(sim.child.seen)
+
+
+@pytest.mark.pty
+def test_teleop_stopped_by_sigterm_closes_its_session(sim_factory):
+    sim = sim_factory("--pty", "--no-tracker")
+    host = Child(["teleop", sim.url], stdin=PIPE, env=sim.env)
+    host.proc.stdin.write(b"enable\nstatus\nwait 3600\n")          # a pause the signal ends
+    host.proc.stdin.close()                                     # a script: read to its end first
+    while "state=ENABLED" not in host.line(60):
+        pass
+    host.proc.send_signal(signal.SIGTERM)
+    assert host.proc.wait(timeout=60) == 128 + signal.SIGTERM
+    sim.child.wait_stderr(r"the host closed its session \(stopped\)")
+    done = sim.teleop("status\nenable\nquit\n")
+    assert done.returncode == 0 and "state=IDLE" in done.stdout.decode(), done.stderr.decode()
+
+
+@pytest.mark.pty
+def test_the_first_wait_of_a_session_counts_the_controllers_time(sim_factory):
+    """The finding: before the first TelemetryStatus a wait counted wall seconds, so on `aspod sim --speed 0.01`
+    `wait all 20` gave up after 0.3 simulated s. At --speed 0.1, `wait all 1` over a homing that takes longer
+    must wait one simulated second (10 wall s), not one wall second."""
+    sim = sim_factory("--pty", "--no-tracker", "--speed", "0.1")
+    done = sim.teleop("telemetry 0\nenable\nhome all\nwait all 1\nstatus\nquit\n", "--keep-going", timeout_s=600)
+    out = done.stdout.decode()
+    uptimes = [int(ms) for ms in re.findall(r"uptime_ms=(\d+)", out)]
+    assert "FAIL wait all: timed out after 1 s" in out and uptimes, out
+    assert uptimes[-1] >= 1000, out          # the controller's own time went on by the second waited (before: 0.1 s)

@@ -2,13 +2,12 @@
 
 Every way out closes the session cleanly (`HostClient.close`: an authenticated Close, so the controller goes
 to IDLE rather than latching LINK_LOST): `quit`, Ctrl-D, the end of a script (DONE), Ctrl-C or SIGTERM
-(STOPPED), an exception (ERROR).
+(STOPPED; SIGTERM reaches here as cli/main.py's SystemExit, exit 143), an exception (ERROR).
 """
 from __future__ import annotations
 
 import json
 import logging
-import signal
 import sys
 
 from host_tools.cli.settings import TeleopSettings
@@ -24,14 +23,6 @@ from protocol.states import CloseWhy
 
 
 log = logging.getLogger("aspod")
-
-
-class Stopped(KeyboardInterrupt):
-    """SIGTERM: stop as on Ctrl-C, closing the session on the way out (exit 143)."""
-
-
-def _stop(signum, frame) -> None:
-    raise Stopped()
 
 
 def run_teleop(args: TeleopSettings, psk: bytes) -> int:
@@ -64,7 +55,6 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
             control.close()
         raise
     why = CloseWhy.DONE
-    previous = signal.signal(signal.SIGTERM, _stop)
     try:
         client.connect(args.connect_timeout_s)
         info = client.link.controller_info
@@ -88,18 +78,12 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
         if args.summary or lines is None:
             print(session.summary(), flush=True)
         return status
-    except Stopped:
-        why = CloseWhy.STOPPED
-        return 128 + signal.SIGTERM
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemExit):      # Ctrl-C, or SIGTERM (cli/main.py: SystemExit(143))
         why = CloseWhy.STOPPED
         raise
     except BaseException:
         why = CloseWhy.ERROR
         raise
     finally:
-        try:
-            client.close(why)
-        finally:
-            signal.signal(signal.SIGTERM, previous)
+        client.close(why)
 
