@@ -121,10 +121,11 @@ def apply_command_line(controller: Controller, settings: ControllerSettings, pro
 
 
 def run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
-                   plant: Optional[PlantProcess] = None, timing: str = "lockstep") -> int:
+                   plant: Optional[PlantProcess] = None, timing: str = "lockstep", speed: float = 1.0) -> int:
     """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
 
-    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock.
+    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock. `speed`:
+    the plant's --speed, where known (aspod sim --hal): the pace the world's real-time factor is judged against.
     """
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
@@ -132,7 +133,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
     psk, key_path, params_path, config = controller_config(settings)
     bus = nodes.open_bus(bus_settings.interface, bus_settings.channel, node=nodes.CONTROLLER, **bus_settings.kwargs)
     wall = RealClock()
-    follower = LockstepFollower(bus, wall) if timing == "lockstep" else None
+    follower = LockstepFollower(bus, wall, speed=speed) if timing == "lockstep" else None
     plants = PlantsWatch()
     if follower is not None:                # a second plant on this bus: said on stderr (not a fault)
         follower.on_tick = lambda tick: warn(prog, plants.seen(tick, wall.now()))
@@ -242,6 +243,7 @@ def run_sim_over_hal(settings: SimSettings) -> int:
                                           speed=settings.speed, verbosity=verbosity))
     log.info(f"aspod sim: plant process {plant.pid} ready on {bus.describe()}")
     try:
-        return run_controller(settings.port, settings.controller, "aspod sim", bus, plant, timing="lockstep")
+        return run_controller(settings.port, settings.controller, "aspod sim", bus, plant, timing="lockstep",
+                              speed=settings.speed)
     finally:
         plant.stop()

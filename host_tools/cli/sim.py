@@ -4,7 +4,7 @@ Plant and controller share one simulated time paced to the wall clock (`timebase
 at --speed, 1 by default): when the process falls behind, the world slows down instead of
 jumping, so the host's stalls never look like hardware faults; the link to the host stays on
 the wall clock (docs/realtime.md). The real-time factor and the lag are in telemetry and
-`status`; falling below real time is said on stderr and in a TimingWarning event.
+`status`; falling behind the speed asked is said on stderr and in a TimingWarning event.
 
 Prints `ASPOD-LINK <url>` as its first line on stdout and `ASPOD-KEY <path>` as its
 second, then runs until SIGINT or SIGTERM. Without --key-file it uses (creating it
