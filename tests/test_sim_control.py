@@ -22,7 +22,7 @@ from host_tools.plugin.errors import CannotFault
 from host_tools.plugin.target import LockstepTarget
 from host_tools.teleop.session import run_script
 from host_tools.teleop.words import completions, help_text
-from host_tools.worlds.control_server import (MAX_CLIENTS, MAX_LINE, OUT_HIGH, ControlServer, claim_path,
+from host_tools.worlds.control_server import (IDLE_S, MAX_CLIENTS, MAX_LINE, OUT_HIGH, ControlServer, claim_path,
                                               default_control_path, link_endpoints, private_dir)
 from host_tools.worlds.plant_control import NO_PAUSE, OPS, PlantControl
 from host_tools.worlds.plant_state import plant_state
@@ -267,6 +267,69 @@ def test_a_bounded_number_of_clients_the_next_told_why(served):
     conns.pop().close()
     served.pump()
     assert served.ask(served.connect(), {"op": "faults"})[0]["ok"]
+
+
+def test_idle_clients_yield_their_slots_to_newcomers_busy_ones_do_not(served):
+    """Eight clients that connect and say nothing once held the endpoint for good."""
+    squatters = [served.connect() for _ in range(MAX_CLIENTS)]
+    busy = served.connect()                   # all taken, none idle for IDLE_S yet: told so
+    assert served.replies(busy)[0]["error"].startswith(f"too many control clients ({MAX_CLIENTS}), all busy")
+    served.now += IDLE_S                      # (the endpoint's clock: the link's wall clock)
+    newcomers = []
+    for k in range(3):                        # each newcomer displaces the client idle the longest: the oldest
+        newcomers.append(served.connect())
+        assert served.ask(newcomers[-1], {"op": "time"})[0]["ok"]
+        assert served.closed_by_server(squatters[k])
+        assert "idle for 2 s to make room" in served.logged[-1]
+    assert len(served.server.clients) == MAX_CLIENTS
+    assert all(served.ask(s, {"op": "time"})[0]["ok"] for s in squatters[3:])      # the others are served on
+
+
+def test_a_client_whose_idle_connection_was_closed_opens_it_again_and_never_resends(served, folder):
+    small = Served(folder / "small.sock", served.server.control, max_clients=2)
+    stop = small.run_in_background()
+    client = ControlClient(small.server.path)
+    try:
+        assert client.request({"op": "time"})["ok"]
+    finally:
+        stop()
+    small.now += IDLE_S + 1
+    first = small.connect()
+    small.connect()                           # full: the host's connection, idle the longest, makes room
+    assert len(small.server.clients) == 2 and "to make room" in small.logged[-1]
+    first.close()
+    small.pump()
+    stop = small.run_in_background()
+    try:
+        assert client.request({"op": "time"})["ok"] and client.reconnects == 1       # as if nothing happened
+    finally:
+        stop()
+        client.close()
+        small.server.close()
+    # a request whose connection ends before its reply may have run: said, never sent again
+    silent_path = folder / "silent.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as listener:
+        listener.bind(str(silent_path))
+        listener.listen(1)
+        client = ControlClient(silent_path)
+        conn, _ = listener.accept()
+
+        def read_one_line_and_hang_up() -> None:
+            received = b""
+            while b"\n" not in received:
+                received += conn.recv(4096)
+            conn.close()
+            lines.append(received)
+        lines: list[bytes] = []
+        thread = threading.Thread(target=read_one_line_and_hang_up)
+        thread.start()
+        with pytest.raises(ControlUnavailable, match="closed the connection before it answered.*may have run"):
+            client.request({"op": "fault", "name": "jam", "channel": "j1"})
+        thread.join()
+        listener.settimeout(0.5)
+        with pytest.raises(socket.timeout):
+            listener.accept()                 # no second connection: nothing was sent again
+    assert lines == [b'{"op": "fault", "name": "jam", "channel": "j1"}\n']
 
 
 def test_a_client_gone_mid_line_changes_nothing_and_is_forgotten(served):

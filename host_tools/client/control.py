@@ -5,7 +5,10 @@ line and returns its reply (`{"ok": ..., ...}`), waiting a bounded time: a step'
 when the step is done, so its wait grows with the step. A refused request is a reply with
 `ok` false, not an exception; an endpoint that cannot be reached, or stops answering, raises
 `ControlUnavailable` with the reason (and a client that timed out is closed: a late reply would
-answer the wrong request).
+answer the wrong request). A connection the endpoint closed while it was idle (it yields its slot
+to a newcomer when all are taken) is found closed before the next request is sent, and opened
+again: a session may hold its client for hours. A request already sent is never sent again: if
+the connection ends before its reply, it may have run, and that is said.
 
 `find_control(url)` finds the endpoint of the `aspod sim` that serves the link `url`: each live
 socket in this user's runtime folder answers `info` with its link. A real controller has none.
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import socket
 from pathlib import Path
 from typing import Mapping, Optional
@@ -46,26 +50,47 @@ class ControlClient:
     def __init__(self, path: Path, connect_timeout_s: float = REPLY_TIMEOUT_S) -> None:
         self.path = Path(path)
         self.where = f"the control endpoint {self.path}"
-        self._sock: Optional[socket.socket] = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.connect_timeout_s = connect_timeout_s
+        self.reconnects = 0            # connections the endpoint closed while idle, opened again
         self._inbox = bytearray()
+        self._sock: Optional[socket.socket] = self._connect()
+
+    def _connect(self) -> socket.socket:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
-            self._sock.settimeout(connect_timeout_s)
-            self._sock.connect(str(self.path))
-            uid = peer_uid(self._sock)
+            sock.settimeout(self.connect_timeout_s)
+            sock.connect(str(self.path))
+            uid = peer_uid(sock)
             if uid is not None and uid != os.getuid():
                 raise ControlUnavailable(f"{self.where} is served by user {uid}, not by this user ({os.getuid()})")
         except ControlUnavailable:
-            self.close()
+            sock.close()
             raise
         except OSError as exc:
-            self.close()
+            sock.close()
             raise ControlUnavailable(f"{self.where}: {exc.strerror or exc} (is its aspod sim still running?)") \
                 from None
+        return sock
+
+    def _closed_by_endpoint(self) -> bool:
+        """Before a request: has the endpoint closed this connection? Between requests it owes nothing, so anything
+        readable (its end of file, a reset) means it has."""
+        try:
+            readable, _, _ = select.select([self._sock], [], [], 0)
+        except (OSError, ValueError):
+            return True
+        return bool(readable)
 
     def request(self, request: dict, timeout_s: Optional[float] = None) -> dict:
         """Send `request`, return its reply; ControlUnavailable if the endpoint is gone or silent."""
         if self._sock is None:
-            raise ControlUnavailable(f"{self.where}: the connection is closed (an earlier request went unanswered)")
+            raise ControlUnavailable(f"{self.where}: the connection is closed (an earlier request went unanswered, "
+                                     "or it could not be opened again)")
+        if self._closed_by_endpoint():        # nothing of this request has gone: opening again is safe
+            self._sock.close()
+            self._sock, self._inbox = None, bytearray()
+            self._sock = self._connect()
+            self.reconnects += 1
         line = json.dumps(request).encode() + b"\n"
         try:
             self._sock.settimeout(reply_timeout_s(request) if timeout_s is None else timeout_s)
@@ -85,7 +110,8 @@ class ControlClient:
         while b"\n" not in self._inbox:
             data = self._sock.recv(65536)
             if not data:
-                raise ControlUnavailable(f"{self.where} closed the connection (its aspod sim stopped?)")
+                raise ControlUnavailable(f"{self.where} closed the connection before it answered (its aspod sim "
+                                         "stopped?); the request may have run")
             self._inbox += data
             if len(self._inbox) > MAX_REPLY:
                 raise ControlUnavailable(f"{self.where} sent a reply longer than {MAX_REPLY} bytes")

@@ -4,7 +4,9 @@
 JSON requests in, one JSON reply line out for each, in order. `ControlServer.poll` is a task on
 the link's wall-clock scheduler (every `POLL_S`): it accepts, reads and writes without blocking,
 with bounds everywhere, so no client can stall or swamp the world: at most `MAX_CLIENTS` at
-once (one more is told so and closed), a request line of at most `MAX_LINE` bytes (a longer one
+once; when they are all taken, a newcomer displaces the client idle the longest (nothing asked,
+nothing owed, for `IDLE_S` at least: idle connections hold a slot only until it is wanted), and
+is told so and closed only when every one of them is busy; a request line of at most `MAX_LINE` bytes (a longer one
 is answered with an error and its connection closed), at most `MAX_LINES_PER_POLL` requests a
 client a poll, and a client's replies held only up to `OUT_HIGH` bytes (past that it is not read
 until it reads its replies). A step's reply waits until the step is done; that client's next
@@ -40,6 +42,7 @@ from host_tools.worlds.plant_control import PlantControl, Reply, error_reply
 
 POLL_S = 0.01                  # the link scheduler runs the endpoint this often
 MAX_CLIENTS = 8
+IDLE_S = 2.0                   # a client silent this long, owed nothing, yields its slot when all are taken
 MAX_LINE = 4096                # a request line, its newline excluded: the longest real one is under 100 bytes
 READ_CHUNK = 4096
 MAX_LINES_PER_POLL = 16        # requests served a client a poll (1,600 a second)
@@ -137,14 +140,21 @@ def link_endpoints(url: str) -> set[str]:
 class _Client:
     """One connection: what it sent that is not yet a whole line, its replies not yet sent, a reply to come."""
 
-    def __init__(self, sock: socket.socket) -> None:
+    def __init__(self, sock: socket.socket, now: float) -> None:
         self.sock = sock
+        self.active_s = now         # when it last sent something or was last answered
         self.inbox = bytearray()
         self.outbox = bytearray()
         self.pending: Optional[Reply] = None
         self.ended = False          # it sent end of file: what it sent whole is still answered
         self.closing = False        # nothing more is read or answered: closed once its replies are out
         self.gone = False           # to be dropped now
+
+    def idle_s(self, now: float) -> float:
+        """How long it has asked nothing and been owed nothing (0 while a request of its is under way)."""
+        if self.pending is not None or self.inbox or self.outbox or self.closing or self.gone:
+            return 0.0
+        return now - self.active_s
 
 
 class ControlServer:
@@ -189,16 +199,16 @@ class ControlServer:
         """Accept, read, answer, write: whatever can be done now without waiting. Returns its next wake time."""
         readable = {key.fileobj for key, _ in self._selector.select(0)}
         if self._listener in readable:
-            self._accept()
+            self._accept(now)
         for client in self.clients:
             if client.sock in readable or client.pending is not None or client.inbox or client.outbox:
-                self._serve(client, client.sock in readable)
+                self._serve(client, client.sock in readable, now)
         if any(c.gone for c in self.clients):
             for client in [c for c in self.clients if c.gone]:
                 self._drop(client)
         return now + POLL_S
 
-    def _accept(self) -> None:
+    def _accept(self, now: float) -> None:
         for _ in range(ACCEPTS_PER_POLL):
             try:
                 sock, _ = self._listener.accept()
@@ -213,14 +223,26 @@ class ControlServer:
                 self.log(f"control: refused a connection from user {uid} (only this user, {os.getuid()}, may)")
                 sock.close()
                 continue
-            if len(self.clients) >= self.max_clients:
-                self._send_now(sock, error_reply(f"too many control clients ({self.max_clients}): try again later"))
+            if len(self.clients) >= self.max_clients and not self._displace_idle(now):
+                self._send_now(sock, error_reply(f"too many control clients ({self.max_clients}), all busy: try "
+                                                 "again later"))
                 sock.close()
                 continue
-            self.clients.append(_Client(sock))
+            self.clients.append(_Client(sock, now))
             self._selector.register(sock, selectors.EVENT_READ)
 
-    def _serve(self, client: _Client, readable: bool) -> None:
+    def _displace_idle(self, now: float) -> bool:
+        """Close the client idle the longest, if one has been for IDLE_S, to make room; whether one was. Its next
+        request finds the connection closed before it sends anything (`ControlClient` then reconnects)."""
+        idlest = max(self.clients, key=lambda c: c.idle_s(now))
+        idle_s = idlest.idle_s(now)
+        if idle_s < IDLE_S:
+            return False
+        self._drop(idlest)
+        self.log(f"control: closed a client idle for {idle_s:.0f} s to make room for a new one")
+        return True
+
+    def _serve(self, client: _Client, readable: bool, now: float) -> None:
         if client.pending is not None:
             body = client.pending.poll()
             if body is not None:
@@ -229,6 +251,7 @@ class ControlServer:
         if readable and not (client.ended or client.closing) and b"\n" not in client.inbox \
                 and len(client.outbox) < OUT_HIGH:
             self._read(client)
+            client.active_s = now
         served = 0
         while client.pending is None and not client.closing and served < MAX_LINES_PER_POLL \
                 and len(client.outbox) < OUT_HIGH:
@@ -246,6 +269,8 @@ class ControlServer:
             self._answer(client, line)
         if client.ended and client.pending is None and b"\n" not in client.inbox:
             client.closing = True
+        if client.outbox:
+            client.active_s = now
         self._write(client)
         if client.closing and not client.outbox:
             client.gone = True
