@@ -5,6 +5,7 @@ import json
 import logging
 import sys
 
+from host_tools.cli.main import host_key
 from host_tools.cli.settings import TeleopSettings
 from host_tools.client.control import open_control
 from host_tools.client.live import HostClient
@@ -19,7 +20,7 @@ from host_tools.teleop.words import read_script
 log = logging.getLogger("aspod")
 
 
-def run_teleop(args: TeleopSettings, psk: bytes) -> int:
+def run_teleop(args: TeleopSettings) -> int:
     lines = None
     if args.script is not None or not sys.stdin.isatty():
         try:
@@ -34,6 +35,7 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
                 log.error(f"aspod teleop: error: {problem}")
             log.error("aspod teleop: script not run: nothing was sent")
             return EXIT_USAGE
+    psk = host_key(args.key_file, args.url)      # once the script is known good: nothing is opened before
     capture = None
     if args.record is not None:
         capture = CaptureWriter.create(args.record, SessionInfo(clock="wall", tool="aspod teleop",

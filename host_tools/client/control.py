@@ -10,8 +10,12 @@ to a newcomer when all are taken) is found closed before the next request is sen
 again: a session may hold its client for hours. A request already sent is never sent again: if
 the connection ends before its reply, it may have run, and that is said.
 
-`find_control(url)` finds the endpoint of the `aspod sim` that serves the link `url`: each live
-socket in this user's runtime folder answers `info` with its link. A real controller has none.
+`find_simulator(url)` finds the endpoint of this user's simulator that serves the link `url`: each
+live socket in this user's runtime folders (host_tools/worlds/runtime_folder.py `search_folders`)
+answers `info` with its link and the path of the link's key. One registry, two uses:
+`find_control(url)`, the endpoint that reaches the plant (an `aspod sim` in one process), and
+`simulator_key(url)`, the key of a host tool given no --key-file (every simulator: `aspod sim`,
+`aspod sim --hal`, `aspod firmware`). A real controller has neither: its key is given as a file.
 `open_control(url, path)` connects to the one given, or else to the one found, if any.
 
 `LockstepBench.control` (the lock-step world) answers the same requests in-process; both have
@@ -23,16 +27,21 @@ import json
 import os
 import select
 import socket
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Optional
 
-from host_tools.worlds.control_server import link_endpoints, peer_uid, runtime_dir
+from protocol import auth
+from protocol.errors import KeyFileError
+
+from host_tools.worlds.control_server import link_endpoints, peer_uid
+from host_tools.worlds.runtime_folder import search_folders
 
 REPLY_TIMEOUT_S = 10.0         # a request's reply (the endpoint answers within a poll, 10 ms, when the world runs)
 STEP_WALL_PER_S = 4.0          # ... and a step's, this much wall time more per simulated second (a busy host)
-FIND_TIMEOUT_S = 1.0           # `find_control`: a socket that does not answer `info` in this is not the one
+FIND_TIMEOUT_S = 1.0           # `find_simulator`: a socket that does not answer `info` in this is not the one
 MAX_REPLY = 1 << 20
-MAX_SCANNED = 64               # sockets looked at by `find_control`
+MAX_SCANNED = 64               # sockets looked at by `find_simulator`
 
 
 class ControlUnavailable(OSError):
@@ -138,25 +147,57 @@ class ControlClient:
         self.close()
 
 
-def find_control(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Path]:
-    """The control socket of this user's live `aspod sim` that serves the link `url`, or None."""
-    folder = runtime_dir(environ)
+@dataclass(frozen=True)
+class Found:
+    """A live simulator's endpoint: its socket, and what it answered to `info`."""
+    path: Path
+    info: dict
+
+
+def find_simulator(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Found]:
+    """The endpoint of this user's live simulator that serves the link `url`, or None."""
     wanted = link_endpoints(url)
-    try:
-        if folder.lstat().st_uid != os.getuid():
-            return None              # not this user's folder: nothing in it is to be trusted
-        candidates = sorted(folder.glob("sim-*.sock"))[:MAX_SCANNED]
-    except OSError:
-        return None
-    for path in candidates:
+    candidates: list[Path] = []
+    for folder in search_folders(environ):      # this user's, 0700: nothing else in them is to be trusted
+        try:
+            candidates += sorted(folder.glob("sim-*.sock"))
+        except OSError:
+            continue
+    for path in candidates[:MAX_SCANNED]:
         try:
             with ControlClient(path, FIND_TIMEOUT_S) as control:
                 info = control.request({"op": "info"}, FIND_TIMEOUT_S)
         except ControlUnavailable:
             continue                 # a dead simulator's socket, or one that does not answer
         if info.get("ok") and wanted & link_endpoints(str(info.get("link", ""))):
-            return path
+            return Found(path, info)
     return None
+
+
+def find_control(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Path]:
+    """The control socket of this user's live `aspod sim` that serves the link `url` and reaches its plant, or
+    None."""
+    found = find_simulator(url, environ)
+    return found.path if found is not None and found.info.get("plant") is True else None
+
+
+def simulator_key_file(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Path]:
+    """The key file of this user's live simulator serving `url`, as its endpoint says, or None."""
+    found = find_simulator(url, environ)
+    key = found.info.get("key") if found is not None else None
+    return Path(key) if isinstance(key, str) and key else None
+
+
+def simulator_key(url: str, option: str = "--key-file", environ: Optional[Mapping[str, str]] = None) -> bytes:
+    """The key of this user's live simulator serving `url`, as its endpoint says; KeyFileError naming `option` and
+    what to do when there is none (a real controller, a simulator without its endpoint, or none at all)."""
+    key = simulator_key_file(url, environ)
+    if key is None:
+        raise KeyFileError(f"no {option} given, and no simulator of this user's serving {url} says its key: give "
+                           f"{option} FILE (for a simulator, the path on its ASPOD-KEY line; for a real controller, "
+                           "its key file); an aspod proxy's address is not its simulator's, and a simulator run "
+                           "with --no-control serves no endpoint to find it by")
+    return auth.load_key(key, f"the key file of the simulator serving {url}:")
 
 
 def open_control(url: str, path: Optional[Path] = None) -> Optional[ControlClient]:

@@ -1,13 +1,15 @@
 """The live simulator's control endpoint: a local Unix socket, served from the scheduler loop, no threads.
 
 `aspod sim` serves `PlantControl` (host_tools/worlds/plant_control.py) here: newline-delimited
-JSON requests in, one JSON reply line out for each, in order. `ControlServer.poll` is a task on
+JSON requests in, one JSON reply line out for each, in order. A controller whose plant runs in
+another process (`aspod firmware`, `aspod sim --hal`) serves `LinkInfo`: `info` only, so that a
+host can find its key. `ControlServer.poll` is a task on
 the link's wall-clock scheduler (every `POLL_S`): it accepts, reads and writes without blocking,
 with bounds everywhere, so no client can stall or swamp the world: at most `MAX_CLIENTS` at
 once; when they are all taken, a newcomer displaces the client idle the longest (nothing asked,
 nothing owed, for `IDLE_S` at least: idle connections hold a slot only until it is wanted), and
-is told so and closed only when every one of them is busy; a request line of at most `MAX_LINE` bytes (a longer one
-is answered with an error and its connection closed), at most `MAX_LINES_PER_POLL` requests a
+is told so and closed only when every one of them is busy; a request line of at most
+`MAX_LINE` bytes (a longer one is answered with an error and its connection closed), at most `MAX_LINES_PER_POLL` requests a
 client a poll, and a client's replies held only up to `OUT_HIGH` bytes (past that it is not read
 until it reads its replies). A step's reply waits until the step is done; that client's next
 requests wait behind it (in the OS's buffer), the others' do not.
@@ -15,17 +17,17 @@ requests wait behind it (in the OS's buffer), the others' do not.
 Why local-only rather than authenticated like the controller's link: this channel does not
 exist on real hardware. It is a test harness's hand on the plant, on the machine that runs the
 simulator, and nothing reaches it from the link (a radio, a serial line, a TCP port). Its
-authentication is the operating system's: the socket lives in a directory only its user may
-enter (`runtime_dir`: `$XDG_RUNTIME_DIR/aspod`, else `/tmp/aspod-<uid>`, mode 0700), the socket
-itself is 0600, and each connection's peer is checked with SO_PEERCRED: another user's process
-is refused. A key would add nothing a same-user process could not read anyway (the link's key
-file is in that user's config).
+authentication is the operating system's: the socket lives in a folder only its user may
+enter (host_tools/worlds/runtime_folder.py, mode 0700), the socket itself is 0600, and each
+connection's peer is checked with SO_PEERCRED: another user's process is refused. A key would
+add nothing a same-user process could not read anyway (the link's key is in that folder too).
 
-Finding it: by default the socket is `runtime_dir()/sim-<pid>.sock`, and each live one answers
-`info` with the link it sits beside. Those sockets are the registry: a host given only the link
-URL looks through them (host_tools/client/control.py `find_control`). A socket file whose
-simulator died is found dead by connecting to it and replaced; a live one is never touched.
-The file is removed when the simulator stops.
+Finding it: by default the socket is `sim-<pid>.sock` in the runtime folder, and each live one
+answers `info` with the link it sits beside and the path of the link's key. Those sockets are the
+one registry: a host given only the link URL looks through them for the control endpoint and for
+the key (host_tools/client/control.py `find_simulator`). A socket file whose simulator died is
+found dead by connecting to it and replaced; a live one is never touched. The file is removed
+when the simulator stops.
 """
 from __future__ import annotations
 
@@ -36,9 +38,9 @@ import socket
 import stat
 import struct
 from pathlib import Path
-from typing import Callable, Mapping, Optional
+from typing import Callable, Optional, Protocol
 
-from host_tools.worlds.plant_control import PlantControl, Reply, error_reply
+from host_tools.worlds.plant_control import OPS, Reply, RequestError, decode_request, error_reply
 
 POLL_S = 0.01                  # the link scheduler runs the endpoint this often
 MAX_CLIENTS = 8
@@ -49,39 +51,7 @@ MAX_LINES_PER_POLL = 16        # requests served a client a poll (1,600 a second
 OUT_HIGH = 16 * 1024           # replies held for a client that does not read them: past this it is not read
 ACCEPTS_PER_POLL = 16
 SUN_PATH_MAX = 107             # bytes of a Unix socket's path (Linux: 108 with its NUL)
-SOCKET_NAME = "sim-{pid}.sock"
 CONNECT_TIMEOUT_S = 1.0        # a stale socket refuses at once; a stopped process's may never answer
-
-
-def runtime_dir(environ: Optional[Mapping[str, str]] = None) -> Path:
-    """The per-user folder of control sockets: `$XDG_RUNTIME_DIR/aspod`, else `/tmp/aspod-<uid>`."""
-    environ = os.environ if environ is None else environ
-    base = environ.get("XDG_RUNTIME_DIR")
-    if base and Path(base).is_absolute() and Path(base).is_dir():
-        return Path(base) / "aspod"
-    return Path("/tmp") / f"aspod-{os.getuid()}"
-
-
-def default_control_path(environ: Optional[Mapping[str, str]] = None, pid: Optional[int] = None) -> Path:
-    return runtime_dir(environ) / SOCKET_NAME.format(pid=os.getpid() if pid is None else pid)
-
-
-def private_dir(path: Path) -> None:
-    """Make `path` (mode 0700) or check it: a folder of this user's that no one else may enter or write. A
-    folder of another user's (someone took /tmp/aspod-<uid> first) or open to others is refused: OSError."""
-    try:
-        path.mkdir(mode=0o700, parents=False)
-    except FileExistsError:
-        pass
-    info = path.lstat()
-    if not stat.S_ISDIR(info.st_mode):
-        raise OSError(f"control endpoint: {path} is not a folder")
-    if info.st_uid != os.getuid():
-        raise OSError(f"control endpoint: {path} belongs to user {info.st_uid}, not to this user "
-                      f"({os.getuid()}); give --control a path in a folder of yours")
-    if info.st_mode & 0o077:
-        raise OSError(f"control endpoint: {path} is open to other users (mode {stat.S_IMODE(info.st_mode):o}); "
-                      "it must be 0700")
 
 
 def is_live(path: Path, timeout_s: float = CONNECT_TIMEOUT_S) -> bool:
@@ -137,6 +107,34 @@ def link_endpoints(url: str) -> set[str]:
     return found
 
 
+class Handler(Protocol):
+    """What the endpoint serves: one request line in, its reply (now, or when done)."""
+
+    def handle_line(self, line: bytes) -> Reply: ...
+
+
+class LinkInfo:
+    """The endpoint of a controller whose plant is in another process (`aspod firmware`, `aspod sim --hal`): it
+    answers `info` (`about`: the link, its key, the process) and refuses the plant's requests, saying why."""
+
+    def __init__(self, about: dict, plant_where: str) -> None:
+        self.about = dict(about)
+        self.plant_where = plant_where
+
+    def handle_line(self, line: bytes) -> Reply:
+        try:
+            request = decode_request(line)
+        except RequestError as exc:
+            return Reply(error_reply(str(exc)))
+        op = request.get("op") if isinstance(request, dict) else None
+        if op == "info" and request == {"op": "info"}:
+            return Reply({"ok": True, "said": "a controller's endpoint; its plant is " + self.plant_where,
+                          **self.about, "plant": False, "ops": ["info"]})
+        if op in OPS:
+            return Reply(error_reply(f"{op}: no plant here to reach: it is {self.plant_where}"))
+        return Reply(error_reply(f"unknown op {str(op)[:40]!r}: this endpoint answers only info"))
+
+
 class _Client:
     """One connection: what it sent that is not yet a whole line, its replies not yet sent, a reply to come."""
 
@@ -158,11 +156,11 @@ class _Client:
 
 
 class ControlServer:
-    """`control` served on the Unix socket `path` (made free with `claim_path`; 0600). Add `poll` to a wall-clock
-    scheduler; `close` ends every connection and removes the socket file. `log` says what a person should know
-    (a refused peer, a client that sent too much)."""
+    """`control` (a `PlantControl`, or `LinkInfo`) served on the Unix socket `path` (made free with `claim_path`;
+    0600). Add `poll` to a wall-clock scheduler; `close` ends every connection and removes the socket file. `log`
+    says what a person should know (a refused peer, a client that sent too much)."""
 
-    def __init__(self, path: Path, control: PlantControl, *, log: Callable[[str], None] = lambda text: None,
+    def __init__(self, path: Path, control: Handler, *, log: Callable[[str], None] = lambda text: None,
                  max_clients: int = MAX_CLIENTS, max_line: int = MAX_LINE) -> None:
         self.path = Path(path)
         self.control = control
@@ -186,13 +184,6 @@ class ControlServer:
             raise
         self._selector = selectors.DefaultSelector()
         self._selector.register(self._listener, selectors.EVENT_READ)
-
-    @classmethod
-    def at_default_path(cls, control: PlantControl, **kwargs) -> "ControlServer":
-        """On `default_control_path()`, its folder made private first."""
-        path = default_control_path()
-        private_dir(path.parent)
-        return cls(path, control, **kwargs)
 
     # ---- the task ----
     def poll(self, now: float) -> float:
