@@ -104,7 +104,7 @@ def lockstep_against_live(folder: Path, quick: bool) -> list[str]:
                           timeout=300)
     lockstep_wall = RealClock.precise_now() - wall0
     lockstep = json.loads(done.stdout)
-    env = {**os.environ, "XDG_CONFIG_HOME": str(folder / "config")}      # a development key of its own
+    env = {**os.environ, "XDG_CONFIG_HOME": str(folder / "config")}      # a parameter file of its own
     child = Child(["sim", "--pty", "--no-tracker"], env=env)
     try:
         url = child.ready("ASPOD-LINK ").split(" ", 1)[1]

@@ -25,6 +25,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from typing import Optional
 
 import serial
 
@@ -49,20 +50,23 @@ def pct(samples: list[float], q: float) -> float:
 
 
 class _Env:
-    """A private config folder (the development key) for the children of one benchmark."""
+    """A private config folder for the children of one benchmark, and the key its simulator made."""
 
     def __init__(self, folder: Path) -> None:
         self.env = {**os.environ, "XDG_CONFIG_HOME": str(folder / "config")}
         self.children: list[Child] = []
+        self.key_path: Optional[Path] = None
 
     def start(self, args: list[str]) -> tuple[Child, str]:
         child = Child(args, env=self.env)
         self.children.append(child)
         line = child.ready("ASPOD-LINK ", 30.0)
+        if args[0] == "sim":
+            self.key_path = Path(child.ready("ASPOD-KEY ").split(" ", 1)[1])
         return child, line.split(" ", 1)[1]
 
     def key(self) -> bytes:
-        return auth.load_key(Path(self.env["XDG_CONFIG_HOME"]) / "aspod" / "dev.key")
+        return auth.load_key(self.key_path)
 
     def close(self) -> None:
         for child in self.children:

@@ -64,8 +64,9 @@ from firmware_py.uart import PacedUart
 
 TIME_WATCH_S = 0.05               # how often (wall clock) the lock-step watch looks at the plant's ticks
 LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often (controller time)
-RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world has run this far above rtf_warn ...
-RTF_CLEAR_AFTER_S = 10.0          # ... for this long (controller time): one warning per slow spell, not a flutter
+RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world's pace (of the speed asked) is this far
+RTF_CLEAR_AFTER_S = 10.0          # above rtf_warn for this long (wall time at the speed asked): one warning per slow
+                                  # spell, not a flutter
 TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker turns at most 35.2 deg/min (full duty): 10 Hz is a sample per 0.06 deg
 _HANDLERS: dict[str, Callable] = {}
 
@@ -124,8 +125,8 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("lockstep_wait_s", 2.0, 0.1, 3600, "s",
                   "lock-step: no tick from the plant for this long on the wall clock is a fault (HAL_STALE)"),
         ParamSpec("rtf_warn", 0.9, 0.0, 1.0, "",
-                  "paced or lock-step: a world below this real-time factor over the last second warns "
-                  "(TimingWarning BELOW_REAL_TIME; 0: never)"),
+                  "paced or lock-step: a world below this fraction of the speed asked (max: of real time) over the "
+                  "last second warns (TimingWarning BELOW_REAL_TIME; 0: never)"),
         ParamSpec("supply_min_v", 22.0, 0, 60, "V", "supply below this is a fault (nominal 28 V)"),
         ParamSpec("temp_min_c", -10.0, -40, 125, "degC", "controller colder than this is a fault (report: -10 C)"),
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
@@ -310,24 +311,27 @@ class Controller:
         return False
 
     def _below_real_time_check(self, now: float) -> None:
-        """Paced or lock-step: say so (TimingWarning BELOW_REAL_TIME) when the world falls below rtf_warn."""
-        limit = self.params["rtf_warn"]
+        """Paced or lock-step: say so (TimingWarning BELOW_REAL_TIME) when the world falls below rtf_warn of the
+        speed asked (real time under `max`): a world asked for 0.01x that runs at 0.01x is not slow."""
         timing = self.timing()
         rtf = timing.rtf_recent
-        if timing.mode not in ("paced", "lockstep") or not limit > 0 or not math.isfinite(rtf):
+        asked = timing.speed if math.isfinite(timing.speed) else 1.0
+        fraction = self.params["rtf_warn"]
+        if timing.mode not in ("paced", "lockstep") or not fraction > 0 or not math.isfinite(rtf):
             return
+        pace, limit = rtf / asked, fraction * asked
         if not self._below_real_time:
-            if rtf >= limit:
+            if pace >= fraction:
                 return
             self._below_real_time = True
             self._real_time_since = None
-        elif rtf < limit + RTF_CLEAR_MARGIN:
+        elif pace < fraction + RTF_CLEAR_MARGIN:
             self._real_time_since = None
             return
         else:
             if self._real_time_since is None:
                 self._real_time_since = now
-            if now - self._real_time_since < RTF_CLEAR_AFTER_S:
+            if now - self._real_time_since < RTF_CLEAR_AFTER_S * asked:
                 return
             self._below_real_time = False
         self._report(M["TimingWarning"](int(TimingIssue.BELOW_REAL_TIME), self._below_real_time, rtf, limit,

@@ -81,12 +81,6 @@ def new_nonce() -> bytes:
     return secrets.token_bytes(NONCE_BYTES)
 
 
-def default_key_path() -> Path:
-    """The per-user development key: $XDG_CONFIG_HOME/aspod/dev.key (default ~/.config)."""
-    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
-    return Path(base) / "aspod" / "dev.key"
-
-
 def parse_key(text: str, source: str) -> bytes:
     """A key written as hex (whitespace and `#` comment lines ignored)."""
     lines = [line.split("#", 1)[0] for line in text.splitlines()]
@@ -125,11 +119,3 @@ def write_key(path: Path | str, key: bytes) -> None:
         out.flush()
         os.fsync(out.fileno())
     os.replace(tmp, path)
-
-
-def load_or_create_dev_key(path: Path | str | None = None) -> tuple[bytes, Path]:
-    """The development key at `path` (default `default_key_path()`), created if missing."""
-    path = Path(path) if path is not None else default_key_path()
-    if not path.exists():
-        write_key(path, secrets.token_bytes(KEY_BYTES))
-    return load_key(path, "development key"), path

@@ -62,9 +62,11 @@ detected; a CRC-16 would not give that.
 
 Every frame the link accepts is authenticated; an unauthenticated frame is refused
 (`UNAUTHENTICATED`). Both ends hold a pre-shared key (`--key-file PATH`: hex, at
-least 16 bytes). Without one, `aspod sim` creates a development key at
-`$XDG_CONFIG_HOME/aspod/dev.key` (default `~/.config/aspod/dev.key`, mode 0600) and the
-host tools default to the same file.
+least 16 bytes). Without one, each simulator (`aspod sim`, `aspod firmware`) makes a fresh
+key of its own (mode 0600, in a folder only its user may enter, removed when it stops) and
+prints its path on its `ASPOD-KEY` line; a host tool given the simulator's link address finds
+it there ([protocol_security.md](protocol_security.md)). Two controllers never share a key
+unless given the same file.
 
 1. The host sends `Hello` with its protocol version, its schema hash, a fresh 16-byte
    nonce and a zero cookie, signed with the handshake key `HMAC(psk, "aspod/v1/handshake/h2c")`.

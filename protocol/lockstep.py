@@ -112,11 +112,16 @@ class LockstepFollower(Clock):
     plant picks it up without waiting for the plant's next re-offer). `stalled_s()` is how long (wall time) it has been waiting for the plant: the
     controller's watch turns a long wait into HAL_STALE (a plant that died freezes time, so
     only the wall clock can tell).
+
+    `speed` is the pace its plant was asked for, where the controller knows it (`aspod sim --hal` passes its
+    --speed on): its real-time factor and lag are judged against it. `aspod firmware` does not know its
+    plant's, and judges against real time.
     """
 
-    def __init__(self, bus: Any, wall: Clock, codec: Optional[HalCodec] = None) -> None:
+    def __init__(self, bus: Any, wall: Clock, codec: Optional[HalCodec] = None, speed: float = 1.0) -> None:
         codec = codec or HalCodec()
         self.wall = wall
+        self.speed = speed
         self._sync = codec.layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
         self._done = codec.layout("CTRL_SYNC", ("tick",))
         self.tap = SyncTap(bus, self._sync.frame_id, self._on_sync)
@@ -232,9 +237,9 @@ class LockstepFollower(Clock):
         lag = 0.0
         if self._first_grant is not None:
             wall0, sim0 = self._first_grant
-            lag = max(0.0, (wall_now - wall0) - (self._now - sim0))
+            lag = max(0.0, (wall_now - wall0) - (self._now - sim0) / self.speed)
         return TimingReport("lockstep", self.meter.recent(wall_now, self._now), self.meter.total(wall_now, self._now),
-                            lag)
+                            lag, speed=self.speed)
 
 
 class LockstepLeader(Clock):
@@ -314,7 +319,8 @@ class LockstepLeader(Clock):
 
     def timing(self) -> TimingReport:
         report = self.pace.timing()
-        return TimingReport("lockstep", report.rtf_recent, report.rtf_total, report.lag_s, report.slipped_s)
+        return TimingReport("lockstep", report.rtf_recent, report.rtf_total, report.lag_s, report.slipped_s,
+                            report.speed)
 
 
 class BurstWatch:

@@ -264,16 +264,17 @@ class TimingIssue(enum.IntEnum):
     """What a TimingWarning is about: the emulator's own host is too slow, never the hardware."""
 
     LOOP_LATE = 0         # real time: the motor loop started later than loop_late_warn_s
-    BELOW_REAL_TIME = 1   # paced or lock-step: the world ran slower than real time over the last second
+    BELOW_REAL_TIME = 1   # paced or lock-step: the world ran slower than the speed asked over the last second
 
 
 TIMING_ISSUE_DOCS: dict[TimingIssue, str] = {
     TimingIssue.LOOP_LATE: "the controller runs on the wall clock and its motor loop started late by `value` "
                            "seconds (limit loop_late_warn_s): the host is overloaded; past loop_late_max_s it "
                            "faults (SCHEDULER_OVERRUN)",
-    TimingIssue.BELOW_REAL_TIME: "the simulated world ran at `value` times real time over the last second (limit "
-                                 "rtf_warn): the host is too slow for real time, so simulated time slows down with "
-                                 "it; nothing is faulted, timing seen by a real-time host differs",
+    TimingIssue.BELOW_REAL_TIME: "the simulated world ran at `value` times real time over the last second, below "
+                                 "`limit` (rtf_warn times the speed asked; real time under `max`): the host is too "
+                                 "slow for the speed asked, so simulated time slows down with it; nothing is "
+                                 "faulted, timing seen by a real-time host differs",
 }
 
 assert set(TIMING_ISSUE_DOCS) == set(TimingIssue)

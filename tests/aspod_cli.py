@@ -1,8 +1,7 @@
-"""`aspod ARGS` as a child of a test, with a private per-user config and its development key.
+"""`aspod ARGS` as a child of a test, with a private per-user config.
 
-A fresh machine has no development key: without one, a command given no --key-file stops at the key, before
-what the test is about. The config lives beside `cwd` (not in it: some tests check that nothing was written there),
-so the user's own key and parameter file are neither read nor written.
+The config lives beside `cwd` (not in it: some tests check that nothing was written there), so the user's own
+parameter file is neither read nor written.
 """
 from __future__ import annotations
 
@@ -11,13 +10,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from protocol import auth
-
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 
 
 def aspod(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
     config = cwd.parent / f"{cwd.name}-config"
-    auth.load_or_create_dev_key(config / "aspod" / "dev.key")
     return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
                           env={**os.environ, "XDG_CONFIG_HOME": str(config)})

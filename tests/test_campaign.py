@@ -6,6 +6,9 @@ import csv
 import json
 import os
 import shlex
+import socket
+import subprocess
+import sys
 
 import pytest
 
@@ -219,6 +222,21 @@ def test_a_folder_that_holds_a_campaign_is_not_written_over(drill, capsys):
     assert main(["campaign", "drill.aspod", "--vary", "speed=2", "--serial", "--out", "c", "--no-progress"]) == 2
     assert "already holds a campaign" in capsys.readouterr().err
     assert (drill / "c" / "rows.csv").read_bytes() == before
+
+
+def test_a_scheduler_address_that_accepts_but_never_speaks_dask_is_refused_within_the_connect_timeout(drill):
+    """It once waited for Dask's handshake for ever: the TCP connect is bounded, the handshake was not."""
+    with socket.socket() as silent:                   # the kernel accepts connections into the backlog; no one answers
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(8)
+        address = f"tcp://127.0.0.1:{silent.getsockname()[1]}"
+        done = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "campaign", "drill.aspod", "--seeds", "1",
+                               "--no-progress", "--scheduler", address], capture_output=True, text=True, cwd=drill,
+                              env={**os.environ, "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "2s"},
+                              timeout=120)            # the bound asked is 2 s: a hang, not a slow machine, passes 120
+    assert done.returncode == 3, done.stderr
+    assert f"--scheduler {address}: no Dask scheduler answered within 2 s" in done.stderr
+    assert "Traceback" not in done.stderr
 
 
 @pytest.mark.cpu_hog

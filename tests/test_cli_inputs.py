@@ -28,13 +28,6 @@ def aspod(env: dict, *args: str, stdin=subprocess.DEVNULL) -> subprocess.Complet
     return subprocess.run(ASPOD + list(args), capture_output=True, env=env, stdin=stdin, timeout=REFUSAL_S)
 
 
-@pytest.fixture
-def dev_env(env, tmp_path):
-    """The private config directory with its development key (as `aspod sim` leaves it)."""
-    auth.load_or_create_dev_key(tmp_path / "config" / "aspod" / "dev.key")
-    return env
-
-
 def special_file(kind: str, tmp_path, limit: int) -> str:
     """A path that no input may be: an endless device, a FIFO, a directory, a regular file one byte too large."""
     if kind in ("/dev/zero", "/dev/urandom"):
@@ -70,9 +63,9 @@ FILE_CASES = [(command, option, limit, kind) for command, option, limit in FILE_
 
 @pytest.mark.parametrize("command, option, limit, kind", FILE_CASES)
 def test_a_file_input_that_is_not_a_small_regular_file_exits_2_naming_the_option_and_the_file(
-        dev_env, tmp_path, kind, command, option, limit):
+        env, tmp_path, kind, command, option, limit):
     path = special_file(kind, tmp_path, limit)
-    done = aspod(dev_env, *command, option, path)
+    done = aspod(env, *command, option, path)
     err = done.stderr.decode()
     assert done.returncode == 2, err
     assert f"{option} {path}: {WHY[kind]}" in err
@@ -93,9 +86,9 @@ def test_a_file_input_at_its_limit_is_read(tmp_path):
     assert err.value.missing and not err.value.refused
 
 
-def test_an_endless_script_on_standard_input_is_refused(dev_env):
+def test_an_endless_script_on_standard_input_is_refused(env):
     with open("/dev/zero", "rb") as endless:
-        done = aspod(dev_env, "teleop", NOWHERE, stdin=endless)
+        done = aspod(env, "teleop", NOWHERE, stdin=endless)
     assert done.returncode == 2
     assert f"standard input: larger than {files.size_text(SCRIPT_LIMIT)}" in done.stderr.decode()
 
@@ -121,19 +114,19 @@ def run_script(env: dict, script: str) -> subprocess.CompletedProcess:
                           timeout=REFUSAL_S)
 
 
-def test_a_value_that_overflows_a_float32_is_refused_by_the_script_check(dev_env):
-    done = run_script(dev_env, "estop\nset telemetry_hz 5\nset j1_kp 1e39\n")
+def test_a_value_that_overflows_a_float32_is_refused_by_the_script_check(env):
+    done = run_script(env, "estop\nset telemetry_hz 5\nset j1_kp 1e39\n")
     err = done.stderr.decode()
     assert done.returncode == 2, err
     assert "line 3: value=1e+39 does not fit in f32" in err and "nothing was sent" in err
 
 
-def test_a_megabyte_word_is_refused_at_once_and_not_echoed_whole(dev_env):
+def test_a_megabyte_word_is_refused_at_once_and_not_echoed_whole(env):
     from timebase import RealClock
     word = "x" * (3 << 20)                  # 3 MiB: shlex took minutes on it; the check refuses it by its length
     clock = RealClock()
     start = clock.now()
-    done = run_script(dev_env, f"ping\n{word}\n")
+    done = run_script(env, f"ping\n{word}\n")
     took = clock.now() - start
     err = done.stderr.decode()
     assert done.returncode == 2, err[:500]
@@ -146,8 +139,8 @@ def test_a_megabyte_word_is_refused_at_once_and_not_echoed_whole(dev_env):
     ("ping\nhelp nosuch\n", "line 2: help: no command 'nosuch'"),
     ("help stauts\n", "(did you mean `status`?)"),
 ])
-def test_help_on_an_unknown_topic_is_bad_input(dev_env, script, message):
-    done = run_script(dev_env, script)
+def test_help_on_an_unknown_topic_is_bad_input(env, script, message):
+    done = run_script(env, script)
     assert done.returncode == 2 and message in done.stderr.decode(), done.stderr.decode()
 
 
@@ -217,8 +210,8 @@ def test_a_bus_whose_driver_fails_in_its_own_way_is_a_link_problem_not_a_crash(e
     (["sim", "--port", "bogus://x"], "--port: "),
     (["sim", "--link", "radio=pty", "--link", "optical=bogus://x"], "--link optical: "),
 ])
-def test_a_link_url_of_an_unknown_scheme_exits_2_naming_the_scheme_and_those_accepted(dev_env, args, option):
-    done = aspod(dev_env, *args)
+def test_a_link_url_of_an_unknown_scheme_exits_2_naming_the_scheme_and_those_accepted(env, args, option):
+    done = aspod(env, *args)
     err = done.stderr.decode()
     assert done.returncode == 2, err
     assert f"{option}bogus://x: unknown link scheme bogus://; a link is a device (/dev/pts/N) or a URL with one " \
@@ -231,8 +224,8 @@ def test_a_link_url_of_an_unknown_scheme_exits_2_naming_the_scheme_and_those_acc
     ("socket://127.0.0.1", "a socket link is socket://HOST:PORT, PORT a number 1..65535"),
     ("rfc2217://localhost", "an rfc2217 link is rfc2217://HOST:PORT, PORT a number 1..65535"),
 ])
-def test_a_network_url_without_host_and_port_is_bad_input_too(dev_env, url, said):
-    done = aspod(dev_env, "teleop", url)
+def test_a_network_url_without_host_and_port_is_bad_input_too(env, url, said):
+    done = aspod(env, "teleop", url)
     assert done.returncode == 2, done.stderr.decode()
     assert said in done.stderr.decode()
 

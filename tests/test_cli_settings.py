@@ -120,15 +120,14 @@ def test_log_levels_and_the_log_file(tmp_path, capsys):
         setup_logging()
 
 
-def test_the_sims_control_endpoint_is_on_by_default_and_not_with_hal():
+def test_the_sims_control_endpoint_is_on_by_default_with_hal_too():
     def sim(*argv: str):
         return sim_settings(build_parser().parse_args(["sim", *argv]))
     assert (sim().control, sim().control_path) == (True, None)
     assert sim("--control", "/tmp/c.sock").control_path == Path("/tmp/c.sock")
     assert sim("--no-control").control is False
-    assert sim("--hal", "udp_multicast").control is False          # the plant in a process of its own: none
-    with pytest.raises(ValueError, match="serves the one-process world"):
-        sim("--hal", "udp_multicast", "--control", "/tmp/c.sock")
+    assert sim("--hal", "udp_multicast").control is True           # it says the link's key; it reaches no plant
+    assert sim("--hal", "udp_multicast", "--control", "/tmp/c.sock").control_path == Path("/tmp/c.sock")
     with pytest.raises(SystemExit):
         build_parser().parse_args(["sim", "--control", "/tmp/c.sock", "--no-control"])
     teleop = build_parser().parse_args(["teleop", "/dev/pts/3", "--control", "/tmp/c.sock"])

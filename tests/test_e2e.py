@@ -38,7 +38,7 @@ def read_line(child: Child, timeout_s: float = 30.0, stream=None) -> str:
 
 @pytest.fixture
 def env(tmp_path):
-    """A private per-user config directory, so the development key is the test's own."""
+    """A private per-user config directory, so the parameter file is the test's own."""
     return {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
 
 
@@ -62,9 +62,9 @@ class Sim:
         return subprocess.run(ASPOD + ["teleop", self.url, *args], input=script.encode(), capture_output=True,
                               env=self.env, timeout=timeout_s)
 
-    def teleop_started(self, script: str) -> subprocess.Popen:
+    def teleop_started(self, script: str, *args: str) -> subprocess.Popen:
         """`aspod teleop` running `script` in the background, once it has printed its first Pong."""
-        host = Child(["teleop", self.url], stdin=PIPE, env=self.env)
+        host = Child(["teleop", self.url, *args], stdin=PIPE, env=self.env)
         host.proc.stdin.write(script.encode())
         host.proc.stdin.close()
         while "ok   Pong" not in read_line(host):
@@ -96,13 +96,34 @@ def sim_factory(env):
 def test_sim_prints_link_then_key_and_a_piped_session_exits_zero(sim_factory, env):
     sim = sim_factory("--pty")
     assert re.fullmatch(r"/dev/pts/\d+", sim.url)
-    assert sim.key_path == Path(env["XDG_CONFIG_HOME"]) / "aspod" / "dev.key"
+    assert sim.key_path.name == f"sim-{sim.proc.pid}.key"
     assert oct(sim.key_path.stat().st_mode & 0o777) == "0o600"
+    folder = sim.key_path.parent.lstat()
+    assert folder.st_uid == os.getuid() and oct(folder.st_mode & 0o777) == "0o700"
     done = sim.teleop(SESSION)
     out = done.stdout.decode()
     assert done.returncode == 0, done.stderr.decode() + out
     assert "ok   Pong" in out and "state=ESTOP" not in out
     assert out.count("\nok ") + out.startswith("ok ") >= 4
+
+
+def test_each_sim_makes_a_key_of_its_own_which_host_tools_find_and_which_goes_when_it_stops(sim_factory, tmp_path):
+    """Every `aspod sim` of a user once shared one development key, so one simulator could sign what another's
+    host would take for its own controller's."""
+    sims = [sim_factory("--pty", "--no-tracker"), sim_factory("--tcp", "0", "--no-tracker"),
+            sim_factory("--pty", "--no-tracker", "--hal", "udp_multicast")]     # the controller alone has one too
+    keys = [auth.load_key(sim.key_path) for sim in sims]
+    assert len(set(keys)) == 3 and len({sim.key_path for sim in sims}) == 3
+    for sim in sims:                                       # teleop given only the link: the key is found
+        done = sim.teleop("ping\nstatus\n")
+        assert done.returncode == 0 and "ok   Pong" in done.stdout.decode(), done.stderr.decode()
+    shared = tmp_path / "fleet.key"                        # a key shared on purpose: --key-file on every end
+    auth.write_key(shared, bytes(range(32)))
+    fleet = sim_factory("--pty", "--no-tracker", "--key-file", str(shared))
+    assert fleet.key_path == shared and fleet.teleop("ping\n").returncode == 0
+    status, err = sims[0].stop()
+    assert status == 0 and not sims[0].key_path.exists(), err
+    assert shared.exists() and sims[1].key_path.exists()  # a given key file is the user's: it stays
 
 
 def test_the_same_session_over_tcp(sim_factory):
@@ -283,7 +304,7 @@ def test_over_tcp_a_live_session_cannot_be_taken_over_and_the_next_host_gets_the
 
 def test_a_closed_socket_is_reported_as_what_it_is_and_exits_3(sim_factory):
     sim = sim_factory("--tcp", "0", "--no-control")   # (killed below: no control socket's file left behind)
-    host = sim.teleop_started("ping\nwait 5\nping\nping\n")
+    host = sim.teleop_started("ping\nwait 5\nping\nping\n", "--key-file", str(sim.key_path))
     sim.proc.kill()                               # the controller's end of the socket closes
     sim.proc.wait(timeout=10)
     assert host.wait(timeout=60) == 3

@@ -192,13 +192,10 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
 def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp_path):
     """A simulator whose BoxDial handler crashes at exactly 100 % (planted): the black-box fuzzer, sending only
     BoxDial, finds it within 300 cases, shrinks it, stops (--max-findings 1), and the finding fails again on a fresh
-    simulator."""
-    key = tmp_path / "k.key"
-    from protocol import auth
-    auth.write_key(key, bytes(range(32)))
-    target = f"{sys.executable} -m host_tools.fuzz.planted sim --pty --no-pacing --key-file {key}"
-    done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--only", "BoxDial", "--cases", "300",
-                 "--max-findings", "1",
+    simulator. No --key-file: each target started (and restarted) makes a key of its own and says it on its
+    ASPOD-KEY line."""
+    target = f"{sys.executable} -m host_tools.fuzz.planted sim --pty --no-pacing"
+    done = aspod("fuzz", "--target-cmd", target, "--only", "BoxDial", "--cases", "300", "--max-findings", "1",
                  "--json", cwd=tmp_path, timeout=600)
     assert done.returncode == 1, done.stderr[-2000:]
     figures = json.loads(done.stdout)
@@ -206,8 +203,7 @@ def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp
     assert crashes == figures["findings"] and len(crashes) == 1 and figures["cases"] < 300, figures  # then it stops
     finding = findings.load(tmp_path / crashes[0])
     assert any(s["kind"] == "command" and s["msg"] == "BoxDial" for s in finding.steps)
-    again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, "--key-file", str(key), cwd=tmp_path,
-                  timeout=300)
+    again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, cwd=tmp_path, timeout=300)
     assert again.returncode == 1 and "fails as found" in again.stdout, again.stdout + again.stderr
 
 

@@ -24,7 +24,7 @@ from protocol.states import ControllerState
 from timebase import RealClock
 
 pytestmark = pytest.mark.pty
-env, sim_factory = test_e2e.env, test_e2e.sim_factory       # the fixtures: a private key, sims stopped at the end
+env, sim_factory = test_e2e.env, test_e2e.sim_factory       # the fixtures: a private config, sims stopped at the end
 PORTS = [pytest.param(("--pty",), id="pty"), pytest.param(("--tcp", "0"), id="tcp")]
 LINE_BYTES_PER_S = 115200 / 10
 FLOOD_SHARE = 0.8
@@ -48,12 +48,22 @@ def handshake_naks(recorded: bytes, psk: bytes) -> list[bytes]:
 
 
 @pytest.fixture
-def tapped(sim_factory):
-    """Factory: `aspod sim` on `where` (its arguments), its key, and a LineTap in front of it (closed at the end)."""
+def link_key(tmp_path):
+    """A key file of the test's own, for simulators that must share one (a restart) and hosts that reach them
+    through a tap (whose address is not a simulator's, so a host tool cannot find the key from it)."""
+    path = tmp_path / "link.key"
+    auth.write_key(path, auth.new_nonce() + auth.new_nonce())
+    return path
+
+
+@pytest.fixture
+def tapped(sim_factory, link_key):
+    """Factory: `aspod sim` on `where` (its arguments) with `link_key`, the key, and a LineTap in front of it (closed
+    at the end)."""
     taps = []
 
     def start(where):
-        sim = sim_factory(*where)
+        sim = sim_factory(*where, "--key-file", str(link_key))
         taps.append(LineTap(sim.url))
         return sim, auth.load_key(sim.key_path), taps[-1]
     yield start
@@ -63,14 +73,14 @@ def tapped(sim_factory):
 
 @pytest.mark.parametrize("where", PORTS)
 def test_a_recorded_handshake_nak_leaves_a_live_session_alone_and_a_restart_is_still_recovered(tapped, sim_factory,
-                                                                                                where):
+                                                                                                link_key, where):
     first, psk, tap = tapped(where)
     client = HostClient(tap.url, psk)
     try:
         client.connect()
         assert client.call(M["Ping"](1)).ok
         first.stop()                                     # the controller restarts behind the line, same key
-        second = sim_factory(*where)
+        second = sim_factory(*where, "--key-file", str(link_key))
         restarted_at = len(tap.to_host)
         handle = client.submit(M["Ping"](2))             # in flight across the restart
         tap.retarget(second.url)
@@ -98,7 +108,7 @@ def controller_rx(client: HostClient, after_s: float, timeout_s: float = 10.0) -
 
 
 @pytest.mark.parametrize("where", PORTS)
-def test_a_flood_of_recorded_hellos_starves_neither_the_session_nor_a_new_host(tapped, where):
+def test_a_flood_of_recorded_hellos_starves_neither_the_session_nor_a_new_host(tapped, link_key, where):
     sim, psk, tap = tapped(where)                       # 115200 baud, paced
     live = HostClient(tap.url, psk)
     try:
@@ -128,7 +138,8 @@ def test_a_flood_of_recorded_hellos_starves_neither_the_session_nor_a_new_host(t
             assert new.call(M["Ping"](99)).ok
         finally:
             new.close()
-        done = subprocess.run(test_e2e.ASPOD + ["teleop", tap.url, "--connect-timeout", str(TELEOP_CONNECT_BOUND_S)],
+        done = subprocess.run(test_e2e.ASPOD + ["teleop", tap.url, "--key-file", str(link_key), "--connect-timeout",
+                                                str(TELEOP_CONNECT_BOUND_S)],
                               input=b"ping\nstatus\n", capture_output=True, env=sim.env, timeout=120)
         out = done.stdout.decode()
         assert done.returncode == 0, done.stderr.decode() + out

@@ -60,8 +60,9 @@ def _close_pairs():
 class Pair:
     """A lock-step plant (as fast as it goes) and controller, stepped in turn in one thread."""
 
-    def __init__(self, seed: int = 1, controller: bool = True, first_tick: int = 0) -> None:
+    def __init__(self, seed: int = 1, controller: bool = True, first_tick: int = 0, speed: float = math.inf) -> None:
         self.wall = SimClock(1000.0)
+        self.speed = speed
         self.plant_bus, self._controller_end = open_local_pair()
         _open_pairs.append(self)
         self.start_plant(seed, first_tick)
@@ -71,7 +72,7 @@ class Pair:
 
     def start_controller(self) -> None:
         self.controller_bus = DropFrames(self._controller_end, CTRL_SYNC_ID)
-        self.follower = LockstepFollower(self.controller_bus, self.wall)
+        self.follower = LockstepFollower(self.controller_bus, self.wall, speed=self.speed)
         self.controller = build_controller(KEY, PacedUart(BufferPort(notifies=False)), self.follower.tap,
                                            ControllerConfig())
         self.control = Scheduler(self.follower, stopwatch=self.follower.now)
@@ -80,7 +81,7 @@ class Pair:
 
     def start_plant(self, seed: int, first_tick: int = 0) -> None:
         """A plant on the bus (a new one, counting its ticks from `first_tick`, if there was one already)."""
-        self.leader = LockstepLeader(self.plant_bus, PacedClock(self.wall, math.inf, start_s=first_tick * 0.001),
+        self.leader = LockstepLeader(self.plant_bus, PacedClock(self.wall, self.speed, start_s=first_tick * 0.001),
                                      0.001, reoffer=lambda: self.node.resend_sync())
         self.leader.controller_tick = first_tick      # its first tick is free, as tick 0 is
         self.node = build_plant_node(self.leader.tap, seed, settings=PlantSettings(tracker=False), lockstep=True)
@@ -126,6 +127,19 @@ def test_the_controller_runs_each_tick_on_the_plant_tick_before_it_and_nothing_r
     assert pair.follower.now() == pytest.approx((pair.node.tick - 1) * 0.001, abs=0.0015)
     assert pair.controller.supervisor.state is ControllerState.IDLE and not pair.controller.supervisor.faults
     assert pair.follower.timing().mode == "lockstep" and pair.leader.timing().mode == "lockstep"
+
+
+def test_a_plant_paced_at_the_slow_speed_asked_is_neither_slow_nor_lagging_to_its_controller():
+    """`aspod sim --hal ... --speed 0.01`: the controller knows the pace asked (LockstepFollower's speed)."""
+    pair = Pair(speed=0.01)
+    reports = []
+    pair.controller.report_listeners.append(reports.append)
+    for _ in range(2000):                    # 20 wall seconds, 10 ms a turn: 0.2 simulated
+        pair.wall.advance_by(0.01)
+        pair.turn()
+    timing = pair.follower.timing()
+    assert timing.speed == 0.01 and timing.rtf_recent == pytest.approx(0.01, rel=0.1) and timing.lag_s < 0.1
+    assert not [r for r in reports if r.spec.name == "TimingWarning"], reports
 
 
 def test_a_move_in_lock_step_ends_done_and_is_the_same_to_the_bit_whatever_the_wall_clock_does():

@@ -29,10 +29,10 @@ KEY = b"paced-world-key-0123456789abcdef"
 class LiveRig:
     """`aspod sim`'s world with a host in the same thread, on a wall clock the test moves."""
 
-    def __init__(self) -> None:
+    def __init__(self, speed: float = 1.0) -> None:
         self.wall = SimClock(50.0)
         self.port = BufferPort(notifies=False)
-        self.world = World(PacedClock(self.wall), self.port, KEY, link_clock=self.wall, deterministic=True,
+        self.world = World(PacedClock(self.wall, speed), self.port, KEY, link_clock=self.wall, deterministic=True,
                            plant=PlantSettings(tracker=False))
         self.events: list = []
         rng = random.Random(7)
@@ -104,6 +104,22 @@ def test_a_host_too_slow_for_real_time_slows_the_world_down_and_faults_nothing()
     assert warnings and warnings[0].issue == TimingIssue.BELOW_REAL_TIME and warnings[0].value < 0.5
     status = rig.call(M["GetStatus"](), 30.0).reply
     assert status.timing == TimingMode.PACED and 0.05 < status.rtf_recent < 0.5
+
+
+def test_a_slow_speed_asked_for_is_not_a_slow_host_but_falling_behind_it_is():
+    """`aspod sim --speed 0.01` once warned at once that the world ran below real time: 0.01x is what was asked."""
+    rig = LiveRig(speed=0.01)
+    rig.host.connect(rig.wall.now())
+    assert rig.run_until(lambda: rig.host.state is LinkState.UP, 5.0)
+    rig.run_until(lambda: False, 30.0)                # 30 wall seconds: 0.3 simulated, 30 health checks
+    status = rig.call(M["GetStatus"]()).reply
+    assert status.rtf_recent == pytest.approx(0.01, rel=0.1)
+    assert not [e for e in rig.events if e.spec.name == "TimingWarning"]
+    rig.cost(0.25)                                    # each simulated ms now takes 250 ms: 0.004x, short of 0.01x
+    rig.run_until(lambda: any(e.spec.name == "TimingWarning" for e in rig.events), 30.0)
+    warning = next(e for e in rig.events if e.spec.name == "TimingWarning")
+    assert warning.issue == TimingIssue.BELOW_REAL_TIME and warning.active
+    assert warning.value == pytest.approx(0.004, rel=0.1) and warning.limit == pytest.approx(0.009, rel=1e-6)
 
 
 def test_a_stall_longer_than_the_link_timeout_is_not_the_hosts_silence():

@@ -47,8 +47,8 @@ def test_a_teleop_session_through_an_impaired_proxy_is_seen_live_and_captured(si
     proxy, url, view_lines = start_proxy(env, sim.url, "--impair", "ber=3e-4,drop=0.03,latency_ms=5,jitter_ms=5,seed=3",
                              "--record", str(capture), "--key-file", str(sim.key_path))
     script = "ping 1\nenable\ntelemetry 20\n" + "".join(f"ping {n}\n" for n in range(2, 40)) + "status\nquit\n"
-    done = subprocess.run(ASPOD + ["teleop", url, "--summary"], input=script.encode(), capture_output=True, env=env,
-                          timeout=180)
+    done = subprocess.run(ASPOD + ["teleop", url, "--summary", "--key-file", str(sim.key_path)],     # (a proxy's
+                          input=script.encode(), capture_output=True, env=env, timeout=180)   # address is not the sim's)
     out = done.stdout.decode()
     assert done.returncode == 0, done.stderr.decode() + out
     assert out.count("ok   Pong") == 39

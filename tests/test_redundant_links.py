@@ -68,6 +68,27 @@ def test_a_socket_link_that_is_not_host_and_port_is_refused_saying_what_it_must_
 
 
 @pytest.mark.pty
+def test_links_without_tcp_serve_a_teleop_session_over_both(sim_factory):
+    """`--link radio=pty --link optical=pty` (no link guards its line as TCP does) once stopped the simulator
+    with a traceback before its ready line."""
+    sim = sim_factory("--link", "radio=pty", "--link", "optical=pty", "--no-tracker")
+    links = dict(parse_links(sim.url))
+    assert set(links) == {"radio", "optical"} and all(re.fullmatch(r"/dev/pts/\d+", u) for u in links.values())
+    done = sim.teleop("ping\nstatus\nestop\nreset\nquit\n")
+    out = done.stdout.decode()
+    assert done.returncode == 0, done.stderr.decode() + out
+    assert "ok   Pong" in out
+    client = HostClient(sim.url, auth.load_key(sim.key_path))
+    try:
+        client.connect()
+        assert client.call(M["Ping"](7)).reply.token == 7
+        health = client.line.health()
+    finally:
+        client.close()
+    assert len(health) == 2 and not any("nothing heard yet" in line for line in health), health   # both carried it
+
+
+@pytest.mark.pty
 def test_commands_over_two_links_through_a_fade_and_a_blockage_run_once_each(sim_factory, env):
     sim = sim_factory("--link", "radio=pty", "--link", "optical=tcp:0", "--no-tracker")
     links = dict(parse_links(sim.url))

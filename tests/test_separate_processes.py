@@ -65,7 +65,7 @@ def multicast_works():
 
 @pytest.fixture
 def env(tmp_path):
-    """A private per-user config directory, so the development key is the test's own."""
+    """A private per-user config directory, so the parameter file is the test's own."""
     return {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
 
 

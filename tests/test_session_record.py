@@ -30,8 +30,10 @@ def decoded(path: Path, psk: bytes):
 
 def test_sim_and_teleop_record_the_same_session_and_the_hal_bus_goes_to_a_python_can_log(sim_factory, tmp_path):
     sim_capture, host_capture, can_log = tmp_path / "sim.pcapng", tmp_path / "teleop.pcapng", tmp_path / "hal.asc"
+    key = tmp_path / "link.key"           # a key of the user's own, to check the captures' MACs once the sim is gone
+    auth.write_key(key, bytes(range(32)))
     sim = sim_factory("--pty", "--record", str(sim_capture), "--can-log", str(can_log), "--seed", "5",
-                      "--no-tracker")
+                      "--no-tracker", "--key-file", str(key))
     done = sim.teleop("ping 7\nstatus\nping 8\nquit\n", "--record", str(host_capture))
     assert done.returncode == 0, done.stderr.decode()
     status, _ = sim.stop()

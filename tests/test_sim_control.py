@@ -17,17 +17,19 @@ from typing import Callable
 import pytest
 
 from host_tools.client.bench import BenchClient
-from host_tools.client.control import ControlClient, ControlUnavailable, find_control
+from host_tools.client.control import ControlClient, ControlUnavailable, find_control, simulator_key
 from host_tools.plugin.errors import CannotFault
 from host_tools.plugin.target import LockstepTarget
 from host_tools.teleop.session import run_script
 from host_tools.teleop.words import completions, help_text
-from host_tools.worlds.control_server import (MAX_CLIENTS, MAX_LINE, OUT_HIGH, ControlServer, claim_path,
-                                              default_control_path, link_endpoints, private_dir)
+from host_tools.worlds.control_server import (IDLE_S, MAX_CLIENTS, MAX_LINE, OUT_HIGH, ControlServer, LinkInfo,
+                                              claim_path, link_endpoints)
+from host_tools.worlds.runtime_folder import RuntimeFolder, private_dir, runtime_dir, search_folders
 from host_tools.worlds.plant_control import NO_PAUSE, OPS, PlantControl
 from host_tools.worlds.plant_state import plant_state
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
+from protocol.errors import KeyFileError
 from protocol.messages import MESSAGES as M
 from tests import test_e2e
 from timebase import PacedClock, SimClock
@@ -269,6 +271,69 @@ def test_a_bounded_number_of_clients_the_next_told_why(served):
     assert served.ask(served.connect(), {"op": "faults"})[0]["ok"]
 
 
+def test_idle_clients_yield_their_slots_to_newcomers_busy_ones_do_not(served):
+    """Eight clients that connect and say nothing once held the endpoint for good."""
+    squatters = [served.connect() for _ in range(MAX_CLIENTS)]
+    busy = served.connect()                   # all taken, none idle for IDLE_S yet: told so
+    assert served.replies(busy)[0]["error"].startswith(f"too many control clients ({MAX_CLIENTS}), all busy")
+    served.now += IDLE_S                      # (the endpoint's clock: the link's wall clock)
+    newcomers = []
+    for k in range(3):                        # each newcomer displaces the client idle the longest: the oldest
+        newcomers.append(served.connect())
+        assert served.ask(newcomers[-1], {"op": "time"})[0]["ok"]
+        assert served.closed_by_server(squatters[k])
+        assert "idle for 2 s to make room" in served.logged[-1]
+    assert len(served.server.clients) == MAX_CLIENTS
+    assert all(served.ask(s, {"op": "time"})[0]["ok"] for s in squatters[3:])      # the others are served on
+
+
+def test_a_client_whose_idle_connection_was_closed_opens_it_again_and_never_resends(served, folder):
+    small = Served(folder / "small.sock", served.server.control, max_clients=2)
+    stop = small.run_in_background()
+    client = ControlClient(small.server.path)
+    try:
+        assert client.request({"op": "time"})["ok"]
+    finally:
+        stop()
+    small.now += IDLE_S + 1
+    first = small.connect()
+    small.connect()                           # full: the host's connection, idle the longest, makes room
+    assert len(small.server.clients) == 2 and "to make room" in small.logged[-1]
+    first.close()
+    small.pump()
+    stop = small.run_in_background()
+    try:
+        assert client.request({"op": "time"})["ok"] and client.reconnects == 1       # as if nothing happened
+    finally:
+        stop()
+        client.close()
+        small.server.close()
+    # a request whose connection ends before its reply may have run: said, never sent again
+    silent_path = folder / "silent.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as listener:
+        listener.bind(str(silent_path))
+        listener.listen(1)
+        client = ControlClient(silent_path)
+        conn, _ = listener.accept()
+
+        def read_one_line_and_hang_up() -> None:
+            received = b""
+            while b"\n" not in received:
+                received += conn.recv(4096)
+            conn.close()
+            lines.append(received)
+        lines: list[bytes] = []
+        thread = threading.Thread(target=read_one_line_and_hang_up)
+        thread.start()
+        with pytest.raises(ControlUnavailable, match="closed the connection before it answered.*may have run"):
+            client.request({"op": "fault", "name": "jam", "channel": "j1"})
+        thread.join()
+        listener.settimeout(0.5)
+        with pytest.raises(socket.timeout):
+            listener.accept()                 # no second connection: nothing was sent again
+    assert lines == [b'{"op": "fault", "name": "jam", "channel": "j1"}\n']
+
+
 def test_a_client_gone_mid_line_changes_nothing_and_is_forgotten(served):
     conn = served.connect()
     before = snapshot(served.bench)
@@ -346,11 +411,59 @@ def test_the_default_folder_is_private_or_refused(folder):
     mine = folder / "aspod"
     private_dir(mine)
     assert oct(mine.stat().st_mode & 0o777) == "0o700"
-    assert default_control_path({"XDG_RUNTIME_DIR": str(folder)}, pid=42) == mine / "sim-42.sock"
-    assert default_control_path({}, pid=42) == Path(f"/tmp/aspod-{os.getuid()}/sim-42.sock")
+    assert RuntimeFolder.open({"XDG_RUNTIME_DIR": str(folder)}).control_path(42) == mine / "sim-42.sock"
+    assert runtime_dir({}) == Path(f"/tmp/aspod-{os.getuid()}")
+    assert runtime_dir({"TMPDIR": str(folder)}) == folder / f"aspod-{os.getuid()}"
     os.chmod(mine, 0o770)
     with pytest.raises(OSError, match="open to other users"):
         private_dir(mine)
+
+
+def squat(folder: Path, how: str) -> None:
+    """Make `folder` as someone else would have: open to every user, or (as root) another user's."""
+    folder.mkdir()
+    if how == "open to others":
+        os.chmod(folder, 0o777)
+    elif os.geteuid() != 0:
+        pytest.skip("only root can make a folder another user's")
+    else:
+        os.chown(folder, 65534, 65534)
+
+
+@pytest.mark.parametrize("how", ["open to others", "another user's"])
+def test_a_runtime_folder_taken_first_gives_a_folder_of_its_own_that_hosts_find_and_that_goes(folder, how):
+    squat(folder / f"aspod-{os.getuid()}", how)
+    said: list[str] = []
+    runtime = RuntimeFolder.open({"TMPDIR": str(folder)}, log=said.append)
+    assert runtime.made and runtime.path.parent == folder and runtime.path.name.startswith(f"aspod-{os.getuid()}-")
+    assert oct(runtime.path.lstat().st_mode & 0o777) == "0o700" and "using a folder of its own" in said[0]
+    assert search_folders({"TMPDIR": str(folder)}) == [runtime.path]       # the one taken is not trusted
+    key, path = runtime.new_key()
+    assert path.parent == runtime.path and oct(path.stat().st_mode & 0o777) == "0o600"
+    runtime.close()
+    assert not runtime.path.exists()
+
+
+def test_hosts_trust_only_folders_of_this_users_that_no_one_else_may_enter(folder):
+    uid = os.getuid()
+    good, open_one, link = folder / f"aspod-{uid}-good", folder / f"aspod-{uid}-open", folder / f"aspod-{uid}-link"
+    good.mkdir(mode=0o700)
+    open_one.mkdir(mode=0o700)
+    os.chmod(open_one, 0o755)
+    link.symlink_to(good)
+    (folder / f"aspod-{uid}-file").write_text("")
+    assert search_folders({"TMPDIR": str(folder)}) == [good]
+
+
+def test_a_key_left_by_a_simulator_that_was_killed_goes_when_the_folder_is_next_opened(folder):
+    environ = {"XDG_RUNTIME_DIR": str(folder)}
+    first = RuntimeFolder.open(environ)
+    _, mine = first.new_key()
+    dead = mine.with_name("sim-999999999.key")      # beyond any pid Linux hands out
+    mine.rename(dead)
+    _, mine = first.new_key()
+    RuntimeFolder.open(environ)
+    assert mine.exists() and not dead.exists()
 
 
 def test_a_host_finds_the_endpoint_from_the_link_url_and_skips_dead_ones(folder, world):
@@ -375,6 +488,29 @@ def test_a_host_finds_the_endpoint_from_the_link_url_and_skips_dead_ones(folder,
     with pytest.raises(ControlUnavailable, match="is its aspod sim still running"):
         ControlClient(served.server.path)
     assert link_endpoints("a=/dev/pts/1,b=socket://x:2") == {"/dev/pts/1", "socket://x:2"}
+
+
+def test_a_host_finds_the_key_of_a_controller_whose_plant_is_elsewhere_but_no_plant_to_fault(folder):
+    environ = {"XDG_RUNTIME_DIR": str(folder)}
+    runtime = RuntimeFolder.open(environ)
+    key, key_path = runtime.new_key()
+    served = Served(runtime.control_path(), LinkInfo({"link": "/dev/pts/77", "pid": 1, "key": str(key_path)},
+                                                     "in aspod plant"))
+    stop = served.run_in_background()
+    try:
+        assert simulator_key("/dev/pts/77", environ=environ) == key
+        assert find_control("/dev/pts/77", environ) is None         # nothing there reaches a plant
+        with ControlClient(served.server.path) as client:
+            assert client.request({"op": "info"})["plant"] is False
+            refused = client.request({"op": "fault", "name": "jam", "channel": "j1"})
+            assert refused == {"ok": False, "error": "fault: no plant here to reach: it is in aspod plant"}
+        with pytest.raises(KeyFileError, match="no --key-file given, and no simulator of this user's serving "
+                                               "/dev/pts/78 says its key: give --key-file FILE"):
+            simulator_key("/dev/pts/78", environ=environ)
+    finally:
+        stop()
+        served.server.close()
+        runtime.close()
 
 
 # ---- teleop's `sim` words ----
@@ -478,6 +614,30 @@ def test_a_live_sim_is_faulted_from_a_teleop_script_and_held_while_its_link_stay
 @pytest.mark.pty
 def test_a_sim_without_its_endpoint_makes_a_sim_line_fail_with_the_reason(sim_factory):
     sim = sim_factory("--pty", "--no-tracker", "--no-control")
-    done = sim.teleop("sim faults\n")
+    done = sim.teleop("sim faults\n")                # nothing to find its key by either: said, nothing sent
+    assert done.returncode == 2 and "give --key-file FILE (for a simulator, the path on its ASPOD-KEY line" in \
+        done.stderr.decode(), done.stderr.decode()
+    done = sim.teleop("sim faults\n", "--key-file", str(sim.key_path))
     out = done.stdout.decode()
     assert done.returncode == 1 and "FAIL sim faults: no control endpoint" in out, out
+
+
+@pytest.mark.pty
+def test_a_sim_whose_runtime_folder_someone_took_first_runs_and_teleop_finds_it(folder, tmp_path):
+    """Another user making /tmp/aspod-<uid> first once stopped every `aspod sim` of that uid at its start; so did
+    a runtime folder open to others, the case made here (the machine's own /tmp/aspod-<uid> is left alone)."""
+    (folder / "run").mkdir(mode=0o700)
+    squat(folder / "run" / "aspod", "open to others")
+    env = dict(os.environ, XDG_RUNTIME_DIR=str(folder / "run"), TMPDIR=str(folder),
+               XDG_CONFIG_HOME=str(tmp_path / "config"))
+    sim = test_e2e.Sim(env, "--pty", "--no-tracker")
+    try:
+        own = sim.control_path.parent
+        assert own.parent == folder and own.name.startswith(f"aspod-{os.getuid()}-") and sim.key_path.parent == own
+        done = sim.teleop("sim faults\nping\n")              # its endpoint and its key, found in that folder
+        out = done.stdout.decode()
+        assert done.returncode == 0 and "ok   sim faults" in out and "ok   Pong" in out, out + done.stderr.decode()
+    finally:
+        status, err = sim.stop()
+    assert status == 0 and "is open to other users" in err and "using a folder of its own" in err, err
+    assert not own.exists()

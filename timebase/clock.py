@@ -33,7 +33,9 @@ class TimingReport:
     `rtf_recent` and `rtf_total`: simulated seconds per wall second over about the last
     second and since the start (NaN where nothing is measured). `lag_s`: wall seconds by
     which time is behind its schedule now; `slipped_s`: lag given up for good (the world
-    fell too far behind to catch up and was re-anchored), in wall seconds.
+    fell too far behind to catch up and was re-anchored), in wall seconds. `speed`: the factor
+    asked for (`--speed`; math.inf: as fast as the work allows), what `rtf_recent` is judged
+    against: a world asked for 0.01x real time that runs at 0.01x is not slow.
     """
 
     mode: str
@@ -41,6 +43,7 @@ class TimingReport:
     rtf_total: float = math.nan
     lag_s: float = 0.0
     slipped_s: float = 0.0
+    speed: float = 1.0
 
 
 class Clock(abc.ABC):

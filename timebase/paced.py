@@ -205,6 +205,7 @@ class PacedClock(Clock):
         """Held (stepping too), no recent factor and no lag: the world is not paced then, so it cannot be slow."""
         wall_now = self.wall.now()
         if self._held_since is not None:
-            return TimingReport("paced", math.nan, self.meter.total(self._held_since, self._now), 0.0, self.slipped_s)
+            return TimingReport("paced", math.nan, self.meter.total(self._held_since, self._now), 0.0, self.slipped_s,
+                                self.speed)
         return TimingReport("paced", self.meter.recent(wall_now, self._now), self.meter.total(wall_now, self._now),
-                            self.lag_s, self.slipped_s)
+                            self.lag_s, self.slipped_s, self.speed)

@@ -5,6 +5,11 @@ process alone (`serial`: the reference that a distributed run must equal, row fo
 Runs are independent and each builds its own world, so they are spread one task per run; the results come back
 in any order and are put back in the matrix's. A run that raises (a bug, never the bench's own failure: that
 is its row) or whose worker dies becomes an error row saying so; the campaign goes on.
+
+A `--scheduler` address is tried within Dask's own connect timeout (`distributed.comm.timeouts.connect`, 30 s
+unless configured, e.g. DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=5s), the Dask handshake included:
+distributed's Client bounds the TCP connect but then waits for the handshake without a bound, so a port that
+accepts and never speaks Dask would hold it for ever (`SchedulerUnreachable` says so instead).
 """
 from __future__ import annotations
 
@@ -18,6 +23,11 @@ from host_tools.campaign.matrix import Run
 from host_tools.campaign.runs import BenchSpec, RunResult, run_one
 
 OnResult = Callable[[RunResult], None]
+
+
+class SchedulerUnreachable(ConnectionError):
+    """--scheduler names no Dask scheduler that answered in time: nothing listens there, or what does never spoke
+    Dask's protocol."""
 
 
 @dataclass(frozen=True)
@@ -77,7 +87,7 @@ def map_on_dask(fn: Callable, items: list, settings: EngineSettings, on_done: Ca
                                dashboard_address=":0", silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
-        client = Client(settings.scheduler, timeout="30s")
+        client = Client(settings.scheduler, timeout=scheduler_handshake(settings.scheduler))
     try:
         on_started(client.dashboard_link if settings.scheduler is not None else settings.describe())
         scattered = client.scatter(shared, broadcast=True) if shared is not None else None
@@ -97,6 +107,30 @@ def map_on_dask(fn: Callable, items: list, settings: EngineSettings, on_done: Ca
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def scheduler_handshake(address: str) -> float:
+    """Open a connection to `address` and complete Dask's handshake on it, all within Dask's connect timeout; that
+    timeout in seconds, for the Client's own connection. SchedulerUnreachable naming the address if it fails."""
+    import asyncio
+
+    import dask
+    from dask.utils import parse_timedelta
+    from distributed.comm import connect
+    timeout_s = parse_timedelta(dask.config.get("distributed.comm.timeouts.connect"), default="seconds")
+
+    async def handshake() -> None:
+        comm = await asyncio.wait_for(connect(address, timeout=timeout_s), timeout_s)
+        await comm.close()
+    try:
+        asyncio.run(handshake())
+    except asyncio.TimeoutError:
+        raise SchedulerUnreachable(f"--scheduler {address}: no Dask scheduler answered within {timeout_s:g} s (a port "
+                                   "that accepts but does not speak Dask's protocol, or one too slow; Dask's "
+                                   "distributed.comm.timeouts.connect sets the bound)") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise SchedulerUnreachable(f"--scheduler {address}: {exc}") from None
+    return timeout_s
 
 
 def run_distributed(bench: BenchSpec, runs: list[Run], settings: EngineSettings, on_result: OnResult,

@@ -13,6 +13,11 @@ same first two lines on stdout:
     ASPOD-LINK <url>
     ASPOD-KEY <path>
 
+Without --key-file the key is a fresh one of this process's own (host_tools/worlds/runtime_folder.py), removed
+when it stops. Beside the link it serves an endpoint that answers only `info` (`LinkInfo`: the link, the key's
+file), so that a host tool given the link's address finds the key (host_tools/client/control.py); the plant's
+control endpoint is `aspod sim`'s alone, as the plant is not here. `aspod sim --hal --no-control` serves none.
+
 State changes are logged on stderr; at exit, the HAL counters:
 
     aspod firmware: HAL counters frames_sent=... frames_received=... own_echoes=... bad_frames=... bus_errors=...
@@ -25,7 +30,9 @@ lock-step watch takes it to the safe state) and is stopped when the controller s
 from __future__ import annotations
 
 import logging
+import os
 import signal
+from pathlib import Path
 from typing import Any, Callable, Optional
 
 from firmware_py.controller import Controller, ControllerConfig
@@ -45,7 +52,10 @@ from host_tools.cli.plant import PlantProcess
 from host_tools.cli.settings import (BusSettings, ControllerSettings, FirmwareSettings, PlantRunSettings, PortSettings,
                                      SimSettings)
 from host_tools.worlds.child import describe_exit
+from host_tools.worlds.control_server import ControlServer, Handler, LinkInfo
+from host_tools.worlds.runtime_folder import RuntimeFolder
 from host_tools.teleop.format import describe_report
+from host_tools.cli.main import default_params_path
 
 PLANT_WATCH_S = 0.1
 log = logging.getLogger("aspod")
@@ -74,13 +84,19 @@ def open_port(settings: PortSettings, prog: str) -> Port:
     return PtyPort()
 
 
-def controller_config(settings: ControllerSettings):
-    """(psk, key path, params path, ControllerConfig) from the controller's settings."""
+def controller_key(settings: ControllerSettings, folder: Optional[RuntimeFolder]) -> tuple[bytes, Path]:
+    """(key, its file): --key-file, else a fresh key of this simulator's own in its runtime folder (removed when it
+    stops; a host tool given the link's address finds it through the endpoint). `runtime_folder` gives a folder
+    whenever there is no --key-file."""
     if settings.key_file is not None:
-        psk, key_path = auth.load_key(settings.key_file, "--key-file"), settings.key_file
-    else:
-        psk, key_path = auth.load_or_create_dev_key()
-    params_path = settings.params if settings.params is not None else auth.default_key_path().with_name("params.json")
+        return auth.load_key(settings.key_file, "--key-file"), settings.key_file.absolute()
+    assert folder is not None
+    return folder.new_key()
+
+
+def controller_config(settings: ControllerSettings):
+    """(params path, ControllerConfig) from the controller's settings."""
+    params_path = settings.params if settings.params is not None else default_params_path()
     check_params_file(params_path)
     timeout_s = settings.link_timeout_s if settings.link_timeout_s is not None else LinkConfig.link_timeout_s
     link = LinkConfig(link_timeout_s=timeout_s, heartbeat_s=min(LinkConfig.heartbeat_s, timeout_s / 3))
@@ -89,7 +105,7 @@ def controller_config(settings: ControllerSettings):
         extra["boot_timeout_s"] = settings.boot_timeout_s
     if settings.loop_hz is not None:
         extra["arm_period_s"] = 1.0 / settings.loop_hz
-    return psk, key_path, params_path, ControllerConfig(link=link, params_path=params_path, **extra)
+    return params_path, ControllerConfig(link=link, params_path=params_path, **extra)
 
 
 def check_params_file(path) -> None:
@@ -120,24 +136,65 @@ def apply_command_line(controller: Controller, settings: ControllerSettings, pro
     controller.telemetry_hz = int(params["telemetry_hz"])
 
 
+def runtime_folder(settings: ControllerSettings, endpoint: bool, prog: str) -> Optional[RuntimeFolder]:
+    """The private folder a simulator needs for its own key (no --key-file) or its endpoint's socket (`endpoint`:
+    at the default path); None if it needs neither. Without it the endpoint is left out, and said; the key
+    cannot be: OSError."""
+    if settings.key_file is None or endpoint:
+        try:
+            return RuntimeFolder.open(log=lambda text: log.warning(f"{prog}: {text}"))
+        except OSError as exc:
+            if settings.key_file is None:
+                raise OSError(f"{exc}; or give --key-file") from None
+            log.warning(f"{prog}: {exc}: running without the control endpoint (a host needs --key-file then)")
+    return None
+
+
+def serve_endpoint(path: Path, handler: Handler, link_scheduler: Scheduler, prog: str) -> ControlServer:
+    """The endpoint at `path`, served by a task on the link's (wall-clock) scheduler."""
+    server = ControlServer(path, handler, log=lambda text: log.info(f"{prog}: {text}"))
+    link_scheduler.add("control", server.poll, tolerance_s=1.0)
+    return server
+
+
 def run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
-                   plant: Optional[PlantProcess] = None, timing: str = "lockstep") -> int:
+                   plant: Optional[PlantProcess] = None, timing: str = "lockstep", speed: float = 1.0,
+                   control: bool = True, control_path: Optional[Path] = None) -> int:
     """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
 
-    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock.
+    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock. `speed`:
+    the plant's --speed, where known (aspod sim --hal): the pace the world's real-time factor is judged against.
+    `control`: serve the endpoint that says the link's key (`LinkInfo`), at `control_path` or by default in the
+    runtime folder.
     """
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
     signal.signal(signal.SIGINT, lambda signum, frame: stopping.append(signum))
-    psk, key_path, params_path, config = controller_config(settings)
+    params_path, config = controller_config(settings)
+    folder = runtime_folder(settings, control and control_path is None, prog)
+    try:
+        return _run_controller(port_settings, settings, prog, bus_settings, plant, timing, speed, stopping,
+                               params_path, config, folder, control_path if control else None)
+    finally:
+        if folder is not None:
+            folder.close()
+
+
+def _run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
+                    plant: Optional[PlantProcess], timing: str, speed: float, stopping: list[int], params_path: Path,
+                    config: ControllerConfig, folder: Optional[RuntimeFolder], control_path: Optional[Path]) -> int:
+    psk, key_path = controller_key(settings, folder)
+    if control_path is None and folder is not None:
+        control_path = folder.control_path()
     bus = nodes.open_bus(bus_settings.interface, bus_settings.channel, node=nodes.CONTROLLER, **bus_settings.kwargs)
     wall = RealClock()
-    follower = LockstepFollower(bus, wall) if timing == "lockstep" else None
+    follower = LockstepFollower(bus, wall, speed=speed) if timing == "lockstep" else None
     plants = PlantsWatch()
     if follower is not None:                # a second plant on this bus: said on stderr (not a fault)
         follower.on_tick = lambda tick: warn(prog, plants.seen(tick, wall.now()))
     uart = None
     controller: Optional[Controller] = None
+    endpoint: Optional[ControlServer] = None
     baud, paced = port_settings.baud, port_settings.paced
     try:
         port = open_port(port_settings, prog)
@@ -151,6 +208,11 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
         log_states(controller, prog)
         if plant is not None:
             link_scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
+        if control_path is not None:
+            where = (f"in its own process, aspod plant (pid {plant.pid})" if plant is not None else
+                     f"whatever answers on the HAL bus ({bus_settings.describe()}): aspod plant, or real hardware")
+            about = {"link": port.url, "pid": os.getpid(), "key": str(key_path)}
+            endpoint = serve_endpoint(control_path, LinkInfo(about, where), link_scheduler, prog)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
         log.info(f"{prog}: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
@@ -158,6 +220,8 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
                  f"HAL on {bus_settings.describe()}, timing {timing}; Ctrl-C stops")
         run_live(scheduler, link_scheduler, lambda: bool(stopping))
     finally:
+        if endpoint is not None:
+            endpoint.close()
         if plant is not None:
             status, _ = plant.stop()
             if not plant.reported and status not in (0, -signal.SIGINT, -signal.SIGTERM):
@@ -242,6 +306,7 @@ def run_sim_over_hal(settings: SimSettings) -> int:
                                           speed=settings.speed, verbosity=verbosity))
     log.info(f"aspod sim: plant process {plant.pid} ready on {bus.describe()}")
     try:
-        return run_controller(settings.port, settings.controller, "aspod sim", bus, plant, timing="lockstep")
+        return run_controller(settings.port, settings.controller, "aspod sim", bus, plant, timing="lockstep",
+                              speed=settings.speed, control=settings.control, control_path=settings.control_path)
     finally:
         plant.stop()

@@ -3,7 +3,8 @@
     aspod fuzz controller-link --time 60                  one in-process target, coverage-guided (atheris)
     aspod fuzz frames codec --runs 10000000 --jobs 8      a campaign: jobs split by seed, on Dask
     aspod fuzz --target-cmd 'aspod sim --pty --no-pacing' black-box against a target it starts (and restarts)
-    aspod fuzz --url /dev/pts/5 --key-file link.key       black-box against a running target
+    aspod fuzz --url /dev/pts/5                           black-box against a running target (its key: found, or
+                                                          --key-file)
     aspod fuzz --replay FINDING.json [--url ...]          one finding again, alone
 
 Exit status: 0 nothing found, 1 findings (or a replayed finding still fails), 2 bad usage or input.
@@ -13,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import sys
+from typing import Optional
 
 from host_tools.cli.main import host_key
 from host_tools.cli.settings import FuzzSettings
@@ -95,6 +97,15 @@ def _inprocess(settings: FuzzSettings) -> int:
     return EXIT_FAILED if any(r.findings for r in results) else EXIT_OK
 
 
+def blackbox_key(settings: FuzzSettings) -> Optional[bytes]:
+    """--key-file; else, against --url, the key of the local simulator serving it; with --target-cmd, None: each
+    target started says its own (its ASPOD-KEY line)."""
+    bb = settings.blackbox
+    if settings.key_file is None and bb.command:
+        return None
+    return host_key(settings.key_file, bb.url)
+
+
 def _blackbox(settings: FuzzSettings) -> int:
     from host_tools.fuzz.blackbox import BlackBoxFuzzer, TargetGone
     bb = settings.blackbox
@@ -108,7 +119,7 @@ def _blackbox(settings: FuzzSettings) -> int:
             bar.set_postfix_str(f"{r.cases_per_s:,.1f} cases/s, {len(r.findings)} findings")
 
     try:
-        result = BlackBoxFuzzer(bb, host_key(settings.key_file)).run(on_case)
+        result = BlackBoxFuzzer(bb, blackbox_key(settings)).run(on_case)
     except TargetGone as exc:
         log.error(f"aspod fuzz: {exc}")
         return EXIT_LINK
@@ -139,7 +150,7 @@ def _replay(settings: FuzzSettings) -> int:
             raise ValueError(f"{settings.replay} is a black-box finding (against {finding.url}): "
                              "give --url or --target-cmd to replay it against")
         from host_tools.fuzz.blackbox import BlackBoxFuzzer
-        failure = BlackBoxFuzzer(settings.blackbox, host_key(settings.key_file)).replay(finding)
+        failure = BlackBoxFuzzer(settings.blackbox, blackbox_key(settings)).replay(finding)
     else:
         from host_tools.fuzz.targets import builtin_targets, load_target
         if finding.target not in builtin_targets() and finding.target != settings.replay_target:

@@ -101,7 +101,8 @@ def add_seed_arg(parser: argparse.ArgumentParser, what: str) -> None:
 
 def add_link_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--key-file", type=Path, default=None,
-                        help=f"pre-shared key file (hex); default: the development key {auth.default_key_path()}")
+                        help="pre-shared key file (hex); default: a simulator makes a key of its own, which a host "
+                             "tool finds from the link's address (docs/protocol_security.md)")
     parser.add_argument("--baud", type=_baud, default=115200,
                         help="line rate in baud, 8N1 (default 115200; one of " + ", ".join(map(str, BAUD_RATES)) + ")")
 
@@ -152,7 +153,7 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
                         help="telemetry rate at start (default: saved, else 10)")
     parser.add_argument("--params", type=Path, default=None, metavar="FILE",
                         help="parameter file, loaded at boot and written by `save` "
-                             f"(default {auth.default_key_path().with_name('params.json')})")
+                             f"(default {default_params_path()})")
 
 
 def add_arm_args(parser: argparse.ArgumentParser) -> None:
@@ -339,9 +340,11 @@ def build_parser() -> argparse.ArgumentParser:
     control = sim.add_mutually_exclusive_group()
     control.add_argument("--control", type=Path, metavar="PATH",
                          help="serve the control endpoint (faults, gravity, payload, clouds, pause and step, the "
-                              "plant's true state: docs/benches.md) on this Unix socket; by default it is served at "
-                              "a per-user path, said in an ASPOD-CONTROL line (not with --hal)")
-    control.add_argument("--no-control", action="store_true", help="serve no control endpoint")
+                              "plant's true state: docs/benches.md; the link's key for host tools) on this Unix "
+                              "socket; by default it is served at a per-user path, said in an ASPOD-CONTROL line "
+                              "(with --hal it reaches no plant and says only the link and its key)")
+    control.add_argument("--no-control", action="store_true",
+                         help="serve no control endpoint (host tools then need --key-file)")
 
     plant = add_command("plant", help="run only the plant, in real time, on a python-can interface; "
                                          "prints an ASPOD-PLANT ready line")
@@ -436,7 +439,9 @@ def build_parser() -> argparse.ArgumentParser:
     fuzz.add_argument("--target-cmd", default=None, metavar="COMMAND",
                       help="black-box: start the target with COMMAND (it prints ASPOD-LINK URL, as aspod sim does); "
                            "it is restarted after a crash, and findings are shrunk on fresh targets")
-    fuzz.add_argument("--key-file", type=Path, default=None, help="the link's key (default: the development key)")
+    fuzz.add_argument("--key-file", type=Path, default=None,
+                      help="the link's key (default: with --url, that of the local simulator serving it; with "
+                           "--target-cmd, each target's own, from its ASPOD-KEY line)")
     fuzz.add_argument("--baud", type=_baud, default=115200, help="black-box: the line's rate (default 115200)")
     fuzz.add_argument("--replay", type=Path, default=None, metavar="FILE", help="run one finding again, alone")
     fuzz.add_argument("--time", type=bounded(float, 0.001, 30 * 86400), default=None, metavar="S",
@@ -572,7 +577,9 @@ def build_parser() -> argparse.ArgumentParser:
     proxy.add_argument("--baud", type=_baud, default=115200, help="line rate of a device endpoint (default 115200)")
     proxy.add_argument("--record", type=Path, metavar="FILE.pcapng",
                        help="capture every frame both ways as sent, each lost or damaged one with a comment")
-    proxy.add_argument("--key-file", type=Path, default=None, help="verify MACs in the live view with this key")
+    proxy.add_argument("--key-file", type=Path, default=None,
+                       help="verify MACs in the live view with this key (default: that of the local simulator "
+                            "serving --controller, if it is one)")
     proxy.add_argument("--no-view", action="store_true", help="no live view (the summary at the end only)")
 
     replay_cmd = add_command("replay", help="re-simulate a recorded session (aspod sim/demo --record) and report "
@@ -599,15 +606,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def host_key(path: Optional[Path]) -> bytes:
-    """The key a host tool uses: --key-file, else the development key that `aspod sim` made."""
+def default_params_path() -> Path:
+    """The per-user parameter file: `$XDG_CONFIG_HOME/aspod/params.json` (default `~/.config`)."""
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "aspod" / "params.json"
+
+
+def host_key(path: Optional[Path], url: str) -> bytes:
+    """The key a host tool uses for the link `url`: --key-file, else the key of this user's simulator serving
+    `url` (host_tools/client/control.py `simulator_key`)."""
     if path is not None:
         return auth.load_key(path, "--key-file")
-    default = auth.default_key_path()
-    if not default.exists():
-        raise KeyFileError(f"no key file given and no development key at {default}: "
-                           "start `aspod sim` once (it creates it) or pass --key-file")
-    return auth.load_key(default, "development key")
+    from host_tools.client.control import simulator_key
+    return simulator_key(url)
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -624,7 +635,7 @@ def run_command(args: argparse.Namespace) -> int:
         return run_firmware(settings.firmware_settings(args))
     if args.command == "teleop":
         from host_tools.cli.teleop import run_teleop
-        return run_teleop(settings.teleop_settings(args), host_key(args.key_file))
+        return run_teleop(settings.teleop_settings(args))
     if args.command == "campaign":
         from host_tools.cli.campaign import run_campaign
         return run_campaign(settings.campaign_settings(args))

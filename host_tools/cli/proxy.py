@@ -9,6 +9,7 @@ import sys
 from protocol import auth
 from host_tools.apps.proxy import EndpointGone, Proxy
 from host_tools.cli.settings import ProxySettings
+from host_tools.client.control import simulator_key_file
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.sessions.impairment import ImpairedLink
@@ -18,7 +19,9 @@ log = logging.getLogger("aspod")
 
 
 def run_proxy(settings: ProxySettings) -> int:
-    psk = None if settings.key_file is None else auth.load_key(settings.key_file, "--key-file")
+    key_file = settings.key_file or simulator_key_file(settings.controller)      # a local simulator's, if it is one
+    psk = None if key_file is None else auth.load_key(key_file, "--key-file" if settings.key_file else
+                                                      f"the key file of the simulator serving {settings.controller}:")
     controller = open_endpoint(settings.controller, settings.baud)
     try:
         host = open_endpoint(settings.host, settings.baud)

@@ -116,6 +116,7 @@ class TeleopSettings:
     record: Optional[Output] = None      # a session capture (pcapng) of every frame both ways
     json: bool = False                   # a script's run as one JSON object (host_tools/teleop/record.py)
     control: Optional[Path] = None       # the simulator's control endpoint (None: found from the URL, if any)
+    key_file: Optional[Path] = None      # None: the key of the local simulator serving the URL, found
 
 
 @dataclass(frozen=True)
@@ -179,13 +180,8 @@ class SimSettings:
     hal_options: tuple[tuple[str, Any], ...] = ()
     record: Optional[Output] = None      # a session capture (pcapng) of the controller's line
     can_log: Optional[Output] = None     # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
-    control: bool = False                # serve the control endpoint (aspod sim: unless --no-control or --hal) ...
-    control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/control_server.py)
-
-    def __post_init__(self) -> None:
-        if self.hal is not None and self.control:
-            raise ValueError("the control endpoint serves the one-process world; with --hal the plant runs in a "
-                             "process of its own: drop --control, or --hal")
+    control: bool = False                # serve the endpoint (aspod sim: unless --no-control; with --hal: info) ...
+    control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/runtime_folder.py)
 
 
 @dataclass(frozen=True)
@@ -288,8 +284,7 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
                        hal_options=tuple(hal_options.items()), record=capture_output(outputs, args.record),
                        can_log=can_log_output(outputs, args.can_log),
-                       control=not args.no_control and (args.hal is None or args.control is not None),
-                       control_path=args.control)
+                       control=not args.no_control, control_path=args.control)
 
 
 def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
@@ -309,7 +304,7 @@ def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
                           record=capture_output(claims(args), args.record), json=args.json,
-                          control=args.control)
+                          control=args.control, key_file=args.key_file)
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":

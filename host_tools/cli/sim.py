@@ -4,16 +4,18 @@ Plant and controller share one simulated time paced to the wall clock (`timebase
 at --speed, 1 by default): when the process falls behind, the world slows down instead of
 jumping, so the host's stalls never look like hardware faults; the link to the host stays on
 the wall clock (docs/realtime.md). The real-time factor and the lag are in telemetry and
-`status`; falling below real time is said on stderr and in a TimingWarning event.
+`status`; falling behind the speed asked is said on stderr and in a TimingWarning event.
 
 Prints `ASPOD-LINK <url>` as its first line on stdout and `ASPOD-KEY <path>` as its
-second, then runs until SIGINT or SIGTERM. Without --key-file it uses (creating it
-if needed) the per-user development key that the host tools also default to.
+second, then runs until SIGINT or SIGTERM. Without --key-file it makes a fresh key of its
+own, in this user's private runtime folder, removed when it stops (host_tools/worlds/
+runtime_folder.py): no two simulators share a key unless given the same --key-file.
 
 Beside the link it serves the control endpoint (unless --no-control): a local Unix socket that
 faults, loads, clouds, pauses and steps the plant, and reads its true state, for teleop's `sim`
-words and the pytest plugin (host_tools/worlds/control_server.py, plant_control.py). Its path
-is the third ready line, `ASPOD-CONTROL <path>`; each change it makes is said on stderr.
+words and the pytest plugin (host_tools/worlds/control_server.py, plant_control.py), and says
+the link's key file to a host tool given only the link's address (`info`). Its path is the third
+ready line, `ASPOD-CONTROL <path>`; each change it makes is said on stderr.
 
 The plant carries the solar tracker unless --no-tracker; its sun starts at --sun-start
 (`now` by default: the real sun at Tucson, which `clock now` at teleop matches) with
@@ -28,15 +30,20 @@ from __future__ import annotations
 import logging
 import os
 import signal
+from pathlib import Path
 from typing import Optional
+
+from firmware_py.controller import ControllerConfig
 
 from timebase import PacedClock, RealClock
 
-from host_tools.cli.firmware import apply_command_line, controller_config, log_states, open_port, run_sim_over_hal
+from host_tools.cli.firmware import (apply_command_line, controller_config, controller_key, log_states, open_port,
+                                     run_sim_over_hal, runtime_folder, serve_endpoint)
 from host_tools.cli.plant import resolve_sun, sun_line
 from host_tools.cli.settings import SimSettings
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.worlds.control_server import ControlServer
+from host_tools.worlds.runtime_folder import RuntimeFolder
 from host_tools.worlds.plant_control import PlantControl
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
@@ -54,7 +61,27 @@ def session_info(settings: SimSettings, plant: PlantSettings, world: World) -> S
 def run_sim(settings: SimSettings) -> int:
     if settings.hal is not None:   # plant in a process of its own, on a real python-can interface
         return run_sim_over_hal(settings)
-    psk, key_path, params_path, config = controller_config(settings.controller)
+    params_path, config = controller_config(settings.controller)
+    stopping: list[int] = []
+
+    def stop(signum, frame):
+        stopping.append(signum)
+
+    # From here on a stop is a request the run answers by closing everything (the control socket's file and the
+    # key's too), whenever it comes: a parent may stop the simulator as soon as it has read the ready lines.
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    folder = runtime_folder(settings.controller, settings.control and settings.control_path is None, "aspod sim")
+    try:
+        return _run_sim(settings, params_path, config, folder, stopping)
+    finally:
+        if folder is not None:
+            folder.close()
+
+
+def _run_sim(settings: SimSettings, params_path: Path, config: ControllerConfig, folder: Optional[RuntimeFolder],
+             stopping: list[int]) -> int:
+    psk, key_path = controller_key(settings.controller, folder)
     from_now = settings.plant.tracker and settings.plant.start is None
     plant = resolve_sun(settings.plant)
     port = open_port(settings.port, "aspod sim")
@@ -65,18 +92,11 @@ def run_sim(settings: SimSettings) -> int:
     params = world.controller.params
     apply_command_line(world.controller, settings.controller, "aspod sim")
     log_states(world.controller, "aspod sim")
-    stopping = []
-
-    def stop(signum, frame):
-        stopping.append(signum)
-
-    # From here on a stop is a request the run answers by closing everything (the control socket's file too),
-    # whenever it comes: a parent may stop the simulator as soon as it has read the ready lines.
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
     control = None
     try:
-        control = serve_control(settings, plant, world, port.url)
+        control_path = settings.control_path or (folder.control_path() if folder is not None else None)
+        if settings.control and control_path is not None:
+            control = serve_control(control_path, plant, world, port.url, key_path)
         record_outputs(settings, plant, world)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
@@ -105,18 +125,9 @@ def record_outputs(settings: SimSettings, plant: PlantSettings, world: World) ->
         log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
 
 
-def serve_control(settings: SimSettings, plant: PlantSettings, world: World, link_url: str) -> Optional[ControlServer]:
-    """The control endpoint, served by a task on the link's (wall-clock) scheduler; None with --no-control."""
-    if not settings.control:
-        return None
-
-    def say(text: str) -> None:
-        log.info(f"aspod sim: {text}")
-    control = PlantControl(world.plant, world.clock, tracker=plant.tracker, about={"link": link_url, "pid": os.getpid()},
-                           log=say)
-    if settings.control_path is None:
-        server = ControlServer.at_default_path(control, log=say)
-    else:
-        server = ControlServer(settings.control_path, control, log=say)
-    world.link_scheduler.add("control", server.poll, tolerance_s=1.0)
-    return server
+def serve_control(path: Path, plant: PlantSettings, world: World, link_url: str, key_path: Path) -> ControlServer:
+    """The plant's control endpoint at `path`, served by a task on the link's (wall-clock) scheduler."""
+    about = {"link": link_url, "pid": os.getpid(), "key": str(key_path)}
+    control = PlantControl(world.plant, world.clock, tracker=plant.tracker, about=about,
+                           log=lambda text: log.info(f"aspod sim: {text}"))
+    return serve_endpoint(path, control, world.link_scheduler, "aspod sim")

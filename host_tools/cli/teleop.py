@@ -10,6 +10,7 @@ import json
 import logging
 import sys
 
+from host_tools.cli.main import host_key
 from host_tools.cli.settings import TeleopSettings
 from host_tools.client.control import open_control
 from host_tools.client.live import HostClient
@@ -25,7 +26,7 @@ from protocol.states import CloseWhy
 log = logging.getLogger("aspod")
 
 
-def run_teleop(args: TeleopSettings, psk: bytes) -> int:
+def run_teleop(args: TeleopSettings) -> int:
     lines = None
     if args.script is not None or not sys.stdin.isatty():
         try:
@@ -40,6 +41,7 @@ def run_teleop(args: TeleopSettings, psk: bytes) -> int:
                 log.error(f"aspod teleop: error: {problem}")
             log.error("aspod teleop: script not run: nothing was sent")
             return EXIT_USAGE
+    psk = host_key(args.key_file, args.url)      # once the script is known good: nothing is opened before
     capture = None
     if args.record is not None:
         capture = CaptureWriter.create(args.record, SessionInfo(clock="wall", tool="aspod teleop",

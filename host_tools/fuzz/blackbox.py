@@ -38,6 +38,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Callable, Optional
 
+from protocol import auth
 from protocol.framing import MAX_ENCODED, MAX_PAYLOAD
 from protocol.link import LinkConfig, LinkState
 from protocol.host_link import HostLink
@@ -142,7 +143,7 @@ class _Peer:
 class Session:
     """One connection to the target: the line, the host's end of the link, the target's process if ours."""
 
-    def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
+    def __init__(self, settings: BlackBoxSettings, psk: Optional[bytes]) -> None:
         self.settings, self.psk, self.clock = settings, psk, RealClock()
         self.child = None
         self.line = None
@@ -165,6 +166,9 @@ class Session:
         url = self.url
         self.line = SerialLine(url, settings.baud)
         self.line.serial.timeout = READ_WAIT_S
+        if self.child is not None and self.psk is None:   # no --key-file: the key the target made, on its next line
+            key_file = self.child.ready("ASPOD-KEY ").split(" ", 1)[1].strip()
+            self.psk = auth.load_key(key_file, "the target's key file (its ASPOD-KEY line)")
         self.host = HostLink(self.psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
         self.sent: list[bytes] = []
         self.started: dict[int, int] = {}      # axis -> the last motion id a command of ours started
@@ -624,7 +628,8 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
 
 
 class BlackBoxFuzzer:
-    def __init__(self, settings: BlackBoxSettings, psk: bytes) -> None:
+    def __init__(self, settings: BlackBoxSettings, psk: Optional[bytes]) -> None:
+        """`psk` None: each target started by `command` says its own key (its ASPOD-KEY line)."""
         self.settings, self.psk = settings, psk
         self.params: Optional[TargetParams] = None     # read at the first session
 

@@ -4,7 +4,7 @@ target, and teleop scripts named `*.aspod` are collected as tests. See docs/benc
 Options:
     --aspod-target URL     a live controller (`aspod sim`'s pty or TCP port, or real hardware) instead of the default
                            lock-step world on the simulated clock
-    --aspod-key-file FILE  its key (default: the development key `aspod sim` made)
+    --aspod-key-file FILE  its key (default: that of the local simulator serving URL, as its endpoint says)
     --aspod-control PATH   a live `aspod sim`'s control endpoint, to fault and read its plant (default: the one
                            found beside --aspod-target, if any; real hardware has none)
     --aspod-seed N         the lock-step world's seed (default 1)
@@ -41,7 +41,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("aspod", "ASPOD controller benches")
     group.addoption("--aspod-target", default=None, metavar="URL",
                     help="run benches against a live controller at URL (default: the lock-step world)")
-    group.addoption("--aspod-key-file", default=None, metavar="FILE", help="the live controller's key file")
+    group.addoption("--aspod-key-file", default=None, metavar="FILE",
+                    help="the live controller's key file (default: that of the local simulator serving --aspod-target)")
     group.addoption("--aspod-control", default=None, metavar="PATH",
                     help="the live simulator's control endpoint (default: the aspod sim's found beside --aspod-target)")
     group.addoption("--aspod-json", default=None, metavar="DIR", help="write a JSON record per test into DIR")
@@ -127,14 +128,14 @@ def make_target(config: pytest.Config, directive: tuple[str, ...] = (), where: s
     """The target the run asks for: the lock-step world its options (and a script's directive) describe, or the
     live controller of --aspod-target."""
     from protocol import auth
+    from host_tools.client.control import simulator_key
     from host_tools.plugin.target import LiveTarget, LockstepTarget
     url = config.getoption("--aspod-target")
     world, variables = world_and_variables(config, directive, where)
     if url is None:
         return LockstepTarget(world, variables)
     key_file = config.getoption("--aspod-key-file")
-    psk = auth.load_key(key_file, "--aspod-key-file") if key_file else auth.load_key(auth.default_key_path(),
-                                                                                     "development key")
+    psk = auth.load_key(key_file, "--aspod-key-file") if key_file else simulator_key(url, "--aspod-key-file")
     control = config.getoption("--aspod-control")
     return LiveTarget(url, psk, control_path=None if control is None else Path(control), variables=variables)
 

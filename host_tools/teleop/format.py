@@ -193,10 +193,10 @@ def describe_report(msg: Message) -> str:
                     "loop_late_max_s while enabled)")
         if msg.issue == TimingIssue.BELOW_REAL_TIME:
             if not msg.active:
-                return f"TIMING back to {msg.value:.2f}x real time"
-            return (f"TIMING below real time: the world ran at {msg.value:.2f}x real time over the last second "
-                    f"(rtf_warn {msg.limit:.2f}): the host is too slow, so simulated time slows down with it; "
-                    "nothing is faulted")
+                return f"TIMING back to {msg.value:.3g}x real time"
+            return (f"TIMING slow: the world ran at {msg.value:.3g}x real time over the last second, below "
+                    f"{msg.limit:.3g}x (rtf_warn of the speed asked): the host is too slow, so simulated time slows "
+                    "down with it; nothing is faulted")
     if msg.spec.name == "SessionClosed":
         return (f"the host closed its session ({enum_word(CloseWhy, msg.why)}): every motion stopped, outputs off, "
                 f"brakes on; {enum_word(ControllerState, msg.state).upper()}, faults {format_faults(msg.faults)}")

@@ -96,7 +96,7 @@ OPS: dict[str, Op] = {op.name: op for op in (
     Op("step", "run a held world this much further, as fast as it goes, then hold it again; answered when done",
        (Arg("seconds", "number", f"{STEP_MIN_S:g}..{STEP_MAX_S:g} s of simulated time", lo=STEP_MIN_S,
             hi=STEP_MAX_S, unit="s"),)),
-    Op("info", "what this endpoint serves (the link it sits beside) and its operations"),
+    Op("info", "what this endpoint serves (the link it sits beside, the link's key file) and its operations"),
 )}
 
 
@@ -375,4 +375,4 @@ class PlantControl:
         return Reply(ready=ready)
 
     def _info(self) -> dict:
-        return {"said": "a plant control endpoint", **self.about, "ops": list(OPS)}
+        return {"said": "a plant control endpoint", **self.about, "plant": True, "ops": list(OPS)}

@@ -493,7 +493,12 @@ class RedundantPort:
 
     @property
     def live_session(self):
-        return next(p.live_session for p in self.ports.values() if hasattr(p, "live_session"))
+        """The session guard of its links that have one (TCP); none has one (ptys, devices): AttributeError, so
+        that `hasattr` says no, as for a single such port."""
+        for port in self.ports.values():
+            if hasattr(port, "live_session"):
+                return port.live_session
+        raise AttributeError("live_session: none of these links guards its line (only a TCP link does)")
 
     @live_session.setter
     def live_session(self, value) -> None:
