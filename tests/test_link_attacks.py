@@ -41,9 +41,12 @@ TELEOP_CONNECT_BOUND_S = 10.0   # the same from a teleop subprocess, which also 
 clock = RealClock()
 
 
+CONTROLLER_ID = "00000000000000a1"     # the identity the controller keeps across its restart
+
+
 def handshake_naks(recorded: bytes, psk: bytes) -> list[bytes]:
-    """The NAKs signed with the controller's handshake key in recorded bytes, as they went on the wire."""
-    key = auth.handshake_keys(psk, is_controller=True).tx
+    """The NAKs signed with the controller's handshake NAK key in recorded bytes, as they went on the wire."""
+    key = auth.nak_key(psk, bytes.fromhex(CONTROLLER_ID))
     return [wire for frame, wire in decoded(recorded) if frame.msg_id == SCHEMA["Nak"].id and frame.verify(key)]
 
 
@@ -63,7 +66,7 @@ def tapped(sim_factory, link_key):
     taps = []
 
     def start(where):
-        sim = sim_factory(*where, "--key-file", str(link_key))
+        sim = sim_factory(*where, "--key-file", str(link_key), "--controller-id", CONTROLLER_ID)
         taps.append(LineTap(sim.url))
         return sim, auth.load_key(sim.key_path), taps[-1]
     yield start
@@ -80,7 +83,7 @@ def test_a_recorded_handshake_nak_leaves_a_live_session_alone_and_a_restart_is_s
         client.connect()
         assert client.call(M["Ping"](1)).ok
         first.stop()                                     # the controller restarts behind the line, same key
-        second = sim_factory(*where, "--key-file", str(link_key))
+        second = sim_factory(*where, "--key-file", str(link_key), "--controller-id", CONTROLLER_ID)
         restarted_at = len(tap.to_host)
         handle = client.submit(M["Ping"](2))             # in flight across the restart
         tap.retarget(second.url)

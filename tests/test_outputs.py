@@ -37,9 +37,9 @@ UNWRITABLE = "/proc"                 # a folder no process can make a file in, r
 
 @pytest.fixture
 def home(tmp_path):
-    """A private config folder with its development key and a saved parameter file; (env, key, params)."""
-    key = tmp_path / "config" / "aspod" / "dev.key"
-    auth.load_or_create_dev_key(key)
+    """A private config folder with a key of the user's and a saved parameter file; (env, key, params)."""
+    key = tmp_path / "config" / "aspod" / "link.key"
+    auth.write_key(key, auth.new_nonce() + auth.new_nonce())
     params = key.with_name("params.json")
     params.write_text('{"link_timeout_s": 3.0}\n')
     return {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}, key, params
@@ -64,17 +64,16 @@ def kept(path: Path, before: bytes) -> None:
 # ---- the issue's cases, through the real command line ------------------------------------------------------------
 
 def test_sim_record_onto_its_key_file_or_parameter_file_by_any_name_is_refused_and_the_key_kept(home, tmp_path):
-    env, dev_key, params = home
+    env, user_key, params = home
     key = tmp_path / "link.key"
-    auth.load_or_create_dev_key(key)
+    auth.write_key(key, auth.new_nonce() + auth.new_nonce())
     os.link(key, tmp_path / "hard.pcapng")
     os.symlink(key, tmp_path / "soft.pcapng")
-    before = {p: p.read_bytes() for p in (key, dev_key, params)}
+    before = {p: p.read_bytes() for p in (key, user_key, params)}
     for args, record, said in (
             (["--key-file", str(key)], key, "that is the key file (--key-file)"),
             (["--key-file", str(key)], tmp_path / "hard.pcapng", "that is the key file (--key-file)"),
             (["--key-file", str(key)], tmp_path / "soft.pcapng", "that is the key file (--key-file)"),
-            ([], dev_key, "that is the development key"),
             (["--params", str(params)], params, "that is the parameter file (--params)"),
             ([], params.parent / ".." / "aspod" / "params.json", "that is the parameter file")):
         done = aspod(env, "sim", "--tcp", "0", "--no-control", *args, "--record", str(record))
@@ -85,13 +84,12 @@ def test_sim_record_onto_its_key_file_or_parameter_file_by_any_name_is_refused_a
 
 
 def test_teleop_record_onto_its_script_or_key_is_refused_and_both_kept(home, tmp_path):
-    env, dev_key, _ = home
+    env, user_key, _ = home
     script = tmp_path / "session.aspod"
     script.write_text("ping\nstatus\n")
-    before = {script: script.read_bytes(), dev_key: dev_key.read_bytes()}
+    before = {script: script.read_bytes(), user_key: user_key.read_bytes()}
     for args, record, said in ((["--script", str(script)], script, "that is the script"),
-                               (["--script", str(script)], dev_key, "that is the development key"),
-                               (["--key-file", str(dev_key), "--script", str(script)], dev_key, "that is the key file")):
+                               (["--key-file", str(user_key), "--script", str(script)], user_key, "that is the key file")):
         refused(aspod(env, "teleop", NOWHERE, *args, "--record", str(record)), "--record", record, said)
     for path, data in before.items():
         kept(path, data)
@@ -100,10 +98,10 @@ def test_teleop_record_onto_its_script_or_key_is_refused_and_both_kept(home, tmp
 def test_proxy_record_onto_the_parameter_file_or_its_key_is_refused_and_both_kept(home):
     """The proxy's controller endpoint is one it serves (tcp:0), so on the code before this the capture was made at
     once, over the file."""
-    env, dev_key, params = home
-    before = {params: params.read_bytes(), dev_key: dev_key.read_bytes()}
+    env, user_key, params = home
+    before = {params: params.read_bytes(), user_key: user_key.read_bytes()}
     for args, record, said in (([], params, "that is the parameter file"),
-                               (["--key-file", str(dev_key)], dev_key, "that is the key file (--key-file)")):
+                               (["--key-file", str(user_key)], user_key, "that is the key file (--key-file)")):
         done = aspod(env, "proxy", "--controller", "tcp:0", "--host", "tcp:0", "--no-view", *args,
                      "--record", str(record))
         refused(done, "--record", record, said)
@@ -113,13 +111,13 @@ def test_proxy_record_onto_the_parameter_file_or_its_key_is_refused_and_both_kep
 
 def test_a_log_file_onto_the_key_is_refused_and_the_key_kept(home, tmp_path):
     """--log-file appends: on the code before this the key file got log lines and no longer loaded."""
-    env, dev_key, _ = home
-    before = dev_key.read_bytes()
-    refused(aspod(env, "--log-file", str(dev_key), "sim", "--tcp", "0", "--no-control"), "--log-file", dev_key,
-            "that is the development key")
-    refused(aspod(env, "teleop", NOWHERE, "--key-file", str(dev_key), "--log-file", str(dev_key)), "--log-file",
-            dev_key, "that is the key file (--key-file)")
-    kept(dev_key, before)
+    env, user_key, _ = home
+    before = user_key.read_bytes()
+    refused(aspod(env, "--log-file", str(user_key), "sim", "--tcp", "0", "--no-control", "--key-file", str(user_key)),
+            "--log-file", user_key, "that is the key file (--key-file)")
+    refused(aspod(env, "teleop", NOWHERE, "--key-file", str(user_key), "--log-file", str(user_key)), "--log-file",
+            user_key, "that is the key file (--key-file)")
+    kept(user_key, before)
     notes = tmp_path / "notes.txt"
     notes.write_text("my notes\n")
     refused(aspod(env, "--log-file", str(notes), "wireshark"), "--log-file", notes,
@@ -162,8 +160,8 @@ def test_outputs_that_cannot_be_written_are_refused_before_the_work_not_after_it
 
 # ---- live captures: stopped, they are put in place whole; killed, the destination stays ------------------------
 
-def _sim(env: dict, *args: str) -> tuple[Child, str]:
-    sim = Child(["sim", "--tcp", "0", "--no-control", *args], env=env)
+def _sim(env: dict, key: Path, *args: str) -> tuple[Child, str]:
+    sim = Child(["sim", "--tcp", "0", "--no-control", "--key-file", str(key), *args], env=env)
     try:
         link = sim.line(60.0)
         sim.line(60.0)                           # ASPOD-KEY
@@ -193,7 +191,7 @@ def test_a_live_capture_stopped_by_a_signal_is_put_in_place_whole(home, tmp_path
     env, key, _ = home
     earlier = tmp_path / "s.pcapng"
     earlier.write_bytes(b"")
-    sim, url = _sim(env, "--record", str(earlier), "--can-log", str(tmp_path / "bus.asc"))
+    sim, url = _sim(env, key, "--record", str(earlier), "--can-log", str(tmp_path / "bus.asc"))
     try:
         assert [p.name.split(".")[1] for p in _temporaries(tmp_path)] == ["bus", "s"]     # written beside them
         _ping(url, key)
@@ -214,7 +212,7 @@ def test_a_live_capture_killed_outright_leaves_the_destination_as_it_was_and_its
     earlier = tmp_path / "s.pcapng"
     CaptureWriter.create(earlier, SessionInfo(tool="earlier")).close()
     before = earlier.read_bytes()
-    sim, url = _sim(env, "--record", str(earlier))
+    sim, url = _sim(env, key, "--record", str(earlier))
     try:
         _ping(url, key)
     finally:
@@ -230,11 +228,12 @@ def test_a_live_capture_killed_outright_leaves_the_destination_as_it_was_and_its
 @pytest.mark.pty
 def test_teleop_stopped_by_sigterm_puts_its_capture_in_place(home, tmp_path):
     env, key, _ = home
-    sim, url = _sim(env)
+    sim, url = _sim(env, key)
     try:
         script = tmp_path / "s.aspod"
         script.write_text("status\nwatch 600\n")
-        host = Child(["teleop", url, "--script", str(script), "--record", str(tmp_path / "t.pcapng")], env=env)
+        host = Child(["teleop", url, "--key-file", str(key), "--script", str(script), "--record",
+                      str(tmp_path / "t.pcapng")], env=env)
         try:
             while "ok   Status" not in host.line(60.0):
                 pass
@@ -256,9 +255,10 @@ def parsed(*argv: str):
 
 @pytest.fixture
 def files(tmp_path, monkeypatch):
-    """A run's inputs and a few existing files, the development key in a private config folder."""
+    """A run's inputs and a few existing files, the default parameter file in a private config folder."""
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
-    auth.load_or_create_dev_key(tmp_path / "config" / "aspod" / "dev.key")
+    (tmp_path / "config" / "aspod").mkdir(parents=True)
+    (tmp_path / "config" / "aspod" / "params.json").write_text("{}")
     for name, data in (("link.key", b""), ("s.aspod", b"status\n"), ("c.pcapng", CAPTURE_HEAD),
                        ("p.json", b"{}"), ("problem.json", b"{}"), ("finding.json", b"{}"), ("bench.py", b"")):
         (tmp_path / name).write_bytes(data)
@@ -273,13 +273,13 @@ EVERY_OUTPUT = [
     (["sim", "--params", "p.json"], "--can-log", "p.json", settings.sim_settings),
     (["teleop", NOWHERE, "--script", "s.aspod"], "--record", "s.aspod", settings.teleop_settings),
     (["proxy", "--controller", "tcp:0", "--key-file", "link.key"], "--record", "link.key", settings.proxy_settings),
-    (["demo"], "--record", "config/aspod/dev.key", settings.demo_settings),
+    (["demo"], "--record", "config/aspod/params.json", settings.demo_settings),
     (["bench", "s.aspod"], "--record", "s.aspod", settings.bench_settings),
     (["replay", "c.pcapng"], "--output", "c.pcapng", settings.replay_settings),
     (["log", "c.pcapng"], "--csv", "c.pcapng", settings.log_settings),
     (["log", "c.pcapng", "--key-file", "link.key"], "--plot", "link.key", settings.log_settings),
     (["tracker-day"], "--plot", "config/aspod/params.json", settings.day_plot),
-    (["wireshark"], "--output", "config/aspod/dev.key", settings.wireshark_output),
+    (["wireshark"], "--output", "config/aspod/params.json", settings.wireshark_output),
     (["plan", "--problem", "problem.json"], "--plot", "problem.json", settings.plan_settings),
     (["campaign", "bench.py"], "--out", "bench.py", settings.campaign_settings),
     (["fuzz", "--replay", "finding.json", "--url", "/dev/null"], "--findings", "finding.json", settings.fuzz_settings),

@@ -105,7 +105,8 @@ def controller_config(settings: ControllerSettings):
         extra["boot_timeout_s"] = settings.boot_timeout_s
     if settings.loop_hz is not None:
         extra["arm_period_s"] = 1.0 / settings.loop_hz
-    return params_path, ControllerConfig(link=link, params_path=params_path, **extra)
+    return params_path, ControllerConfig(link=link, params_path=params_path, controller_id=settings.controller_id,
+                                         **extra)
 
 
 def check_params_file(path) -> None:

@@ -65,6 +65,17 @@ def bounded(kind, lo: float, hi: float):
     return parse
 
 
+def controller_id(text: str) -> bytes:
+    """An argparse type: a controller's identity, 16 hex digits (8 bytes)."""
+    try:
+        value = bytes.fromhex(text)
+    except ValueError:
+        value = b""
+    if len(value) != 8:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not 16 hex digits (8 bytes), e.g. 00000000000000a1")
+    return value
+
+
 def _squeeze(text: str) -> float:
     """`free` (unbounded) or a bound in newtons, 0 to 1e6."""
     return float("inf") if text.strip().lower() == "free" else bounded(float, 0.0, 1e6)(text)
@@ -149,6 +160,11 @@ def add_controller_args(parser: argparse.ArgumentParser) -> None:
                         help="rate of the arm's motor loops (default 1000)")
     parser.add_argument("--link-timeout", type=bounded(float, 0.05, 3600), default=None, metavar="S",
                         help="safe state after this long without a valid frame (default: saved, else 3 s)")
+    parser.add_argument("--controller-id", type=controller_id, default=None, metavar="HEX",
+                        help="this controller's identity, 16 hex digits, named in HelloReply and binding its "
+                             "handshake NAKs (default: new at each start); the same across restarts, a host "
+                             "recognises a restart at once; a fleet sharing one key gives each its own "
+                             "(docs/protocol_security.md)")
     parser.add_argument("--telemetry-hz", type=bounded(int, 0, 200), default=None, metavar="HZ",
                         help="telemetry rate at start (default: saved, else 10)")
     parser.add_argument("--params", type=Path, default=None, metavar="FILE",

@@ -102,6 +102,7 @@ class ControllerSettings:
     loop_hz: Optional[float] = None
     boot_timeout_s: Optional[float] = None
     gravity_m_s2: Optional[float] = None     # `--gravity orbit` (aspod sim): the feed-forward goes to 0
+    controller_id: Optional[bytes] = None    # 8 bytes (--controller-id); None: new at each start
 
 
 @dataclass(frozen=True)
@@ -251,7 +252,7 @@ def controller_settings(args: argparse.Namespace) -> ControllerSettings:
     return ControllerSettings(key_file=args.key_file, params=args.params, link_timeout_s=args.link_timeout,
                               telemetry_hz=args.telemetry_hz, loop_hz=args.loop_hz,
                               boot_timeout_s=getattr(args, "boot_timeout", None),
-                              gravity_m_s2=0.0 if gravity == "orbit" else None)
+                              gravity_m_s2=0.0 if gravity == "orbit" else None, controller_id=args.controller_id)
 
 
 def bus_settings(args: argparse.Namespace) -> BusSettings:
@@ -341,13 +342,13 @@ INPUTS = {             # the Namespace's file inputs, and what they are to the r
 
 
 def run_inputs(args: argparse.Namespace) -> list[tuple[str, Path]]:
-    """Every file the run reads, which no output of it may replace: those named for it, and the development key and
-    parameter file that commands fall back to (in the per-user config folder)."""
-    from protocol import auth
+    """Every file the run reads, which no output of it may replace: those named for it, and the parameter file
+    that commands fall back to (in the per-user config folder). A simulator's own key is made in its runtime
+    folder, where no output is named."""
+    from host_tools.cli.main import default_params_path
     named = [(what, Path(str(getattr(args, name)).split("::")[0])) for name, what in INPUTS.items()
              if getattr(args, name, None) is not None]
-    key = auth.default_key_path()
-    return named + [("the development key", key), ("the parameter file", key.with_name("params.json"))]
+    return named + [("the parameter file", default_params_path())]
 
 
 def claims(args: argparse.Namespace) -> Claims:
