@@ -63,6 +63,19 @@ WORLD_LISTS = (("fault", "NAME[:CH]@T", "a plant fault at simulated time T (repe
                ("param", "NAME=VALUE", "a controller parameter set before the test (repeatable)"),
                ("var", "NAME=VALUE", "a bench variable: aspod_target.variables[NAME], a script's ${NAME} (repeatable)"))
 DEFAULT_SEED = "1"
+WORLD_BUILT = {f"--{option}" for option, _, _ in WORLD_OPTIONS} | {"--fault", "--param", "--no-tracker"}
+
+
+def world_asked(directive: tuple[str, ...]) -> list[str]:
+    """The options of a script's directive that build the world (not the seed, which is only the lock-step world's
+    randomness, nor the variables): what a live target, built elsewhere, cannot be given."""
+    asked, words = [], list(directive)
+    for k, word in enumerate(words):
+        if word.split("=", 1)[0] in WORLD_BUILT:
+            asked.append(word)
+            if "=" not in word and word != "--no-tracker" and k + 1 < len(words):
+                asked.append(words[k + 1])
+    return asked
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -220,8 +233,9 @@ class ScriptItem(pytest.Item):
             directive = script_directive(text.splitlines())
         except TeleopError as exc:
             raise pytest.UsageError(f"{self.path}: {exc}") from None
-        if directive and self.config.getoption("--aspod-target") is not None:
-            pytest.skip(f"its first line asks for a world ({' '.join(directive)}) that a live target is not given "
+        world = world_asked(directive)
+        if world and self.config.getoption("--aspod-target") is not None:
+            pytest.skip(f"its first line asks for a world ({' '.join(world)}) that a live target is not given "
                         "from here: start the simulator so and run the script with `aspod teleop --script`")
         target = make_target(self.config, directive, str(self.path))
         record = _record(self)

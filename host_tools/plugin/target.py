@@ -32,6 +32,7 @@ from protocol.host_link import CommandHandle
 from protocol.link import LinkState
 from protocol.messages import MESSAGES as M
 from protocol.schema import Message
+from protocol.states import ControllerState
 
 from host_tools.apps.fault_reaction import reactions
 from host_tools.worlds import plant_actions, plant_control
@@ -45,6 +46,7 @@ from host_tools.worlds.bench_world import WorldSettings, build_bench
 
 
 UNDO_WAIT_S = 10.0        # a live bench's end: how long the controller may refuse the reset of a fault it injected
+SETTLED_MS = 300          # ... and how long (its own time) it must then stay IDLE
 
 
 @dataclass
@@ -169,11 +171,25 @@ class Target:
         for fault, channel in list(self._injected):
             self.clear(fault, channel)
         if faulted and self.client.link.state is LinkState.UP:
-            # the fault's cause may take a moment to go (a joint coming to rest): the controller says so (reset
-            # refused) until it has
-            deadline = self.now() + UNDO_WAIT_S
-            while not self.call(M["Reset"]()).ok and self.now() < deadline:
+            self._reset_when_settled()
+
+    def _reset_when_settled(self) -> None:
+        """Reset the controller, and again until it stays IDLE for `SETTLED_MS` of its own time: a fault's cause may
+        take a moment to go (reset refused meanwhile), or raise one more fault as it goes (an encoder's counts
+        jumping when they come back), which a reset made too soon would let stand."""
+        deadline = self.now() + UNDO_WAIT_S
+        while self.now() < deadline and self.client.link.state is LinkState.UP:
+            if not self.call(M["Reset"]()).ok:
                 self.wait_until(lambda: False, 0.1)
+                continue
+            since_ms = self.call(M["GetStatus"]()).reply.uptime_ms
+            while self.now() < deadline:
+                status = self.call(M["GetStatus"]()).reply
+                if status is None or status.state != ControllerState.IDLE or status.faults:
+                    break
+                if status.uptime_ms - since_ms >= SETTLED_MS:
+                    return
+                self.wait_until(lambda: False, 0.05)
 
     def close_record(self) -> dict:
         """Close the target; what the test's record keeps of it."""
