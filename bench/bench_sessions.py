@@ -188,13 +188,14 @@ def decode_speed(folder: Path, quick: bool) -> list[str]:
         bench.call(M["Ping"](i))
         bench.run_for(1.0)
     bench.close()
-    frames = len(SessionCapture.read(capture).frames)
     clock = RealClock()
     start = clock.now()
-    recorded = SessionCapture.read(capture)
-    decoder = SessionDecoder(None)
-    for f in recorded.frames:
-        decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+    frames = 0
+    with SessionCapture.open(capture) as recorded:
+        decoder = SessionDecoder(None)
+        for f in recorded.frames():
+            decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+            frames += 1
     in_process = clock.now() - start
     start = clock.now()
     done = subprocess.run(ASPOD + ["log", str(capture)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,

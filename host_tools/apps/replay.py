@@ -35,11 +35,12 @@ from typing import Any, Optional
 from protocol.link import LinkState
 from protocol.reasons import Reason
 from protocol.schema import Direction, Message, MsgClass
-from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.capture import CapturedFrame, CaptureWriter, SessionCapture, SessionInfo, WorldEvent
+from host_tools.sessions.pcapng import CaptureError
 from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, format_value
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.bench_world import apply_params
-from host_tools.worlds.plant_control import check_world_event
+from host_tools.worlds import plant_control
 from host_tools.worlds.world import AFTER_THE_WORLD, LockstepBench
 
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
@@ -112,7 +113,6 @@ class ReplayReport:
     identical_bytes: int = 0
     controller_frames: int = 0
     divergence: Optional[Divergence] = None
-    replayed: Optional[SessionCapture] = None
     replayed_bytes: bytes = b""             # the replay's own capture, as a file would hold it
     uncertainty_ms: float = 0.0             # real time: how uncertain the recording's command times are
     mac_failures: int = 0                   # recorded frames whose MAC fails under the key given (none given: 0)
@@ -237,7 +237,25 @@ def _writing_lags(out: _Output) -> list[tuple[float, float]]:
     return sorted(lags)
 
 
-def _decode(capture: SessionCapture, psk: Optional[bytes]) -> list[DecodedFrame]:
+@dataclass
+class _Loaded:
+    """A capture read whole."""
+    frames: list[CapturedFrame]
+    events: list[WorldEvent]
+    error: Optional[CaptureError]
+
+    @property
+    def world_events(self) -> list[tuple[float, dict, int]]:
+        return [(e.time_s, e.event, e.offset) for e in self.events]
+
+
+def _load(capture: SessionCapture) -> _Loaded:
+    items = list(capture.items())
+    return _Loaded([f for f in items if isinstance(f, CapturedFrame)], [e for e in items if isinstance(e, WorldEvent)],
+                   capture.error)
+
+
+def _decode(capture: _Loaded, psk: Optional[bytes]) -> list[DecodedFrame]:
     decoder = SessionDecoder(psk)
     return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
 
@@ -267,19 +285,18 @@ def world_of(info: Optional[SessionInfo], why_not: str = "") -> tuple[PlantSetti
     return plant, {str(k): float(v) for k, v in params.items()}, int(info.seed or 0)
 
 
-def check_world_events(capture: SessionCapture) -> None:
-    """ReplayError naming the first world event that does not parse or that the live control endpoint would refuse
+def check_world_event(event: WorldEvent) -> None:
+    """ReplayError when a world event does not parse or the live control endpoint would refuse it
     (`plant_control.check_world_event`): a replay without it would report a divergence it caused itself."""
-    if capture.world_errors:
-        raise ReplayError(f"{capture.world_errors[0]}: replay cannot do it again")
-    for index, (time_s, event, offset) in enumerate(capture.world_events):
-        where = f"world event {index} (at byte {offset})"
-        if not 0.0 <= time_s <= math.inf:
-            raise ReplayError(f"{where} is at {time_s:.6g} s: before the session started (0 s)")
-        try:
-            check_world_event(event)
-        except ValueError as exc:
-            raise ReplayError(f"{where} is refused: {exc}") from None
+    if event.error:
+        raise ReplayError(f"{event.error}: replay cannot do it again")
+    where = f"world event {event.index} (at byte {event.offset})"
+    if not 0.0 <= event.time_s <= math.inf:
+        raise ReplayError(f"{where} is at {event.time_s:.6g} s: before the session started (0 s)")
+    try:
+        plant_control.check_world_event(event.event)
+    except ValueError as exc:
+        raise ReplayError(f"{where} is refused: {exc}") from None
 
 
 def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
@@ -290,10 +307,13 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
     command, and the second moves each command by the difference from the recorded answer, so that each runs
     when the real controller ran it (it reached the real one after the line's and the host machine's delays,
     which the recording stamps only at the port)."""
+    info, info_error = capture.info, capture.info_error
+    capture = _load(capture)
     if capture.error is not None:
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
-    plant, recorded_params, seed = world_of(capture.info, capture.info_error)
-    check_world_events(capture)
+    plant, recorded_params, seed = world_of(info, info_error)
+    for event in capture.events:
+        check_world_event(event)
     last = max((f.time_s for f in capture.frames), default=0.0)
     if not last <= MAX_SPAN_S:
         raise ReplayError(f"the capture's last frame is at {last:.6g} s: beyond {MAX_SPAN_S:g} s (a day), the most "
@@ -309,10 +329,10 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
                                 if t <= end_s], key=lambda a: (a.time_s, a.offset))
     if not host_commands:
         raise ReplayError("the capture holds no host commands to replay")
-    exact = capture.info.clock == "simulated"
+    exact = info.clock == "simulated"
     world = _World(key, seed, plant, {**recorded_params, **(params or {})}, end_s=end_s)
     data, samples = world.run(actions)
-    replayed_capture = SessionCapture.parse(data)
+    replayed_capture = _load(SessionCapture(io.BytesIO(data)))
     replayed_actions, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
     uncertainty_ms = 0.0
     if not exact:
@@ -322,9 +342,9 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         shift = round(tolerances.shift_ms)
         wanted = frozenset(u + k for _, u in recorded.telemetry for k in range(-shift, shift + 1))
         data, samples = world.run(_aligned(actions, recorded, replayed), wanted)
-        replayed_capture = SessionCapture.parse(data)
+        replayed_capture = _load(SessionCapture(io.BytesIO(data)))
         _, replayed = _split(_decode(replayed_capture, key), [f.offset for f in replayed_capture.frames])
-    report = ReplayReport(exact=exact, commands=host_commands, replayed=replayed_capture, replayed_bytes=data,
+    report = ReplayReport(exact=exact, commands=host_commands, replayed_bytes=data,
                           uncertainty_ms=uncertainty_ms, mac_failures=sum(d.mac == MAC_BAD for d in decoded))
     _compare(recorded, replayed, samples, report, tolerances, world.end_s - TAIL_S)
     return report

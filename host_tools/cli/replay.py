@@ -6,7 +6,7 @@ import logging
 
 from protocol import auth
 from host_tools.apps.replay import ReplayError, replay
-from host_tools.cli.log import read_capture
+from host_tools.cli.log import open_capture
 from host_tools.cli.settings import ReplaySettings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 
@@ -14,16 +14,17 @@ log = logging.getLogger("aspod")
 
 
 def run_replay(settings: ReplaySettings) -> int:
-    capture = read_capture(settings.capture, "aspod replay")
+    capture = open_capture(settings.capture, "aspod replay")
     if capture is None:
         return EXIT_USAGE
     psk = None if settings.key_file is None else auth.load_key(settings.key_file, "--key-file")
     try:
-        report = replay(capture, psk=psk, params=dict(settings.params))
+        with capture:
+            report = replay(capture, psk=psk, params=dict(settings.params))
     except ReplayError as exc:
         log.error(f"aspod replay: {settings.capture}: {exc}")
         return EXIT_USAGE
-    if settings.output is not None and report.replayed is not None:
+    if settings.output is not None:
         settings.output.write_bytes(report.replayed_bytes)
     if settings.json:
         d = report.divergence
