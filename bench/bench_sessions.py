@@ -29,18 +29,30 @@ from pathlib import Path
 import serial
 
 from protocol import auth
-from protocol.messages import MESSAGES as M
+from protocol.framing import encode_signed
+from protocol.messages import MESSAGES as M, SCHEMA
+from protocol.schema import MsgClass
 from bench import PartsResult, run_parts
 from timebase import RealClock
 from host_tools.client.lines import parse_links
 from host_tools.client.live import HostClient
-from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.capture import DIRECTION_FLAG, CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
+from host_tools.sessions.pcapng import INBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
 from host_tools.worlds.child import Child
 from host_tools.worlds.world import LockstepBench
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+MIB = 1 << 20
+# A command in a child that says its peak resident set (VmHWM, KiB: since its exec; ru_maxrss would carry in the
+# parent's size at the fork) on its last line of stderr.
+MEASURED = ("import re, sys\n"
+            "from host_tools.cli.main import main\n"
+            "status = main(sys.argv[1:])\n"
+            "print('peak_rss_kib', re.search(r'VmHWM:\\s*(\\d+) kB', open('/proc/self/status').read()).group(1), "
+            "file=sys.stderr)\n"
+            "sys.exit(status)\n")
 
 
 def pct(samples: list[float], q: float) -> float:
@@ -219,6 +231,73 @@ def decode_speed(folder: Path, quick: bool) -> list[str]:
     lines.append(f"  tshark + generated dissector              {took:6.2f} s  {frames / took:9,.0f} frames/s "
                  f"({decoded:,} frames listed); aspod log is {took / command:.1f}x as fast")
     return lines
+
+
+def lockstep_session(path: Path, seconds: int, telemetry_hz: int = 50) -> None:
+    """A lock-step session with its world (what `aspod replay` needs): telemetry, a ping a second, a move."""
+    bench = LockstepBench(seed=3)
+    bench.record(CaptureWriter.create(path, SessionInfo(clock="simulated", tool="bench", seed=3,
+                                                        settings=bench.settings())))
+    bench.connect()
+    bench.call(M["SetTelemetryRate"](telemetry_hz))
+    bench.call(M["Enable"]())
+    bench.call(M["MoveBy"](1, 2.0, 2.0))
+    for i in range(seconds):
+        bench.call(M["Ping"](i))
+        bench.run_for(1.0)
+    bench.close()
+
+
+def repeated_capture(session: Path, path: Path, size: int) -> Path:
+    """About `size` bytes: `session`'s header, then its packets again and again (their times repeat)."""
+    with SessionCapture.open(session) as capture:
+        first = next(capture.frames()).offset
+    data = session.read_bytes()
+    body = data[first:]
+    with open(path, "wb") as f:
+        f.write(data[:first])
+        for _ in range(max(1, (size - first) // len(body))):
+            f.write(body)
+    return path
+
+
+def dense_telemetry_capture(session: Path, path: Path, size: int) -> Path:
+    """`session`, then a TelemetryStatus and a TelemetryJoints of a new uptime every millisecond up to `size` bytes:
+    what a replay reads, holds for its window, and judges (the replayed controller sends none of it)."""
+    decoder = SessionDecoder(None)
+    latest = {}
+    with SessionCapture.open(session) as capture, open(path, "wb") as out:
+        writer = PcapngWriter(out, comment=capture.info.to_comment())
+        link = writer.add_interface("link")
+        last_s = 0.0
+        for f in capture.frames():
+            writer.write_packet(link, f.time_s, f.data, DIRECTION_FLAG[f.direction], original_length=f.original_length)
+            d = decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+            if d.name in ("TelemetryStatus", "TelemetryJoints"):
+                latest[d.name] = d.message
+            last_s = f.time_s
+        n, start_ms = 0, round(last_s * 1000) + 1
+        while out.tell() < size:
+            for k, message in enumerate(latest.values()):
+                fields = {**message.as_dict(), "uptime_ms": start_ms + n}
+                payload = SCHEMA.encode(SCHEMA[message.spec.name].type(**fields))
+                wire, _ = encode_signed(MsgClass.TELEMETRY, (2 * n + k) & 0xFFFF, 0, *payload, b"k" * 32, 2 * n + k + 1)
+                writer.write_packet(link, (start_ms + n) / 1000.0, wire[1:-1], INBOUND)
+            n += 1
+    return path
+
+
+def run_measured(args: list[str], keep_stdout: bool = False) -> tuple[int, str, str, int, float]:
+    """`aspod ARGS` in a child: (exit status, stdout (if kept), stderr, its peak resident set in KiB, wall s)."""
+    clock = RealClock()
+    start = clock.now()
+    done = subprocess.run([sys.executable, "-c", MEASURED, *args], text=True, stderr=subprocess.PIPE,
+                          stdout=subprocess.PIPE if keep_stdout else subprocess.DEVNULL, timeout=3600)
+    took = clock.now() - start
+    found = re.search(r"peak_rss_kib (\d+)\s*$", done.stderr)
+    if found is None:
+        raise RuntimeError(f"aspod {' '.join(args)} did not say its peak: {done.stderr[-500:]}")
+    return done.returncode, done.stdout or "", done.stderr, int(found.group(1)), took
 
 
 def two_links(folder: Path, quick: bool) -> list[str]:

@@ -1,42 +1,30 @@
-"""A capture is read as a stream: `aspod log`, with its counts and its plot, holds a bounded window of it whatever
-the file's size, and a block larger than a reader holds is said with its offset, never read whole. Memory is
-measured in a child process (its own peak resident set), never timed."""
+"""A capture is read as a stream: `aspod log`, with its counts and its plot, and `aspod replay` hold a bounded window
+of it whatever the file's size, and a block larger than a reader holds is said with its offset, never read whole.
+Memory is measured in a child process (its own peak resident set), never timed."""
 from __future__ import annotations
 
 import re
 import struct
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from bench.bench_sessions import dense_telemetry_capture, lockstep_session, repeated_capture, run_measured
 from host_tools.sessions.pcapng import EPB, EPB_FLAGS, IDB, INBOUND, MAX_BLOCK, MAX_KEPT
 from tests.captures import read_frames
 from tests.test_session_capture import record_session
 
-ROOT = Path(__file__).resolve().parent.parent
 MIB = 1 << 20
-# The child runs a command and says its own peak resident set on its last line of stderr: VmHWM, the high-water mark
-# of its memory since its exec (ru_maxrss would not do: Linux carries into it the parent's size at the fork).
-CHILD = ("import re, sys\n"
-         "from host_tools.cli.main import main\n"
-         "status = main(sys.argv[1:])\n"
-         "peak = re.search(r'VmHWM:\\s*(\\d+) kB', open('/proc/self/status').read()).group(1)\n"
-         "print('peak_rss_kib', peak, file=sys.stderr)\n"
-         "sys.exit(status)\n")
 # What a bounded window may cost beyond the same command on a small capture: allocator noise. Before captures were
 # streamed, `aspod log` on 16 MiB took 230 MB more than on a small one (20 times the file).
 ALLOWED_GROWTH_KIB = 16 * 1024
 
 
 def run_child(*args: str) -> tuple[int, str, str, int]:
-    """(exit status, stdout, stderr, peak resident set in KiB) of `aspod ARGS` in a child process."""
-    done = subprocess.run([sys.executable, "-c", CHILD, *args], cwd=ROOT, capture_output=True, text=True,
-                          timeout=600)
-    peak = re.search(r"peak_rss_kib (\d+)\s*$", done.stderr)
-    assert peak, done.stderr[-2000:]
-    return done.returncode, done.stdout, done.stderr, int(peak.group(1))
+    """(exit status, stdout, stderr, peak resident set in KiB) of `aspod ARGS` in a child process (VmHWM, the high-water
+    mark of its memory since its exec)."""
+    status, out, err, peak_kib, _ = run_measured(list(args), keep_stdout=True)
+    return status, out, err, peak_kib
 
 
 @pytest.fixture(scope="module")
@@ -46,23 +34,10 @@ def session(tmp_path_factory) -> Path:
     return path
 
 
-def crafted(session: Path, path: Path, size: int) -> Path:
-    """A capture of about `size` bytes: `session`'s header, then its packets again and again (their times repeat:
-    what a reader holds must not depend on them)."""
-    data = session.read_bytes()
-    first = read_frames(session)[0].offset
-    body = data[first:]
-    with open(path, "wb") as f:
-        f.write(data[:first])
-        for _ in range(max(1, (size - first) // len(body))):
-            f.write(body)
-    return path
-
-
 @pytest.mark.parametrize("options", [(), ("--stats",), ("--plot", "PNG")], ids=["listing", "stats", "plot"])
 def test_aspod_log_holds_a_bounded_window_whatever_the_captures_size(session, tmp_path, options):
-    small = crafted(session, tmp_path / "small.pcapng", 256 * 1024)
-    big = crafted(session, tmp_path / "big.pcapng", 8 * MIB)
+    small = repeated_capture(session, tmp_path / "small.pcapng", 256 * 1024)
+    big = repeated_capture(session, tmp_path / "big.pcapng", 8 * MIB)
     peaks = []
     for capture in (small, big):
         args = [a.replace("PNG", str(tmp_path / f"{capture.stem}.png")) for a in options]
@@ -119,3 +94,18 @@ def test_an_interface_larger_than_a_reader_holds_breaks_the_capture_there(sessio
     assert (f"the capture breaks at byte {at}: a block of {2 * MAX_BLOCK} bytes at byte {at}, more than the 1 MiB "
             "this reader holds at once: an interface this large is not read") in err
     assert out.count("Pong(") == 5
+
+
+def test_aspod_replay_holds_a_bounded_window_whatever_the_captures_size(tmp_path):
+    """A replay reads the recording a few seconds ahead of its simulation and judges what is a few seconds behind
+    it (`replay.LOOKAHEAD_S`, `JUDGE_S`): 2 MiB of dense telemetry (6 s) fill that window as 12 MiB (36 s) do.
+    Before, the whole capture was decoded and kept, twice (recorded and replayed): 12 MiB took 133 MB more."""
+    session = tmp_path / "session.pcapng"
+    lockstep_session(session, 2)
+    peaks = []
+    for name, size in (("short", 2 * MIB), ("long", 12 * MIB)):
+        capture = dense_telemetry_capture(session, tmp_path / f"{name}.pcapng", size)
+        status, out, err, peak = run_child("replay", str(capture))
+        assert status == 1 and "first divergence at" in out, out + err[-2000:]
+        peaks.append(peak)
+    assert peaks[1] - peaks[0] < ALLOWED_GROWTH_KIB, f"peak resident set {peaks} KiB: 2 MiB, 12 MiB"

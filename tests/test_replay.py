@@ -2,7 +2,10 @@
 real-time one within tolerances; a changed parameter makes it diverge, and the first divergence is named."""
 from __future__ import annotations
 
+import dataclasses
+import io
 import json
+import re
 import struct
 import subprocess
 from pathlib import Path
@@ -11,12 +14,15 @@ import pytest
 
 from protocol.messages import MESSAGES as M
 from protocol.states import Axis
-from host_tools.apps.replay import ReplayError, Tolerances, _split, replay
+from host_tools.apps.replay import (BENCH_KEY, BITS_PER_BYTE, REPLY, ReplayError, Tolerances, _Answers, _Plan, _Said,
+                                    _Sorter, _survey, replay)
 from host_tools.cli.settings import pairs
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
+from timebase import RealClock
 from tests import test_e2e
 from tests.captures import copy_capture, read_capture, read_frames
 
@@ -195,11 +201,72 @@ def test_the_lag_of_a_recordings_writing_is_measured_on_the_controllers_uptime_n
     done = sim.teleop("ping\nenable\ntelemetry 20\nmoveby j1 3 3\nwait\nping\nstatus\nquit\n")
     assert done.returncode == 0, done.stderr.decode()
     sim.stop()
-    frames = read_frames(capture)
+    line_s_per_byte = BITS_PER_BYTE / 115_200
+    with SessionCapture.open(capture) as recorded:
+        survey = _survey(recorded, None, line_s_per_byte)
+        answers = _Answers(_Plan(BENCH_KEY, 9, PlantSettings(), {}, 115_200, False, survey, survey.last_s), io.BytesIO())
+        sorter, decoder, written = _Sorter(line_s_per_byte), SessionDecoder(None), {}
+        for f in recorded.frames():
+            d = decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+            said = sorter.take(d, f.offset)
+            answers.recorded(d, said, sorter.session_started_s)
+            if isinstance(said, _Said) and said.kind == REPLY:
+                written[said.key] = d.time_s
+    answers.finish()
+    lags = [written[key] - made for key, (made, _) in answers._made.items()]
+    assert len(lags) == len(written) > 4 and max(lags) < 0.5, lags       # tens of ms under load
+
+
+def recorded_names(capture: Path) -> list[str]:
     decoder = SessionDecoder(None)
-    decoded = [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in frames]
-    actions, out = _split(decoded, [f.offset for f in frames])
-    assert out.written and max(lag for _, lag in out.written) < 0.5, out.written     # tens of ms under load
-    asked = {a.request: a.time_s for a in actions if a.request is not None}
-    lags = [reply.time_s - out.made_s(reply, asked[key]) for key, reply in out.replies.items() if key in asked]
-    assert lags and max(lags) < 0.5, lags
+    return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length).name
+            for f in read_frames(capture)]
+
+
+def record_until_the_host_is_lost(sim, capture: Path, script: str) -> None:
+    """Run `script` through `aspod teleop`, which quits at its end, and keep the simulator until its controller has
+    latched the link's loss and its FaultReport is in the capture (the simulator's own word, then its output)."""
+    done = sim.teleop(script)
+    assert done.returncode == 0, done.stderr.decode()
+    sim.child.wait_stderr(r"FAULT LINK_LOST \(LINK_TIMEOUT\)", 120.0)
+    clock = RealClock()
+    deadline = clock.now() + 120.0          # the frame follows within milliseconds; this bound only ends a hang
+    while "FaultReport" not in recorded_names(capture):
+        assert clock.now() < deadline, "no FaultReport in the capture"
+        clock.sleep(0.05)
+    sim.stop()
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("speed", ["1", "0.25"])
+def test_a_host_that_quit_and_went_silent_is_replayed_silent_and_the_link_loss_matches(sim_factory, tmp_path, speed):
+    """The host going silent is part of what is re-simulated. Before, the replayed host kept sending heartbeats
+    after the recorded one had quit, so the recorded LINK_TIMEOUT FaultReport, 3 s after its last frame, was a
+    divergence (`first divergence ... FaultReport`, exit 1). And at --speed 0.25 the replay ran the link (the line,
+    the heartbeats, the link timeout) on the world's clock, four times slower than the recording's wall clock:
+    the handshake and the Enable came 20 ms late (divergence at 1.078 s), and the link's loss would have come 2.25 s
+    late. Now the replayed host is silent after the recorded one's last frame, and the link runs on a clock of its
+    own that keeps to the recording's, measured from the controller's Heartbeats."""
+    capture = tmp_path / "quit.pcapng"
+    sim = sim_factory("--pty", "--record", str(capture), "--seed", "9", "--no-tracker", "--speed", speed)
+    record_until_the_host_is_lost(sim, capture, "ping\nenable\ntelemetry 20\nmoveby j1 1 2\nwait\nstatus\nquit\n")
+    shown = subprocess.run(ASPOD + ["replay", str(capture)], capture_output=True, text=True, timeout=300)
+    assert shown.returncode == 0 and shown.stdout.endswith("match\n"), shown.stdout + shown.stderr
+    factor = float(re.search(r"world ran at ([\d.]+)x real time", shown.stdout).group(1))
+    assert factor == pytest.approx(float(speed), rel=0.5)
+    changed = subprocess.run(ASPOD + ["replay", str(capture), "--param", "link_timeout_s=2"], capture_output=True,
+                             text=True, timeout=300)
+    assert changed.returncode == 1 and re.search(r"first divergence at .*(FaultReport|StateChanged)", changed.stdout)
+
+
+def test_a_real_time_recording_that_does_not_show_its_real_time_factor_is_not_judged(bench_capture, tmp_path):
+    """A real-time recording's timing is judged against its own real-time factor; one whose frames do not show it
+    (no two controller Heartbeats, no Status or TelemetryStatus) is refused with the reason, not judged against a
+    guess (before, it was replayed as if its world had run at real time)."""
+    with SessionCapture.open(bench_capture) as capture:
+        info = capture.info
+    paced = tmp_path / "paced.pcapng"
+    copy_capture(bench_capture, paced, info=dataclasses.replace(info, clock="paced"),
+                 keep=lambda name: name not in ("Heartbeat", "Status", "TelemetryStatus"))
+    with pytest.raises(ReplayError, match="does not show how fast its world ran against the wall clock"):
+        replay_file(paced)

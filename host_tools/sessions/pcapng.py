@@ -77,6 +77,12 @@ class Packet:
     note: str = ""             # its block was larger than the reader holds: what was kept of it
 
 
+def nanoseconds(time_s: float) -> int:
+    """A time as `PcapngWriter` stamps it: whole nanoseconds, from 0 (a reader gives back `nanoseconds(t) / 1e9`)."""
+    whole = math.floor(max(0.0, time_s))      # split first: a float epoch times 1e9 would lose the nanoseconds
+    return whole * 10 ** 9 + round((max(0.0, time_s) - whole) * 1e9)
+
+
 def _options(items: list[tuple[int, bytes]]) -> bytes:
     out = bytearray()
     for code, value in items:
@@ -119,8 +125,7 @@ class PcapngWriter:
                      comment: str = "", original_length: Optional[int] = None) -> None:
         if not 0 <= interface < self.interfaces:
             raise ValueError(f"interface {interface} was not declared")
-        whole = math.floor(max(0.0, time_s))      # split first: a float epoch times 1e9 would lose the nanoseconds
-        ticks = whole * 10 ** 9 + round((max(0.0, time_s) - whole) * 1e9)
+        ticks = nanoseconds(time_s)
         options = []
         if direction:
             options.append((EPB_FLAGS, struct.pack("<I", direction)))
