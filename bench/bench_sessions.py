@@ -8,7 +8,12 @@
 2. **Decoding a capture.** A capture of a lock-step session (telemetry at 50 Hz, pings) decoded by
    `aspod log` (a subprocess, its start-up included) and in process (`SessionDecoder`), beside `tshark` with
    the generated dissector on the same file (`-T fields -e aspod.message`), when tshark is installed.
-3. **Two links through outages.** `aspod sim --link radio=pty --link optical=tcp:0`, an `aspod proxy` on each:
+3. **Memory against a capture's size.** Crafted captures of 16 MiB and 250 MiB (`--quick`: 16 MiB only): a
+   lock-step session's frames again and again, read by `aspod log` (the listing, `--stats`, `--plot`); and a
+   lock-step session followed by dense telemetry (a TelemetryStatus and a TelemetryJoints every millisecond, ten
+   times the most a controller sends) of 4, 16 and 64 MiB (`--quick`: 4 and 16), re-simulated by `aspod replay`. Each command in a child
+   process whose peak resident set (VmHWM) it reports, beside the same command on a small capture, and its time.
+4. **Two links through outages.** `aspod sim --link radio=pty --link optical=tcp:0`, an `aspod proxy` on each:
    the radio fades for 30 s, later the optical link is blocked for 10 s (quick: 4 s and 2 s). A host on both
    sends pings one after another throughout: commands lost (goal 0), executed twice (goal 0: the
    controller's own count against the host's), and the round trip outside the outages and during each. With
@@ -25,6 +30,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from typing import Optional
 
 import serial
 
@@ -300,6 +306,45 @@ def run_measured(args: list[str], keep_stdout: bool = False) -> tuple[int, str, 
     return done.returncode, done.stdout or "", done.stderr, int(found.group(1)), took
 
 
+def _peak(args: list[str], statuses: tuple[int, ...] = (0,)) -> tuple[float, float]:
+    """(peak resident set in MB, wall seconds) of `aspod ARGS`; RuntimeError if it exits otherwise."""
+    status, _, err, peak_kib, took = run_measured(args)
+    if status not in statuses:
+        raise RuntimeError(f"aspod {' '.join(args)}: exit status {status}: {err[-500:]}")
+    return peak_kib * 1024 / 1e6, took
+
+
+def capture_memory(folder: Path, quick: bool) -> list[str]:
+    session = folder / "memory-session.pcapng"
+    lockstep_session(session, 10)
+    sizes = (16 * MIB,) if quick else (16 * MIB, 250 * MIB)
+    lines = ["peak resident set against a capture's size (each command in a child; the small capture beside it):"]
+    small = repeated_capture(session, folder / "memory-small.pcapng", 256 * 1024)
+    for label, options in (("aspod log", []), ("aspod log --stats", ["--stats"]),
+                           ("aspod log --plot", ["--plot", str(folder / "memory.png")])):
+        base, _ = _peak(["log", str(small), *options])
+        row = [f"  {label:<18} {small.stat().st_size / MIB:6.2f} MiB: {base:6.0f} MB"]
+        for size in sizes:
+            big = repeated_capture(session, folder / f"memory-{size // MIB}.pcapng", size)
+            peak, took = _peak(["log", str(big), *options])
+            row.append(f"{big.stat().st_size / MIB:.0f} MiB: {peak:.0f} MB ({peak - base:+.1f}) in {took:.0f} s")
+        lines.append(";  ".join(row))
+    recorded = folder / "memory-bench.pcapng"
+    lockstep_session(recorded, 3)
+    row: list[str] = []
+    base: Optional[float] = None
+    for size in (4 * MIB, 16 * MIB) if quick else (4 * MIB, 16 * MIB, 64 * MIB):
+        capture = dense_telemetry_capture(recorded, folder / f"memory-dense-{size // MIB}.pcapng", size)
+        peak, took = _peak(["replay", str(capture)], statuses=(0, 1))
+        base = peak if base is None else base
+        row.append(f"{capture.stat().st_size / MIB:.1f} MiB: {peak:.0f} MB ({peak - base:+.1f}) in {took:.0f} s")
+    lines.append("  aspod replay       " + ";  ".join(row) + "  (dense telemetry; the lock-step world itself is most "
+                 "of it)")
+    for path in folder.glob("memory*"):
+        path.unlink()
+    return lines
+
+
 def two_links(folder: Path, quick: bool) -> list[str]:
     fade_at, fade_s, block_at, block_s = (3.0, 4.0, 10.0, 2.0) if quick else (5.0, 30.0, 45.0, 10.0)
     end_s = block_at + block_s + 3.0
@@ -360,8 +405,8 @@ def two_links(folder: Path, quick: bool) -> list[str]:
 
 
 def main(quick: bool = False) -> PartsResult:
-    return run_parts("sessions: proxy overhead, capture decoding, two links through outages",
-                     (proxy_overhead, decode_speed, two_links), quick, "aspod-bench-sessions-")
+    return run_parts("sessions: proxy overhead, capture decoding, memory against a capture's size, two links through "
+                     "outages", (proxy_overhead, decode_speed, capture_memory, two_links), quick, "aspod-bench-sessions-")
 
 
 if __name__ == "__main__":
