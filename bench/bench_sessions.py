@@ -8,7 +8,12 @@
 2. **Decoding a capture.** A capture of a lock-step session (telemetry at 50 Hz, pings) decoded by
    `aspod log` (a subprocess, its start-up included) and in process (`SessionDecoder`), beside `tshark` with
    the generated dissector on the same file (`-T fields -e aspod.message`), when tshark is installed.
-3. **Two links through outages.** `aspod sim --link radio=pty --link optical=tcp:0`, an `aspod proxy` on each:
+3. **Memory against a capture's size.** Crafted captures of 16 MiB and 250 MiB (`--quick`: 16 MiB only): a
+   lock-step session's frames again and again, read by `aspod log` (the listing, `--stats`, `--plot`); and a
+   lock-step session followed by dense telemetry (a TelemetryStatus and a TelemetryJoints every millisecond, ten
+   times the most a controller sends) of 4, 16 and 64 MiB (`--quick`: 4 and 16), re-simulated by `aspod replay`. Each command in a child
+   process whose peak resident set (VmHWM) it reports, beside the same command on a small capture, and its time.
+4. **Two links through outages.** `aspod sim --link radio=pty --link optical=tcp:0`, an `aspod proxy` on each:
    the radio fades for 30 s, later the optical link is blocked for 10 s (quick: 4 s and 2 s). A host on both
    sends pings one after another throughout: commands lost (goal 0), executed twice (goal 0: the
    controller's own count against the host's), and the round trip outside the outages and during each. With
@@ -30,18 +35,30 @@ from typing import Optional
 import serial
 
 from protocol import auth
-from protocol.messages import MESSAGES as M
+from protocol.framing import encode_signed
+from protocol.messages import MESSAGES as M, SCHEMA
+from protocol.schema import MsgClass
 from bench import PartsResult, run_parts
 from timebase import RealClock
 from host_tools.client.lines import parse_links
 from host_tools.client.live import HostClient
-from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.capture import DIRECTION_FLAG, CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
+from host_tools.sessions.pcapng import INBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
 from host_tools.worlds.child import Child
 from host_tools.worlds.world import LockstepBench
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
+MIB = 1 << 20
+# A command in a child that says its peak resident set (VmHWM, KiB: since its exec; ru_maxrss would carry in the
+# parent's size at the fork) on its last line of stderr.
+MEASURED = ("import re, sys\n"
+            "from host_tools.cli.main import main\n"
+            "status = main(sys.argv[1:])\n"
+            "print('peak_rss_kib', re.search(r'VmHWM:\\s*(\\d+) kB', open('/proc/self/status').read()).group(1), "
+            "file=sys.stderr)\n"
+            "sys.exit(status)\n")
 
 
 def pct(samples: list[float], q: float) -> float:
@@ -192,13 +209,14 @@ def decode_speed(folder: Path, quick: bool) -> list[str]:
         bench.call(M["Ping"](i))
         bench.run_for(1.0)
     bench.close()
-    frames = len(SessionCapture.read(capture).frames)
     clock = RealClock()
     start = clock.now()
-    recorded = SessionCapture.read(capture)
-    decoder = SessionDecoder(None)
-    for f in recorded.frames:
-        decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+    frames = 0
+    with SessionCapture.open(capture) as recorded:
+        decoder = SessionDecoder(None)
+        for f in recorded.frames():
+            decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+            frames += 1
     in_process = clock.now() - start
     start = clock.now()
     done = subprocess.run(ASPOD + ["log", str(capture)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -221,6 +239,112 @@ def decode_speed(folder: Path, quick: bool) -> list[str]:
     decoded = done.stdout.count(b"\n")
     lines.append(f"  tshark + generated dissector              {took:6.2f} s  {frames / took:9,.0f} frames/s "
                  f"({decoded:,} frames listed); aspod log is {took / command:.1f}x as fast")
+    return lines
+
+
+def lockstep_session(path: Path, seconds: int, telemetry_hz: int = 50) -> None:
+    """A lock-step session with its world (what `aspod replay` needs): telemetry, a ping a second, a move."""
+    bench = LockstepBench(seed=3)
+    bench.record(CaptureWriter.create(path, SessionInfo(clock="simulated", tool="bench", seed=3,
+                                                        settings=bench.settings())))
+    bench.connect()
+    bench.call(M["SetTelemetryRate"](telemetry_hz))
+    bench.call(M["Enable"]())
+    bench.call(M["MoveBy"](1, 2.0, 2.0))
+    for i in range(seconds):
+        bench.call(M["Ping"](i))
+        bench.run_for(1.0)
+    bench.close()
+
+
+def repeated_capture(session: Path, path: Path, size: int) -> Path:
+    """About `size` bytes: `session`'s header, then its packets again and again (their times repeat)."""
+    with SessionCapture.open(session) as capture:
+        first = next(capture.frames()).offset
+    data = session.read_bytes()
+    body = data[first:]
+    with open(path, "wb") as f:
+        f.write(data[:first])
+        for _ in range(max(1, (size - first) // len(body))):
+            f.write(body)
+    return path
+
+
+def dense_telemetry_capture(session: Path, path: Path, size: int) -> Path:
+    """`session`, then a TelemetryStatus and a TelemetryJoints of a new uptime every millisecond up to `size` bytes:
+    what a replay reads, holds for its window, and judges (the replayed controller sends none of it)."""
+    decoder = SessionDecoder(None)
+    latest = {}
+    with SessionCapture.open(session) as capture, open(path, "wb") as out:
+        writer = PcapngWriter(out, comment=capture.info.to_comment())
+        link = writer.add_interface("link")
+        last_s = 0.0
+        for f in capture.frames():
+            writer.write_packet(link, f.time_s, f.data, DIRECTION_FLAG[f.direction], original_length=f.original_length)
+            d = decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+            if d.name in ("TelemetryStatus", "TelemetryJoints"):
+                latest[d.name] = d.message
+            last_s = f.time_s
+        n, start_ms = 0, round(last_s * 1000) + 1
+        while out.tell() < size:
+            for k, message in enumerate(latest.values()):
+                fields = {**message.as_dict(), "uptime_ms": start_ms + n}
+                payload = SCHEMA.encode(SCHEMA[message.spec.name].type(**fields))
+                wire, _ = encode_signed(MsgClass.TELEMETRY, (2 * n + k) & 0xFFFF, 0, *payload, b"k" * 32, 2 * n + k + 1)
+                writer.write_packet(link, (start_ms + n) / 1000.0, wire[1:-1], INBOUND)
+            n += 1
+    return path
+
+
+def run_measured(args: list[str], keep_stdout: bool = False) -> tuple[int, str, str, int, float]:
+    """`aspod ARGS` in a child: (exit status, stdout (if kept), stderr, its peak resident set in KiB, wall s)."""
+    clock = RealClock()
+    start = clock.now()
+    done = subprocess.run([sys.executable, "-c", MEASURED, *args], text=True, stderr=subprocess.PIPE,
+                          stdout=subprocess.PIPE if keep_stdout else subprocess.DEVNULL, timeout=3600)
+    took = clock.now() - start
+    found = re.search(r"peak_rss_kib (\d+)\s*$", done.stderr)
+    if found is None:
+        raise RuntimeError(f"aspod {' '.join(args)} did not say its peak: {done.stderr[-500:]}")
+    return done.returncode, done.stdout or "", done.stderr, int(found.group(1)), took
+
+
+def _peak(args: list[str], statuses: tuple[int, ...] = (0,)) -> tuple[float, float]:
+    """(peak resident set in MB, wall seconds) of `aspod ARGS`; RuntimeError if it exits otherwise."""
+    status, _, err, peak_kib, took = run_measured(args)
+    if status not in statuses:
+        raise RuntimeError(f"aspod {' '.join(args)}: exit status {status}: {err[-500:]}")
+    return peak_kib * 1024 / 1e6, took
+
+
+def capture_memory(folder: Path, quick: bool) -> list[str]:
+    session = folder / "memory-session.pcapng"
+    lockstep_session(session, 10)
+    sizes = (16 * MIB,) if quick else (16 * MIB, 250 * MIB)
+    lines = ["peak resident set against a capture's size (each command in a child; the small capture beside it):"]
+    small = repeated_capture(session, folder / "memory-small.pcapng", 256 * 1024)
+    for label, options in (("aspod log", []), ("aspod log --stats", ["--stats"]),
+                           ("aspod log --plot", ["--plot", str(folder / "memory.png")])):
+        base, _ = _peak(["log", str(small), *options])
+        row = [f"  {label:<18} {small.stat().st_size / MIB:6.2f} MiB: {base:6.0f} MB"]
+        for size in sizes:
+            big = repeated_capture(session, folder / f"memory-{size // MIB}.pcapng", size)
+            peak, took = _peak(["log", str(big), *options])
+            row.append(f"{big.stat().st_size / MIB:.0f} MiB: {peak:.0f} MB ({peak - base:+.1f}) in {took:.0f} s")
+        lines.append(";  ".join(row))
+    recorded = folder / "memory-bench.pcapng"
+    lockstep_session(recorded, 3)
+    row: list[str] = []
+    base: Optional[float] = None
+    for size in (4 * MIB, 16 * MIB) if quick else (4 * MIB, 16 * MIB, 64 * MIB):
+        capture = dense_telemetry_capture(recorded, folder / f"memory-dense-{size // MIB}.pcapng", size)
+        peak, took = _peak(["replay", str(capture)], statuses=(0, 1))
+        base = peak if base is None else base
+        row.append(f"{capture.stat().st_size / MIB:.1f} MiB: {peak:.0f} MB ({peak - base:+.1f}) in {took:.0f} s")
+    lines.append("  aspod replay       " + ";  ".join(row) + "  (dense telemetry; the lock-step world itself is most "
+                 "of it)")
+    for path in folder.glob("memory*"):
+        path.unlink()
     return lines
 
 
@@ -284,8 +408,8 @@ def two_links(folder: Path, quick: bool) -> list[str]:
 
 
 def main(quick: bool = False) -> PartsResult:
-    return run_parts("sessions: proxy overhead, capture decoding, two links through outages",
-                     (proxy_overhead, decode_speed, two_links), quick, "aspod-bench-sessions-")
+    return run_parts("sessions: proxy overhead, capture decoding, memory against a capture's size, two links through "
+                     "outages", (proxy_overhead, decode_speed, capture_memory, two_links), quick, "aspod-bench-sessions-")
 
 
 if __name__ == "__main__":

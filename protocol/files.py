@@ -15,7 +15,8 @@ open (or the read) until some other program writes to it, a directory is not tex
   the file's size said.
 
 `read_stream_bounded(stream, limit)` is the same bound for an already open stream that may
-be a pipe (teleop's script on standard input).
+be a pipe (teleop's script on standard input). `open_input(path)` makes the same checks and opens
+a regular file of any size to be read in pieces (a session capture, read as a stream).
 
 Errors are `InputFileError` (a ValueError) naming the path and the problem; the caller adds
 which option named the file.
@@ -80,31 +81,46 @@ def _os_error(path: PathLike, exc: OSError) -> InputFileError:
                           missing=isinstance(exc, FileNotFoundError))
 
 
-def check_input(path: PathLike, limit: int) -> None:
-    """Raise `InputFileError` unless `path` is a regular file of at most `limit` bytes (without opening it)."""
+def _regular_size(path: PathLike) -> int:
+    """The size of the regular file `path` (looked at, not opened); else `InputFileError`."""
     try:
         info = os.stat(path)
     except OSError as exc:
         raise _os_error(path, exc) from None
     _check_regular(path, info.st_mode)
-    if info.st_size > limit:
+    return info.st_size
+
+
+def check_input(path: PathLike, limit: int) -> None:
+    """Raise `InputFileError` unless `path` is a regular file of at most `limit` bytes (without opening it)."""
+    if _regular_size(path) > limit:
         raise _too_large(path, limit)
 
 
-def read_bounded(path: PathLike, limit: int) -> bytes:
-    """The bytes of the regular file `path`, at most `limit` of them; else `InputFileError`."""
-    check_input(path, limit)
+def open_input(path: PathLike) -> BinaryIO:
+    """The regular file `path` open for reading in pieces, whatever its size (a capture is read as a stream, never
+    whole); else `InputFileError`, after the same checks as `read_bounded`."""
+    _regular_size(path)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
         raise _os_error(path, exc) from None
     try:
         _check_regular(path, os.fstat(fd).st_mode)    # what was opened, should the path have changed meanwhile
-        data = _read_at_most(lambda n: os.read(fd, n), limit)
+    except BaseException:
+        os.close(fd)
+        raise
+    return os.fdopen(fd, "rb")
+
+
+def read_bounded(path: PathLike, limit: int) -> bytes:
+    """The bytes of the regular file `path`, at most `limit` of them; else `InputFileError`."""
+    check_input(path, limit)
+    try:
+        with open_input(path) as stream:
+            data = _read_at_most(stream.read, limit)
     except OSError as exc:
         raise _os_error(path, exc) from None
-    finally:
-        os.close(fd)
     if data is None:
         raise _too_large(path, limit)
     return data

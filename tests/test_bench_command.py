@@ -10,7 +10,7 @@ import pytest
 
 from host_tools.apps.replay import replay
 from host_tools.cli.main import main
-from host_tools.sessions.capture import SessionCapture
+from host_tools.sessions.capture import SessionCapture, WorldEvent
 from tests import test_e2e
 
 ASPOD = test_e2e.ASPOD
@@ -59,7 +59,8 @@ def test_a_bench_recorded_replays_to_the_bit(tmp_path, capsys):
     capture = tmp_path / "b.pcapng"
     status, _ = bench_json(tmp_path, SCRIPT, "--record", str(capture), capsys=capsys)
     assert status == 0
-    report = replay(SessionCapture.read(capture))
+    with SessionCapture.open(capture) as recorded:
+        report = replay(recorded)
     assert report.matches and report.exact and report.identical_bytes == report.controller_frames > 10
 
 
@@ -117,9 +118,10 @@ def test_a_timed_fault_is_recorded_as_a_world_event_and_replays_to_the_bit(tmp_p
     status, doc = bench_json(tmp_path, "enable\njog j2 2\nwait 2.5\n", "--fault", "jam:j2@1.2", "--record",
                              str(capture), capsys=capsys)
     assert status == 1 and doc["faults"][0]["within_stated"] is True
-    recorded = SessionCapture.read(capture)
-    assert [(e["action"], e["args"]) for _, e, _ in recorded.world_events] == [("inject", ["jam:j2"])]
-    report = replay(recorded)
+    with SessionCapture.open(capture) as recorded:
+        assert [(e.event["action"], e.event["args"]) for e in recorded.items() if isinstance(e, WorldEvent)] == [
+            ("inject", ["jam:j2"])]
+        report = replay(recorded)
     assert report.matches and report.exact, report.describe()
 
 

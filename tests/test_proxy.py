@@ -12,10 +12,10 @@ import pytest
 
 from protocol import auth
 from protocol.messages import MESSAGES as M
-from host_tools.sessions.capture import SessionCapture
 from host_tools.sessions.decode import MAC_OK, SessionDecoder
 from host_tools.worlds.child import Child
 from tests import test_e2e
+from tests.captures import read_capture
 from tests.test_wireshark_dissector import tshark_fields
 
 pytestmark = pytest.mark.pty
@@ -61,13 +61,13 @@ def test_a_teleop_session_through_an_impaired_proxy_is_seen_live_and_captured(si
     assert "[lost (drop)]" in view or "bit(s) flipped]" in view
 
     psk = auth.load_key(sim.key_path)
-    recorded = SessionCapture.read(capture)
+    recorded, frames, _ = read_capture(capture)
     assert recorded.error is None and recorded.info.tool == "aspod proxy"
     decoder = SessionDecoder(psk)
-    decoded = [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in recorded.frames]
+    decoded = [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in frames]
     assert sum(d.name == "Ping" for d in decoded) >= 39                      # as sent, retransmissions too
     assert all(d.mac == MAC_OK for d in decoded if d.frame is not None)      # the capture holds frames as sent
-    assert any(f.comment for f in recorded.frames)                           # each impaired one says how
+    assert any(f.comment for f in frames)                           # each impaired one says how
     log = subprocess.run(ASPOD + ["log", str(capture), "--stats"], capture_output=True, text=True, timeout=60)
     assert log.returncode == 0 and "round trip COMMAND" in log.stdout
 

@@ -2,7 +2,10 @@
 real-time one within tolerances; a changed parameter makes it diverge, and the first divergence is named."""
 from __future__ import annotations
 
+import dataclasses
+import io
 import json
+import re
 import struct
 import subprocess
 from pathlib import Path
@@ -11,13 +14,17 @@ import pytest
 
 from protocol.messages import MESSAGES as M
 from protocol.states import Axis
-from host_tools.apps.replay import ReplayError, Tolerances, _decode, _split, replay
+from host_tools.apps.replay import (BENCH_KEY, BITS_PER_BYTE, REPLY, ReplayError, Tolerances, _Answers, _Plan, _Said,
+                                    _Sorter, _survey, replay)
 from host_tools.cli.settings import pairs
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
+from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
+from timebase import RealClock
 from tests import test_e2e
+from tests.captures import copy_capture, read_capture, read_frames
 
 ASPOD = test_e2e.ASPOD
 env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
@@ -48,10 +55,15 @@ def bench_capture(tmp_path_factory) -> Path:
     return path
 
 
+def replay_file(path: Path, **options):
+    with SessionCapture.open(path) as capture:
+        return replay(capture, **options)
+
+
 def test_a_simulated_clock_recording_replays_to_the_bit_and_byte_for_byte(bench_capture):
-    capture = SessionCapture.read(bench_capture)
-    assert [e["action"] for _, e, _ in capture.world_events] == ["set_payload"]
-    report = replay(capture)
+    _, _, events = read_capture(bench_capture)
+    assert [e.event["action"] for e in events] == ["set_payload"]
+    report = replay_file(bench_capture)
     assert report.matches, report.describe()
     assert report.exact and report.commands == 5 and report.replies == 5
     assert report.telemetry > 40 and report.events >= 2
@@ -59,35 +71,34 @@ def test_a_simulated_clock_recording_replays_to_the_bit_and_byte_for_byte(bench_
 
 
 def test_a_changed_parameter_diverges_and_the_first_divergence_is_named(bench_capture):
-    report = replay(SessionCapture.read(bench_capture), params={"j1_kp": 2.0})
+    report = replay_file(bench_capture, params={"j1_kp": 2.0})
     assert not report.matches
     d = report.divergence
     # nothing can differ before j1 is driven: the gain acts on its motion only
-    capture = SessionCapture.read(bench_capture)
     decoder = SessionDecoder(None)
-    moved_s = next(f.time_s for f in capture.frames
+    moved_s = next(f.time_s for f in read_frames(bench_capture)
                    if decoder.decode(f.data, f.time_s, f.link, f.direction).name == "MoveBy")
     assert d.time_s > moved_s and d.recorded != d.replayed
     assert "first divergence at" in report.describe() and f"{d.message}.{d.field}" in report.describe()
 
 
 def test_a_world_event_left_out_is_a_divergence(bench_capture, tmp_path):
-    capture = SessionCapture.read(bench_capture)
-    capture.world_events.clear()                     # as if the payload had never been put in the gripper
-    report = replay(capture)
+    left_out = tmp_path / "left_out.pcapng"
+    copy_capture(bench_capture, left_out, world_events=False)     # as if the payload had never been put in the gripper
+    report = replay_file(left_out)
     assert not report.matches
     assert report.divergence.time_s >= 0.7
 
 
 @pytest.mark.parametrize("after_s", [0.5, 3600.0, 200_000.0])
-def test_a_world_event_after_the_last_frame_is_not_redone(bench_capture, after_s):
+def test_a_world_event_after_the_last_frame_is_not_redone(bench_capture, after_s, tmp_path):
     """A simulator keeps its control endpoint after the host has gone, so a recording may hold world events
     long after its last frame; they cannot change what is compared, and are not redone (a jam would have
     been a divergence, a day later a day of simulation)."""
-    capture = SessionCapture.read(bench_capture)
-    last_s = max(f.time_s for f in capture.frames)
-    capture.world_events.append((last_s + after_s, {"action": "inject", "args": ["jam:j1"]}, 1 << 40))
-    report = replay(capture)
+    last_s = max(f.time_s for f in read_frames(bench_capture))
+    later = tmp_path / "later.pcapng"
+    copy_capture(bench_capture, later, more_events=((last_s + after_s, {"action": "inject", "args": ["jam:j1"]}),))
+    report = replay_file(later)
     assert report.matches, report.describe()
 
 
@@ -95,21 +106,20 @@ def test_replay_refuses_what_it_cannot_replay(bench_capture, tmp_path):
     broken = tmp_path / "cut.pcapng"
     broken.write_bytes(bench_capture.read_bytes()[:-10])
     with pytest.raises(ReplayError, match="breaks at byte"):
-        replay(SessionCapture.read(broken))
+        replay_file(broken)
     host_only = tmp_path / "host.pcapng"
     CaptureWriter.create(host_only, SessionInfo(clock="wall", tool="aspod teleop")).close()
     with pytest.raises(ReplayError, match="without the world"):
-        replay(SessionCapture.read(host_only))
+        replay_file(host_only)
     with pytest.raises(ReplayError, match="no_such_param"):
-        replay(SessionCapture.read(bench_capture), params={"no_such_param": 1.0})
+        replay_file(bench_capture, params={"no_such_param": 1.0})
     with pytest.raises(ValueError, match="NAME=VALUE"):
         pairs(["j1_kp"], "--param")
 
 
 def test_a_replay_under_another_key_says_how_many_recorded_frames_do_not_verify(bench_capture):
-    capture = SessionCapture.read(bench_capture)
-    assert replay(capture).mac_failures == 0                 # no key given: the MACs are not checked
-    report = replay(capture, psk=bytes(32))
+    assert replay_file(bench_capture).mac_failures == 0          # no key given: the MACs are not checked
+    report = replay_file(bench_capture, psk=bytes(32))
     assert report.mac_failures > 50 and report.identical_bytes == 0
     assert f"{report.mac_failures} recorded frames do not verify under the key given" in report.describe()
 
@@ -119,7 +129,7 @@ def test_aspod_replay_command_json_and_exit_status(bench_capture, tmp_path, caps
     assert main(["replay", str(bench_capture), "--json", "--output", str(out)]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["match"] is True and doc["exact"] is True and doc["divergence"] is None
-    assert SessionCapture.read(out).info.tool == "aspod replay"
+    assert read_capture(out)[0].info.tool == "aspod replay"
     assert main(["replay", str(bench_capture), "--param", "j1_kp=2"]) == 1
     assert "first divergence at" in capsys.readouterr().out
     assert main(["replay", str(tmp_path / "none.pcapng")]) == 2
@@ -144,7 +154,7 @@ def test_a_real_time_recording_whose_frames_reached_the_port_late_replays_within
     shows, is taken off the answer's time (`_Output.made_s`). (Its description's schema hash was moved to the schema
     of Reason.UNCOMMANDED_MOTION, a reason added with no message's layout changed: the recording is otherwise as
     made, and could not be made again at will.)"""
-    report = replay(SessionCapture.read(Path(__file__).parent / "data" / "replay_late_writes.pcapng"))
+    report = replay_file(Path(__file__).parent / "data" / "replay_late_writes.pcapng")
     assert report.matches, report.describe()
     assert report.commands == 8 and report.events == 4 and report.uncertainty_ms < 10
 
@@ -157,7 +167,7 @@ def test_a_command_is_never_replayed_before_the_recorded_controller_could_have_h
     controller had it 5 ms before the recorded one did, and j2's stop ended 16 ms early (MotionDone at uptime
     2760 against 2776; the telemetry's 10 ms window missed it). A command now goes no earlier than its own time on
     the line before it was recorded."""
-    report = replay(SessionCapture.read(Path(__file__).parent / "data" / "replay_stop_before_request.pcapng"))
+    report = replay_file(Path(__file__).parent / "data" / "replay_stop_before_request.pcapng")
     assert report.matches, report.describe()
     assert report.commands == 8 and report.events == 4
 
@@ -170,11 +180,10 @@ def test_a_real_time_sim_recording_replays_within_tolerances_and_a_changed_gain_
     done = sim.teleop(script)
     assert done.returncode == 0, done.stderr.decode()
     sim.stop()
-    recorded = SessionCapture.read(capture)
-    report = replay(recorded)
+    report = replay_file(capture)
     assert report.matches, report.describe()
     assert not report.exact and report.commands == 8 and report.telemetry > 10
-    changed = replay(recorded, params={"j1_acc_dps2": 1.0})
+    changed = replay_file(capture, params={"j1_acc_dps2": 1.0})
     assert not changed.matches and changed.divergence.message in ("TelemetryJoints", "MotionDone")
     shown = subprocess.run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], capture_output=True,
                            text=True, timeout=120)
@@ -192,10 +201,72 @@ def test_the_lag_of_a_recordings_writing_is_measured_on_the_controllers_uptime_n
     done = sim.teleop("ping\nenable\ntelemetry 20\nmoveby j1 3 3\nwait\nping\nstatus\nquit\n")
     assert done.returncode == 0, done.stderr.decode()
     sim.stop()
-    recorded = SessionCapture.read(capture)
-    decoded = _decode(recorded, None)
-    actions, out = _split(decoded, [f.offset for f in recorded.frames])
-    assert out.written and max(lag for _, lag in out.written) < 0.5, out.written     # tens of ms under load
-    asked = {a.request: a.time_s for a in actions if a.request is not None}
-    lags = [reply.time_s - out.made_s(reply, asked[key]) for key, reply in out.replies.items() if key in asked]
-    assert lags and max(lags) < 0.5, lags
+    line_s_per_byte = BITS_PER_BYTE / 115_200
+    with SessionCapture.open(capture) as recorded:
+        survey = _survey(recorded, None, line_s_per_byte)
+        answers = _Answers(_Plan(BENCH_KEY, 9, PlantSettings(), {}, 115_200, False, survey, survey.last_s), io.BytesIO())
+        sorter, decoder, written = _Sorter(line_s_per_byte), SessionDecoder(None), {}
+        for f in recorded.frames():
+            d = decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length)
+            said = sorter.take(d, f.offset)
+            answers.recorded(d, said, sorter.session_started_s)
+            if isinstance(said, _Said) and said.kind == REPLY:
+                written[said.key] = d.time_s
+    answers.finish()
+    lags = [written[key] - made for key, (made, _) in answers._made.items()]
+    assert len(lags) == len(written) > 4 and max(lags) < 0.5, lags       # tens of ms under load
+
+
+def recorded_names(capture: Path) -> list[str]:
+    decoder = SessionDecoder(None)
+    return [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length).name
+            for f in read_frames(capture)]
+
+
+def record_until_the_host_is_lost(sim, capture: Path, script: str) -> None:
+    """Run `script` through `aspod teleop`, which quits at its end, and keep the simulator until its controller has
+    latched the link's loss and its FaultReport is in the capture (the simulator's own word, then its output)."""
+    done = sim.teleop(script)
+    assert done.returncode == 0, done.stderr.decode()
+    sim.child.wait_stderr(r"FAULT LINK_LOST \(LINK_TIMEOUT\)", 120.0)
+    clock = RealClock()
+    deadline = clock.now() + 120.0          # the frame follows within milliseconds; this bound only ends a hang
+    while "FaultReport" not in recorded_names(capture):
+        assert clock.now() < deadline, "no FaultReport in the capture"
+        clock.sleep(0.05)
+    sim.stop()
+
+
+@pytest.mark.pty
+@pytest.mark.parametrize("speed", ["1", "0.25"])
+def test_a_host_that_quit_and_went_silent_is_replayed_silent_and_the_link_loss_matches(sim_factory, tmp_path, speed):
+    """The host going silent is part of what is re-simulated. Before, the replayed host kept sending heartbeats
+    after the recorded one had quit, so the recorded LINK_TIMEOUT FaultReport, 3 s after its last frame, was a
+    divergence (`first divergence ... FaultReport`, exit 1). And at --speed 0.25 the replay ran the link (the line,
+    the heartbeats, the link timeout) on the world's clock, four times slower than the recording's wall clock:
+    the handshake and the Enable came 20 ms late (divergence at 1.078 s), and the link's loss would have come 2.25 s
+    late. Now the replayed host is silent after the recorded one's last frame, and the link runs on a clock of its
+    own that keeps to the recording's, measured from the controller's Heartbeats."""
+    capture = tmp_path / "quit.pcapng"
+    sim = sim_factory("--pty", "--record", str(capture), "--seed", "9", "--no-tracker", "--speed", speed)
+    record_until_the_host_is_lost(sim, capture, "ping\nenable\ntelemetry 20\nmoveby j1 1 2\nwait\nstatus\nquit\n")
+    shown = subprocess.run(ASPOD + ["replay", str(capture)], capture_output=True, text=True, timeout=300)
+    assert shown.returncode == 0 and shown.stdout.endswith("match\n"), shown.stdout + shown.stderr
+    factor = float(re.search(r"world ran at ([\d.]+)x real time", shown.stdout).group(1))
+    assert factor == pytest.approx(float(speed), rel=0.5)
+    changed = subprocess.run(ASPOD + ["replay", str(capture), "--param", "link_timeout_s=2"], capture_output=True,
+                             text=True, timeout=300)
+    assert changed.returncode == 1 and re.search(r"first divergence at .*(FaultReport|StateChanged)", changed.stdout)
+
+
+def test_a_real_time_recording_that_does_not_show_its_real_time_factor_is_not_judged(bench_capture, tmp_path):
+    """A real-time recording's timing is judged against its own real-time factor; one whose frames do not show it
+    (no two controller Heartbeats, no Status or TelemetryStatus) is refused with the reason, not judged against a
+    guess (before, it was replayed as if its world had run at real time)."""
+    with SessionCapture.open(bench_capture) as capture:
+        info = capture.info
+    paced = tmp_path / "paced.pcapng"
+    copy_capture(bench_capture, paced, info=dataclasses.replace(info, clock="paced"),
+                 keep=lambda name: name not in ("Heartbeat", "Status", "TelemetryStatus"))
+    with pytest.raises(ReplayError, match="does not show how fast its world ran against the wall clock"):
+        replay_file(paced)

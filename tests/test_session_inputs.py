@@ -8,12 +8,13 @@ import struct
 import pytest
 
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
-from host_tools.apps.replay import ReplayError, check_world_events
+from host_tools.apps.replay import ReplayError, check_world_event
 from host_tools.cli.main import main
-from host_tools.sessions.capture import MARK, MAX_SETTING_CHARS, MAX_SETTING_ENTRIES, WORLD, SessionCapture, SessionInfo
-from host_tools.sessions.pcapng import (IF_TSRESOL, LINKTYPE_USER1, MAX_CAPTURE_BYTES, MAX_TSRESOL_EXP, NANOSECONDS,
-                                        OUTBOUND, PcapngReader, PcapngWriter)
+from host_tools.sessions.capture import MARK, MAX_SETTING_CHARS, MAX_SETTING_ENTRIES, WORLD, SessionInfo, WorldEvent
+from host_tools.sessions.pcapng import (IF_TSRESOL, LINKTYPE_USER1, MAX_TSRESOL_EXP, NANOSECONDS, OUTBOUND,
+                                        PcapngWriter)
 from host_tools.worlds.settings import PlantSettings
+from tests.captures import read_capture, read_packets
 
 
 @pytest.mark.parametrize("command", ["log", "replay"])
@@ -24,13 +25,14 @@ def test_a_fifo_is_refused_not_waited_on(tmp_path, capsys, command):
     assert "FIFO" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("command", ["log", "replay"])
-def test_a_capture_larger_than_the_limit_is_refused_unread(tmp_path, capsys, command):
+@pytest.mark.parametrize("command, status", [("log", 1), ("replay", 2)])
+def test_a_large_file_is_read_as_a_stream_and_what_is_not_a_capture_is_said_at_its_first_block(tmp_path, capsys,
+                                                                                            command, status):
     big = tmp_path / "big.pcapng"
     with open(big, "wb") as f:
-        f.truncate(MAX_CAPTURE_BYTES + 1)          # sparse: nothing is written
-    assert main([command, str(big)]) == 2
-    assert "larger than 256 MiB" in capsys.readouterr().err
+        f.truncate(4 << 30)          # 4 GiB, sparse: nothing is written, nothing but the first block is read
+    assert main([command, str(big)]) == status
+    assert "at byte 0: not a pcapng file" in capsys.readouterr().err
 
 
 GOOD = {"format": 1, "protocol_version": PROTOCOL_VERSION, "schema_hash": f"{SCHEMA.hash:016x}",
@@ -195,9 +197,9 @@ def _with_tsresol(path, exponent: int) -> tuple[bytes, int]:
 def test_an_interface_whose_timestamps_are_finer_than_picoseconds_is_refused_where_it_is_declared(
         tmp_path, capsys, exponent):
     data, at = _with_tsresol(tmp_path / "c.pcapng", exponent)
-    reader = PcapngReader.parse(data)
+    reader, packets = read_packets(data)
     assert reader.error is not None and reader.error.offset == at
-    assert f"if_tsresol 10^-{exponent} s" in reader.error.reason and not reader.packets
+    assert f"if_tsresol 10^-{exponent} s" in reader.error.reason and not packets
     (tmp_path / "c.pcapng").write_bytes(data)
     assert main(["replay", str(tmp_path / "c.pcapng")]) == 2
     assert f"breaks at byte {at}: if_tsresol 10^-{exponent} s" in capsys.readouterr().err
@@ -206,23 +208,21 @@ def test_an_interface_whose_timestamps_are_finer_than_picoseconds_is_refused_whe
 @pytest.mark.parametrize("exponent", [0, 6, 9, MAX_TSRESOL_EXP])
 def test_an_interface_at_any_resolution_a_writer_uses_is_read(tmp_path, exponent):
     data, _ = _with_tsresol(tmp_path / "c.pcapng", exponent)
-    reader = PcapngReader.parse(data)
+    reader, packets = read_packets(data)
     assert reader.error is None
-    assert reader.packets[0].time_s == pytest.approx(0.5e9 / 10 ** exponent)      # 0.5 s written as nanoseconds
+    assert packets[0].time_s == pytest.approx(0.5e9 / 10 ** exponent)      # 0.5 s written as nanoseconds
 
 
 def test_an_interface_resolution_that_is_not_one_byte_is_refused(tmp_path):
     data = open(_capture_file(tmp_path / "c.pcapng", _comment()), "rb").read()
     one_byte = bytes([IF_TSRESOL, 0, 1, 0, NANOSECONDS, 0, 0, 0])      # code, length, the byte, padding
     data = data.replace(one_byte, bytes([IF_TSRESOL, 0, 2, 0, NANOSECONDS, 6, 0, 0]))
-    assert "if_tsresol of 2 bytes; the option is one byte" in PcapngReader.parse(data).error.reason
+    assert "if_tsresol of 2 bytes; the option is one byte" in read_packets(data)[0].error.reason
 
 
 @pytest.mark.parametrize("time_s", [-1.0, float("nan"), float("-inf")])
 def test_a_world_event_before_the_session_started_is_refused_with_its_index_and_offset(tmp_path, time_s):
-    capture = SessionCapture.read(_world_capture(tmp_path / "w.pcapng", b'{"action": "inject", "args": ["supply_sag"]}'))
-    (_, event, offset), = capture.world_events
-    capture.world_events[0] = (time_s, event, offset)
-    with pytest.raises(ReplayError, match=rf"world event 0 \(at byte {offset}\) is at {time_s:.6g} s: before the "
-                                          r"session started"):
-        check_world_events(capture)
+    _, _, (event,) = read_capture(_world_capture(tmp_path / "w.pcapng", b'{"action": "inject", "args": ["supply_sag"]}'))
+    with pytest.raises(ReplayError, match=rf"world event 0 \(at byte {event.offset}\) is at {time_s:.6g} s: before "
+                                          r"the session started"):
+        check_world_event(WorldEvent(time_s, event.event, event.offset, event.index))

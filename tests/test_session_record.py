@@ -10,10 +10,10 @@ import cantools
 import pytest
 
 from protocol import auth
-from host_tools.sessions.capture import SessionCapture
 from host_tools.sessions.decode import MAC_OK, SessionDecoder
 from host_tools.worlds.settings import PlantSettings
 from tests import test_e2e
+from tests.captures import read_capture
 
 pytestmark = pytest.mark.pty
 ASPOD = test_e2e.ASPOD
@@ -22,10 +22,10 @@ DBC = Path(__file__).resolve().parent.parent / "protocol" / "hal.dbc"
 
 
 def decoded(path: Path, psk: bytes):
-    capture = SessionCapture.read(path)
+    capture, frames, _ = read_capture(path)
     assert capture.error is None, capture.error
     decoder = SessionDecoder(psk)
-    return capture, [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in capture.frames]
+    return capture, [decoder.decode(f.data, f.time_s, f.link, f.direction, f.original_length) for f in frames]
 
 
 def test_sim_and_teleop_record_the_same_session_and_the_hal_bus_goes_to_a_python_can_log(sim_factory, tmp_path):

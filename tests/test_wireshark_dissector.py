@@ -16,10 +16,10 @@ from protocol.framing import HEADER
 from protocol.messages import SCHEMA
 from protocol.schema import Direction, MsgClass
 from host_tools.cli.main import main
-from host_tools.sessions.capture import SessionCapture
 from host_tools.sessions.decode import SessionDecoder
 from host_tools.sessions.pcapng import OUTBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
+from tests.captures import read_frames
 from tests.test_session_capture import PSK, record_session
 
 TSHARK = shutil.which("tshark")
@@ -62,9 +62,8 @@ def test_the_dissector_is_generated_from_the_declaration():
 def test_tshark_with_the_dissector_decodes_every_frame_as_aspod_log_does(capture_and_dissector):
     capture_path, lua = capture_and_dissector
     rows = tshark_fields(lua, capture_path)
-    capture = SessionCapture.read(capture_path)
     decoder = SessionDecoder(PSK)
-    ours = [decoder.decode(f.data, f.time_s, f.link, f.direction) for f in capture.frames]
+    ours = [decoder.decode(f.data, f.time_s, f.link, f.direction) for f in read_frames(capture_path)]
     assert len(rows) == len(ours) > 20
     for row, d in zip(rows, ours):
         assert row["aspod.message"] == d.name
@@ -86,14 +85,14 @@ def test_tshark_with_the_dissector_decodes_every_frame_as_aspod_log_does(capture
 @needs_tshark
 def test_tshark_marks_a_corrupted_frame_and_goes_on(capture_and_dissector, tmp_path):
     capture_path, lua = capture_and_dissector
-    capture = SessionCapture.read(capture_path)
+    frames = read_frames(capture_path)
     data = bytearray(capture_path.read_bytes())
-    victim = capture.frames[5]
+    victim = frames[5]
     data[victim.offset + 28 + 3] ^= 0x40      # a byte inside the sixth frame's wire bytes (past the EPB header)
     broken = tmp_path / "broken.pcapng"
     broken.write_bytes(bytes(data))
     rows = tshark_fields(lua, broken)
-    assert len(rows) == len(capture.frames)
+    assert len(rows) == len(frames)
     assert rows[5]["_ws.expert.message"] != "" or rows[5]["aspod.crc_good"] in ("0", "False")
     assert all(r["aspod.crc_good"] in ("1", "True") for i, r in enumerate(rows) if i != 5)
 

@@ -21,16 +21,15 @@ import re
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO, Optional, Union
+from typing import Any, BinaryIO, Iterator, Optional, Union
 
-from protocol.files import read_bounded
+from protocol.files import InputFileError, open_input
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
 from host_tools import strict_json
 from host_tools.outputs import Kind, Output, Pending, begins, unclaimed
 from host_tools.sessions.segments import SegmentCutter
-from host_tools.sessions.pcapng import (INBOUND, LINKTYPE_USER1, MAX_CAPTURE_BYTES, OUTBOUND, SHB, CaptureError,
-                                       Packet, PcapngReader, PcapngWriter)
+from host_tools.sessions.pcapng import INBOUND, LINKTYPE_USER1, OUTBOUND, SHB, CaptureError, PcapngReader, PcapngWriter
 
 FORMAT_VERSION = 1
 SEED_MAX = 2**32 - 1     # seeds of the plant's noise and the link's nonces (the command line's --seed): 0 .. 4294967295
@@ -207,6 +206,7 @@ class CapturedFrame:
     original_length: int
     comment: str
     offset: int
+    note: str = ""          # its block was larger than a reader holds: what was kept (`Packet.note`)
 
     @property
     def truncated(self) -> bool:
@@ -214,58 +214,92 @@ class CapturedFrame:
 
 
 @dataclass
+class WorldEvent:
+    """One world event of a capture: when, the JSON object, where; `error` says why one does not parse (then
+    `event` is None). `index` is its number among the capture's world events, from 0."""
+
+    time_s: float
+    event: Optional[dict]
+    offset: int
+    index: int
+    error: str = ""
+
+
 class SessionCapture:
-    """A capture read back: its description, its frames, and, if it broke, where and why."""
+    """A session capture read as a stream: its description at once, then its frames and world events one at a
+    time, in file order, holding one block at a time whatever the file's size (`PcapngReader`).
 
-    info: Optional[SessionInfo]
-    frames: list[CapturedFrame]
-    error: Optional[CaptureError]
-    warnings: list[str]
-    size: int
-    world_events: list[tuple[float, dict, int]] = field(default_factory=list)   # (time, event, offset)
-    info_error: str = ""          # why the section comment does not describe a session (info is then None)
-    world_errors: list[str] = field(default_factory=list)     # world events that do not parse (left out)
+    Each `items()` (or `frames()`) reads the file again from its start. Bad content never raises: `error` says
+    where and why the last reading stopped, `warnings` what is odd about the capture as a whole.
+    """
 
-    @classmethod
-    def read(cls, path: Path) -> "SessionCapture":
-        """Never raises for bad content; a file that is missing, unreadable, not a regular file (a FIFO, a
-        device, a directory) or larger than `pcapng.MAX_CAPTURE_BYTES` (256 MiB) raises `files.InputFileError`."""
-        return cls.parse(read_bounded(path, MAX_CAPTURE_BYTES))
-
-    @classmethod
-    def parse(cls, data: bytes) -> "SessionCapture":
-        pcap = PcapngReader.parse(data)
-        warnings: list[str] = []
-        info: Optional[SessionInfo] = None
-        info_error = ""
-        if pcap.interfaces or pcap.comment:
+    def __init__(self, stream: BinaryIO) -> None:
+        self._stream = stream
+        header = PcapngReader(stream)
+        header.read_section_header()
+        self.size = header.size
+        self.error: Optional[CaptureError] = header.error
+        self.warnings: list[str] = []
+        self.info: Optional[SessionInfo] = None
+        self.info_error = ""          # why the section comment does not describe a session (info is then None)
+        if header.error is None:
             try:
-                info = SessionInfo.from_comment(pcap.comment)
+                self.info = SessionInfo.from_comment(header.comment)
             except ValueError as exc:
-                info_error = str(exc)
-                warnings.append(f"{exc}; decoding it as this build's protocol")
+                self.info_error = str(exc)
+                self.warnings.append(f"{exc}; decoding it as this build's protocol")
             else:
-                if mismatch := info.schema_mismatch():
-                    warnings.append(mismatch)
-        world = {i for i, iface in enumerate(pcap.interfaces) if iface.name == WORLD and iface.linktype == LINKTYPE_USER1}
-        frames = [_frame(pcap, p) for p in pcap.packets if p.interface not in world]
-        events: list[tuple[float, dict, int]] = []
-        world_errors: list[str] = []
-        for p in pcap.packets:
-            if p.interface in world:
+                if mismatch := self.info.schema_mismatch():
+                    self.warnings.append(mismatch)
+
+    @classmethod
+    def open(cls, path: Path) -> "SessionCapture":
+        """Never raises for bad content; a file that is missing, unreadable or not a regular file (a FIFO, a
+        device, a directory) raises `files.InputFileError`. Close it (or use it in a `with`)."""
+        stream = open_input(path)
+        try:
+            return cls(stream)
+        except OSError as exc:
+            stream.close()
+            raise InputFileError(path, f"cannot read it: {exc.strerror or exc}") from None
+
+    def close(self) -> None:
+        self._stream.close()
+
+    def __enter__(self) -> "SessionCapture":
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def items(self) -> Iterator[Union[CapturedFrame, WorldEvent]]:
+        """Every frame and world event, in file order, up to the end or the block where the file breaks."""
+        pcap = PcapngReader(self._stream)
+        world_events = 0
+        undirected = False
+        for p in pcap.packets():
+            interface = pcap.interfaces[p.interface]
+            if interface.name == WORLD and interface.linktype == LINKTYPE_USER1:
                 try:
-                    event = _json_object(p.data.decode(), "it")
+                    yield WorldEvent(p.time_s, _json_object(p.data.decode(), "it"), p.offset, world_events)
                 except ValueError as exc:
-                    world_errors.append(f"world event {len(events) + len(world_errors)} (at byte {p.offset}) does "
-                                        f"not parse ({exc})")
-                    warnings.append(f"{world_errors[-1]}; left out")
-                    continue
-                events.append((p.time_s, event, p.offset))
-        for p in pcap.packets:
-            if p.interface not in world and p.direction not in FLAG_DIRECTION:
-                warnings.append(f"packet at byte {p.offset} has no direction; taken as controller -> host")
-                break
-        return cls(info, frames, pcap.error, warnings, pcap.size, events, info_error, world_errors)
+                    yield WorldEvent(p.time_s, None, p.offset, world_events,
+                                     f"world event {world_events} (at byte {p.offset}) does not parse ({exc})")
+                world_events += 1
+                continue
+            if p.direction not in FLAG_DIRECTION and not undirected:
+                undirected = True
+                said = f"packet at byte {p.offset} has no direction; taken as controller -> host"
+                if said not in self.warnings:
+                    self.warnings.append(said)
+            yield CapturedFrame(p.time_s, interface.name or f"if{p.interface}",
+                                FLAG_DIRECTION.get(p.direction, Direction.TO_HOST), p.data, p.original_length,
+                                p.comment, p.offset, p.note)
+        self.error = pcap.error
+
+    def frames(self) -> Iterator[CapturedFrame]:
+        """The frames of `items()`, without the world events."""
+        return (item for item in self.items() if isinstance(item, CapturedFrame))
 
 
 def describe_world_event(event: dict) -> str:
@@ -308,9 +342,3 @@ def _json_object(text: str, what: str) -> dict:
     if not isinstance(doc, dict):
         raise ValueError(f"{what} is not a JSON object: {_short(doc)}")
     return doc
-
-
-def _frame(pcap: PcapngReader, packet: Packet) -> CapturedFrame:
-    name = pcap.interfaces[packet.interface].name or f"if{packet.interface}"
-    return CapturedFrame(packet.time_s, name, FLAG_DIRECTION.get(packet.direction, Direction.TO_HOST), packet.data,
-                         packet.original_length, packet.comment, packet.offset)

@@ -1,30 +1,39 @@
-"""A decoded session as a table (CSV) and as a picture (PNG): telemetry and link health over time."""
+"""A decoded session as a table (CSV) and as a picture (PNG): telemetry and link health over time.
+
+Both read the session as a stream and hold a bounded amount of it, whatever its length: the table is written
+row by row (its columns found in a first pass), the picture keeps at most `Envelope.MAX_BUCKETS` time buckets
+a line.
+"""
 from __future__ import annotations
 
 import csv
-from typing import BinaryIO, Iterable, Sequence, TextIO, Union
+import math
+from typing import BinaryIO, Callable, Iterable, Optional, TextIO, Union
 
 from protocol.schema import MsgClass
 from protocol.states import ARM_AXES
 from host_tools.outputs import Kind, begins
-from host_tools.sessions.decode import ARROW, DecodedFrame, format_value
+from host_tools.sessions.decode import ARROW, MAC_BAD, DecodedFrame, format_value
 
 HEAD = ["time_s", "link", "direction", "class", "seq", "message"]
 CSV = Kind("a CSV table of aspod log's (its first line begins `" + ",".join(HEAD) + "`)",
            begins(",".join(HEAD).encode()))
 
 
-def write_csv(frames: Sequence[DecodedFrame], out: TextIO, origin_s: float = 0.0) -> int:
+def write_csv(frames: Callable[[], Iterable[DecodedFrame]], out: TextIO, origin_s: float = 0.0) -> int:
     """One row per frame whose message decoded; columns: `HEAD`, then every field of the messages present, in the
-    order they are declared (a field a row's message lacks is left empty). Returns the rows written."""
+    order they are declared (a field a row's message lacks is left empty). `frames()` gives the frames, and is
+    called twice: once for the columns, once for the rows. Returns the rows written."""
     columns: dict[str, None] = {}
-    for d in frames:
-        if d.message is not None:
+    kinds: set[str] = set()
+    for d in frames():
+        if d.message is not None and d.name not in kinds:
+            kinds.add(d.name)
             columns.update(dict.fromkeys(f.name for f in d.message.spec.fields))
     writer = csv.writer(out)
     writer.writerow(HEAD + list(columns))
     rows = 0
-    for d in frames:
+    for d in frames():
         if d.message is None:
             continue
         values = d.fields()
@@ -34,59 +43,104 @@ def write_csv(frames: Sequence[DecodedFrame], out: TextIO, origin_s: float = 0.0
     return rows
 
 
-def _series(frames: Iterable[DecodedFrame], message: str, fields: Sequence[str], origin_s: float):
-    t: list[float] = []
-    ys: dict[str, list[float]] = {f: [] for f in fields}
-    for d in frames:
-        if d.message is not None and d.name == message:
-            t.append(d.time_s - origin_s)
+class Envelope:
+    """A line of a plot in bounded memory: per time bucket, its lowest and its highest sample, the buckets' width
+    doubling (neighbours merged) whenever there would be more than MAX_BUCKETS. A short series keeps every sample
+    (one a bucket); a long one keeps its extremes, which is what a line 1,200 pixels wide can show of it."""
+
+    MAX_BUCKETS = 2000
+    FIRST_WIDTH_S = 0.001
+
+    def __init__(self) -> None:
+        self._origin: Optional[float] = None
+        self._width = self.FIRST_WIDTH_S
+        self._buckets: dict[int, tuple[tuple[float, float], tuple[float, float]]] = {}    # index -> (low, high)
+
+    def add(self, t: float, y: float) -> None:
+        if self._origin is None:
+            self._origin = t
+        index = math.floor((t - self._origin) / self._width)
+        self._buckets[index] = self._merge(self._buckets.get(index), ((t, y), (t, y)))
+        while len(self._buckets) > self.MAX_BUCKETS:
+            self._width *= 2
+            merged: dict[int, tuple[tuple[float, float], tuple[float, float]]] = {}
+            for index, bucket in self._buckets.items():
+                merged[index // 2] = self._merge(merged.get(index // 2), bucket)
+            self._buckets = merged
+
+    @staticmethod
+    def _merge(a, b):
+        if a is None:
+            return b
+        return min(a[0], b[0], key=lambda p: (p[1], p[0])), max(a[1], b[1], key=lambda p: (p[1], -p[0]))
+
+    def points(self) -> tuple[list[float], list[float]]:
+        """The samples kept, in time order: (times, values)."""
+        kept = sorted({p for index in sorted(self._buckets) for p in self._buckets[index]})
+        return [t for t, _ in kept], [y for _, y in kept]
+
+
+class SessionPlot:
+    """A session drawn as four panels against its time (`save`): joint positions, motor currents, the tracker's
+    pointing error, and link health (frames that failed to decode or verify, telemetry gaps), from frames given
+    one at a time (`add`). A panel whose telemetry the session did not carry says so instead of staying blank."""
+
+    def __init__(self, origin_s: float = 0.0) -> None:
+        self.origin_s = origin_s
+        self.axes = [a.name.lower() for a in ARM_AXES]
+        self.positions = {a: Envelope() for a in self.axes}
+        self.currents = {a: Envelope() for a in self.axes}
+        self.pointing = {f: Envelope() for f in ("error_az", "error_el")}
+        self.bad = Envelope()            # times of frames that failed to decode or verify (values unused)
+        self.gaps = Envelope()           # times of telemetry gaps
+        self._last_seq: Optional[int] = None
+
+    def add(self, d: DecodedFrame) -> None:
+        t = d.time_s - self.origin_s
+        if d.error or d.mac == MAC_BAD:
+            self.bad.add(t, 0.0)
+        if d.message is None:
+            return
+        if d.name == "TelemetryJoints":
             values = d.fields()
-            for f in fields:
-                ys[f].append(values[f])
-    return t, ys
+            for a in self.axes:
+                self.positions[a].add(t, values[f"{a}_pos"])
+                self.currents[a].add(t, values[f"{a}_current"])
+        elif d.name == "TelemetryTracker":
+            values = d.fields()
+            for f, line in self.pointing.items():
+                line.add(t, values[f])
+        if d.frame.cls == MsgClass.TELEMETRY:
+            if self._last_seq is not None and (d.frame.seq - self._last_seq) & 0xFFFF > 1:
+                self.gaps.add(t, 0.0)
+            self._last_seq = d.frame.seq
 
+    def save(self, path: Union[str, BinaryIO], title: str = "") -> None:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
 
-def plot_session(frames: Sequence[DecodedFrame], path: Union[str, BinaryIO], origin_s: float = 0.0,
-                 title: str = "") -> None:
-    """To a PNG file (a name, or a binary file): four panels against the session's time: joint positions, motor currents, the tracker's pointing error,
-    and link health (frames that failed to decode or verify, telemetry gaps). A panel whose telemetry the
-    session did not carry says so instead of staying blank."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    axes_names = [a.name.lower() for a in ARM_AXES]
-    fig, panels = plt.subplots(4, 1, figsize=(11, 11), sharex=True, constrained_layout=True)
-    t, ys = _series(frames, "TelemetryJoints", [f"{a}_pos" for a in axes_names], origin_s)
-    for a in axes_names:
-        panels[0].plot(t, ys[f"{a}_pos"], lw=0.8, label=a)
-    panels[0].set_ylabel("position (deg; gripper mm)")
-    t, ys = _series(frames, "TelemetryJoints", [f"{a}_current" for a in axes_names], origin_s)
-    for a in axes_names:
-        panels[1].plot(t, ys[f"{a}_current"], lw=0.8, label=a)
-    panels[1].set_ylabel("motor current (A)")
-    t, ys = _series(frames, "TelemetryTracker", ["error_az", "error_el"], origin_s)
-    for f in ("error_az", "error_el"):
-        panels[2].plot(t, ys[f], lw=0.8, label=f)
-    panels[2].set_ylabel("pointing error (deg)")
-    bad_t = [d.time_s - origin_s for d in frames if d.error or d.mac == "BAD"]
-    gap_t, last = [], None
-    for d in frames:
-        if d.frame is not None and d.frame.cls == MsgClass.TELEMETRY and d.message is not None:
-            if last is not None and (d.frame.seq - last) & 0xFFFF > 1:
-                gap_t.append(d.time_s - origin_s)
-            last = d.frame.seq
-    panels[3].eventplot([bad_t, gap_t], lineoffsets=[1, 0], linelengths=0.8, colors=["tab:red", "tab:orange"])
-    panels[3].set_yticks([0, 1], ["telemetry gap", "bad frame"])
-    panels[3].set_ylabel("link health")
-    panels[3].set_xlabel("time (s)")
-    for panel in panels[:3]:
-        if panel.lines:
-            panel.legend(loc="upper right", fontsize="small", ncol=6)
-        else:
-            panel.text(0.5, 0.5, "not in this session", transform=panel.transAxes, ha="center", color="gray")
-        panel.grid(alpha=0.3)
-    if title:
-        fig.suptitle(title)
-    fig.savefig(path, format="png", dpi=110)
-    plt.close(fig)
+        fig, panels = plt.subplots(4, 1, figsize=(11, 11), sharex=True, constrained_layout=True)
+        for panel, lines, label in ((panels[0], self.positions, "position (deg; gripper mm)"),
+                                    (panels[1], self.currents, "motor current (A)"),
+                                    (panels[2], self.pointing, "pointing error (deg)")):
+            for name, line in lines.items():
+                t, y = line.points()
+                if t:
+                    panel.plot(t, y, lw=0.8, label=name)
+            panel.set_ylabel(label)
+        panels[3].eventplot([self.bad.points()[0], self.gaps.points()[0]], lineoffsets=[1, 0], linelengths=0.8,
+                            colors=["tab:red", "tab:orange"])
+        panels[3].set_yticks([0, 1], ["telemetry gap", "bad frame"])
+        panels[3].set_ylabel("link health")
+        panels[3].set_xlabel("time (s)")
+        for panel in panels[:3]:
+            if panel.lines:
+                panel.legend(loc="upper right", fontsize="small", ncol=6)
+            else:
+                panel.text(0.5, 0.5, "not in this session", transform=panel.transAxes, ha="center", color="gray")
+            panel.grid(alpha=0.3)
+        if title:
+            fig.suptitle(title)
+        fig.savefig(path, format="png", dpi=110)
+        plt.close(fig)

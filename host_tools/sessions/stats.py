@@ -10,11 +10,13 @@ What the figures mean (protocol/reliable.py and docs/protocol.md for the rules t
 * **telemetry lost**: gaps in the telemetry stream's sequence numbers (telemetry is never resent).
 * **unanswered**: requests with no answer by the end of the capture.
 
-A new session (a HelloReply that accepts) starts the numbering afresh.
+A new session (a HelloReply that accepts) starts the numbering afresh. Whatever the capture's length, the counts
+take bounded memory: round trips are kept as a `Spread` (count, least, most, and quantiles to within 1.1 %), and
+the open requests and numbers seen as at most MAX_TRACKED each.
 """
 from __future__ import annotations
 
-import statistics
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Optional
@@ -24,6 +26,37 @@ from protocol.schema import Direction, MsgClass
 from host_tools.sessions.decode import ARROW, MAC_BAD, DecodedFrame
 
 RELIABLE_REQUESTS = (MsgClass.COMMAND, MsgClass.URGENT)
+
+
+class Spread:
+    """Samples (seconds, at least 0) summarized in bounded memory: how many, the least and the most exactly, and any
+    quantile to within 1.1 %: a histogram of bins BINS_PER_DOUBLING to a doubling, from FLOOR_S (a nanosecond) up,
+    so that a day's worth of round trips still takes a few thousand bins."""
+
+    BINS_PER_DOUBLING = 64
+    FLOOR_S = 1e-9
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.least = math.inf
+        self.most = -math.inf
+        self._bins: Counter = Counter()
+
+    def add(self, value_s: float) -> None:
+        self.n += 1
+        self.least, self.most = min(self.least, value_s), max(self.most, value_s)
+        self._bins[math.floor(math.log2(max(value_s, self.FLOOR_S)) * self.BINS_PER_DOUBLING)] += 1
+
+    def quantile(self, q: float) -> float:
+        """The sample of rank min(n - 1, int(q * n)) in sorted order, as the middle of its bin (within the least and
+        the most)."""
+        rank, seen = min(self.n - 1, int(q * self.n)), 0
+        for index in sorted(self._bins):
+            seen += self._bins[index]
+            if seen > rank:
+                middle = 2 ** ((index + 0.5) / self.BINS_PER_DOUBLING)
+                return min(self.most, max(self.least, middle))
+        return self.most
 
 
 @dataclass
@@ -36,7 +69,7 @@ class SessionStats:
     retransmissions: Counter = field(default_factory=Counter)  # (direction, class name) -> frames
     telemetry_lost: int = 0
     sessions: int = 0
-    rtt_s: dict[str, list[float]] = field(default_factory=lambda: {c.name: [] for c in RELIABLE_REQUESTS})
+    rtt_s: dict[str, Spread] = field(default_factory=lambda: {c.name: Spread() for c in RELIABLE_REQUESTS})
     first_s: Optional[float] = None
     last_s: Optional[float] = None
     _sent: dict[tuple[int, int], Optional[float]] = field(default_factory=dict, repr=False)
@@ -87,7 +120,7 @@ class SessionStats:
             elif request in self._sent:
                 sent = self._sent.pop(request)
                 if sent is not None:
-                    self.rtt_s[MsgClass(frame.cls).name].append(d.time_s - sent)
+                    self.rtt_s[MsgClass(frame.cls).name].add(d.time_s - sent)
 
     def _new_session(self) -> None:
         self.sessions += 1
@@ -113,15 +146,11 @@ class SessionStats:
         lines.append(f"MAC failures: {self.mac_failures}")
         lines.append(f"telemetry frames lost (sequence gaps): {self.telemetry_lost}")
         lines.append(f"requests unanswered at the end: {self.unanswered}")
-        for cls, samples in self.rtt_s.items():
-            if samples:
-                lines.append(f"round trip {cls}: n={len(samples)} min {min(samples) * 1e3:.2f} "
-                             f"p50 {statistics.median(samples) * 1e3:.2f} p99 {_p99(samples) * 1e3:.2f} "
-                             f"max {max(samples) * 1e3:.2f} ms")
+        for cls, spread in self.rtt_s.items():
+            if spread.n:
+                lines.append(f"round trip {cls}: n={spread.n} min {spread.least * 1e3:.2f} "
+                             f"p50 {spread.quantile(0.5) * 1e3:.2f} p99 {spread.quantile(0.99) * 1e3:.2f} "
+                             f"max {spread.most * 1e3:.2f} ms")
         lines.append("messages: " + ", ".join(f"{name} {n}" for name, n in sorted(self.messages.items())))
         return "\n".join(lines)
 
-
-def _p99(samples: list[float]) -> float:
-    ordered = sorted(samples)
-    return ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))]

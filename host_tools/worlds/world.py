@@ -34,6 +34,7 @@ from protocol.schema import Direction
 from protocol.states import CloseWhy
 from timebase import Clock, PacedClock, RealClock, SimClock
 
+from host_tools.worlds.link_time import LinkScheduler, LinkTime
 from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.plant_control import PlantControl
 from host_tools.worlds.nodes import build_controller, build_plant_node
@@ -53,7 +54,9 @@ class World:
     """Plant + controller on one scheduler, the controller's UART on `port`.
 
     With `link_clock` (the wall clock, when `clock` is a `PacedClock`), the controller's comms
-    task runs on a second scheduler on it (`link_scheduler`): `run(should_stop)` runs both.
+    task runs on a second scheduler on it (`link_scheduler`): `run(should_stop)` runs both. With
+    `link_time` instead (lock-step, re-simulating a real-time recording: `link_time.py`), it runs on
+    the one scheduler with its times on a link clock of its own.
     `direct_values`: the nodes hand each other values, not packed frames (see the module docstring).
     """
 
@@ -61,7 +64,7 @@ class World:
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
                  plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None,
-                 direct_values: bool = True) -> None:
+                 direct_values: bool = True, link_time: Optional[LinkTime] = None) -> None:
         self.clock = clock
         self.hal_log: Optional[HalBusLog] = None
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
@@ -73,7 +76,9 @@ class World:
         self.uart = PacedUart(port, baud, paced)
         self.controller = build_controller(psk, self.uart, self.controller_bus, controller_config,
                                            nonce_source=seeded_nonces(seed) if deterministic else new_nonce)
-        self.link_scheduler = Scheduler(link_clock) if link_clock is not None else self.scheduler
+        self.link_scheduler = (Scheduler(link_clock) if link_clock is not None
+                               else LinkScheduler(self.scheduler, link_time) if link_time is not None
+                               else self.scheduler)
         self.controller.attach(self.scheduler, self.link_scheduler)
 
     def log_hal_bus(self, output: Output) -> HalBusLog:
@@ -107,7 +112,8 @@ class LockstepBench:
     controller pass through `to_controller` and `to_host` (callables bytes -> bytes,
     e.g. a lossy link emulator).
 
-    `direct_values` as in `World`.
+    `direct_values` as in `World`. With `link_time` the controller's comms task and the host run on a
+    link clock of their own (`World`, `link_time.py`): `aspod replay` of a real-time recording.
 
     The host and the controller's comms task poll the line every `step_s` and 1 ms. With
     `sleeping_line` (the default) the line says when bytes move, and both skip the polls
@@ -126,12 +132,14 @@ class LockstepBench:
                  to_host: Callable[[bytes], bytes] = lambda b: b, step_s: float = 0.001,
                  plant_params: Optional[PlantParams] = None, plant: PlantSettings = PlantSettings(),
                  sleeping_line: bool = True, clock: Optional[SimClock] = None,
-                 direct_values: bool = True, impairment: Optional[Impairment] = None) -> None:
+                 direct_values: bool = True, impairment: Optional[Impairment] = None,
+                 link_time: Optional[LinkTime] = None) -> None:
         self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, plant_params=plant_params,
-                           plant=plant, direct_values=direct_values)
+                           plant=plant, direct_values=direct_values, link_time=link_time)
+        self.link_clock = self.world.link_scheduler.clock    # the host's time: the world's, unless `link_time`
         self.events: list = []
         self.telemetry: list = []
         self.host = HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 1),
@@ -148,7 +156,8 @@ class LockstepBench:
         self._host_alive = True
         self._host_running = False
         self._host_last_s: Optional[float] = None
-        self.world.scheduler.add("host", self._host_step)
+        self._sent_to_no_one: Callable[[bytes], None] = lambda data: None     # while the host is gone (`record`)
+        self.world.link_scheduler.add("host", self._host_step)
         # An impaired line (aspod proxy's model) between them: bytes go in when written and come out when due.
         self.line = None if impairment is None else ImpairedLink(impairment)
         if self.line is not None:
@@ -172,8 +181,9 @@ class LockstepBench:
     def _host_work(self) -> None:
         """Bytes for the host or work for its link: it runs at its next poll (during a run, the run sees to it)."""
         if not self._host_running:
-            now, last = self.clock.now(), self._host_last_s
-            self.world.scheduler.wake("host", now if last is None else poll_tick(last, self.step_s, now, after=True))
+            now, last = self.link_clock.now(), self._host_last_s
+            self.world.link_scheduler.wake("host", now if last is None else poll_tick(last, self.step_s, now,
+                                                                                      after=True))
 
     @property
     def controller(self) -> Controller:
@@ -210,6 +220,8 @@ class LockstepBench:
             finally:
                 self._host_running = False
         else:
+            if self.port.outbox:
+                self._sent_to_no_one(bytes(self.port.outbox))
             self.port.outbox.clear()
         if not self.sleeping_line:
             return now + self.step_s
@@ -218,8 +230,10 @@ class LockstepBench:
 
     def record(self, capture: CaptureWriter) -> None:
         """Keep the line's bytes in `capture`, stamped with the simulated time, as the controller's end sees them
-        (what it received, after `to_controller`; what it sent, before `to_host`), as `aspod sim --record` does."""
+        (what it received, after `to_controller`; what it sent, before `to_host`, also while no host is there to
+        take it), as `aspod sim --record` does."""
         to_controller, to_host, now = self.to_controller, self.to_host, self.clock.now
+        self._sent_to_no_one = lambda data: capture.write("link", Direction.TO_HOST, data, now())
 
         def received(data: bytes) -> bytes:
             data = to_controller(data)
@@ -283,13 +297,13 @@ class LockstepBench:
         return True
 
     def connect(self, timeout_s: float = 5.0) -> bool:
-        self.host.connect(self.clock.now())
+        self.host.connect(self.link_clock.now())
         return self.wait_until(lambda: self.host.state is LinkState.UP and self.controller.link.session is not None
                                and self.controller.link.session.host_nonce == self.host.session.host_nonce,
                                timeout_s)
 
     def call(self, msg, timeout_s: float = 30.0):
-        handle = self.host.submit(msg, self.clock.now())
+        handle = self.host.submit(msg, self.link_clock.now())
         self.wait_until(lambda: handle.done, timeout_s)
         return handle
 
