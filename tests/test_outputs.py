@@ -29,6 +29,7 @@ from protocol import auth
 from protocol.messages import MESSAGES as M
 from protocol.schema import Direction
 from test_e2e import ASPOD
+from tests.captures import read_capture, read_frames
 
 REFUSAL_S = 60.0      # a refusal takes a second or two; a command that runs instead would run until stopped
 NOWHERE = "socket://127.0.0.1:9"     # never reached: the output is refused before any connection
@@ -139,7 +140,7 @@ def test_an_existing_file_that_is_not_a_capture_is_overwritten_only_with_force(h
     assert aspod(env, "bench", str(script), "--record", str(capture)).returncode == 0       # a capture over a capture
     done = aspod(env, "bench", str(script), "--record", str(notes), "--force")
     assert done.returncode == 0, done.stderr
-    assert SessionCapture.read(notes).frames and SessionCapture.read(capture).frames
+    assert read_frames(notes) and read_frames(capture)
 
 
 def test_outputs_that_cannot_be_written_are_refused_before_the_work_not_after_it_with_a_raw_errno(home):
@@ -198,8 +199,8 @@ def test_a_live_capture_stopped_by_a_signal_is_put_in_place_whole(home, tmp_path
     finally:
         status, err = sim.stop(stop, timeout_s=60)
     assert status == 0, err
-    capture = SessionCapture.read(earlier)
-    assert capture.error is None and capture.info.tool == "aspod sim" and len(capture.frames) >= 4
+    capture, frames, _ = read_capture(earlier)
+    assert capture.error is None and capture.info.tool == "aspod sim" and len(frames) >= 4
     with can.LogReader(str(tmp_path / "bus.asc")) as log:
         assert sum(1 for _ in log) > 100
     assert _temporaries(tmp_path) == []
@@ -221,8 +222,8 @@ def test_a_live_capture_killed_outright_leaves_the_destination_as_it_was_and_its
     assert earlier.read_bytes() == before
     (left,) = _temporaries(tmp_path)
     assert left.name.startswith(".s.pcapng.") and left.name.endswith(".part.pcapng")
-    capture = SessionCapture.read(left)                      # readable up to its last frame
-    assert capture.info.tool == "aspod sim" and len(capture.frames) >= 4
+    capture, frames, _ = read_capture(left)                  # readable up to its last frame
+    assert capture.info.tool == "aspod sim" and len(frames) >= 4
 
 
 @pytest.mark.pty
@@ -242,8 +243,8 @@ def test_teleop_stopped_by_sigterm_puts_its_capture_in_place(home, tmp_path):
         assert status == 128 + signal.SIGTERM, err
     finally:
         sim.stop()
-    capture = SessionCapture.read(tmp_path / "t.pcapng")
-    assert capture.error is None and capture.info.tool == "aspod teleop" and len(capture.frames) >= 4
+    capture, frames, _ = read_capture(tmp_path / "t.pcapng")
+    assert capture.error is None and capture.info.tool == "aspod teleop" and len(frames) >= 4
     assert _temporaries(tmp_path) == []
 
 
@@ -441,7 +442,7 @@ def test_a_capture_that_could_not_be_written_is_not_put_in_place_and_its_frames_
         writer.write("link", Direction.TO_CONTROLLER, b"\x05\x06\x00", 2.0)
     writer.close()
     assert destination.read_bytes() == before and writer.partial.exists()
-    assert len(SessionCapture.read(writer.partial).frames) == 1
+    assert len(read_frames(writer.partial)) == 1
 
 
 def test_a_bench_run_interrupted_leaves_its_capture_as_it_was(tmp_path):

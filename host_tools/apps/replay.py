@@ -89,7 +89,18 @@ HOST_DEPENDENT = frozenset({
     "loop_max_us", "loop_p99_us", "overruns", "tx_backlog_bytes", "timing", "rtf_recent", "lag_ms", "rtf_total",
     "arm_exec_max_us", "arm_exec_p99_us", "arm_late_max_us", "arm_overruns", "frames_rx", "frames_tx",
     "link_errors", "bytes_rx", "bytes_tx", "crc_errors", "auth_errors", "rejected", "naks_tx", "naks_rx",
-    "retransmits", "srtt_us", "utc_s"})
+    "retransmits", "srtt_us", "utc_s",
+    "last_event_seq"})   # (Closed: it counts the session's events, TimingWarnings too)
+# The handshake's frames are read by their ids, so that a capture from before a change of their layout (the cookie,
+# the controller's identity: issue 34) still shows where its sessions began; nothing else of them is compared.
+HANDSHAKE = frozenset({"Hello", "HelloReply"})
+
+
+def _handshake_ok(d: DecodedFrame) -> bool:
+    """A HelloReply that accepted its Hello: its `result`, the payload's first byte, whatever its layout."""
+    return d.frame.payload[:1] == bytes([int(Reason.OK)])
+
+
 # Messages that report the host machine itself (a world too slow for real time): compared on the simulated clock only
 HOST_MESSAGES = frozenset({"TimingWarning"})
 
@@ -231,7 +242,7 @@ class _Sorter:
         self._uptimes: dict[str, int] = {}
 
     def take(self, d: DecodedFrame, offset: int) -> Union[_Action, _Said, None]:
-        if d.frame is None or d.message is None:
+        if d.frame is None or (d.message is None and d.name not in HANDSHAKE):
             return None
         cls, seq, name = d.frame.cls, d.frame.seq, d.name
         if d.direction is Direction.TO_CONTROLLER:
@@ -242,7 +253,7 @@ class _Sorter:
                 return _Action(d.time_s, REQUEST, offset, d.message, request=(self.session, cls, seq),
                                line_s=d.size * self.line_s_per_byte)
             return None
-        if name == "HelloReply" and d.message.result == Reason.OK:
+        if name == "HelloReply" and _handshake_ok(d):
             self.session += 1
             self.session_started_s = d.time_s
             self._hello_pending = False
