@@ -22,7 +22,7 @@ from host_tools.cli import settings
 from host_tools.cli.main import build_parser
 from host_tools.client.live import HostClient
 from host_tools.outputs import Claims, Kind, Output, begins, unclaimed
-from host_tools.sessions.capture import CAPTURE, CaptureWriter, SessionCapture, SessionInfo
+from host_tools.sessions.capture import CAPTURE, CaptureWriter, SessionInfo
 from host_tools.worlds.bench_world import WorldSettings
 from host_tools.worlds.child import Child, ChildError
 from protocol import auth
