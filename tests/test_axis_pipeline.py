@@ -25,7 +25,6 @@ from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import (COUNT_MODULUS, EstimatorConfig, EstimatorFlag, KalmanEstimator,
                                    SteadyStateEstimator, make_kalman_filter, steady_state_gain, unwrap_delta)
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
-from timebase import RealClock
 
 DT_S = 0.001
 
@@ -531,41 +530,3 @@ def test_current_limit_holds_the_current_near_its_limit_in_a_jam():
     assert max(rig.currents_a) < 4.0 * 1.15                # overshoots the 4 A limit by under 15 %
     assert min(rig.currents_a[-1000:]) > 4.0 * 0.8         # and uses most of it (the joint pushes)
 
-
-# ---------------------------------------------------------------- cost
-def time_updates(make_axis, n: int, repeats: int = 3) -> tuple[float, Axis]:
-    """Best-of-`repeats` mean seconds per `update` on canned inputs (no plant), the axis moving."""
-    best = math.inf
-    for _ in range(repeats):
-        axis = make_axis()
-        cfg = axis.config.estimator
-        axis.set_zero(0.0)
-        axis.enable(0.0)
-        axis.move_to(0.9, 0.0)
-        path = profiles.trapezoid(0.0, 0.9, axis.config.vel_limit_rad_s, axis.config.acc_limit_rad_s2)
-        counts = [math.floor(path.sample(k * DT_S)[0] / cfg.rad_per_count) % COUNT_MODULUS for k in range(n)]
-        clock = RealClock.precise_now
-        start = clock()
-        for k in range(n):
-            now = k * DT_S
-            axis.update(now, counts[k], now, 0.5, now, False)
-        elapsed_s = clock() - start
-        assert axis.mode is AxisMode.MOVING and not axis.faults
-        best = min(best, elapsed_s / n)
-    return best, axis
-
-
-@pytest.mark.realtime          # a wall-clock figure: never beside the CPU-hog test (conftest)
-def test_per_tick_cost_of_one_axis():
-    """Estimator + controller + output for one axis-tick; printed for the record."""
-    joint = Joint(gravity_m_s2=9.81)
-    config = make_config(joint)
-    plain_s, _ = time_updates(lambda: Axis(config), 10000)
-    timed_s, timed = time_updates(lambda: Axis(config, stopwatch=RealClock.precise_now,
-                                                gravity_nm=joint.gravity_nm), 10000)
-    ref_s, _ = time_updates(lambda: Axis(config, estimator=KalmanEstimator(config.estimator)), 5000, repeats=1)
-    stages = ", ".join(f"{name} {mean * 1e6:.2f}" for name, (_max, mean) in timed.times.as_dict().items())
-    print(f"\naxis update per tick: {plain_s * 1e6:.2f} us (steady-state filter, no stopwatch, no gravity); "
-          f"{timed_s * 1e6:.2f} us (stage-timed + gravity callable; stage means in us: {stages}); "
-          f"{ref_s * 1e6:.2f} us (filterpy estimator)")
-    assert plain_s < 50e-6     # a generous ceiling against gross regressions; the figure is printed
