@@ -1,6 +1,6 @@
-"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load, sessions (proxy, capture decoding, two links), campaigns (Dask throughput and overhead, lock-step against live), fuzzing (in process, black-box, beside boofuzz) and time-optimal planning (beside toppra), in that order.
+"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load, sessions (proxy, capture decoding, two links), campaigns (Dask throughput and overhead, lock-step against live), fuzzing (in process, black-box, beside boofuzz), time-optimal planning (beside toppra) and the start (the command line, aspod sim, children's memory, numba's cache), in that order.
 
-    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|handshake|sessions|campaign|fuzz|plan]
+    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|handshake|sessions|campaign|fuzz|plan|start]
 
 These print figures and ratios beside a peer measured in the same run; they are not
 pass/fail tests. The exit status is 0 when every benchmark produced its figures
@@ -19,7 +19,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fewer frames and pings, 5 s loops instead of 60 s, 5 simulated s of lock-step "
                              "instead of 20, shorter tracking moves and no pick-and-place: a smoke run")
     parser.add_argument("--only", choices=("codec", "rtt", "realtime", "lockstep", "tracking", "tracker", "live",
-                                                  "handshake", "sessions", "campaign", "fuzz", "plan"),
+                                                  "handshake", "sessions", "campaign", "fuzz", "plan", "start"),
                         help="run one benchmark only")
     return parser
 
@@ -103,6 +103,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             status = 1
         print()
         if bench_arm_moves.main(quick=args.quick).error:
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "start"):
+        from bench import bench_start
+        if bench_start.main(quick=args.quick).error:
             status = 1
     return status
 

@@ -2,13 +2,14 @@
 
 The solar tracker's feed-forward (`firmware_py/tracker/logic.py`) needs the sun's azimuth and
 elevation rates, and telemetry reports the sun's position and the pointing error. A
-controller cannot carry pvlib, so this is the NOAA solar position algorithm, in plain
-floats: the equations of NOAA's Solar Calculator spreadsheets (NOAA Global Monitoring
+controller carries no full SPA (the plant's, `hil_sim/spa.py`, over numpy, costs 3 ms an
+instant; docs/Code_Overview.md says why the two suns are not one), so this is the NOAA solar
+position algorithm, in plain floats: the equations of NOAA's Solar Calculator spreadsheets (NOAA Global Monitoring
 Laboratory, "NOAA_Solar_Calculations_day.xls", after Jean Meeus, "Astronomical
 Algorithms", 1991, chapters 24-25, low-accuracy solar coordinates). NOAA states them
 accurate to within about a minute of arc (0.017 deg) for 1800-2100; `protocol` limits the
 clock (SetClock) to 2000-2099. Against the NREL SPA (Reda and Andreas 2004, the plant's
-sun, `hil_sim/sun.py`) at Tucson, hourly through 2026 with the sun above the horizon (4422
+sun, `hil_sim/spa.py`) at Tucson, hourly through 2026 with the sun above the horizon (4422
 positions, the site's 928.8 hPa and 12 C), the two directions differ by at most 0.0147 deg
 (elevation at most 0.0133 deg; azimuth up to 0.036 deg, near the zenith, where a degree of
 azimuth is a small angle on the sky); over the June solstice the tests bound it (azimuth

@@ -5,7 +5,3 @@ and never imports `firmware_py`. `plant` holds the physics (no bus, no clock: it
 stepped by `dt_s`); `hal_node` puts it on a python-can bus and is run as a scheduler
 task that takes `now`.
 """
-from hil_sim.commands import ExpiringOutputs
-from hil_sim.plant import FAULTS, Plant, PlantParams
-
-__all__ = ["FAULTS", "ExpiringOutputs", "Plant", "PlantParams"]

@@ -80,8 +80,8 @@ class PlantNode(HalEndpoint):
         self.tracker_phase = self.tracker_every_n // 2
         self._tracker_dt = 0.0
         if self.tracker:
-            # The sun for the day now (pvlib's import and a day's table, about 1 s the first time in a
-            # process), not in the middle of a real-time run when the photocells are first powered.
+            # The sun for the day now (a day's table, about 70 ms), not in the middle of a real-time run
+            # when the photocells are first powered.
             plant.tracker.preload_sun()
             commands = plant.tracker_commands
             self.on_frame("TRACKER_CMD", lambda v, now: commands.command(v[:10], int(v[10]), now),

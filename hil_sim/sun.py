@@ -1,5 +1,8 @@
 """The sun for the solar tracker: position, clear-sky beam and clouds, at a site and a date-time.
 
+The position is the NREL SPA (hil_sim/spa.py), the beam the Ineichen-Perez clear sky
+(hil_sim/clear_sky.py), both the project's own over numpy and pvlib's to the bit; neither pvlib
+nor pandas is imported unless a site without its Linke turbidities asks for pvlib's table.
 Design: docs/tracker.md#the-simulated-sun
 """
 from __future__ import annotations
@@ -8,7 +11,6 @@ import bisect
 import functools
 import math
 import re
-import warnings
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta, timezone
 from numbers import Real
@@ -16,10 +18,12 @@ from typing import Iterable, Optional, Sequence, Union
 
 import numpy as np
 
+from hil_sim import clear_sky, spa
+
 DateTimeLike = Union[datetime, float, int]
 
 UTC = timezone.utc
-CHUNK_S = 86400             # one vectorised pvlib call covers a local day
+CHUNK_S = 86400             # one vectorised computation covers a local day
 DEFAULT_TABLE_STEP_S = 10.0
 
 
@@ -29,8 +33,10 @@ class Site:
 
     `utc_offset_h` is the local standard time's offset from UTC (clock times in the clouds
     spec and in reports are read in it; no daylight saving). `pressure_pa` None means the
-    standard atmosphere's pressure at `altitude_m` (pvlib.atmosphere.alt2pres);
-    `temperature_c` is the air temperature for refraction.
+    standard atmosphere's pressure at `altitude_m` (clear_sky.standard_pressure_pa);
+    `temperature_c` is the air temperature for refraction. `linke_turbidity_x20`: the site's
+    monthly Linke turbidity, January to December, times 20 as SoDa's worldwide table stores it;
+    None: read from pvlib's copy of that table when the sun is first computed (pvlib's import).
     """
 
     name: str
@@ -40,6 +46,7 @@ class Site:
     utc_offset_h: float
     pressure_pa: Optional[float] = None
     temperature_c: float = 12.0
+    linke_turbidity_x20: Optional[tuple[int, ...]] = None
 
     def __post_init__(self) -> None:
         for f in ("latitude_deg", "longitude_deg", "altitude_m", "utc_offset_h", "temperature_c"):
@@ -56,6 +63,11 @@ class Site:
             raise ValueError(f"Site.altitude_m must be in [-500, 9000], got {self.altitude_m}")
         if self.pressure_pa is not None and not (math.isfinite(self.pressure_pa) and self.pressure_pa > 0):
             raise ValueError(f"Site.pressure_pa must be None or finite and > 0, got {self.pressure_pa}")
+        monthly = self.linke_turbidity_x20
+        if monthly is not None and not (isinstance(monthly, tuple) and len(monthly) == 12 and all(
+                isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255 for v in monthly)):
+            raise ValueError(f"Site.linke_turbidity_x20 must be None or a tuple of 12 whole numbers 0..255 "
+                             f"(January to December), got {monthly!r}")
 
     @property
     def local_tz(self) -> timezone:
@@ -69,8 +81,10 @@ class Site:
 # GeoHack give them); elevation of Tucson 2,389 ft (728 m) (U.S. Census Bureau / GNIS, as
 # quoted e.g. at fedest.com/question/20061028194801AAAFjrW and askbiography.com's "Tucson,
 # Arizona"). Time zone MST, UTC-7 all year: Arizona does not observe daylight saving time
-# (exempt under the Uniform Time Act of 1966 since 1968).
-TUCSON = Site("Tucson, Arizona (University of Arizona)", 32.2319, -110.9501, 728.0, -7.0)
+# (exempt under the Uniform Time Act of 1966 since 1968). Its monthly Linke turbidity: SoDa's table
+# (pvlib 0.16's data/LinkeTurbidities.h5) at the campus' cell, row 693, column 828.
+TUCSON = Site("Tucson, Arizona (University of Arizona)", 32.2319, -110.9501, 728.0, -7.0,
+              linke_turbidity_x20=(45, 48, 49, 53, 58, 60, 66, 72, 62, 50, 50, 50))
 
 MST = timezone(timedelta(hours=-7), "MST")
 
@@ -98,34 +112,25 @@ def to_utc(when: DateTimeLike) -> datetime:
     raise ValueError(f"a date-time must be an aware datetime or a POSIX timestamp in seconds, got {when!r}")
 
 
-def _import_pvlib():
-    # pandas + pvlib cost about 1 s to import: only when a table is first needed.
-    import pandas as pd
-    import pvlib
-    return pd, pvlib
-
-
-def _pressure_pa(site: Site, pvlib) -> float:
-    return site.pressure_pa if site.pressure_pa is not None else float(pvlib.atmosphere.alt2pres(site.altitude_m))
+def _pressure_pa(site: Site) -> float:
+    return site.pressure_pa if site.pressure_pa is not None else float(clear_sky.standard_pressure_pa(site.altitude_m))
 
 
 def solar_position(times: Union[DateTimeLike, Sequence[DateTimeLike]], site: Site,
                    delta_t_s: Optional[float] = None) -> dict[str, np.ndarray]:
-    """The sun at `site` at each of `times` (NREL SPA through pvlib), as numpy arrays in degrees.
+    """The sun at `site` at each of `times` (the NREL SPA, hil_sim/spa.py), as numpy arrays in degrees.
 
     Keys: "apparent_elevation", "apparent_zenith" (refraction at the site's pressure and
     temperature), "elevation", "zenith" (geometric), "azimuth" (from north through east,
-    0..360). `delta_t_s` is TT - UT1 in seconds; None lets pvlib estimate it from the date
-    (about 69 s in 2026).
+    0..360). `delta_t_s` is TT - UT1 in seconds; None estimates it from the date (NASA's
+    polynomial: about 69 s in 2026).
     """
-    pd, pvlib = _import_pvlib()
-    stamps = [to_utc(t) for t in (times if isinstance(times, (list, tuple, np.ndarray)) else [times])]
-    index = pd.DatetimeIndex(stamps)
-    sp = pvlib.solarposition.spa_python(index, site.latitude_deg, site.longitude_deg, altitude=site.altitude_m,
-                                        pressure=_pressure_pa(site, pvlib), temperature=site.temperature_c,
-                                        delta_t=delta_t_s)
-    return {k: sp[k].to_numpy(dtype=float) for k in ("apparent_elevation", "apparent_zenith", "elevation",
-                                                      "zenith", "azimuth")}
+    stamps = times if isinstance(times, (list, tuple, np.ndarray)) else [times]
+    unix_s = np.array([to_utc(t).timestamp() for t in stamps], dtype=np.float64)    # whole microseconds
+    sun = spa.sun_positions(unix_s, site.latitude_deg, site.longitude_deg, site.altitude_m, _pressure_pa(site) / 100,
+                            site.temperature_c, delta_t_s)
+    return {"apparent_elevation": sun.apparent_elevation, "apparent_zenith": sun.apparent_zenith,
+            "elevation": sun.elevation, "zenith": sun.zenith, "azimuth": sun.azimuth}
 
 
 @dataclass(frozen=True)
@@ -141,30 +146,29 @@ class _Chunk:
 
 @functools.lru_cache(maxsize=32)
 def _chunk(site: Site, t0: int, step_s: float) -> _Chunk:
-    """The sun over [t0, t0 + CHUNK_S] (POSIX seconds) at `step_s`, vectorised (about 70 ms a day at 10 s)."""
-    pd, pvlib = _import_pvlib()
-    with warnings.catch_warnings():
-        # pvlib 0.16 still reads DatetimeIndex.dayofyear, which pandas 3 deprecates: not ours to fix.
-        warnings.filterwarnings("ignore", message=".*dayofyear.*")
-        return _compute_chunk(pd, pvlib, site, t0, step_s)
-
-
-def _compute_chunk(pd, pvlib, site: Site, t0: int, step_s: float) -> _Chunk:
+    """The sun over [t0, t0 + CHUNK_S] (POSIX seconds) at `step_s`, vectorised (about 30 ms a day at 10 s)."""
     n = int(round(CHUNK_S / step_s)) + 1
-    index = pd.to_datetime(t0 + np.arange(n) * step_s, unit="s", utc=True)
-    pressure = _pressure_pa(site, pvlib)
-    sp = pvlib.solarposition.spa_python(index, site.latitude_deg, site.longitude_deg, altitude=site.altitude_m,
-                                        pressure=pressure, temperature=site.temperature_c, delta_t=None)
-    zenith = sp["apparent_zenith"]
-    airmass = pvlib.atmosphere.get_absolute_airmass(pvlib.atmosphere.get_relative_airmass(zenith), pressure)
-    turbidity = pvlib.clearsky.lookup_linke_turbidity(index, site.latitude_deg, site.longitude_deg)
-    dni_extra = pvlib.irradiance.get_extra_radiation(index)
-    sky = pvlib.clearsky.ineichen(zenith, airmass, turbidity, altitude=site.altitude_m, dni_extra=dni_extra)
-    dni = np.nan_to_num(np.asarray(sky["dni"], dtype=float), nan=0.0).clip(min=0.0)
-    dhi = np.nan_to_num(np.asarray(sky["dhi"], dtype=float), nan=0.0).clip(min=0.0)
-    azimuth = np.unwrap(sp["azimuth"].to_numpy(dtype=float), period=360.0)
-    return _Chunk(float(t0), float(t0 + (n - 1) * step_s), step_s, sp["apparent_elevation"].to_numpy(dtype=float)
-                  .tolist(), azimuth.tolist(), dni.tolist(), dhi.tolist())
+    unix_s = t0 + np.arange(n) * step_s
+    pressure = _pressure_pa(site)
+    sun = spa.sun_positions(unix_s, site.latitude_deg, site.longitude_deg, site.altitude_m, pressure / 100,
+                            site.temperature_c)
+    zenith = sun.apparent_zenith
+    day, leap = clear_sky.utc_day_of_year(unix_s)
+    turbidity = clear_sky.linke_turbidity(day, leap, _monthly_turbidity_x20(site))
+    dni, dhi = clear_sky.ineichen(zenith, clear_sky.absolute_airmass(zenith, pressure), turbidity, site.altitude_m,
+                                  clear_sky.extraterrestrial_dni(day))
+    dni = np.nan_to_num(dni, nan=0.0).clip(min=0.0)
+    dhi = np.nan_to_num(dhi, nan=0.0).clip(min=0.0)
+    azimuth = np.unwrap(sun.azimuth, period=360.0)
+    return _Chunk(float(t0), float(t0 + (n - 1) * step_s), step_s, sun.apparent_elevation.tolist(), azimuth.tolist(),
+                  dni.tolist(), dhi.tolist())
+
+
+@functools.lru_cache(maxsize=8)
+def _monthly_turbidity_x20(site: Site) -> tuple[int, ...]:
+    if site.linke_turbidity_x20 is not None:
+        return site.linke_turbidity_x20
+    return clear_sky.lookup_monthly_turbidity_x20(site.latitude_deg, site.longitude_deg)
 
 
 class SunTable:

@@ -263,8 +263,8 @@ class TrackerPlant:
         return tr * (1.0 - self.params.overcast_attenuation) if self.overcast else tr
 
     def preload_sun(self) -> None:
-        """Compute the sun for the present local day now (about 1 s the first time in a process: pvlib's
-        import), rather than at the first step with the photocells powered: for real-time runs."""
+        """Compute the sun for the present local day now (about 70 ms), rather than at the first step with the
+        photocells powered: for real-time runs."""
         self._sun.preload(self._epoch_unix + self.elapsed_s)
 
     def pointing_error_deg(self) -> tuple[float, float]:

@@ -4,8 +4,13 @@ Two functions carry the world's 1 kHz work: the controller's joints' tick
 (firmware_py/joints_tick.py) and the arm plant's tick (hil_sim/arm_tick.py). Each is plain Python
 over flat rows of numbers, and each can run compiled by numba's `njit`, without fastmath: IEEE
 arithmetic in the source's order, so the compiled results are the plain function's to the bit
-(tests/test_joints_tick.py, tests/test_arm_plant_tick.py run both). The machine code is cached
-beside each module (`cache=True`), so only the first process compiles it (a few seconds).
+(tests/test_joints_tick.py, tests/test_arm_plant_tick.py run both). The machine code is cached on
+disk (`cache=True`): in `__pycache__/` beside the source file of the compiled function (an `.nbi`
+index and `.nbc` code per function), in `$NUMBA_CACHE_DIR` if set, or in numba's per-user cache
+(`~/.cache/numba`) where that folder cannot be written. The index is keyed on the source file's
+modification time and size, so the first process after a fresh clone, an upgrade or an edit of that
+file compiles (some 14 s of CPU for the joints' and the plant's kernels), and every later one loads
+the code (tests/test_kernels_cache.py; bench/bench_start.py measures both).
 
 The switch: `ASPOD_COMPILED=1` in the environment turns both on, so that a bench, a simulator or a
 test session picks it up unchanged; `ControllerConfig.compiled_joints` and the plant's

@@ -13,7 +13,9 @@
     aspod --version;  -v / -q / --log-file PATH before or after the command
 
 Each command turns its Namespace, once, into frozen settings (host_tools/cli/settings.py); nothing
-below cli/ sees argparse. Diagnostics go through the `aspod` logger (stderr, bare messages at INFO);
+below cli/ sees argparse. Only the command being run gets its options (`COMMANDS`, `build_parser`), and
+each command imports its own module when it runs: `aspod --version` and `--help` import neither numpy
+nor the plant (docs/Code_Overview.md, "Starting light"). Diagnostics go through the `aspod` logger (stderr, bare messages at INFO);
 results and ready lines go to stdout.
 
 Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused, unreachable or lost.
@@ -21,20 +23,17 @@ Exit status: 0 ok, 1 a command failed, 2 bad usage or input, 3 link refused, unr
 from __future__ import annotations
 
 import argparse
-import logging
 import math
 import os
 import signal
 import sys
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Collection, Optional, Sequence
 
 from firmware_py.uart import BAUD_RATES
-from protocol import auth
 from protocol.errors import KeyFileError, LinkError, shown
 
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
-from host_tools.sessions.capture import SEED_MAX
 
 
 _KIND_NAMES = {int: "whole number", float: "number"}
@@ -106,6 +105,7 @@ def add_timing_arg(parser: argparse.ArgumentParser, default: str, what: str) -> 
 
 
 def add_seed_arg(parser: argparse.ArgumentParser, what: str) -> None:
+    from host_tools.sessions.capture import SEED_MAX
     parser.add_argument("--seed", type=bounded(int, 0, SEED_MAX), default=0, metavar="N",
                         help=f"seed of {what}, 0..{SEED_MAX} (default 0)")
 
@@ -275,12 +275,41 @@ def _epilog(command: Optional[str]) -> str:
     return f"examples:\n{lines}\n\n{EXIT_CODES_TEXT}"
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-    try:
-        return version("aspod")
-    except PackageNotFoundError:     # run from a source tree that was never installed
-        return "unknown (not installed)"
+def installed_version(distribution: str = "aspod") -> str:
+    """The version in the installed distribution's metadata: the `Version:` line of the first
+    `NAME-*.dist-info/METADATA` on sys.path, where importlib.metadata finds it too (tests/test_cli_start.py
+    compares them), read without importlib.metadata's imports (email, zipfile, csv), which cost as much as
+    Python's own start."""
+    prefix = distribution + "-"
+    for entry in sys.path:
+        try:
+            names = sorted(os.listdir(entry or "."))
+        except OSError:                 # a zip, a folder gone: importlib.metadata skips it too
+            continue
+        for name in names:
+            if name.startswith(prefix) and name.endswith(".dist-info"):
+                try:
+                    with open(os.path.join(entry or ".", name, "METADATA"), encoding="utf-8") as metadata:
+                        for line in metadata:
+                            if line.startswith("Version:"):
+                                return line.split(":", 1)[1].strip()
+                            if not line.strip():        # the headers end at the first blank line
+                                break
+                except OSError:
+                    continue
+    return "unknown (not installed)"    # run from a source tree that was never installed
+
+
+class _VersionAction(argparse.Action):
+    """--version: the installed package's version, from its metadata, read only when asked."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS, **kwargs) -> None:
+        super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0,
+                         help="show the program's version and exit")
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"{parser.prog} {installed_version()}")
+        parser.exit()
 
 
 def add_logging_args(parser: argparse.ArgumentParser) -> None:
@@ -301,6 +330,7 @@ def add_logging_args(parser: argparse.ArgumentParser) -> None:
 def setup_logging(verbose: int = 0, quiet: int = 0, log_file: Optional[Path] = None) -> None:
     """The `aspod` logger: diagnostics on stderr as bare messages (INFO by default, so the lines that scripts
     and tests read stay as they were), and to `log_file` with time and level."""
+    import logging                      # here, not at the top: `aspod --version` and `--help` need none of it
     level = min(max(logging.INFO - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
     log = logging.getLogger("aspod")
     for handler in list(log.handlers):
@@ -317,22 +347,7 @@ def setup_logging(verbose: int = 0, quiet: int = 0, log_file: Optional[Path] = N
         log.addHandler(to_file)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from host_tools.worlds.settings import GRAVITY_MODES
-    formatter = argparse.RawDescriptionHelpFormatter
-    parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator", epilog=_epilog(None),
-                                     formatter_class=formatter)
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
-    add_logging_args(parser)
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    def add_command(name: str, **kwargs) -> argparse.ArgumentParser:
-        command = sub.add_parser(name, epilog=_epilog(name), formatter_class=formatter, **kwargs)
-        add_logging_args(command)
-        return command
-
-    sim = add_command("sim", help="run the controller and its plant; prints ASPOD-LINK, ASPOD-KEY and ASPOD-CONTROL "
-                                  "lines")
+def _sim_options(sim: argparse.ArgumentParser) -> None:
     add_controller_args(sim)
     add_seed_arg(sim, "the plant's noise")
     sim.add_argument("--hal", type=_interface, metavar="INTERFACE",
@@ -362,8 +377,8 @@ def build_parser() -> argparse.ArgumentParser:
     control.add_argument("--no-control", action="store_true",
                          help="serve no control endpoint (host tools then need --key-file)")
 
-    plant = add_command("plant", help="run only the plant, in real time, on a python-can interface; "
-                                         "prints an ASPOD-PLANT ready line")
+
+def _plant_options(plant: argparse.ArgumentParser) -> None:
     add_bus_args(plant)
     add_seed_arg(plant, "the plant's noise")
     add_arm_args(plant)
@@ -376,8 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
                                       "the loop around a controller that does not speak lock-step)")
     add_speed_arg(plant, "the plant")
 
-    firmware = add_command("firmware", help="run only the controller, its HAL on a python-can interface; "
-                                               "prints ASPOD-LINK and ASPOD-KEY lines")
+
+def _firmware_options(firmware: argparse.ArgumentParser) -> None:
     add_bus_args(firmware)
     add_controller_args(firmware)
     firmware.add_argument("--boot-timeout", type=bounded(float, 0.01, 3600), default=None, metavar="S",
@@ -386,7 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
                                          "(aspod plant --timing lockstep); realtime: the wall clock, as on real "
                                          "hardware, with the staleness limits and loop deadlines as parameters")
 
-    teleop = add_command("teleop", help="console to a controller: interactive, or a script")
+
+def _teleop_options(teleop: argparse.ArgumentParser) -> None:
     teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")
     add_link_args(teleop)
     teleop.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE and exit")
@@ -402,8 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the simulator's control endpoint, for `sim` lines (default: the one of the aspod sim "
                              "that serves URL, if any)")
 
-    bench = add_command("bench", help="run a teleop script against the whole world on the simulated clock "
-                                      "(deterministic, fast); the plant's true state at the end")
+
+def _bench_options(bench: argparse.ArgumentParser) -> None:
     bench.add_argument("script", type=Path, metavar="SCRIPT", help="a teleop script (one command a line)")
     add_seed_arg(bench, "the plant's noise and the link's nonces")
     add_arm_args(bench)
@@ -414,8 +430,8 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--record", type=Path, metavar="FILE.pcapng",
                        help="capture the session on the simulated clock (aspod replay re-runs it to the bit)")
 
-    campaign = add_command("campaign", help="run a bench over a matrix of settings, one row per run, on Dask "
-                                            "(a local cluster on every core, or --scheduler)")
+
+def _campaign_options(campaign: argparse.ArgumentParser) -> None:
     campaign.add_argument("bench", metavar="BENCH", help="a teleop script, or a pytest file or node "
                                                          "(path.py, path.py::test_name)")
     campaign.add_argument("--vary", action="append", default=[], metavar="NAME=VALUES",
@@ -446,8 +462,8 @@ def build_parser() -> argparse.ArgumentParser:
     campaign.add_argument("--keep-going", action="store_true", help="a script goes on after a failed line")
     campaign.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    fuzz = add_command("fuzz", help="fuzz the protocol: in process, coverage-guided (atheris), on a target of the "
-                                    "emulator's; or black-box against a live link; or replay a finding")
+
+def _fuzz_options(fuzz: argparse.ArgumentParser) -> None:
     fuzz.add_argument("targets", nargs="*", metavar="TARGET",
                       help="in-process targets (--list names them), or module:factory for your own")
     fuzz.add_argument("--list", action="store_true", help="list the in-process targets and what each covers")
@@ -490,8 +506,8 @@ def build_parser() -> argparse.ArgumentParser:
     fuzz.add_argument("--json", action="store_true", help="print one JSON object at the end")
     fuzz.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    plan = add_command("plan", help="the report's trajectory planning for two arms carrying one object: time-optimal "
-                                    "on the phase plane, minimum cost by dynamic programming (docs/planning.md)")
+
+def _plan_options(plan: argparse.ArgumentParser) -> None:
     plan.add_argument("--problem", type=Path, default=None, metavar="FILE",
                       help="a path, arms, object and limits from a JSON file (default: the report's example)")
     plan.add_argument("--objective", choices=("time", "energy", "work", "thermal"), default="energy",
@@ -527,8 +543,9 @@ def build_parser() -> argparse.ArgumentParser:
     plan.add_argument("--json", action="store_true", help="print one JSON object")
     plan.add_argument("--plot", type=Path, default=None, metavar="DIR", help="draw the report's Figs. 11-17 into DIR")
 
-    demo = add_command("demo", help="the arm picks up debris and drops it in the bin, on the simulated clock; "
-                                       "reports the positioning error of each step")
+
+def _demo_options(demo: argparse.ArgumentParser) -> None:
+    from host_tools.worlds.settings import GRAVITY_MODES
     demo.add_argument("--json", action="store_true", help="print one JSON object (steps, errors, times)")
     demo.add_argument("--gravity", choices=GRAVITY_MODES, default="earth", help="the arm's gravity (default earth)")
     add_seed_arg(demo, "the plant's noise and the link's nonces")
@@ -538,8 +555,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--record", type=Path, metavar="FILE.pcapng",
                       help="capture the session (on the simulated clock: aspod replay re-runs it to the bit)")
 
-    day = add_command("tracker-day", help="the solar tracker through a simulated day at Tucson, on the "
-                                             "simulated clock; pointing error, lag and relay switchings")
+
+def _tracker_day_options(day: argparse.ArgumentParser) -> None:
     day.add_argument("--mode", choices=("relay", "feedforward"), default="relay",
                      help="relay: the report's relay logic (default); feedforward: the sun-rate feed-forward")
     day.add_argument("--dial", default="50", metavar="X",
@@ -561,7 +578,8 @@ def build_parser() -> argparse.ArgumentParser:
     day.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
                      help="write the pointing error and the lag over the day to this PNG")
 
-    log_cmd = add_command("log", help="decode a session capture (pcapng): every frame, counts, a table or a plot")
+
+def _log_options(log_cmd: argparse.ArgumentParser) -> None:
     log_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture written by --record or aspod proxy")
     log_cmd.add_argument("--class", dest="cls", action="append", metavar="CLASS",
                          help="only frames of this class (link, command, urgent, telemetry, event); repeatable")
@@ -577,8 +595,8 @@ def build_parser() -> argparse.ArgumentParser:
     log_cmd.add_argument("--key-file", type=Path, default=None,
                          help="pre-shared key file (hex): verify every frame's MAC (without it MACs are not checked)")
 
-    proxy = add_command("proxy", help="a man in the middle between host and controller: impairs, shows and records "
-                                      "the link; prints ASPOD-LINK for the host")
+
+def _proxy_options(proxy: argparse.ArgumentParser) -> None:
     proxy.add_argument("--host", default="pty", metavar="ENDPOINT",
                        help="where the host connects: pty (a new pseudo-terminal, the default), tcp:PORT (tcp:0 picks "
                             "one), or a device or pyserial URL")
@@ -598,8 +616,8 @@ def build_parser() -> argparse.ArgumentParser:
                             "serving --controller, if it is one)")
     proxy.add_argument("--no-view", action="store_true", help="no live view (the summary at the end only)")
 
-    replay_cmd = add_command("replay", help="re-simulate a recorded session (aspod sim/demo --record) and report "
-                                            "the first divergence")
+
+def _replay_options(replay_cmd: argparse.ArgumentParser) -> None:
     replay_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture from aspod sim or aspod demo --record")
     replay_cmd.add_argument("--param", action="append", metavar="NAME=VALUE",
                             help="change a controller parameter for the replay (repeatable): what would differ?")
@@ -610,15 +628,69 @@ def build_parser() -> argparse.ArgumentParser:
     replay_cmd.add_argument("--output", type=Path, default=None, metavar="FILE.pcapng",
                             help="also write the replay's own capture")
 
-    wireshark = add_command("wireshark", help="write the Wireshark Lua dissector for this protocol's captures")
+
+def _wireshark_options(wireshark: argparse.ArgumentParser) -> None:
     wireshark.add_argument("--output", "-o", type=Path, default=None, metavar="FILE.lua",
                            help="where to write it (default: standard output)")
 
-    completion = add_command("completion", help="print a shell completion script (bash or zsh)",
-                             description="print a completion script for aspod: bash (source it, or put it in "
-                                         "~/.local/share/bash-completion/completions/aspod) or zsh (put it as "
-                                         "_aspod in a folder on $fpath)")
+
+def _completion_options(completion: argparse.ArgumentParser) -> None:
     completion.add_argument("shell", choices=SHELLS)
+
+
+# The commands in the order `aspod --help` lists them: name, the keywords of its parser (help, description), and
+# the function that adds its options, called only for the command being run (`build_parser`).
+COMMANDS = (
+    ("sim", dict(help="run the controller and its plant; prints ASPOD-LINK, ASPOD-KEY and ASPOD-CONTROL "
+                      "lines"), _sim_options),
+    ("plant", dict(help="run only the plant, in real time, on a python-can interface; "
+                        "prints an ASPOD-PLANT ready line"), _plant_options),
+    ("firmware", dict(help="run only the controller, its HAL on a python-can interface; "
+                           "prints ASPOD-LINK and ASPOD-KEY lines"), _firmware_options),
+    ("teleop", dict(help="console to a controller: interactive, or a script"), _teleop_options),
+    ("bench", dict(help="run a teleop script against the whole world on the simulated clock "
+                        "(deterministic, fast); the plant's true state at the end"), _bench_options),
+    ("campaign", dict(help="run a bench over a matrix of settings, one row per run, on Dask "
+                           "(a local cluster on every core, or --scheduler)"), _campaign_options),
+    ("fuzz", dict(help="fuzz the protocol: in process, coverage-guided (atheris), on a target of the "
+                       "emulator's; or black-box against a live link; or replay a finding"), _fuzz_options),
+    ("plan", dict(help="the report's trajectory planning for two arms carrying one object: time-optimal "
+                       "on the phase plane, minimum cost by dynamic programming (docs/planning.md)"), _plan_options),
+    ("demo", dict(help="the arm picks up debris and drops it in the bin, on the simulated clock; "
+                       "reports the positioning error of each step"), _demo_options),
+    ("tracker-day", dict(help="the solar tracker through a simulated day at Tucson, on the "
+                              "simulated clock; pointing error, lag and relay switchings"), _tracker_day_options),
+    ("log", dict(help="decode a session capture (pcapng): every frame, counts, a table or a plot"), _log_options),
+    ("proxy", dict(help="a man in the middle between host and controller: impairs, shows and records "
+                        "the link; prints ASPOD-LINK for the host"), _proxy_options),
+    ("replay", dict(help="re-simulate a recorded session (aspod sim/demo --record) and report "
+                         "the first divergence"), _replay_options),
+    ("wireshark", dict(help="write the Wireshark Lua dissector for this protocol's captures"), _wireshark_options),
+    ("completion", dict(help="print a shell completion script (bash or zsh)",
+                        description="print a completion script for aspod: bash (source it, or put it in "
+                                    "~/.local/share/bash-completion/completions/aspod) or zsh (put it as "
+                                    "_aspod in a folder on $fpath)"), _completion_options),
+)
+
+
+def build_parser(only: Optional[Collection[str]] = None) -> argparse.ArgumentParser:
+    """The `aspod` parser, with the options of the commands `only` names (None: every command's).
+
+    The others are there by name and help, which is all `aspod --help`, `aspod --version` and argparse's
+    choice of a command need: so a command imports only what its own options need, and `aspod --version`
+    loads neither numpy nor the plant (bench/bench_start.py).
+    """
+    formatter = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(prog="aspod", description="ASPOD controller emulator", epilog=_epilog(None),
+                                     formatter_class=formatter)
+    parser.add_argument("--version", action=_VersionAction)
+    add_logging_args(parser)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, keywords, add_options in COMMANDS:
+        command_parser = sub.add_parser(name, epilog=_epilog(name), formatter_class=formatter, **keywords)
+        if only is None or name in only:
+            add_logging_args(command_parser)
+            add_options(command_parser)
     return parser
 
 
@@ -632,6 +704,7 @@ def host_key(path: Optional[Path], url: str) -> bytes:
     """The key a host tool uses for the link `url`: --key-file, else the key of this user's simulator serving
     `url` (host_tools/client/control.py `simulator_key`)."""
     if path is not None:
+        from protocol import auth
         return auth.load_key(path, "--key-file")
     from host_tools.client.control import simulator_key
     return simulator_key(url)
@@ -703,16 +776,31 @@ def with_script_directive(args: argparse.Namespace, argv: Sequence[str]) -> argp
     if not directive:
         return args
     at = list(argv).index("bench") + 1
-    return build_parser().parse_args([*argv[:at], *directive, *argv[at:]])
+    return build_parser(["bench"]).parse_args([*argv[:at], *directive, *argv[at:]])
 
 
 def _terminated(signum, frame) -> None:
     raise SystemExit(128 + signum)
 
 
+def command_word(argv: Sequence[str]) -> Optional[str]:
+    """The command `argv` names: its first word that is not an option nor --log-file's path; None if there is none,
+    or that word is no command (argparse then says so)."""
+    value_next = False
+    for word in argv:
+        if value_next:
+            value_next = False
+        elif word.startswith("--") and "=" not in word and len(word) > 3 and "--log-file".startswith(word):
+            value_next = True               # --log-file PATH (argparse takes any unambiguous prefix: --log PATH)
+        elif not word.startswith("-"):
+            return word if any(word == name for name, _, _ in COMMANDS) else None
+    return None
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
+    word = command_word(argv)
+    args = build_parser(only=() if word is None else (word,)).parse_args(argv)
     if args.command == "bench":
         try:
             args = with_script_directive(args, argv)
@@ -740,6 +828,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import logging
     log = logging.getLogger("aspod")
     try:
         return run_command(args)

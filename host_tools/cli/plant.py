@@ -54,8 +54,8 @@ WAITING_NOTE_S = 5.0     # lock-step: say so on stderr when the controller has n
 
 def resolve_sun(plant: PlantSettings, *, warm: bool = True) -> PlantSettings:
     """`plant` with its sun's start resolved: `now` (start None) is read from the one wall clock
-    (`RealClock.wall_time()`) after the day's sun has been computed (pvlib's import and a day's table take
-    about a second, `warm`), so that the plant's sun is the real sun at Tucson when the run starts."""
+    (`RealClock.wall_time()`) after the day's sun has been computed (a day's table takes about 70 ms,
+    `warm`), so that the plant's sun is the real sun at Tucson when the run starts."""
     if not plant.tracker or plant.start is not None:
         return plant
     if warm:
