@@ -8,8 +8,8 @@ msgpack, no multicast on loopback), a real probe says so and the sessions are sk
 
 Plant and controller run in lock-step (the default): however long either process is
 descheduled on a busy machine, the other's time waits for it, so no staleness check can trip
-on it; a plant that has gone for good is HAL_STALE after `lockstep_wait_s` of wall time
-(docs/realtime.md).
+on it; a plant that has gone for good is HAL_STALE after `lockstep_wait_s` of its own time
+(the wall clock, less the waits for a CPU: docs/separate_processes.md).
 """
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ import signal
 import subprocess
 import sys
 import threading
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
@@ -29,10 +30,12 @@ import pytest
 from host_tools.worlds import nodes
 from host_tools.client.live import HostClient
 from host_tools.worlds.child import Child, ChildError
+from host_tools.worlds.own_time import sample
 from protocol import auth
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
+from timebase import RealClock
 
 pytestmark = pytest.mark.pty
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -155,7 +158,7 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     group, port = nodes.fresh_udp_multicast()
     plant = start_plant(procs, group, port)
     firmware = procs("firmware", "--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={port}",
-                     "--pty", "--params", str(params_file))
+                     "--pty", "--params", str(params_file), "--plant-pid", str(plant.pid))
     url, key_path = link_of(firmware)
     firmware.wait_stderr(r"BOOT -> IDLE \(OK\)")          # HAL inputs arrived over the interface
     client = clients(url, key_path)
@@ -174,6 +177,7 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     assert seen["bad_frames"] == 0 and seen["bus_errors"] == 0
 
     firmware.wait_stderr(r"ENABLED -> FAULT \(HAL_STALE\), faults HAL_STALE")
+    firmware.wait_stderr(rf"aspod firmware: lock-step: the plant process \(pid {plant.pid}\): ended")   # --plant-pid
     client.wait_for(lambda: False, 1.0)                    # the plant stays gone: the cause is still there
     reply = status(client)
     assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
@@ -219,13 +223,19 @@ def test_a_second_controller_or_plant_on_a_pairs_bus_is_said_on_stderr(multicast
                          r"another aspod plant")
 
 
-def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_works, procs, clients, params_file):
-    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
+def enabled_sim_over_hal(procs, clients, params: Path) -> tuple[Proc, int, HostClient]:
+    """`aspod sim --hal udp_multicast` with its plant's pid, booted, and a host that has enabled it."""
+    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params))
     url, key_path = link_of(sim)
     plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready on interface=udp_multicast").group(1))
-    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")
+    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")               # the first ticks came: enable is allowed
     client = clients(url, key_path)
     assert client.call(M["Enable"]()).ok
+    return sim, plant_pid, client
+
+
+def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_works, procs, clients, params_file):
+    sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params_file)
 
     os.kill(plant_pid, signal.SIGKILL)                     # no goodbye, no counters
     sim.wait_stderr(rf"the plant process \(pid {plant_pid}\) ended: killed by SIGKILL")
@@ -243,14 +253,71 @@ def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_
     assert lockstep and int(lockstep.group(1)) > 0 and lockstep.group(2) == "0", err     # it ran in lock-step
 
 
+@contextmanager
+def kept_from_running(pid: int):
+    """`pid` pinned to one core beside a CPU hog, at SCHED_IDLE: it runs only when the hog leaves it the CPU, for a
+    second and more at a time, as a plant did at load 45-49 on 2 cores."""
+    cpu = min(os.sched_getaffinity(pid))
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        os.sched_setaffinity(hog.pid, {cpu})
+        os.sched_setaffinity(pid, {cpu})
+        os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
+        yield
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+def kept_waiting(pid: int, stretch_s: float, limit_s: float = 120.0) -> bool:
+    """Watch `pid` (every 20 ms) until it has been runnable without running for `stretch_s` at a stretch."""
+    clock = RealClock()
+    end = clock.now() + limit_s
+    last, since = None, clock.now()
+    while clock.now() < end:
+        seen = sample(pid)
+        assert seen is not None, f"process {pid} ended"
+        if seen.state != "R" or seen.cpu_s != last:
+            last, since = seen.cpu_s, clock.now()
+        elif clock.now() - since >= stretch_s:
+            return True
+        clock.sleep(0.02)
+    return False
+
+
+@pytest.mark.cpu_hog        # a hog on one core: never beside the other real-time tests (conftest)
+def test_a_plant_kept_from_running_is_not_taken_for_gone_and_a_stopped_one_is(multicast_works, procs, clients,
+                                                                              tmp_path):
+    """At load 45-49 the lock-step pair faulted HAL_STALE after 2 s of wall time waiting for a plant that was alive.
+    The plant is judged on its own time: here it waits on a run queue for three times lockstep_wait_s at a stretch
+    and the controller stays ENABLED; stopped (SIGSTOP) beside the same hog, it is HAL_STALE, the log says why."""
+    limit_s = 0.3
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"version": 1, "params": {"lockstep_wait_s": limit_s}}))
+    sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params)
+    with kept_from_running(plant_pid):
+        assert kept_waiting(plant_pid, 3 * limit_s), "the hog never kept the plant from running"
+        reply = status(client)
+        assert reply.state == ControllerState.ENABLED and reply.faults == 0, sim.seen
+        os.kill(plant_pid, signal.SIGSTOP)
+        try:
+            silent = sim.wait_stderr(r"FAULT HAL_STALE \(HAL_STALE\): lock-step: no tick from the plant .*: ([\d.]+) ms "
+                                     r"against a limit of 300.0 ms")
+            sim.wait_stderr(rf"lock-step: the plant process \(pid {plant_pid}\): stopped \(SIGSTOP\)")
+        finally:
+            os.kill(plant_pid, signal.SIGCONT)
+    assert float(silent.group(1)) >= 300.0
+    assert status(client).faults & Fault.HAL_STALE
+    client.close()
+    code, err = sim.stop()
+    assert code == 0, err
+    longest = re.search(r"HAL counters .* longest_wait_s=([\d.]+)", err)
+    assert longest and float(longest.group(1)) >= 3 * limit_s, err
+
+
 def test_stopping_sim_with_hal_stops_its_plant_which_saw_the_controller(multicast_works, procs, clients,
                                                                        params_file):
-    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
-    url, key_path = link_of(sim)
-    plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready").group(1))
-    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")               # the first ticks came: enable is allowed
-    client = clients(url, key_path)
-    assert client.call(M["Enable"]()).ok
+    sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params_file)
     assert client.call(M["Ping"](1)).ok
     client.close()
     code, err = sim.stop()
@@ -300,6 +367,10 @@ def _running(pid: int) -> bool:
     (["sim", "--hal", "virtual"], "joins only buses in the same process"),
     (["sim", "--hal", "socketcan"], "needs --hal-channel"),
     (["firmware", "--interface", "udp_multicast"], "--channel"),
+    (["firmware", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--plant-pid", str(2**22)],
+     f"--plant-pid {2**22}: no such process on this machine"),
+    (["firmware", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--timing", "realtime", "--plant-pid",
+      "1"], "--plant-pid judges the wait for the plant's tick in lock-step: it takes --timing lockstep"),
     (["plant", "--interface", "udp_multicast", "--channel", "10.1.2.3"], "not a multicast group"),
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "port=70000"],
      "port 70000 is not a whole number in 1..65535"),

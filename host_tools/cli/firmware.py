@@ -21,6 +21,11 @@ State changes are logged on stderr; at exit, the HAL counters:
 (`run_sim_over_hal`), both in lock-step: the child is ready before the controller boots, is
 watched while the controller runs (if it dies, that is said on stderr and the controller's
 lock-step watch takes it to the safe state) and is stopped when the controller stops.
+
+In lock-step the controller's wait for the plant's tick is judged on the plant's own time, not the wall
+clock alone (`own_time.LockstepWait`): the time the plant's process (the child, or `--plant-pid`) and this
+one waited for a CPU is excused; a plant process that ended or is stopped is excused nothing
+(docs/separate_processes.md, "A plant gone, or a busy machine").
 """
 from __future__ import annotations
 
@@ -37,7 +42,7 @@ from protocol import auth, files
 from protocol.link import LinkConfig
 from protocol.lockstep import LockstepFollower, PlantsWatch
 from protocol.reasons import Reason
-from protocol.states import Fault
+from protocol.states import Fault, FaultCause
 from timebase import RealClock
 
 from host_tools.worlds import nodes
@@ -45,6 +50,7 @@ from host_tools.cli.plant import PlantProcess
 from host_tools.cli.settings import (BusSettings, ControllerSettings, FirmwareSettings, PlantRunSettings, PortSettings,
                                      SimSettings)
 from host_tools.worlds.child import describe_exit
+from host_tools.worlds.own_time import LockstepWait
 from host_tools.teleop.format import describe_report
 
 PLANT_WATCH_S = 0.1
@@ -121,10 +127,11 @@ def apply_command_line(controller: Controller, settings: ControllerSettings, pro
 
 
 def run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
-                   plant: Optional[PlantProcess] = None, timing: str = "lockstep") -> int:
+                   plant: Optional[PlantProcess] = None, timing: str = "lockstep", plant_pid: Optional[int] = None) -> int:
     """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
 
-    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock.
+    `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock. The plant's
+    process, where it is known (`plant`, this process's child, or `plant_pid`), is what its silence is judged on.
     """
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
@@ -132,7 +139,10 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
     psk, key_path, params_path, config = controller_config(settings)
     bus = nodes.open_bus(bus_settings.interface, bus_settings.channel, node=nodes.CONTROLLER, **bus_settings.kwargs)
     wall = RealClock()
-    follower = LockstepFollower(bus, wall) if timing == "lockstep" else None
+    if plant is not None:
+        plant_pid = plant.pid
+    judge = LockstepWait(wall, plant_pid)
+    follower = LockstepFollower(bus, wall, judge=judge) if timing == "lockstep" else None
     plants = PlantsWatch()
     if follower is not None:                # a second plant on this bus: said on stderr (not a fault)
         follower.on_tick = lambda tick: warn(prog, plants.seen(tick, wall.now()))
@@ -149,6 +159,8 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
         link_scheduler = Scheduler(wall)
         controller.attach(scheduler, link_scheduler)
         log_states(controller, prog)
+        if follower is not None:
+            controller.report_listeners.append(lambda msg: warn(prog, why_silent(msg, judge, plant_pid)))
         if plant is not None:
             link_scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
         print(f"ASPOD-LINK {port.url}", flush=True)
@@ -169,7 +181,8 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
             counters = nodes.hal_counters(controller.hal)
             if follower is not None:
                 counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs, old_syncs=follower.old_syncs,
-                                sync_steps_back=plants.steps_back, rtf=f"{follower.timing().rtf_total:.2f}")
+                                sync_steps_back=plants.steps_back, rtf=f"{follower.timing().rtf_total:.2f}",
+                                longest_wait_s=f"{follower.longest_wait_s:.3f}")
             log.info(f"{prog}: HAL counters {nodes.format_counters(counters)}")
     return 0
 
@@ -178,6 +191,21 @@ def warn(prog: str, line: Optional[str]) -> None:
     """`line`, if there is one, as a warning of `prog` on stderr."""
     if line:
         log.warning(f"{prog}: {line}")
+
+
+def why_silent(msg, judge: LockstepWait, plant_pid: Optional[int]) -> Optional[str]:
+    """For a FaultReport PLANT_SILENT: what the plant's process was at the watch's latest look (None otherwise)."""
+    if msg.spec.name != "FaultReport" or msg.cause != FaultCause.PLANT_SILENT:
+        return None
+    if plant_pid is None:
+        return ("lock-step: the plant's process is not known here (--plant-pid names it), so its silence was judged "
+                "on the wall clock, less this process's own waits for a CPU")
+    look = judge.last
+    if look is None:
+        return None
+    if look.gone is not None:
+        return f"lock-step: the plant process (pid {plant_pid}): {look.gone}"
+    return f"lock-step: the plant process (pid {plant_pid}) runs but sent no tick in {look.describe()}"
 
 
 def log_states(controller: Controller, prog: str) -> None:
@@ -222,7 +250,8 @@ def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callabl
 
 def run_firmware(settings: FirmwareSettings) -> int:
     """`aspod firmware --interface X --channel Y ...`."""
-    return run_controller(settings.port, settings.controller, "aspod firmware", settings.bus, timing=settings.timing)
+    return run_controller(settings.port, settings.controller, "aspod firmware", settings.bus, timing=settings.timing,
+                          plant_pid=settings.plant_pid)
 
 
 def run_sim_over_hal(settings: SimSettings) -> int:
