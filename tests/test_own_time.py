@@ -129,6 +129,19 @@ def test_a_tree_is_excused_the_longest_wait_of_its_processes_those_born_in_the_w
     assert own.look().own_s == pytest.approx(4.0)
 
 
+def test_a_peer_waited_on_excuses_its_waits_and_its_end_is_not_the_processs(proc):
+    clock = SimClock()
+    proc.set(7, "S")                                   # a teleop, waiting on its sim
+    proc.set(9, "S", waited_s=1.0)
+    own = OwnTime(7, clock, peers=(9,), proc=proc.root)
+    clock.advance_by(10.0)
+    proc.set(9, "S", waited_s=9.0)                     # the sim waited 8 s for a CPU
+    assert own.look().own_s == pytest.approx(2.0)
+    proc.remove(9)
+    look = own.look()
+    assert look.gone is None and look.own_s == pytest.approx(2.0)
+
+
 def test_on_this_machine_a_stopped_child_is_said_and_a_sleeping_one_has_the_wall_time_as_its_own():
     child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
     try:

@@ -14,7 +14,8 @@ the process's own, as it was before.
 
 `OwnTime(pid)` judges one process; `OwnTime(pid, tree=True)` the process and every process it has started
 since (a child `aspod sim` starting its own plant): the tree's own time is the wall time less the longest wait
-for a CPU any of them had, since any of them may be the one waited for. `LockstepWait` judges the lock-step
+for a CPU any of them had, since any of them may be the one waited for. `peers` are processes the one waited
+for waits on in turn (an `aspod teleop` on its `aspod sim`): their waits for a CPU excuse it too. `LockstepWait` judges the lock-step
 controller's wait for its plant's tick (protocol/lockstep.py `WaitJudge`; docs/separate_processes.md).
 """
 from __future__ import annotations
@@ -92,7 +93,8 @@ class Look:
 
 
 class OwnTime:
-    """The own time of process `pid` (with `tree`, of it and the processes it starts) since `begin()`.
+    """The own time of process `pid` (with `tree`, of it and the processes it starts; with `peers`, of them too,
+    and with `tree` of the processes they start) since `begin()`.
 
     `look()` reads /proc (some 30 us a process) and says how much of the wall time since `begin()` was the
     process's own. A process's excuse is its wait for a CPU since the wait began: its run_delay's growth, or, found
@@ -105,10 +107,12 @@ class OwnTime:
     every 50 ms: with `fresh_s` 0.05 it reads /proc some 20 times a second, not a thousand.
     """
 
-    def __init__(self, pid: int, clock: Clock, tree: bool = False, fresh_s: float = 0.0, proc: Path = PROC) -> None:
+    def __init__(self, pid: int, clock: Clock, tree: bool = False, fresh_s: float = 0.0, peers: tuple[int, ...] = (),
+                 proc: Path = PROC) -> None:
         self.pid = pid
         self.clock = clock
         self.tree = tree
+        self.peers = tuple(peers)
         self.fresh_s = fresh_s
         self.proc = proc
         first = sample(pid, proc)
@@ -129,7 +133,7 @@ class OwnTime:
 
     def _read(self) -> dict[int, Sample]:
         self._read_s = self.clock.now()
-        pids = [self.pid]
+        pids = list(dict.fromkeys((self.pid, *self.peers)))
         if self.tree:
             k = 0
             while k < len(pids) and len(pids) < 1000:
