@@ -16,6 +16,7 @@ from host_tools.fuzz import findings
 from host_tools.fuzz.grammar import TO_CONTROLLER, interesting
 from host_tools.fuzz.inprocess import JobSettings, run_job
 from host_tools.fuzz.targets import builtin_targets, load_target
+from host_tools.worlds.child import run
 from protocol.errors import ParseError
 from protocol.messages import SCHEMA
 from aspod_cli import aspod
@@ -173,13 +174,13 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
                        (["--url", "/dev/null", "--max-findings", "0"], "--max-findings"),
                        (["codec", "codec"], "named twice"), (["codec", "--list"], "give it alone"), (["builtins:input"], "its factory raised EOFError"),
                        (["host_tools.fuzz.planted:PLANTED_DIAL_PCT"], "is not a factory")):
-        done = aspod("fuzz", *args, cwd=tmp_path, timeout=60)
+        done = aspod("fuzz", *args, cwd=tmp_path, timeout_s=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-findings").exists() or not any((tmp_path / "fuzz-findings").iterdir())
     (tmp_path / "afile").write_text("")
     for args, said in ((["--findings", "afile"], "--findings afile: not a folder"),
                        (["--corpus", "afile"], "--corpus afile/codec: cannot be made")):
-        done = aspod("fuzz", "codec", "--runs", "10", *args, cwd=tmp_path, timeout=60)
+        done = aspod("fuzz", "codec", "--runs", "10", *args, cwd=tmp_path, timeout_s=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-corpus").exists()              # nothing made for a run that was refused
     done = aspod("--log-file", str(tmp_path), "fuzz", "--list", cwd=tmp_path)     # a folder: every command says so
@@ -198,7 +199,7 @@ def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp
     target = f"{sys.executable} -m host_tools.fuzz.planted sim --pty --no-pacing --key-file {key}"
     done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--only", "BoxDial", "--cases", "300",
                  "--max-findings", "1",
-                 "--json", cwd=tmp_path, timeout=600)
+                 "--json", cwd=tmp_path, timeout_s=600)
     assert done.returncode == 1, done.stderr[-2000:]
     figures = json.loads(done.stdout)
     crashes = [f for f in figures["findings"] if Path(f).name.startswith("crash-")]
@@ -206,7 +207,7 @@ def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp
     finding = findings.load(tmp_path / crashes[0])
     assert any(s["kind"] == "command" and s["msg"] == "BoxDial" for s in finding.steps)
     again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, "--key-file", str(key), cwd=tmp_path,
-                  timeout=300)
+                  timeout_s=300)
     assert again.returncode == 1 and "fails as found" in again.stdout, again.stdout + again.stderr
 
 
@@ -218,7 +219,7 @@ def test_black_box_against_the_real_simulator_finds_nothing(tmp_path):
     auth.write_key(key, bytes(range(32)))
     target = f"{sys.executable} -m host_tools.cli.main sim --pty --no-pacing --key-file {key}"
     done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--cases", "60", "--seed", "5", "--json",
-                 cwd=tmp_path, timeout=600)
+                 cwd=tmp_path, timeout_s=600)
     figures = json.loads(done.stdout)
     assert done.returncode == 0 and figures["findings"] == [] and figures["cases"] == 60, done.stderr[-3000:]
 
@@ -292,7 +293,7 @@ def test_every_file_a_target_covers_is_instrumented_for_the_coverage_guided_fuzz
     What carries the world and builds the inputs (the plant, the worlds, the grammar, the clock) does not: until
     2026-11-27 atheris took `hil_sim.hal_node` for all of hil_sim and `host_tools.teleop` for all of host_tools,
     and controller-link ran 15-25 % slower for it, its corpus kept for the plant's branches and the grammar's."""
-    done = subprocess.run([sys.executable, "-c", _TRACED, name], capture_output=True, text=True, timeout=120)
+    done = run([sys.executable, "-c", _TRACED, name], text=True, timeout_s=120)
     assert done.returncode == 0, done.stderr[-2000:]
     traced = json.loads(done.stdout.splitlines()[-1])
     assert traced["covers"] and all(n > 0 for n in traced["covers"].values()), traced

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import struct
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -16,6 +15,7 @@ from host_tools.cli.settings import pairs
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
+from host_tools.worlds.child import run
 from host_tools.worlds.world import LockstepBench
 from tests import test_e2e
 
@@ -176,8 +176,7 @@ def test_a_real_time_sim_recording_replays_within_tolerances_and_a_changed_gain_
     assert not report.exact and report.commands == 8 and report.telemetry > 10
     changed = replay(recorded, params={"j1_acc_dps2": 1.0})
     assert not changed.matches and changed.divergence.message in ("TelemetryJoints", "MotionDone")
-    shown = subprocess.run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], capture_output=True,
-                           text=True, timeout=120)
+    shown = run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], text=True, timeout_s=120)
     assert shown.returncode == 1 and "first divergence at" in shown.stdout
 
 

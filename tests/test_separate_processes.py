@@ -19,7 +19,6 @@ import re
 import signal
 import subprocess
 import sys
-import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
@@ -29,8 +28,8 @@ import pytest
 
 from host_tools.worlds import nodes
 from host_tools.client.live import HostClient
-from host_tools.worlds.child import Child, ChildError
-from host_tools.worlds.own_time import sample
+from host_tools.worlds.child import Child, ChildError, run
+from host_tools.worlds.own_time import OwnTime, sample
 from protocol import auth
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
@@ -182,19 +181,19 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     reply = status(client)
     assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
     assert reply.safe_reason == Reason.HAL_STALE
-    assert client.wait_for(lambda: any(e.spec.name == "StateChanged" and e.reason == Reason.HAL_STALE
-                                        for e in client.events), WAIT_S)
+    assert firmware.wait_for(lambda seconds: client.wait_for(
+        lambda: any(e.spec.name == "StateChanged" and e.reason == Reason.HAL_STALE for e in client.events), seconds),
+        WAIT_S)
     refused = client.call(M["Reset"]())
     assert not refused.ok and refused.reason == Reason.HAL_STALE   # the cause is still there
 
-    start_plant(procs, group, port)                        # a new plant on the same bus
-    for _ in range(100):                                   # its first ANALOG_IN is 10 ms away; bounded retries
+    again = start_plant(procs, group, port)                # a new plant on the same bus
+
+    def reset_ok(seconds: float) -> bool:                  # its first ANALOG_IN is 10 ms of its own time away
         reset = client.call(M["Reset"]())
-        if reset.ok:
-            break
-        assert reset.reason == Reason.HAL_STALE, reset.describe()
-        client.wait_for(lambda: False, 0.1)
-    assert reset.ok
+        assert reset.ok or reset.reason == Reason.HAL_STALE, reset.describe()
+        return reset.ok or client.wait_for(lambda: False, min(seconds, 0.1))
+    assert again.wait_for(reset_ok, WAIT_S)
     assert status(client).state == ControllerState.IDLE
     client.close()
     code, rest = firmware.stop()                           # a plant restarted: one resync, nothing to say
@@ -341,13 +340,14 @@ def test_a_plant_whose_parent_is_killed_stops_by_itself(multicast_works, procs, 
 
 
 def _gone_within(pid: int, timeout_s: float) -> bool:
-    """Wait (bounded, real-process session) until `pid` has exited."""
-    waiter = threading.Event()
-    for _ in range(int(timeout_s / 0.05)):
-        if not _running(pid):
-            return True
-        waiter.wait(0.05)
-    return not _running(pid)
+    """Wait until `pid` has exited, at most `timeout_s` of its own time (host_tools/worlds/own_time.py)."""
+    clock = RealClock()
+    own = OwnTime(pid, clock)
+    while _running(pid):
+        if own.look().own_s > timeout_s:
+            return False
+        clock.sleep(0.05)
+    return True
 
 
 def _running(pid: int) -> bool:
@@ -380,14 +380,14 @@ def _running(pid: int) -> bool:
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--payload-kg", "-1"], "outside"),
 ])
 def test_bad_bus_arguments_exit_2_with_a_reason(env, args, message):
-    done = subprocess.run(ASPOD + args, capture_output=True, env=env, stdin=subprocess.DEVNULL, timeout=60)
+    done = run(ASPOD + args, env=env, stdin=subprocess.DEVNULL, timeout_s=60)
     assert done.returncode == 2, done.stderr.decode()
     assert message in done.stderr.decode()
 
 
 def test_a_bus_that_cannot_be_opened_here_exits_3(env):
-    done = subprocess.run(ASPOD + ["plant", "--interface", "socketcan", "--channel", "aspodnone0"],
-                          capture_output=True, env=env, stdin=subprocess.DEVNULL, timeout=60)
+    done = run(ASPOD + ["plant", "--interface", "socketcan", "--channel", "aspodnone0"], env=env,
+               stdin=subprocess.DEVNULL, timeout_s=60)
     assert done.returncode == 3, done.stderr.decode()
     assert "cannot open the socketcan bus on channel 'aspodnone0'" in done.stderr.decode()
 
