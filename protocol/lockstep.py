@@ -127,8 +127,8 @@ class LockstepFollower(Clock):
     the bus. Until the first PLANT_SYNC it sends CTRL_SYNC(0) every `REOFFER_S`, which a plant
     already waiting answers at once with its last PLANT_SYNC (a controller started after the
     plant picks it up without waiting for the plant's next re-offer). `stalled_s()` is how long the
-    plant has had to send its tick: the wall time waited, less what `judge` (a `WaitJudge`; None:
-    nothing) excuses. The controller's watch turns a long one into HAL_STALE (a plant that died
+    plant has had to send its tick since the controller began to wait for it: the wall time waited,
+    less what `judge` (a `WaitJudge`; None: nothing) excuses. The controller's watch turns a long one into HAL_STALE (a plant that died
     freezes time, so its own time cannot tell). `longest_wait_s` is the longest wall time a tick
     took to come, after the first.
     """
@@ -156,9 +156,9 @@ class LockstepFollower(Clock):
         self.send_errors = 0
         self.longest_wait_s = 0.0
         wall_now = wall.now()
-        self._waiting_since: Optional[float] = wall_now
-        if judge is not None:
-            judge.begin()
+        # the wait for the plant begins when the controller first waits for a tick (`advance`), not here: the rest of
+        # its start-up, seconds of wall time on a busy machine, is not the plant's silence
+        self._waiting_since: Optional[float] = None
         self._first_grant: Optional[tuple[float, float]] = None
         self._hello_s = -math.inf          # wall time CTRL_SYNC(0) was last sent, before the first PLANT_SYNC
         self.meter = RateMeter(wall_now, 0.0)

@@ -209,6 +209,20 @@ def test_a_silent_plant_is_hal_stale_after_lockstep_wait_s_on_the_wall_clock_and
     assert pair.run_until(lambda: pair.execute(M["Reset"]()).result == Reason.OK, 2000)
 
 
+def test_the_controllers_own_start_up_is_not_the_plants_silence():
+    """The wait for the plant began when the follower was built, before the controller was: at load 45-49 building it
+    took seconds of wall time, and the first look of the watch found the plant silent for them (HAL_STALE at boot),
+    its first PLANT_SYNC unread in the bus. The wait begins when the controller first waits for a tick."""
+    pair = Pair(controller=False)
+    for _ in range(5):
+        pair.turn()                                   # the plant alone: tick 0, offered and offered again
+    pair.start_controller()
+    pair.wall.advance_by(5.0)                         # the rest of the controller's start-up, on a busy machine
+    assert pair.follower.stalled_s() == 0.0
+    assert pair.run_until(lambda: pair.controller.supervisor.state is ControllerState.IDLE)
+    assert not pair.controller.supervisor.faults
+
+
 class KeptFromRunning:
     """A WaitJudge for a plant process that waits on a run queue for `kept_s` of every wait, or has gone."""
 
