@@ -254,64 +254,54 @@ def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_
 
 @contextmanager
 def kept_from_running(pid: int):
-    """`pid` pinned to one core beside a CPU hog, at SCHED_IDLE: it runs only when the hog leaves it the CPU, for a
-    second and more at a time, as a plant did at load 45-49 on 2 cores."""
+    """`pid` pinned to one core beside three CPU hogs, at SCHED_IDLE: it runs only when they leave it the CPU (a plant
+    so kept waited on a run queue for 80-88 % of the time, its ticks up to 0.2 s apart, measured)."""
     cpu = min(os.sched_getaffinity(pid))
-    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(3)]
     try:
-        os.sched_setaffinity(hog.pid, {cpu})
+        for hog in hogs:
+            os.sched_setaffinity(hog.pid, {cpu})
         os.sched_setaffinity(pid, {cpu})
         os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
         yield
     finally:
-        hog.kill()
-        hog.wait()
-
-
-def kept_waiting(pid: int, stretch_s: float, limit_s: float = 120.0) -> bool:
-    """Watch `pid` (every 20 ms) until it has been runnable without running for `stretch_s` at a stretch."""
-    clock = RealClock()
-    end = clock.now() + limit_s
-    last, since = None, clock.now()
-    while clock.now() < end:
-        seen = sample(pid)
-        assert seen is not None, f"process {pid} ended"
-        if seen.state != "R" or seen.cpu_s != last:
-            last, since = seen.cpu_s, clock.now()
-        elif clock.now() - since >= stretch_s:
-            return True
-        clock.sleep(0.02)
-    return False
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
 
 
 @pytest.mark.cpu_hog        # a hog on one core: never beside the other real-time tests (conftest)
 def test_a_plant_kept_from_running_is_not_taken_for_gone_and_a_stopped_one_is(multicast_works, procs, clients,
                                                                               tmp_path):
     """At load 45-49 the lock-step pair faulted HAL_STALE after 2 s of wall time waiting for a plant that was alive.
-    The plant is judged on its own time: here it waits on a run queue for three times lockstep_wait_s at a stretch
-    and the controller stays ENABLED; stopped (SIGSTOP) beside the same hog, it is HAL_STALE, the log says why."""
-    limit_s = 0.3
+    The plant is judged on its own time: here, with lockstep_wait_s at its least (0.1 s), it waits on a run queue for
+    most of 8 s and the controller stays ENABLED (the wall clock alone faulted it, twice in two runs); stopped
+    (SIGSTOP) beside the same hogs, it is HAL_STALE, and the log says why."""
+    limit_s, hold_s = 0.1, 8.0
     params = tmp_path / "params.json"
     params.write_text(json.dumps({"version": 1, "params": {"lockstep_wait_s": limit_s}}))
     sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params)
+    clock = RealClock()
     with kept_from_running(plant_pid):
-        assert kept_waiting(plant_pid, 3 * limit_s), "the hog never kept the plant from running"
-        reply = status(client)
-        assert reply.state == ControllerState.ENABLED and reply.faults == 0, sim.seen
+        before, start = sample(plant_pid), clock.now()
+        while clock.now() - start < hold_s:
+            reply = status(client)
+            assert reply.state == ControllerState.ENABLED and reply.faults == 0, sim.seen
+            client.wait_for(lambda: False, 0.5)
+        waited_s = sample(plant_pid).waited_s - before.waited_s
+        assert waited_s >= 0.5 * hold_s, f"the premise: the plant waited for a CPU {waited_s:.1f} s of {hold_s} s"
         os.kill(plant_pid, signal.SIGSTOP)
         try:
             silent = sim.wait_stderr(r"FAULT HAL_STALE \(HAL_STALE\): lock-step: no tick from the plant .*: ([\d.]+) ms "
-                                     r"against a limit of 300.0 ms")
+                                     r"against a limit of 100.0 ms")
             sim.wait_stderr(rf"lock-step: the plant process \(pid {plant_pid}\): stopped \(SIGSTOP\)")
         finally:
             os.kill(plant_pid, signal.SIGCONT)
-    assert float(silent.group(1)) >= 300.0
+    assert float(silent.group(1)) >= 100.0
     assert status(client).faults & Fault.HAL_STALE
     client.close()
     code, err = sim.stop()
     assert code == 0, err
-    longest = re.search(r"HAL counters .* longest_wait_s=([\d.]+)", err)
-    assert longest and float(longest.group(1)) >= 3 * limit_s, err
 
 
 def test_stopping_sim_with_hal_stops_its_plant_which_saw_the_controller(multicast_works, procs, clients,
