@@ -155,6 +155,7 @@ class LockstepFollower(Clock):
         self.syncs_sent = 0
         self.send_errors = 0
         self.longest_wait_s = 0.0
+        self.waits = 0                     # waits for a tick begun (one a tick, while the plant keeps up)
         wall_now = wall.now()
         # the wait for the plant begins when the controller first waits for a tick (`advance`), not here: the rest of
         # its start-up, seconds of wall time on a busy machine, is not the plant's silence
@@ -242,6 +243,7 @@ class LockstepFollower(Clock):
                 self._send_done()           # everything due by the granted time has run
             if self._waiting_since is None:
                 self._waiting_since = wall_now
+                self.waits += 1
                 if self.judge is not None:
                     self.judge.begin()
             left = wall_deadline - wall_now
@@ -250,14 +252,19 @@ class LockstepFollower(Clock):
         if deadline > self._now:
             self._now = float(deadline)
 
+    def waited_s(self) -> float:
+        """Wall seconds since the controller began to wait for the plant's next tick (0 while time is granted); the
+        wait is the `waits`-th."""
+        since = self._waiting_since
+        return 0.0 if since is None else max(0.0, self.wall.now() - since)
+
     def stalled_s(self) -> float:
         """Seconds the plant has had to send its next tick and has not (0 while time is granted): the wall time spent
         waiting for it, less what `judge` excuses."""
-        since = self._waiting_since
-        if since is None:
-            return 0.0
-        waited_s = max(0.0, self.wall.now() - since)
-        return waited_s if self.judge is None else min(waited_s, self.judge.own_s(waited_s))
+        waited_s = self.waited_s()
+        if waited_s == 0.0 or self.judge is None:
+            return waited_s
+        return min(waited_s, self.judge.own_s(waited_s))
 
     def timing(self) -> TimingReport:
         wall_now = self.wall.now()

@@ -212,12 +212,12 @@ def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp
 
 
 @pytest.mark.pty
-@pytest.mark.cpu_hog        # hogs on one core: never beside the other real-time tests (conftest)
+@pytest.mark.cpu_hog        # a busy loop on one core: never beside the other real-time tests (conftest)
 def test_a_target_the_black_box_fuzzer_started_and_a_busy_machine_keeps_from_running_is_not_a_hang(tmp_path):
     """Under load (two busy loops beside `make test`) the planted-crash fuzzing above also reported a hang: a health
     check's Ping not answered within 5 s of wall time by a target only kept from running. A target the fuzzer started
-    is judged on its own time. Here it answers with its core shared with three busy loops, at SCHED_IDLE, its
-    health bound 1 s: checks take up to 5 s of wall time (measured), and none is a hang."""
+    is judged on its own time. Here a busy loop at real-time priority takes its core for 0.9 s at a time, its health
+    bound 0.5 s: checks take longer than that on the wall clock, and none is a hang."""
     from host_tools.fuzz.blackbox import BlackBoxSettings, HealthCheck, Session
     from host_tools.worlds.own_time import sample
     from test_separate_processes import kept_from_running
@@ -227,21 +227,21 @@ def test_a_target_the_black_box_fuzzer_started_and_a_busy_machine_keeps_from_run
     key = tmp_path / "k.key"
     auth.write_key(key, psk)
     settings = BlackBoxSettings(command=(sys.executable, "-m", "host_tools.cli.main", "sim", "--pty", "--no-pacing",
-                                         "--no-tracker", "--key-file", str(key)), cases=1, health_timeout_s=1.0)
+                                         "--no-tracker", "--key-file", str(key)), cases=1, health_timeout_s=0.5)
     session = Session(settings, psk)
     pid = session.child.pid
     try:
         with kept_from_running(pid):
             clock, before, took = RealClock(), sample(pid), []
             health = HealthCheck(session)
-            for _ in range(5):
+            while sum(took) < 5.0:                  # checks one after another, through bursts of the busy loop
                 start = clock.now()
                 assert health.check([]) is None
                 took.append(clock.now() - start)
             waited = sample(pid).waited_s - before.waited_s
     finally:
         session.close()
-    assert max(took) > 1.0 and waited > 0.5 * sum(took), (took, waited)   # the premise: kept waiting, for long
+    assert max(took) > 0.5, (took, waited)      # the premise: kept waiting past the bound
 
 
 @pytest.mark.pty

@@ -30,6 +30,7 @@ one waited for a CPU is excused; a plant process that ended or is stopped is exc
 from __future__ import annotations
 
 import logging
+import math
 import signal
 from typing import Any, Callable, Optional
 
@@ -54,6 +55,8 @@ from host_tools.worlds.own_time import LockstepWait
 from host_tools.teleop.format import describe_report
 
 PLANT_WATCH_S = 0.1
+KEPT_LOOK_S = 0.1            # how often a lock-step controller looks whether its wait outlasts lockstep_wait_s
+KEPT_NOTE_EVERY_S = 30.0     # ... and says so at most this often
 log = logging.getLogger("aspod")
 
 
@@ -143,6 +146,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
         plant_pid = plant.pid
     judge = LockstepWait(wall, plant_pid)
     follower = LockstepFollower(bus, wall, judge=judge) if timing == "lockstep" else None
+    kept = KeptWaits(follower, prog)
     plants = PlantsWatch()
     if follower is not None:                # a second plant on this bus: said on stderr (not a fault)
         follower.on_tick = lambda tick: warn(prog, plants.seen(tick, wall.now()))
@@ -153,6 +157,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
         port = open_port(port_settings, prog)
         uart = PacedUart(port, baud, paced)
         controller = nodes.build_controller(psk, uart, follower.tap if follower else bus, config)
+        kept.params = controller.params
         params = controller.params
         apply_command_line(controller, settings, prog)
         scheduler = Scheduler(follower or wall)
@@ -161,6 +166,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
         log_states(controller, prog)
         if follower is not None:
             controller.report_listeners.append(lambda msg: warn(prog, why_silent(msg, judge, plant_pid)))
+            link_scheduler.add("kept-note", kept.step, tolerance_s=1.0)
         if plant is not None:
             link_scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
         print(f"ASPOD-LINK {port.url}", flush=True)
@@ -182,7 +188,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
             if follower is not None:
                 counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs, old_syncs=follower.old_syncs,
                                 sync_steps_back=plants.steps_back, rtf=f"{follower.timing().rtf_total:.2f}",
-                                longest_wait_s=f"{follower.longest_wait_s:.3f}")
+                                longest_wait_s=f"{follower.longest_wait_s:.3f}", kept_waits=kept.count)
             log.info(f"{prog}: HAL counters {nodes.format_counters(counters)}")
     return 0
 
@@ -191,6 +197,36 @@ def warn(prog: str, line: Optional[str]) -> None:
     """`line`, if there is one, as a warning of `prog` on stderr."""
     if line:
         log.warning(f"{prog}: {line}")
+
+
+class KeptWaits:
+    """Lock-step: the waits for a tick that outlast `lockstep_wait_s` of wall time while the plant has not had it of its
+    own (the machine keeps the pair from running; the wall clock alone faulted them HAL_STALE), counted (`count`)
+    and said on stderr, at most every `KEPT_NOTE_EVERY_S`. `step` is a wall-clock task."""
+
+    def __init__(self, follower: Optional[LockstepFollower], prog: str) -> None:
+        self.follower, self.prog = follower, prog
+        self.params = None             # the controller's, once it is built
+        self.count = 0
+        self._counted = 0              # the wait counted last (follower.waits)
+        self._said_s = -math.inf
+
+    def step(self, now: float) -> float:
+        follower = self.follower
+        limit = self.params["lockstep_wait_s"]
+        waited = follower.waited_s()
+        if waited > limit and follower.waits != self._counted:
+            own = follower.stalled_s()
+            if own <= limit:
+                self._counted = follower.waits
+                self.count += 1
+                if now - self._said_s >= KEPT_NOTE_EVERY_S:
+                    self._said_s = now
+                    log.warning(f"{self.prog}: lock-step: no tick from the plant for {waited:.2f} s of wall time, "
+                                f"{own:.2f} s of its own: the machine keeps the pair from running (not a fault: "
+                                f"lockstep_wait_s {limit:g} s judges the plant's own time; kept_waits in the counters "
+                                "at exit)")
+        return now + KEPT_LOOK_S
 
 
 def why_silent(msg, judge: LockstepWait, plant_pid: Optional[int]) -> Optional[str]:
