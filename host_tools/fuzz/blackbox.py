@@ -55,6 +55,7 @@ from host_tools.client.params import ParamTable, read_param_table
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
 from host_tools.worlds.child import out_of_time
+from host_tools.worlds.own_time import Look, OwnTime
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
 # what a moving arm may latch, whatever the link does (UNCOMMANDED_MOTION too: a case may set still_deg to 0.01 deg,
@@ -235,19 +236,9 @@ class Session:
             self.pump()
         return True
 
-    def bound(self, timeout_s: float) -> Callable[[], bool]:
-        """Whether `timeout_s` from now is past: of the target's own time if we started it, else of the wall clock."""
-        own = self.child.own_time() if self.child is not None else None
-        end = [_CLOCK.now() + timeout_s]
-
-        def past() -> bool:
-            if _CLOCK.now() <= end[0]:
-                return False
-            if own is None or out_of_time(own.look(), timeout_s):
-                return True
-            end[0] = _CLOCK.now() + OWN_TIME_LOOK_S     # kept from running: look again in a while
-            return False
-        return past
+    def bound(self, timeout_s: float) -> "Bound":
+        """`timeout_s` from now: of the target's own time if we started it, else of the wall clock."""
+        return Bound(timeout_s, self.child.own_time() if self.child is not None else None)
 
     def exited(self) -> Optional[int]:
         return None if self.child is None else self.child.exit_status()
@@ -263,6 +254,27 @@ class Session:
             return ""
         _status, err = self.child.stop()
         return "\n".join(err.splitlines()[-12:])
+
+
+class Bound:
+    """Called, whether `timeout_s` is past: of the wall clock, and then, if `own` (a target we started) is given, of
+    its own time, looked at every `OWN_TIME_LOOK_S`; `last` is the latest look (None: none yet)."""
+
+    def __init__(self, timeout_s: float, own: Optional[OwnTime]) -> None:
+        self.timeout_s, self.own = timeout_s, own
+        self.end = _CLOCK.now() + timeout_s
+        self.last: Optional[Look] = None
+
+    def __call__(self) -> bool:
+        if _CLOCK.now() <= self.end:
+            return False
+        if self.own is None:
+            return True
+        self.last = self.own.look()
+        if out_of_time(self.last, self.timeout_s):
+            return True
+        self.end = _CLOCK.now() + OWN_TIME_LOOK_S        # kept from running: look again in a while
+        return False
 
 
 class Case:
@@ -636,7 +648,8 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
             _CLOCK.sleep(0.01)    # a line that broke: the process may be on its way out
         status = session.exited()
         kind = "crash" if status is not None else "hang"
-        return findings_mod.Failure(kind, f"TargetGone: {exc}", session.url, "health")
+        still = "" if status is not None or past.last is None else f"; it still ran after {past.last.describe()}"
+        return findings_mod.Failure(kind, f"TargetGone: {exc}{still}", session.url, "health")
     if problem is not None:
         return findings_mod.Failure("oracle", f"HealthCheck: {problem}", session.url, "health")
     return None
