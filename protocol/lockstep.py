@@ -120,17 +120,17 @@ class SyncTap(BusView):
 class LockstepFollower(Clock):
     """The controller's clock in lock-step: its time advances one plant tick per PLANT_SYNC.
 
-    Build it on the controller's bus and give the controller's HAL `tap` instead of the bus.
-    Time starts at 0 and stands still until the first PLANT_SYNC; from then on each new tick
-    grants one more `period_us` (taken from the frame). When the scheduler asks to go past
-    what is granted, everything due has run: the clock sends CTRL_SYNC(tick + 1) and waits on
-    the bus. Until the first PLANT_SYNC it sends CTRL_SYNC(0) every `REOFFER_S`, which a plant
-    already waiting answers at once with its last PLANT_SYNC (a controller started after the
-    plant picks it up without waiting for the plant's next re-offer). `stalled_s()` is how long the
-    plant has had to send its tick since the controller began to wait for it: the wall time waited,
-    less what `judge` (a `WaitJudge`; None: nothing) excuses. The controller's watch turns a long one into HAL_STALE (a plant that died
-    freezes time, so its own time cannot tell). `longest_wait_s` is the longest wall time a tick
-    took to come, after the first.
+    Build it on the controller's bus and give the controller's HAL `tap` instead of the bus. Time
+    starts at 0 and stands still until the first PLANT_SYNC; from then on each new tick grants one
+    more `period_us` (taken from the frame). When the scheduler asks to go past what is granted,
+    everything due has run: the clock sends CTRL_SYNC(tick + 1) and waits on the bus. Until the
+    first PLANT_SYNC it sends CTRL_SYNC(0) every `REOFFER_S`, which a plant already waiting answers
+    at once with its last PLANT_SYNC (a controller started after the plant picks it up without
+    waiting for the plant's next re-offer). `stalled_s()` is how long the plant has had to send its
+    tick since the controller began to wait for it: the wall time waited, less what `judge` (a
+    `WaitJudge`; None: nothing) excuses. The controller's watch turns a long one into HAL_STALE (a
+    plant that died freezes time, so its own time cannot tell). `longest_wait_s` is the longest wall
+    time a tick took to come, after the first.
     """
 
     def __init__(self, bus: Any, wall: Clock, codec: Optional[HalCodec] = None,

@@ -130,7 +130,8 @@ def apply_command_line(controller: Controller, settings: ControllerSettings, pro
 
 
 def run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
-                   plant: Optional[PlantProcess] = None, timing: str = "lockstep", plant_pid: Optional[int] = None) -> int:
+                   plant: Optional[PlantProcess] = None, timing: str = "lockstep",
+                   plant_pid: Optional[int] = None) -> int:
     """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
 
     `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock. The plant's

@@ -12,11 +12,12 @@ early. A process stopped (SIGSTOP, state T) or gone has no excuse: `Look.gone` s
 Where the kernel keeps no run_delay (no /proc/PID/schedstat), or /proc cannot be read, the whole wall time is
 the process's own, as it was before.
 
-`OwnTime(pid)` judges one process; `OwnTime(pid, tree=True)` the process and every process it has started
-since (a child `aspod sim` starting its own plant): the tree's own time is the wall time less the longest wait
-for a CPU any of them had, since any of them may be the one waited for. `peers` are processes the one waited
-for waits on in turn (an `aspod teleop` on its `aspod sim`): their waits for a CPU excuse it too. `LockstepWait` judges the lock-step
-controller's wait for its plant's tick (protocol/lockstep.py `WaitJudge`; docs/separate_processes.md).
+`OwnTime(pid)` judges one process; `OwnTime(pid, tree=True)` the process and every process it has started since
+(a child `aspod sim` starting its own plant): the tree's own time is the wall time less the longest wait for a
+CPU any of them had, since any of them may be the one waited for. `peers` are processes the one waited for waits
+on in turn (an `aspod teleop` on its `aspod sim`): their waits for a CPU excuse it too. `LockstepWait` judges
+the lock-step controller's wait for its plant's tick (protocol/lockstep.py `WaitJudge`;
+docs/separate_processes.md).
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from typing import Optional
 from timebase import Clock, RealClock
 
 PROC = Path("/proc")
-FRESH_S = 0.05       # LockstepWait: /proc read again at a wait's start if the latest reading is older (the watch's period)
+FRESH_S = 0.05       # LockstepWait: /proc read again as a wait begins if the latest reading is older (the watch's)
 STOPPED = {"T": "stopped (SIGSTOP)", "t": "stopped by a debugger", "Z": "ended (a zombie)", "X": "ended"}
 
 
