@@ -24,7 +24,6 @@ from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import (COUNT_MODULUS, EstimatorConfig, EstimatorFlag, KalmanEstimator,
                                    SteadyStateEstimator, make_kalman_filter, steady_state_gain, unwrap_delta)
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
-from timebase import RealClock
 from host_tools.worlds.child import run
 
 DT_S = 0.001

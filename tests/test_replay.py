@@ -268,13 +268,12 @@ def test_a_host_that_went_silent_or_closed_is_replayed_so_and_the_end_matches(si
     capture = tmp_path / "gone.pcapng"
     sim = sim_factory("--pty", "--record", str(capture), "--seed", "9", "--no-tracker", "--speed", speed)
     record_until_the_host_is_gone(sim, capture, "ping\nenable\ntelemetry 20\nmoveby j1 1 2\nwait\nstatus\n", ending)
-    shown = subprocess.run(ASPOD + ["replay", str(capture)], capture_output=True, text=True, timeout=300)
+    shown = run(ASPOD + ["replay", str(capture)], text=True, timeout_s=300)
     assert shown.returncode == 0 and shown.stdout.endswith("match\n"), shown.stdout + shown.stderr
     factor = float(re.search(r"world ran at ([\d.]+)x real time", shown.stdout).group(1))
     assert factor == pytest.approx(float(speed), rel=0.5)
     if ending == "killed":
-        changed = subprocess.run(ASPOD + ["replay", str(capture), "--param", "link_timeout_s=2"], capture_output=True,
-                                 text=True, timeout=300)
+        changed = run(ASPOD + ["replay", str(capture), "--param", "link_timeout_s=2"], text=True, timeout_s=300)
         assert changed.returncode == 1 and re.search(r"first divergence at .*(FaultReport|StateChanged)",
                                                      changed.stdout)
 
