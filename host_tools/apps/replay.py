@@ -64,6 +64,9 @@ from host_tools.worlds.world import AFTER_THE_WORLD, LockstepBench
 BENCH_KEY = b"bench-key-0123456789abcdef"      # LockstepBench's own key (what aspod demo records with)
 SUBMIT_EARLY_S = 1e-6
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
+# A real-time recording whose link clock is known against its world's only to worse than this (a stall of the world
+# between two of its reports: `_Survey.lag_rise_ms`) is refused: replay cannot say when its link's times fell
+LINK_MAP_LIMIT_MS = 150.0
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
 BITS_PER_BYTE = 10         # 8N1: a byte's time on the line is 10 / baud (the recording's baud; 115200 by default)
 DEFAULT_BAUD = 115_200
@@ -127,11 +130,12 @@ class Tolerances:
         rounding = 1e-6 * max(abs(recorded), abs(replayed))      # the fields are f32: 22.1 is 22.100000381...
         return abs(recorded - replayed) <= limit + rounding
 
-    def widened(self, scale: float, uncertainty_ms: float) -> "Tolerances":
+    def widened(self, scale: float, uncertainty_ms: float, link_map_ms: float = 0.0) -> "Tolerances":
         """The time windows for a recording whose world ran `scale` times faster than the wall clock (at least 1:
-        the host's and the line's delays, in wall time, took that many times longer in the world's), and whose
-        command times are uncertain by `uncertainty_ms`."""
-        return dataclasses.replace(self, time_ms=self.time_ms * scale + uncertainty_ms,
+        the host's and the line's delays, in wall time, took that many times longer in the world's), whose
+        command times are uncertain by `uncertainty_ms`, and whose link clock is known against the world's to
+        `link_map_ms` (`_Survey.link_map_ms`: it moves the times the link's clock sets, not the telemetry's)."""
+        return dataclasses.replace(self, time_ms=self.time_ms * scale + uncertainty_ms + link_map_ms,
                                    shift_ms=self.shift_ms * scale + uncertainty_ms)
 
 
@@ -164,6 +168,7 @@ class ReplayReport:
     controller_frames: int = 0
     divergence: Optional[Divergence] = None
     uncertainty_ms: float = 0.0             # real time: how uncertain the recording's command times are
+    link_map_ms: float = 0.0                # real time: how uncertain its link's clock is against its world's
     mac_failures: int = 0                   # recorded frames whose MAC fails under the key given (none given: 0)
     factor: Optional[tuple[float, float, float]] = None   # real time: the world's factor (overall, least, most)
 
@@ -173,7 +178,8 @@ class ReplayReport:
 
     def describe(self) -> str:
         how = "to the bit" if self.exact else (f"within tolerances (the recording's command times uncertain by "
-                                                 f"{self.uncertainty_ms:.1f} ms)")
+                                                 f"{self.uncertainty_ms:.1f} ms, its link's clock by "
+                                                 f"{self.link_map_ms:.1f} ms)")
         lines = [f"replayed {self.commands} commands; compared {how}: {self.replies} replies, {self.events} events, "
                  f"{self.telemetry} telemetry frames"
                  + (f" ({self.telemetry_unmatched} recorded telemetry frames had no replayed frame of the same "
@@ -308,6 +314,13 @@ class _Survey:
     rtf: list[float] = field(default_factory=lambda: [math.inf, -math.inf])         # least, most: rtf_recent
     lag_samples: int = 0                    # Status and TelemetryStatus that say how late the world was
     last_heartbeat: Optional[tuple[float, float]] = None
+    last_lag: Optional[tuple[float, float]] = None      # the last of those: (uptime s, lag s)
+    lag_rise_at_s: float = 0.0              # the uptime of the report that showed the most rise
+    last_factor: float = 1.0                # the world's seconds per link second between the last two Heartbeats
+    # the link's clock against the world's is known only at those reports (`_LinkTrack`): between two, a stall of
+    # the world may have fallen anywhere, and a time the link's clock sets (a link timeout) with it. How far, in ms:
+    lag_rise_ms: float = 0.0                # the most the world's lag rose between two Status or TelemetryStatus
+    heartbeat_drift_ms: float = 0.0         # the most the world's time between two Heartbeats ran off the rate before
 
     def factor(self) -> Optional[tuple[float, float, float]]:
         """The world's seconds per link second: (overall, least, most); None where the recording does not show it.
@@ -364,6 +377,7 @@ def _survey(capture: SessionCapture, psk: Optional[bytes], line_s_per_byte: floa
             survey.rtf[0] = min(survey.rtf[0], d.message.rtf_recent)
             survey.rtf[1] = max(survey.rtf[1], d.message.rtf_recent)
             survey.lag_samples += 1
+            _lag(survey, d.message.uptime_ms / 1000.0, d.message.lag_ms / 1000.0)
     if capture.error is not None:
         raise ReplayError(f"the capture breaks {capture.error}: replay needs the whole session")
     if event_problem is not None:
@@ -379,6 +393,16 @@ def _survey(capture: SessionCapture, psk: Optional[bytes], line_s_per_byte: floa
     return survey
 
 
+def _lag(survey: _Survey, uptime_s: float, lag_s: float) -> None:
+    """A Status or TelemetryStatus: the world was `lag_s` late at `uptime_s`."""
+    last = survey.last_lag
+    if last is not None and uptime_s > last[0] and (lag_s - last[1]) * 1000.0 > survey.lag_rise_ms:
+        survey.lag_rise_ms = (lag_s - last[1]) * 1000.0     # a rise: a stall, somewhere between (catching up is steady)
+        survey.lag_rise_at_s = uptime_s
+    if last is None or uptime_s > last[0]:
+        survey.last_lag = (uptime_s, lag_s)
+
+
 def _heartbeat(survey: _Survey, world_s: float, link_s: float) -> None:
     """A controller Heartbeat: the link's time (`link_s`) when the world's was `world_s`."""
     last = survey.last_heartbeat
@@ -386,6 +410,11 @@ def _heartbeat(survey: _Survey, world_s: float, link_s: float) -> None:
         return                  # no time passed on one of the clocks: nothing measured (a resent or odd frame)
     if last is not None:
         factor = (world_s - last[0]) / (link_s - last[1])
+        if survey.factors[0] <= survey.factors[1]:      # against the rate before: what this interval ran off it
+            before = survey.last_factor
+            drift_ms = abs(world_s - last[0] - before * (link_s - last[1])) * 1000.0
+            survey.heartbeat_drift_ms = max(survey.heartbeat_drift_ms, drift_ms)
+        survey.last_factor = factor
         survey.factors[0], survey.factors[1] = min(survey.factors[0], factor), max(survey.factors[1], factor)
     if len(survey.heartbeats) < 1:
         survey.heartbeats.append((world_s, link_s))
@@ -500,6 +529,8 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
             plan.speed = float(speed)
     report = ReplayReport(exact=exact, commands=survey.host_commands, mac_failures=survey.mac_failures,
                           factor=plan.factor)
+    if not exact:
+        _link_map_ms(survey, plan)      # refused before any run if it is too uncertain
     if exact:
         _Run(plan, capture, psk, report, tolerances, output).go()
         return report
@@ -507,10 +538,29 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
         measured = _Run(plan, capture, psk, None, tolerances, None, shifts_out=shifts)
         measured.go()
         report.uncertainty_ms = min(MAX_UNCERTAINTY_MS, measured.worst_ms)
+        report.link_map_ms = _link_map_ms(survey, plan)
         shifts.seek(0)
-        _Run(plan, capture, psk, report, tolerances.widened(plan.scale, report.uncertainty_ms), output,
-             shifts_in=shifts).go()
+        _Run(plan, capture, psk, report, tolerances.widened(plan.scale, report.uncertainty_ms, report.link_map_ms),
+             output, shifts_in=shifts).go()
     return report
+
+
+def _link_map_ms(survey: _Survey, plan: _Plan) -> float:
+    """How far the recording's link clock is known against its world's, in the world's ms (`_Survey.lag_rise_ms`):
+    ReplayError beyond LINK_MAP_LIMIT_MS."""
+    if _LinkTrack(survey, plan.speed).by_lag:
+        uncertain_ms = survey.lag_rise_ms * plan.speed
+        shown = f"its lag rose by {uncertain_ms:.0f} ms of its time between two reports (to uptime " \
+                f"{survey.lag_rise_at_s:.3f} s)"
+    else:
+        uncertain_ms = survey.heartbeat_drift_ms
+        shown = f"its time ran {uncertain_ms:.0f} ms off its rate between two Heartbeats"
+    if uncertain_ms > LINK_MAP_LIMIT_MS:
+        raise ReplayError(f"the recording's world stalled: {shown}, and where in that stretch the stall fell the "
+                          "recording cannot show; replay cannot time what the link's clock set to within "
+                          f"{LINK_MAP_LIMIT_MS:g} ms. Record on a quieter machine, or with telemetry on (its reports "
+                          "narrow the stretch)")
+    return uncertain_ms
 
 
 # ---- the recorded link's clock against the world's --------------------------------------------------------
@@ -559,6 +609,14 @@ class _LinkTrack:
             return _Rate(last[0], change) if change > 0 else None
         rate = self._per_world + change
         return _Rate(last[0], rate if rate > 0 else self._per_world)
+
+    def finish(self) -> Optional[_Rate]:
+        """After the last report (a paced world's): its pace. The last rate measured was that of the stretch
+        before the report, a stall or a catching up, which ended with it; held beyond, it would run the link's
+        clock (a Close's answer, a link timeout) as fast or as slow as that stretch ran."""
+        if self.by_lag and self._last is not None:
+            return _Rate(self._last[0], self._per_world)
+        return None
 
     def first_rate(self, factor: tuple[float, float, float]) -> float:
         """The link's rate before the first point: as paced, or as the whole recording ran."""
@@ -639,6 +697,10 @@ class _Run:
                 if rate is not None:
                     yield rate
             yield item.time_s
+        if self.track is not None:
+            rate = self.track.finish()
+            if rate is not None:
+                yield rate
         if last_host is not None and not silent:
             yield _Action(last_host, SILENT, 1 << 62)
 
@@ -1075,8 +1137,11 @@ class _Comparison:
         return found
 
     def _extra(self, e: DecodedFrame) -> list[Divergence]:
-        """A replayed event that no recorded one claims: a divergence if it came before the recording ended."""
-        return [Divergence(e.time_s, e.name, "(event)", "(none)", "sent")] if e.time_s <= self._end_s else []
+        """A replayed event that no recorded one claims: a divergence if it came before the recording ended (in
+        real time, by more than the time tolerance: the recorded one, made then, may have been written after the
+        recording's last frame)."""
+        end_s = self._end_s if self.exact else self._end_s - self.tol.time_ms / 1000.0
+        return [Divergence(e.time_s, e.name, "(event)", "(none)", "sent")] if e.time_s <= end_s else []
 
     def finish(self) -> None:
         """The simulation is over: judge everything."""
