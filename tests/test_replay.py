@@ -196,6 +196,21 @@ def test_an_event_made_just_before_the_recording_ended_is_not_held_against_the_r
     assert report.events == 4
 
 
+def test_a_replys_snapshot_is_judged_as_telemetry_is_within_the_window_of_its_uptime():
+    """tests/data/replay_status_as_a_motion_starts.pcapng (--speed 0.25, recorded beside the ones above): teleop's
+    `wait` sent a GetStatus 3 ms after the MoveBy, and the Status, made at uptime 828 ms, read the supply at
+    27.937 V, before j1's current drew it down. Replayed, the MoveBy came 4 ms earlier within what the recording
+    shows, and the Status read 27.674 V: `first divergence at 0.831 s: Status.supply_v`, a divergence the
+    controller had not made. A reply's snapshot is now judged as telemetry is: it may match what the replayed
+    controller showed within the window of its uptime. A changed parameter still diverges (the tests below)."""
+    report = replay_file(Path(__file__).parent / "data" / "replay_status_as_a_motion_starts.pcapng")
+    assert report.matches, report.describe()
+    assert report.replies == 6
+    slow = replay_file(Path(__file__).parent / "data" / "replay_status_as_a_motion_starts.pcapng",
+                       params={"j1_acc_dps2": 1.0})
+    assert not slow.matches
+
+
 def test_after_the_last_report_the_link_keeps_the_worlds_pace():
     """tests/data/replay_close_after_a_catching_up.pcapng (--speed 1, recorded beside the ones above) ends with a
     Close: the controller stops its telemetry, so the last lag it reports is that of uptime 7221 ms, and the world

@@ -44,7 +44,7 @@ import struct
 import tempfile
 from collections import Counter, deque
 from dataclasses import dataclass, field
-from typing import Any, BinaryIO, Iterator, Optional, Union
+from typing import Any, BinaryIO, Iterator, Optional, Sequence, Union
 
 from firmware_py.uart import BAUD_RATES
 from protocol.link import LinkState
@@ -1019,6 +1019,9 @@ class _Comparison:
     def recorded(self, said: _Said) -> None:
         d, judge_s = said.frame, self.plan.judge_s
         if said.kind == REPLY:
+            if said.key not in self._replies and not self.exact and "uptime_ms" in d.fields():
+                uptime = int(d.fields()["uptime_ms"])      # its snapshot: the controller's state then (`judge`)
+                self._wanted.update(range(uptime - self._shift, uptime + self._shift + 1))
             self._replies.setdefault(said.key, (d.time_s + judge_s, d))
         elif said.kind == EVENT:
             if self.exact or d.name not in HOST_MESSAGES:   # the recording machine's slowness, not the controller's
@@ -1080,10 +1083,11 @@ class _Comparison:
         """Judge what the simulation has passed by `now`; let go of what nothing can claim any more."""
         found: list[Divergence] = []
         report, tol, exact, judge_s = self.report, self.tol, self.exact, self.plan.judge_s
-        for key in [k for k, (at, _) in self._replies.items() if at <= now or k in self._replayed_replies]:
+        for key in [k for k, (at, d) in self._replies.items()
+                    if at <= now or (k in self._replayed_replies and self._sampled(d, now))]:
             _, d = self._replies.pop(key)
             report.replies += 1
-            found += _differ(d, self._replayed_replies.pop(key, None), exact, tol)
+            found += _differ(d, self._replayed_replies.pop(key, None), exact, tol, self._around(d))
         for key in [k for k, d in self._replayed_replies.items() if d.time_s + 2 * judge_s <= now]:
             del self._replayed_replies[key]      # an answer to nothing recorded: not compared
         found += self._judge_events(now)
@@ -1104,12 +1108,27 @@ class _Comparison:
                 del self._replayed_telemetry[key]
             self._pair_segments(now)
         else:
-            keep_from = (self._telemetry[0][1][1] if self._telemetry else math.inf) - self._shift
+            keep_from = min([self._telemetry[0][1][1] if self._telemetry else math.inf] +
+                            [_uptime(d) for _, d in self._replies.values() if "uptime_ms" in d.fields()]) - self._shift
             for key in [k for k in self._samples if k[1] < keep_from]:
                 del self._samples[key]
             for uptime in [u for u, n in self._wanted.items() if n <= 0]:
                 del self._wanted[uptime]
         self._found(found)
+
+    def _sampled(self, d: DecodedFrame, now: float) -> bool:
+        """Whether the replay is past the window of `d`'s uptime (real time; always on the simulated clock)."""
+        return self.exact or "uptime_ms" not in d.fields() or now * 1000.0 > _uptime(d) + self._shift
+
+    def _around(self, d: DecodedFrame) -> list[Message]:
+        """Real time: what the replayed controller's telemetry showed within `shift_ms` of a recorded reply's
+        uptime (its wants let go of); [] on the simulated clock or for a reply without an uptime."""
+        if self.exact or "uptime_ms" not in d.fields():
+            return []
+        uptime = int(d.fields()["uptime_ms"])
+        window = range(uptime - self._shift, uptime + self._shift + 1)
+        self._wanted.subtract(window)
+        return [m for (name, u), m in self._samples.items() if u in window]
 
     def _judge_events(self, now: float) -> list[Divergence]:
         found: list[Divergence] = []
@@ -1153,8 +1172,11 @@ def _uptime(d: DecodedFrame) -> float:
 
 
 def _differ(recorded: DecodedFrame, replayed: Optional[DecodedFrame], exact: bool,
-            tol: Tolerances) -> list[Divergence]:
-    """The first field in which `replayed` differs from `recorded` (a list of at most one)."""
+            tol: Tolerances, around: Sequence[Message] = ()) -> list[Divergence]:
+    """The first field in which `replayed` differs from `recorded` (a list of at most one). In real time a reply's
+    snapshot of the controller (a Status's supply_v, at its uptime) may also match what the replayed telemetry
+    showed of the same field within `shift_ms` of that uptime (`around`), as telemetry does (`_differ_sampled`): a
+    command a few milliseconds earlier starts a motion, and its current's draw on the supply, as much earlier."""
     if replayed is None:
         return [Divergence(recorded.time_s, recorded.name, "(frame)", "sent", "(none)")]
     if replayed.name != recorded.name:
@@ -1171,7 +1193,8 @@ def _differ(recorded: DecodedFrame, replayed: Optional[DecodedFrame], exact: boo
         elif name in HOST_DEPENDENT:
             continue
         else:
-            same = _close(spec_field, a, b, tol)
+            same = _close(spec_field, a, b, tol) or any(
+                name in m.as_dict() and _close(spec_field, a, m.as_dict()[name], tol) for m in around)
         if not same:
             return [Divergence(recorded.time_s, recorded.name, name, a, b)]
     return []
