@@ -66,7 +66,7 @@ SUBMIT_EARLY_S = 1e-6
 MAX_UNCERTAINTY_MS = 250.0     # beyond this a recording's timing says too little to compare against
 # A real-time recording whose link clock is known against its world's only to worse than this (a stall of the world
 # between two of its reports: `_Survey.lag_rise_ms`) is refused: replay cannot say when its link's times fell
-LINK_MAP_LIMIT_MS = 150.0
+LINK_MAP_LIMIT_MS = 100.0
 UP_WAIT_S = 5.0            # a command recorded before the replay's link is up waits this long for it
 BITS_PER_BYTE = 10         # 8N1: a byte's time on the line is 10 / baud (the recording's baud; 115200 by default)
 DEFAULT_BAUD = 115_200
