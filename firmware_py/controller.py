@@ -402,13 +402,18 @@ class Controller:
         else (firmware_py/standstill.py): UNCOMMANDED_MOTION, and the sim's log names the joint or axis. The
         tracker's axes are judged by their angles (TRACKER_POS, while it comes: a plant without a tracker sends
         none)."""
-        inputs, joints = self.hal.inputs, self._watched
-        angles = [math.radians(a) for a in inputs.tracker_angles_deg]
-        tracker_ok = inputs.pos_s is not None and now - inputs.pos_s <= self.params["trk_stale_s"]
-        moved = self.standstill.check(
-            now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints] + angles,
-            [a.vel_rad_s for _, a in joints] + [None, None], [inputs.currents_a[k] for k, _ in joints] + [None, None],
-            [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
+        if self.supervisor.outputs_allowed:
+            # outputs on: nothing is judged, so the joints' and the tracker's readings are not gathered
+            moved = self.standstill.check(now, True, (), (), (), ())
+        else:
+            inputs, joints = self.hal.inputs, self._watched
+            angles = [math.radians(a) for a in inputs.tracker_angles_deg]
+            tracker_ok = inputs.pos_s is not None and now - inputs.pos_s <= self.params["trk_stale_s"]
+            moved = self.standstill.check(
+                now, False, [a.pos_rad for _, a in joints] + angles,
+                [a.vel_rad_s for _, a in joints] + [None, None],
+                [inputs.currents_a[k] for k, _ in joints] + [None, None],
+                [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
         foreign = self.foreign.check(now, self.hal.foreign_frames())
         moved = moved or foreign
         if moved is not None:
