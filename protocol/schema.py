@@ -315,6 +315,7 @@ class Schema:
         self.reply_ids = frozenset(self.by_name[s.reply].id for s in self.by_id.values() if s.reply)
         text = f"v{version}\n" + "\n".join(s.canonical() for s in sorted(self.by_id.values(), key=lambda s: s.id))
         self.hash = int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "little")
+        self._receivable: dict[Direction, dict[tuple[int, int], MessageSpec]] = {}
 
     def __getitem__(self, name: str) -> MessageSpec:
         return self.by_name[name]
@@ -324,6 +325,17 @@ class Schema:
         if spec.id in self.reply_ids:
             return cls in (MsgClass.COMMAND, MsgClass.URGENT)
         return spec.cls == cls
+
+    def receivable(self, direction: Direction) -> dict[tuple[int, int], MessageSpec]:
+        """(message id, class byte) -> spec of every message an end receiving in `direction` takes, in the classes
+        it may come in (`class_allowed`); any other pair is refused. Made once per direction: a link's receive
+        path looks every frame up in it."""
+        table = self._receivable.get(direction)
+        if table is None:
+            table = self._receivable[direction] = {
+                (spec.id, int(cls)): spec for spec in self.by_id.values() for cls in MsgClass
+                if self.class_allowed(spec, cls) and spec.direction in (direction, Direction.BOTH)}
+        return table
 
     def teleop_commands(self) -> dict[str, MessageSpec]:
         return {s.teleop: s for s in self.by_id.values() if s.teleop}
