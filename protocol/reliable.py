@@ -99,6 +99,11 @@ class ReliableSender:
         """Submitted, not sent yet (the window is full): no sequence number yet."""
         return len(self._waiting)
 
+    @property
+    def idle(self) -> bool:
+        """Nothing to send, nothing in flight, not suspended: `due` has nothing, whenever it is asked."""
+        return not (self.suspended or self._inflight or self._waiting)
+
     def in_flight_seqs(self) -> list[int]:
         """The sequence numbers sent and not yet answered, oldest first."""
         return list(self._inflight)
