@@ -454,7 +454,7 @@ class Controller:
         return now + period
 
     def tracker_telemetry(self, now: float) -> Message:
-        return TELEMETRY_TRACKER(self.uptime_ms(now), *self.tracker.telemetry_values(now))
+        return TELEMETRY_TRACKER.of((self.uptime_ms(now),) + self.tracker.telemetry_values(now))
 
     def telemetry(self, now: float) -> Message:
         """TelemetryStatus, its fields gathered in one pass and in the message's order (no dict of them: a
@@ -471,13 +471,13 @@ class Controller:
                 exec_p99_s = p99_s
             overruns += task_stats.overruns
         timing = self.timing()
-        return TELEMETRY_STATUS(
+        return TELEMETRY_STATUS.of((
             self.uptime_ms(now), int(sup.state), int(sup.safe_reason), int(sup.faults),
             _finite(inputs.supply_v), _finite(inputs.temp_c), self.link.commands_executed & 0xFFFFFFFF,
             stats.frames_rx & 0xFFFFFFFF, stats.frames_tx & 0xFFFFFFFF,
             (stats.crc_errors + stats.auth_errors) & 0xFFFFFFFF,
             min(0xFFFFFFFF, int(exec_max_s * 1e6)), min(0xFFFFFFFF, int(exec_p99_s * 1e6)), overruns & 0xFFFFFFFF,
-            min(0xFFFF, self.uart.backlog_bytes), *_timing_values(timing))
+            min(0xFFFF, self.uart.backlog_bytes)) + _timing_values(timing))
 
     def _timing_fields(self, total: bool = True) -> dict:
         """The timing fields of Status (`total`) and TelemetryStatus (0 where nothing is measured)."""
@@ -501,7 +501,7 @@ class Controller:
             values += (min(0xFFFFFFFF, int(stats.exec_max_s * 1e6)), min(0xFFFFFFFF, int(stats.exec_p99_s * 1e6)),
                        min(0xFFFFFFFF, int(stats.late_max_s * 1e6)), stats.overruns & 0xFFFFFFFF)
         values.append(int(round(self.config.arm_period_s * 1e6)))
-        return TELEMETRY_JOINTS(*values)
+        return TELEMETRY_JOINTS.of(values)
 
     def _param_changed(self, name: str, value: float) -> None:
         if name == "link_timeout_s" and hasattr(self, "link"):

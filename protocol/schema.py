@@ -193,6 +193,13 @@ class Message(tuple):
     def as_dict(self) -> dict[str, Any]:
         return {f.name: v for f, v in zip(self.spec.fields, self)}
 
+    @classmethod
+    def of(cls, values: Iterable[Any]) -> "Message":
+        """The message of `values`, every field's in the declared order, as decode makes one: not checked here
+        that each is given (encode raises for a missing, extra or wrong value). For a telemetry task, which
+        builds its 38-40 values at every run."""
+        return tuple.__new__(cls, values)
+
 
 @dataclass
 class MessageSpec:
