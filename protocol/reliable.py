@@ -115,6 +115,8 @@ class ReliableSender:
             return math.inf
         if self._waiting:
             return -math.inf
+        if not self._inflight:       # most calls: both ends ask at every run of their link's task
+            return math.inf
         return min([p.due_s for p in self._inflight.values() if p.due_s is not None], default=math.inf)
 
     def due(self, now: float) -> list[Pending]:
