@@ -70,6 +70,7 @@ RTF_CLEAR_AFTER_S = 10.0          # above rtf_warn for this long (wall time at t
                                   # spell, not a flutter
 TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker turns at most 35.2 deg/min (full duty): 10 Hz is a sample per 0.06 deg
 _HANDLERS: dict[str, Callable] = {}
+TELEMETRY_STATUS, TELEMETRY_JOINTS, TELEMETRY_TRACKER = M["TelemetryStatus"], M["TelemetryJoints"], M["TelemetryTracker"]
 
 
 def handles(name: str) -> Callable:
@@ -405,13 +406,18 @@ class Controller:
         else (firmware_py/standstill.py): UNCOMMANDED_MOTION, and the sim's log names the joint or axis. The
         tracker's axes are judged by their angles (TRACKER_POS, while it comes: a plant without a tracker sends
         none)."""
-        inputs, joints = self.hal.inputs, self._watched
-        angles = [math.radians(a) for a in inputs.tracker_angles_deg]
-        tracker_ok = inputs.pos_s is not None and now - inputs.pos_s <= self.params["trk_stale_s"]
-        moved = self.standstill.check(
-            now, self.supervisor.outputs_allowed, [a.pos_rad for _, a in joints] + angles,
-            [a.vel_rad_s for _, a in joints] + [None, None], [inputs.currents_a[k] for k, _ in joints] + [None, None],
-            [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
+        if self.supervisor.outputs_allowed:
+            # outputs on: nothing is judged, so the joints' and the tracker's readings are not gathered
+            moved = self.standstill.check(now, True, (), (), (), ())
+        else:
+            inputs, joints = self.hal.inputs, self._watched
+            angles = [math.radians(a) for a in inputs.tracker_angles_deg]
+            tracker_ok = inputs.pos_s is not None and now - inputs.pos_s <= self.params["trk_stale_s"]
+            moved = self.standstill.check(
+                now, False, [a.pos_rad for _, a in joints] + angles,
+                [a.vel_rad_s for _, a in joints] + [None, None],
+                [inputs.currents_a[k] for k, _ in joints] + [None, None],
+                [not a.errors & ENCODER_FAULTS for _, a in joints] + [tracker_ok and math.isfinite(a) for a in angles])
         foreign = self.foreign.check(now, self.hal.foreign_frames())
         moved = moved or foreign
         if moved is not None:
@@ -451,46 +457,54 @@ class Controller:
         return now + period
 
     def tracker_telemetry(self, now: float) -> Message:
-        return M["TelemetryTracker"](uptime_ms=self.uptime_ms(now), **self.tracker.telemetry_fields(now))
+        return TELEMETRY_TRACKER.of((self.uptime_ms(now),) + self.tracker.telemetry_values(now))
 
     def telemetry(self, now: float) -> Message:
-        stats = self.link.stats
-        tasks = self.scheduler.tasks.values() if self.scheduler else ()
-        return M["TelemetryStatus"](
-            uptime_ms=self.uptime_ms(now), state=int(self.supervisor.state),
-            safe_reason=int(self.supervisor.safe_reason), faults=int(self.supervisor.faults),
-            supply_v=_finite(self.hal.inputs.supply_v), temp_c=_finite(self.hal.inputs.temp_c),
-            commands_executed=self.link.commands_executed & 0xFFFFFFFF,
-            frames_rx=stats.frames_rx & 0xFFFFFFFF, frames_tx=stats.frames_tx & 0xFFFFFFFF,
-            link_errors=(stats.crc_errors + stats.auth_errors) & 0xFFFFFFFF,
-            loop_max_us=min(0xFFFFFFFF, int(max((t.stats.exec_max_s for t in tasks), default=0) * 1e6)),
-            loop_p99_us=min(0xFFFFFFFF, int(max((t.stats.exec_p99_s for t in tasks), default=0) * 1e6)),
-            overruns=sum(t.stats.overruns for t in tasks) & 0xFFFFFFFF,
-            tx_backlog_bytes=min(0xFFFF, self.uart.backlog_bytes), **self._timing_fields(total=False))
+        """TelemetryStatus, its fields gathered in one pass and in the message's order: no dict of their names at
+        every run, nothing kept from one run to the next."""
+        stats, sup, inputs = self.link.stats, self.supervisor, self.hal.inputs
+        exec_max_s = exec_p99_s = 0
+        overruns = 0
+        for task in (self.scheduler.tasks.values() if self.scheduler else ()):
+            task_stats = task.stats
+            if task_stats.exec_max_s > exec_max_s:
+                exec_max_s = task_stats.exec_max_s
+            p99_s = task_stats.exec_p99_s
+            if p99_s > exec_p99_s:
+                exec_p99_s = p99_s
+            overruns += task_stats.overruns
+        timing = self.timing()
+        return TELEMETRY_STATUS.of((
+            self.uptime_ms(now), int(sup.state), int(sup.safe_reason), int(sup.faults),
+            _finite(inputs.supply_v), _finite(inputs.temp_c), self.link.commands_executed & 0xFFFFFFFF,
+            stats.frames_rx & 0xFFFFFFFF, stats.frames_tx & 0xFFFFFFFF,
+            (stats.crc_errors + stats.auth_errors) & 0xFFFFFFFF,
+            min(0xFFFFFFFF, int(exec_max_s * 1e6)), min(0xFFFFFFFF, int(exec_p99_s * 1e6)), overruns & 0xFFFFFFFF,
+            min(0xFFFF, self.uart.backlog_bytes)) + _timing_values(timing))
 
     def _timing_fields(self, total: bool = True) -> dict:
         """The timing fields of Status (`total`) and TelemetryStatus (0 where nothing is measured)."""
         timing = self.timing()
-        fields = {"timing": int(TimingMode[timing.mode.upper()]), "rtf_recent": _finite(timing.rtf_recent),
-                  "lag_ms": _finite(timing.lag_s * 1000.0)}
+        fields = dict(zip(("timing", "rtf_recent", "lag_ms"), _timing_values(timing)))
         if total:
             fields["rtf_total"] = _finite(timing.rtf_total)
         return fields
 
     def joint_telemetry(self, now: float) -> Message:
         arm = self.arm
+        currents = arm.hal.inputs.currents_a
         values = [self.uptime_ms(now), arm.homed_bits()]
         for k, channel in enumerate(arm.channels):
-            values += [_finite(arm.position(k)), _finite(arm.velocity(k)), _finite(arm.hal.inputs.currents_a[k]),
-                       int(channel.mode), arm.errors(k) & 0xFFFF]
+            values += (_finite(arm.position(k)), _finite(arm.velocity(k)), _finite(currents[k]), int(channel.mode),
+                       arm.errors(k) & 0xFFFF)
         stats = self.scheduler.tasks["arm"].stats if self.scheduler else None
         if stats is None:
-            values += [0, 0, 0, 0]
+            values += (0, 0, 0, 0)
         else:
-            values += [min(0xFFFFFFFF, int(stats.exec_max_s * 1e6)), min(0xFFFFFFFF, int(stats.exec_p99_s * 1e6)),
-                       min(0xFFFFFFFF, int(stats.late_max_s * 1e6)), stats.overruns & 0xFFFFFFFF]
+            values += (min(0xFFFFFFFF, int(stats.exec_max_s * 1e6)), min(0xFFFFFFFF, int(stats.exec_p99_s * 1e6)),
+                       min(0xFFFFFFFF, int(stats.late_max_s * 1e6)), stats.overruns & 0xFFFFFFFF)
         values.append(int(round(self.config.arm_period_s * 1e6)))
-        return M["TelemetryJoints"](*values)
+        return TELEMETRY_JOINTS.of(values)
 
     def _param_changed(self, name: str, value: float) -> None:
         if name == "link_timeout_s" and hasattr(self, "link"):
@@ -722,6 +736,14 @@ class Controller:
 
 def _finite(value: float) -> float:
     return value if math.isfinite(value) else 0.0
+
+
+_TIMING_MODES = {mode.name.lower(): int(mode) for mode in TimingMode}    # TimingReport.mode -> the wire's value
+
+
+def _timing_values(timing: TimingReport) -> tuple[int, float, float]:
+    """The wire's timing, rtf_recent and lag_ms of `timing` (0 where nothing is measured)."""
+    return _TIMING_MODES[timing.mode], _finite(timing.rtf_recent), _finite(timing.lag_s * 1000.0)
 
 
 def _ms(seconds: float) -> float:

@@ -73,8 +73,9 @@ class StandstillWatch:
         judged by its position, which is the sensor's fault; it is anchored again once it is trusted and rests."""
         n = len(self.channels)
         if outputs_on:
-            self._off_since, self._anchor = None, [None] * n
-            self._current_seen = [False] * n
+            if self._off_since is not None:    # the outputs came on: the standstill is forgotten (once)
+                self._off_since, self._anchor = None, [None] * n
+                self._current_seen = [False] * n
             return None
         if self._off_since is None:
             self._off_since = now

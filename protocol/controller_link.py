@@ -469,7 +469,9 @@ class ControllerLink(LinkEndpoint):
 
     def next_timer_s(self) -> float:
         """`LinkEndpoint.next_timer_s` with the events' timers and the link watchdog."""
-        timer = min(super().next_timer_s(), self._hellos_ready_s())
+        timer = super().next_timer_s()
+        if self._waiting or self._cookies:
+            timer = min(timer, self._hellos_ready_s())
         if self.session is None:
             return timer
         if self._events.suspended:

@@ -458,7 +458,7 @@ class HostLink(LinkEndpoint):
                 self._hello_due_s = None
             else:
                 self._send_hello(now)
-        if self.state in (LinkState.UP, LinkState.CLOSING):
+        if self.state in (LinkState.UP, LinkState.CLOSING) and not (self._urgent.idle and self._commands.idle):
             self._pump(now)
         if self.state is LinkState.CLOSING:
             self._check_closed(now)

@@ -133,8 +133,10 @@ class LinkStats:
         self.reasons[reason] = self.reasons.get(reason, 0) + 1
 
     def heartbeat_fields(self) -> dict:
-        names = {f.name for f in SCHEMA["Heartbeat"].fields}
-        return {f.name: getattr(self, f.name) & 0xFFFFFFFF for f in fields(self) if f.name in names}
+        return {name: getattr(self, name) & 0xFFFFFFFF for name in _HEARTBEAT_STATS}
+
+
+_HEARTBEAT_STATS = tuple(f.name for f in fields(LinkStats) if f.name in {f.name for f in SCHEMA["Heartbeat"].fields})
 
 
 class LinkState(enum.Enum):
@@ -185,6 +187,7 @@ class LinkEndpoint:
         self.session: Optional[Session] = None
         self.state = LinkState.NO_SESSION
         self._rx = FrameReceiver()
+        self._receivable = schema.receivable(Direction.TO_CONTROLLER if self.is_controller else Direction.TO_HOST)
         self._queues: list[deque[_Outgoing]] = [deque() for _ in range(4)]
         self._telemetry_seq = 0
         self._next_heartbeat_s: Optional[float] = None
@@ -245,13 +248,10 @@ class LinkEndpoint:
             return
         session.rx_counter = frame.counter
         self._accepted(frame, now)
-        spec = self.schema.by_id.get(frame.msg_id)
+        spec = self._receivable.get((frame.msg_id, frame.cls))
         if spec is None:
-            self._refuse(frame, Reason.UNKNOWN_MESSAGE, now)
-            return
-        wanted = Direction.TO_CONTROLLER if self.is_controller else Direction.TO_HOST
-        if not self.schema.class_allowed(spec, frame.cls) or spec.direction not in (wanted, Direction.BOTH):
-            self._refuse(frame, Reason.WRONG_DIRECTION, now)
+            known = frame.msg_id in self.schema.by_id
+            self._refuse(frame, Reason.WRONG_DIRECTION if known else Reason.UNKNOWN_MESSAGE, now)
             return
         self._handle(frame, spec, now)
 

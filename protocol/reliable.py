@@ -99,6 +99,11 @@ class ReliableSender:
         """Submitted, not sent yet (the window is full): no sequence number yet."""
         return len(self._waiting)
 
+    @property
+    def idle(self) -> bool:
+        """Nothing to send, nothing in flight, not suspended: `due` has nothing, whenever it is asked."""
+        return not (self.suspended or self._inflight or self._waiting)
+
     def in_flight_seqs(self) -> list[int]:
         """The sequence numbers sent and not yet answered, oldest first."""
         return list(self._inflight)
@@ -110,6 +115,8 @@ class ReliableSender:
             return math.inf
         if self._waiting:
             return -math.inf
+        if not self._inflight:       # most calls: both ends ask at every run of their link's task
+            return math.inf
         return min([p.due_s for p in self._inflight.values() if p.due_s is not None], default=math.inf)
 
     def due(self, now: float) -> list[Pending]:

@@ -193,6 +193,13 @@ class Message(tuple):
     def as_dict(self) -> dict[str, Any]:
         return {f.name: v for f, v in zip(self.spec.fields, self)}
 
+    @classmethod
+    def of(cls, values: Iterable[Any]) -> "Message":
+        """The message of `values`, every field's in the declared order, as decode makes one: not checked here
+        that each is given (encode raises for a missing, extra or wrong value). For a telemetry task, which
+        builds its 38-40 values at every run."""
+        return tuple.__new__(cls, values)
+
 
 @dataclass
 class MessageSpec:
@@ -228,16 +235,17 @@ class MessageSpec:
         self._encode_checks = tuple(encode_checks)
         self._text = tuple(i for i, f in enumerate(self.fields) if f.is_text)
         names = [f.name for f in self.fields]
+        at = {name: i for i, name in enumerate(names)}    # a field's place by its name (TelemetryTracker has 40)
         spec = self
 
         def new(cls, *args: Any, **kwargs: Any) -> Message:
             if kwargs:
                 values = list(args) + [None] * (len(names) - len(args))
                 for key, value in kwargs.items():
-                    try:
-                        values[names.index(key)] = value
-                    except ValueError:
-                        raise TypeError(f"{spec.name} has no field {key!r}") from None
+                    i = at.get(key)
+                    if i is None:
+                        raise TypeError(f"{spec.name} has no field {key!r}")
+                    values[i] = value
                 args = tuple(values)
             if len(args) != len(names) or any(v is None for v in args):
                 raise TypeError(f"{spec.name} takes fields {', '.join(names) or '(none)'}")
@@ -314,6 +322,7 @@ class Schema:
         self.reply_ids = frozenset(self.by_name[s.reply].id for s in self.by_id.values() if s.reply)
         text = f"v{version}\n" + "\n".join(s.canonical() for s in sorted(self.by_id.values(), key=lambda s: s.id))
         self.hash = int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "little")
+        self._receivable: dict[Direction, dict[tuple[int, int], MessageSpec]] = {}
 
     def __getitem__(self, name: str) -> MessageSpec:
         return self.by_name[name]
@@ -323,6 +332,17 @@ class Schema:
         if spec.id in self.reply_ids:
             return cls in (MsgClass.COMMAND, MsgClass.URGENT)
         return spec.cls == cls
+
+    def receivable(self, direction: Direction) -> dict[tuple[int, int], MessageSpec]:
+        """(message id, class byte) -> spec of every message an end receiving in `direction` takes, in the classes
+        it may come in (`class_allowed`); any other pair is refused. Made once per direction: a link's receive
+        path looks every frame up in it."""
+        table = self._receivable.get(direction)
+        if table is None:
+            table = self._receivable[direction] = {
+                (spec.id, int(cls)): spec for spec in self.by_id.values() for cls in MsgClass
+                if self.class_allowed(spec, cls) and spec.direction in (direction, Direction.BOTH)}
+        return table
 
     def teleop_commands(self) -> dict[str, MessageSpec]:
         return {s.teleop: s for s in self.by_id.values() if s.teleop}

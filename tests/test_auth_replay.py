@@ -306,3 +306,34 @@ def test_a_nak_echoes_the_tag_of_the_frame_it_refuses():
     nak = SCHEMA["Nak"].decode(decode_frame(wire.controller.take_all(wire.now).strip(b"\x00")).payload)
     assert nak.reason == Reason.NO_SESSION and nak.refused_tag == frame.tag[:8]
     assert (nak.refused_class, nak.refused_seq, nak.refused_msg) == (MsgClass.COMMAND, 5, SCHEMA["Ping"].id)   # the sixth command
+
+
+def _signed_by(end, cls: int, msg_id: int, payload: bytes) -> bytes:
+    """A frame `end` could have sent in its session (its key, its next counter), whatever its content."""
+    end.session.tx_counter += 1
+    return encode_frame(cls, 0, 0, msg_id, payload, key=end.session.keys.tx, counter=end.session.tx_counter)
+
+
+def test_a_genuine_frame_of_a_message_the_other_end_does_not_take_there_is_refused_with_a_reason():
+    """Authenticated, but a message for the other direction, in a class it may not come in, or not declared: refused
+    (NAKed) with WRONG_DIRECTION or UNKNOWN_MESSAGE, at either end, and nothing else happens (the receive path's
+    table of what each end takes, issue 35, says what the schema's class and direction rules say)."""
+    wire = Wire()
+    wire.connect()
+    telemetry = SCHEMA["TelemetryStatus"]
+    to_controller = [(MsgClass.TELEMETRY, telemetry.id, bytes(telemetry.size), Reason.WRONG_DIRECTION),   # its way
+                     (MsgClass.TELEMETRY, SCHEMA["Ping"].id, bytes(4), Reason.WRONG_DIRECTION),          # its class
+                     (MsgClass.EVENT, SCHEMA["Pong"].id, bytes(SCHEMA["Pong"].size), Reason.WRONG_DIRECTION),
+                     (MsgClass.COMMAND, 0x7FFF, b"", Reason.UNKNOWN_MESSAGE)]
+    for cls, msg_id, payload, reason in to_controller:
+        before = wire.controller.stats.reasons.get(reason, 0)
+        wire.inject(_signed_by(wire.host, cls, msg_id, payload))
+        assert wire.controller.stats.reasons.get(reason, 0) == before + 1, (cls, msg_id)
+    to_host = [(MsgClass.COMMAND, SCHEMA["Ping"].id, bytes(4), Reason.WRONG_DIRECTION),
+               (MsgClass.LINK, 0x7FFE, b"", Reason.UNKNOWN_MESSAGE)]
+    for cls, msg_id, payload, reason in to_host:
+        before = wire.host.stats.reasons.get(reason, 0)
+        wire.host.feed(_signed_by(wire.controller, cls, msg_id, payload), wire.now)
+        assert wire.host.stats.reasons.get(reason, 0) == before + 1, (cls, msg_id)
+    assert wire.executed == []
+    assert wire.call(Ping(5)).ok and wire.executed == [Ping(5)]          # and the session goes on

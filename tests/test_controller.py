@@ -10,7 +10,7 @@ from host_tools.worlds.world import LockstepBench
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
-from protocol.states import ControllerState, Fault, FaultCause
+from protocol.states import ControllerState, Fault, FaultCause, Switch, SwitchPosition, TrackerAxis
 
 
 def status(bench):
@@ -159,3 +159,50 @@ def test_same_seed_same_bytes():
         return bytes(captured)
     assert run(7) == run(7)
     assert run(7) != run(8)
+
+
+def _next_telemetry(bench, name: str, timeout_s: float = 1.0):
+    """The next frame of telemetry `name` the host receives from now."""
+    seen = len(bench.telemetry)
+    assert bench.wait_until(lambda: any(m.spec.name == name for m in bench.telemetry[seen:]), timeout_s)
+    return next(m for m in bench.telemetry[seen:] if m.spec.name == name)
+
+
+def test_telemetry_values_are_each_in_their_field_and_a_change_is_in_the_next_frame(bench):
+    """The telemetry messages are built from their values in the message's order (no dict of names: issue 35), and
+    nothing is kept from one run to the next: each value read by its field's name is the controller's own, and a
+    change between two frames (a tracker's switch, a supply sag, a task added to the scheduler that overruns) is in
+    the next one."""
+    from firmware_py.arm import GRIPPER_INDEX
+    ctrl = bench.controller
+    main_on, sensor_on = (M["BoxSwitch"](int(which), int(SwitchPosition.ON), int(TrackerAxis.BOTH))
+                          for which in (Switch.MAIN, Switch.SENSOR))
+    for msg in (main_on, M["SetTelemetryRate"](20), M["Enable"]()):      # main power on: the box is in use
+        assert bench.call(msg).ok
+    bench.run_for(0.3)
+    now = bench.clock.now()
+    status, joints, tracker = ctrl.telemetry(now), ctrl.joint_telemetry(now), ctrl.tracker_telemetry(now)
+    sup, inputs, arm, box, axes = ctrl.supervisor, ctrl.hal.inputs, ctrl.arm, ctrl.tracker.box, ctrl.tracker.axes
+    assert (status.state, status.faults, status.supply_v, status.temp_c, status.frames_rx, status.commands_executed) \
+        == (sup.state, sup.faults, inputs.supply_v, inputs.temp_c, ctrl.link.stats.frames_rx,
+            ctrl.link.commands_executed)
+    assert status.overruns == sum(t.stats.overruns for t in ctrl.scheduler.tasks.values())
+    assert status.timing == 0 and status.uptime_ms == ctrl.uptime_ms(now)        # a simulated clock
+    assert (joints.homed, joints.j3_mode, joints.gripper_mode, joints.arm_period_us) == (
+        arm.homed_bits(), int(arm.channels[2].mode), int(arm.channels[GRIPPER_INDEX].mode), 1000)
+    assert (joints.j1_pos, joints.j2_vel, joints.mount_current) == (
+        arm.position(0), arm.velocity(1), inputs.currents_a[-1])
+    assert (tracker.main, tracker.sensor, tracker.dial_el, tracker.angle_az, tracker.angle_el) == (
+        int(box.main), int(box.sensor), box.dial_pct(1), inputs.tracker_angles_deg[0], inputs.tracker_angles_deg[1])
+    assert (tracker.brake_el, tracker.duty_az, tracker.switchings_el, tracker.reversals_az) == (
+        axes[1].brake, axes[0].duty, axes[1].switchings, axes[0].reversals)
+    # a change between two frames is in the next one
+    assert _next_telemetry(bench, "TelemetryTracker").sensor == 0
+    assert bench.call(sensor_on).ok
+    assert _next_telemetry(bench, "TelemetryTracker").sensor == 1
+    before = _next_telemetry(bench, "TelemetryStatus")
+    late = bench.world.scheduler.add("late", lambda now: now + 0.001, bench.clock.now() - 1.0, tolerance_s=0.0)
+    bench.world.plant.inject("supply_sag")
+    after = _next_telemetry(bench, "TelemetryStatus", 0.2)
+    assert late.stats.overruns >= 1 and after.overruns - before.overruns >= late.stats.overruns
+    assert after.supply_v < before.supply_v

@@ -14,7 +14,7 @@ from protocol.controller_link import ControllerLink
 from protocol.host_link import HostLink
 from protocol.link import LinkConfig, LinkState
 from protocol.messages import SCHEMA
-from protocol.reliable import Outcome
+from protocol.reliable import Outcome, ReliableSender, RttEstimator
 
 Ping, Pong, StateChanged = SCHEMA["Ping"].type, SCHEMA["Pong"].type, SCHEMA["StateChanged"].type
 KEY = bytes(range(32))
@@ -188,3 +188,22 @@ def test_events_survive_a_fade_longer_than_the_retry_limit():
     for _ in range(20_000):
         pair.step()
     assert [e.uptime_ms for e in pair.events] == list(range(5))
+
+
+def test_a_sender_is_idle_only_when_due_has_nothing_whenever_asked():
+    """The host's poll leaves its senders alone while both are idle (issue 35): idle must mean that `due` has
+    nothing now or later without a submit, and a suspended sender, even emptied, is never idle (its suspension
+    is news to the host's poll)."""
+    sender = ReliableSender(window=2, retry_limit=2, rtt=RttEstimator(0.1, 0.05, 0.2))
+    assert sender.idle and sender.due(0.0) == [] and sender.next_due_s() == math.inf
+    first = sender.submit(1, b"a")
+    assert not sender.idle and sender.next_due_s() == -math.inf   # waiting: due sends it
+    assert sender.due(0.0) == [first] and not sender.idle          # in flight: its timer may expire
+    assert sender.next_due_s() == first.due_s == 0.1
+    sender.answered(first.seq, 0.01)
+    assert sender.idle and all(sender.due(t) == [] for t in (0.02, 1.0, 100.0))
+    assert sender.next_due_s() == math.inf
+    second = sender.submit(2, b"b")
+    assert sender.due(1.0) == [second] and sender.due(1.2) == [second]   # sent, then sent again
+    assert sender.due(1.5) == [] and sender.suspended and not sender.idle   # the retry limit
+    assert sender.take_failed() == [second] and not sender.idle        # emptied, still suspended

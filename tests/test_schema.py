@@ -452,3 +452,23 @@ def test_a_text_field_fits_any_text_to_what_it_can_carry():
     assert fitted.startswith("No space left on device: /m?nchen/?")
     assert SCHEMA["ParamSaved"].decode(SCHEMA["ParamSaved"].encode(SCHEMA["ParamSaved"].type(26, fitted))).detail \
         == fitted
+
+
+@pytest.mark.parametrize("name", NAMES)
+@RUNS
+@given(data=st.data())
+def test_a_message_built_by_name_is_the_one_built_in_order(name: str, data):
+    """Values by field name land in their fields whatever the order they are given in; an unknown name or one left
+    out is refused, naming the message. `of` makes the same message from the values in order."""
+    spec = SCHEMA[name]
+    msg = data.draw(strategy_for(spec), label="msg")
+    named = dict(reversed(list(zip((f.name for f in spec.fields), msg))))
+    assert spec.type(**named) == msg
+    assert spec.type.of(iter(msg)) == msg and type(spec.type.of(msg)) is spec.type
+    if spec.fields:
+        first, *rest = spec.fields
+        assert spec.type(msg[0], **{f.name: v for f, v in zip(rest, msg[1:])}) == msg
+        with pytest.raises(TypeError, match=f"{spec.name} takes fields"):
+            spec.type(**{f.name: v for f, v in zip(rest, msg[1:])})
+    with pytest.raises(TypeError, match=f"{spec.name} has no field 'no_such_field'"):
+        spec.type(*msg, no_such_field=1)

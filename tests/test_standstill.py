@@ -47,6 +47,21 @@ def test_a_joint_moving_with_the_outputs_off_trips_once_it_has_come_to_rest_or_i
     assert seen is not None and seen.channel == "j1" and "still turning at +20.0 deg/s 2 s after" in seen.detail
 
 
+def test_checks_with_the_outputs_on_forget_the_standstill_and_the_next_off_starts_afresh():
+    """A check with the outputs on forgets the standstill once (since issue 35 it writes nothing on the checks after
+    that, and the health task gathers no readings for it): the settling time counts from the last time the outputs
+    went off, an anchor from before is gone, and a current seen before does not count as the first of two."""
+    watch, rest, pos = _watch(), [0.0, 0.0], [0.0, 0.0]
+    turning = [math.radians(20.0), 0.0]
+    assert watch.check(0.0, False, pos, rest, [0.9, 0.0], OK2) is None            # anchored at 0, a current seen
+    for t in (0.5, 0.51, 0.52):
+        assert watch.check(t, True, [], [], [], []) is None                       # outputs on: nothing judged
+    assert watch.check(1.0, False, [3.0, 0.0], turning, [0.9, 0.0], OK2) is None  # afresh: no anchor, first current
+    assert watch.check(2.9, False, [3.1, 0.0], turning, rest, OK2) is None        # within 2 s of the last off
+    seen = watch.check(3.0, False, [3.2, 0.0], turning, rest, OK2)
+    assert seen is not None and seen.channel == "j1" and "still turning" in seen.detail
+
+
 def test_a_current_with_the_outputs_off_trips_on_the_second_check_running_from_the_start():
     """A braked motor whose bridge is off draws nothing, braking or not: no settling time for the current."""
     watch, rest, pos = _watch(), [0.0, 0.0], [0.0, 0.0]

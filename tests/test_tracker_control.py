@@ -344,6 +344,18 @@ def test_temperature_warning_near_each_limit_once_per_crossing():
     assert watch.flags == TrackerWarning.TEMP_LOW
 
 
+def test_temperature_warning_a_reading_seen_again_is_not_judged_again_and_a_changed_limit_is():
+    """The health task asks at every run, mostly with the same reading (issue 35: the same reading and limits are
+    not judged again): a crossing still comes at the first reading or limit that makes it, and once only."""
+    watch = TempWatch()
+    assert [watch.update(41.0, -10.0, 45.0, 3.0) for _ in range(3)] == [[], [], []]      # 4 below the limit
+    assert watch.update(41.0, -10.0, 45.0, 5.0) == [(TempSide.HOT, True, 45.0)]         # temp_warn_c widened
+    assert watch.update(41.0, -10.0, 45.0, 5.0) == [] and watch.flags == TrackerWarning.TEMP_HIGH
+    assert watch.update(41.0, -10.0, 44.0, 2.0) == [(TempSide.HOT, False, 44.0)]        # narrowed: back inside
+    assert watch.update(math.nan, -10.0, 44.0, 2.0) == [] and watch.update(42.0, -10.0, 44.0, 2.0) == [
+        (TempSide.HOT, True, 44.0)]
+
+
 # ---- the ephemeris -----------------------------------------------------------------------------------------------
 
 def test_ephemeris_against_the_nrel_spa_papers_example():

@@ -48,6 +48,7 @@ class TempWatch:
 
     def __init__(self) -> None:
         self.active = {TempSide.COLD: False, TempSide.HOT: False}
+        self._judged: tuple = ()      # the last reading and limits judged: the same again has no crossing
 
     @property
     def flags(self) -> TrackerWarning:
@@ -60,9 +61,17 @@ class TempWatch:
 
     def update(self, temp_c: float, min_c: float, max_c: float, margin_c: float
                ) -> list[tuple[TempSide, bool, float]]:
-        """The crossings at this reading: (side, now active, the fault limit it is about). NaN: none."""
+        """The crossings at this reading: (side, now active, the fault limit it is about). NaN: none.
+
+        The health task asks at every run (100 Hz) and the reading comes every 10 ms, mostly the same: the same
+        reading and limits as the last time cannot cross again (that call left each side as they say), so they
+        are not judged again."""
         if not math.isfinite(temp_c):
             return []
+        judged = (temp_c, min_c, max_c, margin_c)
+        if judged == self._judged:
+            return []
+        self._judged = judged
         crossings = []
         for side, limit, near, back in (
                 (TempSide.COLD, min_c, temp_c <= min_c + margin_c, temp_c > min_c + margin_c + TEMP_WARN_HYST_C),

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from typing import Callable, Optional
 
-from protocol.states import TRACKER_AXES, TrackerWarning
+from protocol.states import TrackerWarning
 
 from firmware_py import ephemeris
 from firmware_py.params import ParamSpec, ParamStore
@@ -243,32 +243,23 @@ class TrackerController(BoxCommands, RelayLogic):
                                       self.box.sensor is ON, motor_power, [ax.duty for ax in axes])
 
     # ---- telemetry ----
-    def telemetry_fields(self, now: float) -> dict:
-        """TelemetryTracker's fields but uptime_ms (protocol/messages.py)."""
+    def telemetry_values(self, now: float) -> tuple:
+        """TelemetryTracker's fields but uptime_ms, in the message's order (protocol/messages.py): a tuple, not a
+        dict of 40 names made at every run."""
         box, inputs = self.box, self.hal.inputs
         sun = self.sun(now)
         error = self.pointing_error(now)
         utc = self.utc(now)
         rates = self.sun_rates()
-        out = {
-            "utc_s": int(utc) if utc is not None and 0 <= utc < 2 ** 32 else 0,
-            "main": int(box.main), "sensor": int(box.sensor), "ff_active": self.ff_active,
-            "warnings": int(self.warnings), "refusals": self.refusals & 0xFFFFFFFF,
-            "motor_supply_v": _finite(inputs.motor_supply_v),
-            "sun_az": sun[0] if sun else 0.0, "sun_el": sun[1] if sun else 0.0,
-        }
-        for k, (name, ax) in enumerate(zip(TRACKER_AXES, self.axes)):
-            out.update({
-                f"mode_{name}": int(box.mode[k]), f"direction_{name}": int(box.direction[k]),
-                f"speed_{name}": int(box.speed[k]), f"dial_{name}": box.dial_pct(k),
-                f"relay_{name}": ax.relay, f"brake_{name}": ax.brake, f"duty_{name}": ax.duty,
-                f"cell_diff_{name}": _finite(ax.diff_v), f"cell_sum_{name}": _finite(ax.sum_v),
-                f"angle_{name}": _finite(inputs.tracker_angles_deg[k]),
-                f"sun_rate_{name}": rates[k], f"error_{name}": error[k] if error else 0.0,
-                f"switchings_{name}": ax.switchings & 0xFFFFFFFF, f"chatter_{name}": ax.chatter & 0xFFFFFFFF,
-                f"reversals_{name}": ax.reversals & 0xFFFFFFFF,
-            })
-        return out
+        out = [int(utc) if utc is not None and 0 <= utc < 2 ** 32 else 0,
+               int(box.main), int(box.sensor), self.ff_active, int(self.warnings), self.refusals & 0xFFFFFFFF,
+               _finite(inputs.motor_supply_v), sun[0] if sun else 0.0, sun[1] if sun else 0.0]
+        for k, ax in enumerate(self.axes):
+            out += (int(box.mode[k]), int(box.direction[k]), int(box.speed[k]), box.dial_pct(k), ax.relay, ax.brake,
+                    ax.duty, _finite(ax.diff_v), _finite(ax.sum_v), _finite(inputs.tracker_angles_deg[k]), rates[k],
+                    error[k] if error else 0.0, ax.switchings & 0xFFFFFFFF, ax.chatter & 0xFFFFFFFF,
+                    ax.reversals & 0xFFFFFFFF)
+        return tuple(out)
 
 
 def _finite(value: float) -> float:
