@@ -274,9 +274,11 @@ def traced(module):
 
 carriers = ("hil_sim.plant", "hil_sim.arm_tick", "host_tools.worlds.world", "host_tools.fuzz.grammar",
             "host_tools.fuzz.link_targets", "timebase.scheduler")
+from host_tools.fuzz.child import FAST_LOOP
 print(json.dumps({"covers": {path: traced(sys.modules[path.removesuffix(".py").replace("/", ".")])
                              for path in target.covers},
-                  "carriers": {m: traced(sys.modules[m]) for m in carriers if m in sys.modules}}))
+                  "carriers": {m: traced(sys.modules[m]) for m in carriers if m in sys.modules},
+                  "fast loop": {m: traced(sys.modules[m]) for m in FAST_LOOP if m in sys.modules}}))
 target.close()
 """
 
@@ -296,6 +298,23 @@ def test_every_file_a_target_covers_is_instrumented_for_the_coverage_guided_fuzz
     assert all(n == 0 for n in traced["carriers"].values()), traced
     if name in ("controller-link", "host-link"):
         assert {"hil_sim.plant", "host_tools.worlds.world", "host_tools.fuzz.grammar"} <= set(traced["carriers"])
+        # the 1 kHz loops and the HAL bus carry the world too (host_tools/fuzz/child.py FAST_LOOP): until
+        # 2026-11-28 they ran instrumented, and cost controller-link half its time
+        assert {"firmware_py.joints_tick", "protocol.hal", "hil_sim.hal_node"} <= set(traced["fast loop"])
+        assert all(n == 0 for n in traced["fast loop"].values()), traced
+
+
+@pytest.mark.long
+def test_controller_link_fuzzes_with_the_compiled_kernels(tmp_path):
+    """`ASPOD_COMPILED=1`: the child builds its world with the joints' kernel compiled by numba. Until 2026-11-28
+    atheris instrumented that kernel's module, and numba, typing the instrumented bytecode, failed: the child died
+    before its first input."""
+    pytest.importorskip("numba")
+    (tmp_path / "corpus").mkdir()
+    done = subprocess.run([sys.executable, "-m", "host_tools.fuzz.child", "controller-link", str(tmp_path / "found"),
+                           "10", "-seed=1", "-runs=50", str(tmp_path / "corpus")],
+                          capture_output=True, text=True, timeout=600, env=dict(os.environ, ASPOD_COMPILED="1"))
+    assert done.returncode == 0 and "Done 50 runs" in done.stderr, done.stderr[-3000:]
 
 
 def test_the_campaign_counts_since_a_commit_only_the_chunks_run_at_it_or_after(tmp_path):
