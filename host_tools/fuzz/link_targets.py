@@ -187,7 +187,8 @@ class _LinkTarget(Target):
         bench, endpoint = self.bench, self.receiver()
         now = bench.clock.now()
         verdict = "refused" if recipe is None else self.verdict(recipe)
-        before, delivered = self.digest(), self.delivered()
+        before = self.digest() if verdict == "refused" else None      # only a refused frame's is compared
+        delivered = self.delivered()
         decodes = False
         if verdict == "runs":
             try:
