@@ -159,6 +159,46 @@ def test_findings_that_are_not_findings_are_refused_with_a_reason(tmp_path):
     assert done.returncode == 2 and "bad.json" in done.stderr
 
 
+_FIND_PLANTED_LINK = """
+import random, sys
+from pathlib import Path
+from host_tools.fuzz import findings
+from host_tools.fuzz.planted import planted_controller_link_target
+target = planted_controller_link_target()
+rng = random.Random(3)
+since = []
+for n in range(20 * target.fresh_every):          # as the child's harness: a fresh world every fresh_every inputs
+    if n % target.fresh_every == 0:
+        target.fresh()
+        since = []
+    since.append(rng.randbytes(rng.randint(20, 300)))
+    try:
+        target.one_input(since[-1])
+    except Exception as exc:
+        print(findings.Finding(sys.argv[1], findings.failure_of(exc), since).save(Path(sys.argv[2])))
+        break
+target.close()
+"""
+
+
+@pytest.mark.long
+def test_a_controller_link_finding_replays_alone_to_the_same_failure(tmp_path):
+    """The controller-link target keeps its world between inputs: a finding is every input since the world was
+    built, and replayed alone, on a world built anew, it fails the same way, every time. Found here over the
+    planted BoxDial handler (in a child: planting changes that process's handler table)."""
+    planted = "host_tools.fuzz.planted:planted_controller_link_target"
+    done = subprocess.run([sys.executable, "-c", _FIND_PLANTED_LINK, planted, str(tmp_path)], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip(), done.stderr[-2000:]
+    path = done.stdout.strip().splitlines()[-1]
+    finding = findings.load(Path(path))
+    assert finding.failure.kind == "crash" and "IndexError" in finding.failure.error, finding.failure
+    assert finding.failure.where.startswith("host_tools/fuzz/planted.py:")
+    for _ in range(2):
+        done = aspod("fuzz", "--replay", path, planted, cwd=tmp_path)
+        assert done.returncode == 1 and "fails as found" in done.stdout, done.stdout + done.stderr
+
+
 def test_a_finding_with_more_inputs_than_the_fuzzer_keeps_is_refused_before_it_runs(tmp_path):
     path = findings.Finding("controller-link", findings.Failure("crash", "x"), [b""] * 501).save(tmp_path)
     with pytest.raises(findings.FindingError, match="holds at most 500 inputs"):
