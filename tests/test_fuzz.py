@@ -6,6 +6,7 @@ import json
 import math
 import os
 import random
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -157,6 +158,20 @@ def test_findings_that_are_not_findings_are_refused_with_a_reason(tmp_path):
             findings.load(bad)
     done = aspod("fuzz", "--replay", str(bad), cwd=tmp_path)
     assert done.returncode == 2 and "bad.json" in done.stderr
+
+
+def test_the_link_targets_count_edges_not_how_often_they_ran(tmp_path):
+    """controller-link runs libFuzzer with its own options (`engine_options`: -use_counters=0): its world runs the
+    controller's 1 kHz tasks for as long as an input waits, and with hit counts every longer wait was new coverage
+    (before 2026-11-28: features above edges; its corpus full of inputs that only wait). Without them libFuzzer's
+    features are its edges."""
+    (tmp_path / "corpus").mkdir()
+    done = subprocess.run([sys.executable, "-m", "host_tools.fuzz.child", "controller-link", str(tmp_path / "found"),
+                           "10", "-seed=1", "-runs=400", str(tmp_path / "corpus")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    cov, ft = (int(x) for x in re.search(r"#400\s+DONE\s+cov: (\d+) ft: (\d+)", done.stderr).groups())
+    assert ft == cov > 100, done.stderr[-1000:]
 
 
 _FIND_PLANTED_LINK = """

@@ -3,8 +3,9 @@
     python -m host_tools.fuzz.child TARGET FINDINGS_DIR HANG_S [libFuzzer options and corpus folders]
 
 libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and
-reads its progress lines. Nothing of the emulator is imported before atheris' import hook is in place, so the
-code under test is instrumented for coverage. On a crash or an oracle failure the finding is written to
+reads its progress lines; the target's own libFuzzer options (`engine_options`) come before those given here.
+Nothing of the emulator is imported before atheris' import hook is in place, so the code under test is
+instrumented for coverage. On a crash or an oracle failure the finding is written to
 FINDINGS_DIR with every input since the target was last fresh (host_tools/fuzz/findings.py) before libFuzzer
 reports it. An input past HANG_S seconds of its own time (not counting the time the host kept it waiting for a
 CPU: host_tools/fuzz/hangs.py) is interrupted and saved the same way, as a hang. Running out of memory, or a hang
@@ -134,7 +135,7 @@ def main(argv: list[str]) -> None:
         target = load_for_fuzzing(spec)
     with HangWatch(hang_s) as watch:
         harness = Harness(target, spec, findings_dir, watch)
-        atheris.Setup([sys.argv[0]] + libfuzzer_args, harness)
+        atheris.Setup([sys.argv[0], *getattr(target, "engine_options", ()), *libfuzzer_args], harness)
         atheris.Fuzz()
 
 
