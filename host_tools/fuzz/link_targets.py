@@ -90,8 +90,8 @@ class _LinkTarget(Target):
     fresh_every = 500          # a world costs about 15 ms to build and connect
     # An edge, not how often it ran: the world runs the controller's 1 kHz tasks (controller.py, under test) as
     # long as an input lets time pass, so with libFuzzer's hit counts every longer wait was new coverage, and the
-    # corpus filled with inputs that only wait (7.1 simulated ms an execution, 2.2 without the counts). The
-    # planted BoxDial defect: found after 34,576 executions with them, 6,067 without (seed 1, 2026-11-28).
+    # corpus filled with inputs that only wait (7.1 simulated ms an execution, 2.2 without the counts), and the
+    # planted BoxDial defect took more executions to find (docs/fuzzing.md, "Proof that it finds bugs").
     engine_options = ("-use_counters=0",)
     specs: tuple[MessageSpec, ...] = ()
     words: Words = NO_WORDS    # valid texts the declaration cannot know, by field name (`grammar.Words`)
