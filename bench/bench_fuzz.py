@@ -5,8 +5,9 @@
    **Per CPU-second.** `controller-link` beside its peer, a bare loop: the same child, harness and libFuzzer
    with a target that does nothing (`bare_target`). Each runs twice from an empty corpus with one seed, to N1
    and to N2 executions; the difference of the child's CPU times over N2 - N1 is the cost of an execution,
-   the start (imports, instrumenting, the first world) left out. A seed repeats libFuzzer's inputs, so the
-   rows compare like with like between two versions of the code.
+   the start (imports, instrumenting, the first world) left out. One seed keeps two versions of the code
+   comparable, not equal: a target that keeps its world between inputs does not repeat a run exactly, so the
+   difference is the cost of about N2 - N1 executions, and a row is worth running more than once.
 2. **Black-box over a pty.** `aspod fuzz --target-cmd 'aspod sim --pty ...'` for 20 s (8 s) at --no-pacing and
    at 115200 baud: cases and steps per second (each case is a few steps and a health check of two commands).
 3. **Beside boofuzz.** The planted simulator (host_tools/fuzz/planted.py: BoxDial at exactly 100 % crashes the

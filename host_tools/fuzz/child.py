@@ -2,14 +2,14 @@
 
     python -m host_tools.fuzz.child TARGET FINDINGS_DIR HANG_S [libFuzzer options and corpus folders]
 
-libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and
-reads its progress lines; the target's own libFuzzer options (`engine_options`) come before those given here.
-Nothing of the emulator is imported before atheris' import hook is in place, so the code under test is
-instrumented for coverage. On a crash or an oracle failure the finding is written to
-FINDINGS_DIR with every input since the target was last fresh (host_tools/fuzz/findings.py) before libFuzzer
-reports it. An input past HANG_S seconds of its own time (not counting the time the host kept it waiting for a
-CPU: host_tools/fuzz/hangs.py) is interrupted and saved the same way, as a hang. Running out of memory, or a hang
-the interrupt cannot reach, is left to libFuzzer's own artifact, which `aspod fuzz` turns into a finding.
+libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and reads
+its progress lines; the target's own libFuzzer options (`engine_options`) come before those given here. Nothing of
+the emulator is imported before atheris' import hook is in place, so the code under test is instrumented for
+coverage. On a crash or an oracle failure the finding is written to FINDINGS_DIR with every input since the target
+was last fresh (host_tools/fuzz/findings.py) before libFuzzer reports it. An input past HANG_S seconds of its own
+time (not counting the time the host kept it waiting for a CPU: host_tools/fuzz/hangs.py) is interrupted and saved
+the same way, as a hang. Running out of memory, or a hang the interrupt cannot reach, is left to libFuzzer's own
+artifact, which `aspod fuzz` turns into a finding.
 """
 import importlib
 import importlib.util
@@ -68,9 +68,8 @@ def modules_not_under_test(instrumented: list[str]) -> list[str]:
 
 def instrumenting(spec: str):
     """atheris' import hook for the target `spec`: the code under test, nothing else of ours (nor the fast loop,
-    but for `hal`). For your own target
-    (`module:factory`): the whole package its module is in (its top-level package, as atheris takes it, where
-    that is not one of ours)."""
+    but for `hal`). For your own target (`module:factory`): the whole package its module is in (its top-level
+    package, as atheris takes it, where that is not one of ours)."""
     module = spec.split(":")[0] if ":" in spec else None
     own = [module.rpartition(".")[0] or module] if module else []
     exclude = [m for m in modules_not_under_test(INSTRUMENTED) if not _under(m, own)]
