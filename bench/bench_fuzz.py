@@ -2,6 +2,12 @@
 
 1. **In process.** Each built-in target under atheris for 10 s (3 s with --quick), one job on one core:
    executions per second, libFuzzer's coverage (edges) and corpus.
+   **Per CPU-second.** `controller-link` beside its peer, a bare loop: the same child, harness and libFuzzer
+   with a target that does nothing (`bare_target`). Each runs twice from an empty corpus with one seed, to N1
+   and to N2 executions; the difference of the child's CPU times over N2 - N1 is the cost of an execution,
+   the start (imports, instrumenting, the first world) left out. One seed keeps two versions of the code
+   comparable, not equal: a target that keeps its world between inputs does not repeat a run exactly, so the
+   difference is the cost of about N2 - N1 executions, and a row is worth running more than once.
 2. **Black-box over a pty.** `aspod fuzz --target-cmd 'aspod sim --pty ...'` for 20 s (8 s) at --no-pacing and
    at 115200 baud: cases and steps per second (each case is a few steps and a health check of two commands).
 3. **Beside boofuzz.** The planted simulator (host_tools/fuzz/planted.py: BoxDial at exactly 100 % crashes the
@@ -13,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -20,6 +27,7 @@ from pathlib import Path
 from bench import PartsResult, run_parts
 from protocol import auth
 
+_ROOT = Path(__file__).resolve().parents[1]
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 TARGETS = ("frames", "codec", "controller-link", "host-link", "hal", "params-file", "key-file", "teleop")
 
@@ -40,6 +48,46 @@ def in_process(tmp: Path, quick: bool) -> list[str]:
     for s in json.loads(done.stdout)["targets"]:
         lines.append(f"  {s['target']:17} {s['execs_per_core_s']:8,.0f} {s['execs']:11,} {s['cov']:5} {s['corpus']:6} "
                      f"{s['findings']}")
+    return lines
+
+
+class _Bare:
+    """The peer of the per-CPU-second row: a target that does nothing with its input."""
+    name = "bare"
+
+    def one_input(self, data: bytes) -> None:
+        pass
+
+
+def bare_target() -> _Bare:
+    return _Bare()
+
+
+def _child_cpu_s(tmp: Path, target: str, runs: int) -> float:
+    """CPU seconds (user + system) of one fuzzing child run to `runs` executions from an empty corpus, seed 1."""
+    run = tmp / f"cpu-{target.replace(':', '_')}-{runs}"
+    (run / "corpus").mkdir(parents=True)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    done = subprocess.run([sys.executable, "-m", "host_tools.fuzz.child", target, str(run / "found"), "10",
+                           "-seed=1", "-max_len=4096", f"-runs={runs}", str(run / "corpus")],
+                          capture_output=True, text=True, timeout=600, cwd=tmp,
+                          env=dict(os.environ, PYTHONPATH=str(_ROOT)))     # `bench` is not installed: its folder
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if done.returncode != 0:
+        raise RuntimeError(f"{target}: the fuzzing child exited with {done.returncode}: {done.stderr[-800:]}")
+    return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+
+
+def per_cpu_second(tmp: Path, quick: bool) -> list[str]:
+    rows = (("controller-link", 500, 2500 if quick else 5500), ("bench.bench_fuzz:bare_target", 1000, 201000))
+    lines = [f"in process, executions per CPU-second between N1 and N2 executions, seed 1, empty corpus ({_load()}):"]
+    rates = {}
+    for target, n1, n2 in rows:
+        cpu = _child_cpu_s(tmp, target, n2) - _child_cpu_s(tmp, target, n1)
+        rates[target] = (n2 - n1) / cpu
+        lines.append(f"  {target:29} N1 {n1:7,} N2 {n2:7,} {cpu:6.2f} CPU s {rates[target]:9,.0f} exec/CPU-s")
+    bare = rates["bench.bench_fuzz:bare_target"]
+    lines.append(f"  controller-link: 1/{bare / rates['controller-link']:,.0f} of the bare loop ({_load()})")
     return lines
 
 
@@ -91,7 +139,7 @@ def beside_boofuzz(tmp: Path, quick: bool) -> list[str]:
 
 def main(quick: bool = False) -> PartsResult:
     return run_parts("fuzz: in-process targets, black-box over a pty, beside boofuzz",
-                     (in_process, black_box, beside_boofuzz), quick, "aspod-bench-fuzz-")
+                     (per_cpu_second, in_process, black_box, beside_boofuzz), quick, "aspod-bench-fuzz-")
 
 
 if __name__ == "__main__":

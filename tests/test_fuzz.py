@@ -6,6 +6,7 @@ import json
 import math
 import os
 import random
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -160,6 +161,60 @@ def test_findings_that_are_not_findings_are_refused_with_a_reason(tmp_path):
     assert done.returncode == 2 and "bad.json" in done.stderr
 
 
+def test_the_link_targets_count_edges_not_how_often_they_ran(tmp_path):
+    """controller-link runs libFuzzer with its own options (`engine_options`: -use_counters=0): its world runs the
+    controller's 1 kHz tasks for as long as an input waits, and with hit counts every longer wait was new coverage
+    (before 2026-11-28: features above edges; its corpus full of inputs that only wait). Without them libFuzzer's
+    features are its edges."""
+    (tmp_path / "corpus").mkdir()
+    done = subprocess.run([sys.executable, "-m", "host_tools.fuzz.child", "controller-link", str(tmp_path / "found"),
+                           "10", "-seed=1", "-runs=400", str(tmp_path / "corpus")],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    cov, ft = (int(x) for x in re.search(r"#400\s+DONE\s+cov: (\d+) ft: (\d+)", done.stderr).groups())
+    assert ft == cov > 100, done.stderr[-1000:]
+
+
+_FIND_PLANTED_LINK = """
+import random, sys
+from pathlib import Path
+from host_tools.fuzz import findings
+from host_tools.fuzz.planted import planted_controller_link_target
+target = planted_controller_link_target()
+rng = random.Random(3)
+since = []
+for n in range(20 * target.fresh_every):          # as the child's harness: a fresh world every fresh_every inputs
+    if n % target.fresh_every == 0:
+        target.fresh()
+        since = []
+    since.append(rng.randbytes(rng.randint(20, 300)))
+    try:
+        target.one_input(since[-1])
+    except Exception as exc:
+        print(findings.Finding(sys.argv[1], findings.failure_of(exc), since).save(Path(sys.argv[2])))
+        break
+target.close()
+"""
+
+
+@pytest.mark.long
+def test_a_controller_link_finding_replays_alone_to_the_same_failure(tmp_path):
+    """The controller-link target keeps its world between inputs: a finding is every input since the world was
+    built, and replayed alone, on a world built anew, it fails the same way, every time. Found here over the
+    planted BoxDial handler (in a child: planting changes that process's handler table)."""
+    planted = "host_tools.fuzz.planted:planted_controller_link_target"
+    done = subprocess.run([sys.executable, "-c", _FIND_PLANTED_LINK, planted, str(tmp_path)], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.strip(), done.stderr[-2000:]
+    path = done.stdout.strip().splitlines()[-1]
+    finding = findings.load(Path(path))
+    assert finding.failure.kind == "crash" and "IndexError" in finding.failure.error, finding.failure
+    assert finding.failure.where.startswith("host_tools/fuzz/planted.py:")
+    for _ in range(2):
+        done = aspod("fuzz", "--replay", path, planted, cwd=tmp_path)
+        assert done.returncode == 1 and "fails as found" in done.stdout, done.stdout + done.stderr
+
+
 def test_a_finding_with_more_inputs_than_the_fuzzer_keeps_is_refused_before_it_runs(tmp_path):
     path = findings.Finding("controller-link", findings.Failure("crash", "x"), [b""] * 501).save(tmp_path)
     with pytest.raises(findings.FindingError, match="holds at most 500 inputs"):
@@ -308,9 +363,11 @@ def traced(module):
 
 carriers = ("hil_sim.plant", "hil_sim.arm_tick", "host_tools.worlds.world", "host_tools.fuzz.grammar",
             "host_tools.fuzz.link_targets", "timebase.scheduler")
+from host_tools.fuzz.child import FAST_LOOP
 print(json.dumps({"covers": {path: traced(sys.modules[path.removesuffix(".py").replace("/", ".")])
                              for path in target.covers},
-                  "carriers": {m: traced(sys.modules[m]) for m in carriers if m in sys.modules}}))
+                  "carriers": {m: traced(sys.modules[m]) for m in carriers if m in sys.modules},
+                  "fast loop": {m: traced(sys.modules[m]) for m in FAST_LOOP if m in sys.modules}}))
 target.close()
 """
 
@@ -330,6 +387,23 @@ def test_every_file_a_target_covers_is_instrumented_for_the_coverage_guided_fuzz
     assert all(n == 0 for n in traced["carriers"].values()), traced
     if name in ("controller-link", "host-link"):
         assert {"hil_sim.plant", "host_tools.worlds.world", "host_tools.fuzz.grammar"} <= set(traced["carriers"])
+        # the 1 kHz loops and the HAL bus carry the world too (host_tools/fuzz/child.py FAST_LOOP): until
+        # 2026-11-28 they ran instrumented, and cost controller-link half its time
+        assert {"firmware_py.joints_tick", "protocol.hal", "hil_sim.hal_node"} <= set(traced["fast loop"])
+        assert all(n == 0 for n in traced["fast loop"].values()), traced
+
+
+@pytest.mark.long
+def test_controller_link_fuzzes_with_the_compiled_kernels(tmp_path):
+    """`ASPOD_COMPILED=1`: the child builds its world with the joints' kernel compiled by numba. Until 2026-11-28
+    atheris instrumented that kernel's module, and numba, typing the instrumented bytecode, failed: the child died
+    before its first input."""
+    pytest.importorskip("numba")
+    (tmp_path / "corpus").mkdir()
+    done = subprocess.run([sys.executable, "-m", "host_tools.fuzz.child", "controller-link", str(tmp_path / "found"),
+                           "10", "-seed=1", "-runs=50", str(tmp_path / "corpus")],
+                          capture_output=True, text=True, timeout=600, env=dict(os.environ, ASPOD_COMPILED="1"))
+    assert done.returncode == 0 and "Done 50 runs" in done.stderr, done.stderr[-3000:]
 
 
 def test_the_campaign_counts_since_a_commit_only_the_chunks_run_at_it_or_after(tmp_path):

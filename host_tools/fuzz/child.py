@@ -2,13 +2,14 @@
 
     python -m host_tools.fuzz.child TARGET FINDINGS_DIR HANG_S [libFuzzer options and corpus folders]
 
-libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and
-reads its progress lines. Nothing of the emulator is imported before atheris' import hook is in place, so the
-code under test is instrumented for coverage. On a crash or an oracle failure the finding is written to
-FINDINGS_DIR with every input since the target was last fresh (host_tools/fuzz/findings.py) before libFuzzer
-reports it. An input past HANG_S seconds of its own time (not counting the time the host kept it waiting for a
-CPU: host_tools/fuzz/hangs.py) is interrupted and saved the same way, as a hang. Running out of memory, or a hang
-the interrupt cannot reach, is left to libFuzzer's own artifact, which `aspod fuzz` turns into a finding.
+libFuzzer owns the process it runs in (it exits when done or on a finding), so `aspod fuzz` runs it here and reads
+its progress lines; the target's own libFuzzer options (`engine_options`) come before those given here. Nothing of
+the emulator is imported before atheris' import hook is in place, so the code under test is instrumented for
+coverage. On a crash or an oracle failure the finding is written to FINDINGS_DIR with every input since the target
+was last fresh (host_tools/fuzz/findings.py) before libFuzzer reports it. An input past HANG_S seconds of its own
+time (not counting the time the host kept it waiting for a CPU: host_tools/fuzz/hangs.py) is interrupted and saved
+the same way, as a hang. Running out of memory, or a hang the interrupt cannot reach, is left to libFuzzer's own
+artifact, which `aspod fuzz` turns into a finding.
 """
 import importlib
 import importlib.util
@@ -28,6 +29,14 @@ PROGRESS_EVERY_S = 1.0       # how often the job says how many inputs it has run
 # the code under test; the plant, the clock and the worlds that carry it are not (their coverage would only
 # slow every execution down, and count the plant's branches as the target's)
 INSTRUMENTED = ["protocol", "firmware_py", "hil_sim.hal_node", "host_tools.teleop", "host_tools.fuzz.planted"]
+
+# The 1 kHz loops and the HAL bus between the controller and the plant: every simulated millisecond of a link
+# target's world runs them, and no frame on the link is decided there. Instrumented (until 2026-11-28) they cost
+# controller-link half its time (1,984 against 1,012 us an input, the same inputs), kept in its corpus inputs that
+# only let time pass, and, with ASPOD_COMPILED=1, killed the child: numba cannot compile the joints' kernel from
+# instrumented bytecode. Only `hal`, the target of the HAL decoders, instruments them (they are what it covers).
+FAST_LOOP = ["firmware_py.joints_tick", "firmware_py.joint_bank", "firmware_py.joints_compiled", "firmware_py.hal",
+             "protocol.hal", "protocol.frame_code", "protocol.value_frame", "hil_sim.hal_node"]
 
 
 def _under(module: str, names) -> bool:
@@ -58,12 +67,14 @@ def modules_not_under_test(instrumented: list[str]) -> list[str]:
 
 
 def instrumenting(spec: str):
-    """atheris' import hook for the target `spec`: the code under test, nothing else of ours. For your own target
-    (`module:factory`): the whole package its module is in (its top-level package, as atheris takes it, where
-    that is not one of ours)."""
+    """atheris' import hook for the target `spec`: the code under test, nothing else of ours (nor the fast loop,
+    but for `hal`). For your own target (`module:factory`): the whole package its module is in (its top-level
+    package, as atheris takes it, where that is not one of ours)."""
     module = spec.split(":")[0] if ":" in spec else None
     own = [module.rpartition(".")[0] or module] if module else []
     exclude = [m for m in modules_not_under_test(INSTRUMENTED) if not _under(m, own)]
+    if spec != "hal":
+        exclude += FAST_LOOP
     return atheris.instrument_imports(include=INSTRUMENTED + [module] * bool(module), exclude=exclude)
 
 
@@ -123,7 +134,7 @@ def main(argv: list[str]) -> None:
         target = load_for_fuzzing(spec)
     with HangWatch(hang_s) as watch:
         harness = Harness(target, spec, findings_dir, watch)
-        atheris.Setup([sys.argv[0]] + libfuzzer_args, harness)
+        atheris.Setup([sys.argv[0], *getattr(target, "engine_options", ()), *libfuzzer_args], harness)
         atheris.Fuzz()
 
 

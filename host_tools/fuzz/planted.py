@@ -10,6 +10,8 @@ The emulator never loads this module. A test, the benchmark, or a person checkin
   controller. Every other value, and every other message, behaves as in the real controller. A fuzzer finds
   it only if it reaches the handler (a session, a valid MAC, counter and sequence number) with a float at
   its declared boundary.
+- `planted_controller_link_target()`: the `controller-link` target in process, over that same BoxDial handler:
+  the engine must reach it as the black-box fuzzer does, through a session, a valid MAC and sequence number.
 - `planted_hang_target()`: a walker over length-prefixed records that does not step over a record of length 0,
   so it loops for ever on such an input: a hang, which `aspod fuzz` must end, save and replay as one.
 """
@@ -61,15 +63,26 @@ def planted_hang_target():
     return WalkTarget()
 
 
+def planted_controller_link_target():
+    """The controller-link target, its controller's BoxDial handler the planted one
+    (`aspod fuzz host_tools.fuzz.planted:planted_controller_link_target`)."""
+    from host_tools.fuzz.link_targets import ControllerLinkTarget
+    plant_dial_defect()
+    return ControllerLinkTarget()
+
+
 def plant_dial_defect() -> None:
     """Replace the controller's BoxDial handler by the planted one (in this process only)."""
     from firmware_py import controller
     real = controller._HANDLERS["BoxDial"]
+    if getattr(real, "planted", False):
+        return                                               # planted already (a target made again)
     table = [round(p * 1023 / 100) for p in range(100)]     # the defect: 0..99 %, one entry short of 100 %
 
     def planted_box_dial(self, msg, now):
         table[int(msg.percent)]                              # IndexError at exactly 100 %
         return real(self, msg, now)
+    planted_box_dial.planted = True
     controller._HANDLERS["BoxDial"] = planted_box_dial
 
 

@@ -55,6 +55,7 @@ class Target:
     stateful = False
     fresh_every = 1          # inputs between two fresh starts (stateful targets)
     covers: tuple[str, ...] = ()   # source files whose line coverage the campaign reports
+    engine_options: tuple[str, ...] = ()   # libFuzzer options this target runs with (host_tools/fuzz/child.py)
 
     def fresh(self) -> None:
         """Start again from nothing (a stateful target's world built anew)."""
