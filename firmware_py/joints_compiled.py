@@ -1,8 +1,8 @@
 """The joints' tick compiled by numba: optional, behind the switch of the `kernels` package.
 
 `compiled_joints_tick()` is `joints_tick` (firmware_py/joints_tick.py) compiled without fastmath,
-so its duties are the same to the bit as the plain function's and `Axis.update`'s
-(tests/test_joints_tick.py runs it against both); `compiled_arm_joints_tick()` is `arm_joints_tick`
+so its duties are the same to the bit as the plain function's (tests/test_joints_tick.py runs
+both side by side); `compiled_arm_joints_tick()` is `arm_joints_tick`
 (the gravity feed-forward, then `joints_tick` from the first joint), the arm's one call a tick.
 They run over the numpy arrays of a `JointBank(compiled=True)`. `ASPOD_COMPILED=1`
 (kernels/__init__.py) makes them the controller's default (`ControllerConfig.compiled_joints`).
