@@ -128,6 +128,39 @@ def holding_torques_nm(q1: float, q2: float, q3: float, g: float, payload_kg: fl
     return t1, t2, t3
 
 
+def count_step(new_count: bool, count: int, has_count: int, last_count: int, turns: int, missed: int,
+               offset_rad: float, rad_per_count: float, max_counts_per_tick: float, stale_ticks: int,
+               glitch_margin: int) -> tuple:
+    """A tick's raw count through the estimator's checks (`_CountTracker`, firmware_py/estimator.py): the 32-bit
+    wrap, staleness (no new count for `stale_ticks` ticks) and glitches (a jump no motion could make in the ticks
+    since the last accepted count: the sample dropped). Returns (z, has_count, last_count, turns, missed, flags):
+    z the measured position (NaN: none this tick), flags ENCODER_STALE | ENCODER_GLITCH."""
+    if not new_count:
+        missed += 1
+        return NONE, has_count, last_count, turns, missed, ENCODER_STALE if missed >= stale_ticks else 0
+    if not has_count:                                        # the first count: where the estimate is
+        return offset_rad, 1, count, 0, 0, 0
+    delta = (count - last_count + 0x80000000) % 0x100000000 - 0x80000000     # across the 32-bit wrap
+    limit = max_counts_per_tick * (missed + 1) + glitch_margin
+    if -limit <= delta <= limit:
+        turns += delta
+        return turns * rad_per_count + offset_rad, 1, count, turns, 0, 0
+    missed += 1
+    return NONE, has_count, last_count, turns, missed, ENCODER_GLITCH | (ENCODER_STALE if missed >= stale_ticks
+                                                                          else 0)
+
+
+def filter_step(pos_rad: float, vel_rad_s: float, z: float, dt_s: float, k_pos: float, k_vel: float) -> tuple:
+    """The constant-velocity filter with steady-state gains (`SteadyStateEstimator`): predict, and correct with the
+    measured position `z` (NaN: none). Returns (pos_rad, vel_rad_s)."""
+    pos_rad = pos_rad + vel_rad_s * dt_s                     # predict
+    if z == z:
+        residual = z - pos_rad                               # correct
+        pos_rad += k_pos * residual
+        vel_rad_s += k_vel * residual
+    return pos_rad, vel_rad_s
+
+
 def joints_tick(first: int, stop: int, now: float, count_s: float, current_s: float, counts, currents_a, home,
                 gravity_nm, duty_out, state, int_state, config, int_config, profile) -> int:
     """Run the tick of joints `first` .. `stop - 1` (each from its ENTRY); return `stop`, or the index of the first
@@ -152,37 +185,14 @@ def joints_tick(first: int, stop: int, now: float, count_s: float, current_s: fl
         holding = False                                      # HOLDING at the tick's start (the integrator's rule)
         driven = True
         if entry == START:
-            # ---- stage 0: encoder count -> estimator (SteadyStateEstimator's filter, _CountTracker's checks)
-            pos_rad = pos_rad + vel_rad_s * est_dt           # predict
-            estimator_flags = 0
-            if count_s == count_s and count_s != last_count_s:   # a new count arrived
+            # ---- stage 0: encoder count -> estimator (firmware_py/estimator.py uses the same two functions)
+            new_count = count_s == count_s and count_s != last_count_s      # a new count arrived
+            if new_count:
                 last_count_s = count_s
-                count = counts[channel]
-                if has_count:
-                    delta = (count - last_count + 0x80000000) % 0x100000000 - 0x80000000   # across the 32-bit wrap
-                    limit = max_counts_per_tick * (missed + 1) + glitch_margin
-                    if -limit <= delta <= limit:
-                        last_count = count
-                        turns += delta
-                        missed = 0
-                        residual = turns * rad_per_count + offset_rad - pos_rad        # correct
-                        pos_rad += k_pos * residual
-                        vel_rad_s += k_vel * residual
-                    else:                                    # a glitch: the sample dropped
-                        missed += 1
-                        estimator_flags = ENCODER_GLITCH | (ENCODER_STALE if missed >= stale_ticks else 0)
-                else:                                        # the first count: where the estimate is
-                    has_count = 1
-                    last_count = count
-                    turns = 0
-                    missed = 0
-                    residual = offset_rad - pos_rad
-                    pos_rad += k_pos * residual
-                    vel_rad_s += k_vel * residual
-            else:
-                missed += 1
-                if missed >= stale_ticks:
-                    estimator_flags = ENCODER_STALE
+            z, has_count, last_count, turns, missed, estimator_flags = count_step(
+                new_count, counts[channel], has_count, last_count, turns, missed, offset_rad, rad_per_count,
+                max_counts_per_tick, stale_ticks, glitch_margin)
+            pos_rad, vel_rad_s = filter_step(pos_rad, vel_rad_s, z, est_dt, k_pos, k_vel)
             if estimator_flags:
                 event = EV_FAULT
                 raised = estimator_flags
