@@ -108,23 +108,14 @@ class Refusal(enum.IntEnum):
 
 
 class Debounce:
-    """A condition that must hold a while before it counts: `held(condition, now, hold_s)` is True once
-    `condition` has been true at every call since a call at least `hold_s` before `now` (never at the
-    first true call); a false call starts it over."""
+    """A condition that must hold a while before it counts: `since` is the first tick of its present run (None while
+    it is false); the joints' tick (firmware_py/joints_tick.py) keeps it and faults once it has held for its time.
+    `clear` starts it over (a reset)."""
 
     __slots__ = ("since",)
 
     def __init__(self) -> None:
         self.since: Optional[float] = None
-
-    def held(self, condition: bool, now: float, hold_s: float) -> bool:
-        if not condition:
-            self.since = None
-            return False
-        if self.since is None:
-            self.since = now
-            return False
-        return now - self.since >= hold_s
 
     def clear(self) -> None:
         self.since = None

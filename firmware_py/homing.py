@@ -10,12 +10,13 @@ import math
 from typing import Optional
 
 from firmware_py import profiles
+from firmware_py.joints_tick import (HOME_BACKOFF, HOME_CLEAR, HOME_SEEK, HOME_START, HOMING_BACKED_OFF,
+                                     HOMING_FAILED, HOMING_FOUND, HOMING_OFF_SWITCH, HOMING_ON_SWITCH)
 from protocol.states import AxisMode, MotionOutcome
 
 # homing phases: first tick (is the switch already closed?), leave the switch, seek it, back off
-START, CLEAR, SEEK, BACKOFF = 0, 1, 2, 3
-# the tick's decisions while homing (firmware_py/joints_tick.py's MOTION values)
-HOMING_FAILED, HOMING_ON_SWITCH, HOMING_OFF_SWITCH, HOMING_FOUND, HOMING_BACKED_OFF = range(4, 9)
+START, CLEAR, SEEK, BACKOFF = HOME_START, HOME_CLEAR, HOME_SEEK, HOME_BACKOFF
+# the tick's decisions while homing: firmware_py/joints_tick.py's MOTION values HOMING_*
 
 
 class Homing:

@@ -62,8 +62,6 @@ import math
 
 from protocol.states import AxisMode
 
-from firmware_py import homing
-
 # state: floats that change every tick; TICK_*: the setpoint a handed-back tick goes on with
 (POS_RAD, VEL_RAD_S, OFFSET_RAD, COUNT_S, DUTY, DUTY_REQUESTED, INTEG, DUTY_LO, DUTY_HI, POS_SP_RAD, VEL_SP_RAD_S,
  TARGET_RAD, PROFILE_T0_S, SETTLE_SINCE_S, STALL_SINCE_S, TRIP_SINCE_S, OPEN_SINCE_S, HOME_START_RAD,
@@ -96,16 +94,16 @@ START, SUPERVISE, CONTROL = range(3)
 EV_NONE, EV_FAULT, EV_SETPOINT, EV_MOTION = range(4)
 # MOTION: the supervision's decision
 SOFT_LIMIT_STOP, MOVE_SETTLED, MOVE_GAVE_UP = range(1, 4)
-HOMING_FAILED, HOMING_ON_SWITCH, HOMING_OFF_SWITCH, HOMING_FOUND, HOMING_BACKED_OFF = (
-    homing.HOMING_FAILED, homing.HOMING_ON_SWITCH, homing.HOMING_OFF_SWITCH, homing.HOMING_FOUND,
-    homing.HOMING_BACKED_OFF)
+HOMING_FAILED, HOMING_ON_SWITCH, HOMING_OFF_SWITCH, HOMING_FOUND, HOMING_BACKED_OFF = range(4, 9)   # homing's
 # AxisError's bits (firmware_py/axis.py holds the enum and checks it against these)
 (ENCODER_STALE, ENCODER_GLITCH, CURRENT_STALE, STALL, FOLLOWING_ERROR, OVER_CURRENT, CURRENT_LIMITED,
  OPEN_CIRCUIT) = (1 << 0, 1 << 1, 1 << 2, 1 << 3, 1 << 4, 1 << 6, 1 << 8, 1 << 9)
 
 IDLE, MOVING, JOGGING, HOMING, HOLDING, FAULT = (int(AxisMode.IDLE), int(AxisMode.MOVING), int(AxisMode.JOGGING),
                                                  int(AxisMode.HOMING), int(AxisMode.HOLDING), int(AxisMode.FAULT))
-HOME_START, HOME_CLEAR, HOME_SEEK, HOME_BACKOFF = homing.START, homing.CLEAR, homing.SEEK, homing.BACKOFF
+# homing's phases (firmware_py/homing.py): first tick (is the switch already closed?), leave the switch, seek it,
+# back off
+HOME_START, HOME_CLEAR, HOME_SEEK, HOME_BACKOFF = range(4)
 NONE = math.nan           # a `since` or an arrival time that is not there
 # the arm's mass model for the gravity feed-forward (firmware_py/arm_config.py MassModel, its fields in this order)
 (LINK2_M, LINK3_M, LINK2_KG, LINK3_KG, ELBOW_HW_KG, WRIST_FIXED_KG, WRIST_TURNED_KG, WRIST_TURNED_CG_M,
@@ -126,6 +124,22 @@ def holding_torques_nm(q1: float, q2: float, q3: float, g: float, payload_kg: fl
     beyond_j2 = masses[ELBOW_HW_KG] + masses[LINK3_KG] + beyond_j3
     t1 = g * (masses[LINK2_KG] * masses[LINK2_M] / 2 + beyond_j2 * masses[LINK2_M]) * c1 + t2
     return t1, t2, t3
+
+
+def sample_profile(motion, segments: int, t: float) -> tuple:
+    """A motion profile's (pos_rad, vel_rad_s, acc_rad_s2) at `t` seconds after its start (`profiles.Profile.sample`):
+    `motion` its row (DURATION_S, END_POS_RAD, END_VEL_RAD_S, then `segments` segments), constant acceleration in
+    each segment, the end's position and speed from its duration on."""
+    if t >= motion[DURATION_S]:
+        return motion[END_POS_RAD], motion[END_VEL_RAD_S], 0.0
+    i = SEGMENTS + SEGMENT_COLUMNS * (segments - 1)
+    while i > SEGMENTS and motion[i] > t:
+        i -= SEGMENT_COLUMNS
+    since_start = t - motion[i]
+    if since_start < 0.0:
+        since_start = 0.0
+    vel, acc = motion[i + 2], motion[i + 3]
+    return motion[i + 1] + since_start * (vel + 0.5 * acc * since_start), vel + acc * since_start, acc
 
 
 def count_step(new_count: bool, count: int, has_count: int, last_count: int, turns: int, missed: int,
@@ -208,24 +222,8 @@ def joints_tick(first: int, stop: int, now: float, count_s: float, current_s: fl
                     tick_pos_sp = pos_sp
                     tick_vel_sp = 0.0
                     tick_acc_sp = 0.0
-                else:                                        # the profile at t (Profile.sample)
-                    motion_row = profile[k]
-                    t = now - profile_t0
-                    if t >= motion_row[DURATION_S]:
-                        tick_pos_sp = motion_row[END_POS_RAD]
-                        tick_vel_sp = motion_row[END_VEL_RAD_S]
-                        tick_acc_sp = 0.0
-                    else:
-                        i = SEGMENTS + SEGMENT_COLUMNS * (segments - 1)
-                        while i > SEGMENTS and motion_row[i] > t:
-                            i -= SEGMENT_COLUMNS
-                        since_start = t - motion_row[i]
-                        if since_start < 0.0:
-                            since_start = 0.0
-                        seg_vel, seg_acc = motion_row[i + 2], motion_row[i + 3]
-                        tick_pos_sp = motion_row[i + 1] + since_start * (seg_vel + 0.5 * seg_acc * since_start)
-                        tick_vel_sp = seg_vel + seg_acc * since_start
-                        tick_acc_sp = seg_acc
+                else:                                        # the profile at t
+                    tick_pos_sp, tick_vel_sp, tick_acc_sp = sample_profile(profile[k], segments, now - profile_t0)
                     entry = SUPERVISE if mode != HOLDING else CONTROL
                 if entry == START:
                     entry = CONTROL
