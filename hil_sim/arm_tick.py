@@ -395,6 +395,11 @@ class ArmTick:
         self._sampled_writes = self._motors.state_writes
         return drawn
 
+    @property
+    def step_split(self) -> tuple[float, int]:
+        """The substep length and the substeps of a tick of the step length in use (`_set_step_length`)."""
+        return self._h_s, self._substeps
+
     def _flag_lists(self) -> list[list[bool]]:
         """The flag readouts (DRIVEN, BRAKED, HOME, LIMIT_LO, LIMIT_HI) as lists of Python bools, once a tick."""
         if self._flags_out is None:
