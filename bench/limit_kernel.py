@@ -17,7 +17,7 @@ import functools
 from typing import Callable
 
 from firmware_py.joints_tick import (arm_joints_tick, count_step, filter_step, holding_torques_nm, joints_tick,
-                                     sample_profile)
+                                     sample_profile, stopping_distance)
 from hil_sim.arm_tick import (BRAKE, COUNTS, CURRENT_A, DUTY, ENABLE, HOME, arm_plant_tick, gravity_and_inertia,
                               sample_readouts)
 from kernels import compile_kernel
@@ -52,5 +52,6 @@ def limit_ticks(ticks: int, now: float, dt_s: float, joints: int, g: float, payl
 def compiled_limit_ticks() -> Callable[..., int]:
     """`limit_ticks` compiled by numba, both kernels compiled into it (RuntimeError without numba)."""
     return compile_kernel(limit_ticks, "limit", cache=False,
-                          helpers=(count_step, filter_step, sample_profile, joints_tick, holding_torques_nm,
-                                   arm_joints_tick, gravity_and_inertia, sample_readouts, arm_plant_tick))
+                          helpers=(count_step, filter_step, sample_profile, stopping_distance, joints_tick,
+                                   holding_torques_nm, arm_joints_tick, gravity_and_inertia, sample_readouts,
+                                   arm_plant_tick))

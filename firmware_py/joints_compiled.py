@@ -13,7 +13,7 @@ import functools
 from typing import Callable
 
 from firmware_py.joints_tick import (arm_joints_tick, count_step, filter_step, holding_torques_nm, joints_tick,
-                                     sample_profile)
+                                     sample_profile, stopping_distance)
 from kernels import compile_kernel
 
 
@@ -21,12 +21,12 @@ from kernels import compile_kernel
 def compiled_joints_tick() -> Callable[..., int]:
     """`joints_tick` compiled by numba, the estimator's two steps and the profile's sampling compiled into it
     (RuntimeError if numba is not installed)."""
-    return compile_kernel(joints_tick, "joints", helpers=(count_step, filter_step, sample_profile))
+    return compile_kernel(joints_tick, "joints", helpers=(count_step, filter_step, sample_profile, stopping_distance))
 
 
 @functools.lru_cache(maxsize=1)
 def compiled_arm_joints_tick() -> Callable[..., int]:
     """`arm_joints_tick` compiled by numba, `joints_tick` (with the estimator's steps) and the gravity compiled
     into it."""
-    return compile_kernel(arm_joints_tick, "joints", helpers=(count_step, filter_step, sample_profile, joints_tick,
-                                                                  holding_torques_nm))
+    return compile_kernel(arm_joints_tick, "joints", helpers=(count_step, filter_step, sample_profile,
+                                                              stopping_distance, joints_tick, holding_torques_nm))

@@ -126,6 +126,11 @@ def holding_torques_nm(q1: float, q2: float, q3: float, g: float, payload_kg: fl
     return t1, t2, t3
 
 
+def stopping_distance(vel_rad_s: float, acc_max_rad_s2: float) -> float:
+    """Signed distance to rest when decelerating at the limit (`profiles.stopping_distance`)."""
+    return vel_rad_s * abs(vel_rad_s) / (2.0 * acc_max_rad_s2)
+
+
 def sample_profile(motion, segments: int, t: float) -> tuple:
     """A motion profile's (pos_rad, vel_rad_s, acc_rad_s2) at `t` seconds after its start (`profiles.Profile.sample`):
     `motion` its row (DURATION_S, END_POS_RAD, END_VEL_RAD_S, then `segments` segments), constant acceleration in
@@ -250,8 +255,7 @@ def joints_tick(first: int, stop: int, now: float, count_s: float, current_s: fl
             elif mode != HOLDING:
                 if homed or not moves_need_home:             # the soft limits are on
                     if mode == JOGGING:                      # come to rest at the limit, one tick early
-                        ahead = (tick_pos_sp + tick_vel_sp * abs(tick_vel_sp) / (2.0 * acc_limit)
-                                 + tick_vel_sp * dt)
+                        ahead = tick_pos_sp + stopping_distance(tick_vel_sp, acc_limit) + tick_vel_sp * dt
                         if (tick_vel_sp > 0 and ahead >= soft_max) or (tick_vel_sp < 0 and ahead <= soft_min):
                             motion = SOFT_LIMIT_STOP
                     elif (pos_rad > soft_max + in_position and vel_rad_s > 0) or (

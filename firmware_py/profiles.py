@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from firmware_py.joints_tick import sample_profile
+from firmware_py.joints_tick import sample_profile, stopping_distance
 
 # The report (DEFLECTION AND MOMENT ANALYSIS, Figure 7 and APPENDIX B, ACCELERATION ANALYSIS)
 # keeps joint speed at or below 1/2 RPM so torques stay static, and the inertial term of the Lagrangian
@@ -167,6 +167,5 @@ def stop(pos_rad: float, vel_rad_s: float, acc_max_rad_s2: float) -> Profile:
     return Profile(b.segments, b.t, b.p)
 
 
-def stopping_distance(vel_rad_s: float, acc_max_rad_s2: float) -> float:
-    """Signed distance to rest when decelerating at the limit."""
-    return vel_rad_s * abs(vel_rad_s) / (2.0 * acc_max_rad_s2)
+__all__ = ["DEFAULT_JOINT_ACC_RAD_S2", "INFINITY", "Profile", "REPORT_JOINT_SPEED_RAD_S", "Segment", "jog", "stop",
+           "stopping_distance", "trapezoid"]
