@@ -90,7 +90,7 @@ PROFILE_COLUMNS = SEGMENTS + SEGMENT_COLUMNS * MAX_SEGMENTS
 # ENTRY: where a joint's tick starts: at its beginning, at the supervision with the setpoint in TICK_* (a
 # trajectory's), at the control with the setpoint in TICK_* (after the facade's act on a motion event)
 START, SUPERVISE, CONTROL = range(3)
-# EVENT: why the tick was handed back (module docstring)
+# EVENT: why the tick was handed over (module docstring)
 EV_NONE, EV_FAULT, EV_SETPOINT, EV_MOTION = range(4)
 # MOTION: the supervision's decision
 SOFT_LIMIT_STOP, MOVE_SETTLED, MOVE_GAVE_UP = range(1, 4)
@@ -233,7 +233,7 @@ def joints_tick(first: int, stop: int, now: float, count_s: float, current_s: fl
                 if entry == START:
                     entry = CONTROL
         if event == EV_NONE and driven and entry == SUPERVISE:
-            # ---- stage 1b: supervise the motion (Axis._supervise_motion acts on the decision)
+            # ---- stage 1b: supervise the motion (Axis._act_on acts on the decision)
             t = now - profile_t0
             duration = profile[k][DURATION_S]
             if mode == HOMING:                               # homing's phases (firmware_py/homing.py)
@@ -273,7 +273,7 @@ def joints_tick(first: int, stop: int, now: float, count_s: float, current_s: fl
             else:
                 entry = CONTROL
         if event == EV_NONE and driven:
-            # ---- stage 2: cascaded control, current limit, saturation, anti-windup, debounced faults (Axis._limit)
+            # ---- stage 2: cascaded control, current limit, saturation, anti-windup, debounced faults
             pos_sp = tick_pos_sp
             vel_sp = tick_vel_sp
             acc_sp = tick_acc_sp

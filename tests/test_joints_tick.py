@@ -247,7 +247,7 @@ def stale_session(bench: LockstepBench) -> dict:
 
 
 def trajectory_session(bench: LockstepBench) -> dict:
-    """j1..j4 homed, then along a trajectory (its ticks handed back: the kernel evaluates no cubic), stopped
+    """j1..j4 homed, then along a trajectory (its ticks handed to the facade: the kernel evaluates no cubic), stopped
     midway, and again to its end; the mount moving meanwhile, in the kernel."""
     call_ok(bench, M["Enable"]())
     started = bench.call(M["Home"](int(AxisId.ALL))).reply
@@ -297,7 +297,7 @@ SESSIONS = {
     # every tick of a stale encoder is a fault (already latched or not)
     "stale": Session(stale_session, frozenset({_M.FAULT, _M.MOVING}), AxisError.ENCODER_STALE | AxisError.CURRENT_STALE,
                      reasons=frozenset({Reason.ENCODER_STALE, Reason.CURRENT_STALE}), handed_back=0.05),
-    # a trajectory's every tick is handed back (4 joints of 5, about half the session)
+    # a trajectory's every tick is handed to the facade (4 joints of 5, about half the session)
     "trajectory": Session(trajectory_session, frozenset({_M.HOMING, _M.HOLDING, _M.MOVING}),
                           outcomes=frozenset({_O.DONE, _O.STOPPED}), handed_back=0.5),
 }
