@@ -46,7 +46,6 @@ from firmware_py.trajectory import REST_TOLERANCE_DPS, START_TOLERANCE_DEG
 from protocol.messages import TRAJECTORY_JOINTS
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
-_NO_TORQUE = [0.0, 0.0, 0.0]          # J1..J3 holding torques without gravity
 # the joints' rows (DRIVES order) run in channel order, as the reference loop runs them
 assert [ARM_CHANNELS.index(drive.name) for drive in DRIVES] == sorted(ARM_CHANNELS.index(d.name) for d in DRIVES)
 # The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
@@ -127,20 +126,15 @@ def fault_of(bits: int) -> tuple[Fault, Reason]:
 class ArmController:
     """The five joint axes and the gripper, in HAL channel order.
 
-    `fused_joints` (the default): the joints' hot state lives in a `JointBank` and each tick runs through
-    `joints_tick` (firmware_py/joints_tick.py), the `Axis` objects its facade; False: each joint's
-    `Axis.update` as the reference, the same to the bit. A `stopwatch` (per-stage times) needs the reference.
-    `compiled_joints`: the fused tick compiled by numba (firmware_py/joints_compiled.py), the same to the bit.
+    The joints' hot state lives in a `JointBank` and each tick runs through `joints_tick`
+    (firmware_py/joints_tick.py), the `BankedAxis` objects its facade. `compiled_joints`: that tick
+    compiled by numba (firmware_py/joints_compiled.py), the same to the bit.
     """
 
     def __init__(self, hal: ControllerHal, params: ParamStore, dt_s: float = 0.001,
                  on_fault: FaultSink = lambda fault, reason, now, measured: None,
                  on_motion_done: MotionSink = lambda *args: None,
-                 stopwatch: Optional[Callable[[], float]] = None,
-                 on_late: LateSink = lambda late_s, now: False, fused_joints: bool = True,
-                 compiled_joints: bool = False) -> None:
-        if fused_joints and stopwatch is not None:
-            raise ValueError("per-stage times (stopwatch) are taken in Axis.update: fused_joints=False")
+                 on_late: LateSink = lambda late_s, now: False, compiled_joints: bool = False) -> None:
         self.hal = hal
         self.params = params
         self.dt_s = dt_s
@@ -150,18 +144,16 @@ class ArmController:
         self.judge_lateness = False      # set for a controller on the wall clock (Controller.attach)
         self._last_tick_s: Optional[float] = None
         self.outputs_allowed = False
-        self._tau = [0.0, 0.0, 0.0]      # gravity holding torques J1..J3, refreshed every tick (the bank: its own)
         values = params.values()
         self.joints: dict[str, Axis] = {}
-        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints, MASSES.row) if fused_joints else None
+        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints, MASSES.row)
         for index, drive in enumerate(DRIVES):
             gravity = self._gravity_torque(index)
             k = ARM_CHANNELS.index(drive.name)
             config = arm_config.axis_config(drive, values, dt_s)
             on_axis_fault = (lambda k: lambda bits, now: self._axis_fault(k, bits, now))(k)
-            self.joints[drive.name] = (
-                Axis(config, gravity_nm=gravity, stopwatch=stopwatch, on_fault=on_axis_fault) if self.bank is None
-                else BankedAxis(self.bank, index, k, config, gravity_nm=gravity, on_fault=on_axis_fault))
+            self.joints[drive.name] = BankedAxis(self.bank, index, k, config, gravity_nm=gravity,
+                                                 on_fault=on_axis_fault)
         # the bank's rows run in channel order, the gripper's channel between two spans of them
         self._rows_before_gripper = sum(ARM_CHANNELS.index(drive.name) < GRIPPER_INDEX for drive in DRIVES)
         self.gripper = Gripper(GRIPPER, on_fault=self._gripper_fault)
@@ -174,12 +166,10 @@ class ArmController:
         self._trajectory: dict[int, int] = {}      # the last trajectory's motions: axis index -> motion id
 
     def _gravity_torque(self, index: int) -> Optional[Callable[[float], float]]:
-        """Joint `index`'s gravity torque as `Axis.update` asks for it: J1..J3's, refreshed once a tick (for banked
-        joints by the kernel, `JointBank.run_arm`); None for the others."""
+        """Joint `index`'s gravity torque: J1..J3's, refreshed once a tick by the kernel (`JointBank.run_arm`);
+        None for the others."""
         if index >= GRAVITY_ROWS:
             return None
-        if self.bank is None:
-            return lambda pos: self._tau[index]
         gravity_nm = self.bank.gravity_nm
         return lambda pos: float(gravity_nm[index])
 
@@ -324,7 +314,7 @@ class ArmController:
         fb_s = inputs.fb_s
         if fb_s is None:                 # nothing from the plant yet: nothing to control
             return now + self.dt_s
-        duty = self._tick_axes(now, inputs, fb_s) if self.bank is None else self._tick_bank(now, inputs, fb_s)
+        duty = self._tick_bank(now, inputs, fb_s)
         if self.outputs_allowed:
             brake = [channel.brake for channel in self.channels]
             self.hal.send_motor_command(duty, [not b for b in brake], brake)
@@ -338,11 +328,12 @@ class ArmController:
 
         The order is channel order (J1-J4, the gripper, the mount) wherever one channel's tick can reach another:
         the gripper's reaches the joints only by faulting (the safe state), and a joint's only when the kernel
-        hands it back to `Axis.update`. So while the gripper cannot fault this tick, the kernel takes the joints
-        after it too, all of them in one call, and the gripper ticks before the first joint handed back after it.
+        hands it over to its facade (`BankedAxis.act`). So while the gripper cannot fault this tick, the kernel
+        takes the joints after it too, all of them in one call, and the gripper ticks before the first joint
+        handed over after it.
         """
         bank, k, split = self.bank, GRIPPER_INDEX, self._rows_before_gripper
-        bank.take_inputs(fb_s, inputs.counts, inputs.currents_a, inputs.home)
+        bank.take_inputs(fb_s, fb_s, inputs.counts, inputs.currents_a, inputs.home)
         stop = split if self.gripper.may_fault(now) else bank.size
         done = bank.run_arm(stop, now, float(self.params["gravity_m_s2"]), float(self.params["payload_kg"]))
         if done < split:
@@ -354,24 +345,6 @@ class ArmController:
             bank.run(done, bank.size, now)
         duty = bank.duty_list()
         duty[k] = gripper_duty
-        return duty
-
-    def _tick_axes(self, now: float, inputs: HalInputs, fb_s: float) -> list[float]:
-        """Every channel's tick, in channel order, each joint by its `Axis.update` (the reference); the duties."""
-        joints = self.joints
-        g = self.params["gravity_m_s2"]
-        if g:
-            self._tau[:] = MASSES.holding_torques_nm(joints["j1"].pos_rad, joints["j2"].pos_rad,
-                                                     joints["j3"].pos_rad, g, self.params["payload_kg"])
-        elif self._tau != _NO_TORQUE:
-            self._tau[:] = _NO_TORQUE        # gravity set to 0 while running (orbit): no feed-forward left over
-        counts, currents, home = inputs.counts, inputs.currents_a, inputs.home
-        duty = self._duty
-        for k, channel in enumerate(self.channels):
-            if k == GRIPPER_INDEX:
-                duty[k] = channel.update(now, counts[k], currents[k], inputs.limit_lo[k], inputs.limit_hi[k])
-            else:
-                duty[k] = channel.update(now, counts[k], fb_s, currents[k], fb_s, home[k])
         return duty
 
     def report_motion_ends(self, now: float) -> None:

@@ -1,14 +1,18 @@
-"""One motor axis as a declared pipeline: encoder -> estimator -> controller -> PWM.
+"""One motor axis: its configuration, modes, commands and faults; its tick is the joints' kernel.
 
-`Axis.update(now, count, count_s, i_a, i_s, home_switch)` runs one tick and returns the duty to
-send; it does no bus I/O. The arm loop runs the same tick for all five joints through
-`firmware_py/joints_tick.py` (the same operations, tested to the bit against this one): a change
-to the tick here needs the same change there. Inputs carry the `now` at which they arrived (`count_s`, `i_s`), so the
-axis knows how stale they are (ODrive's MotorControl style): an encoder count that has not
-changed its arrival time is "no new sample" for the estimator, which flags STALE after a few
-ticks; a current reading older than `current_stale_s` while driving is a fault.
+The tick (encoder -> estimator -> controller -> PWM) is written once, in
+`firmware_py/joints_tick.py`, over rows of numbers; `BankedAxis` (firmware_py/joint_bank.py) is an
+`Axis` whose state lives in those rows, and `BankedAxis.update(now, count, count_s, i_a, i_s,
+home_switch)` runs one tick and returns the duty to send (`joint_bank.single_axis` builds one
+alone; the arm ticks its five joints in one call). It does no bus I/O. Inputs carry the `now` at
+which they arrived (`count_s`, `i_s`), so the axis knows how stale they are (ODrive's MotorControl
+style): an encoder count that has not changed its arrival time is "no new sample" for the
+estimator, which flags STALE after a few ticks; a current reading older than `current_stale_s`
+while driving is a fault. This class keeps what is not per tick: commands, parameters, the
+motion profiles, faults and outcomes, and what the tick hands to it (`_act_on`: a soft limit's
+stop, a move's end, homing's phases).
 
-Stages, each timed with the injected `stopwatch` (none: not timed):
+Stages of the tick:
   0 estimator   counts -> pos_rad, vel_rad_s (firmware_py/estimator.py), glitch/stale checks
   1 controller  profile setpoint -> position P -> velocity PI (+ feed-forward) -> requested duty
   2 output      current limit, saturation to [-1, 1], anti-windup, stall detection
@@ -36,9 +40,10 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional
 
+from firmware_py import joints_tick as jt
 from firmware_py import profiles
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
 from firmware_py.hermite import HermiteProfile
@@ -83,6 +88,10 @@ AXIS_ERROR_DOCS: dict[AxisError, tuple[str, str]] = {
                              "`open_circuit_a`", "check the motor, its connector and fuse"),
 }
 assert set(AXIS_ERROR_DOCS) == {e for e in AxisError if e != AxisError.NONE}
+assert (jt.ENCODER_STALE, jt.ENCODER_GLITCH, jt.CURRENT_STALE, jt.STALL, jt.FOLLOWING_ERROR, jt.OVER_CURRENT,
+        jt.CURRENT_LIMITED, jt.OPEN_CIRCUIT) == tuple(int(e) for e in (
+            AxisError.ENCODER_STALE, AxisError.ENCODER_GLITCH, AxisError.CURRENT_STALE, AxisError.STALL,
+            AxisError.FOLLOWING_ERROR, AxisError.OVER_CURRENT, AxisError.CURRENT_LIMITED, AxisError.OPEN_CIRCUIT))
 
 
 class Refusal(enum.IntEnum):
@@ -99,23 +108,14 @@ class Refusal(enum.IntEnum):
 
 
 class Debounce:
-    """A condition that must hold a while before it counts: `held(condition, now, hold_s)` is True once
-    `condition` has been true at every call since a call at least `hold_s` before `now` (never at the
-    first true call); a false call starts it over."""
+    """A condition that must hold a while before it counts: `since` is the first tick of its present run (None while
+    it is false); the joints' tick (firmware_py/joints_tick.py) keeps it and faults once it has held for its time.
+    `clear` starts it over (a reset)."""
 
     __slots__ = ("since",)
 
     def __init__(self) -> None:
         self.since: Optional[float] = None
-
-    def held(self, condition: bool, now: float, hold_s: float) -> bool:
-        if not condition:
-            self.since = None
-            return False
-        if self.since is None:
-            self.since = now
-            return False
-        return now - self.since >= hold_s
 
     def clear(self) -> None:
         self.since = None
@@ -240,39 +240,21 @@ def motor_gains(kt_nm_a: float, r_ohm: float, gear_ratio: float, supply_v: float
 # module-level aliases: a global lookup is cheaper than an enum attribute in the hot path
 _IDLE, _MOVING, _JOGGING, _HOMING, _HOLDING, _FAULT = (AxisMode.IDLE, AxisMode.MOVING, AxisMode.JOGGING,
                                                        AxisMode.HOMING, AxisMode.HOLDING, AxisMode.FAULT)
-_DRIVEN = frozenset((_MOVING, _JOGGING, _HOMING, _HOLDING))
 _IN_MOTION = frozenset((_MOVING, _JOGGING, _HOMING))     # a profile planned with the limits runs
 _SOFT_LIMIT = int(AxisError.SOFT_LIMIT)
 _CURRENT_LIMITED = int(AxisError.CURRENT_LIMITED)
-STAGES = ("estimator", "controller", "output")
-
-@dataclass
-class StageTimes:
-    """Execution time per pipeline stage: max and total seconds over `ticks` timed ticks."""
-
-    max_s: list[float] = field(default_factory=lambda: [0.0] * len(STAGES))
-    total_s: list[float] = field(default_factory=lambda: [0.0] * len(STAGES))
-    ticks: int = 0
-
-    def as_dict(self) -> dict[str, tuple[float, float]]:
-        """{stage: (max_s, mean_s)}."""
-        n = max(self.ticks, 1)
-        return {name: (self.max_s[k], self.total_s[k] / n) for k, name in enumerate(STAGES)}
-
 
 class Axis:
-    """One axis's state machine and control loop. Commands take `now`; `update` runs a tick."""
+    """One axis's state machine: commands (they take `now`), parameters, faults, and what its tick hands it
+    (`BankedAxis` ticks it: firmware_py/joint_bank.py)."""
 
     def __init__(self, config: AxisConfig, gravity_nm: Optional[Callable[[float], float]] = None,
-                 stopwatch: Optional[Callable[[], float]] = None,
                  on_fault: Callable[[AxisError, float], None] = lambda bits, now: None,
                  estimator: Optional[SteadyStateEstimator] = None) -> None:
         self.config = config
         self.estimator = estimator or SteadyStateEstimator(config.estimator)
         self._gravity_nm = gravity_nm
-        self._stopwatch = stopwatch
         self._on_fault = on_fault
-        self.times = StageTimes()
         self.reconfigure(config)
         # state
         self.mode = AxisMode.IDLE
@@ -494,157 +476,28 @@ class Axis:
         """How long ago the last new encoder count arrived (inf: none yet)."""
         return math.inf if self._count_s is None else now - self._count_s
 
-    # ---- the tick ----
-    def update(self, now: float, count: Optional[int], count_s: Optional[float], i_a: float,
-               i_s: Optional[float], home_switch: bool = False) -> float:
-        """Run one tick on the latest inputs and their arrival times; return the duty to send."""
-        sw = self._stopwatch
-        if sw is not None:
-            t0 = sw()
-        # -- stage 0: encoder -> estimator
-        est = self.estimator
-        if count_s is not None and count_s != self._count_s:
-            self._count_s = count_s
-            flags = est.update(count)
-        else:
-            flags = est.update(None)
-        pos = est.pos_rad
-        vel = est.vel_rad_s
-        if flags:
-            self._fault((AxisError.ENCODER_STALE if flags & 1 else 0) | (AxisError.ENCODER_GLITCH if flags & 2 else 0),
-                        now)
-        if sw is not None:
-            t1 = sw()
-        mode = self.mode
-        if mode not in _DRIVEN:
-            self.duty = 0.0
-            if sw is not None:
-                self._record(t0, t1, t1, sw())
-            return 0.0
-        # -- stage 1: setpoint and cascaded control
-        profile = self._profile
-        if profile is None:
-            pos_sp, vel_sp, acc_sp = self.pos_sp_rad, 0.0, 0.0
-        else:
-            pos_sp, vel_sp, acc_sp = profile.sample(now - self._profile_t0)
-            if mode is not _HOLDING:
-                pos_sp, vel_sp, acc_sp = self._supervise_motion(now, pos_sp, vel_sp, acc_sp, pos, vel, home_switch)
-                if self.mode not in _DRIVEN:
-                    return 0.0
-                pos = est.pos_rad   # homing may have moved the zero
-        self.pos_sp_rad, self.vel_sp_rad_s = pos_sp, vel_sp
-        pos_err = pos_sp - pos
-        if pos_err > self.config.following_error_rad or -pos_err > self.config.following_error_rad:
-            self._fault(AxisError.FOLLOWING_ERROR, now)
-            return 0.0
-        vel_cmd = vel_sp + self._kp * pos_err
-        vmax = self._vcmd_max
-        if vel_cmd > vmax:
-            vel_cmd = vmax
-        elif vel_cmd < -vmax:
-            vel_cmd = -vmax
-        vel_err = vel_cmd - vel
-        c = self.config
-        u = self._kv * vel_err + self._integ + c.ff_vel_duty_s_rad * vel_sp + c.ff_acc_duty_s2_rad * acc_sp
-        if self._gravity_nm is not None:
-            u += c.ff_torque_duty_nm * self._gravity_nm(pos)
-        if sw is not None:
-            t2 = sw()
-        # -- stage 2: current limit, saturation, anti-windup, stall
-        duty = self._limit(u, i_a, i_s, now)
-        if self.mode is _FAULT:
-            return 0.0
-        if mode is _HOLDING and -c.in_position_rad <= pos_err <= c.in_position_rad:
-            self._integ += self._dt * ((duty - u) * self._aw)   # held in position: static friction holds it
-        else:
-            self._integ += self._dt * (self._ki * vel_err + (duty - u) * self._aw)
-        # stall: asking for more than it gets (saturated or current-limited) or for high duty, yet not moving
-        if self._stall.held((duty != u or u >= c.stall_duty or u <= -c.stall_duty)
-                            and -c.stall_vel_rad_s < vel < c.stall_vel_rad_s, now, c.stall_time_s):
-            self._fault(AxisError.STALL, now)
-            return 0.0
-        self.duty_requested = u
-        self.duty = duty
-        if sw is not None:
-            self._record(t0, t1, t2, sw())
-        return duty
-
-    def _limit(self, u: float, i_a: float, i_s: Optional[float], now: float) -> float:
-        """Current limit on the measured current, then saturation to the bounds."""
-        c = self.config
-        if i_s is None or now - i_s > c.current_stale_s or i_a != i_a:
-            self._fault(AxisError.CURRENT_STALE, now)
-            return 0.0
-        lo, hi, last = self._duty_lo, self._duty_hi, self.duty
-        limited = 0
-        over = i_a - c.i_limit_a
-        if over > 0:
-            hi = max(-1.0, min(hi, last) - c.i_limit_gain_duty_a * over)
-            limited = _CURRENT_LIMITED
-        elif hi < 1.0:
-            hi = min(1.0, hi + self._relax)
-        under = -c.i_limit_a - i_a
-        if under > 0:
-            lo = min(1.0, max(lo, last) + c.i_limit_gain_duty_a * under)
-            limited = _CURRENT_LIMITED
-        elif lo > -1.0:
-            lo = max(-1.0, lo - self._relax)
-        self._duty_lo, self._duty_hi = lo, hi
-        self._err = (self._err & ~_CURRENT_LIMITED) | limited
-        if self._trip.held(abs(i_a) > c.i_trip_a, now, c.i_trip_s):
-            self._fault(AxisError.OVER_CURRENT, now)
-            return 0.0
-        duty = hi if u > hi else lo if u < lo else u
-        if self._open.held((duty >= c.open_circuit_duty or duty <= -c.open_circuit_duty)
-                           and -c.open_circuit_a < i_a < c.open_circuit_a, now, c.open_circuit_s):
-            self._fault(AxisError.OPEN_CIRCUIT, now)
-            return 0.0
-        return duty
-
-    def _supervise_motion(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float, vel: float,
-                          home_switch: bool) -> tuple[float, float, float]:
-        """Per-tick checks of a motion: soft limits, homing phases, the end of a move."""
-        mode = self.mode
-        c = self.config
-        if mode is _HOMING:
-            setpoint = self._homing.step(now, pos_sp, vel_sp, acc_sp, pos, home_switch)
+    # ---- what the tick hands over ----
+    def _act_on(self, motion: int, now: float, pos_sp: float, vel_sp: float,
+                acc_sp: float) -> Optional[tuple[float, float, float]]:
+        """Act on the tick's decision `motion` about the running motion (`joints_tick`'s MOTION: a soft limit reached,
+        a move's end, a homing phase's end) with the tick's setpoint; return the setpoint the tick goes on with,
+        or None when the axis has faulted (homing found no switch)."""
+        if self.mode is _HOMING:
+            setpoint = self._homing.act(motion, now, pos_sp, vel_sp, acc_sp)
             if setpoint is None:       # no switch within home_max_travel_rad
                 self._fault(AxisError.HOMING_FAILED, now)
-                return pos_sp, vel_sp, acc_sp
             return setpoint
-        if self._limits_on():
-            lo, hi = self._lo_rad, self._hi_rad
-            if mode is _JOGGING:
-                # stop so as to come to rest at the limit (one tick of travel early)
-                ahead = pos_sp + profiles.stopping_distance(vel_sp, c.acc_limit_rad_s2) + vel_sp * self._dt
-                if (vel_sp > 0 and ahead >= hi) or (vel_sp < 0 and ahead <= lo):
-                    self._err |= _SOFT_LIMIT
-                    self.stop(now, MotionOutcome.SOFT_LIMIT)
-                    return self._profile.sample(0.0)
-            elif (pos > hi + c.in_position_rad and vel > 0) or (pos < lo - c.in_position_rad and vel < 0):
-                self._err |= _SOFT_LIMIT
-                self.stop(now, MotionOutcome.SOFT_LIMIT)
-                return self._profile.sample(0.0)
-        if mode is _MOVING and now - self._profile_t0 >= self._profile.duration_s:
-            if self._settle_since is None:
-                self._settle_since = now
-            settled = abs(self.target_rad - pos) <= c.in_position_rad and abs(vel) <= c.in_position_vel_rad_s
-            if settled or now - self._settle_since >= c.settle_timeout_s:
-                self._hold(self.target_rad)
-                self.outcome = self._stopping_for if self._stopping_for is not MotionOutcome.DONE else (
-                    MotionOutcome.DONE if settled else MotionOutcome.NOT_SETTLED)
+        if motion == jt.SOFT_LIMIT_STOP:
+            self._err |= _SOFT_LIMIT
+            self.stop(now, MotionOutcome.SOFT_LIMIT)
+            return self._profile.sample(0.0)
+        settled = motion == jt.MOVE_SETTLED       # else MOVE_GAVE_UP: not settled within settle_timeout_s
+        self._hold(self.target_rad)
+        self.outcome = self._stopping_for if self._stopping_for is not MotionOutcome.DONE else (
+            MotionOutcome.DONE if settled else MotionOutcome.NOT_SETTLED)
         return pos_sp, vel_sp, acc_sp
 
     # ---- helpers ----
-    def _record(self, t0: float, t1: float, t2: float, t3: float) -> None:
-        times = self.times
-        mx, tot = times.max_s, times.total_s
-        for k, d in enumerate((t1 - t0, t2 - t1, t3 - t2)):
-            tot[k] += d
-            if d > mx[k]:
-                mx[k] = d
-        times.ticks += 1
-
     def _fault(self, bits: int, now: float) -> None:
         new = bits & ~self._err
         self._err |= bits

@@ -95,8 +95,8 @@ class ControllerConfig:
     health_period_s: float = 0.01
     boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
     params_path: Optional[Path] = None  # where parameters persist; None: defaults only, save refused
-    fused_joints: bool = True         # the joints' hot path fused (firmware_py/joints_tick.py); False: Axis.update
-    # ... and compiled by numba (firmware_py/joints_compiled.py); default: the environment, ASPOD_COMPILED=1 (kernels/)
+    # the joints' tick (firmware_py/joints_tick.py) compiled by numba (firmware_py/joints_compiled.py); default: the
+    # environment, ASPOD_COMPILED=1 (kernels/)
     compiled_joints: bool = field(default_factory=compiled_by_default)
     # who this controller is, 8 bytes (HelloReply's controller_id; its handshake NAKs are bound to it): fixed, a
     # restarted controller is recognised at once by its host; None: new at each start (docs/protocol_security.md)
@@ -170,16 +170,15 @@ ENCODER_FAULTS = AxisError.ENCODER_GLITCH | AxisError.ENCODER_STALE    # a joint
 class Controller:
     def __init__(self, psk: bytes, uart: PacedUart, hal: ControllerHal,
                  config: Optional[ControllerConfig] = None,
-                 nonce_source: Callable[[], bytes] = auth.new_nonce,
-                 stopwatch: Optional[Callable[[], float]] = None) -> None:
+                 nonce_source: Callable[[], bytes] = auth.new_nonce) -> None:
         self.config = config or ControllerConfig()
         self.uart = uart
         self.hal = hal
         self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed,
                                  check=lambda name, value: check_param(self.params, self.config, name, value))
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
-                                 on_motion_done=self._motion_done, stopwatch=stopwatch, on_late=self._loop_late,
-                                 fused_joints=self.config.fused_joints, compiled_joints=self.config.compiled_joints)
+                                 on_motion_done=self._motion_done, on_late=self._loop_late,
+                                 compiled_joints=self.config.compiled_joints)
         self.trajectory = TrajectoryBuffer()
         self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
                                          allowed=lambda: self.supervisor.outputs_allowed)

@@ -34,7 +34,9 @@ Two filters with one interface:
 
 Both share the count handling in `_CountTracker`: 32-bit wrap-around, staleness (no new count
 for `stale_ticks` ticks), and glitches (a jump no real motion could make within the elapsed
-ticks). A glitch is *flagged and not absorbed*: the sample is dropped, the reference count is
+ticks). The arithmetic of the count checks and of the steady-state filter's step is the joints'
+tick's (`firmware_py/joints_tick.py` `count_step`, `filter_step`), written once: these classes
+run the same functions on their own fields. A glitch is *flagged and not absorbed*: the sample is dropped, the reference count is
 kept, and the caller's fault logic decides. A one-sample spike therefore costs one flag; a
 permanent offset keeps flagging on every sample, as it should, until the caller `resync`s.
 """
@@ -47,6 +49,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
+
+from firmware_py.joints_tick import count_step, filter_step
 
 if TYPE_CHECKING:
     from filterpy.kalman import KalmanFilter
@@ -184,30 +188,17 @@ class _CountTracker:
         self.flags = 0             # EstimatorFlag bits of the last update, as a plain int (fast)
 
     def _measure(self, count: Optional[int]) -> Optional[float]:
-        """Measured position for a new count, or None (no sample, or a dropped glitch)."""
-        if count is None:
-            self.missed_ticks += 1
-            self.flags = 1 if self.missed_ticks >= self._stale_ticks else 0
-            return None
+        """Measured position for a new count, or None (no sample, or a dropped glitch): the joints' tick's count
+        checks (`joints_tick.count_step`, the one implementation)."""
         last = self.last_count
-        if last is None:
-            self.last_count = count
-            self.turns_counts = 0
-            self.missed_ticks = 0
-            self.flags = 0
-            return self.offset_rad
-        delta = (count - last + 0x80000000) % 0x100000000 - 0x80000000
-        limit = self._max_counts_per_tick * (self.missed_ticks + 1) + self._margin
-        if -limit <= delta <= limit:
-            self.last_count = count
-            self.turns_counts += delta
-            self.missed_ticks = 0
-            self.flags = 0
-            return self.turns_counts * self._rad_per_count + self.offset_rad
-        self.glitches += 1
-        self.missed_ticks += 1
-        self.flags = 2 | (1 if self.missed_ticks >= self._stale_ticks else 0)
-        return None
+        z, has_count, last, self.turns_counts, self.missed_ticks, self.flags = count_step(
+            count is not None, 0 if count is None else count, last is not None, 0 if last is None else last,
+            self.turns_counts, self.missed_ticks, self.offset_rad, self._rad_per_count, self._max_counts_per_tick,
+            self._stale_ticks, self._margin)
+        self.last_count = last if has_count else None
+        if self.flags & EstimatorFlag.GLITCH:
+            self.glitches += 1
+        return z if z == z else None
 
     def set_stale_ticks(self, ticks: int) -> None:
         """A new staleness limit (the encoder_stale_s parameter changed), from the next update."""
@@ -247,13 +238,9 @@ class SteadyStateEstimator(_CountTracker):
         self.offset_rad = pos_rad
 
     def update(self, count: Optional[int]) -> int:
-        pos = self.pos_rad + self.vel_rad_s * self._dt       # predict
         z = self._measure(count)
-        if z is not None:
-            residual = z - pos                                 # update
-            pos += self.k_pos * residual
-            self.vel_rad_s += self.k_vel * residual
-        self.pos_rad = pos
+        self.pos_rad, self.vel_rad_s = filter_step(self.pos_rad, self.vel_rad_s, math.nan if z is None else z,
+                                                   self._dt, self.k_pos, self.k_vel)
         return self.flags
 
     def skip(self, ticks: int) -> None:

@@ -10,7 +10,7 @@ Unlike a joint it has no position loop: the report's gripper is a 27.5 VDC push/
   (they close on an object): then hold at `grip_hold_duty`, which sets the grip force.
 * Either taking longer than `grip_timeout_s` latches the GRIPPER fault bit.
 
-Duty is positive toward open. `update` runs one tick and returns the duty, like `Axis.update`.
+Duty is positive toward open. `update` runs one tick and returns the duty, like `BankedAxis.update`.
 """
 from __future__ import annotations
 

@@ -12,8 +12,9 @@ so position and velocity are continuous at every knot and the acceleration is pi
 (it may step at a knot). `HermiteProfile` has the interface of `profiles.Profile` that an axis
 uses: `sample(t_s) -> (pos_rad, vel_rad_s, acc_rad_s2)` (before 0 the start; at and after
 `duration_s` the exact last knot), `duration_s`, `end_pos_rad`, `end_vel_rad_s`. The joints'
-compiled tick evaluates constant-acceleration segments only (`constant_acceleration` False here):
-it hands the ticks of a joint following this profile back to `Axis.update` (firmware_py/joints_tick.py).
+tick evaluates constant-acceleration segments only (`constant_acceleration` False here): it
+hands each tick of a joint following this profile to the joint's facade to sample
+(firmware_py/joints_tick.py).
 
 `bounds()` gives the lowest and highest position and the highest speed anywhere on the curve, not
 only at the knots: a cubic may overshoot between two knots.

@@ -10,14 +10,17 @@ import math
 from typing import Optional
 
 from firmware_py import profiles
+from firmware_py.joints_tick import (HOME_BACKOFF, HOME_CLEAR, HOME_SEEK, HOME_START, HOMING_BACKED_OFF,
+                                     HOMING_FAILED, HOMING_FOUND, HOMING_OFF_SWITCH, HOMING_ON_SWITCH)
 from protocol.states import AxisMode, MotionOutcome
 
 # homing phases: first tick (is the switch already closed?), leave the switch, seek it, back off
-START, CLEAR, SEEK, BACKOFF = 0, 1, 2, 3
+START, CLEAR, SEEK, BACKOFF = HOME_START, HOME_CLEAR, HOME_SEEK, HOME_BACKOFF
+# the tick's decisions while homing: firmware_py/joints_tick.py's MOTION values HOMING_*
 
 
 class Homing:
-    """One axis's homing phases. `begin` starts the seek; `step` runs once a tick while the axis is HOMING."""
+    """One axis's homing phases. `begin` starts the seek; `act` acts on the tick's decision at a phase's end."""
 
     def __init__(self, axis) -> None:
         self.axis = axis
@@ -30,31 +33,27 @@ class Homing:
         self.phase = START
         self.seek(now, self.axis.config.home_dir)
 
-    def step(self, now: float, pos_sp: float, vel_sp: float, acc_sp: float, pos: float,
-             home_switch: bool) -> Optional[tuple[float, float, float]]:
-        """One tick while the axis is HOMING: the setpoint to follow; None when the switch has not come within
+    def act(self, motion: int, now: float, pos_sp: float, vel_sp: float,
+            acc_sp: float) -> Optional[tuple[float, float, float]]:
+        """The tick's decision `motion` while the axis is HOMING (the phase's checks are the tick's:
+        firmware_py/joints_tick.py): the setpoint to follow; None when the switch has not come within
         `home_max_travel_rad` (the axis faults HOMING_FAILED)."""
         axis = self.axis
         c = axis.config
-        phase = self.phase
-        if phase == BACKOFF:
-            if now - axis._profile_t0 >= axis._profile.duration_s:
-                axis._hold(axis._profile.end_pos_rad)
-                axis.outcome = MotionOutcome.DONE
-        elif abs(pos - self.start_rad) > c.home_max_travel_rad:
+        if motion == HOMING_BACKED_OFF:
+            axis._hold(axis._profile.end_pos_rad)
+            axis.outcome = MotionOutcome.DONE
+        elif motion == HOMING_FAILED:
             return None
-        elif phase == START:
+        elif motion == HOMING_ON_SWITCH:   # already on the switch: move off it first, then come back to it
+            self.phase = CLEAR
+            self.seek(now, -c.home_dir, pos_sp, vel_sp)
+            return axis._profile.sample(0.0)
+        elif motion == HOMING_OFF_SWITCH:
+            self.seek(now, c.home_dir, pos_sp, vel_sp)
             self.phase = SEEK
-            if home_switch:   # already on the switch: move off it first, then come back to it
-                self.phase = CLEAR
-                self.seek(now, -c.home_dir, pos_sp, vel_sp)
-                return axis._profile.sample(0.0)
-        elif phase == CLEAR:
-            if not home_switch:
-                self.seek(now, c.home_dir, pos_sp, vel_sp)
-                self.phase = SEEK
-                return axis._profile.sample(0.0)
-        elif home_switch:   # found it: this is home_pos_rad; stop and back off from the switch
+            return axis._profile.sample(0.0)
+        elif motion == HOMING_FOUND:       # found it: this is home_pos_rad; stop and back off from the switch
             shift = axis._rezero(c.home_pos_rad)
             axis.homed = True
             back = c.home_pos_rad - c.home_dir * c.home_backoff_rad

@@ -1,17 +1,19 @@
 """The joints' hot state in flat rows of numbers, and the `Axis` objects as its facade.
 
-A `JointBank` holds, for each joint, the numbers `joints_tick` (firmware_py/joints_tick.py) reads and
-writes, one row per joint in each of its groups. `BankedAxis` is an `Axis` whose hot attributes live
-in the bank: each is a descriptor onto its joint's row, so the commands, modes, faults and homing of
-`Axis` (and `Axis.update` itself, for the ticks `joints_tick` hands back) work on the very numbers
-the fused function uses; no state is copied per tick. `BankedEstimator` and `BankedDebounce` do the
-same for the estimator and the debounced fault checks.
+A `JointBank` holds, for each joint, the numbers `joints_tick` (firmware_py/joints_tick.py, a
+joint's tick, written once) reads and writes, one row per joint in each of its groups.
+`BankedAxis` is an `Axis` whose hot attributes live in the bank: each is a descriptor onto its
+joint's row, so the commands, modes, faults and homing of `Axis` work on the very numbers the
+tick uses; no state is copied per tick. `BankedEstimator` and `BankedDebounce` do the same for
+the estimator and the debounced fault checks.
 
 `JointBank.run` is one tick of a span of joints: `joints_tick` for as many as it can take, and
-`Axis.update` for each joint it hands back (rare: faults, homing, a move's end, a soft limit).
-
-`run_arm` is the arm's first call of a tick: the gravity feed-forward and as many joints as
-`arm_joints_tick` takes, usually all of them, in one call; `run` goes on from a joint handed back.
+`BankedAxis.act` for each joint it hands over (rare: faults, a move's end, a soft limit, homing's
+phases, a trajectory's curve), after which the kernel goes on with that joint's tick where it
+stopped. `run_arm` is the arm's first call of a tick: the gravity feed-forward and as many joints
+as `arm_joints_tick` takes, usually all of them, in one call; `run` goes on from a joint handed
+over. `BankedAxis.update` is one joint's tick on inputs given to it (`single_axis` builds a joint
+alone on a bank of its own, for tests and rigs).
 
 The rows are Python lists, or with `compiled=True` numpy arrays for the functions compiled by numba
 (firmware_py/joints_compiled.py); a tick's inputs then go to them as tuples (`take_inputs`), and the
@@ -60,73 +62,70 @@ class JointBank:
         self.profiles: list[Optional[Profile | HermiteProfile]] = [None] * size
         self.axes: list[BankedAxis] = []
         self.channels: list[int] = []       # each joint's HAL channel
-        self.handed_back = 0                # joint-ticks run by Axis.update (the rest: by joints_tick)
+        self.handed_back = 0                # events `joints_tick` handed to the facade (`BankedAxis.act`)
         # the arm's mass model (MassModel.row), for `run_arm`'s gravity feed-forward: constant, so a tuple (which
         # numba takes for less than an array)
         self.masses = tuple(masses) + (0.0,) * (jt.MASS_COLUMNS - len(masses))
         # each joint's gravity torque (given to `take_inputs`, or computed by `run_arm`) and its duty at its channel
         self.gravity_nm = rows(1, size, float)[0]
         self.duties = rows(1, channels, float)[0]
-        # this tick's inputs (take_inputs): as given, for Axis.update, and as the tick function takes them
-        self._given: tuple = ()
+        # this tick's inputs (take_inputs), as the tick function takes them
         self._taken: tuple = ()
 
-    def take_inputs(self, fb_s: float, counts: Sequence[int], currents_a: Sequence[float], home: Sequence[bool],
-                    gravity_nm: Optional[Sequence[float]] = None) -> None:
-        """This tick's inputs for its runs: MOTOR_FB's counts and currents (arrived at `fb_s`) and the home
-        switches, per channel; `gravity_nm[k]`, joint k's gravity torque if it has one (None: `run_arm` computes
-        them)."""
-        self._given = (fb_s, counts, currents_a, home)
+    def take_inputs(self, count_s: float, current_s: float, counts: Sequence[int], currents_a: Sequence[float],
+                    home: Sequence[bool], gravity_nm: Optional[Sequence[float]] = None) -> None:
+        """This tick's inputs for its runs, per channel: the counts (arrived at `count_s`, NaN: none), the currents
+        (arrived at `current_s`, NaN: none) and the home switches; `gravity_nm[k]`, joint k's gravity torque if it
+        has one (None: `run_arm` computes them)."""
         if gravity_nm is not None:
             self.gravity_nm[:len(gravity_nm)] = gravity_nm
         if self.compiled:                   # numba takes a tuple of numbers for less than filling an array costs
             counts, currents_a, home = tuple(counts), tuple(currents_a), tuple(home)
-        self._taken = (fb_s, counts, currents_a, home, self.gravity_nm)
+        self._taken = (count_s, current_s, counts, currents_a, home, self.gravity_nm)
 
     def run_arm(self, stop: int, now: float, gravity_m_s2: float, payload_kg: float) -> int:
         """The arm's first call of a tick (`arm_joints_tick`): the gravity torques of J1..J3 for the whole tick (from
         the mass model, `gravity_m_s2` and the payload), then joints 0 .. `stop - 1` as far as the kernel takes them;
-        returns the first joint it hands back (`stop`: none). `run` goes on from there."""
-        fb_s, counts, currents_a, home, gravity_nm = self._taken
-        return self._arm_tick(stop, now, fb_s, gravity_m_s2, payload_kg, self.masses, counts, currents_a, home,
-                              gravity_nm, self.duties, self.state, self.int_state, self.config, self.int_config,
-                              self.profile)
+        returns the first joint it hands over (`stop`: none). `run` goes on from there."""
+        count_s, current_s, counts, currents_a, home, gravity_nm = self._taken
+        return self._arm_tick(stop, now, count_s, current_s, gravity_m_s2, payload_kg, self.masses, counts,
+                              currents_a, home, gravity_nm, self.duties, self.state, self.int_state, self.config,
+                              self.int_config, self.profile)
 
     def run(self, first: int, stop: int, now: float) -> None:
-        """One tick of joints `first` .. `stop - 1`, in order, on the inputs taken; each joint's duty into `duties`
-        at its channel."""
+        """One tick of joints `first` .. `stop - 1`, in order, on the inputs taken (`first` may be a joint the last
+        call handed over); each joint's duty into `duties` at its channel."""
         k = first
         while k < stop:
+            if self.int_state[k][jt.EVENT] != jt.EV_NONE:      # handed over: the facade acts on it
+                self.handed_back += 1
+                if not self.axes[k].act(now):
+                    self.duties[self.channels[k]] = 0.0        # the tick ended there (a fault): duty 0
+                    k += 1
+                    continue
             k = self._tick(k, stop, now, *self._taken, self.duties, self.state, self.int_state, self.config,
                            self.int_config, self.profile)
-            if k < stop:                    # handed back: the whole tick of joint k, as Axis.update does it
-                fb_s, counts, currents_a, home = self._given
-                channel = self.channels[k]
-                self.duties[channel] = self.axes[k].update(now, counts[channel], fb_s, currents_a[channel], fb_s,
-                                                           home[channel])
-                self.handed_back += 1
-                k += 1
 
     def duty_list(self) -> list[float]:
         """This tick's duties by channel, a list of the caller's (a channel without a joint: 0.0)."""
         return self.duties.tolist() if self.compiled else list(self.duties)
 
     def load_profile(self, k: int, profile: Optional[Profile | HermiteProfile]) -> None:
-        """Joint k follows `profile` (None: none): its segments into k's profile row; a profile that is not
-        constant-acceleration segments (a trajectory's curve) is marked for `Axis.update` to follow."""
+        """Joint k follows `profile` (None: none): its end and segments into k's profile row; a profile that is not
+        constant-acceleration segments (a trajectory's curve) is marked for the facade to sample."""
         self.profiles[k] = profile
         if profile is None:
             self.int_state[k][jt.PROFILE_SEGMENTS] = 0
             return
+        row = self.profile[k]
+        row[jt.DURATION_S], row[jt.END_POS_RAD], row[jt.END_VEL_RAD_S] = (
+            profile.duration_s, profile.end_pos_rad, profile.end_vel_rad_s)
         if not profile.constant_acceleration:
             self.int_state[k][jt.PROFILE_SEGMENTS] = jt.FACADE_PROFILE
             return
         segments = profile.segments
         if len(segments) > jt.MAX_SEGMENTS:
             raise ValueError(f"a profile of {len(segments)} segments; the joints' tick holds {jt.MAX_SEGMENTS}")
-        row = self.profile[k]
-        row[jt.DURATION_S], row[jt.END_POS_RAD], row[jt.END_VEL_RAD_S] = (
-            profile.duration_s, profile.end_pos_rad, profile.end_vel_rad_s)
         for j, segment in enumerate(segments):
             start = jt.SEGMENTS + jt.SEGMENT_COLUMNS * j
             row[start:start + jt.SEGMENT_COLUMNS] = segment
@@ -281,7 +280,7 @@ class BankedHoming(_Banked, Homing):
 
 class BankedAxis(_Banked, Axis):
     """An `Axis` whose hot state lives in joint `row` of `bank`, wired to HAL channel `channel`; `bank.run` ticks it
-    (through `joints_tick`, or `Axis.update` when that hands the tick back)."""
+    (`joints_tick`, and `act` on what that hands over), `update` alone."""
 
     mode = _Int(INT_STATE, jt.MODE, _MODES.__getitem__)
     duty = _Float(STATE, jt.DUTY)
@@ -340,3 +339,55 @@ class BankedAxis(_Banked, Axis):
         flags = self._rows[INT_CONFIG]
         flags[jt.HAS_GRAVITY] = int(self._gravity_nm is not None)
         flags[jt.MOVES_NEED_HOME] = int(c.moves_need_home)
+
+    def update(self, now: float, count: Optional[int], count_s: Optional[float], i_a: float, i_s: Optional[float],
+               home_switch: bool = False) -> float:
+        """Run this joint's tick on these inputs and their arrival times (None: none arrived); return the duty to
+        send. The gravity torque, if the axis has one, is `gravity_nm` at the position estimated before the tick
+        (as the arm's are: `JointBank.run_arm`)."""
+        bank, k = self._bank, self._row
+        channel = bank.channels[k]
+        width = len(bank.duties)
+        counts, currents, home = [0] * width, [0.0] * width, [False] * width
+        counts[channel], currents[channel], home[channel] = 0 if count is None else count, i_a, bool(home_switch)
+        gravity = None
+        if self._gravity_nm is not None:
+            gravity = list(bank.gravity_nm)
+            gravity[k] = self._gravity_nm(self.estimator.pos_rad)
+        bank.take_inputs(jt.NONE if count_s is None else count_s, jt.NONE if i_s is None else i_s, counts, currents,
+                         home, gravity)
+        bank.run(k, k + 1, now)
+        return float(bank.duties[channel])
+
+    def act(self, now: float) -> bool:
+        """Act on what `joints_tick` handed over (its EVENT): a fault's bits (the tick ends, duty 0: False), a
+        trajectory's curve to sample, or the supervision's decision (`Axis._act_on`); then True, the setpoint and
+        the point to go on from in the row, for the kernel to finish the tick."""
+        ints, floats = self._rows[INT_STATE], self._rows[STATE]
+        event = int(ints[jt.EVENT])
+        ints[jt.EVENT] = jt.EV_NONE
+        if event == jt.EV_FAULT:
+            bits = int(ints[jt.RAISED])
+            if bits & jt.ENCODER_GLITCH:
+                self.estimator.glitches += 1
+            self._fault(bits, now)
+            return False
+        if event == jt.EV_SETPOINT:
+            setpoint = self._profile.sample(now - self._profile_t0)
+            entry = jt.SUPERVISE
+        else:
+            setpoint = self._act_on(int(ints[jt.MOTION]), now, float(floats[jt.TICK_POS_SP]),
+                                    float(floats[jt.TICK_VEL_SP]), float(floats[jt.TICK_ACC_SP]))
+            if setpoint is None:
+                return False
+            entry = jt.CONTROL
+        floats[jt.TICK_POS_SP], floats[jt.TICK_VEL_SP], floats[jt.TICK_ACC_SP] = setpoint
+        ints[jt.ENTRY] = entry
+        return True
+
+
+def single_axis(config: AxisConfig, gravity_nm: Optional[Callable[[float], float]] = None,
+                on_fault: Callable[[AxisError, float], None] = lambda bits, now: None,
+                compiled: bool = False) -> BankedAxis:
+    """One joint alone, on a bank of its own (one row, HAL channel 0): `update` ticks it."""
+    return BankedAxis(JointBank(1, 1, compiled), 0, 0, config, gravity_nm=gravity_nm, on_fault=on_fault)

@@ -24,6 +24,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from firmware_py.joints_tick import sample_profile, stopping_distance
+
 # The report (DEFLECTION AND MOMENT ANALYSIS, Figure 7 and APPENDIX B, ACCELERATION ANALYSIS)
 # keeps joint speed at or below 1/2 RPM so torques stay static, and the inertial term of the Lagrangian
 # stays orders of magnitude below the gravity term on Earth. (Its "30 seconds" for a half turn does not fit
@@ -50,7 +52,7 @@ class Profile:
     (or, for a jog, cruising forever)."""
 
     constant_acceleration = True      # the joints' compiled tick evaluates it (firmware_py/joints_tick.py)
-    __slots__ = ("segments", "duration_s", "end_pos_rad", "end_vel_rad_s", "_last")
+    __slots__ = ("segments", "duration_s", "end_pos_rad", "end_vel_rad_s", "_row")
 
     def __init__(self, segments: list[Segment], duration_s: float, end_pos_rad: float,
                  end_vel_rad_s: float = 0.0) -> None:
@@ -60,25 +62,18 @@ class Profile:
         self.duration_s = duration_s
         self.end_pos_rad = end_pos_rad
         self.end_vel_rad_s = end_vel_rad_s
-        self._last = len(segments) - 1
+        # the joints' tick's profile row (firmware_py/joints_tick.py: the end, then the segments), which `sample`
+        # evaluates as the tick does
+        self._row = [duration_s, end_pos_rad, end_vel_rad_s, *(x for segment in segments for x in segment)]
 
     @property
     def start(self) -> Segment:
         return self.segments[0]
 
     def sample(self, t_s: float) -> tuple[float, float, float]:
-        """(pos_rad, vel_rad_s, acc_rad_s2) at `t_s` seconds after the start."""
-        if t_s >= self.duration_s:
-            return self.end_pos_rad, self.end_vel_rad_s, 0.0
-        segs = self.segments
-        i = self._last
-        while i > 0 and segs[i][0] > t_s:
-            i -= 1
-        t0, p, v, a = segs[i]
-        dt = t_s - t0
-        if dt < 0.0:
-            dt = 0.0
-        return p + dt * (v + 0.5 * a * dt), v + a * dt, a
+        """(pos_rad, vel_rad_s, acc_rad_s2) at `t_s` seconds after the start (`joints_tick.sample_profile`, as the
+        joints' tick samples it)."""
+        return sample_profile(self._row, len(self.segments), t_s)
 
     def max_abs(self) -> tuple[float, float]:
         """Largest |velocity| and |acceleration| over the profile (at segment ends, where they peak)."""
@@ -172,6 +167,5 @@ def stop(pos_rad: float, vel_rad_s: float, acc_max_rad_s2: float) -> Profile:
     return Profile(b.segments, b.t, b.p)
 
 
-def stopping_distance(vel_rad_s: float, acc_max_rad_s2: float) -> float:
-    """Signed distance to rest when decelerating at the limit."""
-    return vel_rad_s * abs(vel_rad_s) / (2.0 * acc_max_rad_s2)
+__all__ = ["DEFAULT_JOINT_ACC_RAD_S2", "INFINITY", "Profile", "REPORT_JOINT_SPEED_RAD_S", "Segment", "jog", "stop",
+           "stopping_distance", "trapezoid"]

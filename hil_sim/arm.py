@@ -30,25 +30,26 @@ opening, and the torque the stop absorbs gives the grip force.
 from __future__ import annotations
 
 import math
-from typing import Callable, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
 from hil_sim.arm_params import (ARM_PLANT_PARAMS, GRAVITY_M_S2, GRIPPER, J1, J2, J3, J4,
                                 MOUNT, ArmGeometry, ArmPlantParams, MountParams)
-from hil_sim.arm_tick import GripperCut, LoadConstants
+from hil_sim.arm_tick import ArmTick, GripperCut, LoadConstants, Sensors, gravity_and_inertia
 from hil_sim.motor import TWO_PI, DcMotorBank
+from kernels import compiled_by_default
+from protocol.states import ARM_CHANNELS as _CHANNELS
 
 
 # ---- the lumped mass model ------------------------------------------------------------------
 class LoadModel:
     """Gravity torques and inertias of the lumped mass model, its constants resolved once.
 
-    Every formula of the model lives here, once: the plant asks at every step (`update`), the
-    pure functions below build a model for one question. Everything that does not depend on
-    the pose is worked out at construction with the very expressions the formulas use, so a
-    step computes the same numbers, to the bit, for a few attribute reads less (the arm plant
-    runs it every simulated millisecond, in a budget of 50 us for the whole world).
+    The formulas live once, in the plant's tick (`hil_sim.arm_tick.gravity_and_inertia`, run
+    after every substep): this class works out, at construction, everything that does not
+    depend on the pose (`tick_constants`, the tick's constants), and `loads` runs the tick's
+    formulas for one pose, for the pure functions below, which build a model for one question.
     """
 
     def __init__(self, geometry: ArmGeometry, mount: MountParams = ARM_PLANT_PARAMS.mount, payload_kg: float = 0.0,
@@ -93,28 +94,12 @@ class LoadModel:
         tx, tz = wx + self._tip * c3, wz + self._tip * s3
         return (ex, ez), (wx, wz), (rx, rz), (tx, tz), (c1, c2, c3)
 
-    def torques(self, pose) -> tuple[float, float, float]:
-        """Torque J1, J2, J3 must each supply to hold the pose still (positive = raising)."""
-        c1, c2, c3 = pose[4]
-        g = self.g_m_s2
-        t3 = g * self._k3 * c3
-        t2 = g * self._k2 * c2 + t3
-        return g * self._k1 * c1 + t2, t2, t3
-
-    def inertias(self, pose) -> tuple[float, float, float, float]:
-        """What J1, J2, J3, J4 each turn, about their own axis, the other joints frozen."""
-        (ex, ez), (wx, wz), (rx, rz), (tx, tz), _ = pose
-        link2_kg, elbow_kg, link3_kg, fixed_kg, turned_kg, p = self._masses
-        rod3, turned = self._rod3, self._turned
-        # About J2: the same parts, origin moved to the elbow.
-        span = (wx - ex) ** 2 + (wz - ez) ** 2
-        i2 = (rod3 + link3_kg * span / 4.0 + fixed_kg * span + turned
-              + turned_kg * ((rx - ex) ** 2 + (rz - ez) ** 2) + p * ((tx - ex) ** 2 + (tz - ez) ** 2))
-        i1 = (self._rod2 + link2_kg * (ex * ex + ez * ez) / 4.0 + elbow_kg * (ex * ex + ez * ez)
-              + rod3 + link3_kg * ((ex + wx) ** 2 + (ez + wz) ** 2) / 4.0
-              + fixed_kg * (wx * wx + wz * wz)
-              + turned + turned_kg * (rx * rx + rz * rz) + p * (tx * tx + tz * tz))
-        return i1, i2, self._i3, self._i4
+    def loads(self, q1: float, q2: float, q3: float) -> tuple[list[float], list[float]]:
+        """Gravity torques and inertias per channel at joint angles q1..q3, as the plant's tick computes them
+        (`hil_sim.arm_tick.gravity_and_inertia`, the model's one implementation): (load_nm, inertia)."""
+        load, inertia = [0.0] * len(_CHANNELS), [0.0] * len(_CHANNELS)
+        gravity_and_inertia(q1, q2, q3, (*self.tick_constants, -math.inf, math.inf), load, inertia)
+        return load, inertia
 
     def _outer_radii(self, pose) -> tuple[float, ...]:
         """Distances from the shaft axis of the parts J1 carries, in the order of `_masses`."""
@@ -127,47 +112,25 @@ class LoadModel:
         r0 = self._r0
         return ((self._link1_kg, r0), (self._shoulder_kg, r0), *zip(self._masses, self._outer_radii(pose)))
 
-    def mount_inertia(self, pose) -> float:
-        """The mobile arm, guide wheels and manipulator about the central shaft."""
-        c1, c2, c3 = pose[4]
-        link2_kg, elbow_kg, link3_kg, fixed_kg, turned_kg, p = self._masses
-        r2, re, r3, rw, rr, rt = self._outer_radii(pose)
-        # link I and the shoulder hardware (at the base radius), then outward, summed in that order
-        total = (self._at_base + link2_kg * r2 * r2 + elbow_kg * re * re + link3_kg * r3 * r3 + fixed_kg * rw * rw
-                 + turned_kg * rr * rr + p * rt * rt)
-        a = self.geometry
-        # Rods about a vertical axis through their centre: m (L cos a)^2 / 12.
-        total += (a.link2_kg * (self._l2 * c1) ** 2 + a.link3_kg * (self._l3 * c2) ** 2) / 12.0
-        total += self._turned * c3 * c3
-        return total + self._base + self._wheels
-
-    def update(self, q1: float, q2: float, q3: float, load: list, inertia: list) -> None:
-        """The plant's step: gravity torques into `load`, inertias into `inertia` (channel order)."""
-        pose = self.pose(q1, q2, q3)
-        load[J1], load[J2], load[J3] = self.torques(pose)
-        inertia[J1], inertia[J2], inertia[J3], inertia[J4] = self.inertias(pose)
-        inertia[MOUNT] = self.mount_inertia(pose)
-
 
 def static_torques_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
                       g_m_s2: float, payload_kg: float = 0.0) -> tuple[float, float, float]:
     """Torque J1, J2, J3 must each supply to hold the pose still (positive = raising)."""
-    model = LoadModel(geometry, payload_kg=payload_kg, g_m_s2=g_m_s2)
-    return model.torques(model.pose(q1_rad, q2_rad, q3_rad))
+    load = LoadModel(geometry, payload_kg=payload_kg, g_m_s2=g_m_s2).loads(q1_rad, q2_rad, q3_rad)[0]
+    return load[J1], load[J2], load[J3]
 
 
 def joint_inertias_kg_m2(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
                          payload_kg: float = 0.0) -> tuple[float, float, float, float]:
     """What J1, J2, J3, J4 each turn, about their own axis, the other joints frozen."""
-    model = LoadModel(geometry, payload_kg=payload_kg)
-    return model.inertias(model.pose(q1_rad, q2_rad, q3_rad))
+    inertia = LoadModel(geometry, payload_kg=payload_kg).loads(q1_rad, q2_rad, q3_rad)[1]
+    return inertia[J1], inertia[J2], inertia[J3], inertia[J4]
 
 
 def mount_inertia_kg_m2(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
                         mount: MountParams, payload_kg: float = 0.0) -> float:
     """The mobile arm, guide wheels and manipulator about the central shaft."""
-    model = LoadModel(geometry, mount, payload_kg)
-    return model.mount_inertia(model.pose(q1_rad, q2_rad, q3_rad))
+    return LoadModel(geometry, mount, payload_kg).loads(q1_rad, q2_rad, q3_rad)[1][MOUNT]
 
 
 def mount_static_moment_nm(q1_rad: float, q2_rad: float, q3_rad: float, geometry: ArmGeometry,
@@ -201,19 +164,20 @@ class ArmPlant:
     `step(dt_s, duty, enable, brake, supply_v)` takes per-channel arrays (order `ARM_CHANNELS`)
     and integrates; read `i_a` (current sense), `encoder_counts`, the switch arrays and
     the gripper's `grip_force_n` afterwards.
+
+    Every step is the plant's one tick (`tick`, a `hil_sim.arm_tick.ArmTick`: `arm_plant_tick`
+    over flat rows of numbers, compiled by numba with `compiled`, None: as `ASPOD_COMPILED` says;
+    RuntimeError without numba). The motor bank (`motors`) and the mass model (`LoadModel`)
+    hold the state and the constants it steps; this class keeps the commands, the configuration
+    and the readings.
     """
 
     def __init__(self, params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
-                 payload_kg: float = 0.0) -> None:
+                 payload_kg: float = 0.0, compiled: Optional[bool] = None) -> None:
         self.params = params
         ch = params.channels
         self.motors = DcMotorBank([c.drive for c in ch])
-        self._pos0 = np.array([c.start_pos_rad for c in ch])
-        self.motors.set_state(pos_rad=self._pos0)
-        self._counts_per_rad = np.array([c.counts_per_output_rev / TWO_PI for c in ch])
-        self._home_rad = np.array([c.home_rad for c in ch])
-        self._limit_lo_rad = np.array([c.limit_lo_rad for c in ch])
-        self._limit_hi_rad = np.array([c.limit_hi_rad for c in ch])
+        self.motors.set_state(pos_rad=[c.start_pos_rad for c in ch])
         grip = params.gripper
         self._lead = grip.lead_m_per_rad
         self._closed_switch_rad = grip.closed_switch_m / grip.lead_m_per_rad
@@ -222,14 +186,14 @@ class ArmPlant:
         self.object_width_m: Optional[float] = None
         self._load_nm = [0.0] * len(ch)
         self._inertia = [0.0] * len(ch)
-        self._duty = [0.0] * len(ch)
-        self._enable = [False] * len(ch)
-        self._applied: Callable[[], tuple[list, list]] = lambda: (self._duty, self._enable)
         self.payload_kg = 0.0
         self.g_m_s2 = GRAVITY_M_S2["earth"]
         self._loads = LoadModel(params.geometry, params.mount, self.payload_kg, self.g_m_s2)
         self.set_gravity(gravity)
         self.set_payload(payload_kg)
+        sensors = Sensors([c.start_pos_rad for c in ch], [c.counts_per_output_rev / TWO_PI for c in ch],
+                          [c.home_rad for c in ch], [c.limit_lo_rad for c in ch], [c.limit_hi_rad for c in ch])
+        self.tick = ArmTick(self, sensors, compiled=compiled_by_default() if compiled is None else bool(compiled))
 
     # -- configuration --
     def set_gravity(self, mode: str) -> None:
@@ -273,24 +237,11 @@ class ArmPlant:
 
     # -- integration --
     def step(self, dt_s: float, duty, enable, brake, supply_v: float) -> None:
-        """Advance `dt_s` seconds (split into substeps of at most `max_substep_s`)."""
+        """Advance `dt_s` seconds (split into substeps of at most `max_substep_s`): the plant's tick with these
+        channels driven (`enable`) and braked (`brake`)."""
         if not (dt_s >= 0 and math.isfinite(dt_s)):
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s}")
-        duty, enable, brake = _as_list(duty), _as_list(enable), _as_list(brake)
-        self._duty, self._enable = duty, enable
-        if dt_s == 0.0:
-            return
-        n = max(1, math.ceil(dt_s / self.params.max_substep_s - 1e-9))
-        h = dt_s / n
-        for _ in range(n):
-            en = self._gripper_switches_cut(duty, enable)
-            self.motors.step(h, duty, supply_v, en, brake, self._load_nm, self._inertia)
-            self._update_loads()
-
-    def applied_by(self, source: Callable[[], tuple[list, list]]) -> None:
-        """Steps made outside `step` (the fused tick): `supply_current_a` reads what they applied, (duty,
-        enable), from `source()` from now on."""
-        self._applied = source
+        self.tick.step(dt_s, True, False, [*_as_list(duty), *_as_list(enable), *_as_list(brake)], supply_v)
 
     def load_lists(self) -> tuple[list[float], list[float]]:
         """The live rows of gravity torques and load inertias per channel (changed in place, never replaced)."""
@@ -312,20 +263,10 @@ class ArmPlant:
             model = self._loads = LoadModel(self.params.geometry, self.params.mount, self.payload_kg, self.g_m_s2)
         return model
 
-    def _gripper_switches_cut(self, duty: list, enable: list) -> list:
-        """The end switch ahead of the jaws' travel opens the motor circuit (if so fitted)."""
-        if not (enable[GRIPPER] and self.params.gripper.switches_cut_power):
-            return enable
-        pos = self.motors.positions()[GRIPPER]
-        d = duty[GRIPPER]
-        if (d < 0 and pos <= self._closed_switch_rad) or (d > 0 and pos >= self._open_switch_rad):
-            enable = list(enable)
-            enable[GRIPPER] = False
-        return enable
-
     def _update_loads(self) -> None:
         q = self.motors.positions()
-        self.load_model().update(q[0], q[1], q[2], self._load_nm, self._inertia)
+        load, inertia = self.load_model().loads(q[0], q[1], q[2])
+        self._load_nm[:], self._inertia[:] = load, inertia
 
     # -- measured and true values --
     @property
@@ -343,22 +284,23 @@ class ArmPlant:
 
     @property
     def encoder_counts(self) -> np.ndarray:
-        """Quadrature counts since power-on (x4 decoding, floor quantisation), int64."""
-        return np.floor((self.motors.pos_rad - self._pos0) * self._counts_per_rad).astype(np.int64)
+        """Quadrature counts since power-on (x4 decoding, floor quantisation), int64: the true counts, as the tick
+        counts them with no encoder fault (`ArmTick.true_counts`)."""
+        return np.array(self.tick.true_counts(), dtype=np.int64)
 
     @property
     def home_switch(self) -> np.ndarray:
-        return self.motors.pos_rad >= self._home_rad
+        return np.array(self.tick.switches()[0])
 
     @property
     def limit_lo_switch(self) -> np.ndarray:
         """Lower limit switches; the gripper's is its closed end switch."""
-        return self.motors.pos_rad <= self._limit_lo_rad
+        return np.array(self.tick.switches()[1])
 
     @property
     def limit_hi_switch(self) -> np.ndarray:
         """Upper limit switches; the gripper's is its open end switch."""
-        return self.motors.pos_rad >= self._limit_hi_rad
+        return np.array(self.tick.switches()[2])
 
     @property
     def gripper_opening_m(self) -> float:
@@ -389,7 +331,7 @@ class ArmPlant:
 
     def supply_current_a(self) -> float:
         """Current the motor bridges draw from the supply at the last step (A, < 0 regenerates)."""
-        return self.motors.supply_current_a(*self._applied())
+        return self.tick.bridges_a
 
 
 def _as_list(values) -> list:

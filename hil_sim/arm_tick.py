@@ -2,11 +2,11 @@
 
 Design: docs/plant.md#the-arm-plants-tick
 
-`arm_plant_tick` does, for the six channels, what `Plant.step` has the per-concept classes
-do (`hil_sim.arm.ArmPlant`, `hil_sim.motor.DcMotorBank`, `hil_sim.arm.LoadModel` and the
-plant's own gating, supply current, encoders and switches), with the very same
-floating-point operations in the same order: its results are those of the classes to the
-bit (tests/test_arm_plant_tick.py). It takes only numbers and groups of per-channel rows,
+`arm_plant_tick` is the arm plant's one tick: for the six channels, the plant's gating (its
+faults, the gripper's end switches), the motor bank (`hil_sim.motor.DcMotorBank` holds its state
+and constants), the loads of the mass model (`hil_sim.arm.LoadModel` holds its constants), the
+supply current, encoders and switches. `ArmPlant.step` and `Plant.tick` run it; nothing else
+steps the arm. It takes only numbers and groups of per-channel rows,
 each row indexed by channel and each group's rows named by the constants below:
 
 - `command` (floats): the per-channel command, DUTY, ENABLE, BRAKE (0 or 1);
@@ -17,10 +17,10 @@ each row indexed by channel and each group's rows named by the constants below:
 - `constants`: one row of numbers, the mass model's (`LoadConstants`), then the gripper's.
 
 A group is a list of lists, or a 2-D numpy array for the kernel compiled by numba
-(hil_sim/arm_tick_compiled.py): numba's per-call cost grows with the number of arrays it is
-handed, so a tick takes these six. `ArmTick` holds the groups of one plant and keeps the
-per-step-length constants; the classes keep their state in its `state` rows (lists shared,
-or array rows adopted: `DcMotorBank.keep_state_in`), so both see one state.
+(hil_sim/arm_tick_compiled.py), the same to the bit: numba's per-call cost grows with the number
+of arrays it is handed, so a tick takes these six. `ArmTick` holds the groups of one plant and
+keeps the per-step-length constants; the classes keep their state in its `state` rows (lists
+shared, or array rows adopted: `DcMotorBank.keep_state_in`), so both see one state.
 """
 from __future__ import annotations
 
@@ -103,7 +103,7 @@ class LoadConstants(NamedTuple):
     at_base_kg_m2: float             # link I and the shoulder hardware about the shaft
     mobile_arm_kg_m2: float
     guide_wheels_kg_m2: float
-    # Squares are written x ** square: C's pow(x, 2.0), as CPython computes x ** 2 (and the classes do),
+    # Squares are written x ** square: C's pow(x, 2.0), as CPython computes x ** 2,
     # which is not always x * x (the last bit differs for about one value in a thousand). Given as a
     # number, not a literal, so that the compiled kernel calls pow too: numba turns x ** 2 into x * x.
     square: float = 2.0
@@ -202,7 +202,7 @@ def arm_plant_tick(h_s: float, substeps: int, supply_v: float, outputs_enabled: 
             else:
                 w = 0.0                                            # held by friction (and brake): exactly still
             # Position by semi-implicit Euler; an inelastic hard stop clamps it, stops the shaft and
-            # takes the torque that pushed into it (`hil_sim.motor.hard_stop`).
+            # takes the torque that pushed into it (< 0 into the lower stop).
             x = pos[k] + h_s * w
             if x <= stop_lo[k]:
                 x, w, t = stop_lo[k], 0.0, (s if s < 0.0 else 0.0)
@@ -345,6 +345,7 @@ class ArmTick:
         self._dt_s = math.nan
         self._substeps, self._h_s = 0, math.nan
         self._given: Sequence = [0.0] * n         # the command of the last tick, as given
+        self.bridges_a = 0.0                      # what the bridges drew from the supply at the last tick [A]
         self._set_drive(self._max_substep_s)
         self.sample()
 
@@ -389,9 +390,15 @@ class ArmTick:
         drawn = self._tick(self._h_s, self._substeps, supply_v, outputs_enabled, brake_all, self.command, self.state,
                            self.table, self.flags, self.counts, self.constants)
         self._given = command
+        self.bridges_a = drawn[0]
         self._flags_out = None
         self._sampled_writes = self._motors.state_writes
         return drawn
+
+    @property
+    def step_split(self) -> tuple[float, int]:
+        """The substep length and the substeps of a tick of the step length in use (`_set_step_length`)."""
+        return self._h_s, self._substeps
 
     def _flag_lists(self) -> list[list[bool]]:
         """The flag readouts (DRIVEN, BRAKED, HOME, LIMIT_LO, LIMIT_HI) as lists of Python bools, once a tick."""
@@ -439,6 +446,14 @@ class ArmTick:
         else:
             count, current = list(count), list(current)
         return count, current, (tuple(home), tuple(limit_lo), tuple(limit_hi))
+
+    def true_counts(self) -> list[int]:
+        """The encoders' true counts (Python ints), as `sample_readouts` counts them with no encoder fault."""
+        n = self._n
+        flags = [[False] * n for _ in range(FLAG_ROWS)]
+        counts = [[0] * n for _ in range(COUNT_ROWS)]
+        sample_readouts(list(self.state[POS_RAD]), [list(row) for row in self.table], flags, counts)
+        return counts[COUNTS]
 
     def sample(self) -> None:
         """Sample the counts and switches from the state as it is (outside a tick)."""

@@ -2,8 +2,8 @@
 
 `compiled_arm_plant_tick()` is `arm_plant_tick` (hil_sim/arm_tick.py) compiled without fastmath,
 with the two functions it calls (`gravity_and_inertia`, `sample_readouts`) compiled into it, so
-its results are the same to the bit as the plain function's and the per-concept classes'
-(tests/test_arm_plant_tick.py runs all three). It runs over the numpy arrays of an
+its results are the same to the bit as the plain function's (tests/test_arm_plant_tick.py runs
+both side by side). It runs over the numpy arrays of an
 `ArmTick(compiled=True)`. `ASPOD_COMPILED=1` (kernels/__init__.py) makes it the plant's default
 (`Plant(compiled_arm_tick=None)`).
 """

@@ -1,4 +1,4 @@
-"""Brushed DC motors behind gear trains, stepped together as one bank of channels.
+"""Brushed DC motors behind gear trains, held as one bank of channels (the arm plant's tick steps them).
 
 Design: docs/arm.md#the-motors
 """
@@ -140,7 +140,8 @@ class DriveParams:
 
 
 class DcMotorBank:
-    """Several `DriveParams` channels stepped together, indexed by channel.
+    """Several `DriveParams` channels, indexed by channel: their state, stops and step constants (the arm plant's
+    tick, `hil_sim.arm_tick`, steps them).
 
     State, read as fresh numpy arrays: `pos_rad`, `vel_rad_s` (output shaft), `i_a`
     (armature current, the current-sense value), `stop_torque_nm` (torque a hard stop
@@ -167,8 +168,6 @@ class DcMotorBank:
         self._stop_t = [0.0] * self.n
         self._as_list = list       # a row's values as a list of Python floats
         self.state_writes = 0      # how often `set_state` overwrote the state (readers that sample per step compare it)
-        self._h = 0.0
-        self._coef: list[tuple] = []
 
     def set_state(self, pos_rad=None, vel_rad_s=None, i_a=None) -> None:
         """Overwrite state (power-on pose, tests). Arguments are per-channel sequences or None."""
@@ -211,7 +210,7 @@ class DcMotorBank:
         """Keep the state and the stops from now on in these float64 rows (a compiled tick's arrays), values kept.
 
         Everything here reads and writes them as it did the lists; what it hands out stays Python
-        floats. Stepping the bank itself (`step`) works on them too, with numpy's slower scalars.
+        floats.
         """
         for name, row in (("_pos", pos), ("_vel", vel), ("_i", i), ("_stop_t", stop_torque), ("_stop_lo", stop_lo),
                           ("_stop_hi", stop_hi)):
@@ -223,7 +222,8 @@ class DcMotorBank:
         """Per-channel constants of a step of length `h`, as `step` uses them.
 
         Per channel: (L_eff/h, 1/(L_eff/h + R), ke_out/(L_eff/h + R), inertia, kt_out, viscous,
-        Coulomb, breakaway minus Coulomb, brake holding torque), all at the output shaft.
+        Coulomb, breakaway minus Coulomb, brake holding torque), all at the output shaft: the drive
+        rows of the plant's tick (`hil_sim.arm_tick.arm_plant_tick`, which steps the bank's state).
         """
         coef = []
         for d in self.drives:
@@ -234,61 +234,6 @@ class DcMotorBank:
             coef.append((a_e, inv_aer, d.ke_out_v_s_rad * inv_aer, d.inertia_kg_m2, d.kt_out_nm_a,
                          d.viscous_nm_s_rad, d.coulomb_nm, d.stiction_nm - d.coulomb_nm, d.brake_hold_nm))
         return coef
-
-    def _set_step(self, h: float) -> None:
-        """Per-channel constants for step length `h` (recomputed only when `h` changes)."""
-        self._coef = self.step_coefficients(h)
-        self._h = h
-
-    def step(self, dt_s: float, duty, supply_v: float, enable, brake,
-             load_torque_nm=None, load_inertia_kg_m2=None) -> None:
-        """Advance `dt_s` with per-channel `duty` in [-1, 1] (clipped; NaN = 0), `enable`, `brake`.
-
-        A channel without a mechanical brake (`brake_hold_nm` 0) that is braked and not enabled
-        is dynamically braked: its armature is shorted, so it stops instead of coasting.
-
-        `load_torque_nm` opposes positive motion (gravity's pull, as a holding torque);
-        `load_inertia_kg_m2` adds to each drive's own inertia. Both are held over the step.
-        Per-channel arguments are sequences (lists are fastest) or numpy arrays.
-        """
-        if dt_s <= 0.0:
-            return
-        if dt_s != self._h:
-            self._set_step(dt_s)
-        n = self.n
-        duty, enable, brake = _floats(duty), _floats(enable), _floats(brake)
-        load = _floats(load_torque_nm) if load_torque_nm is not None else [0.0] * n
-        extra = _floats(load_inertia_kg_m2) if load_inertia_kg_m2 is not None else [0.0] * n
-        inv_h = 1.0 / dt_s
-        pos, vel, cur, stop_t = self._pos, self._vel, self._i, self._stop_t
-        lo_stops, hi_stops = self._stop_lo, self._stop_hi
-        for k, (a_e, inv_aer, q, inertia, kt, visc, f_kin, f_extra, hold) in enumerate(self._coef):
-            w = vel[k]
-            if enable[k]:
-                u = duty[k]                          # clipped to [-1, 1]; NaN reads as 0
-                if -1.0 < u < 1.0:
-                    u *= supply_v
-                else:
-                    u = supply_v if u >= 1.0 else -supply_v if u <= -1.0 else 0.0
-                p = (a_e * cur[k] + u) * inv_aer    # current if the shaft stood still this step
-            elif brake[k] and hold == 0.0:
-                # No mechanical brake: "brake" shorts the armature through the bridge's low side
-                # (dynamic braking), so back-EMF current stops the motor instead of letting it coast.
-                p = a_e * cur[k] * inv_aer
-            else:
-                p = q = 0.0                          # bridge open: no current, no back-EMF drag
-            m = (inertia + extra[k]) * inv_h
-            s = m * w - load[k] + kt * p             # what friction must hold to stop the shaft
-            kinetic = f_kin + hold * brake[k]
-            cap = kinetic + f_extra if w == 0.0 else kinetic
-            if s > cap:
-                w = (s - kinetic) / (m + visc + kt * q)
-            elif s < -cap:
-                w = (s + kinetic) / (m + visc + kt * q)
-            else:
-                w = 0.0
-            x, w, t = hard_stop(pos[k] + dt_s * w, w, s, lo_stops[k], hi_stops[k])
-            pos[k], vel[k], cur[k], stop_t[k] = x, w, p - q * w, t
 
     @property
     def pos_rad(self) -> np.ndarray:
@@ -305,40 +250,3 @@ class DcMotorBank:
     @property
     def stop_torque_nm(self) -> np.ndarray:
         return np.array(self._stop_t)
-
-    def supply_current_a(self, duty, enable) -> float:
-        """Average current drawn from the supply by the bridges (lossless switches): sum duty * i.
-
-        Duty is clipped to [-1, 1] as `max(-1, min(1, d))` would (NaN reads as 1). A channel not
-        enabled adds 0 (its term, 0 * i, would add nothing either: the sum never is -0.0).
-        """
-        total = 0.0
-        for d, e, i in zip(_floats(duty), _floats(enable), self._as_list(self._i)):
-            if e:
-                d = d if d < 1.0 else 1.0
-                total += (d if d > -1.0 else -1.0) * e * i
-        return total
-
-
-def hard_stop(x: float, w: float, s: float, lo: float, hi: float) -> tuple[float, float, float]:
-    """An inelastic hard stop: (position, speed, torque the stop absorbs) after a step.
-
-    A position `x` [rad] at or past the stop `lo` or `hi` is clamped to it and the speed `w`
-    [rad/s] zeroed; the stop takes the torque `s` [N m] that pushed into it (< 0 into the lower).
-    """
-    if x <= lo:
-        return lo, 0.0, s if s < 0.0 else 0.0
-    if x >= hi:
-        return hi, 0.0, s if s > 0.0 else 0.0
-    return x, w, 0.0
-
-
-def _floats(values) -> list:
-    """A per-channel argument as a list of Python numbers (numpy scalars are slow to compute with).
-
-    A list is taken as it is (read, never kept or changed): copying it would cost more than the
-    arithmetic on six channels.
-    """
-    if type(values) is list:
-        return values
-    return values.tolist() if isinstance(values, np.ndarray) else list(values)

@@ -13,13 +13,11 @@ import numpy as np
 
 from hil_sim.arm import ArmPlant
 from hil_sim.arm_params import ARM_PLANT_PARAMS, ArmPlantParams
-from hil_sim.arm_tick import ArmTick, Sensors
+from hil_sim.arm_tick import ArmTick
 from hil_sim.commands import N_CHANNELS, ExpiringMotorCommands, ExpiringOutputs, ExpiringTrackerCommands
 from hil_sim.faults import CHANNEL_FAULTS, PLANT_FAULTS, Channel, fault_key, resolve
-from hil_sim.motor import TWO_PI
 from hil_sim.sun import DEFAULT_START, TUCSON, DateTimeLike, Site
 from hil_sim.tracker import TRACKER_PARAMS, TrackerParams, TrackerPlant
-from kernels import compiled_by_default
 
 # The plant-wide faults (no channel). Per-channel ones: CHANNEL_FAULTS; all: hil_sim.faults.
 FAULTS = PLANT_FAULTS
@@ -107,78 +105,47 @@ class Plant:
     Tucson; `clouds` is None, a spec string ("12:00+300s@0.9,14:30+10m@0.5",
     `hil_sim.sun.parse_clouds`) or `CloudPassage` items.
 
-    `fused_arm_tick` (default True): the arm's channels are stepped by the fused tick
-    (`hil_sim.arm_tick`); False: by the per-concept classes (`ArmPlant`, `DcMotorBank`), the
-    reference it is tested against. Both give the same results, to the bit.
-    `compiled_arm_tick`: the fused tick compiled by numba (hil_sim/arm_tick_compiled.py), the
-    same to the bit; None (default) takes `kernels.compiled_by_default()` (`ASPOD_COMPILED=1`).
-    Asked for without numba: RuntimeError. Without the fused tick it changes nothing.
+    The arm's channels are stepped by the arm's tick (`hil_sim.arm_tick`, `ArmPlant.tick`).
+    `compiled_arm_tick`: that tick compiled by numba (hil_sim/arm_tick_compiled.py), the same to
+    the bit; None (default) takes `kernels.compiled_by_default()` (`ASPOD_COMPILED=1`). Asked for
+    without numba: RuntimeError.
     """
 
     def __init__(self, params: PlantParams, rng: np.random.Generator, *,
                  arm_params: ArmPlantParams = ARM_PLANT_PARAMS, gravity: str = "earth",
                  payload_kg: float = 0.0, site: Site = TUCSON, start: DateTimeLike = DEFAULT_START,
-                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS, fused_arm_tick: bool = True,
+                 clouds=None, tracker_params: TrackerParams = TRACKER_PARAMS,
                  compiled_arm_tick: Optional[bool] = None) -> None:
         self.params = params
         self._rng = rng
         self._noise: list[float] = []
         self._noise_at = 0
-        self.arm = ArmPlant(arm_params, gravity=gravity, payload_kg=payload_kg)
-        n = N_CHANNELS
-        # Encoder and switch constants, as plain floats (cheaper per tick than the arm's numpy views).
-        ch = arm_params.channels
-        self._pos0 = [c.start_pos_rad for c in ch]
-        self._counts_per_rad = [c.counts_per_output_rev / TWO_PI for c in ch]
-        self._home_rad = [c.home_rad for c in ch]
-        self._limit_lo_rad = [c.limit_lo_rad for c in ch]
-        self._limit_hi_rad = [c.limit_hi_rad for c in ch]
-        # The fused tick steps the arm's state rows (None: the classes step the arm).
-        self._arm_tick: Optional[ArmTick] = None
-        if fused_arm_tick:
-            sensors = Sensors(self._pos0, self._counts_per_rad, self._home_rad, self._limit_lo_rad, self._limit_hi_rad)
-            compiled = compiled_by_default() if compiled_arm_tick is None else bool(compiled_arm_tick)
-            tick = self._arm_tick = ArmTick(self.arm, sensors, compiled=compiled)
-            self.arm.applied_by(lambda: (tick.duty(), tick.gating()[0]))
-        # Faults: active keys ("jam:j2"), and per-channel state the step reads (rows changed in place:
-        # the fused tick's own, read by it).
+        self.arm = ArmPlant(arm_params, gravity=gravity, payload_kg=payload_kg, compiled=compiled_arm_tick)
+        self._arm_tick: ArmTick = self.arm.tick
+        # Faults: active keys ("jam:j2"), and per-channel state the step reads (the tick's own rows, changed in place).
         self._faults: set[str] = set()
-        if self._arm_tick is None:
-            self._open_circuit = [False] * n
-            self._stuck_brake = [False] * n
-            self._count_offset = [0] * n                        # encoder_glitch
-            self._dropped_out = [False] * n                     # encoder_dropout: the count shown is
-            self._frozen_count = [0] * n                        # this one
-        else:
-            (self._open_circuit, self._stuck_brake, self._count_offset, self._dropped_out,
-             self._frozen_count) = self._arm_tick.faults
+        (self._open_circuit, self._stuck_brake, self._count_offset, self._dropped_out,
+         self._frozen_count) = self._arm_tick.faults
         self._jam_saved_stops: dict[int, tuple[float, float]] = {}
         # What the bus last commanded (the node feeds them); `step` applies what it is given.
         self.commanded = ExpiringOutputs(params.output_timeout_s)
-        self.motor_commands = ExpiringMotorCommands(params.motor_cmd_timeout_s, n)
+        self.motor_commands = ExpiringMotorCommands(params.motor_cmd_timeout_s, N_CHANNELS)
         # As applied by the last step (and `channel_duty`, `channel_driven`, `channel_braked`).
         self.outputs_enabled = False
         self.brake = True
-        self._gating = ([0.0] * n, [False] * n, [True] * n)     # the classes': duty, driven, braked
         # The solar tracker, with a generator of its own so that the arm's noise stream does not change.
         self.tracker = TrackerPlant(tracker_params, _spawn(rng), site=site, start=start, clouds=clouds)
         self.tracker_commands = ExpiringTrackerCommands(params.tracker_cmd_timeout_s)
         self.temp_true_c = params.ambient_c  # box starts at ambient (just powered on)
         self.supply_true_v = params.supply_nominal_v
         self.current_a = 0.0          # total drawn from the supply at the last step
-        self._currents_a = [0.0] * n  # the classes': armature currents
         self._decay_dt_s, self._decay = math.nan, 1.0   # the temperature's decay factor for that step length
         self.step(0.0, outputs_enabled=False, brake=True)
 
     @property
-    def fused_arm_tick(self) -> bool:
-        """True if the arm's channels are stepped by the fused tick, False if by the classes."""
-        return self._arm_tick is not None
-
-    @property
     def compiled_arm_tick(self) -> bool:
-        """True if the fused tick runs compiled by numba."""
-        return self._arm_tick is not None and self._arm_tick.compiled
+        """True if the arm's tick runs compiled by numba."""
+        return self._arm_tick.compiled
 
     # -- faults -------------------------------------------------------------------------------
     @property
@@ -236,8 +203,7 @@ class Plant:
                 motors.set_stops(k, *self._jam_saved_stops.pop(k))
         else:  # pragma: no cover - the table and this method must agree
             raise AssertionError(f"fault {name!r} is declared but not implemented")
-        if self._arm_tick is not None:
-            self._arm_tick.sample()     # the counts show an encoder fault at once, as the classes' do
+        self._arm_tick.sample()         # the counts show an encoder fault at once
 
     @property
     def ambient_c(self) -> float:
@@ -276,10 +242,7 @@ class Plant:
         p = self.params
         outputs_enabled = self.outputs_enabled = bool(outputs_enabled)
         brake = self.brake = bool(brake)
-        if self._arm_tick is None:
-            bridges_a, squares = self._step_arm_by_classes(dt_s, outputs_enabled, brake, command)
-        else:
-            bridges_a, squares = self._arm_tick.step(dt_s, outputs_enabled, brake, command, self.supply_true_v)
+        bridges_a, squares = self._arm_tick.step(dt_s, outputs_enabled, brake, command, self.supply_true_v)
         electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
         self.current_a = electronics_a + bridges_a
         self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
@@ -301,42 +264,26 @@ class Plant:
         self._supply_v = self.supply_true_v + self._noise[at] * p.supply_noise_v
         self._temp_c = self.temp_true_c + self._noise[at + 1] * p.temp_noise_c
 
-    def _step_arm_by_classes(self, dt_s: float, outputs_enabled: bool, brake: bool,
-                             command: Sequence) -> tuple[float, float]:
-        """The arm's step through `ArmPlant` and its motor bank: the bridges' supply current, the sum of i^2."""
-        n = N_CHANNELS
-        duty, enable, channel_brake = command[:n], command[n:2 * n], command[2 * n:3 * n]
-        arm = self.arm
-        driven = [outputs_enabled and bool(e) and not o for e, o in zip(enable, self._open_circuit)]
-        braked = [brake or bool(b) or s for b, s in zip(channel_brake, self._stuck_brake)]
-        self._gating = list(duty), driven, braked
-        arm.step(dt_s, duty, driven, braked, self.supply_true_v)
-        currents = self._currents_a = arm.motors.currents()
-        squares = 0.0
-        for i in currents:              # in order, one rounding per term (as the fused tick; not math.fsum)
-            squares += i * i
-        return arm.supply_current_a(), squares
-
     # -- what the last step applied --------------------------------------------------------------
     @property
     def channel_duty(self) -> list:
         """Each channel's duty at the last step, as commanded (a list of the caller's own)."""
-        return self._arm_tick.duty() if self._arm_tick is not None else list(self._gating[0])
+        return self._arm_tick.duty()
 
     @property
     def channel_driven(self) -> list[bool]:
         """Whether each channel's bridge switched at the last step (a list of the caller's own)."""
-        return self._arm_tick.gating()[0] if self._arm_tick is not None else list(self._gating[1])
+        return self._arm_tick.gating()[0]
 
     @property
     def channel_braked(self) -> list[bool]:
         """Whether each channel's brake was on at the last step (a list of the caller's own)."""
-        return self._arm_tick.gating()[1] if self._arm_tick is not None else list(self._gating[2])
+        return self._arm_tick.gating()[1]
 
     @property
     def currents_a(self) -> list[float]:
         """The armature currents at the last step (current sense, exact; a list of the caller's own)."""
-        return self._arm_tick.currents() if self._arm_tick is not None else list(self._currents_a)
+        return self._arm_tick.currents()
 
     # -- sensors --------------------------------------------------------------------------------
     @property
@@ -353,34 +300,19 @@ class Plant:
     def encoder_counts(self) -> list[int]:
         """What each channel's encoder interface shows: quadrature counts since power-on.
 
-        The true count (as `ArmPlant.encoder_counts`, unbounded Python ints) plus any
-        glitch offset, or the frozen value while the encoder has dropped out. The fused tick
-        samples counts and switches at its end (and again after a fault or a move by hand);
-        the classes compute them here: the same values.
+        The true count (unbounded Python ints) plus any glitch offset, or the frozen value while
+        the encoder has dropped out, as the arm's tick samples them at its end (and again after a
+        fault or a move by hand).
         """
-        if self._arm_tick is not None:
-            return self._arm_tick.encoder_counts()
-        counts = [math.floor((x - x0) * k) + off for x, x0, k, off
-                  in zip(self.arm.motors.positions(), self._pos0, self._counts_per_rad, self._count_offset)]
-        dropped = self._dropped_out
-        if True in dropped:
-            counts = [f if d else c for c, d, f in zip(counts, dropped, self._frozen_count)]
-        return counts
+        return self._arm_tick.encoder_counts()
 
     def switches(self) -> tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]:
         """(home, limit_lo, limit_hi) per channel, True = closed (as `ArmPlant`'s switch arrays)."""
-        if self._arm_tick is not None:
-            return self._arm_tick.switches()
-        pos = self.arm.motors.positions()
-        return (tuple([x >= h for x, h in zip(pos, self._home_rad)]),
-                tuple([x <= lo for x, lo in zip(pos, self._limit_lo_rad)]),
-                tuple([x >= hi for x, hi in zip(pos, self._limit_hi_rad)]))
+        return self._arm_tick.switches()
 
     def readouts(self) -> tuple[list[int], list[float], tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]]:
         """(`encoder_counts`, `currents_a`, `switches()`) at one go: what the node sends each tick."""
-        if self._arm_tick is not None:
-            return self._arm_tick.readouts()
-        return self.encoder_counts, self.currents_a, self.switches()
+        return self._arm_tick.readouts()
 
 
 def _spawn(rng: np.random.Generator) -> np.random.Generator:

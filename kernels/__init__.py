@@ -57,12 +57,13 @@ def switched(on: Optional[bool]) -> Iterator[None]:
             os.environ[ENVIRONMENT_SWITCH] = before
 
 
-def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = ()) -> F:
-    """`function` compiled by numba (`njit(cache=True)`, no fastmath); RuntimeError naming `what` without numba.
+def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = (), cache: bool = True) -> F:
+    """`function` compiled by numba (`njit(cache=cache)`, no fastmath); RuntimeError naming `what` without numba.
 
     `helpers`: the plain functions `function` calls, compiled into it where it calls them and left
     as they are for Python callers (numba's `register_jitable`). Keep them in `function`'s file:
-    numba's cache is refreshed when that file changes, not when another one does.
+    numba's cache is refreshed when that file changes, not when another one does (`cache=False`
+    for a function whose helpers live elsewhere: compiled in every process).
     """
     try:
         import numba
@@ -72,7 +73,7 @@ def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = ()) -> 
                            "pip install 'aspod[compiled]' (or numba)") from exc
     for helper in helpers:
         register_jitable(helper)
-    return numba.njit(cache=True)(function)
+    return numba.njit(cache=cache)(function)
 
 
 __all__ = ["ENVIRONMENT_SWITCH", "compile_kernel", "compiled_by_default", "switched"]

@@ -19,12 +19,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_py import profiles
-from firmware_py.axis import Axis, AxisConfig, AxisError, Refusal, motor_gains
-from protocol.states import AxisMode, MotionOutcome
+from firmware_py.axis import AxisConfig, AxisError, Refusal, motor_gains
 from firmware_py.estimator import (COUNT_MODULUS, EstimatorConfig, EstimatorFlag, KalmanEstimator,
                                    SteadyStateEstimator, make_kalman_filter, steady_state_gain, unwrap_delta)
+from firmware_py.joint_bank import single_axis
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
 from host_tools.worlds.child import run
+from protocol.states import AxisMode, MotionOutcome
 
 DT_S = 0.001
 
@@ -108,8 +109,8 @@ class Rig:
         if self.joint.gravity_m_s2:
             gravity = lambda pos_rad: gravity_model_error * self.joint.gravity_nm(pos_rad + self.zero_rad)  # noqa: E731
         self.zero_rad = 0.0   # plant angle at axis position 0 (the lead's gravity model knows it after homing)
-        self.axis = Axis(make_config(self.joint, **overrides), gravity_nm=gravity,
-                         on_fault=lambda bits, now: self.faults.append((bits, now)))
+        self.axis = single_axis(make_config(self.joint, **overrides), gravity_nm=gravity,
+                                on_fault=lambda bits, now: self.faults.append((bits, now)))
         self.now = 0.0
         self.trace: list[tuple[float, float, float, float]] = []   # (now, plant angle, setpoint, duty)
         self.currents_a: list[float] = []

@@ -1,16 +1,18 @@
-"""The joints' fused tick (firmware_py/joints_tick.py) against `Axis.update`, to the bit.
+"""The joints' tick (firmware_py/joints_tick.py, the one implementation) through its cases, compiled the same to
+the bit as plain.
 
-Two levels. Whole lock-step worlds run through the same scripted session with the fused joints
-(the default), with them compiled by numba (firmware_py/joints_compiled.py; when numba is
-installed) and with `fused_joints=False` (each joint's `Axis.update`, the reference), and must send
-the same duties, enables and brakes on every tick, the same bytes to the host, and end with every
-joint's state the same, floats compared by `float.hex`. And one joint in a bank of its own (plain or
-compiled) beside a plain `Axis`, on a small test plant with inputs the world cannot make (a current
-that is not a number, counts that jump or stop), compared after every tick.
+Two levels. Whole lock-step worlds run through scripted sessions with the joints' tick plain and
+(when numba is installed) compiled by numba (firmware_py/joints_compiled.py), and must send the
+same duties, enables and brakes on every tick, the same bytes to the host, and end with every
+joint's state the same, floats compared by `float.hex`. And one joint alone (`single_axis`) on a
+small test plant with inputs the world cannot make (a current that is not a number, counts that
+jump or stop), plain, and compiled beside plain compared after every tick.
 
 Each session also says what it went through (modes, error bits, fault reasons, motion outcomes,
-counts across the 32-bit wrap, ticks handed back), so a session that stopped covering its case
-fails instead of passing on nothing.
+counts across the 32-bit wrap, events handed to the facade), so a session that stopped covering
+its case fails instead of passing on nothing. (Until issue 35 the tick was written twice, here and
+as `Axis.update`, and these tests held the two equal; the single implementation was checked
+against that `Axis.update` on every session and scenario here, every tick, to the bit.)
 """
 from __future__ import annotations
 
@@ -25,11 +27,10 @@ from typing import Callable, Optional
 import pytest
 
 from firmware_py import joints_tick as jt
-from firmware_py.arm import ArmController
 from firmware_py.axis import Axis, AxisError, Refusal
 from firmware_py.controller import ControllerConfig
 from firmware_py.estimator import COUNT_MODULUS
-from firmware_py.joint_bank import BankedAxis, JointBank
+from firmware_py.joint_bank import BankedAxis, JointBank, single_axis
 from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joints_tick
 from kernels import ENVIRONMENT_SWITCH, switched
 from host_tools.client.trajectory import Knot, send_trajectory
@@ -41,9 +42,7 @@ from protocol.states import Axis as AxisId, AxisMode, ControllerState, MotionOut
 from test_axis_pipeline import DT_S, Joint, make_config
 
 JOINTS = ("j1", "j2", "j3", "j4", "mount")
-PATHS = ("reference", "fused", "compiled")     # the joints' tick: Axis.update, joints_tick, joints_tick compiled
 HAVE_NUMBA = importlib.util.find_spec("numba") is not None
-PATHS_HERE = PATHS if HAVE_NUMBA else PATHS[:2]
 COMPILED = [False, pytest.param(True, marks=pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed "
                                                                 "(the compiled joints are optional)"))]
 
@@ -78,7 +77,7 @@ class WorldRun:
     joints: list = field(default_factory=list)       # each joint's snapshot at the end
     seen: dict = field(default_factory=dict)         # what the session says it went through
     wrapped: bool = False                            # some joint's count went across the 32-bit wrap
-    handed_back: Optional[int] = None                # joint-ticks the fused function handed to Axis.update
+    handed_back: Optional[int] = None                # events the joints' tick handed to the facade
 
 
 class LoseMotorFeedback:
@@ -97,14 +96,14 @@ class LoseMotorFeedback:
         return result
 
 
-def run_world(session: Callable[[LockstepBench], dict], seed: int, path: str) -> WorldRun:
-    """`session` on a world whose joints run on `path`: "reference" (Axis.update), "fused" or "compiled"."""
+def run_world(session: Callable[[LockstepBench], dict], seed: int, compiled: bool) -> WorldRun:
+    """`session` on a world whose joints' tick runs plain or `compiled`."""
     run = WorldRun()
 
     def tap(data: bytes) -> bytes:
         run.wire.extend(data)
         return data
-    config = ControllerConfig(fused_joints=path != "reference", compiled_joints=path == "compiled")
+    config = ControllerConfig(compiled_joints=compiled)
     bench = LockstepBench(seed=seed, to_host=tap, controller_config=config)
     arm = bench.controller.arm
     hal = arm.hal
@@ -122,7 +121,7 @@ def run_world(session: Callable[[LockstepBench], dict], seed: int, path: str) ->
         assert bench.call(M["SetTelemetryRate"](50)).ok
         run.seen = session(bench)
         run.joints = [snapshot(arm.joints[n]) for n in JOINTS]
-        run.handed_back = None if arm.bank is None else arm.bank.handed_back
+        run.handed_back = arm.bank.handed_back
     finally:
         bench.close()
     return run
@@ -248,7 +247,7 @@ def stale_session(bench: LockstepBench) -> dict:
 
 
 def trajectory_session(bench: LockstepBench) -> dict:
-    """j1..j4 homed, then along a trajectory (its ticks handed back: the kernel evaluates no cubic), stopped
+    """j1..j4 homed, then along a trajectory (its ticks handed to the facade: the kernel evaluates no cubic), stopped
     midway, and again to its end; the mount moving meanwhile, in the kernel."""
     call_ok(bench, M["Enable"]())
     started = bench.call(M["Home"](int(AxisId.ALL))).reply
@@ -274,7 +273,7 @@ def trajectory_session(bench: LockstepBench) -> dict:
 @dataclass(frozen=True)
 class Session:
     """A scripted session and what it must go through: axis modes, error bits, motion outcomes and fault reports
-    (at least these), counts across the wrap, and the largest share of joint-ticks handed back to Axis.update."""
+    (at least these), counts across the wrap, and the largest share of joint-ticks handed to the facade."""
 
     script: Callable[[LockstepBench], dict]
     modes: frozenset
@@ -298,7 +297,7 @@ SESSIONS = {
     # every tick of a stale encoder is a fault (already latched or not)
     "stale": Session(stale_session, frozenset({_M.FAULT, _M.MOVING}), AxisError.ENCODER_STALE | AxisError.CURRENT_STALE,
                      reasons=frozenset({Reason.ENCODER_STALE, Reason.CURRENT_STALE}), handed_back=0.05),
-    # a trajectory's every tick is handed back (4 joints of 5, about half the session)
+    # a trajectory's every tick is handed to the facade (4 joints of 5, about half the session)
     "trajectory": Session(trajectory_session, frozenset({_M.HOMING, _M.HOLDING, _M.MOVING}),
                           outcomes=frozenset({_O.DONE, _O.STOPPED}), handed_back=0.5),
 }
@@ -331,26 +330,25 @@ def assert_went_through(session: Session, run: WorldRun) -> None:
 @pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.long) if name in ("moving", "homing", "trajectory")
                                   else name
                                   for name in SESSIONS])
-def test_a_session_on_the_fused_joints_is_the_same_to_the_bit(name):
-    """The session on each path of the joints (compiled: if numba is installed): the same MOTOR_CMDs, modes and
-    error bits at every tick, bytes to the host and joints' end states as on Axis.update; and it went through its
-    cases, handing back only the rare ticks (the compiled function exactly the ones the plain one does)."""
+def test_a_session_goes_through_its_cases_and_compiled_is_the_same_to_the_bit(name):
+    """The session goes through its cases, handing only the rare ticks to the facade; compiled (if numba is
+    installed): the same MOTOR_CMDs, modes and error bits at every tick, bytes to the host, joints' end states and
+    events handed over as plain."""
     session = SESSIONS[name]
     seed = 20 + list(SESSIONS).index(name)
-    runs = {path: run_world(session.script, seed, path) for path in PATHS_HERE}
-    reference = runs.pop("reference")
-    assert reference.handed_back is None
-    for path, run in runs.items():
-        assert_same(run, reference)
-        assert run.handed_back == runs["fused"].handed_back, path
-    assert_went_through(session, runs["fused"])
+    plain = run_world(session.script, seed, compiled=False)
+    assert_went_through(session, plain)
+    if HAVE_NUMBA:
+        compiled = run_world(session.script, seed, compiled=True)
+        assert_same(compiled, plain)
+        assert compiled.handed_back == plain.handed_back
 
 
-# ---------------------------------------------------------------- one joint beside a plain Axis
+# ---------------------------------------------------------------- one joint alone, compiled beside plain
 class Twin:
-    """One joint twice on the test plant of tests/test_axis_pipeline.py: a plain `Axis` (the reference) and a
-    `BankedAxis` alone in a bank (`compiled`: numba's), each on its own copy of the plant, given the same inputs
-    the arm loop's way (a count and a current from one MOTOR_FB arriving at `fb_s`), compared after every tick."""
+    """One joint alone (`single_axis`) on the test plant of tests/test_axis_pipeline.py, given inputs the arm loop's
+    way (a count and a current from one MOTOR_FB arriving at `fb_s`); `compiled`: numba's, beside a plain one on
+    its own copy of the plant, the two compared after every tick."""
 
     def __init__(self, joint: Joint, compiled: bool = False, **overrides) -> None:
         self.overrides = {"vel_limit_rad_s": 0.5, "acc_limit_rad_s2": 2.0, **overrides}
@@ -359,10 +357,10 @@ class Twin:
         self.tau = [0.0]                              # the gravity torque, refreshed before each tick (as the arm)
         gravity = (lambda pos: self.tau[0]) if joint.gravity_m_s2 else None
         self.faults: tuple[list, list] = ([], [])
-        self.bank = JointBank(1, 1, compiled)
-        self.axes = (Axis(config, gravity_nm=gravity, on_fault=lambda bits, now: self.faults[0].append((bits, now))),
-                     BankedAxis(self.bank, 0, 0, config, gravity_nm=gravity,
-                                on_fault=lambda bits, now: self.faults[1].append((bits, now))))
+        self.axes = tuple(single_axis(config, gravity_nm=gravity, compiled=on,
+                                      on_fault=lambda bits, now, k=k: self.faults[k].append((bits, now)))
+                          for k, on in enumerate((False, True) if compiled else (False,)))
+        self.bank = self.axes[-1]._bank
         self.now = 0.0
         self.fb_s = 0.0
         self.ticks = 0
@@ -370,8 +368,8 @@ class Twin:
     def command(self, name: str, *args):
         """The same command to both axes; the same answer from both, and the same state after it."""
         answers = [getattr(axis, name)(*args) for axis in self.axes]
-        assert answers[0] == answers[1], name
-        assert snapshot(self.axes[0]) == snapshot(self.axes[1]), name
+        assert answers[0] == answers[-1], name
+        assert snapshot(self.axes[0]) == snapshot(self.axes[-1]), name
         return answers[0]
 
     def reconfigure(self, **changes) -> None:
@@ -394,18 +392,14 @@ class Twin:
                 count = (plant.count + count_jump) % COUNT_MODULUS
                 i_a = plant.i_a if current is None else current
                 self.tau[0] = plant.gravity_nm(axis.pos_rad)
-                if axis is self.axes[0]:
-                    duty = axis.update(self.now, count, self.fb_s, i_a, self.fb_s, plant.home_switch)
-                else:
-                    self.bank.duties[0] = math.nan
-                    self.bank.take_inputs(self.fb_s, [count], [i_a], [plant.home_switch], self.tau)
-                    self.bank.run(0, 1, self.now)
-                    duty = self.bank.duty_list()[0]
+                axis._bank.duties[0] = math.nan
+                duty = axis.update(self.now, count, self.fb_s, i_a, self.fb_s, plant.home_switch)
+                assert duty == duty, f"tick {self.ticks}: no duty"
                 duties.append(duty.hex())
                 plant.step(duty, axis.brake)
-            assert duties[0] == duties[1], f"tick {self.ticks}"
-            assert snapshot(self.axes[0]) == snapshot(self.axes[1]), f"tick {self.ticks}"
-            assert self.faults[0] == self.faults[1]
+            assert duties[0] == duties[-1], f"tick {self.ticks}"
+            assert snapshot(self.axes[0]) == snapshot(self.axes[-1]), f"tick {self.ticks}"
+            assert self.faults[0] == self.faults[len(self.axes) - 1]
             self.now += DT_S
             self.ticks += 1
             if until is not None and until(self.axes[0]):
@@ -539,23 +533,28 @@ def test_random_commands_and_input_trouble_are_the_same(seed, compiled):
     assert twin.fused_share > 0.9
 
 
-def test_a_handed_back_joint_is_left_as_it_was_and_the_joints_before_it_are_done():
+def test_a_joint_handed_over_waits_for_its_facade_and_the_joints_before_it_are_done():
     bank = JointBank(2, 2)
     axes = [BankedAxis(bank, k, k, make_config(Joint())) for k in range(2)]
     for axis in axes:
         axis.enable(0.0)
     counts, currents, home = [0, 0], [0.0, 0.0], [False, False]
-    bank.take_inputs(0.0, counts, currents, home, [])
+    bank.take_inputs(0.0, 0.0, counts, currents, home, [])
     bank.run(0, 2, 0.0)
-    before = [[list(group[k]) for group in (bank.state, bank.int_state)] for k in range(2)]
     out = [math.nan, math.nan]
     counts[1] = 100_000                                              # joint 1's count jumps: a glitch
-    stopped = jt.joints_tick(0, 2, 0.001, 0.001, counts, currents, home, [], out, bank.state, bank.int_state,
+    stopped = jt.joints_tick(0, 2, 0.001, 0.001, 0.001, counts, currents, home, [], out, bank.state, bank.int_state,
                              bank.config, bank.int_config, bank.profile)
     assert stopped == 1
-    assert [list(group[1]) for group in (bank.state, bank.int_state)] == before[1]
-    assert [list(group[0]) for group in (bank.state, bank.int_state)] != before[0]
+    assert bank.int_state[1][jt.EVENT] == jt.EV_FAULT and bank.int_state[1][jt.RAISED] == jt.ENCODER_GLITCH
+    assert bank.int_state[0][jt.EVENT] == jt.EV_NONE
     assert math.isnan(out[1]) and not math.isnan(out[0])
+    assert axes[1].mode is AxisMode.HOLDING and not axes[1].faults    # the facade has not acted yet
+    bank.take_inputs(0.001, 0.001, counts, currents, home, [])
+    bank.run(1, 2, 0.001)                                            # it acts: the fault, duty 0
+    assert axes[1].mode is AxisMode.FAULT and axes[1].faults == AxisError.ENCODER_GLITCH
+    assert bank.duties[1] == 0.0 and bank.int_state[1][jt.EVENT] == jt.EV_NONE
+    assert axes[1].estimator.glitches == 1 and axes[0].mode is AxisMode.HOLDING
 
 
 # ---------------------------------------------------------------- the switches
@@ -574,11 +573,6 @@ def test_the_compiled_joints_are_asked_for_by_the_environment_and_need_numba(mon
     finally:
         compiled_joints_tick.cache_clear()
         compiled_arm_joints_tick.cache_clear()
-
-
-def test_stage_times_need_the_reference_path():
-    with pytest.raises(ValueError, match="fused_joints=False"):        # refused before the HAL is looked at
-        ArmController(None, None, stopwatch=lambda: 0.0)
 
 
 def test_switched_sets_the_switch_for_what_is_built_inside_and_puts_it_back(monkeypatch):
