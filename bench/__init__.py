@@ -5,9 +5,9 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Iterable, Sequence
 
-Part = Callable[[Path, bool], list[str]]
+Part = Callable[[Path, bool], Iterable[str]]   # a list, or a generator whose lines are printed as they come
 
 
 @dataclass
@@ -18,18 +18,20 @@ class PartsResult:
 
 
 def run_parts(title: str, parts: Sequence[Part], quick: bool, prefix: str) -> PartsResult:
-    """Print `title`, then run each part in one scratch folder, printing its lines as they come. A part that cannot
-    run says which and why; the others still run."""
+    """Print `title`, then run each part in one scratch folder, printing its lines as they come (a part that is a
+    generator shows its progress on a long run). A part that cannot run, or stops half way, says which and why; the
+    others still run."""
     print(title, flush=True)
     lines_all, error = [], ""
     with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
         for part in parts:
             try:
-                lines = part(Path(tmp), quick)
+                for line in part(Path(tmp), quick):
+                    print(line, flush=True)
+                    lines_all.append(line)
             except Exception as exc:
                 error = error or f"{part.__name__}: {type(exc).__name__}: {exc}"
-                lines = [f"{part.__name__}: could not run: {type(exc).__name__}: {exc}"]
-            for line in lines:
+                line = f"{part.__name__}: could not run: {type(exc).__name__}: {exc}"
                 print(line, flush=True)
-            lines_all += lines
+                lines_all.append(line)
     return PartsResult(lines_all, error)
