@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from concurrent.futures import FIRST_COMPLETED, Executor, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from contextlib import contextmanager
@@ -32,7 +31,7 @@ from bench import PartsResult, run_parts
 from timebase import RealClock
 from host_tools.campaign.matrix import GridAxis, Matrix, parse_seeds
 from host_tools.campaign.runs import BenchSpec, run_one
-from host_tools.worlds.child import Child
+from host_tools.worlds.child import Child, run
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 MOVING = "enable\njog j2 ${speed}\nwait 4\nstop\nmoveby j1 3 3\nwait\nwait 4\n"
@@ -159,8 +158,7 @@ def lockstep_against_live(folder: Path, quick: bool) -> list[str]:
     script = folder / "agree.aspod"
     script.write_text(AGREE)
     wall0 = RealClock.precise_now()
-    done = subprocess.run([*ASPOD, "bench", str(script), "--json", "--no-tracker"], capture_output=True, text=True,
-                          timeout=300)
+    done = run([*ASPOD, "bench", str(script), "--json", "--no-tracker"], text=True, timeout_s=300)
     lockstep_wall = RealClock.precise_now() - wall0
     lockstep = json.loads(done.stdout)
     env = {**os.environ, "XDG_CONFIG_HOME": str(folder / "config")}      # a parameter file of its own
@@ -169,8 +167,8 @@ def lockstep_against_live(folder: Path, quick: bool) -> list[str]:
         url = child.ready("ASPOD-LINK ").split(" ", 1)[1]
         child.ready("ASPOD-KEY ")
         wall0 = RealClock.precise_now()
-        done = subprocess.run([*ASPOD, "teleop", url, "--script", str(script), "--json"], env=env,
-                              capture_output=True, text=True, timeout=300)
+        done = run([*ASPOD, "teleop", url, "--script", str(script), "--json"], env=env, text=True, timeout_s=300,
+                   peers=(child.pid,))
         live_wall = RealClock.precise_now() - wall0
     finally:
         child.stop()

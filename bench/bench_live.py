@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Optional
 
 from host_tools.apps.kinematics import DEMO_SCENE, steps
-from host_tools.worlds.child import Child, ChildError
+from host_tools.worlds.child import Child, ChildError, run
 from timebase import RealClock
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -87,9 +87,8 @@ class Sim:
                 self._seen.wait(min(left, 0.5))
 
     def teleop(self, script: str, timeout_s: float = 3600.0) -> subprocess.CompletedProcess:
-        return subprocess.run(ASPOD + ["teleop", self.url, "--connect-timeout", "60", "--keep-going"],
-                              input=script.encode(), capture_output=True, env=self.env, timeout=timeout_s,
-                              cwd=REPO_ROOT)
+        return run(ASPOD + ["teleop", self.url, "--connect-timeout", "60", "--keep-going"], input=script.encode(),
+                   env=self.env, timeout_s=timeout_s, cwd=REPO_ROOT, peers=(self.child.pid,))
 
     def close(self) -> None:
         self.child.stop(signal.SIGTERM, timeout_s=30.0)

@@ -25,7 +25,8 @@ Tasks (period):
                         sensor power on), TelemetryTracker (at most 10 Hz) half a period after them, so the three
                         never queue at once (the link keeps two telemetry frames queued, not three)
   time-watch  50 ms     (link scheduler, wall clock, live runs) lock-step: a plant whose tick has not come for
-                        lockstep_wait_s is HAL_STALE, since the controller's own time stands still without it
+                        lockstep_wait_s of its own time (the clock's stalled_s: the wall clock less the waits for a
+                        CPU) is HAL_STALE, since the controller's own time stands still without it
 """
 from __future__ import annotations
 
@@ -123,7 +124,8 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
                   "on the wall clock only: the motor loop starting this late while outputs are enabled faults "
                   "(SCHEDULER_OVERRUN, HOST_OVERLOADED)"),
         ParamSpec("lockstep_wait_s", 2.0, 0.1, 3600, "s",
-                  "lock-step: no tick from the plant for this long on the wall clock is a fault (HAL_STALE)"),
+                  "lock-step: no tick from the plant for this long of its own time (the wall clock less its and the "
+                  "controller's waits for a CPU) is a fault (HAL_STALE)"),
         ParamSpec("rtf_warn", 0.9, 0.0, 1.0, "",
                   "paced or lock-step: a world below this fraction of the speed asked (max: of real time) over the "
                   "last second warns (TimingWarning BELOW_REAL_TIME; 0: never)"),
@@ -341,7 +343,8 @@ class Controller:
         return self.scheduler is not None and self.scheduler.clock.stalled_s() > self.params["lockstep_wait_s"]
 
     def _time_watch(self, link_now: float) -> float:
-        """Lock-step, on the wall clock: a plant whose tick has not come for lockstep_wait_s is HAL_STALE."""
+        """Lock-step, looked at on the wall clock: a plant whose tick has not come for lockstep_wait_s of its own time
+        (`stalled_s`: protocol/lockstep.py) is HAL_STALE."""
         stalled = self.scheduler.clock.stalled_s()
         limit = self.params["lockstep_wait_s"]
         if stalled > limit and not self.supervisor.faults & Fault.HAL_STALE:

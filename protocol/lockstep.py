@@ -23,6 +23,12 @@ wall_deadline)` (`timebase.scheduler.run_live`): they wait on the bus for the sy
 need, on the wall clock given to them, and return in time for the wall-clock tasks (the link
 to the host, the parent-process watch) that share their thread.
 
+A controller waiting for the plant's tick cannot tell from its own time, which stands still, whether the plant
+is gone or only slow. `stalled_s()` says how long the plant has had to send its tick: the wall time waited, less
+what a `WaitJudge` (host_tools/worlds/own_time.py: the plant's process and this one, read from /proc) excuses
+because the plant, or this process, waited for a CPU; the controller's watch judges that against
+`lockstep_wait_s`. A plant whose process has ended or is stopped is excused nothing.
+
 Lock-step knows one plant and one controller per bus. `PlantsWatch` (fed by the follower's `on_tick`)
 and `ControllersWatch` (fed by the leader's `on_answer`) tell from the sync frames when a second
 plant or controller shares it, for the node to say so on its log (docs/separate_processes.md, "One
@@ -32,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Protocol
 
 import can
 
@@ -49,6 +55,17 @@ BURST_WINDOW_S = 2.0
 BURST_QUIET_S = 5.0
 BURST_REPEAT_S = 30.0
 ANSWER_CREDIT = 16        # PLANT_SYNCs a plant has sent that may still be answered (ControllersWatch)
+
+
+class WaitJudge(Protocol):
+    """Judges the follower's wait for the plant's tick beyond the wall clock (host_tools/worlds/own_time.py)."""
+
+    def begin(self) -> None:
+        """A wait for the plant's next tick begins now."""
+
+    def own_s(self, waited_s: float) -> float:
+        """Of the `waited_s` wall seconds since `begin`, those the plant had to send its tick in: the time it, or this
+        process, waited for a CPU does not count; a plant gone or stopped had them all."""
 
 
 class SyncTap(BusView):
@@ -103,25 +120,29 @@ class SyncTap(BusView):
 class LockstepFollower(Clock):
     """The controller's clock in lock-step: its time advances one plant tick per PLANT_SYNC.
 
-    Build it on the controller's bus and give the controller's HAL `tap` instead of the bus.
-    Time starts at 0 and stands still until the first PLANT_SYNC; from then on each new tick
-    grants one more `period_us` (taken from the frame). When the scheduler asks to go past
-    what is granted, everything due has run: the clock sends CTRL_SYNC(tick + 1) and waits on
-    the bus. Until the first PLANT_SYNC it sends CTRL_SYNC(0) every `REOFFER_S`, which a plant
-    already waiting answers at once with its last PLANT_SYNC (a controller started after the
-    plant picks it up without waiting for the plant's next re-offer). `stalled_s()` is how long (wall time) it has been waiting for the plant: the
-    controller's watch turns a long wait into HAL_STALE (a plant that died freezes time, so
-    only the wall clock can tell).
+    Build it on the controller's bus and give the controller's HAL `tap` instead of the bus. Time
+    starts at 0 and stands still until the first PLANT_SYNC; from then on each new tick grants one
+    more `period_us` (taken from the frame). When the scheduler asks to go past what is granted,
+    everything due has run: the clock sends CTRL_SYNC(tick + 1) and waits on the bus. Until the
+    first PLANT_SYNC it sends CTRL_SYNC(0) every `REOFFER_S`, which a plant already waiting answers
+    at once with its last PLANT_SYNC (a controller started after the plant picks it up without
+    waiting for the plant's next re-offer). `stalled_s()` is how long the plant has had to send its
+    tick since the controller began to wait for it: the wall time waited, less what `judge` (a
+    `WaitJudge`; None: nothing) excuses. The controller's watch turns a long one into HAL_STALE (a
+    plant that died freezes time, so its own time cannot tell). `longest_wait_s` is the longest wall
+    time a tick took to come, after the first.
 
     `speed` is the pace its plant was asked for, where the controller knows it (`aspod sim --hal` passes its
     --speed on): its real-time factor and lag are judged against it. `aspod firmware` does not know its
     plant's, and judges against real time.
     """
 
-    def __init__(self, bus: Any, wall: Clock, codec: Optional[HalCodec] = None, speed: float = 1.0) -> None:
+    def __init__(self, bus: Any, wall: Clock, codec: Optional[HalCodec] = None, speed: float = 1.0,
+                 judge: Optional[WaitJudge] = None) -> None:
         codec = codec or HalCodec()
         self.wall = wall
         self.speed = speed
+        self.judge = judge
         self._sync = codec.layout("PLANT_SYNC", ("tick", "lockstep", "period_us"))
         self._done = codec.layout("CTRL_SYNC", ("tick",))
         self.tap = SyncTap(bus, self._sync.frame_id, self._on_sync)
@@ -138,8 +159,12 @@ class LockstepFollower(Clock):
         self.old_syncs = 0                 # PLANT_SYNCs up to MAX_SYNC_GAP_TICKS behind the last: answered, granted nothing
         self.syncs_sent = 0
         self.send_errors = 0
+        self.longest_wait_s = 0.0
+        self.waits = 0                     # waits for a tick begun (one a tick, while the plant keeps up)
         wall_now = wall.now()
-        self._waiting_since: Optional[float] = wall_now
+        # the wait for the plant begins when the controller first waits for a tick (`advance`), not here: the rest of
+        # its start-up, seconds of wall time on a busy machine, is not the plant's silence
+        self._waiting_since: Optional[float] = None
         self._first_grant: Optional[tuple[float, float]] = None
         self._hello_s = -math.inf          # wall time CTRL_SYNC(0) was last sent, before the first PLANT_SYNC
         self.meter = RateMeter(wall_now, 0.0)
@@ -187,8 +212,10 @@ class LockstepFollower(Clock):
         self._grant_ticks += gap
         self._granted_s = self._grant_base_s + self._grant_ticks * period_s   # counted, not summed (no drift)
         self._answered = False
-        self._waiting_since = None
         wall_now = self.wall.now()
+        if self._waiting_since is not None and self._first_grant is not None:
+            self.longest_wait_s = max(self.longest_wait_s, wall_now - self._waiting_since)
+        self._waiting_since = None
         if self._first_grant is None:         # measured from the first tick: the wait for the plant is not slowness
             self._first_grant = (wall_now, self._now)
             self.meter = RateMeter(wall_now, self._now)
@@ -221,16 +248,28 @@ class LockstepFollower(Clock):
                 self._send_done()           # everything due by the granted time has run
             if self._waiting_since is None:
                 self._waiting_since = wall_now
+                self.waits += 1
+                if self.judge is not None:
+                    self.judge.begin()
             left = wall_deadline - wall_now
             if not self.tap.wait(max(0.0, min(left, REOFFER_S))) and left <= 0:
                 return                      # nothing came, and the wall clock's tasks are due
         if deadline > self._now:
             self._now = float(deadline)
 
-    def stalled_s(self) -> float:
-        """Wall seconds spent waiting for the plant's next tick (0 while time is granted)."""
+    def waited_s(self) -> float:
+        """Wall seconds since the controller began to wait for the plant's next tick (0 while time is granted); the
+        wait is the `waits`-th."""
         since = self._waiting_since
         return 0.0 if since is None else max(0.0, self.wall.now() - since)
+
+    def stalled_s(self) -> float:
+        """Seconds the plant has had to send its next tick and has not (0 while time is granted): the wall time spent
+        waiting for it, less what `judge` excuses."""
+        waited_s = self.waited_s()
+        if waited_s == 0.0 or self.judge is None:
+            return waited_s
+        return min(waited_s, self.judge.own_s(waited_s))
 
     def timing(self) -> TimingReport:
         wall_now = self.wall.now()

@@ -241,7 +241,7 @@ class FaultCause(enum.IntEnum):
     ENCODER_AGE = 1      # age of an axis's last new encoder count (encoder_stale_s)
     CURRENT_AGE = 2      # age of an axis's last current reading while driving (current_stale_s)
     LOOP_LATE = 3        # how late the motor loop ran on the wall clock (loop_late_max_s)
-    PLANT_SILENT = 4     # lock-step: wall time without a tick from the plant (lockstep_wait_s)
+    PLANT_SILENT = 4     # lock-step: the plant's own time without a tick from it (lockstep_wait_s)
     LINK_SILENCE = 5     # time without a valid frame from the host (link_timeout_s)
 
 
@@ -251,8 +251,9 @@ FAULT_CAUSE_DOCS: dict[FaultCause, tuple[str, str]] = {
     FaultCause.CURRENT_AGE: ("the axis's last current reading (MOTOR_FB) is old while it drives", "current_stale_s"),
     FaultCause.LOOP_LATE: ("the 1 kHz motor loop ran late on the wall clock: the host is overloaded",
                            "loop_late_max_s"),
-    FaultCause.PLANT_SILENT: ("lock-step: no tick from the plant for this long on the wall clock (plant process "
-                              "gone or stopped)", "lockstep_wait_s"),
+    FaultCause.PLANT_SILENT: ("lock-step: no tick from the plant for this long of its own time (the wall clock, "
+                              "less the plant's and the controller's waits for a CPU: plant process gone, stopped "
+                              "or stuck)", "lockstep_wait_s"),
     FaultCause.LINK_SILENCE: ("no valid frame from the host for this long on the wall clock (the controller's own "
                               "stalls excused: firmware_py/comms.py)", "link_timeout_s"),
 }

@@ -10,10 +10,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+from host_tools.worlds.child import run
+
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
 
 
-def aspod(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
+def aspod(*args: str, cwd: Path, timeout_s: float = 300) -> subprocess.CompletedProcess:
+    """Its run, bounded by `timeout_s` of its own time (the wall time less its waits for a CPU: child.run)."""
     config = cwd.parent / f"{cwd.name}-config"
-    return subprocess.run([*ASPOD, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
-                          env={**os.environ, "XDG_CONFIG_HOME": str(config)})
+    return run([*ASPOD, *args], cwd=cwd, text=True, timeout_s=timeout_s,
+               env={**os.environ, "XDG_CONFIG_HOME": str(config)})

@@ -9,7 +9,6 @@ Its numbers are of the elbow's order (DESIGN.md: 6:1 sprockets behind a gear hea
 from __future__ import annotations
 
 import math
-import subprocess
 import sys
 from dataclasses import dataclass
 from typing import Optional
@@ -25,6 +24,7 @@ from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import (COUNT_MODULUS, EstimatorConfig, EstimatorFlag, KalmanEstimator,
                                    SteadyStateEstimator, make_kalman_filter, steady_state_gain, unwrap_delta)
 from firmware_py.profiles import REPORT_JOINT_SPEED_RAD_S
+from host_tools.worlds.child import run
 
 DT_S = 0.001
 
@@ -248,7 +248,7 @@ def test_running_a_controller_does_not_import_filterpy():
     code = ("import sys; import host_tools.worlds.world, host_tools.cli.firmware, host_tools.cli.sim; "
             "from host_tools.worlds.world import LockstepBench; LockstepBench().close(); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] == 'filterpy' or m.startswith('scipy.stats')))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    out = run([sys.executable, "-c", code], text=True, timeout_s=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]", out.stdout
 

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 
 import pytest
 
 from host_tools.apps.replay import replay
 from host_tools.cli.main import main
 from host_tools.sessions.capture import SessionCapture, WorldEvent
+from host_tools.worlds.child import run
 from tests import test_e2e
 
 ASPOD = test_e2e.ASPOD
@@ -76,8 +76,8 @@ def test_teleop_script_json_over_a_pty_is_one_json_object(sim_factory, tmp_path)
     sim = sim_factory("--pty", "--no-tracker")
     script = tmp_path / "s.txt"
     script.write_text("ping 5\nenable\nstatus\n")
-    done = subprocess.run(ASPOD + ["teleop", sim.url, "--script", str(script), "--json"], capture_output=True,
-                          text=True, env=sim.env, timeout=120)
+    done = run(ASPOD + ["teleop", sim.url, "--script", str(script), "--json"], text=True, env=sim.env, timeout_s=120,
+               peers=(sim.child.pid,))
     assert done.returncode == 0, done.stderr
     doc = json.loads(done.stdout)                              # nothing but the object on stdout
     assert doc["target"] == sim.url and doc["link"].startswith("link up:")

@@ -17,7 +17,7 @@ import sys
 
 import pytest
 
-from host_tools.worlds.child import Child
+from host_tools.worlds.child import Child, run
 
 pytestmark = [pytest.mark.pty, pytest.mark.cpu_hog]   # never beside another real-time test (conftest)
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -55,8 +55,8 @@ def test_a_session_of_arm_moves_on_a_busy_machine_ends_every_motion_done_without
     try:
         link = sim.ready("ASPOD-LINK ", timeout_s=120.0)
         url = link.split(" ", 1)[1]
-        done = subprocess.run(ASPOD + ["teleop", url, "--connect-timeout", "60"], input=SCRIPT.encode(),
-                              capture_output=True, env=env, timeout=900)
+        done = run(ASPOD + ["teleop", url, "--connect-timeout", "60"], input=SCRIPT.encode(), env=env, timeout_s=900,
+                   peers=(sim.pid,))
     finally:
         _, err = sim.stop(signal.SIGTERM, timeout_s=60)
     out = done.stdout.decode()

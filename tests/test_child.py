@@ -1,12 +1,17 @@
-"""`host_tools.worlds.child.Child`: ready line, bounded waits, SIGINT then SIGTERM then SIGKILL."""
+"""`host_tools.worlds.child.Child`: ready line, waits bounded on the child's own time, SIGINT then SIGTERM then
+SIGKILL; `run`, subprocess.run so bounded."""
 from __future__ import annotations
 
+import os
 import signal
+import subprocess
 import sys
+from contextlib import contextmanager
 
 import pytest
 
-from host_tools.worlds.child import Child, ChildError, describe_exit
+from host_tools.worlds.child import Child, ChildError, describe_exit, run
+from timebase import RealClock
 
 PY = (sys.executable, "-c")
 # a child that says it is ready, then ignores SIGINT (and, if asked, SIGTERM) until killed
@@ -68,3 +73,86 @@ def test_follow_stderr_hands_each_line_over_as_it_comes_and_stop_still_ends_the_
     status, rest = child.stop(signal.SIGTERM, timeout_s=60)
     assert status == -signal.SIGTERM and rest == ""
     assert got == ["line 0", "line 1", "line 2"]
+
+
+# a child that pins itself to one core at nice 19 (a hog runs there) and spins for some of its own CPU time, then
+# says it is ready; with "wait", it then waits for SIGINT, and spins as long again before it ends
+STARVED = """
+import os, signal, sys, time
+os.sched_setaffinity(0, {int(sys.argv[1])})
+os.nice(19)
+
+def spin():
+    end = time.process_time() + float(sys.argv[2])
+    while time.process_time() < end:
+        pass
+
+def stop(*_):
+    spin()
+    sys.exit(0)
+
+spin()
+signal.signal(signal.SIGINT, stop)          # before the line: the parent may stop it as soon as it has read it
+print("READY after my CPU time", flush=True)
+while sys.argv[3] == "wait":
+    time.sleep(60)
+"""
+
+
+@contextmanager
+def hog_on_one_core():
+    """A CPU hog pinned to one core; yields the core."""
+    cpu = min(os.sched_getaffinity(0))
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        os.sched_setaffinity(hog.pid, {cpu})
+        yield cpu
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+@pytest.mark.cpu_hog        # a hog on one core: never beside the real-time tests (conftest)
+def test_a_child_kept_from_running_has_its_own_time_for_its_line_and_its_end():
+    """At load 45-49 `aspod sim` took over 30 s of wall time to say its ready line, and the bound of 30 s of wall
+    time failed 26 tests. The child here gets about 1 % of a core: 0.03 s of CPU takes seconds of wall time, more
+    than the 1 s its line and its end are given, of its own time."""
+    clock = RealClock()
+    with hog_on_one_core() as cpu:
+        start = clock.now()
+        child = Child([STARVED, str(cpu), "0.03", "wait"], command=PY)
+        assert child.ready("READY", timeout_s=1.0) == "READY after my CPU time"
+        took = clock.now() - start
+        start = clock.now()
+        status, _ = child.stop(timeout_s=1.0)          # its SIGINT handler takes as long again: no SIGTERM
+        took_stop = clock.now() - start
+        start = clock.now()
+        done = run([*PY, STARVED, str(cpu), "0.03", "end"], timeout_s=1.0, text=True)
+        took_run = clock.now() - start
+    assert status == 0 and done.returncode == 0 and done.stdout == "READY after my CPU time\n"
+    assert min(took, took_stop, took_run) > 1.0, (took, took_stop, took_run)    # kept waiting longer than the bound
+
+
+def test_a_child_that_sleeps_or_is_stopped_runs_out_of_its_own_time_as_on_a_quiet_machine():
+    clock = RealClock()
+    quiet = Child(["import signal; signal.pause()"], command=PY)
+    start = clock.now()
+    with pytest.raises(ChildError, match=r"nothing for [\d.]+ s of its own time .*past 0.5 s of its own time"):
+        quiet.ready("READY", timeout_s=0.5)
+    assert clock.now() - start < 30.0
+    quiet.stop()
+    stopped = Child(["import signal; signal.pause()"], command=PY)
+    os.kill(stopped.pid, signal.SIGSTOP)
+    with pytest.raises(ChildError, match="past 0.5 s of its own time"):
+        stopped.ready("READY", timeout_s=0.5)
+    os.kill(stopped.pid, signal.SIGCONT)
+    stopped.stop()
+    with pytest.raises(subprocess.TimeoutExpired) as hung:
+        run([*PY, "import signal, sys; print('started', flush=True); signal.pause()"], timeout_s=0.5)
+    assert hung.value.stdout == b"started\n"       # what it wrote, kept; the child killed
+
+
+def test_run_gives_its_input_and_returns_what_the_child_wrote():
+    done = run([*PY, "import sys; data = sys.stdin.read(); print(data.upper()); print('e', file=sys.stderr)"],
+               input="ping\n", text=True, timeout_s=60)
+    assert (done.returncode, done.stdout, done.stderr) == (0, "PING\n\n", "e\n")

@@ -16,16 +16,17 @@ from test_e2e import ASPOD, Sim
 
 from firmware_py.params import PARAMS_FILE_LIMIT
 from host_tools.teleop.words import SCRIPT_LIMIT
+from host_tools.worlds.child import run
 from protocol import auth, files
 
 pytestmark = pytest.mark.pty
-REFUSAL_S = 60.0      # a refusal takes a second or two; a hang or an endless read would take forever
+REFUSAL_S = 60.0      # of the child's own time: a refusal takes a second or two; a hang or an endless read, forever
 NOWHERE = "socket://127.0.0.1:9"     # never reached: the input is refused before any connection
 env = test_e2e.env                   # the fixture: a private per-user config directory
 
 
 def aspod(env: dict, *args: str, stdin=subprocess.DEVNULL) -> subprocess.CompletedProcess:
-    return subprocess.run(ASPOD + list(args), capture_output=True, env=env, stdin=stdin, timeout=REFUSAL_S)
+    return run(ASPOD + list(args), env=env, stdin=stdin, timeout_s=REFUSAL_S)
 
 
 def special_file(kind: str, tmp_path, limit: int) -> str:
@@ -110,8 +111,7 @@ def test_a_damaged_small_parameter_file_is_reported_and_the_defaults_stay(env, t
 
 def run_script(env: dict, script: str) -> subprocess.CompletedProcess:
     """A script on standard input against a URL nobody serves: a run that got past the check would exit 3."""
-    return subprocess.run(ASPOD + ["teleop", NOWHERE], input=script.encode(), capture_output=True, env=env,
-                          timeout=REFUSAL_S)
+    return run(ASPOD + ["teleop", NOWHERE], input=script.encode(), env=env, timeout_s=REFUSAL_S)
 
 
 def test_a_value_that_overflows_a_float32_is_refused_by_the_script_check(env):

@@ -16,6 +16,7 @@ from host_tools.fuzz import findings
 from host_tools.fuzz.grammar import TO_CONTROLLER, interesting
 from host_tools.fuzz.inprocess import JobSettings, run_job
 from host_tools.fuzz.targets import builtin_targets, load_target
+from host_tools.worlds.child import run
 from protocol.errors import ParseError
 from protocol.messages import SCHEMA
 from aspod_cli import aspod
@@ -173,13 +174,13 @@ def test_the_command_refuses_bad_input_with_its_reason(tmp_path):
                        (["--url", "/dev/null", "--max-findings", "0"], "--max-findings"),
                        (["codec", "codec"], "named twice"), (["codec", "--list"], "give it alone"), (["builtins:input"], "its factory raised EOFError"),
                        (["host_tools.fuzz.planted:PLANTED_DIAL_PCT"], "is not a factory")):
-        done = aspod("fuzz", *args, cwd=tmp_path, timeout=60)
+        done = aspod("fuzz", *args, cwd=tmp_path, timeout_s=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-findings").exists() or not any((tmp_path / "fuzz-findings").iterdir())
     (tmp_path / "afile").write_text("")
     for args, said in ((["--findings", "afile"], "--findings afile: not a folder"),
                        (["--corpus", "afile"], "--corpus afile/codec: cannot be made")):
-        done = aspod("fuzz", "codec", "--runs", "10", *args, cwd=tmp_path, timeout=60)
+        done = aspod("fuzz", "codec", "--runs", "10", *args, cwd=tmp_path, timeout_s=60)
         assert done.returncode == 2 and said in done.stderr, (args, done.stderr)
     assert not (tmp_path / "fuzz-corpus").exists()              # nothing made for a run that was refused
     done = aspod("--log-file", str(tmp_path), "fuzz", "--list", cwd=tmp_path)     # a folder: every command says so
@@ -196,15 +197,48 @@ def test_black_box_finds_the_planted_handler_crash_over_a_pty_and_replays_it(tmp
     ASPOD-KEY line."""
     target = f"{sys.executable} -m host_tools.fuzz.planted sim --pty --no-pacing"
     done = aspod("fuzz", "--target-cmd", target, "--only", "BoxDial", "--cases", "300", "--max-findings", "1",
-                 "--json", cwd=tmp_path, timeout=600)
+                 "--json", cwd=tmp_path, timeout_s=600)
     assert done.returncode == 1, done.stderr[-2000:]
     figures = json.loads(done.stdout)
     crashes = [f for f in figures["findings"] if Path(f).name.startswith("crash-")]
     assert crashes == figures["findings"] and len(crashes) == 1 and figures["cases"] < 300, figures  # then it stops
     finding = findings.load(tmp_path / crashes[0])
     assert any(s["kind"] == "command" and s["msg"] == "BoxDial" for s in finding.steps)
-    again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, cwd=tmp_path, timeout=300)
+    again = aspod("fuzz", "--replay", crashes[0], "--target-cmd", target, cwd=tmp_path, timeout_s=300)
     assert again.returncode == 1 and "fails as found" in again.stdout, again.stdout + again.stderr
+
+
+@pytest.mark.pty
+@pytest.mark.cpu_hog        # a busy loop on one core: never beside the other real-time tests (conftest)
+def test_a_target_the_black_box_fuzzer_started_and_a_busy_machine_keeps_from_running_is_not_a_hang(tmp_path):
+    """Under load (two busy loops beside `make test`) the planted-crash fuzzing above also reported a hang: a health
+    check's Ping not answered within 5 s of wall time by a target only kept from running. A target the fuzzer started
+    is judged on its own time. Here a busy loop at real-time priority takes its core for 0.9 s at a time, its health
+    bound 0.5 s: checks take longer than that on the wall clock, and none is a hang."""
+    from host_tools.fuzz.blackbox import BlackBoxSettings, HealthCheck, Session
+    from host_tools.worlds.own_time import sample
+    from test_separate_processes import kept_from_running
+    from protocol import auth
+    from timebase import RealClock
+    psk = bytes(range(32))
+    key = tmp_path / "k.key"
+    auth.write_key(key, psk)
+    settings = BlackBoxSettings(command=(sys.executable, "-m", "host_tools.cli.main", "sim", "--pty", "--no-pacing",
+                                         "--no-tracker", "--key-file", str(key)), cases=1, health_timeout_s=0.5)
+    session = Session(settings, psk)
+    pid = session.child.pid
+    try:
+        with kept_from_running(pid):
+            clock, before, took = RealClock(), sample(pid), []
+            health = HealthCheck(session)
+            while sum(took) < 5.0:                  # checks one after another, through bursts of the busy loop
+                start = clock.now()
+                assert health.check([]) is None
+                took.append(clock.now() - start)
+            waited = sample(pid).waited_s - before.waited_s
+    finally:
+        session.close()
+    assert max(took) > 0.5, (took, waited)      # the premise: kept waiting past the bound
 
 
 @pytest.mark.pty
@@ -215,7 +249,7 @@ def test_black_box_against_the_real_simulator_finds_nothing(tmp_path):
     auth.write_key(key, bytes(range(32)))
     target = f"{sys.executable} -m host_tools.cli.main sim --pty --no-pacing --key-file {key}"
     done = aspod("fuzz", "--target-cmd", target, "--key-file", str(key), "--cases", "60", "--seed", "5", "--json",
-                 cwd=tmp_path, timeout=600)
+                 cwd=tmp_path, timeout_s=600)
     figures = json.loads(done.stdout)
     assert done.returncode == 0 and figures["findings"] == [] and figures["cases"] == 60, done.stderr[-3000:]
 
@@ -289,7 +323,7 @@ def test_every_file_a_target_covers_is_instrumented_for_the_coverage_guided_fuzz
     What carries the world and builds the inputs (the plant, the worlds, the grammar, the clock) does not: until
     2026-11-27 atheris took `hil_sim.hal_node` for all of hil_sim and `host_tools.teleop` for all of host_tools,
     and controller-link ran 15-25 % slower for it, its corpus kept for the plant's branches and the grammar's."""
-    done = subprocess.run([sys.executable, "-c", _TRACED, name], capture_output=True, text=True, timeout=120)
+    done = run([sys.executable, "-c", _TRACED, name], text=True, timeout_s=120)
     assert done.returncode == 0, done.stderr[-2000:]
     traced = json.loads(done.stdout.splitlines()[-1])
     assert traced["covers"] and all(n > 0 for n in traced["covers"].values()), traced

@@ -13,6 +13,7 @@ import pytest
 
 from host_tools.fuzz import planted
 from host_tools.fuzz.hangs import Hang, HangWatch
+from host_tools.worlds.child import run
 from timebase import RealClock, SimClock
 
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -79,9 +80,8 @@ def test_the_kernel_counts_the_time_a_thread_waited_for_a_cpu():
 
 
 def test_a_planted_hang_is_ended_saved_with_its_place_and_replayed_as_a_hang(tmp_path):
-    done = subprocess.run([*ASPOD, "fuzz", PLANTED_HANG, "--runs", "100000", "--hang-s", "0.5", "--json",
-                           "--no-progress", "--corpus", "corpus", "--findings", "found"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)
+    done = run([*ASPOD, "fuzz", PLANTED_HANG, "--runs", "100000", "--hang-s", "0.5", "--json", "--no-progress",
+                "--corpus", "corpus", "--findings", "found"], cwd=tmp_path, text=True, timeout_s=120)
     assert done.returncode == 1, done.stderr
     job = json.loads(done.stdout)["jobs"][0]
     assert len(job["findings"]) == 1 and job["execs"] < 100000, job
@@ -95,8 +95,8 @@ def test_a_planted_hang_is_ended_saved_with_its_place_and_replayed_as_a_hang(tmp
     # the line of the loop it was stuck in, or (an instruction atheris added has no line) the function
     assert finding["failure"]["where"] in stuck | {"host_tools/fuzz/planted.py, in planted_walk()"}, finding
     assert "of its own time, past the 0.5 s of --hang-s" in finding["failure"]["error"]
-    again = subprocess.run([*ASPOD, "fuzz", "--replay", job["findings"][0], PLANTED_HANG, "--hang-s", "0.5"],
-                           cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    again = run([*ASPOD, "fuzz", "--replay", job["findings"][0], PLANTED_HANG, "--hang-s", "0.5"], cwd=tmp_path,
+                text=True, timeout_s=60)
     assert again.returncode == 1 and "fails as found: hang" in again.stdout, again.stdout + again.stderr
 
 
@@ -124,8 +124,8 @@ def test_an_input_the_host_starves_past_the_bound_is_not_a_hang():
     pin = lambda: os.sched_setaffinity(0, {cpu})                          # noqa: E731
     hog = subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=pin)
     try:
-        done = subprocess.run([sys.executable, "-c", STARVED], cwd=REPO, capture_output=True, text=True, timeout=120,
-                              preexec_fn=lambda: (pin(), os.nice(19)), env={**os.environ, "PYTHONPATH": str(REPO)})
+        done = run([sys.executable, "-c", STARVED], cwd=REPO, text=True, timeout_s=120,
+                   preexec_fn=lambda: (pin(), os.nice(19)), env={**os.environ, "PYTHONPATH": str(REPO)})
     finally:
         hog.kill()
         hog.wait()

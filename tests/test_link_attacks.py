@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import re
 import statistics
-import subprocess
 
 import pytest
 
@@ -16,6 +15,7 @@ import test_e2e
 from host_tools.client.live import HostClient
 from bench.bench_handshake import recorded_hello
 from line_tap import LineTap, decoded
+from host_tools.worlds.child import run
 from protocol import auth
 from protocol.link import LinkState
 from protocol.messages import MESSAGES as M, SCHEMA
@@ -87,7 +87,7 @@ def test_a_recorded_handshake_nak_leaves_a_live_session_alone_and_a_restart_is_s
         restarted_at = len(tap.to_host)
         handle = client.submit(M["Ping"](2))             # in flight across the restart
         tap.retarget(second.url)
-        assert client.wait_for(lambda: handle.done and client.link.state is LinkState.UP, 30.0)
+        assert second.wait(client, lambda: handle.done and client.link.state is LinkState.UP, 30.0)
         assert handle.reason is Reason.SESSION_RESET and client.link.sessions_started == 2
         assert client.call(M["Ping"](3)).ok              # the host is back, with the new controller
         naks = handshake_naks(tap.to_host[restarted_at:], psk)
@@ -97,8 +97,8 @@ def test_a_recorded_handshake_nak_leaves_a_live_session_alone_and_a_restart_is_s
             handle = client.submit(M["Ping"](token))
             for nak in naks:
                 tap.inject_to_host(nak)
-            assert client.wait_for(lambda: handle.done, 30.0) and handle.ok, handle.describe()
-        assert client.wait_for(lambda: client.link.stats.replays >= replays + 5 * len(naks), 10.0)
+            assert second.wait(client, lambda: handle.done, 30.0) and handle.ok, handle.describe()
+        assert second.wait(client, lambda: client.link.stats.replays >= replays + 5 * len(naks), 10.0)
         assert client.link.sessions_started == 2 and client.link.state is LinkState.UP
     finally:
         client.close()
@@ -141,9 +141,9 @@ def test_a_flood_of_recorded_hellos_starves_neither_the_session_nor_a_new_host(t
             assert new.call(M["Ping"](99)).ok
         finally:
             new.close()
-        done = subprocess.run(test_e2e.ASPOD + ["teleop", tap.url, "--key-file", str(link_key), "--connect-timeout",
-                                                str(TELEOP_CONNECT_BOUND_S)],
-                              input=b"ping\nstatus\n", capture_output=True, env=sim.env, timeout=120)
+        done = run(test_e2e.ASPOD + ["teleop", tap.url, "--key-file", str(link_key), "--connect-timeout",
+                                     str(TELEOP_CONNECT_BOUND_S)],
+                   input=b"ping\nstatus\n", env=sim.env, timeout_s=120, peers=(sim.child.pid,))
         out = done.stdout.decode()
         assert done.returncode == 0, done.stderr.decode() + out
         latencies = [float(ms) / 1000 for ms in re.findall(r"\((\d+\.\d) ms\)$", out, re.MULTILINE)]
@@ -188,17 +188,17 @@ class Events:
 
 @pytest.mark.parametrize("where", PORTS)
 def test_an_event_whose_ack_was_lost_reaches_the_next_host_marked_as_from_an_earlier_session(tapped, where):
-    _sim, psk, tap = tapped(where)
+    sim, psk, tap = tapped(where)
     first = HostClient(tap.url, psk)
     try:
         events = Events(first)
         first.connect()
-        assert first.wait_for(lambda: events.has("StateChanged", state=ControllerState.IDLE), 10.0)
+        assert sim.wait(first, lambda: events.has("StateChanged", state=ControllerState.IDLE), 10.0)
         assert events.seen == [(events.seen[0][0], False)]    # from before any session: new, and no marker
         tap.drop_after(SCHEMA["EStop"].id, until=SCHEMA["Hello"].id)   # the EStop goes through, nothing after it
                                                                # until the next host's Hello
         assert first.call(M["EStop"]()).ok
-        assert first.wait_for(lambda: events.has("StateChanged", state=ControllerState.ESTOP), 10.0)
+        assert sim.wait(first, lambda: events.has("StateChanged", state=ControllerState.ESTOP), 10.0)
         estop = next(m for m, _ in events.seen if m.spec.name == "StateChanged" and m.state == ControllerState.ESTOP)
     finally:
         first.close()                                         # its Ack for that event was lost on the line
@@ -206,7 +206,7 @@ def test_an_event_whose_ack_was_lost_reaches_the_next_host_marked_as_from_an_ear
     try:
         events = Events(second)
         second.connect()
-        assert second.wait_for(lambda: any(m == estop for m, _ in events.seen), 10.0), (
+        assert sim.wait(second, lambda: any(m == estop for m, _ in events.seen), 10.0), (
             f"the second host saw {[(m.spec.name, getattr(m, 'state', None), e) for m, e in events.seen]}; "
             f"the first saw {estop}; the second's link: {second.link.stats}")     # what to read if this fails
         marker, earlier = events.seen[0]
@@ -214,7 +214,7 @@ def test_an_event_whose_ack_was_lost_reaches_the_next_host_marked_as_from_an_ear
         carried = events.seen[1:1 + marker.count]
         assert (estop, True) in carried and all(earlier for _, earlier in carried)
         assert second.call(M["Reset"]()).ok                   # an event of this session: new
-        assert second.wait_for(lambda: events.has("StateChanged", state=ControllerState.IDLE), 10.0)
+        assert sim.wait(second, lambda: events.has("StateChanged", state=ControllerState.IDLE), 10.0)
         assert events.seen[-1][1] is False
     finally:
         second.close()

@@ -60,19 +60,21 @@ def _close_pairs():
 class Pair:
     """A lock-step plant (as fast as it goes) and controller, stepped in turn in one thread."""
 
-    def __init__(self, seed: int = 1, controller: bool = True, first_tick: int = 0, speed: float = math.inf) -> None:
+    def __init__(self, seed: int = 1, controller: bool = True, first_tick: int = 0, speed: float = math.inf,
+                 judge=None) -> None:
         self.wall = SimClock(1000.0)
         self.speed = speed
         self.plant_bus, self._controller_end = open_local_pair()
         _open_pairs.append(self)
         self.start_plant(seed, first_tick)
         self.control = None
+        self.judge = judge
         if controller:
             self.start_controller()
 
     def start_controller(self) -> None:
         self.controller_bus = DropFrames(self._controller_end, CTRL_SYNC_ID)
-        self.follower = LockstepFollower(self.controller_bus, self.wall, speed=self.speed)
+        self.follower = LockstepFollower(self.controller_bus, self.wall, speed=self.speed, judge=self.judge)
         self.controller = build_controller(KEY, PacedUart(BufferPort(notifies=False)), self.follower.tap,
                                            ControllerConfig())
         self.control = Scheduler(self.follower, stopwatch=self.follower.now)
@@ -220,6 +222,55 @@ def test_a_silent_plant_is_hal_stale_after_lockstep_wait_s_on_the_wall_clock_and
     assert pair.execute(M["Reset"]()).result == Reason.HAL_STALE    # refused while the plant stays away
     pair.start_plant(seed=1)
     assert pair.run_until(lambda: pair.execute(M["Reset"]()).result == Reason.OK, 2000)
+
+
+def test_the_controllers_own_start_up_is_not_the_plants_silence():
+    """The wait for the plant began when the follower was built, before the controller was: at load 45-49 building it
+    took seconds of wall time, and the first look of the watch found the plant silent for them (HAL_STALE at boot),
+    its first PLANT_SYNC unread in the bus. The wait begins when the controller first waits for a tick."""
+    pair = Pair(controller=False)
+    for _ in range(5):
+        pair.turn()                                   # the plant alone: tick 0, offered and offered again
+    pair.start_controller()
+    pair.wall.advance_by(5.0)                         # the rest of the controller's start-up, on a busy machine
+    assert pair.follower.stalled_s() == 0.0
+    assert pair.run_until(lambda: pair.controller.supervisor.state is ControllerState.IDLE)
+    assert not pair.controller.supervisor.faults
+
+
+class KeptFromRunning:
+    """A WaitJudge for a plant process that waits on a run queue for `kept_s` of every wait, or has gone."""
+
+    def __init__(self) -> None:
+        self.kept_s, self.gone, self.begun = 0.0, False, 0
+
+    def begin(self) -> None:
+        self.begun += 1
+
+    def own_s(self, waited_s: float) -> float:
+        return waited_s if self.gone else max(0.0, waited_s - self.kept_s)
+
+
+def test_a_plant_kept_from_running_is_not_silent_and_one_gone_is_after_lockstep_wait_s():
+    """At load 45-49 a live plant waited on a run queue for over 2 s and was taken for gone (HAL_STALE): the wait is
+    judged on what the judge says the plant had of it, and a plant gone on the wall clock."""
+    judge = KeptFromRunning()
+    pair = Pair(judge=judge)
+    assert pair.run_until(lambda: pair.controller.supervisor.state is ControllerState.IDLE)
+    assert judge.begun > 5                            # a wait begins at every tick
+    limit = pair.controller.params["lockstep_wait_s"]
+    judge.kept_s = 3 * limit
+    for _ in range(int(2.5 * limit / 0.05)):          # 2.5 limits of wall time, all of it on a run queue
+        pair.wall.advance_by(0.05)
+        pair.turn(plant=False)
+    assert pair.follower.stalled_s() == 0.0 and not pair.controller.supervisor.faults
+    assert pair.execute(M["Reset"]()).result == Reason.OK      # and not silent to the fault check either
+    assert pair.run_until(lambda: pair.follower.longest_wait_s >= 2.5 * limit - 0.05, 10)   # the plant is back
+    judge.gone = True                                 # the process ended, or is stopped: its silence counts whole
+    for _ in range(int(limit / 0.05) + 2):
+        pair.wall.advance_by(0.05)
+        pair.turn(plant=False)
+    assert pair.controller.supervisor.faults & Fault.HAL_STALE
 
 
 def test_the_followers_grant_is_counted_from_its_first_tick_never_summed():

@@ -5,7 +5,6 @@ import dataclasses
 import json
 import os
 import re
-import subprocess
 import sys
 import warnings
 
@@ -23,6 +22,7 @@ from host_tools.plan.phase import Problem
 from host_tools.plan.problem_file import load_problem, problem_from_dict
 from host_tools.plan.reach import plan_reach
 from host_tools.plan.timeopt import plan_time_optimal
+from host_tools.worlds.child import run
 
 CURVED = PolynomialPath((0.9, 0.3, 0.1), (0.5, 0.4, -0.2))
 
@@ -172,8 +172,8 @@ def test_a_grid_too_coarse_for_the_limits_is_refused():
 
 
 def test_the_command_plans_the_example_as_json_and_draws_the_figures(tmp_path):
-    done = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--json", "--plot", str(tmp_path / "f"),
-                           "--nodes", "500"], capture_output=True, text=True, timeout=300)
+    done = run([sys.executable, "-m", "host_tools.cli.main", "plan", "--json", "--plot", str(tmp_path / "f"),
+                "--nodes", "500"], text=True, timeout_s=300)
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert len(out["beside_report"]) == 3 and all(abs(r["error_s"]) < 0.016 for r in out["beside_report"])
@@ -181,12 +181,12 @@ def test_the_command_plans_the_example_as_json_and_draws_the_figures(tmp_path):
     assert len(out["figures"]) == 7
     assert all((tmp_path / "f" / name).stat().st_size > 10_000 for name in
                ("fig11_limit_curves.png", "fig14_time_optimal_torques.png", "fig17_comparison.png"))
-    bad = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "none.json")],
-                         capture_output=True, text=True, timeout=120)
+    bad = run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "none.json")],
+              text=True, timeout_s=120)
     assert bad.returncode == 2 and "cannot read" in bad.stderr
     (tmp_path / "far.json").write_text(json.dumps({"path": {"kind": "line", "start": [0.2, 0.3], "end": [3.5, 0.3]}}))
-    far = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "far.json")],
-                         capture_output=True, text=True, timeout=120)
+    far = run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "far.json")],
+              text=True, timeout_s=120)
     assert far.returncode == 2 and "reach" in far.stderr and far.stdout == ""
 
 

@@ -26,6 +26,7 @@ from host_tools.plan.problem_file import problem_from_dict
 from host_tools.plan import reach
 from host_tools.plan.reach import FREE, placed_grid, plan_reach, sampled_efforts, sampled_torques
 from host_tools.plan.timeopt import plan_time_optimal
+from host_tools.worlds import child
 
 CURVED = PolynomialPath((0.9, 0.3, 0.1), (0.5, 0.4, -0.2))
 MOTORS = Limits.symmetric(LIMITS, back_emf=(2.0, 1.5, 2.0, 1.5))     # DC motors: |tau + K q'| within LIMITS
@@ -207,12 +208,10 @@ def test_bad_grids_and_squeezes_are_refused():
 
 def test_the_command_plans_by_reachability_with_the_squeeze_free():
     import json
-    import subprocess
     import sys
 
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", *args], capture_output=True,
-                              text=True, timeout=300)
+        return child.run([sys.executable, "-m", "host_tools.cli.main", "plan", *args], text=True, timeout_s=300)
 
     fixed = run("--method", "reach", "--nodes", "49", "--gravity", "--objective", "time", "--json")
     free = run("--method", "reach", "--nodes", "49", "--gravity", "--objective", "time", "--json", "--squeeze", "free")
@@ -465,16 +464,14 @@ def test_order2_and_the_squeeze_with_back_emf_are_refused_with_the_reason(kwargs
 
 def test_the_command_plans_a_problem_file_with_back_emf_by_reachability(tmp_path):
     import json
-    import subprocess
     import sys
     file = tmp_path / "motors.json"
     file.write_text(json.dumps({"path": {"kind": "line", "start": [0.688, 0.331], "end": [1.716, 0.504]},
                                 "limits": {"symmetric": list(LIMITS), "back_emf": list(MOTORS.back_emf)}}))
     out = {}
     for method in ("reach", "phase"):
-        done = subprocess.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--method", method, "--problem",
-                               str(file), "--objective", "time", "--nodes", "99", "--json"],
-                              capture_output=True, text=True, timeout=300)
+        done = child.run([sys.executable, "-m", "host_tools.cli.main", "plan", "--method", method, "--problem",
+                          str(file), "--objective", "time", "--nodes", "99", "--json"], text=True, timeout_s=300)
         assert done.returncode == 0, done.stderr
         out[method] = json.loads(done.stdout)["time_optimal"]
     assert out["reach"]["method"] == "reach" and out["reach"]["worst_violation_between_nodes"] <= 1e-9

@@ -13,7 +13,6 @@ import copy
 import io
 import os
 import re
-import subprocess
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -29,6 +28,7 @@ from host_tools.client.bench import BenchClient
 from host_tools.teleop.box import AXIS_HEADER
 from host_tools.teleop.words import Step, check_script
 from host_tools.worlds.world import LockstepBench
+from host_tools.worlds import child
 from host_tools.worlds.child import Child
 from host_tools.worlds.settings import PlantSettings
 from protocol.states import ControllerState, SwitchPosition as P
@@ -238,8 +238,8 @@ def test_the_procedure_over_a_real_pty_against_aspod_sim(tmp_path):
     try:
         url = sim.ready("ASPOD-LINK ").split(" ", 1)[1]
         sim.ready("ASPOD-KEY ")
-        done = subprocess.run(ASPOD + ["teleop", url, "--script", str(SCRIPT), "--summary"], capture_output=True,
-                              env=env, timeout=900)
+        done = child.run(ASPOD + ["teleop", url, "--script", str(SCRIPT), "--summary"], env=env, timeout_s=900,
+                         peers=(sim.pid,))
         out, err = done.stdout.decode(), done.stderr.decode()
         assert done.returncode == EXIT_OK, out + err
     finally:

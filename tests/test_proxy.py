@@ -5,7 +5,6 @@ from __future__ import annotations
 import re
 import shutil
 import signal
-import subprocess
 import threading
 
 import pytest
@@ -13,7 +12,7 @@ import pytest
 from protocol import auth
 from protocol.messages import MESSAGES as M
 from host_tools.sessions.decode import MAC_OK, SessionDecoder
-from host_tools.worlds.child import Child
+from host_tools.worlds.child import Child, run
 from tests import test_e2e
 from tests.captures import read_capture
 from tests.test_wireshark_dissector import tshark_fields
@@ -47,8 +46,8 @@ def test_a_teleop_session_through_an_impaired_proxy_is_seen_live_and_captured(si
     proxy, url, view_lines = start_proxy(env, sim.url, "--impair", "ber=3e-4,drop=0.03,latency_ms=5,jitter_ms=5,seed=3",
                              "--record", str(capture), "--key-file", str(sim.key_path))
     script = "ping 1\nenable\ntelemetry 20\n" + "".join(f"ping {n}\n" for n in range(2, 40)) + "status\nquit\n"
-    done = subprocess.run(ASPOD + ["teleop", url, "--summary", "--key-file", str(sim.key_path)],     # (a proxy's
-                          input=script.encode(), capture_output=True, env=env, timeout=180)   # address is not the sim's)
+    done = run(ASPOD + ["teleop", url, "--summary", "--key-file", str(sim.key_path)],     # (a proxy's address
+               input=script.encode(), env=env, timeout_s=180, peers=(proxy.pid, sim.child.pid))   # is not the sim's)
     out = done.stdout.decode()
     assert done.returncode == 0, done.stderr.decode() + out
     assert out.count("ok   Pong") == 39
@@ -68,12 +67,12 @@ def test_a_teleop_session_through_an_impaired_proxy_is_seen_live_and_captured(si
     assert sum(d.name == "Ping" for d in decoded) >= 39                      # as sent, retransmissions too
     assert all(d.mac == MAC_OK for d in decoded if d.frame is not None)      # the capture holds frames as sent
     assert any(f.comment for f in frames)                           # each impaired one says how
-    log = subprocess.run(ASPOD + ["log", str(capture), "--stats"], capture_output=True, text=True, timeout=60)
+    log = run(ASPOD + ["log", str(capture), "--stats"], text=True, timeout_s=60)
     assert log.returncode == 0 and "round trip COMMAND" in log.stdout
 
     if shutil.which("tshark"):
         lua = tmp_path / "aspod.lua"
-        subprocess.run(ASPOD + ["wireshark", "-o", str(lua)], check=True, capture_output=True, timeout=60)
+        assert run(ASPOD + ["wireshark", "-o", str(lua)], timeout_s=60).returncode == 0
         rows = tshark_fields(lua, capture)
         assert [r["aspod.message"] for r in rows] == [d.name for d in decoded]
 
@@ -82,7 +81,7 @@ def test_a_proxy_whose_controller_goes_away_says_which_and_exits_nonzero(sim_fac
     sim = sim_factory("--pty", "--no-tracker")
     proxy, _, _ = start_proxy(env, sim.url, "--no-view")
     sim.stop()
-    status = proxy.proc.wait(timeout=30)
+    status = proxy.wait_exit(30)
     err = proxy.proc.stderr.read().decode()
     assert status == 3, err
     assert "controller side" in err and sim.url in err and "Traceback" not in err
@@ -92,7 +91,7 @@ def test_proxy_refuses_bad_arguments_by_name(env):
     for args, words in ((["--controller", "tcp:99999"], "within 0..65535"),
                         (["--controller", "/dev/null", "--impair", "sunny"], "no impairment preset"),
                         (["--controller", "/no/such/device"], "/no/such/device")):
-        done = subprocess.run(ASPOD + ["proxy", *args], capture_output=True, text=True, env=env, timeout=60)
+        done = run(ASPOD + ["proxy", *args], text=True, env=env, timeout_s=60)
         assert done.returncode in (2, 3) and words in done.stderr and "Traceback" not in done.stderr
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from host_tools.worlds.child import run
 from tests import test_e2e
 
 env, sim_factory = test_e2e.env, test_e2e.sim_factory      # the fixtures, shared
@@ -53,10 +54,10 @@ def project(tmp_path):
     return tmp_path
 
 
-def run_pytest(project, *args: str, env=None) -> tuple[subprocess.CompletedProcess, dict]:
-    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", "-rs",
-                           "--junitxml", str(project / "junit.xml"), "--aspod-json", str(project / "records"), *args],
-                          cwd=project, capture_output=True, text=True, timeout=300, env=env)
+def run_pytest(project, *args: str, env=None, peers=()) -> tuple[subprocess.CompletedProcess, dict]:
+    done = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", "-rs",
+                "--junitxml", str(project / "junit.xml"), "--aspod-json", str(project / "records"), *args],
+               cwd=project, text=True, timeout_s=300, env=env, peers=peers)
     cases = {c.get("name"): c for c in ET.parse(project / "junit.xml").getroot().iter("testcase")}
     return done, cases
 
@@ -84,8 +85,8 @@ def test_outside_the_repository_on_the_lockstep_world(project):
     ("--aspod-param=trk_ff=0.5", "--aspod options: --param trk_ff=0.5: 0 (relay logic) or 1 (feed-forward)"),
 ])
 def test_a_bad_option_is_the_runs_usage_error_said_once_before_anything_runs(project, option, said):
-    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", option,
-                           "test_arm_bench.py"], cwd=project, capture_output=True, text=True, timeout=300)
+    done = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", option,
+                "test_arm_bench.py"], cwd=project, text=True, timeout_s=300)
     assert done.returncode == pytest.ExitCode.USAGE_ERROR, done.stdout[-2000:] + done.stderr[-2000:]
     assert said in done.stderr and done.stderr.count(said) == 1, done.stderr
     assert "passed" not in done.stdout and "error" not in done.stdout.lower()
@@ -95,7 +96,8 @@ def test_a_bad_option_is_the_runs_usage_error_said_once_before_anything_runs(pro
 def test_outside_the_repository_against_a_live_sim_its_plant_through_the_control_endpoint(project, sim_factory):
     sim = sim_factory("--pty", "--no-tracker")
     # (option=value: pytest takes a separate value that names a file, such as /dev/pts/N, for a path to test)
-    done, cases = run_pytest(project, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}", env=sim.env)
+    done, cases = run_pytest(project, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}", env=sim.env,
+                             peers=(sim.child.pid,))
     assert done.returncode == 0, done.stdout[-3000:]
     assert "3 passed" in done.stdout
     record = json.loads((project / "records" / "test_arm_bench.py_test_moveby_lands_within_the_spec.json").read_text())
@@ -107,7 +109,7 @@ def test_outside_the_repository_against_a_live_sim_its_plant_through_the_control
 def test_outside_the_repository_against_a_live_target_without_a_plant_the_fault_test_skips(project, sim_factory):
     sim = sim_factory("--pty", "--no-tracker", "--no-control")      # as real hardware: no plant to reach
     done, cases = run_pytest(project, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}",
-                             "test_arm_bench.py", env=sim.env)
+                             "test_arm_bench.py", env=sim.env, peers=(sim.child.pid,))
     assert done.returncode == 0, done.stdout[-3000:]
     assert "1 passed, 1 skipped" in done.stdout
     skipped = cases["test_an_encoder_dropout_stops_the_motion_as_a_fault"].find("skipped")
@@ -115,13 +117,36 @@ def test_outside_the_repository_against_a_live_target_without_a_plant_the_fault_
     assert "no plant to fault" in message and "no control endpoint" in message and "--aspod-control" in message
 
 
+SLOW_BENCH = '''
+def test_a_wait_and_the_time_are_the_controllers(aspod_target):
+    said = lambda: aspod_target.telemetry["TelemetryStatus"].uptime_ms / 1000
+    assert aspod_target.wait_until(lambda: "TelemetryStatus" in aspod_target.telemetry, 5)
+    first, start = said(), aspod_target.now()
+    assert not aspod_target.wait_until(lambda: False, 2.0)
+    assert aspod_target.now() - start >= 2.0 and said() - first >= 1.8, (start, aspod_target.now(), first, said())
+'''
+
+
+@pytest.mark.pty
+def test_a_live_targets_waits_and_time_are_the_controllers_so_a_slower_world_is_waited_for(sim_factory, tmp_path):
+    """A simulator on a busy machine slows its world down rather than fault (docs/realtime.md); `--speed 0.25` does so
+    on purpose. A bench's `wait_until(..., 2.0)` is 2 s of the controller's time, as on the lock-step world (it was
+    2 s of the wall clock: half a second of the controller's, and a fault drill's reaction measured four times too
+    long)."""
+    sim = sim_factory("--pty", "--no-tracker", "--speed", "0.25")
+    (tmp_path / "test_slow.py").write_text(SLOW_BENCH)
+    done, _ = run_pytest(tmp_path, f"--aspod-target={sim.url}", f"--aspod-key-file={sim.key_path}", env=sim.env,
+                         peers=(sim.child.pid,))
+    assert done.returncode == 0 and "1 passed" in done.stdout, done.stdout[-3000:]
+
+
 def test_the_worked_example_fault_drill_runs_as_pytest_benches(tmp_path):
     """`pytest benches/...` as docs/benches.md shows it (the pick-and-place and the procedure are run by their own
     tests: test_demo, test_procedure_bench)."""
     root = Path(__file__).resolve().parent.parent
-    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist",
-                           "--aspod-json", str(tmp_path), str(root / "benches" / "test_fault_drill.py")],
-                          cwd=root, capture_output=True, text=True, timeout=300)
+    done = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist",
+                "--aspod-json", str(tmp_path), str(root / "benches" / "test_fault_drill.py")],
+               cwd=root, text=True, timeout_s=300)
     assert done.returncode == 0, done.stdout[-3000:]
     records = [json.loads(p.read_text()) for p in tmp_path.glob("*.json")]
     assert len(records) == 3 and all(r["outcome"] == "passed" for r in records)
@@ -138,13 +163,13 @@ def test_the_worked_example_benches_run_twice_in_a_row_on_one_live_sim_with_no_r
     so."""
     sim = sim_factory("--pty")
     root = Path(__file__).resolve().parent.parent
-    for run in range(2):
-        done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", "-rs",
-                               f"--aspod-target={sim.url}", str(root / "benches")], cwd=tmp_path,
-                              capture_output=True, text=True, timeout=600, env=sim.env)
+    for attempt in range(2):
+        done = run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "no:xdist", "-rs",
+                    f"--aspod-target={sim.url}", str(root / "benches")], cwd=tmp_path, text=True, timeout_s=600,
+                   env=sim.env, peers=(sim.child.pid,))
         if done.returncode != 0:
             _, said = sim.stop()
-            raise AssertionError(f"run {run + 1}: {done.stdout[-3000:]}\nthe simulator: {said[-3000:]}")
+            raise AssertionError(f"run {attempt + 1}: {done.stdout[-3000:]}\nthe simulator: {said[-3000:]}")
         assert "3 passed, 2 skipped" in done.stdout, done.stdout[-3000:]
     sim.child.wait_stderr(r"the host closed its session")
     assert not any("LINK_LOST" in line for line in sim.child.seen)

@@ -7,7 +7,6 @@ import io
 import json
 import re
 import struct
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -20,7 +19,7 @@ from host_tools.cli.settings import pairs
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo
 from host_tools.sessions.decode import SessionDecoder
-from host_tools.worlds.child import PIPE, Child
+from host_tools.worlds.child import PIPE, Child, run
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
 from timebase import RealClock
@@ -191,8 +190,7 @@ def test_a_real_time_sim_recording_replays_within_tolerances_and_a_changed_gain_
     assert not report.exact and report.commands in (9, 10) and report.telemetry > 10
     changed = replay_file(capture, params={"j1_acc_dps2": 1.0})
     assert not changed.matches and changed.divergence.message in ("TelemetryJoints", "MotionDone")
-    shown = subprocess.run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], capture_output=True,
-                           text=True, timeout=120)
+    shown = run(ASPOD + ["replay", str(capture), "--param", "j1_acc_dps2=1"], text=True, timeout_s=120)
     assert shown.returncode == 1 and "first divergence at" in shown.stdout
 
 
@@ -270,13 +268,12 @@ def test_a_host_that_went_silent_or_closed_is_replayed_so_and_the_end_matches(si
     capture = tmp_path / "gone.pcapng"
     sim = sim_factory("--pty", "--record", str(capture), "--seed", "9", "--no-tracker", "--speed", speed)
     record_until_the_host_is_gone(sim, capture, "ping\nenable\ntelemetry 20\nmoveby j1 1 2\nwait\nstatus\n", ending)
-    shown = subprocess.run(ASPOD + ["replay", str(capture)], capture_output=True, text=True, timeout=300)
+    shown = run(ASPOD + ["replay", str(capture)], text=True, timeout_s=300)
     assert shown.returncode == 0 and shown.stdout.endswith("match\n"), shown.stdout + shown.stderr
     factor = float(re.search(r"world ran at ([\d.]+)x real time", shown.stdout).group(1))
     assert factor == pytest.approx(float(speed), rel=0.5)
     if ending == "killed":
-        changed = subprocess.run(ASPOD + ["replay", str(capture), "--param", "link_timeout_s=2"], capture_output=True,
-                                 text=True, timeout=300)
+        changed = run(ASPOD + ["replay", str(capture), "--param", "link_timeout_s=2"], text=True, timeout_s=300)
         assert changed.returncode == 1 and re.search(r"first divergence at .*(FaultReport|StateChanged)",
                                                      changed.stdout)
 

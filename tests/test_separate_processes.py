@@ -8,8 +8,8 @@ msgpack, no multicast on loopback), a real probe says so and the sessions are sk
 
 Plant and controller run in lock-step (the default): however long either process is
 descheduled on a busy machine, the other's time waits for it, so no staleness check can trip
-on it; a plant that has gone for good is HAL_STALE after `lockstep_wait_s` of wall time
-(docs/realtime.md).
+on it; a plant that has gone for good is HAL_STALE after `lockstep_wait_s` of its own time
+(the wall clock, less the waits for a CPU: docs/separate_processes.md).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ import re
 import signal
 import subprocess
 import sys
-import threading
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Optional
 
@@ -28,11 +28,13 @@ import pytest
 
 from host_tools.worlds import nodes
 from host_tools.client.live import HostClient
-from host_tools.worlds.child import Child, ChildError
+from host_tools.worlds.child import Child, ChildError, run
+from host_tools.worlds.own_time import OwnTime
 from protocol import auth
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.states import ControllerState, Fault
+from timebase import RealClock
 
 pytestmark = pytest.mark.pty
 ASPOD = [sys.executable, "-m", "host_tools.cli.main"]
@@ -155,7 +157,7 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     group, port = nodes.fresh_udp_multicast()
     plant = start_plant(procs, group, port)
     firmware = procs("firmware", "--interface", "udp_multicast", "--channel", group, "--bus-arg", f"port={port}",
-                     "--pty", "--params", str(params_file))
+                     "--pty", "--params", str(params_file), "--plant-pid", str(plant.pid))
     url, key_path = link_of(firmware)
     firmware.wait_stderr(r"BOOT -> IDLE \(OK\)")          # HAL inputs arrived over the interface
     client = clients(url, key_path)
@@ -174,23 +176,24 @@ def test_plant_and_firmware_as_two_processes_close_the_loop_and_plant_loss_is_ha
     assert seen["bad_frames"] == 0 and seen["bus_errors"] == 0
 
     firmware.wait_stderr(r"ENABLED -> FAULT \(HAL_STALE\), faults HAL_STALE")
+    firmware.wait_stderr(rf"aspod firmware: lock-step: the plant process \(pid {plant.pid}\): ended")   # --plant-pid
     client.wait_for(lambda: False, 1.0)                    # the plant stays gone: the cause is still there
     reply = status(client)
     assert reply.state == ControllerState.FAULT and reply.faults & Fault.HAL_STALE
     assert reply.safe_reason == Reason.HAL_STALE
-    assert client.wait_for(lambda: any(e.spec.name == "StateChanged" and e.reason == Reason.HAL_STALE
-                                        for e in client.events), WAIT_S)
+    assert firmware.wait_for(lambda seconds: client.wait_for(
+        lambda: any(e.spec.name == "StateChanged" and e.reason == Reason.HAL_STALE for e in client.events), seconds),
+        WAIT_S)
     refused = client.call(M["Reset"]())
     assert not refused.ok and refused.reason == Reason.HAL_STALE   # the cause is still there
 
-    start_plant(procs, group, port)                        # a new plant on the same bus
-    for _ in range(100):                                   # its first ANALOG_IN is 10 ms away; bounded retries
+    again = start_plant(procs, group, port)                # a new plant on the same bus
+
+    def reset_ok(seconds: float) -> bool:                  # its first ANALOG_IN is 10 ms of its own time away
         reset = client.call(M["Reset"]())
-        if reset.ok:
-            break
-        assert reset.reason == Reason.HAL_STALE, reset.describe()
-        client.wait_for(lambda: False, 0.1)
-    assert reset.ok
+        assert reset.ok or reset.reason == Reason.HAL_STALE, reset.describe()
+        return reset.ok or client.wait_for(lambda: False, min(seconds, 0.1))
+    assert again.wait_for(reset_ok, WAIT_S)
     assert status(client).state == ControllerState.IDLE
     client.close()
     code, rest = firmware.stop()                           # a plant restarted: one resync, nothing to say
@@ -219,13 +222,19 @@ def test_a_second_controller_or_plant_on_a_pairs_bus_is_said_on_stderr(multicast
                          r"another aspod plant")
 
 
-def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_works, procs, clients, params_file):
-    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
+def enabled_sim_over_hal(procs, clients, params: Path) -> tuple[Proc, int, HostClient]:
+    """`aspod sim --hal udp_multicast` with its plant's pid, booted, and a host that has enabled it."""
+    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params))
     url, key_path = link_of(sim)
     plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready on interface=udp_multicast").group(1))
-    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")
+    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")               # the first ticks came: enable is allowed
     client = clients(url, key_path)
     assert client.call(M["Enable"]()).ok
+    return sim, plant_pid, client
+
+
+def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_works, procs, clients, params_file):
+    sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params_file)
 
     os.kill(plant_pid, signal.SIGKILL)                     # no goodbye, no counters
     sim.wait_stderr(rf"the plant process \(pid {plant_pid}\) ended: killed by SIGKILL")
@@ -243,14 +252,75 @@ def test_sim_with_hal_runs_the_plant_as_a_child_and_says_when_it_dies(multicast_
     assert lockstep and int(lockstep.group(1)) > 0 and lockstep.group(2) == "0", err     # it ran in lock-step
 
 
+# a busy loop in bursts: BUSY_S on its CPU, then IDLE_S asleep
+BURSTS = """
+import sys, time
+busy_s, idle_s = float(sys.argv[1]), float(sys.argv[2])
+while True:
+    end = time.monotonic() + busy_s
+    while time.monotonic() < end:
+        pass
+    time.sleep(idle_s)
+"""
+
+
+@contextmanager
+def kept_from_running(pid: int, busy_s: float = 0.9, idle_s: float = 0.3):
+    """`pid` pinned to one core beside a busy loop at real-time priority (SCHED_FIFO) that takes the core for
+    `busy_s` at a time (the kernel leaves others 5 % of each second: 0.95 s at most), then leaves it for `idle_s`:
+    `pid` waits on a run queue for that long at a stretch, as a plant did at load 45-49 (busy loops at nice 0, or
+    `pid` at SCHED_IDLE, give it short slices too often to be sure of it). Skipped where this process may not give
+    SCHED_FIFO."""
+    cpu = min(os.sched_getaffinity(pid))
+    hog = subprocess.Popen([sys.executable, "-c", BURSTS, str(busy_s), str(idle_s)])
+    try:
+        os.sched_setaffinity(hog.pid, {cpu})
+        os.sched_setaffinity(pid, {cpu})
+        try:
+            os.sched_setscheduler(hog.pid, os.SCHED_FIFO, os.sched_param(1))
+        except PermissionError:
+            pytest.skip("keeping a process from running for certain needs SCHED_FIFO (CAP_SYS_NICE, or an "
+                        "RLIMIT_RTPRIO above 0)")
+        yield
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+@pytest.mark.cpu_hog        # a busy loop on one core: never beside the other real-time tests (conftest)
+def test_a_plant_kept_from_running_is_not_taken_for_gone_and_a_stopped_one_is(multicast_works, procs, clients,
+                                                                              tmp_path):
+    """At load 45-49 the lock-step pair faulted HAL_STALE after 2 s of wall time waiting for a plant that was alive.
+    The plant is judged on its own time: here, with lockstep_wait_s at its least (0.1 s), it is kept on a run queue
+    for 0.9 s at a time; the controller says it waited past the limit on the wall clock, and stays ENABLED (the wall
+    clock alone faulted it); stopped (SIGSTOP) beside the same busy loop, it is HAL_STALE, and the log says why."""
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"version": 1, "params": {"lockstep_wait_s": 0.1}}))
+    sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params)
+    with kept_from_running(plant_pid):
+        kept = sim.wait_stderr(r"lock-step: no tick from the plant for ([\d.]+) s of wall time, ([\d.]+) s of its own: "
+                               r"the machine keeps the pair from running \(not a fault|-> FAULT .*")
+        assert kept.group(2) is not None and float(kept.group(2)) <= 0.1, kept.group(0)   # said past 0.1 s of wall time
+        reply = status(client)
+        assert reply.state == ControllerState.ENABLED and reply.faults == 0, sim.seen
+        os.kill(plant_pid, signal.SIGSTOP)
+        try:
+            silent = sim.wait_stderr(r"FAULT HAL_STALE \(HAL_STALE\): lock-step: no tick from the plant .*: ([\d.]+) ms "
+                                     r"against a limit of 100.0 ms")
+            sim.wait_stderr(rf"lock-step: the plant process \(pid {plant_pid}\): stopped \(SIGSTOP\)")
+        finally:
+            os.kill(plant_pid, signal.SIGCONT)
+    assert float(silent.group(1)) >= 100.0
+    assert status(client).faults & Fault.HAL_STALE
+    client.close()
+    code, err = sim.stop()
+    assert code == 0, err
+    assert int(re.search(r"HAL counters .* kept_waits=(\d+)", err).group(1)) >= 1, err
+
+
 def test_stopping_sim_with_hal_stops_its_plant_which_saw_the_controller(multicast_works, procs, clients,
                                                                        params_file):
-    sim = procs("sim", "--hal", "udp_multicast", "--pty", "--params", str(params_file))
-    url, key_path = link_of(sim)
-    plant_pid = int(sim.wait_stderr(r"plant process (\d+) ready").group(1))
-    sim.wait_stderr(r"BOOT -> IDLE \(OK\)")               # the first ticks came: enable is allowed
-    client = clients(url, key_path)
-    assert client.call(M["Enable"]()).ok
+    sim, plant_pid, client = enabled_sim_over_hal(procs, clients, params_file)
     assert client.call(M["Ping"](1)).ok
     client.close()
     code, err = sim.stop()
@@ -274,13 +344,14 @@ def test_a_plant_whose_parent_is_killed_stops_by_itself(multicast_works, procs, 
 
 
 def _gone_within(pid: int, timeout_s: float) -> bool:
-    """Wait (bounded, real-process session) until `pid` has exited."""
-    waiter = threading.Event()
-    for _ in range(int(timeout_s / 0.05)):
-        if not _running(pid):
-            return True
-        waiter.wait(0.05)
-    return not _running(pid)
+    """Wait until `pid` has exited, at most `timeout_s` of its own time (host_tools/worlds/own_time.py)."""
+    clock = RealClock()
+    own = OwnTime(pid, clock)
+    while _running(pid):
+        if own.look().own_s > timeout_s:
+            return False
+        clock.sleep(0.05)
+    return True
 
 
 def _running(pid: int) -> bool:
@@ -300,6 +371,10 @@ def _running(pid: int) -> bool:
     (["sim", "--hal", "virtual"], "joins only buses in the same process"),
     (["sim", "--hal", "socketcan"], "needs --hal-channel"),
     (["firmware", "--interface", "udp_multicast"], "--channel"),
+    (["firmware", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--plant-pid", str(2**22)],
+     f"--plant-pid {2**22}: no such process on this machine"),
+    (["firmware", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--timing", "realtime", "--plant-pid",
+      "1"], "--plant-pid judges the wait for the plant's tick in lock-step: it takes --timing lockstep"),
     (["plant", "--interface", "udp_multicast", "--channel", "10.1.2.3"], "not a multicast group"),
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--bus-arg", "port=70000"],
      "port 70000 is not a whole number in 1..65535"),
@@ -309,14 +384,14 @@ def _running(pid: int) -> bool:
     (["plant", "--interface", "udp_multicast", "--channel", "239.1.2.3", "--payload-kg", "-1"], "outside"),
 ])
 def test_bad_bus_arguments_exit_2_with_a_reason(env, args, message):
-    done = subprocess.run(ASPOD + args, capture_output=True, env=env, stdin=subprocess.DEVNULL, timeout=60)
+    done = run(ASPOD + args, env=env, stdin=subprocess.DEVNULL, timeout_s=60)
     assert done.returncode == 2, done.stderr.decode()
     assert message in done.stderr.decode()
 
 
 def test_a_bus_that_cannot_be_opened_here_exits_3(env):
-    done = subprocess.run(ASPOD + ["plant", "--interface", "socketcan", "--channel", "aspodnone0"],
-                          capture_output=True, env=env, stdin=subprocess.DEVNULL, timeout=60)
+    done = run(ASPOD + ["plant", "--interface", "socketcan", "--channel", "aspodnone0"], env=env,
+               stdin=subprocess.DEVNULL, timeout_s=60)
     assert done.returncode == 3, done.stderr.decode()
     assert "cannot open the socketcan bus on channel 'aspodnone0'" in done.stderr.decode()
 

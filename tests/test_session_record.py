@@ -2,7 +2,6 @@
 subprocesses over a real pty; the captures decoded by `aspod log`, the CAN log by cantools with the DBC."""
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import can
@@ -11,6 +10,7 @@ import pytest
 
 from protocol import auth
 from host_tools.sessions.decode import MAC_OK, SessionDecoder
+from host_tools.worlds.child import run
 from host_tools.worlds.settings import PlantSettings
 from tests import test_e2e
 from tests.captures import read_capture
@@ -48,7 +48,8 @@ def test_sim_and_teleop_record_the_same_session_and_the_hal_bus_goes_to_a_python
     assert sim_info.info.settings["params"]["telemetry_hz"] >= 0
     for frames in (host_frames, sim_frames):
         assert all(d.error == "" and d.mac == MAC_OK for d in frames)
-        assert [d.message.token for d in frames if d.name == "Pong"] == [7, 8]
+        pongs = [d.message.token for d in frames if d.name == "Pong"]      # a busy machine may make the host send
+        assert list(dict.fromkeys(pongs)) == [7, 8], pongs                  # a Ping again: answered again, the same
     # every frame the host sent reached the controller's capture, and the other way round, in order
     for direction in {d.direction for d in host_frames}:
         host_side = [d.frame.signed for d in host_frames if d.direction is direction]
@@ -58,8 +59,8 @@ def test_sim_and_teleop_record_the_same_session_and_the_hal_bus_goes_to_a_python
     # the times: Unix time for the host, the world's seconds for the sim
     assert host_frames[0].time_s > 1e9 and 0 <= sim_frames[0].time_s < 600
 
-    out = subprocess.run(ASPOD + ["log", str(sim_capture), "--key-file", str(sim.key_path), "--message", "pong"],
-                         capture_output=True, text=True, timeout=60)
+    out = run(ASPOD + ["log", str(sim_capture), "--key-file", str(sim.key_path), "--message", "pong"], text=True,
+              timeout_s=60)
     assert out.returncode == 0, out.stderr
     assert "Pong(result=OK, token=7" in out.stdout and "mac=ok" in out.stdout
 
@@ -75,9 +76,7 @@ def test_sim_and_teleop_record_the_same_session_and_the_hal_bus_goes_to_a_python
 
 def test_record_into_a_missing_folder_is_refused_before_anything_starts(tmp_path):
     for command in (["sim", "--pty"], ["teleop", "/dev/null"]):
-        done = subprocess.run(ASPOD + command + ["--record", str(tmp_path / "no" / "x.pcapng")],
-                              capture_output=True, text=True, timeout=60)
+        done = run(ASPOD + command + ["--record", str(tmp_path / "no" / "x.pcapng")], text=True, timeout_s=60)
         assert done.returncode == 2 and "--record" in done.stderr and "no folder" in done.stderr
-    done = subprocess.run(ASPOD + ["sim", "--can-log", str(tmp_path / "x.pcap")], capture_output=True, text=True,
-                          timeout=60)
+    done = run(ASPOD + ["sim", "--can-log", str(tmp_path / "x.pcap")], text=True, timeout_s=60)
     assert done.returncode == 2 and "--can-log" in done.stderr

@@ -603,7 +603,7 @@ def test_a_live_sim_is_faulted_from_a_teleop_script_and_held_while_its_link_stay
             assert len(uptimes) == 1 and control.request({"op": "time"})["time_s"] == held["time_s"]
             assert control.request({"op": "step", "seconds": 0.5})["time_s"] == pytest.approx(held["time_s"] + 0.5)
             control.request({"op": "resume"})
-            assert client.wait_for(lambda: control.request({"op": "time"})["time_s"] > held["time_s"] + 0.6, 30.0)
+            assert sim.wait(client, lambda: control.request({"op": "time"})["time_s"] > held["time_s"] + 0.6, 30.0)
             assert control.request({"op": "clear", "name": "all"})["said"] == "cleared jam:j1"
     finally:
         client.close()

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import argparse
 import re
-import subprocess
 from datetime import datetime, timedelta, timezone
 
 import pytest
 import test_separate_processes as separate
 from test_separate_processes import ASPOD, WAIT_S, Proc, link_of
 
+from host_tools.worlds.child import run
 from host_tools.worlds.ports import BufferPort
 from hil_sim.sun import MST
 from host_tools.cli.main import build_parser
@@ -86,7 +86,7 @@ def test_now_is_the_wall_clock_and_no_tracker_is_no_tracker():
       "12:00+5m@0.5"], "--clouds set the solar tracker's sun, but --no-tracker"),
 ])
 def test_bad_tracker_options_exit_2_with_a_reason_and_start_nothing(env, argv, message):
-    done = subprocess.run(ASPOD + argv, capture_output=True, env=env, timeout=60)
+    done = run(ASPOD + argv, env=env, timeout_s=60)
     err = done.stderr.decode()
     assert done.returncode == 2, err
     assert message in err
@@ -129,8 +129,8 @@ def test_sim_with_hal_hands_the_sun_and_the_clouds_to_its_plant_process(multicas
                         r"Tucson, azimuth 92\.52 deg, elevation 4\.13 deg.*; clouds 06:00:00\+7200s@1;")
         script = tmp_path / "clouded.txt"
         script.write_text(f"telemetry 10\nclock {EQUINOX}\nswitch mode sensor\nswitch sensor on\nwait 1\nbox\n")
-        done = subprocess.run(ASPOD + ["teleop", url, "--key-file", key, "--script", str(script)],
-                              capture_output=True, env=env, timeout=120)
+        done = run(ASPOD + ["teleop", url, "--key-file", key, "--script", str(script)], env=env, timeout_s=120,
+                   peers=(sim.pid,))
         out = done.stdout.decode()
         assert done.returncode == 0, out + done.stderr.decode()
         # the whole beam is clouded out: the cells see only the diffuse light, far below trk_sun_min_v (0.1 V);

@@ -12,7 +12,6 @@ import json
 import os
 import re
 import signal
-import subprocess
 import sys
 from pathlib import Path
 
@@ -25,7 +24,7 @@ from host_tools.teleop.session import run_script
 from host_tools.teleop.motion import MotionTracker
 from host_tools.teleop.words import parse_line
 from host_tools.worlds.world import LockstepBench
-from host_tools.worlds.child import Child
+from host_tools.worlds.child import Child, run
 from protocol import auth
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
@@ -57,8 +56,8 @@ class ArmSim:
     def teleop(self, script: str, tmp: Path, *args: str) -> tuple[int, str, str]:
         path = tmp / "script.txt"
         path.write_text(script)
-        done = subprocess.run(ASPOD + ["teleop", self.url, "--script", str(path), *args], capture_output=True,
-                              env=self.env, timeout=120)
+        done = run(ASPOD + ["teleop", self.url, "--script", str(path), *args], env=self.env, timeout_s=120,
+                   peers=(self.child.pid,))
         said = self.log.read_text(errors="replace").splitlines()[-12:]
         return done.returncode, done.stdout.decode(), done.stderr.decode() + "\nthe simulator:\n" + "\n".join(said)
 
@@ -305,6 +304,9 @@ def test_estop_in_the_middle_of_a_move_stops_every_motor_until_reset_and_enable(
         text = out.getvalue()
         moving = next(k for k, (_now, msg) in enumerate(samples) if msg.j1_mode == AxisMode.MOVING)
         estop_s = next(now for now, msg in samples[moving:] if msg.j1_mode == AxisMode.IDLE)
+        # `wait 2` is wall time: on a busy machine the controller's own may be less; what follows wants 1.8 s of it
+        assert sim.child.wait_for(lambda seconds: client.wait_for(lambda: samples[-1][0] >= estop_s + 1.8, seconds),
+                                  30.0)
         # the motions were cut short: each ends DISABLED (CANCELLED, with its doc and remedy) and fails the script
         assert status == EXIT_FAILED, text + err.getvalue()
         by_axis = ends(text)

@@ -4,12 +4,14 @@ the prompt's state, history that never fails, output wrapped to the terminal."""
 from __future__ import annotations
 
 import io
+import re
 import threading
+from contextlib import contextmanager
 from types import SimpleNamespace
 
 import pytest
 
-from prompt_toolkit.application import create_app_session
+from prompt_toolkit.application import get_app_session
 from prompt_toolkit.data_structures import Size
 from prompt_toolkit.document import Document
 from prompt_toolkit.history import InMemoryHistory
@@ -133,39 +135,80 @@ def test_params_show_unit_range_and_description_wrapped_below_when_the_line_is_t
     assert teleop_format.param_lines(rich) == teleop_format.param_lines(rich, 200)     # scripts: one line
 
 
-def _run_console(client, typed, during=None):
-    """Run the console on a pipe and a 80x24 vt100 output to a buffer; `during(console)` runs in another thread
-    while it waits; returns (status, screen text)."""
+SHOWN_S = 60.0      # a step's effect on the screen: milliseconds on a quiet machine; this bound only ends a hang
+
+
+@contextmanager
+def _terminal(pipe, output):
+    """The app session every thread sees, reading `pipe` and writing `output`, as a terminal is for `aspod teleop`.
+
+    Not `create_app_session`: it sets a context variable, which the thread that writes the console's StdoutProxy does
+    not see (a thread starts in a context of its own), so an event went to the screen without `run_in_terminal`:
+    written after what was typed, and the prompt never drawn again under it, unlike in a terminal."""
+    session = get_app_session()
+    kept = session._input, session._output
+    session._input, session._output = pipe, output
+    try:
+        yield
+    finally:
+        session._input, session._output = kept
+
+
+def _run_console(client, steps):
+    """Run the console on a pipe and a 80x24 vt100 output to a buffer, feeding it `steps` from another thread: each
+    a text typed or a callable given the console, and a pattern of what the screen shows once it has taken effect
+    (None: no wait), which the next step waits for. Returns (status, screen text).
+
+    Each step waits for the console's own progress, its screen: with fixed pauses of the wall clock (0.5 s, then 0.4 s
+    a step) a busy machine let an event be printed before the console had echoed what was typed before it."""
     buffer = io.StringIO()
     output = Vt100_Output(buffer, lambda: Size(rows=24, columns=80), term="xterm")
     clock = RealClock()
-    with create_pipe_input() as pipe, create_app_session(input=pipe, output=output):
+    with create_pipe_input() as pipe, _terminal(pipe, output):
         console = TeleopConsole(client, history=InMemoryHistory())
 
+        missed: list[str] = []
+
+        def shows(pattern: str, after: int) -> None:
+            end = clock.now() + SHOWN_S
+            while not re.search(pattern, buffer.getvalue()[after:], re.S):
+                if clock.now() > end:
+                    missed.append(pattern)
+                    return
+                clock.sleep(0.01)
+
         def feed() -> None:
-            clock.sleep(0.5)
-            for text in typed:
-                if callable(text):
-                    text(console)
+            shows(PROMPT, 0)                         # the prompt is up
+            for step, shown in steps:
+                after = len(buffer.getvalue())
+                if callable(step):
+                    step(console)
                 else:
-                    pipe.send_text(text)
-                clock.sleep(0.4)
+                    pipe.send_text(step)
+                if shown is not None:
+                    shows(shown, after)
         thread = threading.Thread(target=feed, daemon=True)
         thread.start()
         status, session = console.run()
         thread.join()
+    assert not missed, f"the screen never showed {missed}: {buffer.getvalue()!r}"
     return status, buffer.getvalue()
+
+
+PROMPT = re.escape("aspod ? >")        # (its last space is drawn as a move of the cursor)
 
 
 def test_an_event_prints_above_the_prompt_and_what_is_typed_stays():
     client = FakeClient()
     event = SCHEMA["StateChanged"].type(int(ControllerState.ENABLED), int(ControllerState.IDLE),
                                          int(Reason.HOST_REQUEST), 0, 1234)
-    status, screen = _run_console(client, ["stat", lambda c: client.event(event), "\x15quit\r"])
+    status, screen = _run_console(client, [("stat", "stat"),
+                                           (lambda c: client.event(event), "! StateChanged.*" + PROMPT + " stat"),
+                                           ("\x15quit\r", None)])
     assert status == 0
     at = screen.index("! StateChanged state=ENABLED")
     assert "stat" in screen[:at]                     # typed before the event came
-    assert "stat" in screen[at:]                     # and drawn again under it, still there
+    assert "aspod ? > stat" in screen[at:]           # and drawn again under it, still there
 
 
 def test_losing_the_link_is_said_when_it_happens():
@@ -174,6 +217,7 @@ def test_losing_the_link_is_said_when_it_happens():
     def lose(_console) -> None:
         client.io_error = "device disconnected"
         client.link.state = LinkState.SUSPENDED
-    status, screen = _run_console(client, ["ping", lose, "\x15quit\r"])
+    status, screen = _run_console(client, [("ping", "ping"), (lose, "! LINK LOST.*aspod LINK LOST >"),
+                                           ("\x15quit\r", None)])
     assert "! LINK LOST: /dev/pts/test: device disconnected" in screen
     assert "aspod LINK LOST > " in screen

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import statistics
-import subprocess
 import sys
 from dataclasses import replace
 from datetime import date, datetime, timedelta, timezone
@@ -27,6 +26,7 @@ from hil_sim.sun import (DEFAULT_START, MST, TUCSON, CloudPassage, CloudSchedule
                          solar_position, to_utc)
 from hil_sim.tracker import AZ, EL, SAFE_COMMAND, TRACKER_PARAMS, TrackerCommand, TrackerPlant, wrap180
 from protocol.hal import HalCodec
+from host_tools.worlds import child
 
 ROOT = Path(__file__).resolve().parent.parent
 CODEC = HalCodec()
@@ -503,7 +503,7 @@ def test_an_arm_only_plant_never_imports_pvlib():
             "p.tracker.step(0.01, p.tracker_commands.current(0.0))\n"
             "for _ in range(10): p.step(0.001, False, True)\n"
             "print('pandas' in sys.modules, 'pvlib' in sys.modules)\n")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    done = child.run([sys.executable, "-c", code], cwd=ROOT, text=True, timeout_s=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["False", "False"]
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import shutil
 import struct
-import subprocess
 
 import pytest
 
@@ -20,6 +19,7 @@ from host_tools.sessions.decode import SessionDecoder
 from host_tools.sessions.pcapng import OUTBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
 from tests.captures import read_frames
+from host_tools.worlds.child import run
 from tests.test_session_capture import PSK, record_session
 
 TSHARK = shutil.which("tshark")
@@ -34,7 +34,7 @@ def tshark_fields(lua, capture) -> list[dict[str, str]]:
     cmd = [TSHARK, "-n", "-X", f"lua_script:{lua}", "-r", str(capture), "-T", "fields", "-E", "occurrence=f"]
     for name in FIELDS:
         cmd += ["-e", name]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    done = run(cmd, text=True, timeout_s=120)
     assert done.returncode == 0, done.stderr
     assert "Lua" not in done.stderr and "error" not in done.stderr.lower(), done.stderr
     return [dict(zip(FIELDS, line.split("\t"))) for line in done.stdout.splitlines()]

@@ -26,11 +26,17 @@ State changes are logged on stderr; at exit, the HAL counters:
 (`run_sim_over_hal`), both in lock-step: the child is ready before the controller boots, is
 watched while the controller runs (if it dies, that is said on stderr and the controller's
 lock-step watch takes it to the safe state) and is stopped when the controller stops.
+
+In lock-step the controller's wait for the plant's tick is judged on the plant's own time, not the wall
+clock alone (`own_time.LockstepWait`): the time the plant's process (the child, or `--plant-pid`) and this
+one waited for a CPU is excused; a plant process that ended or is stopped is excused nothing
+(docs/separate_processes.md, "A plant gone, or a busy machine").
 """
 from __future__ import annotations
 
 import logging
 import os
+import math
 import signal
 from pathlib import Path
 from typing import Any, Callable, Optional
@@ -44,7 +50,7 @@ from protocol import auth, files
 from protocol.link import LinkConfig
 from protocol.lockstep import LockstepFollower, PlantsWatch
 from protocol.reasons import Reason
-from protocol.states import Fault
+from protocol.states import Fault, FaultCause
 from timebase import RealClock
 
 from host_tools.worlds import nodes
@@ -54,10 +60,13 @@ from host_tools.cli.settings import (BusSettings, ControllerSettings, FirmwareSe
 from host_tools.worlds.child import describe_exit
 from host_tools.worlds.control_server import ControlServer, Handler, LinkInfo
 from host_tools.worlds.runtime_folder import RuntimeFolder
+from host_tools.worlds.own_time import LockstepWait
 from host_tools.teleop.format import describe_report
 from host_tools.cli.main import default_params_path
 
 PLANT_WATCH_S = 0.1
+KEPT_LOOK_S = 0.1            # how often a lock-step controller looks whether its wait outlasts lockstep_wait_s
+KEPT_NOTE_EVERY_S = 30.0     # ... and says so at most this often
 log = logging.getLogger("aspod")
 
 
@@ -160,13 +169,14 @@ def serve_endpoint(path: Path, handler: Handler, link_scheduler: Scheduler, prog
 
 def run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
                    plant: Optional[PlantProcess] = None, timing: str = "lockstep", speed: float = 1.0,
-                   control: bool = True, control_path: Optional[Path] = None) -> int:
+                   control: bool = True, control_path: Optional[Path] = None, plant_pid: Optional[int] = None) -> int:
     """Open the bus and the port, run the controller until SIGINT/SIGTERM, then close everything.
 
     `timing` "lockstep": the controller's time follows the plant's ticks; "realtime": the wall clock. `speed`:
     the plant's --speed, where known (aspod sim --hal): the pace the world's real-time factor is judged against.
     `control`: serve the endpoint that says the link's key (`LinkInfo`), at `control_path` or by default in the
-    runtime folder.
+    runtime folder. The plant's process, where it is known (`plant`, this process's child, or `plant_pid`), is
+    what its silence is judged on.
     """
     stopping: list[int] = []
     signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
@@ -175,7 +185,7 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
     folder = runtime_folder(settings, control and control_path is None, prog)
     try:
         return _run_controller(port_settings, settings, prog, bus_settings, plant, timing, speed, stopping,
-                               params_path, config, folder, control_path if control else None)
+                               params_path, config, folder, control_path if control else None, plant_pid)
     finally:
         if folder is not None:
             folder.close()
@@ -183,13 +193,18 @@ def run_controller(port_settings: PortSettings, settings: ControllerSettings, pr
 
 def _run_controller(port_settings: PortSettings, settings: ControllerSettings, prog: str, bus_settings: BusSettings,
                     plant: Optional[PlantProcess], timing: str, speed: float, stopping: list[int], params_path: Path,
-                    config: ControllerConfig, folder: Optional[RuntimeFolder], control_path: Optional[Path]) -> int:
+                    config: ControllerConfig, folder: Optional[RuntimeFolder], control_path: Optional[Path],
+                    plant_pid: Optional[int]) -> int:
     psk, key_path = controller_key(settings, folder)
     if control_path is None and folder is not None:
         control_path = folder.control_path()
     bus = nodes.open_bus(bus_settings.interface, bus_settings.channel, node=nodes.CONTROLLER, **bus_settings.kwargs)
     wall = RealClock()
-    follower = LockstepFollower(bus, wall, speed=speed) if timing == "lockstep" else None
+    if plant is not None:
+        plant_pid = plant.pid
+    judge = LockstepWait(wall, plant_pid)
+    follower = LockstepFollower(bus, wall, speed=speed, judge=judge) if timing == "lockstep" else None
+    kept = KeptWaits(follower, prog)
     plants = PlantsWatch()
     if follower is not None:                # a second plant on this bus: said on stderr (not a fault)
         follower.on_tick = lambda tick: warn(prog, plants.seen(tick, wall.now()))
@@ -201,12 +216,16 @@ def _run_controller(port_settings: PortSettings, settings: ControllerSettings, p
         port = open_port(port_settings, prog)
         uart = PacedUart(port, baud, paced)
         controller = nodes.build_controller(psk, uart, follower.tap if follower else bus, config)
+        kept.params = controller.params
         params = controller.params
         apply_command_line(controller, settings, prog)
         scheduler = Scheduler(follower or wall)
         link_scheduler = Scheduler(wall)
         controller.attach(scheduler, link_scheduler)
         log_states(controller, prog)
+        if follower is not None:
+            controller.report_listeners.append(lambda msg: warn(prog, why_silent(msg, judge, plant_pid)))
+            link_scheduler.add("kept-note", kept.step, tolerance_s=1.0)
         if plant is not None:
             link_scheduler.add("plant-watch", _plant_watch(plant, prog, stopping), tolerance_s=1.0)
         if control_path is not None:
@@ -234,7 +253,8 @@ def _run_controller(port_settings: PortSettings, settings: ControllerSettings, p
             counters = nodes.hal_counters(controller.hal)
             if follower is not None:
                 counters.update(ctrl_syncs=follower.syncs_sent, resyncs=follower.resyncs, old_syncs=follower.old_syncs,
-                                sync_steps_back=plants.steps_back, rtf=f"{follower.timing().rtf_total:.2f}")
+                                sync_steps_back=plants.steps_back, rtf=f"{follower.timing().rtf_total:.2f}",
+                                longest_wait_s=f"{follower.longest_wait_s:.3f}", kept_waits=kept.count)
             log.info(f"{prog}: HAL counters {nodes.format_counters(counters)}")
     return 0
 
@@ -243,6 +263,51 @@ def warn(prog: str, line: Optional[str]) -> None:
     """`line`, if there is one, as a warning of `prog` on stderr."""
     if line:
         log.warning(f"{prog}: {line}")
+
+
+class KeptWaits:
+    """Lock-step: the waits for a tick that outlast `lockstep_wait_s` of wall time while the plant has not had it of its
+    own (the machine keeps the pair from running; the wall clock alone faulted them HAL_STALE), counted (`count`)
+    and said on stderr, at most every `KEPT_NOTE_EVERY_S`. `step` is a wall-clock task."""
+
+    def __init__(self, follower: Optional[LockstepFollower], prog: str) -> None:
+        self.follower, self.prog = follower, prog
+        self.params = None             # the controller's, once it is built
+        self.count = 0
+        self._counted = 0              # the wait counted last (follower.waits)
+        self._said_s = -math.inf
+
+    def step(self, now: float) -> float:
+        follower = self.follower
+        limit = self.params["lockstep_wait_s"]
+        waited = follower.waited_s()
+        if waited > limit and follower.waits != self._counted:
+            own = follower.stalled_s()
+            if own <= limit:
+                self._counted = follower.waits
+                self.count += 1
+                if now - self._said_s >= KEPT_NOTE_EVERY_S:
+                    self._said_s = now
+                    log.warning(f"{self.prog}: lock-step: no tick from the plant for {waited:.2f} s of wall time, "
+                                f"{own:.2f} s of its own: the machine keeps the pair from running (not a fault: "
+                                f"lockstep_wait_s {limit:g} s judges the plant's own time; kept_waits in the counters "
+                                "at exit)")
+        return now + KEPT_LOOK_S
+
+
+def why_silent(msg, judge: LockstepWait, plant_pid: Optional[int]) -> Optional[str]:
+    """For a FaultReport PLANT_SILENT: what the plant's process was at the watch's latest look (None otherwise)."""
+    if msg.spec.name != "FaultReport" or msg.cause != FaultCause.PLANT_SILENT:
+        return None
+    if plant_pid is None:
+        return ("lock-step: the plant's process is not known here (--plant-pid names it), so its silence was judged "
+                "on the wall clock, less this process's own waits for a CPU")
+    look = judge.last
+    if look is None:
+        return None
+    if look.gone is not None:
+        return f"lock-step: the plant process (pid {plant_pid}): {look.gone}"
+    return f"lock-step: the plant process (pid {plant_pid}) runs but sent no tick in {look.describe()}"
 
 
 def log_states(controller: Controller, prog: str) -> None:
@@ -287,7 +352,8 @@ def _plant_watch(plant: PlantProcess, prog: str, stopping: list[int]) -> Callabl
 
 def run_firmware(settings: FirmwareSettings) -> int:
     """`aspod firmware --interface X --channel Y ...`."""
-    return run_controller(settings.port, settings.controller, "aspod firmware", settings.bus, timing=settings.timing)
+    return run_controller(settings.port, settings.controller, "aspod firmware", settings.bus, timing=settings.timing,
+                          plant_pid=settings.plant_pid)
 
 
 def run_sim_over_hal(settings: SimSettings) -> int:

@@ -400,6 +400,11 @@ def _firmware_options(firmware: argparse.ArgumentParser) -> None:
     add_timing_arg(firmware, "lockstep", "lockstep: the controller's time follows the plant's PLANT_SYNC ticks "
                                          "(aspod plant --timing lockstep); realtime: the wall clock, as on real "
                                          "hardware, with the staleness limits and loop deadlines as parameters")
+    firmware.add_argument("--plant-pid", type=bounded(int, 1, 2**22), default=None, metavar="PID",
+                          help="lock-step: the plant's process on this machine (its ASPOD-PLANT line says pid=N); "
+                               "the wait for its tick is then judged on its own time, so a busy machine is not "
+                               "taken for a plant gone (default: the wall clock, less this process's own waits "
+                               "for a CPU)")
 
 
 def _teleop_options(teleop: argparse.ArgumentParser) -> None:

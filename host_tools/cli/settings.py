@@ -187,11 +187,21 @@ class SimSettings:
 
 @dataclass(frozen=True)
 class FirmwareSettings:
-    """`aspod firmware`: the controller alone, its HAL on `bus`."""
+    """`aspod firmware`: the controller alone, its HAL on `bus`; in lock-step, its plant's process `plant_pid` on this
+    machine, if known (its silence is judged on it: docs/separate_processes.md)."""
     bus: BusSettings
     port: PortSettings
     controller: ControllerSettings
     timing: str = "lockstep"
+    plant_pid: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        if self.plant_pid is not None:
+            if self.timing != "lockstep":
+                raise ValueError("--plant-pid judges the wait for the plant's tick in lock-step: it takes "
+                                 "--timing lockstep")
+            if not Path(f"/proc/{self.plant_pid}/stat").exists():
+                raise ValueError(f"--plant-pid {self.plant_pid}: no such process on this machine")
 
 
 @dataclass(frozen=True)
@@ -290,7 +300,7 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
 
 def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
     return FirmwareSettings(bus=bus_settings(args), port=port_settings(args), controller=controller_settings(args),
-                            timing=args.timing)
+                            timing=args.timing, plant_pid=args.plant_pid)
 
 
 def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:

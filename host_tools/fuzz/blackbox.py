@@ -25,7 +25,9 @@ for a cause outside the case (the arm faulting under a motion we started, our ow
 timeout, the target saying it is too slow for real time). A failed check
 is a finding: its steps, the bytes sent and the pauses, saved (host_tools/fuzz/findings.py). With `--target-cmd`
 the fuzzer starts the target itself, restarts it after a crash, and shrinks a finding by replaying subsets of
-its steps on fresh targets.
+its steps on fresh targets; a target it started is a hang only once it has had `health_timeout_s` of its own time
+(host_tools/worlds/own_time.py: the wall time less its waits for a CPU) without answering, so a busy machine is
+not taken for a hung target. A target it did not start is judged on the wall clock.
 """
 from __future__ import annotations
 
@@ -53,6 +55,8 @@ from host_tools.fuzz import findings as findings_mod
 from host_tools.client.params import ParamTable, read_param_table
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
+from host_tools.worlds.child import out_of_time
+from host_tools.worlds.own_time import Look, OwnTime
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
 # what a moving arm may latch, whatever the link does (UNCOMMANDED_MOTION too: a case may set still_deg to 0.01 deg,
@@ -61,10 +65,11 @@ MOTION_FAULTS = (Fault.ENCODER | Fault.STALL | Fault.FOLLOWING_ERROR | Fault.OVE
                  | Fault.OPEN_CIRCUIT | Fault.GRIPPER | Fault.UNCOMMANDED_MOTION)
 COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT))
 STEP_KINDS = ("command",) * 6 + ("frame",) * 5 + ("replay", "replay", "raw", "raw", "hello", "burst")
-EXIT_WAIT_S = 2.0              # after the line broke, how long a target we started has to be seen exiting
+EXIT_WAIT_S = 2.0              # after the line broke, how long (of its own time) a target we started has to exit
 READ_WAIT_S = 0.002            # a read waits this long for a first byte (the fuzzer's turns are short)
 SILENCE_ONE_IN = 200           # a silence (about 2 s at the default timeout) in one step of this many
 SILENCE_MIN, SILENCE_MAX = 0.5, 0.8   # of the link timeout: near it, with room for this process being held up
+OWN_TIME_LOOK_S = 0.5          # past a wait's bound of wall time, how often a target we started is looked at
 MAX_STEPS = 6                  # a case's steps, at most
 DELAY_MAX_MS = 19              # the pause before a step, at most (0 three times in four)
 BURST_MIN, BURST_MAX = 2, 21   # commands in a burst
@@ -227,12 +232,17 @@ class Session:
         return handle
 
     def pump_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
-        end = _CLOCK.now() + timeout_s
+        """Pump until `done()`: False once `timeout_s` is past (`bound`) or the target we started has exited."""
+        past = self.bound(timeout_s)
         while not done():
-            if _CLOCK.now() > end or self.exited():
+            if self.exited() or past():
                 return False
             self.pump()
         return True
+
+    def bound(self, timeout_s: float) -> "Bound":
+        """`timeout_s` from now: of the target's own time if we started it, else of the wall clock."""
+        return Bound(timeout_s, self.child.own_time() if self.child is not None else None)
 
     def exited(self) -> Optional[int]:
         return None if self.child is None else self.child.exit_status()
@@ -248,6 +258,27 @@ class Session:
             return ""
         _status, err = self.child.stop()
         return "\n".join(err.splitlines()[-12:])
+
+
+class Bound:
+    """Called, whether `timeout_s` is past: of the wall clock, and then, if `own` (a target we started) is given, of
+    its own time, looked at every `OWN_TIME_LOOK_S`; `last` is the latest look (None: none yet)."""
+
+    def __init__(self, timeout_s: float, own: Optional[OwnTime]) -> None:
+        self.timeout_s, self.own = timeout_s, own
+        self.end = _CLOCK.now() + timeout_s
+        self.last: Optional[Look] = None
+
+    def __call__(self) -> bool:
+        if _CLOCK.now() <= self.end:
+            return False
+        if self.own is None:
+            return True
+        self.last = self.own.look()
+        if out_of_time(self.last, self.timeout_s):
+            return True
+        self.end = _CLOCK.now() + OWN_TIME_LOOK_S        # kept from running: look again in a while
+        return False
 
 
 class Case:
@@ -439,8 +470,8 @@ class HealthCheck:
         self.session = session
         self.token = 0
         self.last = self._status()
-        end = _CLOCK.now() + session.settings.health_timeout_s
-        while self.last.state == ControllerState.BOOT and _CLOCK.now() < end:   # its boot check still running
+        past = session.bound(session.settings.health_timeout_s)
+        while self.last.state == ControllerState.BOOT and not past():   # its boot check still running
             self.last = self._status()
 
     def _call(self, msg):
@@ -616,12 +647,13 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
             if problem is not None:
                 problem = f"while the fuzzer set back the case's parameters: {problem}"
     except TargetGone as exc:
-        end = _CLOCK.now() + EXIT_WAIT_S
-        while session.child is not None and session.exited() is None and _CLOCK.now() < end:
+        past = session.bound(EXIT_WAIT_S)
+        while session.child is not None and session.exited() is None and not past():
             _CLOCK.sleep(0.01)    # a line that broke: the process may be on its way out
         status = session.exited()
         kind = "crash" if status is not None else "hang"
-        return findings_mod.Failure(kind, f"TargetGone: {exc}", session.url, "health")
+        still = "" if status is not None or past.last is None else f"; it still ran after {past.last.describe()}"
+        return findings_mod.Failure(kind, f"TargetGone: {exc}{still}", session.url, "health")
     if problem is not None:
         return findings_mod.Failure("oracle", f"HealthCheck: {problem}", session.url, "health")
     return None

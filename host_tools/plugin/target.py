@@ -9,7 +9,8 @@ plant is skipped there (`CannotFault`, with the reason), never faked. Both reach
 requests (host_tools/worlds/plant_control.py), so a fault does the same on either.
 
     target.call(msg) -> CommandHandle          one command, its one outcome
-    target.wait_until(predicate, timeout_s)    in the target's time (simulated: runs the world)
+    target.wait_until(predicate, timeout_s)    in the target's time (simulated: runs the world; live: the controller's)
+    target.now()                               the target's time (live: the controller's uptime, as it last said it)
     target.telemetry["TelemetryJoints"]        the latest of each telemetry message
     target.events                              every event, in order
     target.link_stats()                        the host link's counters
@@ -222,9 +223,20 @@ class LockstepTarget(Target):
         self.bench.close()
 
 
+CONTROLLER_SILENCE_S = 15.0   # a wait in the controller's time ends when nothing has told its time for this long (wall)
+
+
 class LiveTarget(Target):
     """A live controller at `url` (pyserial URL or device; several links comma-separated), connected; with the
-    simulator's control endpoint at `control_path`, or else the one found beside `url`, if any."""
+    simulator's control endpoint at `control_path`, or else the one found beside `url`, if any.
+
+    Its time is the controller's, as its telemetry, its events and its Status say it (`uptime_ms`): a simulator on
+    a busy machine slows its world down rather than fault, and a bench's bounds (a fault drill's reaction, a
+    `wait_until`) are then waited for in that time, as on the lock-step world, never failed on the wall clock's.
+    `now()` is as fresh as the telemetry rate (10 Hz by default: 0.1 s). A wait ends early, False, once nothing has
+    told the controller's time for `CONTROLLER_SILENCE_S` of wall time (the link down, telemetry off and nothing
+    happening).
+    """
 
     def __init__(self, url: str, psk: bytes, baud: int = 115200, control_path: Optional[Path] = None,
                  variables: Optional[dict[str, str]] = None) -> None:
@@ -236,11 +248,49 @@ class LiveTarget(Target):
                 control.close()
             raise
         super().__init__(client, f"live {url}", dict(variables or {}))
+        self._uptime_ms: Optional[int] = None    # the controller's latest time
+        self._told = 0                           # messages that told it
+        client.telemetry_listeners.append(lambda msg, now: self._timed(msg))
+        client.event_listeners.append(lambda msg, now: self._timed(msg))
         try:
             client.connect()
+            status = client.call(M["GetStatus"]())
+            if status.ok:
+                self._timed(status.reply)
         except BaseException:
             client.close()
             raise
+
+    def _timed(self, msg: Message) -> None:
+        """A message that says the controller's time (telemetry, events, Status): the latest time said is kept (an
+        event carried over from an earlier session says an earlier one)."""
+        uptime_ms = getattr(msg, "uptime_ms", None)
+        if uptime_ms is not None:
+            self._uptime_ms = max(uptime_ms, self._uptime_ms or 0)
+            self._told += 1
+
+    def now(self) -> float:
+        """The controller's time in seconds (the wall clock's if it has not said it yet)."""
+        uptime_ms = self._uptime_ms
+        return self.client.clock.now() if uptime_ms is None else uptime_ms / 1000
+
+    def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Until `predicate()`, at most `timeout_s` of the controller's time."""
+        start_ms = self._uptime_ms
+        if start_ms is None:
+            return self.client.wait_for(predicate, timeout_s)
+
+        def waited_s() -> float:
+            return (self._uptime_ms - start_ms) / 1000
+        while True:
+            told = self._told
+            if not self.client.wait_for(lambda: predicate() or waited_s() >= timeout_s or self._told != told,
+                                        CONTROLLER_SILENCE_S):
+                return predicate()          # nothing has told the controller's time for that long
+            if predicate():
+                return True
+            if waited_s() >= timeout_s:
+                return False
 
     def no_plant(self) -> str:
         return (f"the {self.kind} target has no plant to fault from here: it has no control endpoint (real "

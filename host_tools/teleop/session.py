@@ -67,7 +67,7 @@ __all__ = ["LOCAL_COMMANDS", "Session", "Step", "TeleopError",
            "all_words", "build_message", "check_script", "commands", "format_message", "format_outcome",
            "help_text", "parse_line", "parse_value", "run_script", "usage"]
 
-BOX_FRESH_S = 0.5      # `box` waits this long at most for a TelemetryTracker newer than the line (10 Hz: 0.1 s)
+BOX_FRESH_S = 0.5      # `box` waits this long at most (as `wait` counts) for a TelemetryTracker newer than the line
 ALIGNED_READINGS = 3   # `wait aligned`: this many TelemetryTracker in a row within the angle (0.3 s at 10 Hz)
 TELEMETRY_SILENCE_S = 15.0   # a wait in the controller's time ends if nothing tells that time for this long (wall)
 STATUS_POLL_S = 1.0          # ... and it asks (GetStatus) when telemetry has been silent for this long (wall)
@@ -264,7 +264,7 @@ class Session:
         elif word == "box":
             # a reading sent after this line began (so after the replies before it), if one comes soon
             seen = self.telemetry.latest.get("TelemetryTracker")
-            self.client.wait_for(lambda: self.telemetry.latest.get("TelemetryTracker") is not seen, BOX_FRESH_S)
+            self.wait(lambda: self.telemetry.latest.get("TelemetryTracker") is not seen, BOX_FRESH_S)
             console.lines(box_block(self.telemetry.latest, detail=True))
         elif word == "wait":
             if step.waits_for_alignment:
@@ -274,7 +274,7 @@ class Session:
             if self.tracker.running():
                 console.line(f"     (a pause of {step.seconds:g} s; `wait all {step.seconds:g}` would wait for the "
                              "motions instead)")
-            self.client.clock.sleep(step.seconds)
+            self.wait(lambda: False, step.seconds)      # the controller's seconds, where its time is simulated
         elif word == "connect":
             self.client.connect()
             console.line("link up")

@@ -64,7 +64,8 @@ LOCAL_COMMANDS = {
     "params": "params: every parameter with its value and range (get NAME / set NAME VALUE / save)",
     "wait": f"wait [AXIS|all] [TIMEOUT]: wait until the motions started here on AXIS (default all: every "
             f"axis) have ended (default timeout {WAIT_TIMEOUT_S:g} s; a timeout fails the line); "
-            "wait SECONDS: pause. AXIS: " + ", ".join(AXIS_WORDS[:-1]) + ". "
+            "wait SECONDS: pause (timeouts and pauses count the controller's seconds where its time is simulated). "
+            "AXIS: " + ", ".join(AXIS_WORDS[:-1]) + ". "
             "wait aligned [az|el] DEG [TIMEOUT]: until the solar tracker points at the sun within DEG degrees in "
             "three TelemetryTracker in a row (the angle between the focal axis and the ephemeris sun; with az or el, "
             "that axis's error alone); it needs the controller's clock (`clock now`) and the box in use (main or "
