@@ -26,17 +26,18 @@ from typing import Optional
 
 from firmware_py.uart import BITS_PER_BYTE
 from protocol import auth
+from protocol.errors import LinkError
 from protocol.framing import encode_frame
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import MsgClass
 from timebase import RealClock
 
-from host_tools.worlds.child import Child, ChildError
+from host_tools.worlds.child import Child, ChildError, out_of_time
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-START_TIMEOUT_S = 30.0
-CONNECT_TIMEOUT_S = 20.0
+START_TIMEOUT_S = 30.0         # of the sim's own time (Child.line): its ready lines, however busy the machine
+CONNECT_TIMEOUT_S = 20.0       # of the sim's own time: handshakes tried again until it has had this much
 CALL_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 5.0
 GOAL_MARGIN_S = 0.005          # the goal: p99 within wire time + 5 ms
@@ -141,6 +142,26 @@ class SimProcess:
         self.child.stop(timeout_s=STOP_TIMEOUT_S)
 
 
+def connect(client, child: Child, timeout_s: float) -> None:
+    """`client.connect()` to `child`'s link, tried again while the child has had less than `timeout_s` of its own time.
+
+    One handshake gives up after the link's Hello tries (5, a second apart, on the wall clock, as on a real line);
+    a sim kept from its CPU that long is not dead. Only its own time says it is (the wall time less its waits for a
+    CPU: host_tools/worlds/own_time.py). A refusal (a wrong key), or a sim that ended, ends it at once (LinkError);
+    a sim out of its own time ends it with a BenchSetupError that says how much it had."""
+    own = child.own_time()
+    while True:
+        try:
+            client.connect(timeout_s=timeout_s)
+            return
+        except LinkError as exc:
+            if exc.reason is not Reason.LINK_SUSPENDED or child.exit_status() is not None:
+                raise
+            look = own.look()
+            if out_of_time(look, timeout_s):
+                raise BenchSetupError(f"{exc}; {child.name} (pid {child.pid}) had {look.describe()}") from None
+
+
 # ---------------------------------------------------------------- one case
 
 def run_case(case: Case, key: bytes, key_path: Path) -> CaseResult:
@@ -155,7 +176,7 @@ def run_case(case: Case, key: bytes, key_path: Path) -> CaseResult:
     try:
         sim = SimProcess(case.baud, case.telemetry_hz, key_path, clock, case.paced)
         client = HostClient(sim.url, key, baud=case.baud)
-        client.connect(timeout_s=CONNECT_TIMEOUT_S)
+        connect(client, sim.child, CONNECT_TIMEOUT_S)
         started_s = None
         for i in range(case.warmup + case.pings):
             if i == case.warmup:
