@@ -5,7 +5,11 @@ from __future__ import annotations
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, Sequence, TypeVar
+
+from host_tools.worlds.child import Child, out_of_time
+
+T = TypeVar("T")
 
 Part = Callable[[Path, bool], Iterable[str]]   # a list, or a generator whose lines are printed as they come
 
@@ -35,3 +39,26 @@ def run_parts(title: str, parts: Sequence[Part], quick: bool, prefix: str) -> Pa
                 print(line, flush=True)
                 lines_all.append(line)
     return PartsResult(lines_all, error)
+
+
+class OwnTimeOut(TimeoutError):
+    """A child had its own time for something and did not do it (`retry_on_own_time`)."""
+
+
+def retry_on_own_time(child: Child, attempt: Callable[[], T], timeout_s: float,
+                      again: Callable[[Exception], bool]) -> T:
+    """`attempt()` (a handshake with `child`, bounded on the wall clock as on a real line), called again after a
+    failure `again` accepts, until it succeeds or `child` has had `timeout_s` of its own time since the first
+    (host_tools/worlds/own_time.py: the wall time less its waits for a CPU). A busy machine that kept the child from
+    its CPU through one attempt is not taken for a dead child; a child that ended, or a failure `again` refuses (a
+    refusal, a wrong key), ends it at once. Out of its own time: `OwnTimeOut`, saying how much it had."""
+    own = child.own_time()
+    while True:
+        try:
+            return attempt()
+        except Exception as exc:
+            if not again(exc) or child.exit_status() is not None:
+                raise
+            look = own.look()
+            if out_of_time(look, timeout_s):
+                raise OwnTimeOut(f"{exc}; {child.name} (pid {child.pid}) had {look.describe()}") from None

@@ -33,7 +33,8 @@ from protocol.reasons import Reason
 from protocol.schema import MsgClass
 from timebase import RealClock
 
-from host_tools.worlds.child import Child, ChildError, out_of_time
+from bench import retry_on_own_time
+from host_tools.worlds.child import Child, ChildError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 START_TIMEOUT_S = 30.0         # of the sim's own time (Child.line): its ready lines, however busy the machine
@@ -143,23 +144,11 @@ class SimProcess:
 
 
 def connect(client, child: Child, timeout_s: float) -> None:
-    """`client.connect()` to `child`'s link, tried again while the child has had less than `timeout_s` of its own time.
-
-    One handshake gives up after the link's Hello tries (5, a second apart, on the wall clock, as on a real line);
-    a sim kept from its CPU that long is not dead. Only its own time says it is (the wall time less its waits for a
-    CPU: host_tools/worlds/own_time.py). A refusal (a wrong key), or a sim that ended, ends it at once (LinkError);
-    a sim out of its own time ends it with a BenchSetupError that says how much it had."""
-    own = child.own_time()
-    while True:
-        try:
-            client.connect(timeout_s=timeout_s)
-            return
-        except LinkError as exc:
-            if exc.reason is not Reason.LINK_SUSPENDED or child.exit_status() is not None:
-                raise
-            look = own.look()
-            if out_of_time(look, timeout_s):
-                raise BenchSetupError(f"{exc}; {child.name} (pid {child.pid}) had {look.describe()}") from None
+    """`client.connect()` to `child`'s link, tried again while the child has had less than `timeout_s` of its own time:
+    one handshake gives up after the link's Hello tries (5, a second apart, on the wall clock, as on a real line),
+    which a sim kept from its CPU can miss without being dead. A refusal (a wrong key) ends it at once."""
+    retry_on_own_time(child, lambda: client.connect(timeout_s=timeout_s), timeout_s,
+                      lambda exc: isinstance(exc, LinkError) and exc.reason is Reason.LINK_SUSPENDED)
 
 
 # ---------------------------------------------------------------- one case
