@@ -24,8 +24,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def show_lines_as_printed() -> None:
+    """Line-buffer stdout: piped (`make bench | tee`), Python would hold a benchmark's lines in a block buffer, and a
+    long run would show nothing for minutes."""
+    sys.stdout.reconfigure(line_buffering=True)
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    show_lines_as_printed()
     status = 0
     if args.only in (None, "codec"):
         from bench import bench_codec

@@ -1,19 +1,24 @@
 """Codec throughput: our frames beside pymavlink's MAVLink 2 frames, in the same run.
 
-Both sides carry a 48-byte payload:
+Both sides carry a payload of the same length, whatever length `TelemetryStatus` has today:
 
-* ours: `TelemetryStatus` (48 bytes), class TELEMETRY, built with `encode_frame`
+* ours: `TelemetryStatus` (57 bytes as of issue 35), class TELEMETRY, built with `encode_frame`
   (COBS, header, CRC-32, and with a key a 48-bit counter and a 16-byte
   HMAC-SHA256 tag) and read back by a `FrameReceiver` fed 4 KiB chunks, then
   `SCHEMA.decode` (range and enum checks included). Authenticated decode also
   checks every tag (`Frame.verify`) and that counters strictly increase, as the
-  link does before it accepts a frame.
-* pymavlink: `ATTITUDE_QUATERNION` (id 31) of the `common` dialect, whose MAVLink 2
-  payload is exactly 48 bytes (32 base + the 16-byte `repr_offset_q` extension).
-  Every field is non-zero, so MAVLink 2's trailing-zero truncation leaves the whole
-  48 bytes on the wire. Encode is `msg.pack(mav)`; decode is `MAVLink.parse_buffer`
-  fed the same 4 KiB chunks. Signed frames use MAVLink 2 signing (SHA-256 of key and
-  frame, 6 bytes kept, 48-bit timestamp checked per stream).
+  link does before it accepts a frame. Every field holds a valid value, non-zero
+  where its type allows (`_our_value`).
+* pymavlink: the message of the `common` dialect whose MAVLink 2 payload (extensions
+  included) has exactly our payload's length, chosen at run time (`mav_peer`): of those
+  without text fields, the one with the field count nearest ours (then the lowest id),
+  so both codecs unpack a like number of fields (57 bytes: `GPS2_RAW`, id 124, 18 fields
+  against our 17). Every field is non-zero, so MAVLink 2's trailing-zero truncation
+  leaves the whole payload on the wire. Encode is `msg.pack(mav)`; decode is
+  `MAVLink.parse_buffer` fed the same 4 KiB chunks. Signed frames use MAVLink 2 signing
+  (SHA-256 of key and frame, 6 bytes kept, 48-bit timestamp checked per stream).
+  Should no message have our length, the nearest does (the longer of two as near) and
+  the ratios are taken per payload byte instead of per frame: the report says which.
 
 Each figure is the best of several rounds (frames / seconds, `RealClock.precise_now`,
 garbage collector paused while timing, as `timeit` does); within a round the
@@ -25,19 +30,18 @@ from __future__ import annotations
 
 import gc
 import os
+import struct
 from dataclasses import dataclass, field
 from typing import Any, Callable, Optional
 
 from protocol.framing import FrameReceiver, encode_frame, MacKey
 from protocol.messages import SCHEMA
-from protocol.reasons import Reason
-from protocol.schema import MsgClass
-from protocol.states import ControllerState, Fault
+from protocol.schema import Field, MsgClass
 from timebase import RealClock
 
 CHUNK_BYTES = 4096
 KEY = bytes(range(1, 33))                   # 32-byte key, both sides
-MAV_MESSAGE = "ATTITUDE_QUATERNION"
+OURS = "TelemetryStatus"
 MAV_SIGNING_T0 = 1_000_000                  # first signing timestamp (10 us units)
 
 
@@ -55,6 +59,7 @@ class Row:
 
     name: str
     wire_bytes: int
+    payload_bytes: int = 0
     measures: dict[str, tuple[Prepare, Check]] = field(default_factory=dict, repr=False)
     best_s: dict[str, float] = field(default_factory=dict)
     frames: int = 0
@@ -64,6 +69,11 @@ class Row:
     def fps(self, column: str) -> Optional[float]:
         best = self.best_s.get(column)
         return None if best is None else self.frames / best
+
+    def payload_bps(self, column: str) -> Optional[float]:
+        """Payload bytes a second: what the ratios compare when the two sides' payloads differ in length."""
+        fps = self.fps(column)
+        return None if fps is None else fps * self.payload_bytes
 
     @property
     def encode_fps(self) -> Optional[float]:
@@ -82,6 +92,9 @@ class Row:
 class CodecResult:
     frames: int
     repeats: int
+    payload_bytes: int = 0
+    peer: str = ""              # the MAVLink message compared with ours, and why it
+    per_byte: bool = False      # the peer's payload is not as long as ours: ratios per payload byte
     rows: list[Row] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
 
@@ -143,21 +156,35 @@ def _check_equal_bytes(reference: list[bytes], what: str) -> Callable[[list[byte
 
 # ---------------------------------------------------------------- ours
 
+_F32 = struct.Struct("<f")
+
+
+def _our_value(f: Field, i: int):
+    """A valid value of field `f` for message `i`: non-zero where the type allows, in the declared range, an f32
+    exactly as it goes on the wire (so the decoded message compares equal), varied from one message to the next."""
+    if f.enum is not None:
+        members = [int(m) for m in f.enum if int(m)] or [int(m) for m in f.enum]
+        return members[i % len(members)]
+    if f.type == "bool":
+        return 1
+    if f.type == "f32":
+        lo, hi = f.range if f.range is not None else (-1000.0, 1000.0)
+        return _F32.unpack(_F32.pack(lo + (hi - lo) * (1 + 2 * (i % 8)) / 16))[0]   # never the middle
+    if f.type.startswith("bytes"):
+        return bytes((i + k) % 255 + 1 for k in range(f.text_size))
+    if f.is_text:
+        return "bench"[:f.text_size]
+    lo, hi = f.limits
+    return max(lo, 1) + i % min(hi - max(lo, 1) + 1, 1000)
+
+
 def _our_messages(n: int) -> list:
-    ts = SCHEMA["TelemetryStatus"].type
-    states = [s for s in ControllerState if s]
-    return [ts(uptime_ms=1_000 + 10 * i, state=int(states[i % len(states)]),
-               safe_reason=int(Reason.LINK_TIMEOUT), faults=int(Fault.LINK_LOST | Fault.HAL_STALE),
-               supply_v=27.5 + (i % 8) * 0.125, temp_c=21.25, commands_executed=7 + i,
-               frames_rx=100 + i, frames_tx=200 + i, link_errors=3, loop_max_us=812,
-               loop_p99_us=256, overruns=1, tx_backlog_bytes=64 + (i % 100))
-            for i in range(n)]
+    spec = SCHEMA[OURS]
+    return [spec.type(*(_our_value(f, i) for f in spec.fields)) for i in range(n)]
 
 
 def _ours(n: int, authenticated: bool) -> Row:
-    spec = SCHEMA["TelemetryStatus"]
-    if spec.size != 48:
-        raise BenchError(f"TelemetryStatus payload is {spec.size} bytes, the comparison assumes 48")
+    spec = SCHEMA[OURS]
     msgs = _our_messages(n)
     msg_id, encode, cls = spec.id, spec.encode, int(MsgClass.TELEMETRY)
     key = MacKey(KEY) if authenticated else None   # prepared once per session, as the link does
@@ -200,14 +227,15 @@ def _ours(n: int, authenticated: bool) -> Row:
         if out != msgs:
             raise BenchError(f"{what}: decoded messages differ from the originals")
 
-    row = Row(f"ours, {'authenticated' if authenticated else 'unauthenticated'}", len(reference[0]), frames=n)
+    row = Row(f"ours, {'authenticated' if authenticated else 'unauthenticated'}", len(reference[0]), spec.size,
+              frames=n)
     row.measures = {
         "encode": (lambda: encode_all, _check_equal_bytes(reference, what)),
         "decode": (lambda: lambda: decode_all(chunks), check_decoded),
         "both": (lambda: lambda: decode_all(_chunks(b"".join(encode_all()))), check_decoded),
     }
     row.note = (f"{len(reference[0])} wire bytes: 10 header"
-                + (" + 6 counter" if authenticated else "") + " + 48 payload"
+                + (" + 6 counter" if authenticated else "") + f" + {spec.size} payload"
                 + (" + 16 HMAC-SHA256 tag" if authenticated else "") + " + 4 CRC-32 + COBS 1 + 2 delimiters")
     return row
 
@@ -251,21 +279,50 @@ def pymavlink_crc_report(common) -> list[str]:
     return lines
 
 
-def _mav_messages(common, n: int) -> list:
-    cls = getattr(common, f"MAVLink_{MAV_MESSAGE.lower()}_message")
-    # exactly representable in float32, so decoded values compare equal; all non-zero
-    return [cls(1_000 + 10 * i, 0.5, -0.25, 0.125, 0.75 + (i % 8) * 0.0625, 0.0078125, -1.5, 2.25,
-                [0.5, 0.25, -0.125, 1.0 + (i % 4) * 0.5]) for i in range(n)]
+_MAV_INT_BYTES = {"int8_t": 1, "uint8_t": 1, "int16_t": 2, "uint16_t": 2, "int32_t": 4, "uint32_t": 4,
+                  "int64_t": 8, "uint64_t": 8}
+
+
+def mav_peer(common, payload_bytes: int) -> tuple[type, bool]:
+    """The `common` message to set beside a payload of `payload_bytes`, and whether its MAVLink 2 payload (extensions
+    included) is exactly as long.
+
+    Of the messages without text fields (a string decodes stripped, so would not compare equal), those of exactly
+    that length, else the nearest (the longer of two as near); of them the one whose field count is nearest ours,
+    so both codecs unpack a like number of fields; then the lowest id, so every run picks the same one."""
+    ours = len(SCHEMA[OURS].fields)
+    classes = [c for c in common.mavlink_map.values() if c.unpacker.size and "char" not in c.fieldtypes]
+    nearest = min(classes, key=lambda c: (abs(c.unpacker.size - payload_bytes), -c.unpacker.size,
+                                          abs(len(c.fieldnames) - ours), c.id))
+    return nearest, nearest.unpacker.size == payload_bytes
+
+
+def _mav_value(kind: str, k: int, i: int):
+    """A non-zero value of MAVLink type `kind` for field (or element) `k` of message `i`: floats exactly
+    representable in float32, integers with every byte non-zero and below 0x80 (so signed ones stay positive), so
+    no trailing zero byte is cut from the payload and decoded values compare equal."""
+    if kind in ("float", "double"):
+        return 0.5 + ((k + i) % 8) * 0.0625
+    return int.from_bytes(bytes((k + i + j) % 0x7E + 1 for j in range(_MAV_INT_BYTES[kind])), "little")
+
+
+def _mav_messages(cls, n: int) -> list:
+    def values(i: int) -> list:
+        out = []
+        for k, (kind, length) in enumerate(zip(cls.fieldtypes, cls.array_lengths)):
+            out.append([_mav_value(kind, k + e, i) for e in range(length)] if length else _mav_value(kind, k, i))
+        return out
+    return [cls(*values(i)) for i in range(n)]
 
 
 def _mav_values(m) -> tuple:
     return tuple(tuple(v) if isinstance(v, list) else v for v in (getattr(m, f) for f in m.fieldnames))
 
 
-def _pymavlink(common, n: int, signed: bool) -> Row:
-    msgs = _mav_messages(common, n)
+def _pymavlink(common, cls, n: int, signed: bool) -> Row:
+    msgs = _mav_messages(cls, n)
     expected = [_mav_values(m) for m in msgs]
-    size = getattr(common, f"MAVLink_{MAV_MESSAGE.lower()}_message").unpacker.size
+    size, name = cls.unpacker.size, cls.msgname
 
     def new_mav():
         mav = common.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -303,7 +360,7 @@ def _pymavlink(common, n: int, signed: bool) -> Row:
         if len(out) != n:
             raise BenchError(f"{what}: decoded {len(out)} of {n} frames")
         for m, want in zip(out, expected):
-            if m.get_type() != MAV_MESSAGE or _mav_values(m) != want:
+            if m.get_type() != name or _mav_values(m) != want:
                 raise BenchError(f"{what}: decoded {m} differs from the original")
             if signed and not m.get_signed():
                 raise BenchError(f"{what}: a frame was accepted without a verified signature")
@@ -313,7 +370,7 @@ def _pymavlink(common, n: int, signed: bool) -> Row:
     if plen != size:
         raise BenchError(f"{what}: payload truncated on the wire to {plen} of {size} bytes")
     chunks = _chunks(b"".join(reference))
-    row = Row(f"pymavlink{', signed' if signed else ''}", len(reference[0]), frames=n, optional=signed)
+    row = Row(f"pymavlink{', signed' if signed else ''}", len(reference[0]), size, frames=n, optional=signed)
 
     def prepare_decode():
         mav = new_mav()
@@ -333,12 +390,12 @@ def _pymavlink(common, n: int, signed: bool) -> Row:
     return row
 
 
-def _pymavlink_guarded(common, n: int, signed: bool) -> Row:
+def _pymavlink_guarded(common, cls, n: int, signed: bool) -> Row:
     """Signed pymavlink is reported if it works; if not, the row says why instead of a figure."""
     if not signed:
-        return _pymavlink(common, n, signed)
+        return _pymavlink(common, cls, n, signed)
     try:
-        return _pymavlink(common, n, signed)
+        return _pymavlink(common, cls, n, signed)
     except Exception as exc:   # report, not hide: the reason is printed in the table
         return Row("pymavlink, signed", 0, optional=True, note=f"not measured: {type(exc).__name__}: {exc}")
 
@@ -347,7 +404,7 @@ def _pymavlink_guarded(common, n: int, signed: bool) -> Row:
 
 def run(quick: bool = False) -> CodecResult:
     n, repeats = (2_000, 3) if quick else (20_000, 7)
-    result = CodecResult(n, repeats)
+    result = CodecResult(n, repeats, SCHEMA[OURS].size)
     result.rows.append(_ours(n, authenticated=False))
     result.rows.append(_ours(n, authenticated=True))
     try:
@@ -356,8 +413,13 @@ def run(quick: bool = False) -> CodecResult:
         result.notes.append(f"pymavlink not importable ({exc}): install the bench extra, pip install -e '.[bench]'")
     else:
         result.notes.extend(pymavlink_crc_report(common))
-        result.rows.append(_pymavlink_guarded(common, n, signed=False))
-        result.rows.append(_pymavlink_guarded(common, n, signed=True))
+        cls, exact = mav_peer(common, result.payload_bytes)
+        result.per_byte = not exact
+        result.peer = (f"{cls.msgname} (id {cls.id}, common dialect, {len(cls.fieldnames)} fields, MAVLink 2 payload "
+                       f"{'exactly ' if exact else ''}{cls.unpacker.size} B, all fields non-zero so nothing is "
+                       "truncated)")
+        result.rows.append(_pymavlink_guarded(common, cls, n, signed=False))
+        result.rows.append(_pymavlink_guarded(common, cls, n, signed=True))
     measure(result.rows, repeats)
     return result
 
@@ -371,11 +433,13 @@ def _ratio(a: Optional[float], b: Optional[float]) -> str:
 
 
 def report(result: CodecResult) -> str:
-    lines = [f"Codec throughput, 48-byte payloads: {result.frames:,} frames per run, best of {result.repeats} "
-             f"rounds, contenders interleaved (frames/s, higher is better; decode fed {CHUNK_BYTES}-byte chunks)",
-             f"  ours: TelemetryStatus (id {SCHEMA['TelemetryStatus'].id:#04x}, 48 B); "
-             f"pymavlink: {MAV_MESSAGE} (id 31, common dialect, MAVLink 2 payload exactly 48 B, "
-             "all fields non-zero so nothing is truncated)",
+    spec = SCHEMA[OURS]
+    per = "payload byte" if result.per_byte else "frame"
+    lines = [f"Codec throughput, {result.payload_bytes}-byte payloads: {result.frames:,} frames per run, best of "
+             f"{result.repeats} rounds, contenders interleaved (frames/s, higher is better; decode fed "
+             f"{CHUNK_BYTES}-byte chunks)",
+             f"  ours: {OURS} (id {spec.id:#04x}, {len(spec.fields)} fields, {spec.size} B)"
+             + (f"; pymavlink: {result.peer}" if result.peer else ""),
              "",
              f"  {'':<26}{'wire B':>7}{'encode/s':>12}{'decode/s':>12}{'enc+dec/s':>12}"]
     for row in result.rows:
@@ -385,17 +449,20 @@ def report(result: CodecResult) -> str:
     pairs = [("ours unauth / pymavlink", "ours, unauthenticated", "pymavlink", "goal > 1"),
              ("ours auth / pymavlink signed", "ours, authenticated", "pymavlink, signed", ""),
              ("ours auth / pymavlink unsigned", "ours, authenticated", "pymavlink", "")]
-    lines += ["", f"  {'ratio (ours / pymavlink)':<34}{'encode':>8}{'decode':>8}{'enc+dec':>9}"]
+    lines += ["", f"  {f'ratio per {per} (ours / pymavlink)':<34}{'encode':>8}{'decode':>8}{'enc+dec':>9}"]
     for label, a, b, goal in pairs:
         if a in by and b in by:
             ra, rb = by[a], by[b]
+            rates = {c: (ra.payload_bps(c), rb.payload_bps(c)) for c in COLUMNS}
             verdict = ""
             if goal:
-                ok = all(x is not None and y is not None and x > y
-                         for x, y in ((ra.decode_fps, rb.decode_fps), (ra.both_fps, rb.both_fps)))
+                ok = all(x is not None and y is not None and x > y for x, y in (rates["decode"], rates["both"]))
                 verdict = f"  ({goal}: {'met' if ok else 'NOT met'})"
-            lines.append(f"  {label:<34}{_ratio(ra.encode_fps, rb.encode_fps):>8}"
-                         f"{_ratio(ra.decode_fps, rb.decode_fps):>8}{_ratio(ra.both_fps, rb.both_fps):>9}{verdict}")
+            lines.append(f"  {label:<34}" + "".join(f"{_ratio(*rates[c]):>{w}}" for c, w in zip(COLUMNS, (8, 8, 9)))
+                         + verdict)
+    if result.per_byte:
+        lines.append(f"  No message of the common dialect has a {result.payload_bytes}-byte payload: the ratios are "
+                     "of payload bytes a second, not frames.")
     lines.append("")
     for row in result.rows:
         if row.note:

@@ -25,7 +25,7 @@ dial against the feed-forward).
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from datetime import time
 from pathlib import Path
@@ -53,6 +53,10 @@ def _run(settings: DaySettings) -> DayResult:
     return run_day(settings)
 
 
+def _name(settings: DaySettings) -> str:
+    return "feed-forward (cap 100)" if settings.mode == "feedforward" else f"relay, dial {settings.dial_pct[0]:g} %"
+
+
 def main(quick: bool = False, workers: int = 2) -> TrackerBench:
     start, end = QUICK_WINDOW if quick else (None, None)
     runs = [DaySettings(mode="relay", dial_pct=(d, d), start=start, end=end) for d in DIALS]
@@ -61,9 +65,14 @@ def main(quick: bool = False, workers: int = 2) -> TrackerBench:
     print(f"Solar tracker, {runs[0].day} at {runs[0].site.name}, clear sky, {span}, 10 ms steps; "
           f"{len(runs)} days, {workers} at a time")
     bench = TrackerBench()
+    results: list = [None] * len(runs)
     try:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            results = list(pool.map(_run, runs))
+            futures = {pool.submit(_run, settings): i for i, settings in enumerate(runs)}
+            for done, future in enumerate(as_completed(futures), 1):     # a line a day as it ends: a long run shows
+                results[futures[future]] = day = future.result()            # where it is
+                print(f"  day {done} of {len(runs)} done: {_name(day.settings)}, "
+                      f"{day.summary()['wall_time_s']:.0f} s of wall time", flush=True)
     except Exception as exc:             # a run that could not run at all: say which and why
         bench.error = f"{type(exc).__name__}: {exc}"
         print(f"  FAILED: {bench.error}")
@@ -78,8 +87,7 @@ def main(quick: bool = False, workers: int = 2) -> TrackerBench:
     print(f"  {'run':<22} {'RMS':>7} {'max':>7} {'p95':>7} {'lag':>8} {'ahead':>6} {'switch':>7} {'revers':>7} "
           f"{'az on':>6} {'wall s':>7} {'x real':>7}")
     for r, s in zip(results, summaries):
-        name = "feed-forward (cap 100)" if r.settings.mode == "feedforward" else f"relay, dial {r.settings.dial_pct[0]:g} %"
-        print(f"  {name:<22} {s['rms_pointing_error_deg']:7.3f} {s['max_pointing_error_deg']:7.3f} "
+        print(f"  {_name(r.settings):<22} {s['rms_pointing_error_deg']:7.3f} {s['max_pointing_error_deg']:7.3f} "
               f"{s['p95_pointing_error_deg']:7.3f} {s['mean_lag_deg']:+8.3f} {100 * s['lead_fraction']:5.1f}% "
               f"{s['relay_switchings']:7d} {s['reversals']:7d} {100 * s['axes']['az']['motor_on_fraction']:5.1f}% "
               f"{s['wall_time_s']:7.1f} {s['speed_x_real_time']:7.0f}")

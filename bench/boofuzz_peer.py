@@ -7,8 +7,9 @@ many cases, by which case.
 
 What boofuzz is given (the most a careful boofuzz user could give it):
 
-- the pre-shared key. A pre-send hook (`_Monitor.pre_send`) does the Hello / HelloReply handshake and derives the
-  session keys with `protocol.auth.session_keys`, then pings once so that the controller adopts the session;
+- the pre-shared key. A pre-send hook (`_Monitor.pre_send`) does the Hello / HelloCookie / Hello / HelloReply
+  handshake and derives the session keys with `protocol.auth.session_keys`, then pings once so that the controller
+  adopts the session; a handshake not answered is tried again until the target has had `CONNECT_S` of its own time;
 - a grammar written by hand from docs/protocol.md and protocol/messages.py (not generated from `SCHEMA`): per message a
   `Request` whose raw frame is boofuzz primitives (header bytes and words, a `Size` for the length byte, a 48-bit
   `BitField` for the counter, the payload's fields), the HMAC tag a `Checksum` with a callable algorithm over the signed
@@ -16,8 +17,9 @@ What boofuzz is given (the most a careful boofuzz user could give it):
 - the session's state through `ProtocolSessionReference`s filled in by the edge callback before each case: the next
   counter, the next command sequence number (from the `ack` of the controller's last frame), the event ack;
 - a health check in boofuzz's style, a `BaseMonitor` whose `post_send` says whether the target survived the case: the
-  case was answered (a reply or a NAK), or else a signed Ping sent after it was; the process is running; the TCP line is
-  open. A failure ends the run (the first crash is the figure wanted; the simulator is not restarted).
+  case was answered (a reply or a NAK), or else a signed Ping sent after it was, within `probe_wait_s` of the target's
+  own time (host_tools/worlds/own_time.py: a busy machine that keeps it from its CPU is no crash); the process is
+  running; the TCP line is open. A failure ends the run (the first crash is the figure wanted; the simulator is not restarted).
 
 The header is fuzzed in one message (Ping) and held valid in the others, which fuzz their payloads: boofuzz
 enumerates mutations message by message, field by field, in the order the grammar declares them (the messages in their
@@ -43,6 +45,7 @@ from boofuzz import (BitField, Block, Byte, Bytes, Checksum, DWord, ProtocolSess
 from boofuzz.monitors import BaseMonitor
 from cobs import cobs
 
+from bench import retry_on_own_time
 from host_tools.worlds.child import ASPOD, Child, ChildError
 from protocol import auth
 from protocol.errors import ParseError
@@ -56,12 +59,14 @@ PLANTED = (sys.executable, "-m", "host_tools.fuzz.planted")
 # ---- the wire, written out by hand from docs/protocol.md ----
 VERSION, FLAG_AUTH = 1, 0x10
 LINK, COMMAND, URGENT, TELEMETRY, EVENT = range(5)          # the header's class byte
-HELLO, HELLO_REPLY, HEARTBEAT, NAK = 0x01, 0x02, 0x03, 0x05
+HELLO, HELLO_REPLY, HEARTBEAT, NAK, HELLO_COOKIE = 0x01, 0x02, 0x03, 0x05, 0x06
 PING, PONG = 0x10, 0x81
 NOTHING_ACKED = 0xFFFF
+CONNECT_S = 10.0        # a session's handshake: of the target's own time (each try bounded on the wall clock)
 HEADER = struct.Struct("<BBBHHHB")
-HELLO_PAYLOAD = struct.Struct("<BQ16s")                       # protocol_version, schema_hash, host_nonce
-HELLO_REPLY_PAYLOAD = struct.Struct("<BBQ16s16sII")          # result, version, hash, host and controller nonces, ...
+HELLO_PAYLOAD = struct.Struct("<BQ16s8s")                     # protocol_version, schema_hash, host_nonce, cookie
+HELLO_COOKIE_PAYLOAD = struct.Struct("<16s8s")                # host_nonce, cookie: echo it in a fresh Hello
+HELLO_REPLY_PAYLOAD = struct.Struct("<BBQ16s16sII8s")        # result, version, hash, host and controller nonces, ...
 STATUS_HEAD = struct.Struct("<BBIBIffI")                      # Status: result ... commands_executed
 
 
@@ -107,6 +112,10 @@ def _delimit(raw: bytes) -> bytes:
 
 
 # ---- the host's end, as the callbacks keep it ----
+class Refused(ConnectionError):
+    """The controller answered the Hello with a refusal: trying again will not help."""
+
+
 class Line:
     """Keys, counters and sequence numbers shared by the hooks and the grammar's tag `Checksum`; reads the controller's
     frames (checked with protocol.framing and the session key) to learn its ack and to see answers."""
@@ -128,6 +137,7 @@ class Line:
         self.closed = False
         self.answers: list[tuple[str, int, int, int, bytes]] = []   # (kind, class, seq, msg_id, payload) since a mark
         self.hello_replies: list[bytes] = []
+        self.hello_cookies: list[bytes] = []
         self.frames_in = 0
 
     # -- the grammar's callables --
@@ -204,6 +214,8 @@ class Line:
                 if item.msg_id == HELLO_REPLY:
                     self.hello_replies.append(item.payload)
                     self.answers.append(("hello-reply", item.cls, item.seq, item.msg_id, item.payload))
+                elif item.msg_id == HELLO_COOKIE:
+                    self.hello_cookies.append(item.payload)
                 elif item.msg_id == NAK:
                     self.answers.append(("handshake-nak", item.cls, item.seq, item.msg_id, item.payload))
 
@@ -219,11 +231,13 @@ class Line:
 
     # -- the handshake --
     def connect(self, timeout_s: float) -> None:
-        """Hello, HelloReply, session keys, then a Ping so that the controller adopts the session."""
+        """Hello, HelloCookie (echoed at once in a fresh Hello), HelloReply, session keys, then a Ping so that the
+        controller adopts the session."""
         # boofuzz's TCPSocketConnection leaves Nagle on: a Ping sent after a case nobody answered would wait for the
         # delayed ACK of the case (40 ms)
         self.conn._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         nonce = auth.new_nonce()
+        cookie = bytes(auth.COOKIE_BYTES)       # none yet: the controller answers the first Hello with one
         deadline = self.clock.now() + timeout_s
         controller_nonce = None
         while controller_nonce is None:
@@ -231,19 +245,24 @@ class Line:
                 raise ConnectionError("no HelloReply from the controller")
             self.hs_counter += 1
             self.hello_replies.clear()
-            self.send(self.frame(LINK, 0, HELLO, HELLO_PAYLOAD.pack(VERSION, SCHEMA.hash, nonce), self.handshake.tx,
-                                 self.hs_counter))
+            self.hello_cookies.clear()
+            self.send(self.frame(LINK, 0, HELLO, HELLO_PAYLOAD.pack(VERSION, SCHEMA.hash, nonce, cookie),
+                                 self.handshake.tx, self.hs_counter))
 
-            def answered() -> bool:
-                return any(HELLO_REPLY_PAYLOAD.unpack(p)[3] == nonce for p in self.hello_replies
-                           if len(p) == HELLO_REPLY_PAYLOAD.size)
-            if self.wait(answered, 1.0):
-                for p in self.hello_replies:
-                    result, _, _, host_nonce, cnonce, _, _ = HELLO_REPLY_PAYLOAD.unpack(p)
-                    if host_nonce == nonce:
-                        if result != 0:
-                            raise ConnectionError(f"the controller refused the Hello (reason {result})")
-                        controller_nonce = cnonce
+            def replies() -> list[tuple]:
+                return [r for r in (HELLO_REPLY_PAYLOAD.unpack(p) for p in self.hello_replies
+                                    if len(p) == HELLO_REPLY_PAYLOAD.size) if r[3] == nonce]
+
+            def cookies() -> list[bytes]:
+                return [c for n, c in (HELLO_COOKIE_PAYLOAD.unpack(p) for p in self.hello_cookies
+                                       if len(p) == HELLO_COOKIE_PAYLOAD.size) if n == nonce and c != cookie]
+            if self.wait(lambda: bool(replies() or cookies()), 1.0):
+                for result, _, _, _, cnonce, _, _, _ in replies():
+                    if result != 0:
+                        raise Refused(f"the controller refused the Hello (reason {result})")
+                    controller_nonce = cnonce
+                if controller_nonce is None and cookies():
+                    cookie = cookies()[-1]      # valid for seconds: the next Hello goes at once
         self.keys = auth.session_keys(self.psk, nonce, controller_nonce, is_controller=False)
         self.tx_counter, self.rx_counter, self.last_ack, self.event_next, self.urgent_seq = 0, -1, NOTHING_ACKED, 0, 0
         if not self.probe(max(0.5, deadline - self.clock.now())):
@@ -347,7 +366,8 @@ def grammar(line: Line) -> list[Request]:
         _frame("Stop", URGENT, 0x21, (Bytes("extra", default_value=b""),), line),
         _frame("Hello", LINK, HELLO, (Byte("protocol_version", default_value=VERSION),
                                       BitField("schema_hash", default_value=SCHEMA.hash, width=64, endian="<"),
-                                      Bytes("host_nonce", default_value=bytes(range(16)), size=16)), line,
+                                      Bytes("host_nonce", default_value=bytes(range(16)), size=16),
+                                      Bytes("cookie", default_value=bytes(8), size=8)), line,
                handshake=True),
     ]
 
@@ -385,8 +405,10 @@ class _Monitor(BaseMonitor):
 
     def pre_send(self, target=None, fuzz_data_logger=None, session=None) -> None:
         if self.line.keys is None:
-            try:
-                self.line.connect(10.0)
+            try:        # each handshake bounded on the wall clock, tried again for CONNECT_S of the target's own time
+                retry_on_own_time(self.child, lambda: self.line.connect(CONNECT_S), CONNECT_S,
+                                  lambda exc: isinstance(exc, ConnectionError) and not isinstance(exc, Refused)
+                                  and not self.line.closed)
             except (ConnectionError, OSError) as exc:     # boofuzz would log it and go on: post_send raises it
                 self.no_session = f"{type(exc).__name__}: {exc}"
                 return
@@ -406,8 +428,9 @@ class _Monitor(BaseMonitor):
         if answered:
             self.answered += 1
         elif not line.closed:
-            self.probes += 1
-            answered = line.probe(self.probe_wait_s + on_the_wire_s)
+            self.probes += 1        # Pings for probe_wait_s of the target's own time: a busy machine is no crash
+            answered = self.child.wait_for(lambda seconds: line.probe(seconds) or line.closed,
+                                           self.probe_wait_s + on_the_wire_s) and not line.closed
         status = self.child.exit_status()
         if line.closed or status is not None or not answered:
             if status is None and line.closed:
@@ -417,7 +440,7 @@ class _Monitor(BaseMonitor):
                     status = None
             why = ("the simulator ended" if status is not None else
                    "the controller closed the line" if line.closed else
-                   f"no answer to the case nor to a Ping within {self.probe_wait_s:g} s")
+                   f"no answer to the case nor to a Ping within {self.probe_wait_s:g} s of its own time")
             self.dead = why + (f" ({status})" if status is not None else "")
             self.found_case = f"#{session.total_mutant_index} {session.current_test_case_name}"
             self.found_after = self.cases
