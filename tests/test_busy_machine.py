@@ -55,9 +55,9 @@ def test_a_session_of_arm_moves_on_a_busy_machine_ends_every_motion_done_without
     try:
         link = sim.ready("ASPOD-LINK ", timeout_s=120.0)
         url = link.split(" ", 1)[1]
-        # the connect is bounded by the run's own time: a 60 s wall-clock connect timeout once ended first, the sim
-        # at 0.085x real time beside a second test run and two more CPU hogs
-        done = run(ASPOD + ["teleop", url, "--connect-timeout", "900"], input=SCRIPT.encode(), env=env,
+        # the connect may take teleop's longest: a 60 s connect timeout once ended first, the sim at 0.085x real time
+        # beside a second test run and two more CPU hogs; the run is bounded by its own time
+        done = run(ASPOD + ["teleop", url, "--connect-timeout", "600"], input=SCRIPT.encode(), env=env,
                    timeout_s=900, peers=(sim.pid,))
     finally:
         _, err = sim.stop(signal.SIGTERM, timeout_s=60)
