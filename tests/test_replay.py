@@ -211,6 +211,18 @@ def test_a_replys_snapshot_is_judged_as_telemetry_is_within_the_window_of_its_up
     assert not slow.matches
 
 
+def test_a_lag_given_up_by_the_pacer_is_followed_at_the_worlds_recent_rate():
+    """tests/data/replay_lag_given_up.pcapng (--speed 1, the host killed, recorded beside two other runs of the
+    real-time tests and two CPU hogs): the world ran at 0.62-0.79x, so its lag passed the pacer's 0.5 s twice and
+    was given up (483 ms to 4 ms between two reports). Replay took such a stretch at the paced rate, losing the
+    half second of wall time the world had slipped each time, and its link timed out 107 ms after the recorded
+    one (`first divergence at 11.272 s: FaultReport`). The stretch now runs at the rate of the world's last
+    second as its report gives it (`rtf_recent`)."""
+    report = replay_file(Path(__file__).parent / "data" / "replay_lag_given_up.pcapng")
+    assert report.matches, report.describe()
+    assert report.events == 5
+
+
 def test_after_the_last_report_the_link_keeps_the_worlds_pace():
     """tests/data/replay_close_after_a_catching_up.pcapng (--speed 1, recorded beside the ones above) ends with a
     Close: the controller stops its telemetry, so the last lag it reports is that of uptime 7221 ms, and the world

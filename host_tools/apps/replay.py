@@ -590,14 +590,14 @@ class _LinkTrack:
             return None
         reports = d.name in ("Status", "TelemetryStatus") and d.message.rtf_recent > 0
         if self.by_lag and reports:
-            return self._point(d.message.uptime_ms / 1000.0, d.message.lag_ms / 1000.0)
+            return self._point(d.message.uptime_ms / 1000.0, d.message.lag_ms / 1000.0, d.message.rtf_recent)
         if self.by_heartbeats and d.name == "Heartbeat":
             return self._point(d.time_s, d.message.uptime_ms / 1000.0)
         if not (self.by_lag or self.by_heartbeats) and reports:
             return _Rate(d.time_s, 1.0 / d.message.rtf_recent)
         return None
 
-    def _point(self, world_s: float, value_s: float) -> Optional[_Rate]:
+    def _point(self, world_s: float, value_s: float, rtf: float = 0.0) -> Optional[_Rate]:
         last = self._last
         if last is not None and world_s <= last[0]:
             return None                         # no world time between (a frame resent, or out of order)
@@ -608,7 +608,9 @@ class _LinkTrack:
         if self.by_heartbeats:
             return _Rate(last[0], change) if change > 0 else None
         rate = self._per_world + change
-        return _Rate(last[0], rate if rate > 0 else self._per_world)
+        if rate <= 0:       # the lag given up (past the pacer's 0.5 s): the stretch ran as the world's last second
+            return _Rate(last[0], 1.0 / rtf if rtf > 0 else self._per_world)
+        return _Rate(last[0], rate)
 
     def finish(self) -> Optional[_Rate]:
         """After the last report (a paced world's): its pace. The last rate measured was that of the stretch
