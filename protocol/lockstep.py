@@ -265,11 +265,19 @@ class LockstepFollower(Clock):
 
     def stalled_s(self) -> float:
         """Seconds the plant has had to send its next tick and has not (0 while time is granted): the wall time spent
-        waiting for it, less what `judge` excuses."""
+        waiting for it, less what `judge` excuses. A tick the bus holds already ends the wait first: a controller
+        busy elsewhere, or blocked, when it came is late to read it, and the plant was not silent."""
+        self._take_delivered()
         waited_s = self.waited_s()
         if waited_s == 0.0 or self.judge is None:
             return waited_s
         return min(waited_s, self.judge.own_s(waited_s))
+
+    def _take_delivered(self) -> None:
+        """While waiting: see the frames the bus holds now, without blocking (held for the node's next poll)."""
+        for _ in range(MAX_HELD_FRAMES):
+            if self._waiting_since is None or not self.tap.wait(0.0):
+                return
 
     def timing(self) -> TimingReport:
         wall_now = self.wall.now()

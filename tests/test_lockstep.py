@@ -238,6 +238,23 @@ def test_the_controllers_own_start_up_is_not_the_plants_silence():
     assert not pair.controller.supervisor.faults
 
 
+def test_a_tick_the_bus_holds_is_not_the_plants_silence_however_late_the_controller_looks():
+    """CI, beside a busy core: the plant sent its tick, but the controller, busy elsewhere or blocked, had not read it
+    when its watch looked, and faulted the plant HAL_STALE for a silence that was its own. The watch first reads
+    what the bus holds."""
+    pair = Pair()
+    assert pair.run_until(lambda: pair.controller.supervisor.state is ControllerState.IDLE)
+    waits, tick = pair.follower.waits, pair.node.tick     # the controller has answered, and waits for the next tick
+    for _ in range(2):                                # the plant's turn: its next tick is on the bus ...
+        pair.plant.run_due()
+        pair.plant.clock.advance(pair.plant.next_wake_s(), pair.wall.now())
+    assert pair.node.tick == tick + 1
+    pair.wall.advance_by(3 * pair.controller.params["lockstep_wait_s"])   # ... unread for three limits
+    pair.link.run_due()                               # the watch looks before the controller's loop reads it
+    assert not pair.controller.supervisor.faults
+    assert pair.follower.stalled_s() == 0.0 and pair.follower.waits == waits
+
+
 class KeptFromRunning:
     """A WaitJudge for a plant process that waits on a run queue for `kept_s` of every wait, or has gone."""
 

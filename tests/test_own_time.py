@@ -59,7 +59,8 @@ def test_a_sleeping_process_is_excused_only_its_waits_for_a_cpu(proc):
     assert (look.wall_s, look.own_s, look.gone) == (5.0, pytest.approx(1.5), None)
 
 
-def test_a_runnable_process_is_excused_all_but_its_cpu_time_since_its_wait_may_not_be_counted_yet(proc):
+def test_a_runnable_or_uninterruptible_process_is_excused_all_but_its_cpu_time(proc):
+    """Runnable, its wait may not be counted yet; in state D it waits on the machine (a page from disk)."""
     clock = SimClock()
     proc.set(7, "S", cpu_s=1.0, waited_s=2.0)
     own = OwnTime(7, clock, proc=proc.root)
@@ -68,6 +69,8 @@ def test_a_runnable_process_is_excused_all_but_its_cpu_time_since_its_wait_may_n
     assert own.look().own_s == pytest.approx(0.1)
     proc.set(7, "R", cpu_s=4.5, waited_s=2.0)          # busy, not kept from running: a loop that never ends
     assert own.look().own_s == pytest.approx(3.5)
+    proc.set(7, "D", cpu_s=1.1, waited_s=2.0)          # in the kernel's uninterruptible sleep (a page from disk)
+    assert own.look().own_s == pytest.approx(0.1)
 
 
 def test_a_stopped_ended_or_replaced_process_is_excused_nothing(proc):

@@ -6,8 +6,9 @@ live process waited on a run queue for seconds. So a wait counts the process's o
 the wait began, less the time the process was runnable but waiting for a CPU (the kernel's schedstat run_delay,
 as host_tools/fuzz/hangs.py counts an input's). The kernel adds a wait to run_delay only once the process gets
 its CPU, so a process found runnable at a look (state R) may be in the middle of one: its own time is then its
-CPU time alone. Either way a wait is judged late, by at most the time the process was kept from running, never
-early. A process stopped (SIGSTOP, state T) or gone has no excuse: `Look.gone` says which.
+CPU time alone, as it is for one found in the kernel's uninterruptible sleep (state D: a page read from disk,
+memory reclaimed), which waits on the machine too. Either way a wait is judged late, by at most the time the
+process was kept from running, never early. A process stopped (SIGSTOP, state T) or gone has no excuse: `Look.gone` says which.
 
 Where the kernel keeps no run_delay (no /proc/PID/schedstat), or /proc cannot be read, the whole wall time is
 the process's own, as it was before.
@@ -170,7 +171,9 @@ def _excuse(base: Sample, seen: Sample, wall_s: float) -> float:
     """How much of `wall_s` one process was kept from running, from its counters then (`base`) and now (`seen`)."""
     if seen.started != base.started or seen.waited_s is None or base.waited_s is None:
         return 0.0
-    if seen.state == "R":                   # runnable: perhaps waiting now, a wait run_delay does not hold yet
+    if seen.state in ("R", "D"):
+        # runnable: perhaps waiting for a CPU now, a wait run_delay does not hold yet; or in the kernel's
+        # uninterruptible sleep (a page read from disk, memory reclaimed): waiting on the machine either way
         return min(wall_s, max(0.0, wall_s - (seen.cpu_s - base.cpu_s)))
     return min(wall_s, max(0.0, seen.waited_s - base.waited_s))
 
