@@ -369,12 +369,16 @@ class Controller:
     def _hal_step(self, now: float) -> float:
         """Inputs every period; outputs at the DBC's declared cycle, and at once when they change."""
         self.hal.poll(now)
+        self.send_outputs(now)
+        return now + self.config.hal_period_s
+
+    def send_outputs(self, now: float) -> None:
+        """CTRL_OUTPUTS if due (the `hal` task's second half; the world's fast loop calls it for its last tick)."""
         enabled = self.supervisor.outputs_allowed
         if enabled != self._outputs_sent or now >= self._outputs_due_s:
             self.hal.send_outputs(enabled=enabled, brake=not enabled)
             self._outputs_sent = enabled
             self._outputs_due_s = now + self._outputs_period_s
-        return now + self.config.hal_period_s
 
     def _hal_input_age(self, now: float) -> Measured:
         updated = self.hal.inputs.updated_s

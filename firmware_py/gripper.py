@@ -20,10 +20,10 @@ from firmware_py.arm_config import GripperModel
 from firmware_py.axis import Refusal
 from protocol.states import AxisMode, MotionOutcome
 from firmware_py.estimator import unwrap_delta
+from firmware_py.gripper_tick import (AT_CLOSED_SWITCH, AT_OPEN_SWITCH, CLOSE, GRIPPED, NO_COUNT, NONE, OPEN,
+                                      TIMED_OUT, moving_tick, track)
 
 GRIPPER_TIMEOUT = 1 << 0          # the gripper's one fault bit (mapped to Fault.GRIPPER)
-_CONFIRM_S = 0.03                 # jaws still this long at grip current: gripped
-_OPEN, _CLOSE = 1, -1
 
 
 class Gripper:
@@ -45,8 +45,8 @@ class Gripper:
         self.timeout_s = 5.0
         self._direction = 0
         self._started_s = 0.0
-        self._still_since: Optional[float] = None
-        self._last_count: Optional[int] = None
+        self._still_since = NONE         # the jaws still at grip current since (NONE: not)
+        self._last_count = NO_COUNT      # the count at the last tick of a move
         self._ref_count = 0            # count at which the opening was `_ref_m`
         self._ref_m = 0.0
         self.opening_m = 0.0
@@ -64,10 +64,10 @@ class Gripper:
         return Refusal.OK, ""
 
     def open(self, now: float) -> tuple[Refusal, str]:
-        return self._start(_OPEN, now)
+        return self._start(OPEN, now)
 
     def close(self, now: float) -> tuple[Refusal, str]:
-        return self._start(_CLOSE, now)
+        return self._start(CLOSE, now)
 
     def stop(self, now: float) -> None:
         if self.mode is AxisMode.MOVING:
@@ -103,37 +103,31 @@ class Gripper:
         if self.mode is not AxisMode.MOVING:
             self.duty = 0.0
             return 0.0
-        if self._direction == _OPEN:
-            if open_switch:
-                self._ref_count, self._ref_m = count, self.model.open_switch_m
-                self.opening_m = self._ref_m
-                self.homed = True
-                self._finish(MotionOutcome.DONE)
-                return 0.0
-        else:
-            if closed_switch:
-                self._finish(MotionOutcome.DONE)
-                return 0.0
-            moving = self._last_count is None or count != self._last_count
-            if abs(i_a) >= self.grip_current_a and not moving:
-                if self._still_since is None:
-                    self._still_since = now
-                elif now - self._still_since >= _CONFIRM_S:
-                    self.gripped = True
-                    self._finish(MotionOutcome.DONE)
-                    return self.duty
-            else:
-                self._still_since = None
-        self._last_count = count
-        if now - self._started_s > self.timeout_s:
+        ended, self._still_since, self._last_count, duty = moving_tick(
+            now, count, i_a, closed_switch, open_switch, self._direction, self._started_s, self._still_since,
+            self._last_count, self.grip_current_a, self.grip_duty, self.timeout_s)
+        if ended == AT_OPEN_SWITCH:
+            self._ref_count, self._ref_m = count, self.model.open_switch_m
+            self.opening_m = self._ref_m
+            self.homed = True
+            self._finish(MotionOutcome.DONE)
+            return 0.0
+        if ended == AT_CLOSED_SWITCH:
+            self._finish(MotionOutcome.DONE)
+            return 0.0
+        if ended == GRIPPED:
+            self.gripped = True
+            self._finish(MotionOutcome.DONE)
+            return self.duty
+        if ended == TIMED_OUT:
             self.faults |= GRIPPER_TIMEOUT
             self.outcome = MotionOutcome.FAULT
             self.mode = AxisMode.FAULT
             self.safe()
             self._on_fault(GRIPPER_TIMEOUT, now)
             return 0.0
-        self.duty = self._direction * self.grip_duty
-        return self.duty
+        self.duty = duty
+        return duty
 
     # ---- helpers ----
     def _start(self, direction: int, now: float) -> tuple[Refusal, str]:
@@ -144,8 +138,8 @@ class Gripper:
         self.mode = AxisMode.MOVING
         self._direction = direction
         self._started_s = now
-        self._still_since = None
-        self._last_count = None
+        self._still_since = NONE
+        self._last_count = NO_COUNT
         self.gripped = False
         self.motion_id += 1
         self.outcome = MotionOutcome.RUNNING
@@ -158,11 +152,11 @@ class Gripper:
         self.duty = -self.hold_duty if self.gripped else 0.0
 
     def _track(self, now: float, count: int) -> None:
-        """Opening from counts (relative to the last open-switch reference), velocity over 20 ms."""
-        # counts are 32-bit and wrap: always take differences modulo 2**32
-        self.opening_m = self._ref_m + unwrap_delta(count, self._ref_count) * self._m_per_count
+        """Opening from counts (relative to the last open-switch reference), velocity over 20 ms (`track`)."""
         if self._vel_count is None:
+            self.opening_m = self._ref_m + unwrap_delta(count, self._ref_count) * self._m_per_count
             self._vel_count, self._vel_s = count, now
-        elif now - self._vel_s >= 0.02:
-            self.vel_m_s = unwrap_delta(count, self._vel_count) * self._m_per_count / (now - self._vel_s)
-            self._vel_count, self._vel_s = count, now
+            return
+        self.opening_m, self.vel_m_s, self._vel_count, self._vel_s = track(
+            now, count, self._ref_count, self._ref_m, self._m_per_count, self.vel_m_s, self._vel_count, self._vel_s)
+

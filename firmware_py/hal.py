@@ -80,6 +80,13 @@ class HalInputs:
     pos_s: Optional[float] = None      # `now` of the last TRACKER_POS
 
 
+def quantized_duty(duty: float, step: float) -> float:
+    """`duty` saturated at -1..1 and rounded to a whole number of `step`s (half to even), as MOTOR_CMD's packing
+    rounds it: the one implementation (`ControllerHal.send_motor_command`, the world's fast loop). ValueError or
+    OverflowError for a duty that is not a number."""
+    return round((-1.0 if duty < -1.0 else 1.0 if duty > 1.0 else duty) / step) * step
+
+
 class ControllerHal(HalEndpoint):
     """Controller-side HAL: `poll(now)` for inputs, `send_outputs(...)` for outputs."""
 
@@ -167,7 +174,7 @@ class ControllerHal(HalEndpoint):
         not a number takes the layout's checked path, which refuses it as before."""
         step = self.duty_step
         try:
-            values = [round((-1.0 if d < -1.0 else 1.0 if d > 1.0 else d) / step) * step for d in duty]
+            values = [quantized_duty(d, step) for d in duty]
         except (ValueError, OverflowError):
             self.send_frame(self._motor_cmd, [-1.0 if d < -1.0 else 1.0 if d > 1.0 else d for d in duty]
                             + [1 if e else 0 for e in enable] + [1 if b else 0 for b in brake] + [self.motor_alive])

@@ -111,20 +111,27 @@ class PlantNode(HalEndpoint):
         counts, currents, switches = plant.readouts()
         lo, hi = self._current_range_a
         self.send_frame(self._motor_fb, (wire_tick, *_wrapped_to_int32(counts), *_saturated(currents, lo, hi)))
-        if switches != self._last_switches or tick - self._digital_tick >= self.digital_every_n:
-            if self.send_frame(self._digital, (*switches[0], *switches[1], *switches[2], wire_tick)):
-                self._last_switches = switches
-                self._digital_tick = tick
-        if tick % self.analog_every_n == 0:
-            self.send_frame(self._analog, (_saturate(plant.supply_v, self._supply_range_v),
-                                      _saturate(plant.temp_c, self._temp_range_c)))
         if self.tracker:
             self._tracker_dt += dt_s
-            if tick % self.tracker_every_n == self.tracker_phase:
-                self._step_tracker(now)
+        self.send_slow(tick, now, switches)
         self.send_frame(self._sync, (wire_tick, int(self.lockstep), self._period_us))
         self.tick = tick + 1
         return now + self.period_s
+
+    def send_slow(self, tick: int, now: float, switches: tuple) -> None:
+        """Tick `tick`'s frames but MOTOR_FB and PLANT_SYNC: DIGITAL_IN on a change of the `switches` or every
+        `digital_every_n` ticks, ANALOG_IN every `analog_every_n`, the tracker's step and frames at its phase. (The
+        world's fast loop sends them for the last tick of its ticks: host_tools/worlds/fast_loop.py.)"""
+        if switches != self._last_switches or tick - self._digital_tick >= self.digital_every_n:
+            if self.send_frame(self._digital, (*switches[0], *switches[1], *switches[2], tick & 0xFFFF_FFFF)):
+                self._last_switches = switches
+                self._digital_tick = tick
+        if tick % self.analog_every_n == 0:
+            plant = self.plant
+            self.send_frame(self._analog, (_saturate(plant.supply_v, self._supply_range_v),
+                                           _saturate(plant.temp_c, self._temp_range_c)))
+        if self.tracker and tick % self.tracker_every_n == self.tracker_phase:
+            self._step_tracker(now)
 
     def _step_length(self, now: float) -> float:
         """The time since the last step, to the nanosecond, within [0, max_dt_s] (0 at the first)."""

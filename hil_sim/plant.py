@@ -243,26 +243,18 @@ class Plant:
         outputs_enabled = self.outputs_enabled = bool(outputs_enabled)
         brake = self.brake = bool(brake)
         bridges_a, squares = self._arm_tick.step(dt_s, outputs_enabled, brake, command, self.supply_true_v)
-        electronics_a = p.idle_current_a + (p.enabled_current_a if outputs_enabled else 0.0)
-        self.current_a = electronics_a + bridges_a
-        self.supply_true_v = max(0.0, self.supply_emf_v - self.current_a * p.supply_source_ohm)
-        # Heat left in the box: electronics, and the bridges' conduction losses (i^2 R per channel).
-        heat_w = self.supply_true_v * electronics_a + p.drive_on_resistance_ohm * squares
-        # First-order lag toward ambient + P * Rth, integrated exactly for a step with constant input
-        # (stable for any dt_s).
-        target_c = self.ambient_c + heat_w * p.thermal_resistance_c_per_w
         if dt_s != self._decay_dt_s:      # the same step length every tick: the same factor
             self._decay_dt_s, self._decay = dt_s, math.exp(-dt_s / p.thermal_time_constant_s)
-        decay = self._decay
-        self.temp_true_c = target_c + (self.temp_true_c - target_c) * decay
         at = self._noise_at
         if at >= len(self._noise):
             # Drawn in batches: the same sequence of deviates as two per step, for less overhead.
             self._noise = self._rng.standard_normal(_NOISE_BATCH).tolist()
             at = 0
         self._noise_at = at + 2
-        self._supply_v = self.supply_true_v + self._noise[at] * p.supply_noise_v
-        self._temp_c = self.temp_true_c + self._noise[at + 1] * p.temp_noise_c
+        self.current_a, self.supply_true_v, self.temp_true_c, self._supply_v, self._temp_c = electronics_step(
+            bridges_a, squares, outputs_enabled, self.temp_true_c, self._decay, self._noise[at], self._noise[at + 1],
+            self.supply_emf_v, self.ambient_c, p.idle_current_a, p.enabled_current_a, p.supply_source_ohm,
+            p.drive_on_resistance_ohm, p.thermal_resistance_c_per_w, p.supply_noise_v, p.temp_noise_c)
 
     # -- what the last step applied --------------------------------------------------------------
     @property
@@ -313,6 +305,29 @@ class Plant:
     def readouts(self) -> tuple[list[int], list[float], tuple[tuple[bool, ...], tuple[bool, ...], tuple[bool, ...]]]:
         """(`encoder_counts`, `currents_a`, `switches()`) at one go: what the node sends each tick."""
         return self._arm_tick.readouts()
+
+
+def electronics_step(bridges_a: float, squares: float, outputs_enabled: bool, temp_true_c: float, decay: float,
+                     supply_noise: float, temp_noise: float, supply_emf_v: float, ambient_c: float,
+                     idle_current_a: float, enabled_current_a: float, supply_source_ohm: float,
+                     drive_on_resistance_ohm: float, thermal_resistance_c_per_w: float, supply_noise_v: float,
+                     temp_noise_c: float) -> tuple[float, float, float, float, float]:
+    """A tick of the box's electronics, the one implementation (`Plant.tick`, and the world's fast loop,
+    host_tools/worlds/fast_loop.py), after the arm's tick: the supply current (the electronics' and the bridges'
+    `bridges_a`), the supply's voltage at the controller behind its source resistance, the box's temperature (a
+    first-order lag toward ambient plus the heat times the thermal resistance, integrated exactly for a step with
+    constant input: `decay` is exp(-dt / time constant)), and the two sensors with their noise (`supply_noise`,
+    `temp_noise`: standard normal deviates). Returns (current_a, supply_true_v, temp_true_c, supply_v, temp_c)."""
+    electronics_a = idle_current_a + (enabled_current_a if outputs_enabled else 0.0)
+    current_a = electronics_a + bridges_a
+    drop = supply_emf_v - current_a * supply_source_ohm
+    supply_true_v = drop if drop > 0.0 else 0.0          # max(0.0, drop), NaN as 0.0
+    # Heat left in the box: electronics, and the bridges' conduction losses (i^2 R per channel).
+    heat_w = supply_true_v * electronics_a + drive_on_resistance_ohm * squares
+    target_c = ambient_c + heat_w * thermal_resistance_c_per_w
+    temp_true_c = target_c + (temp_true_c - target_c) * decay
+    return (current_a, supply_true_v, temp_true_c, supply_true_v + supply_noise * supply_noise_v,
+            temp_true_c + temp_noise * temp_noise_c)
 
 
 def _spawn(rng: np.random.Generator) -> np.random.Generator:
