@@ -27,7 +27,10 @@ This package sits below every other (tests/test_code_rules.py) and imports none 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import inspect
 import os
+from pathlib import Path
 from typing import Callable, Iterator, Optional, Sequence, TypeVar
 
 ENVIRONMENT_SWITCH = "ASPOD_COMPILED"
@@ -61,9 +64,8 @@ def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = (), cac
     """`function` compiled by numba (`njit(cache=cache)`, no fastmath); RuntimeError naming `what` without numba.
 
     `helpers`: the plain functions `function` calls, compiled into it where it calls them and left
-    as they are for Python callers (numba's `register_jitable`). Keep them in `function`'s file:
-    numba's cache is refreshed when that file changes, not when another one does (`cache=False`
-    for a function whose helpers live elsewhere: compiled in every process).
+    as they are for Python callers (numba's `register_jitable`). numba refreshes its disk cache when
+    `function`'s own file changes; helpers from other files are added to that (`_stamp_with`).
     """
     try:
         import numba
@@ -73,7 +75,29 @@ def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = (), cac
                            "pip install 'aspod[compiled]' (or numba)") from exc
     for helper in helpers:
         register_jitable(helper)
-    return numba.njit(cache=cache)(function)
+    compiled = numba.njit(cache=cache)(function)
+    others = sorted({inspect.getfile(helper) for helper in helpers} - {inspect.getfile(function)})
+    if cache and others:
+        _stamp_with(compiled, others)
+    return compiled
+
+
+def _stamp_with(compiled, files: Sequence[str]) -> None:
+    """Make `compiled`'s disk cache stale when any of `files` (its helpers' sources) changes, not only its own file.
+
+    numba keys a cached function on its own source file's stamp (`IndexDataCacheFile._source_stamp`, written with
+    the code and compared on loading): the helpers compiled into it from other files would be loaded stale after an
+    edit there. Their contents' digest joins that stamp. Where numba keeps it elsewhere (another version), caching
+    is turned off for `compiled`: it compiles in every process, never stale."""
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(Path(path).read_bytes())
+    cache_file = getattr(getattr(compiled, "_cache", None), "_cache_file", None)
+    if cache_file is None or not hasattr(cache_file, "_source_stamp"):
+        from numba.core.caching import NullCache
+        compiled._cache = NullCache()
+        return
+    cache_file._source_stamp = (cache_file._source_stamp, digest.hexdigest())
 
 
 __all__ = ["ENVIRONMENT_SWITCH", "compile_kernel", "compiled_by_default", "switched"]
