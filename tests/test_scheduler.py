@@ -164,3 +164,59 @@ def test_an_untimed_run_is_recorded_as_a_run_that_took_no_time():
         untimed.record_untimed(late_s, overrun)
     assert untimed == timed and untimed._hist == timed._hist and untimed.exec_p99_s == timed.exec_p99_s
     assert (untimed.runs, untimed.overruns, untimed.late_max_s) == (3, 1, 0.002)
+
+
+def _group_world(ahead: bool) -> tuple[Scheduler, list]:
+    """Three 1 ms tasks run back to back (as the lock-step world's arm, plant and hal) among others at odd times;
+    with `ahead`, a runner that runs them itself, some periods at a time."""
+    clock = SimClock()
+    scheduler = Scheduler(clock, stopwatch=None)
+    log: list = []
+
+    def task(name, every=0.0):
+        def fn(now):
+            log.append((name, now))
+            return now + every          # (a periodic task: only None, which retires it, would matter)
+        return fn
+    scheduler.add("arm", task("arm"), period_s=0.001, priority=0)
+    scheduler.add("plant", task("plant"), period_s=0.001)
+    scheduler.add("hal", task("hal"), period_s=0.001)
+    scheduler.add("slow", task("slow", 0.0073), 0.0021)
+    scheduler.add("grid", task("grid", 0.01), 0.01)
+    scheduler.add("tracker", task("tracker", 0.01), 0.005, priority=5)
+    if ahead:
+        fns = [scheduler.tasks[name].fn for name in ("arm", "plant", "hal")]
+        offered = []
+
+        def runner(origin, period, n, ticks):
+            offered.append(ticks)
+            ran = min(ticks, 1 + len(offered) % 4)        # some of what is offered, as the fast loop stops early
+            for k in range(ran):
+                for fn in fns:
+                    fn(origin + (n + k) * period)
+            return ran
+        scheduler.run_ahead(("arm", "plant", "hal"), runner)
+    return scheduler, log
+
+
+def test_run_ahead_runs_the_group_as_run_due_would_and_leaves_the_same_statistics_and_heap():
+    plain, plain_log = _group_world(False)
+    ahead, ahead_log = _group_world(True)
+    for scheduler in (plain, ahead):
+        scheduler.run_until(0.5)
+    assert ahead.ticks_ahead > 250                      # most of the 500 periods
+    assert ahead_log == plain_log and len(plain_log) > 1500
+    assert {n: (t.stats.runs, t.stats.late_max_s, t.wake_s, t.grid_n) for n, t in ahead.tasks.items()} == \
+        {n: (t.stats.runs, t.stats.late_max_s, t.wake_s, t.grid_n) for n, t in plain.tasks.items()}
+    assert ahead.clock.now() == plain.clock.now() == 0.5
+    for scheduler in (plain, ahead):                    # and on from there, tick by tick, the same
+        scheduler.run_ahead((), None)
+        scheduler.run_until(0.6)
+    assert ahead_log == plain_log
+
+
+def test_run_ahead_is_for_a_scheduler_without_a_stopwatch():
+    scheduler = Scheduler(SimClock())
+    scheduler.add("arm", lambda now: now, period_s=0.001)
+    with pytest.raises(ValueError, match="stopwatch"):
+        scheduler.run_ahead(("arm",), lambda *args: 0)

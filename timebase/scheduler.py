@@ -13,6 +13,11 @@ is measured with a separate stopwatch (the wall clock's by default, injectable),
 all (`stopwatch=None`: on a simulated clock a task takes no time, so there is nothing to
 measure and a lock-step run stays byte-for-byte deterministic); lateness against the
 requested wake time is counted as an overrun when it exceeds the task's tolerance.
+
+`run_ahead(names, runner)`: periodic tasks that run back to back at every period (the lock-step
+world's 1 kHz loops) may be run for many periods at once by one call that does what running them
+would, while nothing else is due (`Scheduler._run_ahead`; docs/Code_Overview.md, "The fast loop
+between events").
 """
 from __future__ import annotations
 
@@ -20,13 +25,16 @@ import itertools
 import math
 from heapq import heappop, heappush
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, Optional, Sequence
 
 from timebase import Clock, RealClock
 
 TaskFn = Callable[[float], Optional[float]]
+# `run_ahead`'s runner: (grid origin, period, the first tick's grid index, ticks at most) -> ticks it ran
+AheadFn = Callable[[float, float, int, int], int]
 
 _HIST_BUCKETS = 32  # log2 buckets of microseconds: bucket b holds [2**(b-1), 2**b) us
+AHEAD_MAX_TICKS = 1000   # periods `run_until` offers `run_ahead`'s runner at a time
 
 
 @dataclass
@@ -129,6 +137,8 @@ class Scheduler:
         self._heap: list[tuple[float, int, int, Task]] = []
         self._order = itertools.count()
         self.tasks: dict[str, Task] = {}
+        self._ahead: Optional[tuple[tuple[Task, ...], AheadFn]] = None
+        self.ticks_ahead = 0        # periods `run_ahead`'s runner ran (each runs every task of its group)
 
     def add(self, name: str, fn: TaskFn, first_wake_s: Optional[float] = None,
             tolerance_s: float = 0.002, *, period_s: Optional[float] = None, priority: int = 10) -> Task:
@@ -229,6 +239,19 @@ class Scheduler:
                     heappush(heap, (next_wake, task.priority, next(self._order), task))
         return ran
 
+    def run_ahead(self, names: Sequence[str], runner: AheadFn) -> None:
+        """Let `run_until` hand the periodic tasks `names` to `runner` for as many periods as come before anything
+        else is due (`_run_ahead`). `runner(origin_s, period_s, n, ticks)` runs them, in this order, at the times
+        `origin_s + k * period_s` for k from n, as running each in turn would, for at most `ticks` periods or until it
+        meets something it leaves to them (0: none); returns how many it ran. For a simulated clock without a
+        stopwatch (a task takes no time); None `names` ends it."""
+        if not names:
+            self._ahead = None
+            return
+        if self._stopwatch is not None:
+            raise ValueError("run_ahead: only without a stopwatch (on a simulated clock a task takes no time)")
+        self._ahead = (tuple(self.tasks[name] for name in names), runner)
+
     def run_until(self, end_s: float) -> None:
         """Run tasks until the clock reaches `end_s` (jumps ahead on a SimClock)."""
         while True:
@@ -239,6 +262,56 @@ class Scheduler:
                 self.run_due()
                 return
             self.clock.sleep_until(wake)
+            if self._ahead is not None and self._stopwatch is None:   # (a bench may set a stopwatch later)
+                self._run_ahead(wake, end_s)
+
+    def _run_ahead(self, wake: float, end_s: float) -> None:
+        """The group's runner for the periods from `wake` on, up to `end_s`, before any other task is due.
+
+        Only when the group's tasks are the heap's first entries, at `wake`, in the group's order, one after the
+        other (so nothing runs between them), on one grid; the periods offered stop before the first other task's
+        wake time (due at the same time, it might run between them). Afterwards everything is as if each had run
+        as `run_due` runs it: statistics (no stopwatch: runs, none late), grids, and heap entries pushed in the
+        group's order with fresh order numbers (the last tick's pushes), the clock at the last period run."""
+        group, runner = self._ahead
+        heap = self._heap
+        first = group[0]
+        origin, period, n = first.grid_origin_s, first.period_s, first.grid_n
+        if period is None or origin + n * period != wake:
+            return
+        popped = []
+        for task in group:
+            while heap and heap[0][0] != heap[0][3].wake_s:
+                heappop(heap)       # superseded by a later push
+            if (not heap or heap[0][3] is not task or heap[0][0] != wake or task.period_s != period
+                    or task.grid_origin_s != origin or task.grid_n != n):
+                break
+            popped.append(heappop(heap))
+        if len(popped) == len(group):
+            while heap and heap[0][0] != heap[0][3].wake_s:
+                heappop(heap)
+            other = heap[0][0] if heap else math.inf
+            ticks = 0
+            while ticks < AHEAD_MAX_TICKS:
+                at = origin + (n + ticks) * period
+                if at > end_s or at >= other:
+                    break
+                ticks += 1
+            ran = runner(origin, period, n, ticks) if ticks else 0
+            if ran:
+                n += ran
+                for task in group:
+                    stats = task.stats
+                    stats.runs += ran
+                    stats._hist[0] += ran
+                    task.grid_n = n
+                    task.wake_s = origin + n * period
+                    heappush(heap, (task.wake_s, task.priority, next(self._order), task))
+                self.ticks_ahead += ran
+                self.clock.sleep_until(origin + (n - 1) * period)
+                return
+        for entry in popped:
+            heappush(heap, entry)   # as they were: `run_due` runs them
 
     def run_forever(self, should_stop: Callable[[], bool] = lambda: False) -> None:
         while not should_stop():
