@@ -78,9 +78,14 @@ class PickAndPlace:
                       accept: frozenset = frozenset({MotionOutcome.DONE})) -> dict[str, str]:
         """Wait for the MotionDone of each (axis -> motion_id); fail unless every one ends as `accept` says."""
         done: dict[int, object] = {}
+        events = self.bench.events
+        seen = 0            # the events looked at already: the predicate runs every tick, the list only grows
 
         def finished() -> bool:
-            for event in self.bench.events:
+            nonlocal seen
+            while seen < len(events):
+                event = events[seen]
+                seen += 1
                 if event.spec.name == "MotionDone" and started.get(event.axis) == event.motion_id:
                     done[event.axis] = event
             return len(done) == len(started) or self.bench.controller.supervisor.in_safe_state
