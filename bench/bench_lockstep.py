@@ -29,6 +29,9 @@ done in it):
   installed; this one runs the same functions as plain Python. Its final joint angles are
   compared with the first row's, to the bit. (Without numba there is no such row: the first row is
   plain Python, and the report says so.)
+* **the same world, compiled, tick by tick**: the first row without the fast loop
+  (host_tools/worlds/fast_loop.py): its three 1 kHz tasks run a tick at a time, as the plain world's
+  do. Its final joint angles are compared with the first row's, to the bit.
 * **world, holding**: the same world, connected and enabled, no motion commands (the loops
   hold every joint where it is; the control box stays off).
 * **world, all moving, timed per task**: the first row again, with the scheduler's stopwatch
@@ -139,11 +142,11 @@ class WorldRow(Row):
     """A LockstepBench, connected, telemetry at 10 Hz, enabled; moving or holding."""
 
     def __init__(self, label: str, moving: bool, timed_tasks: bool, seed: int = SEED,
-                 compiled: Optional[bool] = None) -> None:
+                 compiled: Optional[bool] = None, fast_loop: bool = True) -> None:
         self.label = label
         self.moving = moving
         with kernels.switched(compiled):      # None: as the environment says (a child world's parent sets it)
-            self.bench = LockstepBench(seed=seed)
+            self.bench = LockstepBench(seed=seed, fast_loop=fast_loop)
         self.handles: list = []
         self.segments = 0
         self.not_driven: list[str] = []      # segment ends at which some channel was not driven
@@ -452,6 +455,7 @@ class LockstepResults:
     same_motion: Optional[bool] = None     # the timed world moved exactly as the main one
     same_as_before_35: Optional[bool] = None   # the main world ended exactly where the code before issue 35 did
     same_as_plain: Optional[bool] = None   # the compiled kernels' world ended exactly where the plain one did
+    same_as_tick_by_tick: Optional[bool] = None   # ... and where the compiled one without the fast loop did
     duration_s: float = 0.0
     rounds: int = 0
     hogs: int = 0                          # processes spinning on a core each during the run
@@ -473,6 +477,7 @@ class LockstepResults:
 COMPILED = importlib.util.find_spec("numba") is not None
 MAIN_LABEL = "world, all 8 channels moving, telemetry 10 Hz"
 PLAIN_LABEL = "the same world, kernels as plain Python"
+TICK_BY_TICK_LABEL = "the same world, compiled, tick by tick (no fast loop)"
 LIMIT_LABEL = "limit: the 2 kernels, all ticks in 1 call"
 PLAIN_LIMIT_LABEL = "limit, the kernels as plain Python"
 
@@ -492,8 +497,10 @@ def all_rows() -> list[tuple[str, type | object]]:
         (PlantRow.DRIVEN_LABEL, lambda: PlantRow(driven=True, compiled=COMPILED)),
         (BareRow.label, BareRow),
     ]
-    if COMPILED:       # what the kernels buy: the main world with them as plain Python
+    if COMPILED:       # what the kernels buy: the main world with them as plain Python, and without the fast loop
         rows.insert(2, (PLAIN_LABEL, lambda: WorldRow(PLAIN_LABEL, moving=True, timed_tasks=False, compiled=False)))
+        rows.insert(3, (TICK_BY_TICK_LABEL, lambda: WorldRow(TICK_BY_TICK_LABEL, moving=True, timed_tasks=False,
+                                                             compiled=True, fast_loop=False)))
     rows.insert(0, (LIMIT_LABEL, lambda: LimitRow(LIMIT_LABEL, compiled=COMPILED)))
     if COMPILED:
         rows.insert(1, (PLAIN_LIMIT_LABEL, lambda: LimitRow(PLAIN_LIMIT_LABEL, compiled=False)))
@@ -547,6 +554,7 @@ def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optiona
         by_label = {r.label: row for r, row in zip(out.rows, rows)}
         main, timed = by_label.get(MAIN_LABEL), by_label.get("world, all moving, timed per task")
         plain = by_label.get(PLAIN_LABEL)
+        tick_by_tick = by_label.get(TICK_BY_TICK_LABEL)
         before_35 = by_label.get(BEFORE_35_LABEL)
         if isinstance(timed, WorldRow) and not out.row(timed.label).error:
             out.split = timed.task_split()
@@ -558,6 +566,9 @@ def run(quick: bool = False, duration_s: Optional[float] = None, rounds: Optiona
                 out.same_motion = angles == [float(x).hex() for x in timed.bench.world.plant.arm.pos_rad]
             if isinstance(plain, WorldRow):
                 out.same_as_plain = angles == [float(x).hex() for x in plain.bench.world.plant.arm.pos_rad]
+            if isinstance(tick_by_tick, WorldRow):
+                out.same_as_tick_by_tick = angles == [float(x).hex()
+                                                      for x in tick_by_tick.bench.world.plant.arm.pos_rad]
             if isinstance(before_35, BeforeRow) and before_35.result is not None and before_35.result["pos_rad"]:
                 out.same_as_before_35 = angles == before_35.result["pos_rad"]
     finally:
@@ -673,6 +684,10 @@ def report(res: LockstepResults) -> str:
                 f"plain Python ({plain.x_real_time:.1f}x)"))
         elif not COMPILED:
             lines.append("  numba is not installed: the kernels ran as plain Python (pip install 'aspod[compiled]')")
+        if TICK_BY_TICK_LABEL in labels:
+            lines += _beside(res.row(TICK_BY_TICK_LABEL), res.same_as_tick_by_tick, "the tick-by-tick world's",
+                             lambda tick: (f"  the fast loop (1 kHz tasks many ticks a call): {x / tick.x_real_time:.2f} "
+                                           f"times the compiled world run tick by tick ({tick.x_real_time:.1f}x)"))
         if PlantRow.IDLE_LABEL in labels and PlantRow.DRIVEN_LABEL in labels:
             idle, driven = res.row(PlantRow.IDLE_LABEL), res.row(PlantRow.DRIVEN_LABEL)
         else:

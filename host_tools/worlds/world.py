@@ -25,6 +25,7 @@ from host_tools.sessions.capture import CaptureWriter
 from host_tools.sessions.impairment import ImpairedLine, ImpairedLink, Impairment
 from host_tools.worlds import plant_actions
 from host_tools.worlds.can_log import HalBusLog
+from host_tools.worlds.fast_loop import FastLoop
 from host_tools.worlds.ports import BufferPort, RecordedPort
 from hil_sim.plant import PlantParams
 from protocol.auth import new_nonce
@@ -58,13 +59,15 @@ class World:
     `link_time` instead (lock-step, re-simulating a real-time recording: `link_time.py`), it runs on
     the one scheduler with its times on a link clock of its own.
     `direct_values`: the nodes hand each other values, not packed frames (see the module docstring).
+    `fast_loop`: a deterministic, compiled world runs its 1 kHz tasks in `FastLoop` between events (the same to the
+    bit; False: tick by tick).
     """
 
     def __init__(self, clock: Clock, port: Port, psk: bytes, *, seed: int = 0, baud: int = 115200,
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
                  plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None,
-                 direct_values: bool = True, link_time: Optional[LinkTime] = None) -> None:
+                 direct_values: bool = True, link_time: Optional[LinkTime] = None, fast_loop: bool = True) -> None:
         self.clock = clock
         self.hal_log: Optional[HalBusLog] = None
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
@@ -80,6 +83,12 @@ class World:
                                else LinkScheduler(self.scheduler, link_time) if link_time is not None
                                else self.scheduler)
         self.controller.attach(self.scheduler, self.link_scheduler)
+        # the three 1 kHz tasks many ticks a call between events (host_tools/worlds/fast_loop.py): deterministic and
+        # compiled only
+        self.fast_loop: Optional[FastLoop] = None
+        if deterministic and fast_loop and FastLoop.fits(self):
+            self.fast_loop = FastLoop(self)
+            self.scheduler.run_ahead(("arm", "plant", "hal"), self.fast_loop.run)
 
     def log_hal_bus(self, output: Output) -> HalBusLog:
         """Write every HAL frame from now on to `output` through python-can's Logger (`close` puts it in place)."""
@@ -112,7 +121,7 @@ class LockstepBench:
     controller pass through `to_controller` and `to_host` (callables bytes -> bytes,
     e.g. a lossy link emulator).
 
-    `direct_values` as in `World`. With `link_time` the controller's comms task and the host run on a
+    `direct_values` and `fast_loop` as in `World`. With `link_time` the controller's comms task and the host run on a
     link clock of their own (`World`, `link_time.py`): `aspod replay` of a real-time recording.
 
     The host and the controller's comms task poll the line every `step_s` and 1 ms. With
@@ -133,12 +142,12 @@ class LockstepBench:
                  plant_params: Optional[PlantParams] = None, plant: PlantSettings = PlantSettings(),
                  sleeping_line: bool = True, clock: Optional[SimClock] = None,
                  direct_values: bool = True, impairment: Optional[Impairment] = None,
-                 link_time: Optional[LinkTime] = None) -> None:
+                 link_time: Optional[LinkTime] = None, fast_loop: bool = True) -> None:
         self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, plant_params=plant_params,
-                           plant=plant, direct_values=direct_values, link_time=link_time)
+                           plant=plant, direct_values=direct_values, link_time=link_time, fast_loop=fast_loop)
         self.link_clock = self.world.link_scheduler.clock    # the host's time: the world's, unless `link_time`
         self.events: list = []
         self.telemetry: list = []
