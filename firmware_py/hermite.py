@@ -21,7 +21,6 @@ only at the knots: a cubic may overshoot between two knots.
 """
 from __future__ import annotations
 
-import bisect
 import math
 from typing import Sequence
 
@@ -52,15 +51,10 @@ class HermiteProfile:
         self._start = (float(pos_rad[0]), float(vel_rad_s[0]), 2.0 * self.coefficients[0][2])
 
     def sample(self, t_s: float) -> tuple[float, float, float]:
-        """(pos_rad, vel_rad_s, acc_rad_s2) at `t_s` seconds after the start."""
-        if t_s >= self.duration_s:
-            return self.end_pos_rad, self.end_vel_rad_s, 0.0
-        if t_s <= 0.0:
-            return self._start
-        i = bisect.bisect_right(self.times_s, t_s) - 1
-        a, b, c, d = self.coefficients[i]
-        tau = t_s - self.times_s[i]
-        return a + tau * (b + tau * (c + tau * d)), b + tau * (2.0 * c + 3.0 * d * tau), 2.0 * c + 6.0 * d * tau
+        """(pos_rad, vel_rad_s, acc_rad_s2) at `t_s` seconds after the start (`hermite_sample`)."""
+        start_pos, start_vel, start_acc = self._start
+        return hermite_sample(self.times_s, self.coefficients, len(self.times_s), t_s, self.end_pos_rad,
+                              self.end_vel_rad_s, start_pos, start_vel, start_acc)
 
     def bounds(self) -> tuple[float, float, float]:
         """(lowest position, highest position, highest |velocity|) over the whole curve."""
@@ -76,6 +70,29 @@ class HermiteProfile:
             candidates = [0.0, h] + ([-c / (3.0 * d)] if d != 0.0 and 0.0 < -c / (3.0 * d) < h else [])
             top_speed = max(top_speed, *(abs(b + tau * (2.0 * c + 3.0 * d * tau)) for tau in candidates))
         return lo, hi, top_speed
+
+
+def hermite_sample(times_s, coefficients, knots: int, t_s: float, end_pos_rad: float, end_vel_rad_s: float,
+                   start_pos_rad: float, start_vel_rad_s: float, start_acc_rad_s2: float) -> tuple[float, float, float]:
+    """A Hermite curve's (pos_rad, vel_rad_s, acc_rad_s2) at `t_s`, the one implementation (`HermiteProfile.sample`,
+    and the world's fast loop, host_tools/worlds/fast_loop.py, compiled by numba): the first `knots` of `times_s`,
+    each segment's (a, b, c, d) in `coefficients`; at and after the last knot its end, before 0 its start."""
+    if t_s >= times_s[knots - 1]:
+        return end_pos_rad, end_vel_rad_s, 0.0
+    if t_s <= 0.0:
+        return start_pos_rad, start_vel_rad_s, start_acc_rad_s2
+    lo, hi = 0, knots                       # the segment: the last knot at or before t_s (bisect_right - 1)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_s < times_s[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    i = lo - 1
+    row = coefficients[i]
+    a, b, c, d = row[0], row[1], row[2], row[3]
+    tau = t_s - times_s[i]
+    return a + tau * (b + tau * (c + tau * d)), b + tau * (2.0 * c + 3.0 * d * tau), 2.0 * c + 6.0 * d * tau
 
 
 def _cubic(h: float, p0: float, v0: float, p1: float, v1: float) -> tuple[float, float, float, float]:

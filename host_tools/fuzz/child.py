@@ -36,8 +36,8 @@ INSTRUMENTED = ["protocol", "firmware_py", "hil_sim.hal_node", "host_tools.teleo
 # only let time pass, and, with ASPOD_COMPILED=1, killed the child: numba cannot compile the joints' kernel from
 # instrumented bytecode. Only `hal`, the target of the HAL decoders, instruments them (they are what it covers).
 FAST_LOOP = ["firmware_py.joints_tick", "firmware_py.joint_bank", "firmware_py.joints_compiled", "firmware_py.hal",
-             "firmware_py.gripper_tick", "firmware_py.estimator", "protocol.hal", "protocol.frame_code",
-             "protocol.value_frame", "hil_sim.hal_node"]
+             "firmware_py.gripper_tick", "firmware_py.estimator", "firmware_py.hermite", "protocol.hal",
+             "protocol.frame_code", "protocol.value_frame", "hil_sim.hal_node"]
 
 
 def _under(module: str, names) -> bool:

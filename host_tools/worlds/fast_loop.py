@@ -22,8 +22,8 @@ A tick that needs Python is left to the tasks. Known before the call, it bounds 
 (`FastLoop.run`): a slow task's time (the scheduler offers only the ticks before the next other
 task), the plant's periodic frames (ANALOG_IN, DIGITAL_IN, the tracker's step), CTRL_OUTPUTS due,
 a command holder expiring, the noise batch used up. Met inside a tick, the kernel puts back
-everything the tick changed and stops before it: a joint's event (a fault, a motion's course change,
-a trajectory's curve, all of them the facade's), a switch edge (DIGITAL_IN goes out at once), a
+everything the tick changed and stops before it: a joint's event (a fault, a motion's course change:
+the facade's; a trajectory's curve is sampled here, `hermite_sample`, as the facade samples it), a switch edge (DIGITAL_IN goes out at once), a
 current the bus cannot carry. And the fast loop stands aside while anything else looks at the bus
 (a HAL log, a third node, a test's frame waiting, a wrapped endpoint), while the gripper moves, and
 in the plain (not compiled) world, whose tasks run as they always have.
@@ -39,7 +39,8 @@ from firmware_py.arm import GRIPPER_INDEX
 from firmware_py.gripper_tick import GOES_ON, moving_tick, track
 from firmware_py.hal import quantized_duty
 from firmware_py import joints_tick as jt
-from firmware_py.joints_tick import arm_joints_tick
+from firmware_py.hermite import HermiteProfile, hermite_sample
+from firmware_py.joints_tick import arm_joints_tick, joints_tick
 from hil_sim import arm_tick as at
 from hil_sim.plant import electronics_step
 from protocol.states import ARM_CHANNELS, AxisMode
@@ -54,8 +55,8 @@ FLOATS = 40
 # ... and the integer ones (`i`)
 (I_N0, I_ALIVE, I_NODE_TICK, I_NOISE_AT, I_REF_COUNT, I_VEL_COUNT, I_GRIPPED, I_HOLDING, I_ALLOWED,
  I_OUTPUTS_ENABLED, I_BRAKE_ALL, I_SUBSTEPS, I_SIZE, I_TRACKER, I_MOVING, I_DIRECTION, I_LAST_COUNT,
- I_CLOSED_SWITCH, I_OPEN_SWITCH, I_EDGE, I_GRIPPER) = range(21)
-INTS = 21
+ I_CLOSED_SWITCH, I_OPEN_SWITCH, I_EDGE, I_GRIPPER, I_HANDED) = range(22)
+INTS = 22
 _ROUND = 6755399441055744.0       # 1.5 * 2**52: x + _ROUND - _ROUND rounds x half to even (|x| < 2**51)
 
 
@@ -73,8 +74,8 @@ def copy_groups(state, int_state, gravity_nm, duties, command, arm_state, flags,
 
 
 def fast_ticks(ticks, f, i, masses, counts_in, currents_in, home, switches_sent, brakes, noise, values,
-               state, int_state, config, int_config, profile, gravity_nm, duties,
-               command, arm_state, table, flags, arm_counts, constants,
+               curve_times, curve_coefficients, curve_knots, curve_ends, state, int_state, config, int_config, profile,
+               gravity_nm, duties, command, arm_state, table, flags, arm_counts, constants,
                saved_state, saved_int_state, saved_gravity, saved_duties, saved_command, saved_arm_state, saved_flags,
                saved_arm_counts):
     """Up to `ticks` ticks of the world's arm, plant and hal tasks (the module docstring); returns the ticks run.
@@ -82,8 +83,9 @@ def fast_ticks(ticks, f, i, masses, counts_in, currents_in, home, switches_sent,
     The groups are the joints' (`state` .. `duties`: a `JointBank`'s) and the arm plant's (`command` ..
     `constants`: an `ArmTick`'s), changed in place; `f` and `i` the other numbers (the F_ and I_ columns), their
     changing ones written back as of the last tick run; `counts_in`, `currents_in` the controller's HAL inputs,
-    `values` MOTOR_CMD's last values (duties, enables, brakes). A tick that meets an event is put back as it was
-    (the `saved_` arrays) and not counted."""
+    `values` MOTOR_CMD's last values (duties, enables, brakes); the `curve_` rows each joint's trajectory curve
+    (`FastLoop._load_curves`). A tick that meets an event is put back as it was (the `saved_` arrays) and not
+    counted."""
     size = i[I_SIZE]
     gr = i[I_GRIPPER]
     n = duties.shape[0]
@@ -105,14 +107,27 @@ def fast_ticks(ticks, f, i, masses, counts_in, currents_in, home, switches_sent,
     still_since, last_count = f[F_STILL_SINCE], i[I_LAST_COUNT]
     done = 0
     edge = False
+    handed = committed_handed = 0
     while done < ticks:
         now = origin + (n0 + done) * period
         copy_groups(state, int_state, gravity_nm, duties, command, arm_state, flags, arm_counts, saved_state,
                     saved_int_state, saved_gravity, saved_duties, saved_command, saved_arm_state, saved_flags,
                     saved_arm_counts)
         # ---- arm: the joints on the feedback of the tick before, the gripper, MOTOR_CMD
-        event = arm_joints_tick(size, now, fb_s, fb_s, g, payload, masses, counts_in, currents_in, home, gravity_nm,
-                                duties, state, int_state, config, int_config, profile) < size
+        k = arm_joints_tick(size, now, fb_s, fb_s, g, payload, masses, counts_in, currents_in, home, gravity_nm, duties,
+                            state, int_state, config, int_config, profile)
+        while k < size and int_state[k, jt.EVENT] == jt.EV_SETPOINT and curve_knots[k] >= 2:
+            # a trajectory's curve, as the facade samples it (`BankedAxis.act`), and the joint's tick goes on
+            int_state[k, jt.EVENT] = jt.EV_NONE
+            ends = curve_ends[k]
+            state[k, jt.TICK_POS_SP], state[k, jt.TICK_VEL_SP], state[k, jt.TICK_ACC_SP] = hermite_sample(
+                curve_times[k], curve_coefficients[k], curve_knots[k], now - state[k, jt.PROFILE_T0_S], ends[0],
+                ends[1], ends[2], ends[3], ends[4])
+            int_state[k, jt.ENTRY] = jt.SUPERVISE
+            handed += 1
+            k = joints_tick(k, size, now, fb_s, fb_s, counts_in, currents_in, home, gravity_nm, duties, state,
+                            int_state, config, int_config, profile)
+        event = k < size
         edge = False
         t_opening, t_vel, t_vel_count, t_vel_s = track(now, counts_in[gr], i[I_REF_COUNT], f[F_REF_M],
                                                        f[F_M_PER_COUNT], vel_m_s, vel_count, vel_s)
@@ -169,6 +184,7 @@ def fast_ticks(ticks, f, i, masses, counts_in, currents_in, home, switches_sent,
             tracker_dt += f[F_DT]
         node_tick += 1
         done += 1
+        committed_handed = handed
         if edge:
             break
     f[F_FB_S], f[F_OPENING_M], f[F_VEL_M_S], f[F_VEL_S] = fb_s, opening_m, vel_m_s, vel_s
@@ -176,7 +192,7 @@ def fast_ticks(ticks, f, i, masses, counts_in, currents_in, home, switches_sent,
                                                                                         current_a, supply_v, temp_c)
     f[F_BRIDGES_A], f[F_TRACKER_DT], f[F_GRIP_DUTY] = bridges_a, tracker_dt, grip_duty
     i[I_ALIVE], i[I_NODE_TICK], i[I_NOISE_AT], i[I_VEL_COUNT] = alive, node_tick, noise_at, vel_count
-    f[F_STILL_SINCE], i[I_LAST_COUNT], i[I_EDGE] = still_since, last_count, edge
+    f[F_STILL_SINCE], i[I_LAST_COUNT], i[I_EDGE], i[I_HANDED] = still_since, last_count, edge, committed_handed
     return done
 
 
@@ -218,6 +234,12 @@ class FastLoop:
                        np.empty_like(bank.duties), np.empty_like(self.arm_tick.command),
                        np.empty_like(self.arm_tick.state), np.empty_like(self.arm_tick.flags),
                        np.empty_like(self.arm_tick.counts))
+        # each joint's trajectory curve (a `HermiteProfile`), as rows: knot times, segments' coefficients, knots
+        # (0: none), (end position, end velocity, start position, velocity, acceleration); `_curves` the profiles
+        size = bank.size
+        self.curve_times, self.curve_coefficients = np.zeros((size, 2)), np.zeros((size, 2, 4))
+        self.curve_knots, self.curve_ends = np.zeros(size, np.int64), np.zeros((size, 5))
+        self._curves: list = [None] * size
         self._noise_of: Optional[list] = None     # the plant's batch of deviates `_noise` holds
         self._noise = np.zeros(0)
         from hil_sim.arm_tick_compiled import machine_code_for
@@ -269,8 +291,6 @@ class FastLoop:
         arm_tick = self.arm_tick
         inputs = hal.inputs
         return (not arm.judge_lateness and inputs.fb_s is not None and gripper._vel_count is not None
-                # a trajectory's curve: every tick the facade's (`EV_SETPOINT`), not worth a call that puts it back
-                and not (self.bank.int_state[:, jt.PROFILE_SEGMENTS] == jt.FACADE_PROFILE).any()
                 and [(channel.motion_id, channel.outcome) for channel in arm.channels] == arm._reported
                 and controller.supervisor.outputs_allowed == controller._outputs_sent
                 and node._last_switches is not None and node._last_now is not None
@@ -325,13 +345,14 @@ class FastLoop:
                         gripper._vel_count, gripper.gripped, mode is AxisMode.HOLDING, arm.outputs_allowed, enabled,
                         brake_all, arm_tick._substeps, bank.size, node.tracker, mode is AxisMode.MOVING,
                         gripper._direction, gripper._last_count, inputs.limit_lo[GRIPPER_INDEX],
-                        inputs.limit_hi[GRIPPER_INDEX], False, GRIPPER_INDEX)
+                        inputs.limit_hi[GRIPPER_INDEX], False, GRIPPER_INDEX, 0)
         self.counts_in[:] = inputs.counts
         self.currents_in[:] = inputs.currents_a
         self.home[:] = inputs.home
         self.switches_sent[:] = node._last_switches
         brakes = [channel.brake for channel in arm.channels]
         self.brakes[:] = brakes
+        self._load_curves()
         if plant._noise is not self._noise_of:          # a new batch of deviates: as an array once
             self._noise_of, self._noise = plant._noise, np.asarray(plant._noise, dtype=np.float64)
         ran = self._kernel(ticks, *self._arguments())
@@ -351,11 +372,34 @@ class FastLoop:
             self.hal.poll(last)
         self.controller.send_outputs(last)
 
+    def _load_curves(self) -> None:
+        """Each joint's trajectory curve into the curve rows, when its profile has changed."""
+        profiles, curves = self.bank.profiles, self._curves
+        for k, profile in enumerate(profiles):
+            if profile is curves[k]:
+                continue
+            curves[k] = profile
+            if not isinstance(profile, HermiteProfile):
+                self.curve_knots[k] = 0
+                continue
+            knots = len(profile.times_s)
+            if knots > self.curve_times.shape[1]:                 # room for it: the rows grow
+                size = len(profiles)
+                times, coefficients = np.zeros((size, knots)), np.zeros((size, knots, 4))
+                times[:, :self.curve_times.shape[1]] = self.curve_times
+                coefficients[:, :self.curve_coefficients.shape[1]] = self.curve_coefficients
+                self.curve_times, self.curve_coefficients = times, coefficients
+            self.curve_times[k, :knots] = profile.times_s
+            self.curve_coefficients[k, :knots - 1] = profile.coefficients
+            self.curve_knots[k] = knots
+            self.curve_ends[k] = (profile.end_pos_rad, profile.end_vel_rad_s, *profile.sample(0.0))
+
     def _arguments(self) -> tuple:
         """`fast_ticks`'s arguments after `ticks`."""
         bank, arm_tick = self.bank, self.arm_tick
         return (self.f, self.i, bank.masses, self.counts_in, self.currents_in, self.home, self.switches_sent,
-                self.brakes, self._noise, self.values, bank.state, bank.int_state, bank.config, bank.int_config,
+                self.brakes, self._noise, self.values, self.curve_times, self.curve_coefficients, self.curve_knots,
+                self.curve_ends, bank.state, bank.int_state, bank.config, bank.int_config,
                 bank.profile, bank.gravity_nm, bank.duties, arm_tick.command, arm_tick.state, arm_tick.table,
                 arm_tick.flags, arm_tick.counts, arm_tick.constants, *self._saved)
 
@@ -367,6 +411,7 @@ class FastLoop:
         n = len(arm.channels)
         # arm
         arm._last_tick_s = last
+        self.bank.handed_back += i[I_HANDED]
         gripper.opening_m, gripper.vel_m_s, gripper._vel_s = f[F_OPENING_M], f[F_VEL_M_S], f[F_VEL_S]
         gripper._vel_count, gripper.duty = i[I_VEL_COUNT], f[F_GRIP_DUTY]
         gripper._still_since, gripper._last_count = f[F_STILL_SINCE], i[I_LAST_COUNT]

@@ -12,6 +12,7 @@ from typing import Callable
 from firmware_py.estimator import unwrap_delta
 from firmware_py.gripper_tick import moving_tick, track
 from firmware_py.hal import quantized_duty
+from firmware_py.hermite import hermite_sample
 from firmware_py.joints_tick import (arm_joints_tick, count_step, filter_step, holding_torques_nm, joints_tick,
                                      sample_profile, stopping_distance)
 from hil_sim.arm_tick import arm_plant_tick, gravity_and_inertia, sample_readouts
@@ -26,4 +27,4 @@ def compiled_fast_ticks() -> Callable[..., int]:
     return compile_kernel(fast_ticks, "fast loop", helpers=(
         count_step, filter_step, sample_profile, stopping_distance, joints_tick, holding_torques_nm, arm_joints_tick,
         gravity_and_inertia, sample_readouts, arm_plant_tick, unwrap_delta, track, moving_tick, quantized_duty,
-        electronics_step, copy_groups))
+        electronics_step, hermite_sample, copy_groups))
