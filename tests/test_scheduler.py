@@ -220,3 +220,13 @@ def test_run_ahead_is_for_a_scheduler_without_a_stopwatch():
     scheduler.add("arm", lambda now: now, period_s=0.001)
     with pytest.raises(ValueError, match="stopwatch"):
         scheduler.run_ahead(("arm",), lambda *args: 0)
+
+
+def test_run_until_with_a_bound_ends_at_the_bound_once_a_task_has_run():
+    clock = SimClock()
+    scheduler = Scheduler(clock, stopwatch=None)
+    scheduler.add("once", lambda now: None, 0.0123)
+    scheduler.run_until(1.0, bound=lambda at: at + 0.001)
+    assert clock.now() == 0.0123 + 0.001
+    scheduler.run_until(1.0, bound=lambda at: at + 0.001)      # nothing left to run: to the end
+    assert clock.now() == 1.0

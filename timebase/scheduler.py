@@ -252,10 +252,12 @@ class Scheduler:
             raise ValueError("run_ahead: only without a stopwatch (on a simulated clock a task takes no time)")
         self._ahead = (tuple(self.tasks[name] for name in names), runner)
 
-    def run_until(self, end_s: float) -> None:
-        """Run tasks until the clock reaches `end_s` (jumps ahead on a SimClock)."""
+    def run_until(self, end_s: float, bound: Optional[Callable[[float], float]] = None) -> None:
+        """Run tasks until the clock reaches `end_s` (jumps ahead on a SimClock). With `bound`, once any task has
+        run (the run-ahead group's runner aside), the run ends at `bound(now)` instead if that is earlier."""
         while True:
-            self.run_due()
+            if self.run_due() and bound is not None:
+                end_s = min(end_s, bound(self.clock.now()))
             wake = self.next_wake_s()
             if wake is None or wake > end_s:
                 self.clock.sleep_until(end_s)

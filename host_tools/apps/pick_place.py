@@ -90,7 +90,7 @@ class PickAndPlace:
                     done[event.axis] = event
             return len(done) == len(started) or self.bench.controller.supervisor.in_safe_state
 
-        if not self.bench.wait_until(finished, MOTION_TIMEOUT_S):
+        if not self.bench.wait_until(finished, MOTION_TIMEOUT_S, between_loops=True):
             raise DemoFailed(f"{what}: no MotionDone within {MOTION_TIMEOUT_S} s of simulated time")
         outcomes = {Axis(a).name.lower(): MotionOutcome(e.outcome).name for a, e in done.items()}
         bad = {a: e for a, e in done.items() if e.outcome not in accept}

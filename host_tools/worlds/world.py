@@ -296,24 +296,39 @@ class LockstepBench:
     def run_for(self, duration_s: float) -> None:
         self.world.scheduler.run_until(self.clock.now() + duration_s)
 
-    def wait_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        """Run in simulated time until `predicate()` holds (True) or `timeout_s` passes (False)."""
+    def wait_until(self, predicate: Callable[[], bool], timeout_s: float, *, between_loops: bool = False) -> bool:
+        """Run in simulated time until `predicate()` holds (True) or `timeout_s` passes (False), looking at it every
+        `step_s`. `between_loops`: the predicate reads only what tasks other than the 1 kHz loops change (what the
+        host has received, the supervisor's state), so it is looked at only after the steps in which one of them ran
+        (the same steps, where it could change): in between, the fast loop runs many ticks a call."""
         end = self.clock.now() + timeout_s
+        scheduler, step_s = self.world.scheduler, self.step_s
         while not predicate():
-            if self.clock.now() >= end:
+            now = self.clock.now()
+            if now >= end:
                 return False
-            self.world.scheduler.run_until(min(end, self.clock.now() + self.step_s))
+            if not between_loops:
+                scheduler.run_until(min(end, now + step_s))
+                continue
+            steps = [min(end, now + step_s)]        # the steps' ends, added up as the loop above adds them
+
+            def step_end(at: float) -> float:
+                last = steps[0]
+                while last < at and last < end:
+                    last = steps[0] = min(end, last + step_s)
+                return last
+            scheduler.run_until(end, bound=step_end)
         return True
 
     def connect(self, timeout_s: float = 5.0) -> bool:
         self.host.connect(self.link_clock.now())
         return self.wait_until(lambda: self.host.state is LinkState.UP and self.controller.link.session is not None
                                and self.controller.link.session.host_nonce == self.host.session.host_nonce,
-                               timeout_s)
+                               timeout_s, between_loops=True)
 
     def call(self, msg, timeout_s: float = 30.0):
         handle = self.host.submit(msg, self.link_clock.now())
-        self.wait_until(lambda: handle.done, timeout_s)
+        self.wait_until(lambda: handle.done, timeout_s, between_loops=True)
         return handle
 
     def close_session(self, why: CloseWhy = CloseWhy.DONE, timeout_s: float = 5.0) -> bool:
@@ -321,7 +336,7 @@ class LockstepBench:
         if self.host.state is not LinkState.UP:
             return self.host.state is LinkState.CLOSED
         self.host.close(self.clock.now(), why)
-        self.wait_until(lambda: self.host.state is not LinkState.CLOSING, timeout_s)
+        self.wait_until(lambda: self.host.state is not LinkState.CLOSING, timeout_s, between_loops=True)
         return self.host.state is LinkState.CLOSED
 
     def close(self) -> None:
