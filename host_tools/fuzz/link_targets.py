@@ -248,6 +248,13 @@ def _difference(before: tuple, after: tuple) -> str:
     return "; ".join(f"{n}: {b!r} -> {a!r}" for n, b, a in zip(names, before, after) if a != b) or "changed"
 
 
+def _exact(value: Optional[float]) -> Optional[str]:
+    """A number as its exact bits (`float.hex`), so that a NaN equals itself: read from the compiled joints'
+    arrays, each read of a NaN target (while homing) is a new float object, and NaN != NaN made every refused
+    frame a false finding ('refused changes nothing', 2026-11-29, with ASPOD_COMPILED=1)."""
+    return None if value is None else float(value).hex()
+
+
 class ControllerLinkTarget(_LinkTarget):
     """The controller's link endpoint and every command handler behind it, the fuzzer in the host's seat."""
 
@@ -284,7 +291,7 @@ class ControllerLinkTarget(_LinkTarget):
         sup, box, link = c.supervisor, c.tracker.box, c.link
         return (sup.state, sup.faults, sup.safe_reason, tuple(c.params.values().items()), c.telemetry_hz,
                 (box.main, box.sensor, tuple(box.mode), tuple(box.direction), tuple(box.speed), tuple(box.dial_counts)),
-                tuple((ch.mode, getattr(ch, "target_rad", None), ch.motion_id) for ch in c.arm.channels),
+                tuple((ch.mode, _exact(getattr(ch, "target_rad", None)), ch.motion_id) for ch in c.arm.channels),
                 None if link.session is None else link.session.host_nonce,
                 (link._commands.expected, tuple(link._urgent._seen)), link.commands_executed)
 
