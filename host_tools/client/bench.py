@@ -85,7 +85,10 @@ class BenchClient:
         return self.bench.call(msg, timeout_s)
 
     def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        self.bench.wait_until(predicate, timeout_s)
+        """Run until `predicate()` holds or `timeout_s` of simulated time pass. A teleop session knows only what the
+        link brings it, so its predicates read the host's side, which only tasks other than the 1 kHz loops change:
+        they are looked at between the loops (`LockstepBench.wait_until`), the same to the bit."""
+        self.bench.wait_until(predicate, timeout_s, between_loops=True)
         return predicate()
 
     def close(self, why: CloseWhy = CloseWhy.DONE) -> None:
