@@ -123,7 +123,7 @@ def session(direct_values: bool, monkeypatch) -> tuple:
         counters.update(plant=world.plant_node, controller=world.controller.hal)
     with monkeypatch.context() as patched:
         patched.setattr(hal.FrameLayout, "message", counting_message)
-        result = run_session(direct_values, watch)
+        result = run_session(direct_values, watch, fast_loop=False)     # every handler call, none handed over
     counted = {node: (e.frames_sent, e.sent_by_name, e.frames_received, e.bad_frames, e.bus_errors)
                for node, e in counters.items()}
     return log, counted, result, packed

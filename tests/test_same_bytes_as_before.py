@@ -39,11 +39,12 @@ SEGMENTS = 3
 JOG_DPS = {Axis.J1: 1.0, Axis.J2: 2.0, Axis.J3: 2.5, Axis.J4: 3.0, Axis.MOUNT: 1.5}
 
 
-def run_session(direct_values: bool = True, watch: Callable[[World], None] = lambda world: None) -> dict:
+def run_session(direct_values: bool = True, watch: Callable[[World], None] = lambda world: None,
+                fast_loop: bool = True) -> dict:
     """The session of the module docstring: bytes to the host per simulated second, the plant at the end.
 
-    `direct_values` as `World` takes it; `watch(world)` is shown the world before the session starts
-    (tests/test_direct_values.py runs the session both ways and records what the nodes receive)."""
+    `direct_values` and `fast_loop` as `World` takes them; `watch(world)` is shown the world before the session
+    starts (tests/test_direct_values.py runs the session both ways and records what the nodes receive)."""
     received: list[tuple[float, bytes]] = []
     bench: LockstepBench
 
@@ -51,7 +52,8 @@ def run_session(direct_values: bool = True, watch: Callable[[World], None] = lam
         received.append((bench.clock.now(), data))
         return data
 
-    bench = LockstepBench(seed=SEED, to_host=tap, plant=PlantSettings(start=SUN_START), direct_values=direct_values)
+    bench = LockstepBench(seed=SEED, to_host=tap, plant=PlantSettings(start=SUN_START), direct_values=direct_values,
+                          fast_loop=fast_loop)
     watch(bench.world)
     try:
         assert bench.connect()

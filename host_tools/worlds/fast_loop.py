@@ -252,8 +252,10 @@ class FastLoop:
 
     @staticmethod
     def fits(world) -> bool:
-        """Whether `world` can have a fast loop: both its kernels compiled (`ASPOD_COMPILED=1`)."""
-        return world.controller.arm.bank.compiled and world.plant_node.plant._arm_tick.compiled
+        """Whether `world` can have a fast loop: both its kernels compiled (`ASPOD_COMPILED=1`), its nodes handing
+        each other values (a world that packs its frames runs them tick by tick: the bus path)."""
+        return (world.controller.arm.bank.compiled and world.plant_node.plant._arm_tick.compiled
+                and world.plant_bus.carries_values)
 
     def _bus_is_private(self) -> bool:
         """Only the two nodes on the bus, as the world built it, nobody logging."""
