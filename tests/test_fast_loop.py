@@ -45,6 +45,7 @@ def _everything(bench: LockstepBench, line: list) -> dict:
         "plant arm": [plant._arm_tick.state.tobytes(), plant._arm_tick.flags.tobytes(),
                       plant._arm_tick.counts.tobytes()],
         "plant": repr((plant.supply_v, plant.temp_c, plant.current_a, plant.temp_true_c, plant._noise_at,
+                       plant.outputs_enabled, plant.brake,
                   plant.motor_commands.current_values(bench.clock.now()), plant.commanded.current(bench.clock.now()))),
         "gripper": repr((gripper.opening_m, gripper.vel_m_s, gripper.duty, gripper.mode, gripper._still_since,
                          gripper._last_count)),                       # (NaN as its repr: never equal to itself)
@@ -150,3 +151,23 @@ def test_motor_fb_currents_as_the_kernel_rounds_them_are_what_the_bus_carries():
         carried = layout.roundtrip([0, 0, 0, 0, 0, 0, 0, v, 0.0, 0.0, 0.0, 0.0, 0.0])[7]
         assert (v / scale + rounding - rounding) * scale == carried, v
     bench.close()
+
+
+def test_what_the_plant_applied_is_the_same_every_millisecond_after_a_disable():
+    """`Plant.outputs_enabled` and `brake` are set by each tick the plant takes: a review found the fast loop left
+    them as they were for up to 9 ms after CTRL_OUTPUTS changed, where a bench waiting on them reads them."""
+    traces = []
+    for fast in (False, True):
+        bench, _ = _world(fast)
+        assert bench.connect() and bench.call(M["Enable"]()).ok
+        bench.run_for(0.05)
+        plant = bench.world.plant
+        bench.host.submit(M["Disable"](), bench.clock.now())
+        trace = []
+        for _ in range(40):
+            bench.run_for(0.001)
+            trace.append((bench.clock.now(), plant.outputs_enabled, plant.brake, plant.commanded._commanded))
+        traces.append(trace)
+        bench.close()
+    assert traces[0] == traces[1]
+    assert traces[0][0][1] and not traces[0][-1][1]           # it was enabled, and the disable reached the plant

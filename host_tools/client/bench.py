@@ -85,10 +85,9 @@ class BenchClient:
         return self.bench.call(msg, timeout_s)
 
     def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
-        """Run until `predicate()` holds or `timeout_s` of simulated time pass. A teleop session knows only what the
-        link brings it, so its predicates read the host's side, which only tasks other than the 1 kHz loops change:
-        they are looked at between the loops (`LockstepBench.wait_until`), the same to the bit."""
-        self.bench.wait_until(predicate, timeout_s, between_loops=True)
+        """Run until `predicate()` holds or `timeout_s` of simulated time pass, looking at it every millisecond: the
+        plugin's `wait_until` hands it any predicate, the plant's state or the time included."""
+        self.bench.wait_until(predicate, timeout_s)
         return predicate()
 
     def close(self, why: CloseWhy = CloseWhy.DONE) -> None:

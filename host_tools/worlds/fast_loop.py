@@ -23,10 +23,12 @@ A tick that needs Python is left to the tasks. Known before the call, it bounds 
 task), the plant's periodic frames (ANALOG_IN, DIGITAL_IN, the tracker's step), CTRL_OUTPUTS due,
 a command holder expiring, the noise batch used up. Met inside a tick, the kernel puts back
 everything the tick changed and stops before it: a joint's event (a fault, a motion's course change:
-the facade's; a trajectory's curve is sampled here, `hermite_sample`, as the facade samples it), a switch edge (DIGITAL_IN goes out at once), a
-current the bus cannot carry. And the fast loop stands aside while anything else looks at the bus
-(a HAL log, a third node, a test's frame waiting, a wrapped endpoint), while the gripper moves, and
-in the plain (not compiled) world, whose tasks run as they always have.
+the facade's; a trajectory's curve is sampled here, `hermite_sample`, as the facade samples it), the
+end or time-out of a gripper's move, a duty or a current that is not a number. A switch edge ends
+the ticks with its own (DIGITAL_IN goes out at once: `FastLoop._finish`). And the fast loop stands
+aside while anything else looks at the bus (a HAL log, a third node, a wrapped endpoint, frames
+packed to bytes; frames waiting are read first, as both nodes' first polls would), and in the plain
+(not compiled) world, whose tasks run as they always have.
 """
 from __future__ import annotations
 
@@ -140,6 +142,8 @@ def fast_ticks(ticks, f, i, masses, counts_in, currents_in, home, switches_sent,
                 event = True                         # the move ends (or times out): the facade's
         for c in range(n):
             d = (t_grip if c == gr else duties[c]) if allowed else 0.0
+            if not d == d:
+                event = True                         # NaN: MOTOR_CMD's checked path refuses it (the tasks')
             command[at.DUTY, c] = quantized_duty(d, step)
             off = brakes[c] or not allowed
             command[at.ENABLE, c] = 0.0 if off else 1.0
@@ -265,21 +269,24 @@ class FastLoop:
                 and len(plant_bus.local_channel.members) == 2
                 and not ("send" in vars(plant_bus) or "send" in vars(controller_bus)))
 
-    def _ticks_allowed(self, origin: float, period: float, n: int, ticks: int) -> int:
+    def _ticks_allowed(self, origin: float, period: float, n: int, ticks: int, dt: float) -> int:
         """Of `ticks` ticks, how many `fast_ticks` may run: up to the first at which the plant sends a slow frame
         (DIGITAL_IN or ANALOG_IN every so many ticks, the tracker's) or the controller's hal task CTRL_OUTPUTS,
-        which ends them (`_finish`, at its time); before one at which a command holder has expired or the batch of
-        deviates is used up."""
+        which ends them (`_finish`, at its time); before one at which a command holder has expired, the plant's step
+        (to the nanosecond, as `PlantNode._step_length` rounds it) is not `dt`, or the batch of deviates is used
+        up."""
         node, plant = self.node, self.plant
         tick = node.tick
         ticks = min(ticks, (len(plant._noise) - plant._noise_at) // 2)
         due_s = self.controller._outputs_due_s
         commanded = plant.commanded
         refreshed_s, timeout_s = commanded._refreshed_s, commanded.timeout_s
+        last = node._last_now
         for k in range(ticks):
             now = origin + (n + k) * period
-            if now - refreshed_s > timeout_s:
-                return k                                                  # CTRL_OUTPUTS expired: the tasks'
+            if now - refreshed_s > timeout_s or round(now - last, 9) != dt:
+                return k                  # CTRL_OUTPUTS expired, or a tick of another length (the plant's step)
+            last = now
             t = tick + k
             if (now >= due_s or t % node.analog_every_n == 0 or t - node._digital_tick >= node.digital_every_n
                     or node.tracker and t % node.tracker_every_n == node.tracker_phase):
@@ -320,7 +327,7 @@ class FastLoop:
             dt = round(first - node._last_now, 9)
         if not 0.0 < dt <= node.max_dt_s or dt != self.arm_tick._dt_s or dt != plant._decay_dt_s:
             return 0
-        ticks = self._ticks_allowed(origin, period, n, ticks)
+        ticks = self._ticks_allowed(origin, period, n, ticks, dt)
         if ticks <= 0:
             return 0
         ran = self._run(origin, period, n, ticks, dt)
@@ -435,6 +442,7 @@ class FastLoop:
         holder = plant.motor_commands
         holder._last_alive, holder._commanded, holder._refreshed_s = (alive - 1) & 0xFF, command, last
         holder.expired = plant.commanded.expired = False
+        plant.outputs_enabled, plant.brake = i[I_OUTPUTS_ENABLED] != 0, i[I_BRAKE_ALL] != 0    # as `Plant.tick` sets
         plant.current_a, plant.supply_true_v, plant.temp_true_c = f[F_CURRENT_A], f[F_SUPPLY_TRUE_V], f[F_TEMP_TRUE_C]
         plant._supply_v, plant._temp_c, plant._noise_at = f[F_SUPPLY_V], f[F_TEMP_C], i[I_NOISE_AT]
         arm_tick._given, arm_tick.bridges_a, arm_tick._flags_out = command, f[F_BRIDGES_A], None
