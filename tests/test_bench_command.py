@@ -171,7 +171,7 @@ def test_a_scripts_first_line_gives_only_its_world_else_it_is_refused_and_nothin
 def test_every_world_option_a_script_may_give_is_one_of_the_bench_world_options():
     import argparse
 
-    from host_tools.cli import main as cli
+    from host_tools.cli import options as cli
     from host_tools.teleop.words import WORLD_OPTIONS
     parser = argparse.ArgumentParser()
     cli.add_seed_arg(parser, "x")

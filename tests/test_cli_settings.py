@@ -92,10 +92,10 @@ def test_version_completion_and_help(capsys):
 
 def test_the_help_examples_name_only_files_the_repository_has():
     """A newcomer copies them: a script under benches/ that was renamed would fail at once."""
-    from host_tools.cli.main import EXAMPLES
+    from host_tools.cli.main import COMMANDS, EXAMPLES, command_module
     root = Path(__file__).resolve().parent.parent
-    named = {word for lines in EXAMPLES.values() for line in lines for word in line.split()
-             if word.startswith("benches/")}
+    every = [EXAMPLES] + [command_module(module).EXAMPLES for _, _, module in COMMANDS]
+    named = {word for lines in every for line in lines for word in line.split() if word.startswith("benches/")}
     assert named and sorted(w for w in named if not (root / w).is_file()) == []
 
 

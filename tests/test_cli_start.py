@@ -94,3 +94,15 @@ def test_aspod_sim_starts_without_pandas_or_pvlib(tmp_path):
     assert not imported & {"pandas", "pvlib", "scipy", "matplotlib"}, sorted(imported & {"pandas", "pvlib", "scipy"})
     assert "hil_sim.spa" in imported and "numpy" in imported
     assert peak_mib <= 120, peak_mib
+
+
+@pytest.mark.parametrize("argv", [["sim", "--bogus"], ["log", "x.pcapng", "--nope", "1"], ["-v", "teleop", "u", "-Z"]])
+def test_an_unknown_option_is_refused_with_its_commands_usage(argv, capsys):
+    """argparse says an option no parser took with the top-level usage (`usage: aspod [-h] ...`); a user who
+    mistyped an option of `aspod sim` wants sim's."""
+    command = next(word for word in argv if not word.startswith("-"))
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    err = capsys.readouterr().err
+    assert stop.value.code == 2
+    assert err.startswith(f"usage: aspod {command} ") and f"aspod {command}: error: unrecognized arguments:" in err, err

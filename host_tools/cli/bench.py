@@ -8,11 +8,14 @@
 """
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
 from host_tools.apps.script_bench import run_script_bench
+from host_tools.cli.options import add_arm_args, add_bench_world_args, add_seed_arg, add_tracker_args
 from host_tools.cli.settings import BenchSettings
 from host_tools.exit_codes import EXIT_USAGE
 from host_tools.teleop.sim_words import state_lines
@@ -42,3 +45,29 @@ def run_bench(settings: BenchSettings) -> int:
               + ("no safe state" if after is None else f"safe state after {after:.3f} s ({fault['fault_bits']})")
               + ("" if fault["stated_s"] is None else f", stated {fault['stated_s']:g} s"))
     return run.status
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod bench benches/tracker_procedure.aspod --sun-start 2026-03-20T06:50-07:00",
+    "aspod bench session.txt --json > result.json",
+    "aspod bench session.txt --record s.pcapng",
+]
+
+
+def add_options(bench: argparse.ArgumentParser) -> None:
+    bench.add_argument("script", type=Path, metavar="SCRIPT", help="a teleop script (one command a line)")
+    add_seed_arg(bench, "the plant's noise and the link's nonces")
+    add_arm_args(bench)
+    add_tracker_args(bench)
+    add_bench_world_args(bench)
+    bench.add_argument("--keep-going", action="store_true", help="go on after a failed command")
+    bench.add_argument("--json", action="store_true", help="print one JSON object: steps, motions, the plant's state")
+    bench.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                       help="capture the session on the simulated clock (aspod replay re-runs it to the bit)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_bench(settings.bench_settings(args))

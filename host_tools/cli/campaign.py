@@ -7,6 +7,7 @@ command that reproduces it alone. See docs/campaigns.md.
 """
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 from pathlib import Path
@@ -16,6 +17,7 @@ from timebase import RealClock
 from host_tools.campaign import results
 from host_tools.campaign.engine import run_runs
 from host_tools.campaign.runs import SCRIPT, BenchSpec, RunResult
+from host_tools.cli.options import bounded
 from host_tools.cli.main import build_parser
 from host_tools.cli.settings import CampaignSettings, bench_settings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
@@ -42,7 +44,7 @@ def bench_spec(settings: CampaignSettings) -> BenchSpec:
     if not directive:
         return spec
     try:
-        world = bench_settings(build_parser().parse_args(["bench", settings.bench, *directive])).world
+        world = bench_settings(build_parser(["bench"]).parse_args(["bench", settings.bench, *directive])).world
     except SystemExit:
         raise ValueError(f"bench {settings.bench}: its first line's `aspod bench` options do not parse") from None
     return BenchSpec(spec.kind, spec.target, world, spec.text, spec.cwd, spec.keep_going)
@@ -103,3 +105,48 @@ def run_campaign(settings: CampaignSettings) -> int:
     if len(bad) > SHOWN_FAILURES:
         print(f"... and {len(bad) - SHOWN_FAILURES} more: the rows' `reproduce` column")
     return EXIT_FAILED if bad else EXIT_OK
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod campaign benches/test_pick_and_place.py --seeds 1000 --draw payload_kg=0..2.5 --draw fault=none,jam:j2,open_circuit:j1,encoder_dropout:j3 --draw fault_at_s=1..20 --group-by fault --plot m.worst_error_mm:payload_kg",
+    "aspod campaign benches/campaigns/tracker_dial.txt --vary sun_start=2026-01-15T10:00-07:00..2026-12-15T10:00-07:00/12 --vary dial=5,10,20 --scheduler tcp://10.0.0.5:8786",
+]
+
+
+def add_options(campaign: argparse.ArgumentParser) -> None:
+    campaign.add_argument("bench", metavar="BENCH", help="a teleop script, or a pytest file or node "
+                                                         "(path.py, path.py::test_name)")
+    campaign.add_argument("--vary", action="append", default=[], metavar="NAME=VALUES",
+                          help="a grid axis: NAME=A,B,C (impairment, clouds: A|B|C) or NAME=LO..HI/N (numbers or ISO date-times); every "
+                               "combination runs. NAME: gravity, payload_kg, sun_start, clouds, fault, fault_at_s, "
+                               "fault_until_s, impairment, param.NAME, or a bench variable (a script's ${NAME})")
+    campaign.add_argument("--draw", action="append", default=[], metavar="NAME=VALUES",
+                          help="drawn for each run from its seed: NAME=A,B,C (one of) or NAME=LO..HI (uniform); "
+                               "impairment and clouds values are separated by | instead")
+    campaign.add_argument("--seeds", default="1", metavar="N|FIRST..LAST",
+                          help="each grid point runs with these seeds (default 1: seed 0)")
+    campaign.add_argument("--workers", type=bounded(int, 1, 1024), default=None, metavar="N",
+                          help="local Dask workers (default: one per core)")
+    campaign.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786",
+                          help="a running Dask scheduler instead of a local cluster (docs/campaigns.md)")
+    campaign.add_argument("--serial", action="store_true", help="no Dask: every run in this process, in order")
+    campaign.add_argument("--out", type=Path, default=None, metavar="DIR",
+                          help="where the rows, campaign.json and plots go (default campaign-<UTC time>; "
+                               "a folder that already holds a campaign is refused)")
+    campaign.add_argument("--format", choices=("csv", "parquet"), default="csv", help="the rows' file (default csv)")
+    campaign.add_argument("--group-by", default=None, metavar="COLUMN",
+                          help="the summary per value of this column (default: fault, when it varies)")
+    campaign.add_argument("--summarize", action="append", default=[], metavar="COLUMN",
+                          help="a figure for the summary (default: the bench's measurements, the time to the "
+                               "safe state)")
+    campaign.add_argument("--plot", action="append", default=[], metavar="Y:X", help="a scatter plot of Y against X")
+    campaign.add_argument("--hist", action="append", default=[], metavar="COLUMN", help="a histogram")
+    campaign.add_argument("--keep-going", action="store_true", help="a script goes on after a failed line")
+    campaign.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_campaign(settings.campaign_settings(args))

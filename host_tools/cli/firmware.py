@@ -34,9 +34,10 @@ one waited for a CPU is excused; a plant process that ended or is stopped is exc
 """
 from __future__ import annotations
 
+import argparse
 import logging
-import os
 import math
+import os
 import signal
 from pathlib import Path
 from typing import Any, Callable, Optional
@@ -54,6 +55,7 @@ from protocol.states import Fault, FaultCause
 from timebase import RealClock
 
 from host_tools.worlds import nodes
+from host_tools.cli.options import add_bus_args, add_controller_args, add_timing_arg, bounded, default_params_path
 from host_tools.cli.plant import PlantProcess
 from host_tools.cli.settings import (BusSettings, ControllerSettings, FirmwareSettings, PlantRunSettings, PortSettings,
                                      SimSettings)
@@ -62,7 +64,6 @@ from host_tools.worlds.control_server import ControlServer, Handler, LinkInfo
 from host_tools.worlds.runtime_folder import RuntimeFolder
 from host_tools.worlds.own_time import LockstepWait
 from host_tools.teleop.format import describe_report
-from host_tools.cli.main import default_params_path
 
 PLANT_WATCH_S = 0.1
 KEPT_LOOK_S = 0.1            # how often a lock-step controller looks whether its wait outlasts lockstep_wait_s
@@ -377,3 +378,30 @@ def run_sim_over_hal(settings: SimSettings) -> int:
                               speed=settings.speed, control=settings.control, control_path=settings.control_path)
     finally:
         plant.stop()
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod firmware --interface udp_multicast --channel 239.74.163.2 --pty",
+]
+
+
+def add_options(firmware: argparse.ArgumentParser) -> None:
+    add_bus_args(firmware)
+    add_controller_args(firmware)
+    firmware.add_argument("--boot-timeout", type=bounded(float, 0.01, 3600), default=None, metavar="S",
+                          help="HAL inputs must arrive this soon after start, else HAL_STALE (default 1 s)")
+    add_timing_arg(firmware, "lockstep", "lockstep: the controller's time follows the plant's PLANT_SYNC ticks "
+                                         "(aspod plant --timing lockstep); realtime: the wall clock, as on real "
+                                         "hardware, with the staleness limits and loop deadlines as parameters")
+    firmware.add_argument("--plant-pid", type=bounded(int, 1, 2**22), default=None, metavar="PID",
+                          help="lock-step: the plant's process on this machine (its ASPOD-PLANT line says pid=N); "
+                               "the wait for its tick is then judged on its own time, so a busy machine is not "
+                               "taken for a plant gone (default: the wall clock, less this process's own waits "
+                               "for a CPU)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_firmware(settings.firmware_settings(args))

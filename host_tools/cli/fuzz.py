@@ -11,11 +11,14 @@ Exit status: 0 nothing found, 1 findings (or a replayed finding still fails), 2 
 """
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 from typing import Optional
 
+from host_tools.cli.options import baud_rate, bounded
 from host_tools.cli.main import host_key
 from host_tools.cli.settings import FuzzSettings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
@@ -168,3 +171,63 @@ def _replay(settings: FuzzSettings) -> int:
     if failure.trace:
         print(failure.trace, file=sys.stderr)
     return EXIT_FAILED
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod fuzz controller-link --time 60",
+    "aspod fuzz frames codec teleop --runs 10000000 --jobs 8 --coverage",
+    "aspod fuzz --target-cmd 'aspod sim --pty --no-pacing' --time 60",
+    "aspod fuzz --url /dev/pts/5 --key-file link.key --only BoxDial --time 600",
+    "aspod fuzz --replay fuzz-findings/crash-codec-0123456789ab.json",
+]
+
+
+def add_options(fuzz: argparse.ArgumentParser) -> None:
+    fuzz.add_argument("targets", nargs="*", metavar="TARGET",
+                      help="in-process targets (--list names them), or module:factory for your own")
+    fuzz.add_argument("--list", action="store_true", help="list the in-process targets and what each covers")
+    fuzz.add_argument("--url", default=None, help="black-box: the link of a running target (pty, socket://, device)")
+    fuzz.add_argument("--target-cmd", default=None, metavar="COMMAND",
+                      help="black-box: start the target with COMMAND (it prints ASPOD-LINK URL, as aspod sim does); "
+                           "it is restarted after a crash, and findings are shrunk on fresh targets")
+    fuzz.add_argument("--key-file", type=Path, default=None,
+                      help="the link's key (default: with --url, that of the local simulator serving it; with "
+                           "--target-cmd, each target's own, from its ASPOD-KEY line)")
+    fuzz.add_argument("--baud", type=baud_rate, default=115200, help="black-box: the line's rate (default 115200)")
+    fuzz.add_argument("--replay", type=Path, default=None, metavar="FILE", help="run one finding again, alone")
+    fuzz.add_argument("--time", type=bounded(float, 0.001, 30 * 86400), default=None, metavar="S",
+                      help="seconds per job (in process) or in all (black-box); default 60 unless --runs/--cases")
+    fuzz.add_argument("--runs", type=bounded(int, 1, 10**12), default=None, metavar="N",
+                      help="in process: executions per job")
+    fuzz.add_argument("--cases", type=bounded(int, 1, 10**9), default=None, metavar="N", help="black-box: cases")
+    fuzz.add_argument("--hang-s", type=bounded(float, 0.01, 86400), default=None, metavar="S",
+                      help="in process and --replay: an input past S seconds of its own time (the time the host kept "
+                           "it waiting for a CPU does not count) is a hang (default 10)")
+    fuzz.add_argument("--max-findings", type=bounded(int, 1, 10**6), default=None, metavar="N",
+                      help="black-box: stop after N findings (default: go on to --time or --cases)")
+    fuzz.add_argument("--jobs", type=bounded(int, 1, 10000), default=1, metavar="N",
+                      help="in process: jobs per target, each with its own seed, sharing the target's corpus")
+    fuzz.add_argument("--seed", type=bounded(int, 1, 2**31 - 1), default=1, help="the first job's seed (default 1)")
+    fuzz.add_argument("--corpus", type=Path, default=Path("fuzz-corpus"), metavar="DIR",
+                      help="corpus folders, one per target, kept between runs (default fuzz-corpus)")
+    fuzz.add_argument("--findings", type=Path, default=Path("fuzz-findings"), metavar="DIR",
+                      help="where findings are written (default fuzz-findings)")
+    fuzz.add_argument("--only", action="append", default=[], metavar="MESSAGE",
+                      help="black-box: send only this command in sequence (repeatable)")
+    fuzz.add_argument("--skip", action="append", default=None, metavar="MESSAGE",
+                      help="black-box: never send this command (repeatable; default ParamSave)")
+    fuzz.add_argument("--workers", type=bounded(int, 1, 1024), default=None, metavar="N",
+                      help="in process: local Dask workers (default one per core)")
+    fuzz.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786", help="a running Dask scheduler")
+    fuzz.add_argument("--serial", action="store_true", help="no Dask: the jobs one after the other, here")
+    fuzz.add_argument("--coverage", action="store_true",
+                      help="in process: afterwards, the line coverage each target's corpus reaches (coverage.py)")
+    fuzz.add_argument("--json", action="store_true", help="print one JSON object at the end")
+    fuzz.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_fuzz(settings.fuzz_settings(args))

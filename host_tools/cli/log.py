@@ -8,10 +8,11 @@ build's, with a warning naming both hashes.
 """
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import TYPE_CHECKING, Iterator, Optional
 
 from protocol import auth
 from protocol.files import InputFileError
@@ -20,9 +21,11 @@ from host_tools.sessions.capture import SessionCapture, WorldEvent, describe_wor
 from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, describe
 from host_tools.sessions.export import SessionPlot, write_csv
 from host_tools.sessions.stats import SessionStats
-from host_tools.cli.settings import LogSettings
 
 log = logging.getLogger("aspod.log")
+
+if TYPE_CHECKING:
+    from host_tools.cli.settings import LogSettings
 
 
 def open_capture(path: Path, prog: str) -> Optional[SessionCapture]:
@@ -123,3 +126,36 @@ def _log(settings: LogSettings, capture: SessionCapture) -> int:
         log.error(f"{where}: the capture breaks {capture.error} (decoded the {frames} frames before it)")
         return EXIT_FAILED
     return EXIT_OK
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod log session.pcapng",
+    "aspod log session.pcapng --class command --class event",
+    "aspod log session.pcapng --stats",
+    "aspod log session.pcapng --message TelemetryJoints --csv joints.csv",
+    "aspod log session.pcapng --plot session.png --key-file link.key",
+]
+
+
+def add_options(log_cmd: argparse.ArgumentParser) -> None:
+    log_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture written by --record or aspod proxy")
+    log_cmd.add_argument("--class", dest="cls", action="append", metavar="CLASS",
+                         help="only frames of this class (link, command, urgent, telemetry, event); repeatable")
+    log_cmd.add_argument("--message", action="append", metavar="NAME",
+                         help="only this message (e.g. TelemetryJoints); repeatable")
+    log_cmd.add_argument("--link", action="append", metavar="NAME", help="only frames of this link; repeatable")
+    log_cmd.add_argument("--errors", action="store_true", help="only frames that failed to decode or verify")
+    log_cmd.add_argument("--stats", action="store_true",
+                         help="counts instead: frames, errors, round trips, retransmissions, losses per class")
+    log_cmd.add_argument("--csv", type=Path, metavar="FILE.csv", help="write the decoded messages as CSV (- for stdout)")
+    log_cmd.add_argument("--plot", type=Path, metavar="FILE.png",
+                         help="plot joint positions and currents, the tracker's pointing error and link health")
+    log_cmd.add_argument("--key-file", type=Path, default=None,
+                         help="pre-shared key file (hex): verify every frame's MAC (without it MACs are not checked)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_log(settings.log_settings(args))

@@ -11,14 +11,17 @@ Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a gr
 """
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import math
 import warnings
+from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
+from host_tools.cli.options import bounded, squeeze_force
 from host_tools.cli.settings import PlanSettings
 from host_tools.exit_codes import EXIT_OK
 from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
@@ -188,3 +191,57 @@ def _text(result: dict) -> str:
     for f in result.get("figures", []):
         lines.append(f"  figure: {f}")
     return "\n".join(lines)
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod plan",
+    "aspod plan --json --plot figures",
+    "aspod plan --objective thermal --max-time 2",
+    "aspod plan --problem my_path.json --objective time --integrator ab2",
+    "aspod plan --method reach --nodes 99 --squeeze free --objective time",
+    "aspod plan --method reach --order 2 --nodes 99 --objective time",
+]
+
+
+def add_options(plan: argparse.ArgumentParser) -> None:
+    plan.add_argument("--problem", type=Path, default=None, metavar="FILE",
+                      help="a path, arms, object and limits from a JSON file (default: the report's example)")
+    plan.add_argument("--objective", choices=("time", "energy", "work", "thermal"), default="energy",
+                      help="time: the minimum-time plan alone; otherwise also the dynamic-programming plan "
+                           "minimising this (default energy, the report's index)")
+    plan.add_argument("--max-time", type=bounded(float, 1e-6, 1e6), default=None, metavar="S",
+                      help="the minimum-cost plan's time bound in seconds")
+    plan.add_argument("--method", choices=("phase", "reach"), default="phase",
+                      help="minimum time: phase, the report's switching points on the phase plane (default); reach, "
+                           "reachability (TOPP-RA), every torque within its limits between grid points too")
+    plan.add_argument("--squeeze", type=squeeze_force, default=None, metavar="N|free",
+                      help="--method reach: the squeeze force between the grasps a free variable, |squeeze| <= N "
+                           "newtons, or unbounded (free); default none, the load shared without squeeze")
+    plan.add_argument("--order", type=int, choices=(1, 2), default=1,
+                      help="--method reach: 1, s'' constant between grid points (default; takes --squeeze); 2, s'' "
+                           "linear, on grid points placed where time is lost (within 0.1 %% of a dense plan at 100)")
+    plan.add_argument("--integrator", choices=("ab2", "rk4"), default="rk4",
+                      help="limit curves by the report's 2nd-order Adams-Bashforth, or 4th-order Runge-Kutta "
+                           "(default)")
+    # at most plan.reach.MAX_GRIDPOINTS - 1 (a reach plan takes nodes + 1 points; not imported: the CLI starts light)
+    plan.add_argument("--nodes", type=bounded(int, 10, 199_999), default=2000,
+                      help="intervals in s for the minimum-time plan (default 2000)")
+    plan.add_argument("--dp-intervals", type=bounded(int, 2, 5000), default=100,
+                      help="dynamic programming: intervals in s (default 100, the report's)")
+    plan.add_argument("--dp-speeds", type=bounded(int, 3, 2001), default=201,
+                      help="dynamic programming: speeds per node (default 201, the report's)")
+    plan.add_argument("--dp-speed-step", type=bounded(float, 1e-6, 100.0), default=0.005, metavar="STEP",
+                      help="dynamic programming: the step between speeds, 1/s (default 0.005, the report's)")
+    plan.add_argument("--gravity", action="store_true",
+                      help="the example with gravity on (the report's points are matched with it off)")
+    plan.add_argument("--links", choices=("point", "rod"), default="point",
+                      help="the example's links: point masses at their far ends (default), or uniform rods")
+    plan.add_argument("--json", action="store_true", help="print one JSON object")
+    plan.add_argument("--plot", type=Path, default=None, metavar="DIR", help="draw the report's Figs. 11-17 into DIR")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_plan(settings.plan_settings(args))

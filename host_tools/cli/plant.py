@@ -26,6 +26,7 @@ readiness line, notice if it dies, stop it.
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import logging
 import math
@@ -40,6 +41,7 @@ from hil_sim.sun import TUCSON, SunTable
 from protocol.lockstep import ControllersWatch, LockstepLeader
 from timebase import PacedClock, RealClock
 
+from host_tools.cli.options import add_arm_args, add_bus_args, add_seed_arg, add_speed_arg, add_timing_arg, add_tracker_args
 from host_tools.cli.settings import PlantRunSettings
 from host_tools.worlds import nodes
 from host_tools.worlds.child import PIPE, Child, ChildError
@@ -197,3 +199,29 @@ class PlantProcess(Child):
         except BaseException:
             self.stop()
             raise
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod plant --interface udp_multicast --channel 239.74.163.2 --gravity orbit",
+]
+
+
+def add_options(plant: argparse.ArgumentParser) -> None:
+    add_bus_args(plant)
+    add_seed_arg(plant, "the plant's noise")
+    add_arm_args(plant)
+    add_tracker_args(plant)
+    plant.add_argument("--stop-on-stdin-eof", action="store_true",
+                       help="also stop when standard input closes (for a parent process that started it)")
+    add_timing_arg(plant, "lockstep", "lockstep: integrate each tick only once the controller (aspod firmware "
+                                      "--timing lockstep) has answered the last one, so neither side sees the "
+                                      "other's stalls; realtime: tick on the wall clock, whoever listens (to close "
+                                      "the loop around a controller that does not speak lock-step)")
+    add_speed_arg(plant, "the plant")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_plant(settings.plant_run_settings(args))

@@ -1,9 +1,11 @@
 """`aspod replay FILE`: re-simulate a recorded session and report whether it matches (host_tools/apps/replay.py)."""
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import logging
+from pathlib import Path
 
 from protocol import auth
 from host_tools.apps.replay import ReplayError, replay
@@ -40,3 +42,28 @@ def run_replay(settings: ReplaySettings) -> int:
     else:
         print(report.describe())
     return EXIT_OK if report.matches else EXIT_FAILED
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod demo --record demo.pcapng && aspod replay demo.pcapng",
+    "aspod replay sim.pcapng --param j1_kp=40 --output replayed.pcapng",
+]
+
+
+def add_options(replay_cmd: argparse.ArgumentParser) -> None:
+    replay_cmd.add_argument("capture", type=Path, metavar="FILE", help="a capture from aspod sim or aspod demo --record")
+    replay_cmd.add_argument("--param", action="append", metavar="NAME=VALUE",
+                            help="change a controller parameter for the replay (repeatable): what would differ?")
+    replay_cmd.add_argument("--key-file", type=Path, default=None,
+                            help="the recording's pre-shared key: verify its MACs, and with it a simulated-clock "
+                                 "replay is compared byte for byte too")
+    replay_cmd.add_argument("--json", action="store_true", help="print one JSON object")
+    replay_cmd.add_argument("--output", type=Path, default=None, metavar="FILE.pcapng",
+                            help="also write the replay's own capture")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_replay(settings.replay_settings(args))

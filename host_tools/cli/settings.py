@@ -355,7 +355,7 @@ def run_inputs(args: argparse.Namespace) -> list[tuple[str, Path]]:
     """Every file the run reads, which no output of it may replace: those named for it, and the parameter file
     that commands fall back to (in the per-user config folder). A simulator's own key is made in its runtime
     folder, where no output is named."""
-    from host_tools.cli.main import default_params_path
+    from host_tools.cli.options import default_params_path
     named = [(what, Path(str(getattr(args, name)).split("::")[0])) for name, what in INPUTS.items()
              if getattr(args, name, None) is not None]
     return named + [("the parameter file", default_params_path())]

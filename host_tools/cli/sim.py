@@ -27,6 +27,7 @@ docs/separate_processes.md.
 """
 from __future__ import annotations
 
+import argparse
 import logging
 import os
 import signal
@@ -37,6 +38,7 @@ from firmware_py.controller import ControllerConfig
 
 from timebase import PacedClock, RealClock
 
+from host_tools.cli.options import add_arm_args, add_controller_args, add_seed_arg, add_speed_arg, add_tracker_args, can_interface
 from host_tools.cli.firmware import (apply_command_line, controller_config, controller_key, log_states, open_port,
                                      run_sim_over_hal, runtime_folder, serve_endpoint)
 from host_tools.cli.plant import resolve_sun, sun_line
@@ -131,3 +133,48 @@ def serve_control(path: Path, plant: PlantSettings, world: World, link_url: str,
     control = PlantControl(world.plant, world.clock, tracker=plant.tracker, about=about,
                            log=lambda text: log.info(f"aspod sim: {text}"))
     return serve_endpoint(path, control, world.link_scheduler, "aspod sim")
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod sim --pty",
+    "aspod sim --tcp 0 --sun-start 2026-03-20T06:50-07:00 --clouds '12:00+300s@0.9'",
+    "aspod sim --hal udp_multicast --pty",
+]
+
+
+def add_options(sim: argparse.ArgumentParser) -> None:
+    add_controller_args(sim)
+    add_seed_arg(sim, "the plant's noise")
+    sim.add_argument("--hal", type=can_interface, metavar="INTERFACE",
+                     help="run the plant as a separate process (`aspod plant`), meeting it on this python-can "
+                          "interface, e.g. udp_multicast (default: one process, a private virtual bus)")
+    sim.add_argument("--hal-channel", metavar="CH",
+                     help="channel for --hal (udp_multicast: a multicast group; default: a fresh group and "
+                          "port for this run)")
+    sim.add_argument("--hal-arg", action="append", metavar="KEY=VALUE",
+                     help="further keyword for the --hal bus, repeatable (udp_multicast: port=N)")
+    add_speed_arg(sim, "the world (one process; with --hal, the plant process, in lock-step with the controller) "
+                       "runs")
+    add_arm_args(sim)
+    add_tracker_args(sim)
+    sim.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                     help="capture every frame on the controller's line, both ways, stamped with the world's time "
+                          "(aspod log, Wireshark with aspod wireshark's dissector, aspod replay)")
+    sim.add_argument("--can-log", type=Path, metavar="FILE",
+                     help="write every HAL bus frame through python-can's Logger (.blf, .asc, .log, .csv, .trc, "
+                          ".txt), for cantools decode, can.viewer, cantools plot")
+    control = sim.add_mutually_exclusive_group()
+    control.add_argument("--control", type=Path, metavar="PATH",
+                         help="serve the control endpoint (faults, gravity, payload, clouds, pause and step, the "
+                              "plant's true state: docs/benches.md; the link's key for host tools) on this Unix "
+                              "socket; by default it is served at a per-user path, said in an ASPOD-CONTROL line "
+                              "(with --hal it reaches no plant and says only the link and its key)")
+    control.add_argument("--no-control", action="store_true",
+                         help="serve no control endpoint (host tools then need --key-file)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_sim(settings.sim_settings(args))

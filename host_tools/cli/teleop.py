@@ -6,27 +6,35 @@ to IDLE rather than latching LINK_LOST): `quit`, Ctrl-D, the end of a script (DO
 """
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import sys
+from pathlib import Path
 
-from host_tools.cli.main import host_key
-from host_tools.cli.settings import TeleopSettings
-from host_tools.client.control import open_control
-from host_tools.client.live import HostClient
+from typing import TYPE_CHECKING
+
+from host_tools.cli.options import add_link_args, bounded
 from host_tools.exit_codes import EXIT_USAGE
-from host_tools.sessions.capture import CaptureWriter, SessionInfo
-from host_tools.teleop.console import interactive_console
-from host_tools.teleop.record import ScriptRecord
-from host_tools.teleop.session import TeleopError, check_script, run_script
-from host_tools.teleop.words import read_script
-from protocol.states import CloseWhy
+
+if TYPE_CHECKING:
+    from host_tools.cli.settings import TeleopSettings
 
 
 log = logging.getLogger("aspod")
 
 
 def run_teleop(args: TeleopSettings) -> int:
+    # imported here, not at the top: `aspod teleop --help` loads neither numpy nor the plant
+    from host_tools.cli.main import host_key
+    from host_tools.client.control import open_control
+    from host_tools.client.live import HostClient
+    from host_tools.sessions.capture import CaptureWriter, SessionInfo
+    from host_tools.teleop.console import interactive_console
+    from host_tools.teleop.record import ScriptRecord
+    from host_tools.teleop.session import TeleopError, check_script, run_script
+    from host_tools.teleop.words import read_script
+    from protocol.states import CloseWhy
     lines = None
     if args.script is not None or not sys.stdin.isatty():
         try:
@@ -89,3 +97,32 @@ def run_teleop(args: TeleopSettings) -> int:
     finally:
         client.close(why)
 
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod teleop /dev/pts/5",
+    "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary",
+]
+
+
+def add_options(teleop: argparse.ArgumentParser) -> None:
+    teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")
+    add_link_args(teleop)
+    teleop.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE and exit")
+    teleop.add_argument("--keep-going", action="store_true", help="in a script, go on after a failed command")
+    teleop.add_argument("--connect-timeout", type=bounded(float, 0.1, 600), default=10.0, metavar="S")
+    teleop.add_argument("--summary", action="store_true", help="print link figures at the end")
+    teleop.add_argument("--json", action="store_true",
+                        help="with a script: print one JSON object (each line's outcome and output, the motions, "
+                             "the round trips) instead of the session's text")
+    teleop.add_argument("--record", type=Path, metavar="FILE.pcapng",
+                        help="capture every frame both ways, as this host sent and received them (aspod log)")
+    teleop.add_argument("--control", type=Path, metavar="PATH",
+                        help="the simulator's control endpoint, for `sim` lines (default: the one of the aspod sim "
+                             "that serves URL, if any)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_teleop(settings.teleop_settings(args))

@@ -1,7 +1,9 @@
 """`aspod wireshark`: write the Lua dissector for session captures (host_tools/sessions/wireshark.py)."""
 from __future__ import annotations
 
+import argparse
 import sys
+from pathlib import Path
 from typing import Optional
 
 from host_tools.exit_codes import EXIT_OK
@@ -18,3 +20,20 @@ def run_wireshark(output: Optional[Output]) -> int:
         print(f"wrote {output}: open captures with  tshark -X lua_script:{output} -r FILE.pcapng  "
               f"or copy it into Wireshark's personal Lua plugins folder")
     return EXIT_OK
+
+
+# ---- the command line: its options, examples and run --------------------------------------------------------
+
+EXAMPLES = [
+    "aspod wireshark -o aspod.lua && tshark -X lua_script:aspod.lua -r session.pcapng",
+]
+
+
+def add_options(wireshark: argparse.ArgumentParser) -> None:
+    wireshark.add_argument("--output", "-o", type=Path, default=None, metavar="FILE.lua",
+                           help="where to write it (default: standard output)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.cli import settings
+    return run_wireshark(settings.wireshark_output(args))

@@ -126,7 +126,7 @@ def world_and_variables(config: pytest.Config, directive: tuple[str, ...] = (), 
     said = io.StringIO()
     try:
         with contextlib.redirect_stderr(said):        # argparse's usage is `aspod bench`'s, not this run's
-            args = build_parser().parse_args(["bench", "-", *argv])
+            args = build_parser(["bench"]).parse_args(["bench", "-", *argv])
         settings = bench_settings(args)
     except SystemExit:
         why = said.getvalue().strip().splitlines()[-1:] or ["they do not parse"]
