@@ -16,9 +16,11 @@ its key arrives, which an attacker without the PSK cannot make.
 """
 from __future__ import annotations
 
+import hashlib
 import hmac
 import os
 import secrets
+import string
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,17 +83,28 @@ def new_nonce() -> bytes:
     return secrets.token_bytes(NONCE_BYTES)
 
 
+KEY_RULE = (f"a key is an even number of hex digits, at least {2 * MIN_KEY_BYTES} ({MIN_KEY_BYTES} bytes; `aspod key "
+            f"new` writes {2 * KEY_BYTES}), whitespace and lines' `#` comments aside")
+
+
 def parse_key(text: str, source: str) -> bytes:
-    """A key written as hex (whitespace and `#` comment lines ignored)."""
+    """A key written as hex (whitespace and `#` comments ignored); KeyFileError saying what is wrong and the rule."""
     lines = [line.split("#", 1)[0] for line in text.splitlines()]
     digits = "".join("".join(lines).split())
-    try:
-        key = bytes.fromhex(digits)
-    except ValueError:
-        raise KeyFileError(f"{source}: not a hex key (expected {2 * KEY_BYTES} hex digits)") from None
+    bad = next((c for c in digits if c not in string.hexdigits), None)
+    if bad is not None:
+        raise KeyFileError(f"{source}: not a hex key: {bad!r} is not a hex digit; {KEY_RULE}")
+    if len(digits) % 2:
+        raise KeyFileError(f"{source}: not a hex key: an odd number of hex digits ({len(digits)}); {KEY_RULE}")
+    key = bytes.fromhex(digits)
     if len(key) < MIN_KEY_BYTES:
-        raise KeyFileError(f"{source}: key of {len(key)} bytes is too short (at least {MIN_KEY_BYTES})")
+        raise KeyFileError(f"{source}: a key of {len(key)} bytes ({len(digits)} hex digits) is too short; {KEY_RULE}")
     return key
+
+
+def fingerprint(key: bytes) -> str:
+    """A short name of `key` to compare two ends' keys by (16 hex digits of a hash; it tells nothing of the key)."""
+    return hashlib.sha256(b"ASPOD key fingerprint\x00" + key).hexdigest()[:16]
 
 
 def load_key(path: Path | str, what: str = "key file") -> bytes:
@@ -108,14 +121,22 @@ def load_key(path: Path | str, what: str = "key file") -> bytes:
     return parse_key(text, source)
 
 
-def write_key(path: Path | str, key: bytes) -> None:
-    """Write `key` atomically, readable by its owner only."""
+def write_key(path: Path | str, key: bytes, replace: bool = True) -> None:
+    """Write `key` atomically, readable by its owner only. With `replace` False an existing file is left as it is
+    (FileExistsError), also one made meanwhile: the whole key is linked into place, which fails where a file is."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="ascii") as out:
-        out.write("# ASPOD link pre-shared key (HMAC-SHA256), hex\n" + key.hex() + "\n")
-        out.flush()
-        os.fsync(out.fileno())
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w", encoding="ascii") as out:
+            out.write("# ASPOD link pre-shared key (HMAC-SHA256), hex\n" + key.hex() + "\n")
+            out.flush()
+            os.fsync(out.fileno())
+        if replace:
+            os.replace(tmp, path)
+        else:
+            os.link(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()

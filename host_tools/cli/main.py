@@ -141,6 +141,8 @@ COMMANDS = (
     ("replay", dict(help="re-simulate a recorded session (aspod sim/demo --record) and report "
                          "the first divergence"), "replay"),
     ("wireshark", dict(help="write the Wireshark Lua dissector for this protocol's captures"), "wireshark"),
+    ("key", dict(help="make a link key (new FILE, mode 0600) or name one to compare two ends' (fingerprint FILE)"),
+     "key"),
     ("completion", dict(help="print a shell completion script (bash or zsh)",
                         description="print a completion script for aspod: bash (source it, or put it in "
                                     "~/.local/share/bash-completion/completions/aspod) or zsh (put it as "
