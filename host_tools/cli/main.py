@@ -122,6 +122,7 @@ COMMANDS = (
                         "prints an ASPOD-PLANT ready line"), "plant"),
     ("firmware", dict(help="run only the controller, its HAL on a python-can interface; "
                            "prints ASPOD-LINK and ASPOD-KEY lines"), "firmware"),
+    ("ports", dict(help="list the serial ports and your running simulators (their links)"), "ports"),
     ("teleop", dict(help="console to a controller: interactive, or a script"), "teleop"),
     ("bench", dict(help="run a teleop script against the whole world on the simulated clock "
                         "(deterministic, fast); the plant's true state at the end"), "bench"),

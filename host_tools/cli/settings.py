@@ -311,11 +311,26 @@ def plant_run_settings(args: argparse.Namespace) -> PlantRunSettings:
 
 def teleop_settings(args: argparse.Namespace) -> TeleopSettings:
     from host_tools.client.lines import parse_links
-    parse_links(args.url)            # a link address pyserial cannot take is bad input, refused before any is opened
-    return TeleopSettings(url=args.url, baud=args.baud, script=args.script, keep_going=args.keep_going,
+    url = args.url if args.url is not None else the_one_simulator()
+    parse_links(url)                 # a link address pyserial cannot take is bad input, refused before any is opened
+    return TeleopSettings(url=url, baud=args.baud, script=args.script, keep_going=args.keep_going,
                           connect_timeout_s=args.connect_timeout, summary=args.summary,
                           record=capture_output(claims(args), args.record), json=args.json,
                           control=args.control, key_file=args.key_file)
+
+
+def the_one_simulator() -> str:
+    """The link of this user's one running simulator, for a host tool given no URL; ValueError (exit 2) listing them
+    when there are several, or saying so when there is none."""
+    from host_tools.client.control import running_simulators
+    found = running_simulators()
+    if len(found) == 1:
+        return str(found[0].info.get("link"))
+    if not found:
+        raise ValueError("no URL given, and no simulator of yours is running: start one (aspod sim --pty) or give "
+                         "the controller's port (aspod ports lists the serial ports)")
+    links = "; ".join(f"{one.info.get('link')} (pid {one.info.get('pid')})" for one in found)
+    raise ValueError(f"no URL given, and {len(found)} simulators of yours are running: give one of {links}")
 
 
 def demo_settings(args: argparse.Namespace) -> "DemoSettings":

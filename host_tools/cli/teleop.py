@@ -101,13 +101,16 @@ def run_teleop(args: TeleopSettings) -> int:
 # ---- the command line: its options, examples and run --------------------------------------------------------
 
 EXAMPLES = [
+    "aspod teleop",
     "aspod teleop /dev/pts/5",
     "aspod teleop socket://127.0.0.1:5555 --script session.txt --summary",
 ]
 
 
 def add_options(teleop: argparse.ArgumentParser) -> None:
-    teleop.add_argument("url", help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...")
+    teleop.add_argument("url", nargs="?", default=None,
+                        help="pyserial URL or device: /dev/pts/N, socket://HOST:PORT, ...; default: your one running "
+                             "simulator (aspod ports lists them)")
     add_link_args(teleop)
     teleop.add_argument("--script", type=Path, metavar="FILE", help="run the commands in FILE and exit")
     teleop.add_argument("--keep-going", action="store_true", help="in a script, go on after a failed command")

@@ -10,6 +10,7 @@ to a newcomer when all are taken) is found closed before the next request is sen
 again: a session may hold its client for hours. A request already sent is never sent again: if
 the connection ends before its reply, it may have run, and that is said.
 
+`running_simulators()` lists this user's live simulators (`aspod ports`, `aspod teleop` without a URL), and
 `find_simulator(url)` finds the endpoint of this user's simulator that serves the link `url`: each
 live socket in this user's runtime folders (host_tools/worlds/runtime_folder.py `search_folders`)
 answers `info` with its link and the path of the link's key. One registry, two uses:
@@ -154,24 +155,41 @@ class Found:
     info: dict
 
 
+def running_simulators(environ: Optional[Mapping[str, str]] = None) -> list[Found]:
+    """This user's live simulators, each as its endpoint answers `info` (its link, pid, key, whether it reaches a
+    plant), in the order of their sockets' names; a socket that does not answer is left out."""
+    return [found for found in map(_asked, _sockets(environ)) if found is not None]
+
+
 def find_simulator(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Found]:
     """The endpoint of this user's live simulator that serves the link `url`, or None."""
     wanted = link_endpoints(url)
+    for path in _sockets(environ):
+        found = _asked(path)
+        if found is not None and wanted & link_endpoints(str(found.info.get("link", ""))):
+            return found
+    return None
+
+
+def _sockets(environ: Optional[Mapping[str, str]]) -> list[Path]:
+    """The simulators' sockets in this user's runtime folders (at most MAX_SCANNED)."""
     candidates: list[Path] = []
     for folder in search_folders(environ):      # this user's, 0700: nothing else in them is to be trusted
         try:
             candidates += sorted(folder.glob("sim-*.sock"))
         except OSError:
             continue
-    for path in candidates[:MAX_SCANNED]:
-        try:
-            with ControlClient(path, FIND_TIMEOUT_S) as control:
-                info = control.request({"op": "info"}, FIND_TIMEOUT_S)
-        except ControlUnavailable:
-            continue                 # a dead simulator's socket, or one that does not answer
-        if info.get("ok") and wanted & link_endpoints(str(info.get("link", ""))):
-            return Found(path, info)
-    return None
+    return candidates[:MAX_SCANNED]
+
+
+def _asked(path: Path) -> Optional[Found]:
+    """What the endpoint at `path` answers to `info`; None if it is dead or does not answer."""
+    try:
+        with ControlClient(path, FIND_TIMEOUT_S) as control:
+            info = control.request({"op": "info"}, FIND_TIMEOUT_S)
+    except ControlUnavailable:
+        return None                  # a dead simulator's socket, or one that does not answer
+    return Found(path, info) if info.get("ok") else None
 
 
 def find_control(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Path]:
