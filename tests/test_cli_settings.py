@@ -110,11 +110,12 @@ def test_log_levels_and_the_log_file(tmp_path, capsys):
         log.info("quiet now")
         log.warning("a warning")
         assert capsys.readouterr().err == "a warning\n"
-        assert "WARNING a warning" in (tmp_path / "aspod.log").read_text()
+        kept = (tmp_path / "aspod.log").read_text()
+        assert "WARNING a warning" in kept and "INFO quiet now" in kept     # -q quiets the terminal, not the file
         setup_logging(verbose=1)
         log.debug("shown")
         assert capsys.readouterr().err == "shown\n"
-        args = build_parser().parse_args(["-v", "demo", "-q", "--log-file", "x.log"])
+        args = build_parser(["demo"]).parse_args(["-v", "demo", "-q", "--log-file", "x.log"])
         assert (args.verbose, args.quiet, str(args.log_file)) == (1, 1, "x.log")
     finally:
         setup_logging()
@@ -143,3 +144,21 @@ def test_hal_channel_and_hal_arg_without_hal_are_refused():
     with pytest.raises(ValueError, match="^--hal-channel and --hal-arg without --hal"):
         sim("--hal-channel", "239.1.1.1", "--hal-arg", "port=45000")
     assert sim("--hal", "udp_multicast", "--hal-channel", "239.1.1.1").hal_channel == "239.1.1.1"
+
+
+def test_a_fault_and_a_host_too_slow_are_warnings_that_quiet_still_shows(bench, capsys):
+    """"World below real time" was INFO, so `-q` hid the one line that says the host is too slow."""
+    from host_tools.cli.firmware import log_states
+    from protocol.messages import MESSAGES as M
+    from protocol.states import TimingIssue
+    try:
+        setup_logging(quiet=1)
+        log_states(bench.controller, "aspod sim")
+        say = bench.controller.report_listeners[-1]
+        say(M["TimingWarning"](int(TimingIssue.BELOW_REAL_TIME), True, 0.4, 0.5, 1234))
+        said = capsys.readouterr().err
+        assert said.startswith("aspod sim: uptime 1234 ms:") and "0.4" in said, said
+        say(M["TimingWarning"](int(TimingIssue.BELOW_REAL_TIME), False, 0.9, 0.5, 2234))
+        assert capsys.readouterr().err == ""                          # its end is news, not a warning
+    finally:
+        setup_logging()

@@ -323,7 +323,9 @@ def log_states(controller: Controller, prog: str) -> None:
             log.info(f"{prog}: {seen.channel} {seen.detail}")
 
     def log_report(msg) -> None:
-        log.info(f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}")
+        # a fault, and a host too slow for the speed asked, are warnings (-q still shows them); a warning's end is not
+        level = logging.INFO if msg.spec.name == "TimingWarning" and not msg.active else logging.WARNING
+        log.log(level, f"{prog}: uptime {msg.uptime_ms} ms: {describe_report(msg)}")
     controller.state_listeners.append(log_state)
     controller.report_listeners.append(log_report)
 

@@ -94,22 +94,27 @@ def add_logging_args(parser: argparse.ArgumentParser) -> None:
 
 def setup_logging(verbose: int = 0, quiet: int = 0, log_file: Optional[Path] = None) -> None:
     """The `aspod` logger: diagnostics on stderr as bare messages (INFO by default, so the lines that scripts
-    and tests read stay as they were), and to `log_file` with time and level."""
+    and tests read stay as they were; -q raises it, -v lowers it), and to `log_file` with time and level at INFO
+    (DEBUG with -v): -q quiets the terminal, never the record."""
     import logging                      # here, not at the top: `aspod --version` and `--help` need none of it
-    level = min(max(logging.INFO - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
+    shown = min(max(logging.INFO - 10 * verbose + 10 * quiet, logging.DEBUG), logging.CRITICAL)
+    kept = max(logging.INFO - 10 * verbose, logging.DEBUG)
     log = logging.getLogger("aspod")
     for handler in list(log.handlers):
         log.removeHandler(handler)
         handler.close()
-    log.setLevel(level)
     log.propagate = False
     stderr = logging.StreamHandler(sys.stderr)
     stderr.setFormatter(logging.Formatter("%(message)s"))
+    stderr.setLevel(shown)
     log.addHandler(stderr)
+    log.setLevel(shown)
     if log_file is not None:
         to_file = logging.FileHandler(log_file, encoding="utf-8")
         to_file.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+        to_file.setLevel(kept)
         log.addHandler(to_file)
+        log.setLevel(min(shown, kept))
 
 
 # The commands in the order `aspod --help` lists them: name, the keywords of its parser (help, description), and
