@@ -2,6 +2,8 @@
 without the key, counted, exported; broken captures reported with the offset where they break."""
 from __future__ import annotations
 
+import csv
+import math
 import struct
 from pathlib import Path
 
@@ -12,6 +14,7 @@ from protocol import auth
 from protocol.framing import MAX_ENCODED, decode_frame, encode_signed, find_frames
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.schema import Direction, MsgClass
+from protocol.states import AxisMode
 from host_tools.cli.main import main
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.sessions.segments import SegmentCutter
@@ -234,8 +237,13 @@ def test_aspod_log_prints_filters_counts_and_exports(session, tmp_path, capsys):
 
     assert main(["log", str(path), "--message", "telemetryjoints", "--csv", str(tmp_path / "j.csv")]) == 0
     table = (tmp_path / "j.csv").read_text().splitlines()
-    assert table[0].startswith("time_s,link,direction,class,seq,message,uptime_ms,homed,j1_pos")
+    assert table[0].startswith("time_s,link,direction,class,seq,message,uptime_ms [ms],homed,j1_pos [deg],"
+                               "j1_vel [deg/s],j1_current [A],j1_mode,")
     assert len(table) > 10 and all(",TelemetryJoints," in row for row in table[1:])
+    rows = list(csv.DictReader(table))
+    assert {row["j1_mode"] for row in rows} <= {mode.name for mode in AxisMode}        # names, not numbers
+    assert main(["log", str(path), "--si"]) == 2                  # only with a table
+    assert "--si: only with --csv" in capsys.readouterr().err
 
     assert main(["log", str(path), "--stats"]) == 0
     assert "round trip COMMAND: n=6" in capsys.readouterr().out
@@ -243,6 +251,21 @@ def test_aspod_log_prints_filters_counts_and_exports(session, tmp_path, capsys):
     png = tmp_path / "s.png"
     assert main(["log", str(path), "--plot", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_aspod_log_csv_in_the_consoles_degrees_or_with_si_in_radians(tmp_path):
+    """The table's angles are the console's degrees, each column's unit in its header; `--si` gives radians."""
+    moving = Path(__file__).parent / "data" / "replay_late_writes.pcapng"       # j2 jogs in it
+    tables = {}
+    for name, extra in (("deg", ()), ("si", ("--si",))):
+        out = tmp_path / f"{name}.csv"
+        assert main(["log", str(moving), "--message", "TelemetryJoints", "--csv", str(out), *extra]) == 0
+        tables[name] = list(csv.DictReader(out.read_text().splitlines()))
+    angles = [name for name in tables["deg"][0] if name.endswith(" [deg]") or name.endswith(" [deg/s]")]
+    pairs = [(float(a[n]), float(b[n.replace("[deg", "[rad")])) for a, b in zip(tables["deg"], tables["si"])
+             for n in angles]
+    assert len(tables["si"]) == len(tables["deg"]) > 10 and sum(deg != 0 for deg, _ in pairs) > 10
+    assert all(math.isclose(rad, math.radians(deg), rel_tol=1e-5, abs_tol=1e-9) for deg, rad in pairs)
 
 
 def test_aspod_log_on_a_broken_capture_decodes_what_it_can_and_fails_with_the_offset(session, tmp_path, capsys):

@@ -111,10 +111,10 @@ def _log(settings: LogSettings, capture: SessionCapture) -> int:
         def shown() -> Iterator[DecodedFrame]:
             return (d for d in decoded_frames(capture, psk) if wanted(settings, d))
         if settings.csv_to_stdout:
-            write_csv(shown, out, origin)
+            write_csv(shown, out, origin, settings.si)
         else:
             with settings.csv.open(text=True) as table:
-                rows = write_csv(shown, table, origin)
+                rows = write_csv(shown, table, origin, settings.si)
             print(f"# {rows} rows written to {settings.csv}", file=out)
     if plot is not None:
         with settings.plot.open() as png:
@@ -149,7 +149,10 @@ def add_options(log_cmd: argparse.ArgumentParser) -> None:
     log_cmd.add_argument("--errors", action="store_true", help="only frames that failed to decode or verify")
     log_cmd.add_argument("--stats", action="store_true",
                          help="counts instead: frames, errors, round trips, retransmissions, losses per class")
-    log_cmd.add_argument("--csv", type=Path, metavar="FILE.csv", help="write the decoded messages as CSV (- for stdout)")
+    log_cmd.add_argument("--csv", type=Path, metavar="FILE.csv",
+                         help="write the decoded messages as CSV (- for stdout): a column a field, its unit in the "
+                              "header (degrees, as the console shows them), states, modes and faults by name")
+    log_cmd.add_argument("--si", action="store_true", help="with --csv: angles in radians and lengths in metres")
     log_cmd.add_argument("--plot", type=Path, metavar="FILE.png",
                          help="plot joint positions and currents, the tracker's pointing error and link health")
     log_cmd.add_argument("--key-file", type=Path, default=None,

@@ -133,6 +133,7 @@ class LogSettings:
     plot: Optional[Output] = None
     key_file: Optional[Path] = None
     csv_to_stdout: bool = False          # `--csv -`
+    si: bool = False                     # the CSV's angles in radians and lengths in metres, not as the console
 
 
 @dataclass(frozen=True)
@@ -420,8 +421,10 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
     plot = outputs.file(args.plot, "--plot", PNG)
     to_stdout = args.csv is not None and str(args.csv) == "-"
     csv = None if to_stdout else outputs.file(args.csv, "--csv", CSV)
+    if args.si and args.csv is None:
+        raise ValueError("--si: only with --csv (the units of the table)")
     return LogSettings(args.capture, classes, tuple(messages), tuple(args.link or ()), args.errors, args.stats,
-                       csv, plot, args.key_file, to_stdout)
+                       csv, plot, args.key_file, to_stdout, args.si)
 
 
 def replay_settings(args: argparse.Namespace) -> ReplaySettings:

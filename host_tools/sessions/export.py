@@ -20,25 +20,59 @@ CSV = Kind("a CSV table of aspod log's (its first line begins `" + ",".join(HEAD
            begins(",".join(HEAD).encode()))
 
 
-def write_csv(frames: Callable[[], Iterable[DecodedFrame]], out: TextIO, origin_s: float = 0.0) -> int:
+# `--si`: a unit the console shows, to its SI unit, with the factor (a field of another unit keeps its own; times
+# keep theirs, which their names say: uptime_ms)
+SI_UNITS = {"deg": ("rad", math.pi / 180.0), "deg/s": ("rad/s", math.pi / 180.0), "mm": ("m", 1e-3),
+            "mm/s": ("m/s", 1e-3)}
+
+
+def csv_column(field, si: bool) -> tuple[str, float]:
+    """A field's column: its header, `name [unit]` (the unit as the console shows it, or SI), and the factor its
+    values are multiplied by."""
+    unit, factor = field.unit, 1.0
+    if si and unit in SI_UNITS:
+        unit, factor = SI_UNITS[unit]
+    return (f"{field.name} [{unit}]" if unit else field.name), factor
+
+
+def csv_value(value, field, factor: float) -> str:
+    """A value as the table holds it: an enumeration's by name (a set of flags as A|B, none as 0's name or
+    `none`), a number in the column's unit."""
+    if field.enum is not None and isinstance(value, int):
+        try:
+            return field.enum(value).name or "none"
+        except ValueError:
+            return str(value)              # a number the enumeration does not name: as it came
+    if factor != 1.0 and isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = value * factor
+    return format_value(value)
+
+
+def write_csv(frames: Callable[[], Iterable[DecodedFrame]], out: TextIO, origin_s: float = 0.0,
+              si: bool = False) -> int:
     """One row per frame whose message decoded; columns: `HEAD`, then every field of the messages present, in the
-    order they are declared (a field a row's message lacks is left empty). `frames()` gives the frames, and is
-    called twice: once for the columns, once for the rows. Returns the rows written."""
-    columns: dict[str, None] = {}
+    order they are declared, each headed with its unit (`csv_column`); a field a row's message lacks is left
+    empty. Angles in degrees and lengths in mm as the console shows them, or radians and metres with `si`;
+    states, modes and faults by name. `frames()` gives the frames, and is called twice: once for the columns,
+    once for the rows. Returns the rows written."""
+    columns: dict[tuple[str, str], tuple[str, float]] = {}       # (name, unit) -> (header, factor)
     kinds: set[str] = set()
     for d in frames():
         if d.message is not None and d.name not in kinds:
             kinds.add(d.name)
-            columns.update(dict.fromkeys(f.name for f in d.message.spec.fields))
+            for field in d.message.spec.fields:
+                columns.setdefault((field.name, field.unit), csv_column(field, si))
     writer = csv.writer(out)
-    writer.writerow(HEAD + list(columns))
+    writer.writerow(HEAD + [header for header, _ in columns.values()])
     rows = 0
     for d in frames():
         if d.message is None:
             continue
         values = d.fields()
+        cells = {(field.name, field.unit): csv_value(values[field.name], field, columns[field.name, field.unit][1])
+                 for field in d.message.spec.fields if field.name in values}
         writer.writerow([f"{d.time_s - origin_s:.6f}", d.link, ARROW[d.direction], d.class_name, d.frame.seq,
-                         d.name] + [format_value(values[c]) if c in values else "" for c in columns])
+                         d.name] + [cells.get(key, "") for key in columns])
         rows += 1
     return rows
 
