@@ -286,3 +286,16 @@ def test_aspod_log_refuses_bad_filters_by_name(session, capsys):
     assert main(["log", str(path), "--plot", "/no/such/folder/x.png"]) == 2
     assert main(["log", "/no/such/capture.pcapng"]) == 2
     assert "/no/such/capture.pcapng" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("clock", ["simulated", "paced", "wall"])
+def test_a_worlds_capture_is_dated_by_its_start_and_keeps_its_own_times(tmp_path, clock):
+    """Wireshark showed a world's captures in 1970: their times count from the world's start. Each interface's
+    if_tsoffset now holds the wall-clock second the capture began (a wall-clock capture is Unix time already)."""
+    path = tmp_path / "c.pcapng"
+    writer = CaptureWriter.create(path, SessionInfo(clock=clock, tool="test"), started_s=1_800_000_000.7)
+    writer.write("link", Direction.TO_CONTROLLER, b"\x00\x01\x02\x00", 2.5)
+    writer.close()
+    reader, packets = read_packets(path.read_bytes())
+    assert [i.tsoffset_s for i in reader.interfaces] == [0 if clock == "wall" else 1_800_000_000]
+    assert [p.time_s for p in packets] == [2.5]

@@ -5,8 +5,10 @@ Skipped, saying so, where tshark is not installed (`.ci/run` installs it where a
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import struct
+import time
 
 import pytest
 
@@ -18,7 +20,8 @@ from host_tools.cli.main import main
 from host_tools.sessions.decode import SessionDecoder
 from host_tools.sessions.pcapng import OUTBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
-from tests.captures import read_frames
+from tests.aspod_cli import ASPOD
+from tests.captures import read_frames, read_packets
 from host_tools.worlds.child import run
 from tests.test_session_capture import PSK, record_session
 
@@ -139,3 +142,39 @@ def test_tshark_marks_what_aspod_log_refuses_in_frames_whose_crc_is_good(capture
         assert bool(refused) == (what != "good"), what
         assert (row["_ws.expert.message"] != "") == bool(refused), (what, refused, row)
     assert rows[0]["aspod.message"] == "Ping"
+
+
+@needs_tshark
+def test_wireshark_shows_the_sessions_date_and_who_spoke(capture_and_dissector):
+    """Captures were dated 1970 (the session's own times from 0), and Source and Destination were empty."""
+    capture_path, lua = capture_and_dissector
+    frames = read_frames(capture_path)
+    started = read_packets(capture_path.read_bytes())[0].interfaces[0].tsoffset_s
+    assert abs(started - time.time()) < 24 * 3600          # today's: written when the fixture recorded it
+    cmd = [TSHARK, "-n", "-X", f"lua_script:{lua}", "-r", str(capture_path), "-T", "fields",
+           "-e", "frame.time_epoch", "-e", "_ws.col.Source", "-e", "_ws.col.Destination"]
+    done = run(cmd, text=True, timeout_s=120)
+    rows = [line.split("\t") for line in done.stdout.splitlines()]
+    assert len(rows) == len(frames) > 20
+    for (epoch, source, destination), frame in zip(rows, frames):
+        assert math.isclose(float(epoch), started + frame.time_s, abs_tol=1e-6)
+        assert (source, destination) == (("host", "controller") if frame.direction is Direction.TO_CONTROLLER
+                                         else ("controller", "host"))
+
+
+@needs_tshark
+def test_install_puts_the_dissector_where_tshark_loads_it_by_itself(capture_and_dissector, tmp_path):
+    capture_path, _ = capture_and_dissector
+    env = {**os.environ, "HOME": str(tmp_path / "home"), "XDG_CONFIG_HOME": str(tmp_path / "home" / ".config")}
+    done = run([*ASPOD, "wireshark", "--install"], text=True, env=env, timeout_s=120)
+    assert done.returncode == 0, done.stderr
+    installed = tmp_path / "home" / ".local" / "lib" / "wireshark" / "plugins" / "aspod.lua"
+    assert installed.read_text() == generate_dissector() and str(installed) in done.stdout
+    plain = run([TSHARK, "-n", "-r", str(capture_path), "-T", "fields", "-e", "aspod.message"], text=True, env=env,
+                timeout_s=120)                       # no -X lua_script: the plugin folder's
+    assert plain.returncode == 0 and plain.stdout.splitlines()[:2] == ["Hello", "HelloCookie"], plain.stdout
+    again = run([*ASPOD, "wireshark", "--install"], text=True, env=env, timeout_s=120)
+    assert again.returncode == 0                     # its own file, replaced by the same
+    installed.write_text("-- my own plugin\n")
+    refused = run([*ASPOD, "wireshark", "--install"], text=True, env=env, timeout_s=120)
+    assert refused.returncode == 2 and installed.read_text() == "-- my own plugin\n"   # not ours: kept

@@ -434,8 +434,13 @@ def replay_settings(args: argparse.Namespace) -> ReplaySettings:
 
 
 def wireshark_output(args: argparse.Namespace) -> Optional[Output]:
-    """`aspod wireshark --output` (None: standard output)."""
-    from host_tools.sessions.wireshark import DISSECTOR
+    """`aspod wireshark --output` (None: standard output), or with `--install` aspod.lua in this user's personal Lua
+    plugins folder (made if it is not there), where Wireshark and tshark load it at start."""
+    from host_tools.sessions.wireshark import DISSECTOR, personal_lua_folder
+    if args.install:
+        folder = personal_lua_folder()
+        folder.mkdir(parents=True, exist_ok=True)
+        return claims(args).file(folder / "aspod.lua", "--install", DISSECTOR)
     return claims(args).file(args.output, "--output", DISSECTOR)
 
 

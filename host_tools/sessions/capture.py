@@ -17,7 +17,9 @@ world started, on a simulated clock; `paced`: the same, on a world paced to the 
 from __future__ import annotations
 
 import json
+import math
 import re
+import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,24 +126,29 @@ class CaptureWriter:
     """
 
     def __init__(self, stream: BinaryIO, info: SessionInfo, links: tuple[str, ...] = ("link",),
-                 pending: Optional[Pending] = None) -> None:
+                 pending: Optional[Pending] = None, started_s: Optional[float] = None) -> None:
         self._pending = pending
         self._stream = stream
         self.failed = False
         self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=f"aspod {info.tool}".strip())
-        self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}") for name in links}
+        # On a world's clock (simulated, paced) the times written are the session's own, from 0: the wall-clock second
+        # it began (now, unless told) is each interface's if_tsoffset, so Wireshark shows the day and hour (1970
+        # without it) while the times stay the session's. On the wall clock they are Unix time already.
+        self._started_s = 0 if info.clock == "wall" else math.floor(time.time() if started_s is None else started_s)
+        self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}", tsoffset_s=self._started_s)
+                       for name in links}
         self._taps = {(name, d): SegmentCutter() for name in links for d in DIRECTION_FLAG}
         self.frames = 0
         self._world: Optional[int] = None
         stream.flush()              # a capture of no frame yet is a capture too: killed now, it reads
 
     @classmethod
-    def create(cls, output: Union[Output, Path], info: SessionInfo, links: tuple[str, ...] = ("link",)
-               ) -> "CaptureWriter":
+    def create(cls, output: Union[Output, Path], info: SessionInfo, links: tuple[str, ...] = ("link",),
+               started_s: Optional[float] = None) -> "CaptureWriter":
         """A capture into `output` (claimed by the command's settings; a plain path is written the same way)."""
         pending = unclaimed(output, CAPTURE).open()
         try:
-            return cls(pending.file, info, links, pending)
+            return cls(pending.file, info, links, pending, started_s)
         except BaseException:
             pending.discard()
             raise
@@ -165,7 +172,8 @@ class CaptureWriter:
         """A world event (something done to the plant outside the link), as JSON on the `world` interface."""
         with self._failing():
             if self._world is None:
-                self._world = self._pcap.add_interface(WORLD, "events in the world outside the link", LINKTYPE_USER1)
+                self._world = self._pcap.add_interface(WORLD, "events in the world outside the link", LINKTYPE_USER1,
+                                                       tsoffset_s=self._started_s)
             self._pcap.write_packet(self._world, time_s, json.dumps(event, sort_keys=True).encode())
             self._stream.flush()
 

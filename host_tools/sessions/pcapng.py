@@ -24,7 +24,7 @@ SHB, IDB, EPB = 0x0A0D0D0A, 0x00000001, 0x00000006
 BYTE_ORDER_MAGIC = 0x1A2B3C4D
 OPT_END, OPT_COMMENT = 0, 1
 SHB_USERAPPL = 4
-IF_NAME, IF_DESCRIPTION, IF_TSRESOL = 2, 3, 9
+IF_NAME, IF_DESCRIPTION, IF_TSRESOL, IF_TSOFFSET = 2, 3, 9, 14
 EPB_FLAGS = 2
 LINKTYPE_USER0 = 147          # "reserved for private use" (tcpdump.org link-layer types): our frames
 LINKTYPE_USER1 = 148          # the same, for a session's world events (JSON)
@@ -61,6 +61,7 @@ class Interface:
     name: str = ""
     description: str = ""
     tsresol_exp: int = 6       # 10**-6 s unless if_tsresol says otherwise (base 10 only, as we write)
+    tsoffset_s: int = 0        # if_tsoffset: seconds readers like Wireshark add to the times (ours keep them apart)
 
 
 @dataclass
@@ -112,11 +113,15 @@ class PcapngWriter:
         stream.write(_block(SHB, body))
         self.interfaces = 0
 
-    def add_interface(self, name: str, description: str = "", linktype: int = LINKTYPE_USER0) -> int:
-        """Declare an interface; returns its id for `write_packet`."""
+    def add_interface(self, name: str, description: str = "", linktype: int = LINKTYPE_USER0,
+                      tsoffset_s: int = 0) -> int:
+        """Declare an interface; returns its id for `write_packet`. `tsoffset_s`, if not 0, is its if_tsoffset: the
+        seconds a reader adds to its packets' times to date them (Wireshark does; `PcapngReader` keeps them apart)."""
         options = [(IF_NAME, name.encode()), (IF_TSRESOL, bytes([NANOSECONDS]))]
         if description:
             options.append((IF_DESCRIPTION, description.encode()))
+        if tsoffset_s:
+            options.append((IF_TSOFFSET, struct.pack("<q", tsoffset_s)))
         self._stream.write(_block(IDB, struct.pack("<HHI", linktype, 0, 0) + _options(options)))
         self.interfaces += 1
         return self.interfaces - 1
@@ -284,6 +289,8 @@ class PcapngReader:
                         raise CaptureError(offset, f"if_tsresol 10^-{value[0]} s: timestamps finer than "
                                                    f"10^-{MAX_TSRESOL_EXP} s (picoseconds) mean nothing")
                     interface.tsresol_exp = value[0]
+                elif code == IF_TSOFFSET and len(value) == 8:
+                    interface.tsoffset_s = struct.unpack(order + "q", value)[0]
             self.interfaces.append(interface)
         elif kind == EPB:
             iface, high, low, captured, original = struct.unpack_from(order + "IIIII", body, 0)
