@@ -124,7 +124,10 @@ class EstimatorConfig:
 
 
 def make_kalman_filter(config: EstimatorConfig, pos_rad: float = 0.0) -> KalmanFilter:
-    """filterpy's filter for the model, starting at rest at `pos_rad` with a wide velocity prior."""
+    """filterpy's filter for the model, starting at rest at `pos_rad` with a wide velocity prior (the `reference`
+    extra: MissingExtra without it)."""
+    from kernels.extras import require
+    require("reference", "filterpy", what="filterpy's Kalman filter (the estimator's reference)")
     from filterpy.kalman import KalmanFilter      # the reference only: not imported to run a controller
     kf = KalmanFilter(dim_x=2, dim_z=1)
     kf.F, kf.H, kf.Q, kf.R = config.matrices()

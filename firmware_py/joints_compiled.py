@@ -20,7 +20,7 @@ from kernels import compile_kernel
 @functools.lru_cache(maxsize=1)
 def compiled_joints_tick() -> Callable[..., int]:
     """`joints_tick` compiled by numba, the estimator's two steps and the profile's sampling compiled into it
-    (RuntimeError if numba is not installed)."""
+    (MissingExtra if numba is not installed)."""
     return compile_kernel(joints_tick, "joints", helpers=(count_step, filter_step, sample_profile, stopping_distance))
 
 

@@ -167,7 +167,7 @@ class ArmPlant:
 
     Every step is the plant's one tick (`tick`, a `hil_sim.arm_tick.ArmTick`: `arm_plant_tick`
     over flat rows of numbers, compiled by numba with `compiled`, None: as `ASPOD_COMPILED` says;
-    RuntimeError without numba). The motor bank (`motors`) and the mass model (`LoadModel`)
+    MissingExtra without numba). The motor bank (`motors`) and the mass model (`LoadModel`)
     hold the state and the constants it steps; this class keeps the commands, the configuration
     and the readings.
     """

@@ -289,7 +289,7 @@ class ArmTick:
 
     Plain (`compiled=False`): the groups are lists of lists, `state`'s rows the very lists the
     classes own. Compiled: 2-D numpy arrays, the classes' state adopted into `state`'s rows, and
-    the tick compiled by numba (RuntimeError without it). `faults` are the rows the plant sets.
+    the tick compiled by numba (MissingExtra without it). `faults` are the rows the plant sets.
 
     Keeps the drive constants for the step length in use and the readouts the last tick
     sampled, handed out as Python values (`gating`, `counts`, `switches`, `currents`); counts

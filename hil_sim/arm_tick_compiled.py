@@ -18,7 +18,7 @@ from kernels import compile_kernel
 
 @functools.lru_cache(maxsize=1)
 def compiled_arm_plant_tick() -> Callable[..., tuple[float, float]]:
-    """`arm_plant_tick` compiled by numba (RuntimeError if numba is not installed)."""
+    """`arm_plant_tick` compiled by numba (MissingExtra if numba is not installed)."""
     return compile_kernel(arm_plant_tick, "arm plant", helpers=(gravity_and_inertia, sample_readouts))
 
 

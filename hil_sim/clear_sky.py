@@ -101,7 +101,10 @@ def _ineichen(apparent_zenith_deg, airmass, turbidity, altitude_m, dni_extra):
 
 def lookup_monthly_turbidity_x20(latitude_deg: float, longitude_deg: float) -> tuple[int, ...]:
     """The twelve monthly Linke turbidities (times 20) of the site's cell in SoDa's table, from pvlib's copy of
-    it: pvlib, pandas and h5py are imported here, for a site that does not carry its values."""
+    it: pvlib, pandas and h5py are imported here, for a site that does not carry its values (the `reference` extra:
+    MissingExtra without it)."""
+    from kernels.extras import require
+    require("reference", "pvlib", "pandas", what="the Linke turbidity of a site without its own (pvlib's table)")
     import pandas as pd
     import pvlib
     months = pd.DatetimeIndex([f"2015-{m:02d}-15" for m in range(1, 13)], tz="UTC")

@@ -108,7 +108,7 @@ class Plant:
     The arm's channels are stepped by the arm's tick (`hil_sim.arm_tick`, `ArmPlant.tick`).
     `compiled_arm_tick`: that tick compiled by numba (hil_sim/arm_tick_compiled.py), the same to
     the bit; None (default) takes `kernels.compiled_by_default()` (`ASPOD_COMPILED=1`). Asked for
-    without numba: RuntimeError.
+    without numba: MissingExtra (kernels/extras.py).
     """
 
     def __init__(self, params: PlantParams, rng: np.random.Generator, *,

@@ -16,7 +16,8 @@ The switch: `ASPOD_COMPILED=1` in the environment turns both on, so that a bench
 test session picks it up unchanged; `ControllerConfig.compiled_joints` and the plant's
 `compiled_arm_tick` take it as their default. numba is not a dependency of the package (the extra
 `compiled` installs it): without it the switch stays off and everything runs as plain Python;
-turned on without numba, building the controller or the plant says so. `NUMBA_DISABLE_JIT=1` runs
+turned on without numba, building the controller or the plant says which extra to install
+(`MissingExtra`, kernels/extras.py; `aspod` exits 2). `NUMBA_DISABLE_JIT=1` runs
 the same arrays through the plain functions (slow: numpy scalars), for debugging.
 
 `compile_kernel` also compiles the reachability planner's order-2 passes (host_tools/plan/reach2.py),
@@ -61,18 +62,17 @@ def switched(on: Optional[bool]) -> Iterator[None]:
 
 
 def compile_kernel(function: F, what: str, helpers: Sequence[Callable] = (), cache: bool = True) -> F:
-    """`function` compiled by numba (`njit(cache=cache)`, no fastmath); RuntimeError naming `what` without numba.
+    """`function` compiled by numba (`njit(cache=cache)`, no fastmath); without numba, MissingExtra (a ValueError:
+    `aspod` exits 2) naming `what` and the `compiled` extra (kernels/extras.py).
 
     `helpers`: the plain functions `function` calls, compiled into it where it calls them and left
     as they are for Python callers (numba's `register_jitable`). numba refreshes its disk cache when
     `function`'s own file changes; helpers from other files are added to that (`_stamp_with`).
     """
-    try:
-        import numba
-        from numba.extending import register_jitable
-    except ImportError as exc:
-        raise RuntimeError(f"the compiled {what} ({ENVIRONMENT_SWITCH}=1) need numba: "
-                           "pip install 'aspod[compiled]' (or numba)") from exc
+    from kernels.extras import require
+    require("compiled", "numba", what=f"the compiled {what} ({ENVIRONMENT_SWITCH}=1)")
+    import numba
+    from numba.extending import register_jitable
     for helper in helpers:
         register_jitable(helper)
     compiled = numba.njit(cache=cache)(function)

@@ -25,6 +25,7 @@ from hil_sim.commands import N_CHANNELS
 from hil_sim.faults import CHANNEL_FAULTS, FAULTS_BY_NAME
 from hil_sim.plant import Plant, PlantParams
 from kernels import ENVIRONMENT_SWITCH
+from kernels.extras import MissingExtra
 
 N = N_CHANNELS
 DT = 0.001
@@ -304,10 +305,10 @@ def test_the_compiled_arm_tick_needs_numba(monkeypatch):
     monkeypatch.setitem(sys.modules, "numba", None)              # as if it were not installed
     compiled_arm_plant_tick.cache_clear()
     try:
-        with pytest.raises(RuntimeError, match="the compiled arm plant .* need numba: pip install"):
+        with pytest.raises(MissingExtra, match=r"the compiled arm plant .*: needs the compiled extra \(numba is not installed\): pip install 'aspod\[compiled\]'"):
             Plant(PlantParams(), np.random.default_rng(0), compiled_arm_tick=True)
         monkeypatch.setenv(ENVIRONMENT_SWITCH, "1")
-        with pytest.raises(RuntimeError, match="need numba"):
+        with pytest.raises(MissingExtra, match="needs the compiled extra"):
             Plant(PlantParams(), np.random.default_rng(0))         # asked for by the environment
         Plant(PlantParams(), np.random.default_rng(0), compiled_arm_tick=False)   # the plain tick needs nothing
     finally:

@@ -33,6 +33,7 @@ from firmware_py.estimator import COUNT_MODULUS
 from firmware_py.joint_bank import BankedAxis, JointBank, single_axis
 from firmware_py.joints_compiled import compiled_arm_joints_tick, compiled_joints_tick
 from kernels import ENVIRONMENT_SWITCH, switched
+from kernels.extras import MissingExtra
 from host_tools.client.trajectory import Knot, send_trajectory
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
@@ -567,7 +568,7 @@ def test_the_compiled_joints_are_asked_for_by_the_environment_and_need_numba(mon
     compiled_joints_tick.cache_clear()
     compiled_arm_joints_tick.cache_clear()
     try:
-        with pytest.raises(RuntimeError, match="need numba: pip install"):
+        with pytest.raises(MissingExtra, match=r"needs the compiled extra .*: pip install 'aspod\[compiled\]'"):
             JointBank(1, 1, compiled=True)
         JointBank(1, 1)                                          # the plain function needs nothing
     finally:

@@ -4,6 +4,8 @@ command that reproduces it alone. See docs/campaigns.md.
 
     aspod campaign benches/test_pick_and_place.py --seeds 1000 --draw payload_kg=0..2.5 \\
         --draw fault=none,jam:j2,open_circuit:j1 --draw fault_at_s=1..20 --plot m.worst_error_mm:payload_kg
+
+It needs the `campaign` extra (Dask, pyarrow, matplotlib, pytest): without it, it says so and exits 2.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from host_tools.cli.settings import CampaignSettings, bench_settings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from host_tools.teleop.words import TeleopError, script_directive
 from host_tools.worlds.bench_world import WorldSettings
+from kernels.extras import require
 
 log = logging.getLogger("aspod")
 SHOWN_FAILURES = 10
@@ -51,6 +54,7 @@ def bench_spec(settings: CampaignSettings) -> BenchSpec:
 
 
 def run_campaign(settings: CampaignSettings) -> int:
+    require("campaign", "dask", "distributed", "pyarrow", "matplotlib", "pytest", what="campaign")
     try:
         bench = bench_spec(settings)
     except ValueError as exc:

@@ -7,6 +7,9 @@
                                                           --key-file)
     aspod fuzz --replay FINDING.json [--url ...]          one finding again, alone
 
+In process (and replaying what it found) needs the `fuzz` extra (atheris; coverage for --coverage, Dask for jobs on
+it); listing and black-box fuzzing need none: a missing extra is named, exit 2 (kernels/extras.py).
+
 Exit status: 0 nothing found, 1 findings (or a replayed finding still fails), 2 bad usage or input.
 """
 from __future__ import annotations
@@ -22,6 +25,7 @@ from host_tools.cli.options import baud_rate, bounded
 from host_tools.cli.main import host_key
 from host_tools.cli.settings import FuzzSettings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+from kernels.extras import require
 
 log = logging.getLogger("aspod")
 
@@ -50,9 +54,13 @@ def _inprocess(settings: FuzzSettings) -> int:
     from host_tools.fuzz.campaign import run_campaign, summarize
     from host_tools.fuzz.targets import load_target
     plan = settings.plan
+    jobs = plan.jobs()
+    engine = settings.engine
+    on_dask = not (engine.serial or (len(jobs) == 1 and engine.scheduler is None))    # as run_campaign decides
+    require("fuzz", "atheris", *(("coverage",) if settings.coverage else ()),
+            *(("dask", "distributed") if on_dask else ()), what="fuzz")
     for name in plan.targets:
         load_target(name).close()            # an unknown target: refused before anything starts
-    jobs = plan.jobs()
     total = sum(j.runs for j in jobs) if plan.runs is not None else None
     bar = _progress_bar(settings, total, "exec")
     seen: dict[tuple, int] = {}
@@ -155,6 +163,7 @@ def _replay(settings: FuzzSettings) -> int:
         from host_tools.fuzz.blackbox import BlackBoxFuzzer
         failure = BlackBoxFuzzer(settings.blackbox, blackbox_key(settings)).replay(finding)
     else:
+        require("fuzz", "atheris", what=f"fuzz --replay (an in-process finding, of {finding.target})")
         from host_tools.fuzz.targets import builtin_targets, load_target
         if finding.target not in builtin_targets() and finding.target != settings.replay_target:
             raise ValueError(f"{settings.replay} names the target {finding.target}, which a replay would import and "

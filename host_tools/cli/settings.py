@@ -20,6 +20,7 @@ from host_tools.fuzz.hangs import HANG_S
 from host_tools.outputs import PNG, Claims, Output
 from host_tools.worlds import nodes
 from host_tools.worlds.settings import PlantSettings, TIMINGS
+from kernels.extras import require
 
 if TYPE_CHECKING:
     from host_tools.apps.demo import DemoSettings
@@ -356,8 +357,15 @@ def day_settings(args: argparse.Namespace) -> "DaySettings":
     return settings
 
 
+def plot_needs_its_extra(args: argparse.Namespace) -> None:
+    """`--plot` draws with matplotlib, the `plot` extra: without it, MissingExtra (exit 2) before anything runs."""
+    if args.plot is not None:
+        require("plot", "matplotlib", what=f"{args.command} --plot")
+
+
 def day_plot(args: argparse.Namespace) -> Optional[Output]:
     """`aspod tracker-day --plot`."""
+    plot_needs_its_extra(args)
     return claims(args).file(args.plot, "--plot", PNG)
 
 
@@ -417,6 +425,7 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
             raise ValueError(f"--message {name}: no such message (see docs/protocol.md)")
         messages.append(by_lower[name.lower()])
     from host_tools.sessions.export import CSV
+    plot_needs_its_extra(args)
     outputs = claims(args)
     plot = outputs.file(args.plot, "--plot", PNG)
     to_stdout = args.csv is not None and str(args.csv) == "-"
@@ -677,6 +686,7 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--order is the reachability planner's: give --method reach")
     if args.order == 2 and args.squeeze is not None:
         raise ValueError("--order 2 plans with the load shared, without the squeeze: give --order 1 for --squeeze")
+    plot_needs_its_extra(args)
     claims(args).folder(args.plot, "--plot")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,

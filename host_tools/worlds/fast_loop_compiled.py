@@ -23,7 +23,7 @@ from kernels import compile_kernel
 
 @functools.lru_cache(maxsize=1)
 def compiled_fast_ticks() -> Callable[..., int]:
-    """`fast_ticks` compiled by numba (RuntimeError if numba is not installed)."""
+    """`fast_ticks` compiled by numba (MissingExtra if numba is not installed)."""
     return compile_kernel(fast_ticks, "fast loop", helpers=(
         count_step, filter_step, sample_profile, stopping_distance, joints_tick, holding_torques_nm, arm_joints_tick,
         gravity_and_inertia, sample_readouts, arm_plant_tick, unwrap_delta, track, moving_tick, quantized_duty,
