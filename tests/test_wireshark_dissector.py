@@ -8,7 +8,6 @@ import math
 import os
 import shutil
 import struct
-import time
 
 import pytest
 
@@ -17,6 +16,7 @@ from protocol.framing import HEADER
 from protocol.messages import SCHEMA
 from protocol.schema import Direction, MsgClass
 from host_tools.cli.main import main
+from timebase import RealClock
 from host_tools.sessions.decode import SessionDecoder
 from host_tools.sessions.pcapng import OUTBOUND, PcapngWriter
 from host_tools.sessions.wireshark import generate_dissector
@@ -150,7 +150,7 @@ def test_wireshark_shows_the_sessions_date_and_who_spoke(capture_and_dissector):
     capture_path, lua = capture_and_dissector
     frames = read_frames(capture_path)
     started = read_packets(capture_path.read_bytes())[0].interfaces[0].tsoffset_s
-    assert abs(started - time.time()) < 24 * 3600          # today's: written when the fixture recorded it
+    assert abs(started - RealClock.wall_time()) < 24 * 3600          # today's: written when the fixture recorded it
     cmd = [TSHARK, "-n", "-X", f"lua_script:{lua}", "-r", str(capture_path), "-T", "fields",
            "-e", "frame.time_epoch", "-e", "_ws.col.Source", "-e", "_ws.col.Destination"]
     done = run(cmd, text=True, timeout_s=120)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +27,7 @@ from typing import Any, BinaryIO, Iterator, Optional, Union
 from protocol.files import InputFileError, open_input
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.schema import Direction
+from timebase import RealClock
 from host_tools import strict_json
 from host_tools.outputs import Kind, Output, Pending, begins, unclaimed
 from host_tools.sessions.segments import SegmentCutter
@@ -134,7 +134,7 @@ class CaptureWriter:
         # On a world's clock (simulated, paced) the times written are the session's own, from 0: the wall-clock second
         # it began (now, unless told) is each interface's if_tsoffset, so Wireshark shows the day and hour (1970
         # without it) while the times stay the session's. On the wall clock they are Unix time already.
-        self._started_s = 0 if info.clock == "wall" else math.floor(time.time() if started_s is None else started_s)
+        self._started_s = 0 if info.clock == "wall" else math.floor(RealClock.wall_time() if started_s is None else started_s)
         self._links = {name: self._pcap.add_interface(name, f"ASPOD link {name!r}", tsoffset_s=self._started_s)
                        for name in links}
         self._taps = {(name, d): SegmentCutter() for name in links for d in DIRECTION_FLAG}

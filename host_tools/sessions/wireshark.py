@@ -19,6 +19,7 @@ from __future__ import annotations
 import enum
 import os
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 from typing import Mapping, Optional
@@ -113,13 +114,13 @@ def personal_lua_folder(environ: Optional[Mapping[str, str]] = None) -> Path:
     """Where this user's Wireshark loads Lua plugins from at start: what `tshark -G folders` says ("Personal Lua
     Plugins"), else where Wireshark puts it (%APPDATA%\\Wireshark\\plugins on Windows, ~/.local/lib/wireshark/plugins
     elsewhere)."""
-    from host_tools.worlds.child import run
     environ = dict(os.environ if environ is None else environ)
     tshark = shutil.which("tshark", path=environ.get("PATH"))
     if tshark is not None:
-        try:
-            done = run([tshark, "-G", "folders"], text=True, env=environ, timeout_s=60)
-        except (OSError, ValueError):
+        try:           # it answers at once; the bound is for a tshark that hangs, not a measure
+            done = subprocess.run([tshark, "-G", "folders"], capture_output=True, text=True, env=environ,
+                                  stdin=subprocess.DEVNULL, timeout=120)
+        except (OSError, subprocess.SubprocessError):
             done = None
         for line in (done.stdout.splitlines() if done is not None and done.returncode == 0 else []):
             name, _, folder = line.partition(":")
