@@ -299,3 +299,19 @@ def test_a_worlds_capture_is_dated_by_its_start_and_keeps_its_own_times(tmp_path
     reader, packets = read_packets(path.read_bytes())
     assert [i.tsoffset_s for i in reader.interfaces] == [0 if clock == "wall" else 1_800_000_000]
     assert [p.time_s for p in packets] == [2.5]
+
+
+def test_the_plot_has_a_panel_for_what_the_session_carried_and_marks_its_faults(tmp_path):
+    """It drew four panels whatever the session had ("not in this session" on the empty ones) and no events."""
+    from host_tools.sessions.export import SessionPlot
+    lost = Path(__file__).parent / "data" / "replay_lag_given_up.pcapng"        # telemetry, a LINK_LOST fault
+    plot = SessionPlot()
+    decoder = SessionDecoder(None)
+    for f in read_frames(lost):
+        plot.add(decoder.decode(f.data, f.time_s, f.link, f.direction))
+    assert plot.panels() == ["position", "current", "link"]                      # no tracker in it: no panel
+    assert len(plot.faults) == 1 and plot.faults[0][1] == "LINK_TIMEOUT" and plot.events.points()[0]
+    png = tmp_path / "lost.png"
+    assert main(["log", str(lost), "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert SessionPlot().panels() == ["link"]

@@ -115,9 +115,13 @@ class Envelope:
 
 
 class SessionPlot:
-    """A session drawn as four panels against its time (`save`): joint positions, motor currents, the tracker's
-    pointing error, and link health (frames that failed to decode or verify, telemetry gaps), from frames given
-    one at a time (`add`). A panel whose telemetry the session did not carry says so instead of staying blank."""
+    """A session drawn against its time (`save`), a panel for each thing the session carried: joint positions and
+    motor currents (TelemetryJoints), the tracker's pointing error (TelemetryTracker), and always link health
+    (frames that failed to decode or verify, telemetry gaps); faults marked on every panel (a red line, named),
+    other events (a motion's end, a warning, a state) as thin grey lines. Frames are given one at a time (`add`);
+    what is kept is bounded whatever the session's length (`Envelope`, at most MAX_MARKS marks)."""
+
+    MAX_MARKS = 200
 
     def __init__(self, origin_s: float = 0.0) -> None:
         self.origin_s = origin_s
@@ -127,6 +131,10 @@ class SessionPlot:
         self.pointing = {f: Envelope() for f in ("error_az", "error_el")}
         self.bad = Envelope()            # times of frames that failed to decode or verify (values unused)
         self.gaps = Envelope()           # times of telemetry gaps
+        self.faults: list[tuple[float, str]] = []      # (time, what), the first MAX_MARKS
+        self.events = Envelope()         # times of the other events
+        self.unmarked = 0                # faults past MAX_MARKS, counted
+        self._carried: set[str] = set()
         self._last_seq: Optional[int] = None
 
     def add(self, d: DecodedFrame) -> None:
@@ -136,45 +144,85 @@ class SessionPlot:
         if d.message is None:
             return
         if d.name == "TelemetryJoints":
+            self._carried.add("joints")
             values = d.fields()
             for a in self.axes:
                 self.positions[a].add(t, values[f"{a}_pos"])
                 self.currents[a].add(t, values[f"{a}_current"])
         elif d.name == "TelemetryTracker":
+            self._carried.add("tracker")
             values = d.fields()
             for f, line in self.pointing.items():
                 line.add(t, values[f])
+        elif d.name == "FaultReport":
+            if len(self.faults) < self.MAX_MARKS:
+                self.faults.append((t, describe_fault(d)))
+            else:
+                self.unmarked += 1
+        elif d.frame.cls == MsgClass.EVENT:
+            self.events.add(t, 0.0)
         if d.frame.cls == MsgClass.TELEMETRY:
             if self._last_seq is not None and (d.frame.seq - self._last_seq) & 0xFFFF > 1:
                 self.gaps.add(t, 0.0)
             self._last_seq = d.frame.seq
+
+    def panels(self) -> list[str]:
+        """The panels `save` draws, in order: what the session carried, and link health."""
+        return ((["position", "current"] if "joints" in self._carried else [])
+                + (["pointing"] if "tracker" in self._carried else []) + ["link"])
 
     def save(self, path: Union[str, BinaryIO], title: str = "") -> None:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, panels = plt.subplots(4, 1, figsize=(11, 11), sharex=True, constrained_layout=True)
-        for panel, lines, label in ((panels[0], self.positions, "position (deg; gripper mm)"),
-                                    (panels[1], self.currents, "motor current (A)"),
-                                    (panels[2], self.pointing, "pointing error (deg)")):
-            for name, line in lines.items():
+        names = self.panels()
+        fig, panels = plt.subplots(len(names), 1, figsize=(11, 2.2 + 2.6 * len(names)), sharex=True,
+                                   constrained_layout=True, squeeze=False)
+        panels = {name: panel for name, panel in zip(names, panels[:, 0])}
+        for name, lines, label in (("position", self.positions, "position (deg; gripper mm)"),
+                                   ("current", self.currents, "motor current (A)"),
+                                   ("pointing", self.pointing, "pointing error (deg)")):
+            if name not in panels:
+                continue
+            panel = panels[name]
+            for line_name, line in lines.items():
                 t, y = line.points()
                 if t:
-                    panel.plot(t, y, lw=0.8, label=name)
+                    panel.plot(t, y, lw=0.8, label=line_name)
             panel.set_ylabel(label)
-        panels[3].eventplot([self.bad.points()[0], self.gaps.points()[0]], lineoffsets=[1, 0], linelengths=0.8,
-                            colors=["tab:red", "tab:orange"])
-        panels[3].set_yticks([0, 1], ["telemetry gap", "bad frame"])
-        panels[3].set_ylabel("link health")
-        panels[3].set_xlabel("time (s)")
-        for panel in panels[:3]:
-            if panel.lines:
-                panel.legend(loc="upper right", fontsize="small", ncol=6)
-            else:
-                panel.text(0.5, 0.5, "not in this session", transform=panel.transAxes, ha="center", color="gray")
+            panel.legend(loc="upper right", fontsize="small", ncol=6)
             panel.grid(alpha=0.3)
+        link = panels["link"]
+        link.eventplot([self.bad.points()[0], self.gaps.points()[0]], lineoffsets=[1, 0], linelengths=0.8,
+                       colors=["tab:red", "tab:orange"])
+        link.set_yticks([0, 1], ["telemetry gap", "bad frame"])
+        link.set_ylabel("link health")
+        link.set_xlabel("time (s)")
+        for panel in panels.values():
+            for t in self.events.points()[0]:
+                panel.axvline(t, color="0.6", lw=0.5, zorder=0)
+            for t, _ in self.faults:
+                panel.axvline(t, color="tab:red", lw=1.0, zorder=1)
+        top = panels[names[0]]
+        for t, what in self.faults[:20]:          # named on the top panel; more would hide the data
+            top.annotate(what, (t, 1.0), xycoords=("data", "axes fraction"), rotation=90, va="top", ha="right",
+                         fontsize="x-small", color="tab:red")
+        if self.unmarked:
+            top.set_title(f"{len(self.faults)} faults marked, {self.unmarked} more not", fontsize="small")
         if title:
             fig.suptitle(title)
         fig.savefig(path, format="png", dpi=110)
         plt.close(fig)
+
+
+def describe_fault(d: DecodedFrame) -> str:
+    """A FaultReport as a mark's label: its fault's name."""
+    values = d.fields()
+    field = next((f for f in d.message.spec.fields if f.enum is not None and f.name in values), None)
+    if field is None:
+        return "fault"
+    try:
+        return field.enum(values[field.name]).name or "fault"
+    except ValueError:
+        return f"fault {values[field.name]}"
