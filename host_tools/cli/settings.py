@@ -183,6 +183,7 @@ class SimSettings:
     hal_options: tuple[tuple[str, Any], ...] = ()
     record: Optional[Output] = None      # a session capture (pcapng) of the controller's line
     can_log: Optional[Output] = None     # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
+    can_ids: Optional[frozenset[int]] = None     # ... of these frames only (--can-only, --can-skip; None: all)
     control: bool = False                # serve the endpoint (aspod sim: unless --no-control; with --hal: info) ...
     control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/runtime_folder.py)
 
@@ -296,7 +297,7 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
                        hal_options=tuple(hal_options.items()), record=capture_output(outputs, args.record),
-                       can_log=can_log_output(outputs, args.can_log),
+                       can_log=can_log_output(outputs, args.can_log), can_ids=can_log_ids(args),
                        control=not args.no_control, control_path=args.control)
 
 
@@ -397,6 +398,16 @@ def claims(args: argparse.Namespace) -> Claims:
 def capture_output(outputs: Claims, path: Optional[Path], option: str = "--record") -> Optional[Output]:
     from host_tools.sessions.capture import CAPTURE
     return outputs.file(path, option, CAPTURE)
+
+
+def can_log_ids(args: argparse.Namespace) -> Optional[frozenset[int]]:
+    """--can-only and --can-skip (comma-separated, repeatable) as the frame ids kept; only with --can-log."""
+    only = [n for text in args.can_only for n in text.split(",")]
+    skip = [n for text in args.can_skip for n in text.split(",")]
+    if (only or skip) and args.can_log is None:
+        raise ValueError("--can-only, --can-skip: only with --can-log (which frames of the HAL bus it writes)")
+    from host_tools.worlds.can_log import message_ids
+    return message_ids(only, skip)
 
 
 def can_log_output(outputs: Claims, path: Optional[Path]) -> Optional[Output]:

@@ -123,7 +123,7 @@ def record_outputs(settings: SimSettings, plant: PlantSettings, world: World) ->
         world.record_link(CaptureWriter.create(settings.record, session_info(settings, plant, world)))
         log.info(f"aspod sim: recording the link to {settings.record} (aspod log {settings.record})")
     if settings.can_log is not None:
-        world.log_hal_bus(settings.can_log)
+        world.log_hal_bus(settings.can_log, settings.can_ids)
         log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
 
 
@@ -164,7 +164,14 @@ def add_options(sim: argparse.ArgumentParser) -> None:
                           "(aspod log, Wireshark with aspod wireshark's dissector, aspod replay)")
     sim.add_argument("--can-log", type=Path, metavar="FILE",
                      help="write every HAL bus frame through python-can's Logger (.blf, .asc, .log, .csv, .trc, "
-                          ".txt), for cantools decode, can.viewer, cantools plot")
+                          ".txt), for cantools decode, can.viewer, cantools plot; .blf is compressed (a tenth of "
+                          "a .log's size)")
+    sim.add_argument("--can-only", action="append", default=[], metavar="NAME[,NAME]",
+                     help="with --can-log: only these messages of protocol/hal.dbc (repeatable), e.g. "
+                          "ANALOG_IN,DIGITAL_IN")
+    sim.add_argument("--can-skip", action="append", default=[], metavar="NAME[,NAME]",
+                     help="with --can-log: not these messages (repeatable), e.g. MOTOR_CMD,MOTOR_FB,PLANT_SYNC, "
+                          "the 1 kHz ones")
     control = sim.add_mutually_exclusive_group()
     control.add_argument("--control", type=Path, metavar="PATH",
                          help="serve the control endpoint (faults, gravity, payload, clouds, pause and step, the "
