@@ -29,7 +29,7 @@ import math
 from dataclasses import dataclass
 import numpy as np
 
-from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V, Drive
+from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V, Drive, axis_config, parameter_table
 from firmware_py.trajectory import TRAJECTORY_KNOTS
 from host_tools.client.trajectory import Knot
 from host_tools.plan.bounds import Limits
@@ -152,6 +152,14 @@ class PlannedMove:
             out.append(Knot(float(t), tuple(math.degrees(angles[n]) for n in ARM_JOINTS),
                             tuple(math.degrees(speeds[n]) for n in ARM_JOINTS)))
         return out
+
+
+def homed_pose_rad() -> dict[str, float]:
+    """Where each joint of the trajectory holds after `home all` with the controller's default configuration: its
+    home angle, backed off its switch (firmware_py/homing.py)."""
+    config = {p.name: p.default for p in parameter_table()}
+    axes = {d.name: axis_config(d, config, 0.001) for d in DRIVES}
+    return {n: axes[n].home_pos_rad - axes[n].home_dir * axes[n].home_backoff_rad for n in ARM_JOINTS}
 
 
 def plan_move(start_rad: dict[str, float], targets_rad: dict[str, float], gravity_m_s2: float, payload_kg: float,

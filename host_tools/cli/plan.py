@@ -6,6 +6,7 @@
     aspod plan --problem FILE                    a path, arms and limits of your own (host_tools/plan/problem_file.py)
     aspod plan --method reach --squeeze free     minimum time by reachability, the squeeze force free
     aspod plan --method reach --order 2          ... s'' linear between grid points placed where time is lost
+    aspod plan --arm-to j1=20 --output move.json ASPOD's own arm: a trajectory file for teleop's `traj load`
 
 Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a grid too coarse: the reason says).
 """
@@ -22,7 +23,7 @@ from typing import Any, Optional
 import numpy as np
 
 from host_tools.cli.options import bounded, squeeze_force
-from host_tools.cli.settings import PlanSettings
+from host_tools.cli.settings import ArmMoveSettings, PlanSettings
 from host_tools.exit_codes import EXIT_OK
 from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
 from host_tools.plan.example import REPORTED, beside_report, report_problem
@@ -54,9 +55,43 @@ def _reach_result(problem, settings: PlanSettings) -> dict:
     return out
 
 
+def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
+    """ASPOD's own arm from `arm.start_deg` to `arm.target_deg` in minimum time, within the controller's default
+    current and speed limits and the supply (host_tools/apps/arm_plan.py); the knots written to `arm.output`, a
+    file teleop's `traj load` takes. PlanError (exit 2) for a move it cannot plan."""
+    from firmware_py.arm_config import parameter_table
+    from hil_sim.arm_params import GRAVITY_M_S2
+    from host_tools.apps.arm_plan import ArmPlanSettings, plan_move
+    from host_tools.client.trajectory import trajectory_json
+    defaults = {p.name: p.default for p in parameter_table()}
+    start = {name: math.radians(deg) for name, deg in arm.start_deg}
+    target = {name: math.radians(deg) for name, deg in arm.target_deg}
+    current = {name: defaults[f"{name}_i_lim_a"] for name in start}
+    speed = {name: math.radians(defaults[f"{name}_speed_dps"]) for name in start}
+    move = plan_move(start, target, GRAVITY_M_S2[arm.gravity], arm.payload_kg, current, speed,
+                     ArmPlanSettings(nodes=min(nodes, 20000), knots=arm.knots))
+    knots = move.knots(arm.knots)
+    about = {"tool": "aspod plan", "from_deg": dict(arm.start_deg), "to_deg": dict(arm.target_deg),
+             "gravity": arm.gravity, "payload_kg": arm.payload_kg, "duration_s": round(move.duration_s, 6),
+             "limits": "the controller's default current and speed limits"}
+    if arm.output is not None:
+        arm.output.write_text(trajectory_json(knots, about))
+    if as_json:
+        print(json.dumps({**about, "moving": list(move.names), "knots": len(knots),
+                          "output": None if arm.output is None else str(arm.output)}, indent=2))
+    else:
+        print(f"ASPOD's arm, {', '.join(move.names)}: {move.duration_s:.3f} s in minimum time ({arm.gravity}, "
+              f"payload {arm.payload_kg:g} kg), {len(knots)} knots"
+              + (f", written to {arm.output}: at the start pose, teleop's `traj load {arm.output}` then `traj run`"
+                 if arm.output is not None else ""))
+    return EXIT_OK
+
+
 def run_plan(settings: PlanSettings) -> int:
     """Plan; PlanError (exit 2) for a problem refused, or one whose plan came out with a number that is not finite
     (numpy's RuntimeWarnings on the way are kept from the user: the result is checked instead)."""
+    if settings.arm is not None:
+        return run_arm_plan(settings.arm, settings.nodes, settings.as_json)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
         result, fastest = _plan(settings)
@@ -202,6 +237,7 @@ EXAMPLES = [
     "aspod plan --problem my_path.json --objective time --integrator ab2",
     "aspod plan --method reach --nodes 99 --squeeze free --objective time",
     "aspod plan --method reach --order 2 --nodes 99 --objective time",
+    "aspod plan --arm-to j1=20,j2=-15 --output move.json",
 ]
 
 
@@ -240,6 +276,19 @@ def add_options(plan: argparse.ArgumentParser) -> None:
                       help="the example's links: point masses at their far ends (default), or uniform rods")
     plan.add_argument("--json", action="store_true", help="print one JSON object")
     plan.add_argument("--plot", type=Path, default=None, metavar="DIR", help="draw the report's Figs. 11-17 into DIR")
+    arm = plan.add_argument_group("ASPOD's own arm (a trajectory file for teleop's `traj load`)")
+    arm.add_argument("--arm-to", action="append", default=[], metavar="J=DEG[,J=DEG]",
+                     help="plan a minimum-time move of ASPOD's arm to these angles (j1..j4, mount; repeatable) "
+                          "within the controller's default current and speed limits")
+    arm.add_argument("--arm-from", action="append", default=None, metavar="J=DEG[,J=DEG]",
+                     help="the start pose (default: where `home all` leaves each joint, -1.146 deg); the arm must "
+                          "stand there for `traj run`")
+    arm.add_argument("--arm-gravity", choices=("earth", "orbit"), default=None, help="(default earth)")
+    arm.add_argument("--payload-kg", type=bounded(float, 0.0, 1000.0), default=None, metavar="M",
+                     help="mass in the gripper (default 0)")
+    arm.add_argument("--knots", type=bounded(int, 2, 256), default=None, metavar="N",
+                     help="knots of the trajectory (default 41; the controller holds 256)")
+    arm.add_argument("--output", type=Path, default=None, metavar="FILE.json", help="write the trajectory file")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -665,6 +665,18 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
 
 
 @dataclass(frozen=True)
+class ArmMoveSettings:
+    """`aspod plan --arm-to`: a minimum-time move of ASPOD's own arm (host_tools/apps/arm_plan.py), for a trajectory
+    file teleop's `traj load` takes."""
+    start_deg: tuple[tuple[str, float], ...]     # every joint of the trajectory (j1..j4, mount)
+    target_deg: tuple[tuple[str, float], ...]    # those that move
+    gravity: str = "earth"
+    payload_kg: float = 0.0
+    knots: int = 41
+    output: Optional[Output] = None
+
+
+@dataclass(frozen=True)
 class PlanSettings:
     """`aspod plan`: which problem (a file, or the report's example with its model options) and how to plan it."""
     problem: Optional[Path]
@@ -682,6 +694,7 @@ class PlanSettings:
     method: str = "phase"
     squeeze: Optional[float] = None          # --method reach: the bound on |squeeze| (N), inf for free
     order: int = 1                           # --method reach: 2, s'' linear on placed grid points
+    arm: Optional[ArmMoveSettings] = None    # --arm-to: ASPOD's own arm instead of the report's two
 
 
 def plan_settings(args: argparse.Namespace) -> PlanSettings:
@@ -697,8 +710,40 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--order is the reachability planner's: give --method reach")
     if args.order == 2 and args.squeeze is not None:
         raise ValueError("--order 2 plans with the load shared, without the squeeze: give --order 1 for --squeeze")
+    arm = arm_move_settings(args)
     plot_needs_its_extra(args)
     claims(args).folder(args.plot, "--plot")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
-                        args.method, args.squeeze, args.order)
+                        args.method, args.squeeze, args.order, arm)
+
+
+def arm_move_settings(args: argparse.Namespace) -> Optional[ArmMoveSettings]:
+    """--arm-to and what goes with it; None without it (ValueError for an arm option without --arm-to, a joint that
+    is not one of the trajectory's, or a report-example option beside it)."""
+    arm_options = {"--arm-from": args.arm_from, "--arm-gravity": args.arm_gravity, "--output": args.output,
+                   "--payload-kg": args.payload_kg, "--knots": args.knots}
+    if not args.arm_to:
+        given = [name for name, value in arm_options.items() if value is not None]
+        if given:
+            raise ValueError(f"{given[0]}: only with --arm-to (a move of ASPOD's own arm)")
+        return None
+    if args.problem is not None or args.gravity or args.plot is not None or args.method != "phase":
+        raise ValueError("--arm-to plans ASPOD's own arm (the phase-plane planner): without --problem, --gravity, "
+                         "--plot or --method")
+    from host_tools.apps.arm_plan import ARM_JOINTS, homed_pose_rad
+    start = {name: math.degrees(q) for name, q in homed_pose_rad().items()}
+    for option, texts, into in (("--arm-from", args.arm_from or [], start), ("--arm-to", args.arm_to, None)):
+        for name, value in pairs([t for text in texts for t in text.split(",")], option):
+            if name not in ARM_JOINTS:
+                raise ValueError(f"{option} {name}: not a joint of the trajectory; one of {', '.join(ARM_JOINTS)}")
+            if into is not None:
+                into[name] = value
+    target = dict(pairs([t for text in args.arm_to for t in text.split(",")], "--arm-to"))
+    for name, value in (*start.items(), *target.items()):
+        if not -360.0 <= value <= 360.0:          # NaN too: it compares false
+            raise ValueError(f"--arm-from/--arm-to {name}={value}: an angle in degrees, -360..360")
+    from host_tools.client.trajectory import TRAJECTORY_FILE
+    return ArmMoveSettings(tuple(start.items()), tuple(target.items()), args.arm_gravity or "earth",
+                           0.0 if args.payload_kg is None else args.payload_kg, args.knots or 41,
+                           claims(args).file(args.output, "--output", TRAJECTORY_FILE))
