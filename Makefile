@@ -13,7 +13,7 @@ unexport PYTHONDONTWRITEBYTECODE
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[test,bench,compiled,plot,fuzz,campaign,reference]'
+	$(BIN)/pip install -q -e '.[test,bench,compiled,plot,fuzz,campaign,reference,foxglove]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -157,6 +157,19 @@ def gripper_position_m(pos_rad: Sequence[float], geometry: ArmGeometry = ARM_PLA
     return np.array([rho * math.cos(phi), rho * math.sin(phi), geometry.link1_m + tz])
 
 
+def chain_points_m(q1: float, q2: float, q3: float, mount_rad: float,
+                   geometry: ArmGeometry = ARM_PLANT_PARAMS.geometry,
+                   mount: MountParams = ARM_PLANT_PARAMS.mount) -> dict[str, np.ndarray]:
+    """World positions of J1's axis, the elbow (J2), the wrist (J3) and the tip, in `gripper_position_m`'s frame."""
+    (ex, ez), (wx, wz), _, (tx, tz), _ = LoadModel(geometry, mount).pose(q1, q2, q3)
+    c, s = math.cos(mount_rad), math.sin(mount_rad)
+    out = {}
+    for name, (px, pz) in (("j1", (0.0, 0.0)), ("elbow", (ex, ez)), ("wrist", (wx, wz)), ("tip", (tx, tz))):
+        rho = mount.base_radius_m + mount.reach_sign * px
+        out[name] = np.array([rho * c, rho * s, geometry.link1_m + pz])
+    return out
+
+
 # ---- the plant -------------------------------------------------------------------------------
 class ArmPlant:
     """The six channels J1, J2, J3, J4, gripper, mount with their loads; no bus, no clock.
@@ -338,5 +351,5 @@ def _as_list(values) -> list:
     return values.tolist() if isinstance(values, np.ndarray) else list(values)
 
 
-__all__ = ["ArmPlant", "gripper_position_m", "joint_inertias_kg_m2", "mount_inertia_kg_m2",
+__all__ = ["ArmPlant", "chain_points_m", "gripper_position_m", "joint_inertias_kg_m2", "mount_inertia_kg_m2",
            "mount_static_moment_nm", "static_torques_nm"]

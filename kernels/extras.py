@@ -2,9 +2,9 @@
 
 `pip install aspod` installs the core (sim, teleop, bench, log, proxy, replay, plan, demo, tracker-day, the
 pytest plugin); the rest are extras (pyproject.toml): `plot` (matplotlib), `fuzz` (atheris, coverage, Dask),
-`campaign` (Dask, pyarrow, matplotlib, pytest), `compiled` (numba), `reference` (pvlib, filterpy). A command
-whose extra is missing raises `MissingExtra` before it starts, a ValueError: `aspod` prints its one line and
-exits 2 (EXIT_USAGE, host_tools/exit_codes.py), as for any other bad input.
+`campaign` (Dask, pyarrow, matplotlib, pytest), `compiled` (numba), `reference` (pvlib, filterpy), `foxglove`
+(foxglove-sdk). A command whose extra is missing raises `MissingExtra` before it starts, a ValueError: `aspod`
+prints its one line and exits 2 (EXIT_USAGE, host_tools/exit_codes.py), as for any other bad input.
 
 A module counts as installed when Python can find it (`importlib.util.find_spec`), without importing it: the
 check costs nothing at a light start, and a module set to None in `sys.modules` counts as missing.

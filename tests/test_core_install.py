@@ -74,6 +74,8 @@ REFUSED = [     # a command whose extra is missing: its words, and what it says
                                            "installed): pip install 'aspod[plot]'"),
     (["plan", "--plot", "figures"], "aspod: plan --plot: needs the plot extra (matplotlib is not installed): "
                                     "pip install 'aspod[plot]'"),
+    (["log", "s.pcapng", "--mcap", "s.mcap"], "aspod: log --mcap: needs the foxglove extra (foxglove is not "
+                                              "installed): pip install 'aspod[foxglove]'"),
 ]
 
 

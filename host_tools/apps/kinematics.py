@@ -26,7 +26,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from hil_sim.arm import gripper_position_m
+from hil_sim.arm import chain_points_m as arm_chain_points_m, gripper_position_m
 from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, CHANNEL_PARAMS, ArmGeometry, ArmPlantParams,
                                 MountParams)
 from protocol.states import ARM_CHANNELS
@@ -74,23 +74,9 @@ def chain_points_m(pose: JointPose, geometry: ArmGeometry = ARM_PLANT_PARAMS.geo
                    mount: MountParams = ARM_PLANT_PARAMS.mount) -> dict[str, np.ndarray]:
     """World positions of J1's axis, the elbow (J2), the wrist (J3) and the tip.
 
-    For clearance checks: the links are the straight segments between them.
+    For clearance checks: the links are the straight segments between them (`hil_sim.arm.chain_points_m`).
     """
-    a1 = pose.q1
-    a2 = a1 + pose.q2
-    a3 = a2 + pose.q3
-    plane = {"j1": (0.0, 0.0)}
-    plane["elbow"] = (geometry.link2_m * math.cos(a1), geometry.link2_m * math.sin(a1))
-    ex, ez = plane["elbow"]
-    plane["wrist"] = (ex + geometry.link3_m * math.cos(a2), ez + geometry.link3_m * math.sin(a2))
-    wx, wz = plane["wrist"]
-    plane["tip"] = (wx + geometry.tip_m * math.cos(a3), wz + geometry.tip_m * math.sin(a3))
-    c, s = math.cos(pose.mount), math.sin(pose.mount)
-    out = {}
-    for name, (px, pz) in plane.items():
-        rho = mount.base_radius_m + mount.reach_sign * px
-        out[name] = np.array([rho * c, rho * s, geometry.link1_m + pz])
-    return out
+    return arm_chain_points_m(pose.q1, pose.q2, pose.q3, pose.mount, geometry, mount)
 
 
 def _finite_xyz(value: Sequence[float], what: str) -> tuple[float, float, float]:

@@ -11,15 +11,18 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator, Optional
 
 from protocol import auth
 from protocol.files import InputFileError
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from host_tools.outputs import Output
 from host_tools.sessions.capture import SessionCapture, WorldEvent, describe_world_event
 from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, describe
 from host_tools.sessions.export import SessionPlot, write_csv
+from host_tools.sessions.foxglove import FoxgloveTopics, time_ns
 from host_tools.sessions.stats import SessionStats
 
 log = logging.getLogger("aspod.log")
@@ -54,6 +57,17 @@ def wanted(settings: LogSettings, d: DecodedFrame) -> bool:
     return not settings.messages or d.name in settings.messages
 
 
+def mcap_topics(output: Output, finish: ExitStack) -> FoxgloveTopics:
+    """Foxglove's topics written to `output` as MCAP (foxglove-sdk's writer, zstd chunks): the file is finished and
+    put in place when `finish` closes, or left as it was when it closes on an error (host_tools/outputs.py)."""
+    import foxglove
+    pending = finish.enter_context(output.open())
+    context = foxglove.Context()
+    topics = FoxgloveTopics(context)
+    finish.enter_context(foxglove.open_mcap(pending, context=context))
+    return topics
+
+
 def run_log(settings: LogSettings) -> int:
     capture = open_capture(settings.capture, "aspod log")
     if capture is None:
@@ -75,33 +89,38 @@ def _log(settings: LogSettings, capture: SessionCapture) -> int:
               + (f", seed {info.seed}" if info.seed is not None else ""), file=out)
     for warning in capture.warnings:
         log.warning(f"{where}: {warning}")
-    listing = not (settings.stats or settings.csv is not None or settings.csv_to_stdout or settings.plot is not None)
+    listing = not (settings.stats or settings.csv is not None or settings.csv_to_stdout or settings.plot is not None
+                   or settings.mcap is not None)
     filtered = bool(settings.classes or settings.messages or settings.links or settings.errors_only)
     stats = SessionStats() if settings.stats else None
     plot = SessionPlot(origin) if settings.plot is not None else None
     decoder = SessionDecoder(psk)
     frames = events = 0
     said = set(capture.warnings)
-    for item in capture.items():
-        if isinstance(item, WorldEvent):
-            events += 1
-            if item.error:
-                log.warning(f"{where}: {item.error}; left out")
-            elif listing and not filtered:
-                print(f"{item.time_s - origin:12.6f} world    {describe_world_event(item.event)}", file=out)
-            continue
-        frames += 1
-        if item.note:
-            log.warning(f"{where}: {item.note}")
-        d = decoder.decode(item.data, item.time_s, item.link, item.direction, item.original_length)
-        if not wanted(settings, d):
-            continue
-        if listing:
-            print(describe(d, origin), file=out)
-        if stats is not None:
-            stats.add(d)
-        if plot is not None:
-            plot.add(d)
+    with ExitStack() as finish:
+        topics = None if settings.mcap is None else mcap_topics(settings.mcap, finish)
+        for item in capture.items():
+            if isinstance(item, WorldEvent):
+                events += 1
+                if item.error:
+                    log.warning(f"{where}: {item.error}; left out")
+                elif listing and not filtered:
+                    print(f"{item.time_s - origin:12.6f} world    {describe_world_event(item.event)}", file=out)
+                continue
+            frames += 1
+            if item.note:
+                log.warning(f"{where}: {item.note}")
+            d = decoder.decode(item.data, item.time_s, item.link, item.direction, item.original_length)
+            if not wanted(settings, d):
+                continue
+            if listing:
+                print(describe(d, origin), file=out)
+            if stats is not None:
+                stats.add(d)
+            if plot is not None:
+                plot.add(d)
+            if topics is not None:
+                topics.add(d, time_ns(item.started_s, item.time_s))
     for warning in capture.warnings:           # found while reading (a packet without a direction)
         if warning not in said:
             log.warning(f"{where}: {warning}")
@@ -120,6 +139,9 @@ def _log(settings: LogSettings, capture: SessionCapture) -> int:
         with settings.plot.open() as png:
             plot.save(png, title=Path(settings.capture).name)
         print(f"# plot written to {settings.plot}", file=out)
+    if topics is not None:
+        written = ", ".join(f"{n} on {topic}" for topic, n in topics.counts.items() if n) or "no message"
+        print(f"# MCAP written to {settings.mcap}: {written}", file=out)
     if listing:
         print(f"# {frames} frames" + (f", {events} world events" if events else ""), file=out)
     if capture.error is not None:
@@ -136,6 +158,7 @@ EXAMPLES = [
     "aspod log session.pcapng --stats",
     "aspod log session.pcapng --message TelemetryJoints --csv joints.csv",
     "aspod log session.pcapng --plot session.png --key-file link.key",
+    "aspod log session.pcapng --mcap session.mcap",
 ]
 
 
@@ -155,6 +178,9 @@ def add_options(log_cmd: argparse.ArgumentParser) -> None:
     log_cmd.add_argument("--si", action="store_true", help="with --csv: angles in radians and lengths in metres")
     log_cmd.add_argument("--plot", type=Path, metavar="FILE.png",
                          help="plot joint positions and currents, the tracker's pointing error and link health")
+    log_cmd.add_argument("--mcap", type=Path, metavar="FILE.mcap",
+                         help="write the session as MCAP for Foxglove: joint states, the arm as a 3D scene, the "
+                              "tracker's pointing, events as log lines (the foxglove extra; docs/sessions.md)")
     log_cmd.add_argument("--key-file", type=Path, default=None,
                          help="pre-shared key file (hex): verify every frame's MAC (without it MACs are not checked)")
 

@@ -135,6 +135,7 @@ class LogSettings:
     key_file: Optional[Path] = None
     csv_to_stdout: bool = False          # `--csv -`
     si: bool = False                     # the CSV's angles in radians and lengths in metres, not as the console
+    mcap: Optional[Output] = None        # the session as MCAP, on Foxglove's topics (host_tools/sessions/foxglove.py)
 
 
 @dataclass(frozen=True)
@@ -186,6 +187,7 @@ class SimSettings:
     can_ids: Optional[frozenset[int]] = None     # ... of these frames only (--can-only, --can-skip; None: all)
     control: bool = False                # serve the endpoint (aspod sim: unless --no-control; with --hal: info) ...
     control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/runtime_folder.py)
+    foxglove: Optional[int] = None       # serve the telemetry over Foxglove's WebSocket on this port (0: any free one)
 
 
 @dataclass(frozen=True)
@@ -293,12 +295,19 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
                          "(--hal INTERFACE); without --hal the plant runs in this process on a private bus")
     if args.hal is not None:
         hal_options = nodes.parse_bus_args(args.hal_arg or (), args.hal, "--hal-arg")
+    foxglove = getattr(args, "foxglove", None)
+    if foxglove is not None:
+        if args.hal is not None:
+            raise ValueError("--foxglove with --hal is not built yet: serve it from the one-process world (without "
+                             "--hal)")
+        from host_tools.sessions.foxglove import require_foxglove
+        require_foxglove("aspod sim --foxglove")
     outputs = claims(args)
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
                        hal_options=tuple(hal_options.items()), record=capture_output(outputs, args.record),
                        can_log=can_log_output(outputs, args.can_log), can_ids=can_log_ids(args),
-                       control=not args.no_control, control_path=args.control)
+                       control=not args.no_control, control_path=args.control, foxglove=foxglove)
 
 
 def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
@@ -441,10 +450,15 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
     plot = outputs.file(args.plot, "--plot", PNG)
     to_stdout = args.csv is not None and str(args.csv) == "-"
     csv = None if to_stdout else outputs.file(args.csv, "--csv", CSV)
+    mcap = None
+    if args.mcap is not None:
+        from host_tools.sessions.foxglove import MCAP, require_foxglove
+        require_foxglove("aspod log --mcap")
+        mcap = outputs.file(args.mcap, "--mcap", MCAP)
     if args.si and args.csv is None:
         raise ValueError("--si: only with --csv (the units of the table)")
     return LogSettings(args.capture, classes, tuple(messages), tuple(args.link or ()), args.errors, args.stats,
-                       csv, plot, args.key_file, to_stdout, args.si)
+                       csv, plot, args.key_file, to_stdout, args.si, mcap)
 
 
 def replay_settings(args: argparse.Namespace) -> ReplaySettings:

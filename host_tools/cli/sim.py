@@ -38,12 +38,13 @@ from firmware_py.controller import ControllerConfig
 
 from timebase import PacedClock, RealClock
 
-from host_tools.cli.options import add_arm_args, add_controller_args, add_seed_arg, add_speed_arg, add_tracker_args, can_interface
+from host_tools.cli.options import bounded, add_arm_args, add_controller_args, add_seed_arg, add_speed_arg, add_tracker_args, can_interface
 from host_tools.cli.firmware import (apply_command_line, controller_config, controller_key, log_states, open_port,
                                      run_sim_over_hal, runtime_folder, serve_endpoint)
 from host_tools.cli.plant import resolve_sun, sun_line
 from host_tools.cli.settings import SimSettings
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
+from host_tools.sessions.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
 from host_tools.worlds.control_server import ControlServer
 from host_tools.worlds.runtime_folder import RuntimeFolder
 from host_tools.worlds.plant_control import PlantControl
@@ -104,6 +105,8 @@ def _run_sim(settings: SimSettings, params_path: Path, config: ControllerConfig,
         print(f"ASPOD-KEY {key_path}", flush=True)
         if control is not None:
             print(f"ASPOD-CONTROL {control.path}", flush=True)
+        if settings.foxglove is not None:
+            print(f"ASPOD-FOXGLOVE {serve_foxglove(settings.foxglove, world)}", flush=True)
         log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
                  f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
         log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
@@ -127,6 +130,21 @@ def record_outputs(settings: SimSettings, plant: PlantSettings, world: World) ->
         log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
 
 
+def serve_foxglove(port: int, world: World) -> str:
+    """The controller's telemetry and events, as it writes them, on Foxglove's WebSocket protocol at 127.0.0.1:`port`
+    (0: a free port), the topics of `aspod log --mcap` (host_tools/sessions/foxglove.py); returns its URL. The
+    server stops when the world closes."""
+    import math
+    from host_tools.sessions.foxglove import FoxgloveTap, serve
+    from host_tools.worlds.ports import RecordedPort
+    topics, server = serve(port)
+    tap = FoxgloveTap(topics, math.floor(RealClock.wall_time()), on_close=server.stop)
+    world.uart.port = RecordedPort(world.uart.port, tap, world.clock)
+    url = f"ws://127.0.0.1:{server.port}"
+    log.info(f"aspod sim: serving the telemetry to Foxglove at {url} (Foxglove: Open connection, Foxglove WebSocket)")
+    return url
+
+
 def serve_control(path: Path, plant: PlantSettings, world: World, link_url: str, key_path: Path) -> ControlServer:
     """The plant's control endpoint at `path`, served by a task on the link's (wall-clock) scheduler."""
     about = {"link": link_url, "pid": os.getpid(), "key": str(key_path)}
@@ -141,6 +159,7 @@ EXAMPLES = [
     "aspod sim --pty",
     "aspod sim --tcp 0 --sun-start 2026-03-20T06:50-07:00 --clouds '12:00+300s@0.9'",
     "aspod sim --hal udp_multicast --pty",
+    "aspod sim --pty --foxglove",
 ]
 
 
@@ -172,6 +191,10 @@ def add_options(sim: argparse.ArgumentParser) -> None:
     sim.add_argument("--can-skip", action="append", default=[], metavar="NAME[,NAME]",
                      help="with --can-log: not these messages (repeatable), e.g. MOTOR_CMD,MOTOR_FB,PLANT_SYNC, "
                           "the 1 kHz ones")
+    sim.add_argument("--foxglove", type=bounded(int, 0, 65535), nargs="?", const=FOXGLOVE_PORT, metavar="PORT",
+                     help="serve the telemetry live over Foxglove's WebSocket protocol on 127.0.0.1:PORT (default "
+                          f"{FOXGLOVE_PORT}; 0: a free port), said in an ASPOD-FOXGLOVE line: the topics of "
+                          "aspod log --mcap (the foxglove extra; docs/sessions.md)")
     control = sim.add_mutually_exclusive_group()
     control.add_argument("--control", type=Path, metavar="PATH",
                          help="serve the control endpoint (faults, gravity, payload, clouds, pause and step, the "

@@ -215,6 +215,7 @@ class CapturedFrame:
     comment: str
     offset: int
     note: str = ""          # its block was larger than a reader holds: what was kept (`Packet.note`)
+    started_s: int = 0      # its interface's if_tsoffset: on a world's clock, the wall-clock second the session began
 
     @property
     def truncated(self) -> bool:
@@ -302,7 +303,7 @@ class SessionCapture:
                     self.warnings.append(said)
             yield CapturedFrame(p.time_s, interface.name or f"if{p.interface}",
                                 FLAG_DIRECTION.get(p.direction, Direction.TO_HOST), p.data, p.original_length,
-                                p.comment, p.offset, p.note)
+                                p.comment, p.offset, p.note, interface.tsoffset_s)
         self.error = pcap.error
 
     def frames(self) -> Iterator[CapturedFrame]:

@@ -136,12 +136,8 @@ def format_value(value: Any) -> str:
     return str(value)
 
 
-def describe(decoded: DecodedFrame, origin_s: float = 0.0) -> str:
-    """One line: time, link, direction, class, seq/ack, message and fields or the error, MAC verdict."""
-    head = f"{decoded.time_s - origin_s:12.6f} {decoded.link:<8} {ARROW[decoded.direction]}"
-    frame = decoded.frame
-    if frame is None:
-        return f"{head} {'-':<9} {decoded.size:4d} B  {decoded.error}"
+def message_text(decoded: DecodedFrame) -> str:
+    """The message as `Name(field=value, ...)`, enumerations by name (`MotionDone(axis=J1, ...)`)."""
     enum_names = {f.name: f.enum for f in decoded.message.spec.fields if f.enum} if decoded.message else {}
     parts = []
     for name, value in decoded.fields().items():
@@ -152,6 +148,15 @@ def describe(decoded: DecodedFrame, origin_s: float = 0.0) -> str:
             except ValueError:
                 pass
         parts.append(f"{name}={format_value(value)}")
-    body = f"{decoded.name}({', '.join(parts)})" if decoded.message else f"{decoded.name}  {decoded.error}"
+    return f"{decoded.name}({', '.join(parts)})"
+
+
+def describe(decoded: DecodedFrame, origin_s: float = 0.0) -> str:
+    """One line: time, link, direction, class, seq/ack, message and fields or the error, MAC verdict."""
+    head = f"{decoded.time_s - origin_s:12.6f} {decoded.link:<8} {ARROW[decoded.direction]}"
+    frame = decoded.frame
+    if frame is None:
+        return f"{head} {'-':<9} {decoded.size:4d} B  {decoded.error}"
+    body = message_text(decoded) if decoded.message else f"{decoded.name}  {decoded.error}"
     return (f"{head} {decoded.class_name:<9} seq={frame.seq:<5d} ack={frame.ack:<5d} {body}"
             f"  mac={decoded.mac}")
