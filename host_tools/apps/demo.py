@@ -26,6 +26,7 @@ from host_tools.apps import pick_place
 from host_tools.client.live import HostClient
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.outputs import Output
+from host_tools.progress import Progress
 from host_tools.teleop.session import run_script
 from host_tools.worlds.child import Child, ChildError
 
@@ -66,7 +67,8 @@ def run_demo(settings: DemoSettings) -> int:
     if settings.link:
         return run_link_demo(settings)
     if settings.json:
-        report = pick_place.run(settings.gravity, settings.seed, record=settings.record)
+        with Progress("demo", pick_place.SIM_S) as shown:
+            report = pick_place.run(settings.gravity, settings.seed, record=settings.record, shown=shown)
         print(json.dumps(report, indent=1))
         return EXIT_OK if report["within_spec"] else EXIT_FAILED
     print(f"pick and place, gravity {settings.gravity}, on the simulated clock (spec: within "
@@ -75,7 +77,8 @@ def run_demo(settings: DemoSettings) -> int:
     def progress(result: pick_place.StepResult) -> None:
         print(f"  {result.name:<16} error {result.position_error_m * 1000:7.3f} mm   "
               f"({result.sim_time_s:6.2f} s simulated)", flush=True)
-    report = pick_place.run(settings.gravity, settings.seed, progress, record=settings.record)
+    with Progress("demo", pick_place.SIM_S) as shown:
+        report = pick_place.run(settings.gravity, settings.seed, progress, record=settings.record, shown=shown)
     if report["error"]:
         log.error(f"aspod demo: {report['error']}")
     worst = report["max_position_error_m"]

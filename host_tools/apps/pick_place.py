@@ -27,6 +27,7 @@ from timebase import RealClock
 
 from host_tools.apps.kinematics import DEMO_SCENE, Scene, Step, steps
 from host_tools.outputs import Output
+from host_tools.progress import Progress
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.worlds.world import LockstepBench
 from host_tools.worlds.settings import PlantSettings
@@ -34,6 +35,7 @@ from host_tools.worlds.settings import PlantSettings
 AXIS_BY_NAME = {a.name.lower(): a for a in Axis if a is not Axis.ALL}
 SPEC_M = 0.01                     # the report's positioning spec: within 1 cm
 MOTION_TIMEOUT_S = 120.0
+SIM_S = 145.0                     # the whole run's simulated time, for its progress (144.5-144.6 s, earth and orbit)
 
 
 class DemoFailed(RuntimeError):
@@ -169,11 +171,15 @@ class PickAndPlace:
         self.bench.close()
 
 
-def run(gravity: str = "earth", seed: int = 0, progress=None, record: Optional[Output] = None) -> dict:
+def run(gravity: str = "earth", seed: int = 0, progress=None, record: Optional[Output] = None,
+        shown: Optional[Progress] = None) -> dict:
     """Run the whole demo; return the report (see `aspod demo --json`). With `record`, the session's capture, put in
-    place when the demo ends (a run that raises, Ctrl-C say, leaves it as it was)."""
+    place when the demo ends (a run that raises, Ctrl-C say, leaves it as it was); `shown` follows its simulated
+    clock (host_tools/progress.py)."""
     wall0 = RealClock.precise_now()
     demo = PickAndPlace(gravity, seed)
+    if shown is not None:
+        shown.follow(demo.bench.clock.now)
     writer = None
     if record is not None:
         writer = CaptureWriter.create(record, SessionInfo(clock="simulated", tool="aspod demo", seed=seed,

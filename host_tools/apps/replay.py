@@ -51,6 +51,7 @@ from protocol.link import LinkState
 from protocol.reasons import Reason
 from protocol.reliable import seq_delta
 from protocol.schema import Direction, Message, MsgClass
+from host_tools.progress import Progress
 from host_tools.sessions.capture import CaptureWriter, SessionCapture, SessionInfo, WorldEvent
 from host_tools.sessions.decode import MAC_BAD, DecodedFrame, SessionDecoder, format_value
 from host_tools.sessions.pcapng import NANOSECONDS, nanoseconds
@@ -496,9 +497,11 @@ def check_world_event(event: WorldEvent) -> None:
 
 
 def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict[str, float] | None = None,
-           tolerances: Tolerances = Tolerances(), output: Optional[BinaryIO] = None) -> ReplayReport:
+           tolerances: Tolerances = Tolerances(), output: Optional[BinaryIO] = None,
+           shown: Optional[Progress] = None) -> ReplayReport:
     """Re-run `capture`'s host actions against a fresh world; compare; `params` override the recorded ones; the
-    replayed session's capture goes to `output` (a binary stream) if given.
+    replayed session's capture goes to `output` (a binary stream) if given; `shown` follows the simulated time
+    replayed, of the recording's up to its last frame (twice that for a real-time recording: it runs twice).
 
     A real-time recording is replayed twice: the first run measures when the replayed controller answered each
     command, and the second moves each command by the difference from the recorded answer, so that each runs
@@ -531,18 +534,28 @@ def replay(capture: SessionCapture, *, psk: Optional[bytes] = None, params: dict
                           factor=plan.factor)
     if not exact:
         _link_map_ms(survey, plan)      # refused before any run if it is too uncertain
+    if shown is not None:
+        shown.total = plan.end_s * (1 if exact else 2)
     if exact:
-        _Run(plan, capture, psk, report, tolerances, output).go()
+        _followed(_Run(plan, capture, psk, report, tolerances, output), shown, 0.0).go()
         return report
     with tempfile.TemporaryFile() as shifts:
-        measured = _Run(plan, capture, psk, None, tolerances, None, shifts_out=shifts)
+        measured = _followed(_Run(plan, capture, psk, None, tolerances, None, shifts_out=shifts), shown, 0.0)
         measured.go()
         report.uncertainty_ms = min(MAX_UNCERTAINTY_MS, measured.worst_ms)
         report.link_map_ms = _link_map_ms(survey, plan)
         shifts.seek(0)
-        _Run(plan, capture, psk, report, tolerances.widened(plan.scale, report.uncertainty_ms, report.link_map_ms),
-             output, shifts_in=shifts).go()
+        _followed(_Run(plan, capture, psk, report, tolerances.widened(plan.scale, report.uncertainty_ms,
+                                                                      report.link_map_ms), output, shifts_in=shifts),
+                  shown, plan.end_s).go()
     return report
+
+
+def _followed(run: "_Run", shown: Optional[Progress], base_s: float) -> "_Run":
+    """`run`, its simulated clock followed by `shown` from `base_s` on (the runs before it)."""
+    if shown is not None:
+        shown.follow(run.bench.clock.now, base_s)
+    return run
 
 
 def _link_map_ms(survey: _Survey, plan: _Plan) -> float:

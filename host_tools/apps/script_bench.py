@@ -15,9 +15,11 @@ from timebase import RealClock
 from host_tools.apps.fault_reaction import reactions
 from host_tools.client.bench import BenchClient
 from host_tools.outputs import Output
+from host_tools.progress import Progress
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
 from host_tools.teleop.record import ScriptRecord
 from host_tools.teleop.session import run_script
+from host_tools.teleop.words import check_script
 from host_tools.worlds.bench_world import WorldSettings, build_bench
 from host_tools.worlds.plant_state import plant_state
 
@@ -29,14 +31,28 @@ class ScriptRun:
     summary: str        # the session's summary, as teleop prints it at the end
 
 
+def script_sim_s(lines: list[str]) -> Optional[float]:
+    """The simulated seconds a script takes, where its waits say it: the sum of its pauses (`wait SECONDS`) and
+    watches; None if it waits for something whose time is not known beforehand (motions, the tracker's alignment)
+    or does not parse. (Each command's round trip adds milliseconds.)"""
+    steps, problems = check_script(lines)
+    if problems or any(s.waits_for_motion or s.waits_for_alignment for s in steps):
+        return None
+    return sum(s.seconds for s in steps if s.word in ("wait", "watch") and s.seconds is not None)
+
+
 def run_script_bench(world: WorldSettings, lines: list[str], *, keep_going: bool = False,
                      out: Optional[TextIO] = None, err: Optional[TextIO] = None,
-                     capture: Optional[Output] = None, script: Optional[str] = None) -> ScriptRun:
+                     capture: Optional[Output] = None, script: Optional[str] = None,
+                     shown: Optional[Progress] = None) -> ScriptRun:
     """Run `lines` on a world built as `world` says. `out`: where each line's output goes as it runs (None:
     nowhere but the record); `err`: the script's problems (None: into the record's `problems`); `capture`:
     a session capture of the link, on the simulated clock, put in place when the run ends (a run that raises,
-    Ctrl-C say, leaves it as it was). ValueError if the world cannot be built."""
+    Ctrl-C say, leaves it as it was); `shown` follows the world's simulated clock (host_tools/progress.py).
+    ValueError if the world cannot be built."""
     bench = build_bench(world)
+    if shown is not None:
+        shown.follow(bench.clock.now)
     writer = None
     if capture is not None:
         writer = CaptureWriter.create(capture, SessionInfo(clock="simulated", tool="aspod bench", seed=world.seed,

@@ -60,6 +60,7 @@ from protocol.units import DEG
 from timebase import RealClock
 
 from host_tools.outputs import Output
+from host_tools.progress import Progress
 
 MODES = ("relay", "feedforward")
 MIN_ELEVATION_DEG = 5.0      # the day's window: the sun above this (the photocells see a usable beam)
@@ -254,8 +255,9 @@ def _operate_box(tracker: firmware.TrackerController, settings: DaySettings) -> 
             raise RuntimeError(f"the control box refused {what!r}: {reason.name} {detail}")
 
 
-def run_day(settings: DaySettings, progress: Optional[TextIO] = None) -> DayResult:
-    """Run the tracker through the settings' day; `progress` gets a line per simulated hour."""
+def day_window(settings: DaySettings) -> tuple[datetime, datetime]:
+    """When the run starts and ends (local): `--from`/`--to`, else when the sun climbs above and sinks below
+    MIN_ELEVATION_DEG. ValueError if the sun does not, or the end is not after the start."""
     if settings.start is None or settings.end is None:
         window = sun_window(settings.day, settings.site)
         if window is None:
@@ -265,6 +267,19 @@ def run_day(settings: DaySettings, progress: Optional[TextIO] = None) -> DayResu
     end = settings.local(settings.end) if settings.end is not None else window[1]
     if end <= start:
         raise ValueError(f"nothing to run: {start:%H:%M} to {end:%H:%M}")
+    return start, end
+
+
+def day_s(settings: DaySettings) -> float:
+    """The simulated seconds the run goes through."""
+    start, end = day_window(settings)
+    return (end - start).total_seconds()
+
+
+def run_day(settings: DaySettings, shown: Optional[Progress] = None) -> DayResult:
+    """Run the tracker through the settings' day; `shown` follows the simulated time done of the day's (its total),
+    with the pointing error once a simulated minute."""
+    start, end = day_window(settings)
     plant = TrackerPlant(settings.plant_params, settings.seed, site=settings.site, start=start,
                          clouds=settings.clouds)
     plant.preload_sun()
@@ -294,6 +309,9 @@ def run_day(settings: DaySettings, progress: Optional[TextIO] = None) -> DayResu
     step, sample_every = plant.step, SAMPLE_EVERY
     axes = tracker.axes
     i = 0
+    done_s = [0.0]
+    if shown is not None:
+        shown.follow(lambda: done_s[0])
     for s in range(n_samples):
         for _ in range(sample_every):
             step(STEP_S, hal.command)
@@ -316,9 +334,10 @@ def run_day(settings: DaySettings, progress: Optional[TextIO] = None) -> DayResu
         lag[s] = (e_az * math.cos(el_s * DEG) * d_x + e_el * d_y) / norm if norm > 0.0 else 0.0
         axis_error[s] = (e_az, e_el)
         prev_sun = sun
-        if progress is not None and s % 3600 == 3599:
-            progress.write(f"aspod tracker-day: {times_h[s]:05.2f} h local, pointing error {error[s]:.3f} deg\n")
-            progress.flush()
+        if shown is not None:
+            done_s[0] = i * STEP_S
+            if s % 60 == 59:
+                shown.note(local=f"{times_h[s]:05.2f} h", error=f"{error[s]:.3f} deg")
     wall = RealClock.precise_now() - wall0
     steps = max(1, i)
     return DayResult(settings, start, end, times_h, error, lag, axis_error,
@@ -435,8 +454,8 @@ def parse_param(text: str) -> tuple[str, float]:
 def run_tracker_day(settings: DaySettings, *, as_json: bool = False, plot: Optional[Output] = None) -> int:
     """`aspod tracker-day`: the day, its summary on stdout (or one JSON object), the plot if asked."""
     import json
-    progress = sys.stderr if sys.stderr.isatty() else None
-    result = run_day(settings, progress)
+    with Progress("tracker-day", day_s(settings)) as shown:
+        result = run_day(settings, shown)
     summary = result.summary()
     if plot is not None:
         with plot.open() as png:

@@ -21,6 +21,7 @@ from typing import Callable, Optional
 
 from host_tools.campaign.matrix import Run
 from host_tools.campaign.runs import BenchSpec, RunResult, run_one
+from host_tools.progress import Progress
 
 OnResult = Callable[[RunResult], None]
 
@@ -61,10 +62,12 @@ def _error_result(run: Run, why: str) -> RunResult:
 
 
 def run_serial(bench: BenchSpec, runs: list[Run], on_result: OnResult) -> list[RunResult]:
+    """Every run here, in order; on a terminal each run's simulated time is shown under the campaign's bar."""
     results = []
     for run in runs:
         try:
-            result = run_one(bench, run)
+            with Progress(f"run {run.index}", None, position=1) as shown:
+                result = run_one(bench, run, shown)
         except Exception as exc:               # a bug in the emulator: the row says so, the campaign goes on
             result = _error_result(run, f"the run raised {type(exc).__name__}: {exc} "
                                         f"({traceback.extract_tb(exc.__traceback__)[-1].filename})")

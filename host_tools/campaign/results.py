@@ -3,7 +3,10 @@ its plots.
 
     rows.csv | rows.parquet    one row per run, in the matrix's order: the run's values, its outcome, its
                                figures, the command that reproduces it
-    campaign.json              the command, the matrix, the engine, wall times, the summary and the rows
+    campaign.json              the command, the matrix, the engine, wall times, the summary and the rows (written
+                               at the start too, `state` running, and when stopped, `state` interrupted)
+    runs.jsonl                 each run's row as it ends, one JSON line each, in the order they end: what an
+                               interrupted campaign keeps, and what `--resume` does not run again
     plot-Y-vs-X.png, hist-C.png
 """
 from __future__ import annotations
@@ -18,6 +21,7 @@ from typing import Any, Iterable, Optional
 
 FORMATS = ("csv", "parquet")
 NO_GROUP = "(all)"
+JOURNAL = "runs.jsonl"
 
 
 def columns(rows: list[dict]) -> list[str]:
@@ -170,6 +174,32 @@ def _save(fig, ax, x_label: str, y_label: str, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def journal(path: Path, index: int, row: dict, wall_s: float, file) -> None:
+    """One ended run's line in the open journal `file`, flushed: on disk when the run ends."""
+    file.write(json.dumps({"run": index, "row": row, "wall_s": wall_s}, default=str) + "\n")
+    file.flush()
+
+
+def read_journal(path: Path) -> dict[int, tuple[dict, float]]:
+    """The runs a journal holds: index -> (row, wall s). A last line cut short (the campaign killed while writing
+    it) is left out: that run runs again. ValueError for a line that is not a journal's."""
+    done: dict[int, tuple[dict, float]] = {}
+    if not path.exists():
+        return done
+    lines = path.read_text(encoding="utf-8").split("\n")
+    for number, line in enumerate(lines, 1):
+        if not line:
+            continue
+        try:
+            entry = json.loads(line)
+            done[int(entry["run"])] = (dict(entry["row"]), float(entry["wall_s"]))
+        except (ValueError, KeyError, TypeError):
+            if number == len(lines):       # no newline after it: cut short
+                break
+            raise ValueError(f"{path}: line {number} is not a run's row") from None
+    return done
 
 
 def write_json(path: Path, description: dict, table: list[dict], rows: list[dict]) -> None:

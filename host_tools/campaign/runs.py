@@ -17,13 +17,14 @@ import tempfile
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 from timebase import RealClock
 
-from host_tools.apps.script_bench import run_script_bench
+from host_tools.apps.script_bench import run_script_bench, script_sim_s
 from host_tools.campaign.matrix import PARAM_PREFIX, WORLD_AXES, Run, Value
 from host_tools.datetimes import parse_iso
+from host_tools.progress import Progress
 from host_tools.teleop.words import TeleopError, read_script, substitute
 from host_tools.worlds.bench_world import NO_FAULT, TimedFault, WorldSettings
 
@@ -107,8 +108,35 @@ def reproducer(bench: BenchSpec, world: WorldSettings, variables: dict[str, str]
     return shlex.join(argv)
 
 
-def run_one(bench: BenchSpec, run: Run) -> RunResult:
-    """Run `run` of the campaign; never raises for what the run's own settings do (that is the row's `error`)."""
+ROW_COLUMNS = ("run", "outcome", "ok", "sim_s", "error", "reproduce")
+FAULT_COLUMNS = ("fault.safe_after_s", "fault.bits", "fault.stated_s", "fault.within_stated")
+OPEN_PREFIXES = {SCRIPT: ("plant.faults.",), PYTEST: ("m.",)}      # columns named by what a run meets
+
+
+def known_columns(bench: BenchSpec, axes: list[str]) -> tuple[list[str], tuple[str, ...]]:
+    """The columns a campaign's rows can have, known before any run: (names, prefixes of the columns named by what
+    a run meets: a pytest bench's measurements `m.NAME`, the plant's active faults). A script's plant columns are
+    those of its world's plant state (built, not run)."""
+    names = ["run", *axes, *ROW_COLUMNS[1:]]
+    if bench.kind == SCRIPT:
+        from host_tools.worlds.bench_world import build_bench
+        from host_tools.worlds.plant_state import plant_state
+        world = build_bench(dataclasses.replace(bench.base, faults=()))
+        try:
+            plant = _flat(plant_state(world.world.plant, world.plant_settings.tracker), "plant")
+        finally:
+            world.close()
+        names += ["motions_done", "motions_failed", *(n for n in plant if not n.startswith("plant.faults."))]
+    else:
+        names += ["tests", "passed", "failed", "skipped"]
+    if "fault" in axes or bench.base.faults:
+        names += list(FAULT_COLUMNS)
+    return names, OPEN_PREFIXES[bench.kind]
+
+
+def run_one(bench: BenchSpec, run: Run, shown: Optional[Progress] = None) -> RunResult:
+    """Run `run` of the campaign; never raises for what the run's own settings do (that is the row's `error`).
+    `shown` follows a script's simulated clock (host_tools/progress.py)."""
     wall0 = RealClock.precise_now()
     values = run.as_dict()
     row: dict[str, Any] = {"run": run.index, **values}
@@ -118,7 +146,7 @@ def run_one(bench: BenchSpec, run: Run) -> RunResult:
         row.update(outcome="error", ok=False, error=str(exc), reproduce="")
         return RunResult(run.index, row, RealClock.precise_now() - wall0)
     try:
-        row.update(_run_script(bench, world, variables) if bench.kind == SCRIPT
+        row.update(_run_script(bench, world, variables, shown) if bench.kind == SCRIPT
                    else _run_pytest(bench, world, variables))
     except (ValueError, TeleopError) as exc:
         row.update(outcome="error", ok=False, error=str(exc))
@@ -126,9 +154,12 @@ def run_one(bench: BenchSpec, run: Run) -> RunResult:
     return RunResult(run.index, row, RealClock.precise_now() - wall0)
 
 
-def _run_script(bench: BenchSpec, world: WorldSettings, variables: dict[str, str]) -> dict:
+def _run_script(bench: BenchSpec, world: WorldSettings, variables: dict[str, str],
+                shown: Optional[Progress] = None) -> dict:
     lines = substitute(bench.text.splitlines(), variables)
-    result = run_script_bench(world, lines, keep_going=bench.keep_going).record
+    if shown is not None:
+        shown.total = script_sim_s(lines)
+    result = run_script_bench(world, lines, keep_going=bench.keep_going, shown=shown).record
     failed = [s for s in result["steps"] if not s["ok"]]
     if failed:
         said = [line.lstrip("! ") for line in failed[0]["output"] if line.startswith(("!", "error"))]

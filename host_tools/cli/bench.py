@@ -14,10 +14,11 @@ import logging
 import sys
 from pathlib import Path
 
-from host_tools.apps.script_bench import run_script_bench
+from host_tools.apps.script_bench import run_script_bench, script_sim_s
 from host_tools.cli.options import add_arm_args, add_bench_world_args, add_seed_arg, add_tracker_args
 from host_tools.cli.settings import BenchSettings
 from host_tools.exit_codes import EXIT_USAGE
+from host_tools.progress import Progress
 from host_tools.teleop.sim_words import state_lines
 from host_tools.teleop.words import read_script, substitute
 
@@ -30,9 +31,10 @@ def run_bench(settings: BenchSettings) -> int:
     except (OSError, ValueError) as exc:
         log.error(f"aspod bench: {exc}")
         return EXIT_USAGE
-    run = run_script_bench(settings.world, lines, keep_going=settings.keep_going, err=sys.stderr,
-                           out=None if settings.json else sys.stdout, capture=settings.record,
-                           script=str(settings.script))
+    with Progress("bench", script_sim_s(lines)) as shown:
+        run = run_script_bench(settings.world, lines, keep_going=settings.keep_going, err=sys.stderr,
+                               out=None if settings.json else sys.stdout, capture=settings.record,
+                               script=str(settings.script), shown=shown)
     if settings.json:
         print(json.dumps(run.record, indent=1))
         return run.status

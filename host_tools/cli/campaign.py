@@ -10,25 +10,29 @@ It needs the `campaign` extra (Dask, pyarrow, matplotlib, pytest): without it, i
 from __future__ import annotations
 
 import argparse
+import json
 import logging
-import sys
+import shlex
+import signal
 from pathlib import Path
 
 from timebase import RealClock
 
 from host_tools.campaign import results
 from host_tools.campaign.engine import run_runs
-from host_tools.campaign.runs import SCRIPT, BenchSpec, RunResult
+from host_tools.campaign.runs import SCRIPT, BenchSpec, RunResult, known_columns
 from host_tools.cli.options import bounded
 from host_tools.cli.main import build_parser
 from host_tools.cli.settings import CampaignSettings, bench_settings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from host_tools.progress import Progress, on_terminal
 from host_tools.teleop.words import TeleopError, script_directive
 from host_tools.worlds.bench_world import WorldSettings
 from kernels.extras import require
 
 log = logging.getLogger("aspod")
 SHOWN_FAILURES = 10
+EXIT_INTERRUPTED = 130               # Ctrl-C, as every aspod command (cli/main.py)
 
 
 def bench_spec(settings: CampaignSettings) -> BenchSpec:
@@ -53,53 +57,100 @@ def bench_spec(settings: CampaignSettings) -> BenchSpec:
     return BenchSpec(spec.kind, spec.target, world, spec.text, spec.cwd, spec.keep_going)
 
 
+def unknown_columns(settings: CampaignSettings, bench: BenchSpec) -> list[str]:
+    """What the summary and plots are asked for that no row will have (before any run): a message each, naming the
+    column and the columns there are."""
+    names, open_prefixes = known_columns(bench, settings.matrix.axes)
+    asked = [("--group-by", c) for c in ([settings.group_by] if settings.group_by is not None else [])]
+    asked += [("--summarize", c) for c in settings.figures]
+    asked += [("--plot", c) for pair in settings.plots for c in pair[::-1]]
+    asked += [("--hist", c) for c in settings.hists]
+    there = ", ".join(names) + "".join(f", {p}NAME" for p in open_prefixes)
+    return [f"{option} {column}: no column {column!r}; the rows' columns: {there}"
+            for option, column in dict.fromkeys(asked) if column not in names and not column.startswith(open_prefixes)]
+
+
 def run_campaign(settings: CampaignSettings) -> int:
     require("campaign", "dask", "distributed", "pyarrow", "matplotlib", "pytest", what="campaign")
     try:
         bench = bench_spec(settings)
+        wrong = unknown_columns(settings, bench)
     except ValueError as exc:
         log.error(f"aspod campaign: {exc}")
         return EXIT_USAGE
+    for message in wrong:
+        log.error(f"aspod campaign: {message}")
+    if wrong:
+        return EXIT_USAGE
     runs = settings.matrix.runs()
+    journal_path = settings.out / results.JOURNAL
+    try:
+        done = results.read_journal(journal_path) if settings.resume else {}
+    except (OSError, ValueError) as exc:
+        log.error(f"aspod campaign: --resume {settings.out}: {exc}")
+        return EXIT_USAGE
+    kept = {r.index: RunResult(r.index, *done[r.index]) for r in runs if r.index in done}
+    todo = [r for r in runs if r.index not in kept]
     settings.out.mkdir(parents=True, exist_ok=True)
-    from tqdm import tqdm
-    bar = tqdm(total=len(runs), unit="run", desc="campaign", file=sys.stderr, disable=not settings.progress,
-               dynamic_ncols=True)
-    failed = [0]
+    description = {"command": settings.command, "bench": settings.bench, "axes": settings.matrix.axes,
+                   "runs": len(runs), "seeds": [settings.matrix.seeds[0], settings.matrix.seeds[-1]],
+                   "engine": settings.engine.describe()}
+    results.write_json(settings.out / "campaign.json", {**description, "state": "running"}, [], [])
+    if settings.resume:
+        print(f"resuming {settings.out}: {len(kept)} of {len(runs)} runs done, {len(todo)} to run", flush=True)
+    failed = [sum(1 for r in kept.values() if not r.row.get("ok"))]
+    stopping = [False]
 
-    def done(result: RunResult) -> None:
-        failed[0] += not result.row.get("ok")
-        bar.update(1)
-        bar.set_postfix(failed=failed[0], refresh=False)
+    def on_sigint(signum, frame) -> None:
+        stopping[0] = True           # a run that was under way (a script's wait takes Ctrl-C as its own) is not kept
+        raise KeyboardInterrupt
 
     wall0 = RealClock.precise_now()
+    previous = signal.signal(signal.SIGINT, on_sigint)
     try:
-        rows_results = run_runs(bench, runs, settings.engine, done,
-                                lambda where: log.info(f"aspod campaign: {len(runs)} runs of {settings.bench} "
-                                                       f"on {where}"))
+        with journal_path.open("a", encoding="utf-8") as journal, \
+                Progress("campaign", len(runs), unit="run", enabled=settings.progress and on_terminal()) as shown:
+            shown.update(len(kept))
+
+            def ended(result: RunResult) -> None:
+                if stopping[0]:
+                    raise KeyboardInterrupt
+                results.journal(journal_path, result.index, result.row, result.wall_s, journal)
+                kept[result.index] = result
+                failed[0] += not result.row.get("ok")
+                shown.note(failed=failed[0])
+                shown.update(1)
+
+            run_runs(bench, todo, settings.engine, ended,
+                     lambda where: log.info(f"aspod campaign: {len(todo)} runs of {settings.bench} on {where}"))
+    except KeyboardInterrupt:
+        signal.signal(signal.SIGINT, previous)
+        rows = [kept[r.index].row for r in runs if r.index in kept]
+        results.write_json(settings.out / "campaign.json", {**description, "state": "interrupted"}, [], rows)
+        log.error(f"aspod campaign: interrupted: {len(kept)} of {len(runs)} runs done, their rows kept in "
+                  f"{journal_path}; the rest: aspod campaign --resume {shlex.quote(str(settings.out))}")
+        return EXIT_INTERRUPTED
     finally:
-        bar.close()
+        if signal.getsignal(signal.SIGINT) is on_sigint:
+            signal.signal(signal.SIGINT, previous)
     wall = RealClock.precise_now() - wall0
+    rows_results = [kept[r.index] for r in runs]
     rows = [r.row for r in rows_results]
     rows_path = settings.out / f"rows.{settings.fmt}"
     results.write_rows(rows, rows_path, settings.fmt)
     figures = settings.figures or tuple(results.default_figures(rows))
     table = results.summary(rows, settings.group_by, figures)
-    sim_s = sum(float(r.get("sim_s") or 0.0) for r in rows)
-    description = {
-        "command": settings.command,
-        "bench": settings.bench, "axes": settings.matrix.axes, "runs": len(rows),
-        "seeds": [settings.matrix.seeds[0], settings.matrix.seeds[-1]], "engine": settings.engine.describe(),
-        "timing": {"wall_s": wall, "sim_s": sim_s, "sim_s_per_wall_s": sim_s / wall if wall > 0 else None,
-                   "run_wall_s": [r.wall_s for r in rows_results]}}
-    results.write_json(settings.out / "campaign.json", description, table, rows)
+    sim_s = sum(float(kept[r.index].row.get("sim_s") or 0.0) for r in todo)      # run now (not resumed ones)
+    description["timing"] = {"wall_s": wall, "sim_s": sim_s, "sim_s_per_wall_s": sim_s / wall if wall > 0 else None,
+                             "run_wall_s": [r.wall_s for r in rows_results]}
+    results.write_json(settings.out / "campaign.json", {**description, "state": "done"}, table, rows)
     print(results.format_summary(table, settings.group_by))
     try:
         written = results.plot(rows, settings.out, settings.plots, settings.hists)
     except ValueError as exc:
         log.error(f"aspod campaign: {exc} (the rows are written)")
         written = []
-    print(f"{len(rows)} runs in {wall:.1f} s ({sim_s:.0f} simulated s, {sim_s / max(wall, 1e-9):.1f} simulated s per "
+    print(f"{len(todo)} runs in {wall:.1f} s ({sim_s:.0f} simulated s, {sim_s / max(wall, 1e-9):.1f} simulated s per "
           f"wall s) on {settings.engine.describe()}; rows in {rows_path}, all in {settings.out / 'campaign.json'}"
           + "".join(f", {p}" for p in written))
     bad = [r for r in rows if not r.get("ok")]
@@ -120,8 +171,11 @@ EXAMPLES = [
 
 
 def add_options(campaign: argparse.ArgumentParser) -> None:
-    campaign.add_argument("bench", metavar="BENCH", help="a teleop script, or a pytest file or node "
-                                                         "(path.py, path.py::test_name)")
+    campaign.add_argument("bench", metavar="BENCH", nargs="?", help="a teleop script, or a pytest file or node "
+                                                                    "(path.py, path.py::test_name)")
+    campaign.add_argument("--resume", type=Path, default=None, metavar="DIR",
+                          help="the campaign begun in DIR (stopped by Ctrl-C, say): run only the runs it lacks, with "
+                               "its own command line (no other option with it)")
     campaign.add_argument("--vary", action="append", default=[], metavar="NAME=VALUES",
                           help="a grid axis: NAME=A,B,C (impairment, clouds: A|B|C) or NAME=LO..HI/N (numbers or ISO date-times); every "
                                "combination runs. NAME: gravity, payload_kg, sun_start, clouds, fault, fault_at_s, "
@@ -151,6 +205,39 @@ def add_options(campaign: argparse.ArgumentParser) -> None:
     campaign.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def resumed_args(folder: Path) -> argparse.Namespace:
+    """The options of the campaign begun in `folder` (its campaign.json's command), to run the rest of it there.
+    ValueError if the folder holds no campaign."""
+    try:
+        record = json.loads((folder / "campaign.json").read_text(encoding="utf-8"))
+        argv = shlex.split(record["command"])[1:]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"--resume {folder}: no campaign begun there ({exc})") from None
+    try:
+        args = build_parser(["campaign"]).parse_args(argv)
+    except SystemExit:
+        raise ValueError(f"--resume {folder}: its campaign.json's command does not parse: {record['command']}") \
+            from None
+    args.out, args.argv, args.resuming = folder, tuple(argv), True
+    return args
+
+
 def run(args: argparse.Namespace) -> int:
     from host_tools.cli import settings
+    if args.resume is not None:
+        given = list(getattr(args, "argv", ()))
+        given = given[given.index("campaign") + 1:] if "campaign" in given else []
+        others = [a for a in given if a.startswith("-") and a != "--resume" and not a.startswith("--resume=")]
+        if args.bench is not None or others:
+            log.error("aspod campaign: --resume DIR runs the rest of the campaign begun there, with its own options: "
+                      "nothing else with it")
+            return EXIT_USAGE
+        try:
+            args = resumed_args(args.resume)
+        except ValueError as exc:
+            log.error(f"aspod campaign: {exc}")
+            return EXIT_USAGE
+    elif args.bench is None:
+        log.error("aspod campaign: give a BENCH (a script or a pytest file or node), or --resume DIR")
+        return EXIT_USAGE
     return run_campaign(settings.campaign_settings(args))

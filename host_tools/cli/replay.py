@@ -12,6 +12,7 @@ from host_tools.apps.replay import ReplayError, replay
 from host_tools.cli.log import open_capture
 from host_tools.cli.settings import ReplaySettings
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
+from host_tools.progress import Progress
 
 log = logging.getLogger("aspod")
 
@@ -23,7 +24,8 @@ def run_replay(settings: ReplaySettings) -> int:
     psk = None if settings.key_file is None else auth.load_key(settings.key_file, "--key-file")
     try:
         with capture, (settings.output.open() if settings.output is not None else contextlib.nullcontext()) as output:
-            report = replay(capture, psk=psk, params=dict(settings.params), output=output)
+            with Progress("replay", None) as shown:
+                report = replay(capture, psk=psk, params=dict(settings.params), output=output, shown=shown)
     except ReplayError as exc:
         log.error(f"aspod replay: {settings.capture}: {exc}")
         return EXIT_USAGE

@@ -564,6 +564,7 @@ class CampaignSettings:
     keep_going: bool = False
     progress: bool = True
     command: str = ""                    # the command line that asked for it, for its record
+    resume: bool = False                 # `out` holds this campaign begun: run only the runs its journal lacks
 
 
 def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
@@ -582,15 +583,17 @@ def campaign_settings(args: argparse.Namespace) -> CampaignSettings:
         from datetime import datetime, timezone
         out = Path(f"campaign-{datetime.fromtimestamp(RealClock.wall_time(), timezone.utc):%Y%m%d-%H%M%S}")
     claims(args).folder(out, "--out")
-    if out.exists() and (any(out.glob("rows.*")) or (out / "campaign.json").exists()):
-        raise ValueError(f"--out {out}: it already holds a campaign; give another")
+    resuming = getattr(args, "resuming", False)      # `--resume DIR`: this folder's campaign, the rest of its runs
+    if not resuming and out.exists() and (any(out.glob("rows.*")) or (out / "campaign.json").exists()
+                                          or (out / "runs.jsonl").exists()):
+        raise ValueError(f"--out {out}: it already holds a campaign; give another (or --resume {out})")
     group_by = args.group_by
     if group_by is None and "fault" in matrix.axes:
         group_by = "fault"
     return CampaignSettings(args.bench, matrix, EngineSettings(args.workers, args.scheduler, args.serial), out,
                             args.format, group_by, tuple(args.summarize), tuple(plots), tuple(args.hist),
                             args.keep_going, not args.no_progress,
-                            shlex.join(["aspod", *getattr(args, "argv", ("campaign", args.bench))]))
+                            shlex.join(["aspod", *getattr(args, "argv", ("campaign", args.bench))]), resuming)
 
 
 @dataclass(frozen=True)
