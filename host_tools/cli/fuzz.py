@@ -44,7 +44,8 @@ def run_fuzz(settings: FuzzSettings) -> int:
 
 
 def _progress_bar(settings: FuzzSettings, total, unit: str):
-    if not settings.progress or settings.as_json:
+    from host_tools.progress import on_terminal
+    if not settings.progress or settings.as_json or not on_terminal(sys.stderr):     # a pipe or a log: none of it
         return None
     from tqdm import tqdm
     return tqdm(total=total, unit=unit, unit_scale=True, file=sys.stderr, dynamic_ncols=True)
