@@ -301,7 +301,7 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
             raise ValueError("--foxglove with --hal is not built yet: serve it from the one-process world (without "
                              "--hal)")
         from host_tools.sessions.foxglove import require_foxglove
-        require_foxglove("aspod sim --foxglove")
+        require_foxglove("sim --foxglove")
     outputs = claims(args)
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
@@ -453,7 +453,7 @@ def log_settings(args: argparse.Namespace) -> LogSettings:
     mcap = None
     if args.mcap is not None:
         from host_tools.sessions.foxglove import MCAP, require_foxglove
-        require_foxglove("aspod log --mcap")
+        require_foxglove("log --mcap")
         mcap = outputs.file(args.mcap, "--mcap", MCAP)
     if args.si and args.csv is None:
         raise ValueError("--si: only with --csv (the units of the table)")
