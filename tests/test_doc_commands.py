@@ -236,7 +236,7 @@ def named_files(text: str) -> list[tuple[str, bool]]:
         if word.startswith("lua_script:"):
             word = word.split(":", 1)[1]
         if PATHLIKE.match(word) and not word.startswith("fuzz-findings/"):
-            found.append((word, i > 0 and ws[i - 1] in OUTPUT_OPTIONS))
+            found.append((word, i > 0 and (ws[i - 1] in OUTPUT_OPTIONS or ws[i - 2:i] == ["key", "new"])))
     return found
 
 
