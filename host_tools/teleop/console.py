@@ -365,8 +365,8 @@ class TeleopConsole:
                 number += 1
                 try:
                     step = parse_line(text, number)
-                except TeleopError as exc:
-                    self.console.line(f"error: {exc}")
+                except TeleopError as exc:        # its `line N: ` is for a script's lines, not the prompt's
+                    self.console.line(f"error: {str(exc).removeprefix(f'line {number}: ')}")
                     continue
                 if step is None:
                     continue
