@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import signal
 import uuid
 from contextlib import contextmanager
 from pathlib import Path
@@ -19,6 +20,7 @@ from pathlib import Path
 import can
 import pytest
 
+from host_tools.worlds.child import Child
 from host_tools.worlds.world import LockstepBench
 
 
@@ -29,6 +31,24 @@ def bench():
     assert world.connect()
     yield world
     world.close()
+
+
+@pytest.fixture
+def start_sim(env):
+    """`start()`: a new `aspod sim --pty --no-tracker` in the test module's own `env` (its runtime folder), once its
+    control endpoint is up: (the child, its link's URL). Each is stopped at the test's end."""
+    sims = []
+
+    def start() -> tuple[Child, str]:
+        child = Child(["sim", "--pty", "--no-tracker"], env=env)
+        sims.append(child)
+        link = child.line(30.0)
+        assert link.startswith("ASPOD-LINK "), link
+        child.line(30.0), child.line(30.0)                # ASPOD-KEY, ASPOD-CONTROL: the endpoint is up
+        return child, link.split(" ", 1)[1]
+    yield start
+    for child in sims:
+        child.stop(signal.SIGTERM, timeout_s=10)
 
 
 @pytest.fixture

@@ -6,11 +6,10 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 
 import pytest
 
-from host_tools.worlds.child import Child, run
+from host_tools.worlds.child import run
 from tests.aspod_cli import ASPOD
 
 pytestmark = pytest.mark.pty
@@ -22,22 +21,6 @@ def env(tmp_path):
     (tmp_path / "tmp").mkdir()
     return {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config"), "XDG_RUNTIME_DIR": str(tmp_path / "run"),
             "TMPDIR": str(tmp_path / "tmp")}
-
-
-@pytest.fixture
-def start_sim(env):
-    sims = []
-
-    def start() -> tuple[Child, str]:
-        child = Child(["sim", "--pty", "--no-tracker"], env=env)
-        sims.append(child)
-        link = child.line(30.0)
-        assert link.startswith("ASPOD-LINK "), link
-        child.line(30.0), child.line(30.0)                # ASPOD-KEY, ASPOD-CONTROL: the endpoint is up
-        return child, link.split(" ", 1)[1]
-    yield start
-    for child in sims:
-        child.stop(signal.SIGTERM, timeout_s=10)
 
 
 def aspod(env, *args: str, stdin: str = "", peers=()):

@@ -64,6 +64,20 @@ def run_teleop(args: TeleopSettings) -> int:
         if control is not None:
             control.close()
         raise
+    clients = [client]
+
+    def open_client(url: str) -> HostClient:
+        """`connect URL` at the console: a new client on URL, with its simulator's key (or --key-file) and its
+        control endpoint (--control names the first link's), writing on into the same capture."""
+        control = open_control(url, args.control if url == args.url else None)
+        try:
+            clients.append(HostClient(url, host_key(args.key_file, url), baud=args.baud, capture=capture,
+                                      control=control))
+        except BaseException:
+            if control is not None:
+                control.close()
+            raise
+        return clients[-1]
     why = CloseWhy.DONE
     try:
         client.connect(args.connect_timeout_s)
@@ -84,7 +98,7 @@ def run_teleop(args: TeleopSettings) -> int:
         if lines is not None:
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going)
         else:
-            status, session = interactive_console(client)
+            status, session = interactive_console(client, opener=open_client)
         if args.summary or lines is None:
             print(session.summary(), flush=True)
         return status
@@ -95,7 +109,8 @@ def run_teleop(args: TeleopSettings) -> int:
         why = CloseWhy.ERROR
         raise
     finally:
-        client.close(why)
+        for each in reversed(clients):        # the one in use; those `connect URL` replaced are closed already
+            each.close(why)
 
 
 # ---- the command line: its options, examples and run --------------------------------------------------------

@@ -53,6 +53,7 @@ class HostClient:
         self.pump_pause_max_s = 0.0
         self._cond = threading.Condition()
         self._stop = False
+        self._closed = False
         self._thread = threading.Thread(target=self._pump, name="aspod-link", daemon=True)
         self._thread.start()
 
@@ -180,6 +181,9 @@ class HostClient:
         Unread input is discarded first, so that a TCP connection ends with FIN after the last bytes rather
         than with a reset, which may discard what is still in flight.
         """
+        if self._closed:
+            return                            # closed already (teleop's `connect URL` left it for another)
+        self._closed = True
         try:
             self.close_session(why)
         finally:

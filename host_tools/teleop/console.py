@@ -7,6 +7,10 @@
   `aspod ENABLED j1 3.0° >`, `aspod FAULT STALL >`, `aspod LINK DOWN >`.
 * History is kept between sessions in `$XDG_STATE_HOME/aspod/teleop_history` (else
   `~/.local/state/aspod/teleop_history`); a history that cannot be written is kept in memory only.
+* The loss of the link says what happened (the simulator closed its end, no answer for N s, another program on
+  the line); `connect` opens a new session on the same link, `connect URL` (or `connect` once the port is gone)
+  on a new one, with the key and control endpoint of the simulator serving it (`Session.connect`, through the
+  `opener` cli/teleop.py gives); a failure says why and the console stays.
 * Tab completes command words, parameter names after `get`/`set` (read from the controller with
   ParamList in the background), the positions the named switch has after `switch SWITCH`, and for the
   motions only the axes the controller takes (`move` neither `all` nor `gripper`).
@@ -301,15 +305,17 @@ def fit(text: str, columns: int) -> list[str]:
 class TeleopConsole:
     """One interactive session: the prompt, the completer, the history; `run()` returns (status, session)."""
 
-    def __init__(self, client, history: Optional[History] = None) -> None:
-        self.client = client
+    def __init__(self, client, history: Optional[History] = None,
+                 opener: Optional[Callable[[str], object]] = None) -> None:
         self.proxy = StdoutProxy(sleep_between_writes=0.05, raw=True)
         self.params = ParamNames(client)
         self.prompt: PromptSession = PromptSession(
             history=history if history is not None else open_history(),
-            completer=TeleopCompleter(lambda: self.params.names, self.params.meta), complete_while_typing=False,
+            completer=TeleopCompleter(lambda: self.params.names, lambda name: self.params.meta(name)),
+            complete_while_typing=False,
             refresh_interval=PROMPT_REFRESH_S)
         self.session = Session(client, self.proxy, all_events=True)
+        self.session.opener = opener             # `connect URL`, `connect` after the port is gone
         self.session.event_prefix = ""          # prompt_toolkit prints above the prompt: no need to step off it
         self.console = self.session.console = WrappingConsole(self.proxy, self.columns)
         self._stop = threading.Event()
@@ -322,7 +328,8 @@ class TeleopConsole:
             trouble = self.session.link_trouble()
             if trouble is not None and not announced:
                 self.console.lines(textwrap.wrap(f"! LINK LOST: {trouble}; nothing can be sent until `connect` "
-                                                 "opens a new session", teleop_format.WIDTH, subsequent_indent="  "))
+                                                 "(or `connect URL`) opens a new session", teleop_format.WIDTH,
+                                                 subsequent_indent="  "))
             announced = trouble is not None
 
     def columns(self) -> int:
@@ -349,7 +356,7 @@ class TeleopConsole:
             while True:
                 follow_width(self.columns())
                 try:
-                    text = self.prompt.prompt(lambda: prompt_text(self.client, self.session.telemetry,
+                    text = self.prompt.prompt(lambda: prompt_text(self.session.client, self.session.telemetry,
                                                                   self.session.tracker.running))
                 except KeyboardInterrupt:
                     continue             # Ctrl-C clears the line, as in a shell
@@ -358,8 +365,8 @@ class TeleopConsole:
                 number += 1
                 try:
                     step = parse_line(text, number)
-                except TeleopError as exc:
-                    self.console.line(f"error: {exc}")
+                except TeleopError as exc:        # its `line N: ` is for a script's lines, not the prompt's
+                    self.console.line(f"error: {str(exc).removeprefix(f'line {number}: ')}")
                     continue
                 if step is None:
                     continue
@@ -400,7 +407,12 @@ class TeleopConsole:
             return True
         if step.waits_for_motion:
             return self.wait_motions(step)
-        return self.session.run_step(step)
+        client = self.session.client
+        ok = self.session.run_step(step)
+        if self.session.client is not client:          # `connect URL`: the parameters are the new controller's
+            self.params = ParamNames(self.session.client)
+            self.params.start()
+        return ok
 
     def wait_motions(self, step) -> bool:
         """`wait [AXIS]`, which here also fails when a motion it waited for ended other than as asked (FAULT,
@@ -443,6 +455,7 @@ class _Lines(Console):
             self.forward.line(text)
 
 
-def interactive_console(client, history: Optional[History] = None) -> tuple[int, Session]:
-    """`aspod teleop` on a terminal: see the module doc."""
-    return TeleopConsole(client, history).run()
+def interactive_console(client, history: Optional[History] = None,
+                        opener: Optional[Callable[[str], object]] = None) -> tuple[int, Session]:
+    """`aspod teleop` on a terminal: see the module doc. `opener(url)`: a new, unconnected client for `connect URL`."""
+    return TeleopConsole(client, history, opener).run()

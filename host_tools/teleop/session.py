@@ -40,7 +40,7 @@ import statistics
 import sys
 from typing import Callable, Optional, TextIO
 
-from protocol.errors import shown
+from protocol.errors import KeyFileError, LinkError, shown
 from protocol.link import LinkState
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason, reason_name
@@ -113,8 +113,55 @@ class Session:
         self._aligned: Optional[AlignedWatch] = None     # `wait aligned` in progress
         self.event_prefix = "\n" if all_events else ""   # interactive: step off the prompt's line
         self._noise_at_start = self._noise()             # frames that failed CRC or authentication so far
+        self.opener: Optional[Callable[[str], object]] = None   # `connect URL`: a new, unconnected client for URL
         client.telemetry_listeners.append(self._on_telemetry)
         client.event_listeners.append(self._on_event)
+
+    def attach(self, client) -> None:
+        """Go on with `client` (a new link, after `connect URL`): its telemetry and events from now on."""
+        self.close()
+        self.client = client
+        self.telemetry = TelemetryCache()
+        self._noise_at_start = self._noise()
+        client.telemetry_listeners.append(self._on_telemetry)
+        client.event_listeners.append(self._on_event)
+
+    def connect(self, url: Optional[str] = None) -> bool:
+        """`connect [URL]`: a handshake again on this link while its port is open and no URL is given; else a new
+        link at URL (default: this one's), opened with `opener`, which replaces this one once its session is up.
+        A failure says why and leaves the session as it was."""
+        client = self.client
+        if url is None and client.io_error is None:
+            try:
+                client.connect()
+            except LinkError as exc:
+                self.console.line(f"FAIL connect: {exc}")
+                return False
+            self.console.line(f"ok   link up: {client.url}")
+            return True
+        url = url or client.url
+        if self.opener is None:
+            self.console.line(f"FAIL connect {url}: a new link is opened only at the console (aspod teleop URL)")
+            return False
+        try:
+            new = self.opener(url)
+        except KeyFileError:
+            self.console.line(f"FAIL connect {url}: no simulator of yours serves {url} (`aspod ports` lists those "
+                              "running; a real controller's key is given with aspod teleop --key-file)")
+            return False
+        except (LinkError, OSError, ValueError) as exc:
+            self.console.line(f"FAIL connect {url}: {exc}")
+            return False
+        try:
+            new.connect()
+        except (LinkError, OSError) as exc:
+            retire(new)
+            self.console.line(f"FAIL connect {url}: {exc}")
+            return False
+        self.attach(new)
+        retire(client)
+        self.console.line(f"ok   link up: {url}, a new session")
+        return True
 
     def close(self) -> None:
         for listeners, listener in ((self.client.telemetry_listeners, self._on_telemetry),
@@ -215,8 +262,12 @@ class Session:
                  f"failed their CRC and {auth} did not verify under its key (a second host on {where}?)"
                  if crc or auth else None)
         if client.io_error is not None:
-            return f"{where}: {client.io_error}" + (f"; {noise}" if noise else "")
-        return noise or f"no answer from the controller on {where} (is it still running?)"
+            return closed_text(client) + (f"; {noise}" if noise else "")
+        if noise:
+            return noise
+        heard = getattr(client.link, "peer_stats_s", None)
+        silent = f" for {client.clock.now() - heard:.0f} s" if heard is not None else ""
+        return f"no answer from the controller on {where}{silent} (is it still running?)"
 
     def _ok_line(self, handle) -> str:
         name = handle.msg.spec.name
@@ -276,8 +327,7 @@ class Session:
                              "motions instead)")
             self.wait(lambda: False, step.seconds)      # the controller's seconds, where its time is simulated
         elif word == "connect":
-            self.client.connect()
-            console.line("link up")
+            return self.connect(args[0] if args else None)
         elif word == "sim":
             ok, lines = sim_words.run(self.client.control, step.control, getattr(self.client, "url", "this target"))
             console.lines(lines)
@@ -429,6 +479,27 @@ class Session:
                          f"{peer.frames_tx} out, bytes in {peer.bytes_rx}, crc {peer.crc_errors}, "
                          f"auth {peer.auth_errors}, rejected {peer.rejected}, naks {peer.naks_tx}")
         return "\n".join(lines)
+
+
+# What pyserial says when the other end of the line goes away: a pty whose simulator stopped (EIO, or readable with
+# nothing to read), a TCP connection closed by its peer.
+CLOSED_END = ("Errno 5]", "returned no data", "connection closed", "Connection reset", "Broken pipe")
+
+
+def closed_text(client) -> str:
+    """Why the port failed, in a user's words: `the simulator closed its end of /dev/pts/3 (it stopped?)`."""
+    where, error = getattr(client, "url", "the line"), str(client.io_error)
+    if not any(mark in error for mark in CLOSED_END):
+        return f"{where}: {error}"
+    if getattr(client, "control", None) is not None:
+        return f"the simulator closed its end of {where} (it stopped?)"
+    return f"the other end of {where} closed it (the device unplugged, or the program serving it stopped)"
+
+
+def retire(client) -> None:
+    """Close a client the session no longer uses, leaving its capture (shared with the next) open."""
+    client.capture = None
+    client.close()
 
 
 def expected_lines(step: Step, handle, lines: list[str]) -> tuple[bool, list[str]]:

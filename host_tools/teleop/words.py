@@ -30,6 +30,7 @@ from protocol.schema import Field, Message, MessageSpec
 from host_tools.datetimes import FORMAT as CLOCK_FORMAT
 from host_tools.datetimes import parse_when, split_seconds
 from host_tools.teleop import sim_words
+from host_tools.worlds.ports import check_url
 
 # The axes `wait` takes: the declared enum of the motion commands' `axis` field (Home's includes `all`).
 AXIS_ENUM = next(f.enum for f in SCHEMA["Home"].fields if f.name == "axis")
@@ -70,7 +71,9 @@ LOCAL_COMMANDS = {
             "three TelemetryTracker in a row (the angle between the focal axis and the ephemeris sun; with az or el, "
             "that axis's error alone); it needs the controller's clock (`clock now`) and the box in use (main or "
             f"sensor power on); default timeout {ALIGNED_TIMEOUT_S:g} s; a timeout fails the line",
-    "connect": "connect: handshake again (a new session)",
+    "connect": "connect [URL]: a new session: a handshake again on this link, or, once the link is lost (the "
+               "simulator stopped, say) or with URL, on the link at URL (`connect /dev/pts/7`: the key is the "
+               "simulator's own, as at the start)",
     "sim": sim_words.summary(),
     "quit": "quit: leave",
 }
@@ -308,12 +311,19 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
                 step.control = sim_words.parse(args)
             except sim_words.SimWordError as exc:
                 raise TeleopError(f"line {line_no}: {exc}") from None
+        elif word == "connect" and args:
+            if len(args) > 1:
+                raise TeleopError(f"line {line_no}: connect takes at most one URL: connect [URL]")
+            try:
+                check_url(args[0])
+            except ValueError as exc:
+                raise TeleopError(f"line {line_no}: connect: {exc}") from None
         elif word == "help" and len(args) > 1:
             raise TeleopError(f"line {line_no}: help takes at most one command word")
         elif word == "help" and args and args[0].lower() not in _ALL_WORDS:
             raise TeleopError(f"line {line_no}: help: no command {shown(args[0])}"
                               f"{did_you_mean(args[0].lower(), _ALL_WORDS)}; `help` lists them all")
-        elif word not in ("help",) and args:
+        elif word not in ("help", "connect") and args:
             raise TeleopError(f"line {line_no}: {word} takes no arguments")
         return step
     spec = _COMMANDS.get(word)

@@ -1,0 +1,105 @@
+"""`aspod teleop`'s console in a real terminal: tmux, on a server of the test's own, at a size the test gives.
+
+    with TmuxConsole(tmp_path, ["teleop", url], env, columns=80, rows=24) as term:
+        term.shows(r"aspod IDLE > $")
+        term.type("status")
+        ...
+
+A step waits for what the screen shows (`shows`: a pattern of the pane's text, its history included), looking
+again every `LOOK_S`, with a generous bound that only ends a hang; it never sleeps a fixed time. The pane stays
+after the program ends (remain-on-exit), so its last screen and its exit status can be read.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import signal
+import subprocess
+from pathlib import Path
+from typing import Mapping, Optional, Sequence
+
+from timebase import RealClock
+
+from tests.aspod_cli import ASPOD
+
+SHOWN_S = 120.0       # a step's effect on the screen: well under a second on a quiet machine; this ends a hang
+LOOK_S = 0.02
+
+
+class TmuxConsole:
+    def __init__(self, folder: Path, args: Sequence[str], env: Mapping[str, str], columns: int = 80,
+                 rows: int = 24) -> None:
+        self.socket = folder / f"tmux-{columns}x{rows}.sock"
+        config = folder / "tmux.conf"
+        config.write_text("set -g remain-on-exit on\nset -g history-limit 10000\nset -g status off\n")
+        command = " ".join(shlex.quote(a) for a in ["env", *(f"{k}={v}" for k, v in env.items()
+                                                              if k.startswith(("XDG_", "TMPDIR", "HOME"))),
+                                                    "PYTHONFAULTHANDLER=1",
+                                                    *ASPOD, *args])
+        self.columns, self.rows = columns, rows
+        self.clock = RealClock()
+        self._tmux("-f", str(config), "new-session", "-d", "-x", str(columns), "-y", str(rows), "-s", "t",
+                   "-c", str(Path.cwd()), command)
+
+    def _tmux(self, *args: str) -> str:
+        done = subprocess.run(["tmux", "-S", str(self.socket), *args], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, f"tmux {' '.join(args)}: {done.stderr}"
+        return done.stdout
+
+    def screen(self) -> str:
+        """The pane's text, its history first: each line as the terminal shows it, wrapped as it wrapped."""
+        return self._tmux("capture-pane", "-p", "-S", "-", "-t", "t")
+
+    def visible(self) -> list[str]:
+        return self._tmux("capture-pane", "-p", "-t", "t").split("\n")[:self.rows]
+
+    def type(self, text: str, enter: bool = True) -> None:
+        if text:
+            self._tmux("send-keys", "-t", "t", "-l", text)
+        if enter:
+            self._tmux("send-keys", "-t", "t", "Enter")
+
+    def key(self, name: str) -> None:
+        self._tmux("send-keys", "-t", "t", name)
+
+    def shows(self, pattern: str, after: int = 0, bound_s: float = SHOWN_S) -> re.Match:
+        """Wait until the screen's text from `after` on matches `pattern` (re.M | re.S)."""
+        end = self.clock.now() + bound_s
+        while True:
+            text = self.screen()
+            found = re.search(pattern, text[after:], re.M | re.S)
+            if found:
+                return found
+            assert self.clock.now() < end, f"the screen never showed {pattern!r}:\n{text}"
+            self.clock.sleep(LOOK_S)
+
+    def mark(self) -> int:
+        """Where the screen's text ends now: `shows(..., after=mark)` looks only at what comes next."""
+        return len(self.screen().rstrip("\n"))
+
+    def exit_status(self) -> Optional[int]:
+        """None while the program runs; its exit status once it has ended (tmux may say the pane is dead a moment
+        before it has the status: still None then)."""
+        dead, _, status = self._tmux("display-message", "-p", "-t", "t",
+                                     "#{pane_dead}:#{pane_dead_status}").strip().partition(":")
+        return int(status) if dead == "1" and status else None
+
+    def wait_exit(self, bound_s: float = SHOWN_S) -> int:
+        end = self.clock.now() + bound_s
+        while (status := self.exit_status()) is None:
+            if self.clock.now() > end:          # where it hangs: PYTHONFAULTHANDLER prints each thread on SIGABRT
+                os.kill(int(self._tmux("display-message", "-p", "-t", "t", "#{pane_pid}")), signal.SIGABRT)
+                self.shows(r"Fatal Python error|Current thread", bound_s=30.0)
+                raise AssertionError(f"the console never ended:\n{self.screen()}")
+            self.clock.sleep(LOOK_S)
+        return status
+
+    def close(self) -> None:
+        subprocess.run(["tmux", "-S", str(self.socket), "kill-server"], capture_output=True, timeout=60)
+
+    def __enter__(self) -> "TmuxConsole":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
