@@ -72,3 +72,34 @@ def test_not_json_and_options_out_of_place_are_refused(tmp_path, capsys):
     assert main(["plan", "--knots", "5"]) == 2
     err = capsys.readouterr().err
     assert "not a joint of the trajectory" in err and "-360..360" in err and "only with --arm-to" in err
+
+
+def test_teleop_traj_words_load_run_and_clear_a_planned_file(tmp_path, capsys):
+    """`traj load FILE`, `traj run`, `traj clear` (issue 36), in a script on the simulated clock."""
+    move = tmp_path / "m.json"
+    assert main(["plan", "--arm-to", "j1=10,j2=-5", "--output", str(move)]) == 0
+    knots = load_trajectory(move)
+    assert len(knots) > 41          # more than asked: 41 knots' cubics passed j1's speed limit (see knots_within_speed)
+    script = tmp_path / "s.txt"
+    script.write_text(f"enable\nhome all\nwait all\ntraj load {move}\ntraj run\nwait all\ntraj clear\n")
+    capsys.readouterr()
+    assert main(["bench", str(script), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    ran = [m for m in doc["motions"] if m["line"] == 5]
+    assert len(ran) == 5 and {m["outcome"] for m in ran} == {"DONE"}, ran
+    assert doc["ok"]
+
+
+def test_a_script_with_a_bad_trajectory_file_sends_nothing_and_run_needs_a_load(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "aspod-trajectory", "version": 1}\n')
+    script = tmp_path / "s.txt"
+    script.write_text(f"enable\ntraj load {bad}\n")
+    assert main(["bench", str(script)]) == 2
+    err = capsys.readouterr().err
+    assert "line 2: traj load:" in err and "joints" in err
+    script.write_text("enable\ntraj run\n")
+    assert main(["bench", str(script)]) == 1
+    assert "no trajectory loaded in this session" in capsys.readouterr().out
+    script.write_text("traj fly\n")
+    assert main(["bench", str(script)]) == 2

@@ -61,7 +61,7 @@ def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
     file teleop's `traj load` takes. PlanError (exit 2) for a move it cannot plan."""
     from firmware_py.arm_config import parameter_table
     from hil_sim.arm_params import GRAVITY_M_S2
-    from host_tools.apps.arm_plan import ArmPlanSettings, plan_move
+    from host_tools.apps.arm_plan import ArmPlanSettings, knots_within_speed, plan_move
     from host_tools.client.trajectory import trajectory_json
     defaults = {p.name: p.default for p in parameter_table()}
     start = {name: math.radians(deg) for name, deg in arm.start_deg}
@@ -70,7 +70,7 @@ def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
     speed = {name: math.radians(defaults[f"{name}_speed_dps"]) for name in start}
     move = plan_move(start, target, GRAVITY_M_S2[arm.gravity], arm.payload_kg, current, speed,
                      ArmPlanSettings(nodes=min(nodes, 20000), knots=arm.knots))
-    knots = move.knots(arm.knots)
+    knots = knots_within_speed(move, speed, arm.knots)
     about = {"tool": "aspod plan", "from_deg": dict(arm.start_deg), "to_deg": dict(arm.target_deg),
              "gravity": arm.gravity, "payload_kg": arm.payload_kg, "duration_s": round(move.duration_s, 6),
              "limits": "the controller's default current and speed limits"}
@@ -287,7 +287,8 @@ def add_options(plan: argparse.ArgumentParser) -> None:
     arm.add_argument("--payload-kg", type=bounded(float, 0.0, 1000.0), default=None, metavar="M",
                      help="mass in the gripper (default 0)")
     arm.add_argument("--knots", type=bounded(int, 2, 256), default=None, metavar="N",
-                     help="knots of the trajectory (default 41; the controller holds 256)")
+                     help="knots of the trajectory, at least (default 41; more, up to the controller's 256, where "
+                          "the curve between them would pass a joint's speed limit)")
     arm.add_argument("--output", type=Path, default=None, metavar="FILE.json", help="write the trajectory file")
 
 

@@ -80,12 +80,18 @@ def send_trajectory(client: Caller, knots: Sequence[Knot]) -> list[int]:
         raise ValueError(f"a trajectory needs at least 2 knots, not {len(knots)}")
     if knots[0].t_s != 0.0 or any(b.t_s <= a.t_s for a, b in zip(knots, knots[1:])):
         raise ValueError("a trajectory's knots start at t = 0 s and their times increase strictly")
+    upload_trajectory(client, knots)
+    reply = _ok(client.call(M["TrajRun"](len(knots))), "TrajRun")
+    return [getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS]
+
+
+def upload_trajectory(client: Caller, knots: Sequence[Knot]) -> None:
+    """Clear the controller's buffer and upload `knots` (TrajRun with their count starts them); ValueError for a
+    knot a TrajPoint cannot carry (nothing sent), TrajectoryRefused for the controller's no."""
     messages = [point_message(index, knot) for index, knot in enumerate(knots)]
     _ok(client.call(M["TrajClear"]()), "TrajClear")
     for index, msg in enumerate(messages):
         _ok(client.call(msg), "TrajPoint", index)
-    reply = _ok(client.call(M["TrajRun"](len(knots))), "TrajRun")
-    return [getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS]
 
 
 def _ok(handle: CommandHandle, command: str, index: int | None = None) -> Message:

@@ -223,7 +223,11 @@ def replaced_lines(replaced: list[Motion]) -> list[str]:
 def limit_text(request: Message, refusal: Message) -> str:
     """The limit a motion command was refused for, from its MotionAccepted: SOFT_LIMIT names a soft limit (deg),
     OUT_OF_RANGE the axis's speed (deg/s), each with the parameter that sets it."""
-    axis, limit, value, asked = axis_word(request.axis), refusal.limit, refusal.limit_value, refusal.asked
+    limit, value, asked = refusal.limit, refusal.limit_value, refusal.asked
+    if not hasattr(request, "axis"):             # a trajectory: the limit's parameter names the joint
+        what = "a soft limit" if refusal.result == Reason.SOFT_LIMIT else "a speed limit"
+        return f"the trajectory passes {what}: {asked:g} against {limit} = {value:g}"
+    axis = axis_word(request.axis)
     if refusal.result == Reason.SOFT_LIMIT and request.spec.name == "Jog":
         return f"{axis}: at {asked:g} deg, against {limit} = {value:g} deg; jog the other way"
     if refusal.result == Reason.SOFT_LIMIT:

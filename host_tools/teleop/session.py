@@ -50,6 +50,7 @@ from protocol.states import TimingMode
 from timebase import RealClock
 
 from host_tools.client.params import read_param_table
+from host_tools.client.trajectory import TrajectoryRefused, upload_trajectory
 from host_tools.datetimes import utc_text
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 from host_tools.teleop import sim_words
@@ -114,6 +115,7 @@ class Session:
         self.event_prefix = "\n" if all_events else ""   # interactive: step off the prompt's line
         self._noise_at_start = self._noise()             # frames that failed CRC or authentication so far
         self.opener: Optional[Callable[[str], object]] = None   # `connect URL`: a new, unconnected client for URL
+        self.traj_knots: Optional[int] = None             # the knots `traj load` uploaded (TrajRun's count)
         client.telemetry_listeners.append(self._on_telemetry)
         client.event_listeners.append(self._on_event)
 
@@ -328,6 +330,8 @@ class Session:
             self.wait(lambda: False, step.seconds)      # the controller's seconds, where its time is simulated
         elif word == "connect":
             return self.connect(args[0] if args else None)
+        elif word == "traj":
+            return self.run_traj(step)
         elif word == "sim":
             ok, lines = sim_words.run(self.client.control, step.control, getattr(self.client, "url", "this target"))
             console.lines(lines)
@@ -335,6 +339,32 @@ class Session:
         elif word == "watch":
             block = (lambda cache: box_block(cache.latest)) if step.view == "box" else arm_block
             watch(self.client, self.telemetry, step.seconds, console, block)
+        return True
+
+    def run_traj(self, step: Step) -> bool:
+        """traj load: clear the controller's knots and upload the file's; traj run: TrajRun with the count loaded here,
+        a motion as any other (`wait` waits for it); traj clear."""
+        action = step.args[0].lower()
+        if action == "run":
+            if self.traj_knots is None:
+                self.failed += 1
+                self.console.line("FAIL traj run: no trajectory loaded in this session (traj load FILE first)")
+                return False
+            return self.run_step(Step("traj", step.args, step.line_no, step.text,
+                                      message=SCHEMA["TrajRun"].type(self.traj_knots)))
+        if action == "clear":
+            self.traj_knots = None
+            return self.run_step(Step("traj", step.args, step.line_no, step.text, message=SCHEMA["TrajClear"].type()))
+        self.sent += 1 + len(step.knots)
+        try:
+            upload_trajectory(self.client, step.knots)
+        except TrajectoryRefused as exc:
+            self.failed += 1
+            self.traj_knots = None
+            self.console.line(f"FAIL traj load: {exc}")
+            return False
+        self.traj_knots = len(step.knots)
+        self.console.line(f"ok   {len(step.knots)} knots loaded, {step.knots[-1].t_s:g} s (traj run starts them)")
         return True
 
     def wait(self, predicate: Callable[[], bool], timeout_s: float) -> tuple[bool, float, str]:

@@ -75,8 +75,13 @@ LOCAL_COMMANDS = {
                "simulator stopped, say) or with URL, on the link at URL (`connect /dev/pts/7`: the key is the "
                "simulator's own, as at the start)",
     "sim": sim_words.summary(),
+    "traj": "traj load FILE: upload a planned trajectory (a file of `aspod plan --arm-to ... --output FILE`) to the "
+            "controller, replacing the knots it holds; traj run: start it (j1..j4 and the mount, from where they "
+            "stand at rest; `wait` waits for it); traj clear: drop the knots. A script checks the file before "
+            "anything is sent",
     "quit": "quit: leave",
 }
+TRAJ_ACTIONS = ("load", "run", "clear")
 
 SCRIPT_RULES = ("in a script (--script FILE, or a pipe), a motion that ends other than DONE counts as a failed "
                 "command (a jog's STOPPED by `stop` is its normal end): the script stops there, or goes on "
@@ -102,6 +107,7 @@ class Step:
     expect: Optional[Reason] = None       # expect REASON COMMAND: the refusal that passes
     clock_now: bool = False               # clock now: SetClock built from the host's UTC when it runs
     control: Optional[dict] = None        # sim ...: the control endpoint's request
+    knots: Optional[list] = None          # traj load FILE: the trajectory's knots, read and checked
 
     @property
     def waits_for_motion(self) -> bool:
@@ -311,6 +317,8 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
                 step.control = sim_words.parse(args)
             except sim_words.SimWordError as exc:
                 raise TeleopError(f"line {line_no}: {exc}") from None
+        elif word == "traj":
+            _parse_traj(step)
         elif word == "connect" and args:
             if len(args) > 1:
                 raise TeleopError(f"line {line_no}: connect takes at most one URL: connect [URL]")
@@ -323,7 +331,7 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
         elif word == "help" and args and args[0].lower() not in _ALL_WORDS:
             raise TeleopError(f"line {line_no}: help: no command {shown(args[0])}"
                               f"{did_you_mean(args[0].lower(), _ALL_WORDS)}; `help` lists them all")
-        elif word not in ("help", "connect") and args:
+        elif word not in ("help", "connect", "traj") and args:
             raise TeleopError(f"line {line_no}: {word} takes no arguments")
         return step
     spec = _COMMANDS.get(word)
@@ -338,6 +346,21 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
     except TeleopError as exc:
         raise TeleopError(f"line {line_no}: {exc}") from None
     return step
+
+
+def _parse_traj(step: Step) -> None:
+    """traj load FILE (the file read and checked now: a script refuses a bad one before sending anything), run,
+    clear."""
+    args, line_no = step.args, step.line_no
+    action = args[0].lower() if args else ""
+    if action not in TRAJ_ACTIONS or len(args) != (2 if action == "load" else 1):
+        raise TeleopError(f"line {line_no}: traj load FILE | traj run | traj clear")
+    if action == "load":
+        from host_tools.client.trajectory import load_trajectory
+        try:
+            step.knots = load_trajectory(args[1])
+        except (ValueError, OSError) as exc:       # files.InputFileError is an OSError: unreadable, too big
+            raise TeleopError(f"line {line_no}: traj load: {exc}") from None
 
 
 def _is_date_time(text: str) -> bool:
@@ -560,6 +583,8 @@ def completions(line: str, begin: int, text: str) -> list[str]:
         return completions(rest, len(rest), text)
     elif word == "clock":
         options = ["now"] if position == 0 else []
+    elif word == "traj":
+        options = list(TRAJ_ACTIONS) if position == 0 else []
     elif word == "sim":
         options = sim_words.completions(position, before[1:])
     else:
