@@ -64,8 +64,6 @@ STOP_S = 30.0
 # Shown but not run: each needs what a test cannot have, or takes far longer than the suite may.
 SKIP = {
     "make test": "the whole suite, this test among it (`make test` runs it)",
-    ".venv/bin/aspod campaign benches/test_pick_and_place.py --seeds 20 --draw payload_kg=0..0.7":
-        "20 pick-and-place runs of 10-20 s each: minutes on 2 cores; docs/campaigns.md's 3-seed campaign runs",
     "aspod campaign benches/test_pick_and_place.py --seeds 1000 --draw payload_kg=0..1 "
     "--draw fault=none,jam:j2,open_circuit:j1,encoder_dropout:j3,supply_sag,stuck_brake:j2 "
     "--draw fault_at_s=1..60 --group-by fault --plot m.worst_error_mm:payload_kg --hist fault.safe_after_s":
@@ -556,3 +554,15 @@ def test_the_commands_of_a_doc_run_as_shown(doc, tmp_path):
     shown = [c.text for c in BY_DOC[doc]]
     assert set(runner.ran) | set(runner.skipped) == set(shown)
     print(f"{doc}: {len(runner.ran)} run, {len(runner.skipped)} skipped")
+
+
+def test_the_readmes_python_example_runs_as_shown(tmp_path):
+    """The front page's `python` block, as a script of its own (a new process, the checkout's packages)."""
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"^```python\n(.*?)^```", text, flags=re.M | re.S)
+    assert len(blocks) == 1
+    script = tmp_path / "example.py"
+    script.write_text(blocks[0])
+    done = run([sys.executable, str(script)], cwd=ROOT, text=True, timeout_s=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("Status(result=0, state=2,"), done.stdout
