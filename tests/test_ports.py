@@ -49,3 +49,20 @@ def test_teleop_without_a_url_attaches_to_the_one_simulator_and_lists_several(en
     several = aspod(env, "teleop", stdin="ping\nquit\n", peers=(first.pid, second.pid))
     assert several.returncode == 2 and "2 simulators of yours are running" in several.stderr
     assert url in several.stderr and url2 in several.stderr and "Pong" not in several.stdout
+
+
+def test_the_sockets_of_killed_simulators_never_hide_a_live_one(env, start_sim, tmp_path):
+    """A simulator killed outright leaves its socket; 55 of them once kept a live one out of the 64 scanned."""
+    import socket
+    from pathlib import Path
+    folder = Path(env["XDG_RUNTIME_DIR"]) / "aspod"
+    folder.mkdir(mode=0o700, exist_ok=True)
+    beyond = 10 ** (len(Path("/proc/sys/kernel/pid_max").read_text().strip()) + 1)   # no process has such a pid,
+    for k in range(80):
+        stale = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        stale.bind(str(folder / f"sim-{beyond + k}.sock"))        # and its name sorts before any live one
+        stale.close()                                               # the file stays, as a killed sim leaves it
+    sim, url = start_sim()                                          # its folder sweeps them as it opens
+    data = json.loads(aspod(env, "ports", "--json", peers=(sim.pid,)).stdout)
+    assert [s["link"] for s in data["simulators"]] == [url]
+    assert sorted(p.name for p in folder.glob("sim-*.sock")) == [f"sim-{sim.pid}.sock"]

@@ -36,7 +36,7 @@ from protocol import auth
 from protocol.errors import KeyFileError
 
 from host_tools.worlds.control_server import link_endpoints, peer_uid
-from host_tools.worlds.runtime_folder import search_folders
+from host_tools.worlds.runtime_folder import owner_alive, search_folders
 
 REPLY_TIMEOUT_S = 10.0         # a request's reply (the endpoint answers within a poll, 10 ms, when the world runs)
 STEP_WALL_PER_S = 4.0          # ... and a step's, this much wall time more per simulated second (a busy host)
@@ -172,11 +172,12 @@ def find_simulator(url: str, environ: Optional[Mapping[str, str]] = None) -> Opt
 
 
 def _sockets(environ: Optional[Mapping[str, str]]) -> list[Path]:
-    """The simulators' sockets in this user's runtime folders (at most MAX_SCANNED)."""
+    """The simulators' sockets in this user's runtime folders (at most MAX_SCANNED), leaving out those whose process
+    is gone (a simulator killed outright leaves its socket: 55 of them once kept a live one out of the scan)."""
     candidates: list[Path] = []
     for folder in search_folders(environ):      # this user's, 0700: nothing else in them is to be trusted
         try:
-            candidates += sorted(folder.glob("sim-*.sock"))
+            candidates += [path for path in sorted(folder.glob("sim-*.sock")) if owner_alive(path)]
         except OSError:
             continue
     return candidates[:MAX_SCANNED]

@@ -123,14 +123,14 @@ class RuntimeFolder:
         return key, path
 
     def sweep(self) -> None:
-        """Remove the keys of simulators that are gone (killed before they could remove their own)."""
-        for path in sorted(self.path.glob(KEY_NAME.format(pid="*")))[:MAX_SWEPT]:
-            pid = path.name[len("sim-"):-len(".key")]
-            if pid.isdigit() and not process_alive(int(pid)):
-                try:
-                    path.unlink()
-                except OSError:
-                    pass
+        """Remove the keys and sockets of simulators that are gone (killed before they could remove their own)."""
+        for pattern in (KEY_NAME, SOCKET_NAME):
+            for path in sorted(self.path.glob(pattern.format(pid="*")))[:MAX_SWEPT]:
+                if not owner_alive(path):
+                    try:
+                        path.unlink()
+                    except OSError:
+                        pass
 
     def close(self) -> None:
         if self.key_path is not None:
@@ -144,6 +144,12 @@ class RuntimeFolder:
                 self.path.rmdir()         # empty by now: its socket and key went first
             except OSError:
                 pass
+
+
+def owner_alive(path: Path) -> bool:
+    """Whether the process a `sim-<pid>.key` or `sim-<pid>.sock` names still runs (a name of another shape: yes)."""
+    pid = path.name[len("sim-"):].split(".", 1)[0]
+    return not pid.isdigit() or process_alive(int(pid))
 
 
 def process_alive(pid: int) -> bool:
