@@ -25,6 +25,7 @@ from tests.aspod_cli import ASPOD
 
 SHOWN_S = 120.0       # a step's effect on the screen: well under a second on a quiet machine; this ends a hang
 LOOK_S = 0.02
+EXITED = "aspod-exited"        # the line the pane's shell prints with the exit status: `aspod-exited N`
 
 
 class TmuxConsole:
@@ -37,6 +38,9 @@ class TmuxConsole:
                                                               if k.startswith(("XDG_", "TMPDIR", "HOME"))),
                                                     "PYTHONFAULTHANDLER=1",
                                                     *ASPOD, *args])
+        # the exit status said on the screen by the shell that ran it: tmux marks a pane dead when its pty closes and
+        # knows the status only once it has reaped the process, which it once had not 120 s later (a zombie)
+        command += f"; echo {EXITED} $?"
         self.columns, self.rows = columns, rows
         self.clock = RealClock()
         self._tmux("-f", str(config), "new-session", "-d", "-x", str(columns), "-y", str(rows), "-s", "t",
@@ -79,19 +83,25 @@ class TmuxConsole:
         return len(self.screen().rstrip("\n"))
 
     def exit_status(self) -> Optional[int]:
-        """None while the program runs; its exit status once it has ended (tmux may say the pane is dead a moment
-        before it has the status: still None then)."""
-        dead, _, status = self._tmux("display-message", "-p", "-t", "t",
-                                     "#{pane_dead}:#{pane_dead_status}").strip().partition(":")
-        return int(status) if dead == "1" and status else None
+        """None while the program runs; its exit status once it has ended, as the shell that ran it said it."""
+        said = re.findall(rf"^{re.escape(EXITED)} (\d+)$", self.screen(), flags=re.M)
+        return int(said[-1]) if said else None
 
     def wait_exit(self, bound_s: float = SHOWN_S) -> int:
         end = self.clock.now() + bound_s
         while (status := self.exit_status()) is None:
             if self.clock.now() > end:          # where it hangs: PYTHONFAULTHANDLER prints each thread on SIGABRT
-                os.kill(int(self._tmux("display-message", "-p", "-t", "t", "#{pane_pid}")), signal.SIGABRT)
-                self.shows(r"Fatal Python error|Current thread", bound_s=30.0)
-                raise AssertionError(f"the console never ended:\n{self.screen()}")
+                pane = int(self._tmux("display-message", "-p", "-t", "t", "#{pane_pid}"))
+                for pid in [pane, *_descendants(pane)]:        # the pane's shell may not have exec'd Python
+                    try:
+                        os.kill(pid, signal.SIGABRT)
+                    except ProcessLookupError:
+                        pass
+                state = self._tmux("display-message", "-p", "-t", "t",
+                                   "dead=#{pane_dead} status=#{pane_dead_status} signal=#{pane_dead_signal}")
+                tree = subprocess.run(["ps", "-o", "pid,stat,wchan:20,cmd", "--ppid", str(pane), "-p", str(pane)],
+                                      capture_output=True, text=True).stdout
+                raise AssertionError(f"the console never ended ({state.strip()}):\n{tree}\n{self.screen()}")
             self.clock.sleep(LOOK_S)
         return status
 
@@ -103,3 +113,14 @@ class TmuxConsole:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _descendants(pid: int) -> list[int]:
+    """The processes below `pid` (from /proc), deepest last."""
+    children = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            children += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return [d for c in children for d in (c, *_descendants(c))]
