@@ -513,7 +513,8 @@ class Session:
 
 # What pyserial says when the other end of the line goes away: a pty whose simulator stopped (EIO, or readable with
 # nothing to read), a TCP connection closed by its peer.
-CLOSED_END = ("Errno 5]", "returned no data", "connection closed", "Connection reset", "Broken pipe")
+CLOSED_END = ("Errno 5]", "returned no data", "connection closed", "socket disconnected", "Connection reset",
+              "Broken pipe")
 
 
 def closed_text(client) -> str:
