@@ -35,12 +35,13 @@ def bench():
 
 @pytest.fixture
 def start_sim(env):
-    """`start()`: a new `aspod sim --pty --no-tracker` in the test module's own `env` (its runtime folder), once its
-    control endpoint is up: (the child, its link's URL). Each is stopped at the test's end."""
+    """`start(*options)`: a new `aspod sim --pty` (with `options`; none: `--no-tracker`) in the test module's own
+    `env` (its runtime folder), once its control endpoint is up: (the child, its link's URL). Each is stopped at the
+    test's end."""
     sims = []
 
-    def start() -> tuple[Child, str]:
-        child = Child(["sim", "--pty", "--no-tracker"], env=env)
+    def start(*options: str) -> tuple[Child, str]:
+        child = Child(["sim", "--pty", *(options or ("--no-tracker",))], env=env)
         sims.append(child)
         link = child.line(30.0)
         assert link.startswith("ASPOD-LINK "), link

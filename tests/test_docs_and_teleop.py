@@ -97,11 +97,21 @@ def test_a_script_is_checked_whole_before_anything_runs():
     assert [p.split(":")[0] for p in problems] == ["line 3", "line 5"]
 
 
-def test_help_describes_every_command_with_its_fields():
-    text = teleop.help_text()
-    for word in teleop.all_words():
-        assert word in text
-    assert "0..200" in teleop.help_text("telemetry")
+def test_help_lists_every_command_once_by_job_and_describes_one_in_a_users_words():
+    from host_tools.teleop.words import INDEX
+    lines = teleop.help_text().split("\n")
+    jobs = [line for line in lines if line and not line.startswith(" ")][1:-1]     # between the title and the rules
+    assert jobs == ["arm", "tracker", "controller", "link", "simulator", "console"]
+    listed = [line.split()[0] for line in lines if line.startswith("  ") and not line.startswith("   ")]
+    assert sorted(listed) == sorted(teleop.all_words()) and len(set(listed)) == len(listed)
+    assert [w for _job, words in INDEX for w, _what in words] == listed
+    move = teleop.help_text("move")
+    assert move.split("\n")[0] == "move AXIS TARGET [SPEED]"
+    assert "TARGET   a number of degrees, from -360 to 360" in move and "f32" not in move
+    assert "AXIS     j1, j2, j3, j4 or mount\n" in move                 # one list: the axes move takes
+    assert "AXIS   j1, j2, j3, j4, gripper, mount or all" in teleop.help_text("home")
+    assert "a whole number of times a second, from 0 to 200" in teleop.help_text("telemetry")
+    assert "if left out, both" in teleop.help_text("dial")
 
 
 def test_wait_waits_for_motions_or_pauses():
@@ -124,4 +134,4 @@ def test_motion_words_take_declared_enum_values_and_complete_them():
     assert completions("move ", 5, "") == ["j1", "j2", "j3", "j4", "gripper", "mount", "all"]
     assert completions("grip c", 5, "c") == ["close"]
     assert completions("wait g", 5, "g") == ["gripper"]
-    assert "one of j1, j2, j3, j4, gripper, mount, all" in teleop.help_text("move")
+    assert "j1, j2, j3, j4 or mount" in teleop.help_text("move")        # the axes move takes, not the enum

@@ -261,7 +261,7 @@ def test_a_script_homes_the_arm_moves_every_joint_grips_and_saves_a_parameter(si
     assert "ok   wait gripper: 1 motion(s) ended" in out
     assert "homed 6/6" in out and "arm loop 1000 us: exec max" in out   # the watch block
     for axis in AXES:
-        assert re.search(rf"^{axis}\s+yes\s+-?[\d.]+ (deg|mm)\s+-?[\d.]+ (deg|mm)/s\s+-?[\d.]+ A  HOLDING", out, re.M)
+        assert re.search(rf"^{axis}\s+yes\s+-?[\d.]+ (deg|mm)\s+-?[\d.]+ (deg|mm)/s\s+-?[\d.]+ A\s+HOLDING", out, re.M)
     assert "name=j1_max_deg value=85.00" in out and "name=j1_speed_dps value=2.50" in out
     assert json.loads(sim.params.read_text())["params"]["j1_speed_dps"] == 2.5
     assert "state=ENABLED faults=none" in out

@@ -123,16 +123,23 @@ def test_output_follows_the_terminal_width():
     assert fit("short", 80) == ["short"]
 
 
-def test_params_show_unit_range_and_description_wrapped_below_when_the_line_is_too_wide():
+def test_params_show_unit_range_and_description_wrapped_in_their_column_when_the_terminal_is_narrow():
     plain = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1, "", "")
-    assert teleop_format.param_lines(plain, 80) == ["  j1_speed_dps                3            [0.1 .. 10]"]
-    rich = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1, "deg/s",
-                                     "the joint's default cruise speed")
-    assert teleop_format.param_lines(rich, 100) == [
-        "  j1_speed_dps                3 deg/s      [0.1 .. 10]  the joint's default cruise speed"]
-    assert teleop_format.param_lines(rich, 80) == ["  j1_speed_dps                3 deg/s      [0.1 .. 10]",
-                                                   "      the joint's default cruise speed"]
-    assert teleop_format.param_lines(rich) == teleop_format.param_lines(rich, 200)     # scripts: one line
+    assert teleop_format.param_lines(plain) == ["  j1_speed_dps                3            [0.1 .. 10]"]
+    described = SCHEMA["ParamValue"].type(0, "j1_speed_dps", 3.0, 0.1, 10.0, 0, 1, "deg/s",
+                                          "the joint's default cruise speed, used when a move names none")
+    assert teleop_format.param_lines(described) == [        # a script's: one line each, as they come
+        "  j1_speed_dps                3 deg/s      [0.1 .. 10]  the joint's default cruise speed, used when a move "
+        "names none"]
+    wide = teleop_format.params_table([plain, described], 120)
+    assert wide[0].split() == ["name", "value", "unit", "range", "what", "it", "does"]
+    assert wide[2].split() == ["j1_speed_dps", "3", "deg/s", "0.1", "..", "10", "the", "joint's", "default",
+                               "cruise", "speed,", "used", "when", "a", "move", "names", "none"]
+    narrow = teleop_format.params_table([plain, described], 60)
+    assert max(map(len, narrow)) <= 60 and len(narrow) > 3
+    column = wide[0].index("what")                      # the description wraps under its own heading
+    assert narrow[3].startswith(" " * column) and narrow[3].strip() in described.description
+    assert " ".join(line[column:].strip() for line in narrow[2:]) == described.description
 
 
 SHOWN_S = 60.0      # a step's effect on the screen: milliseconds on a quiet machine; this bound only ends a hang

@@ -59,3 +59,46 @@ def test_connect_after_the_simulator_stopped_stays_in_the_console_and_takes_a_ne
     screen = term.screen()
     assert "Errno" not in screen and "Traceback" not in screen, screen
     assert "commands: 1 sent, 1 ok" in screen                # the summary is of the session, on the new link
+
+
+@pytest.mark.parametrize("columns,rows", SIZES)
+def test_the_console_fits_the_terminal_and_pages_helps_watches_and_clears(start_sim, console, columns, rows):
+    """Every line the console writes fits the terminal (tmux joins what it had to wrap: none may be wider); `help`
+    is an index by job, paged; `help move` speaks in degrees; the key that ends `watch` begins the next line;
+    `params` pages; `clear` clears; the bottom toolbar shows the link, the round trip and the time."""
+    _sim, url = start_sim("--sun-start", "2026-03-20T06:50-07:00")
+    term = console(url, columns, rows)
+    term.shows(rf"^ link UP {url} \| round trip [\d.]+ ms \| time paced [\d.]+x real time$")
+    term.type("help")
+    term.shows(r"^commands by job .*^arm$.*-- \d+/\d+ lines: any key for more, q to stop --")
+    term.key("q")
+    at = term.mark()
+    term.type("help move")
+    term.shows(r"^move AXIS TARGET \[SPEED\]$.*TARGET +a number of degrees, from -360 to 360.*aspod IDLE >", at)
+    for line in ("telemetry 10", "clock now", "switch sensor on"):
+        at = term.mark()
+        term.type(line)
+        term.shows(r"^ok   .*aspod IDLE >", at)
+    at = term.mark()
+    term.type("watch")
+    term.shows(r"^axis +homed +position.*^mount .*\(any key ends watch\)", at)
+    term.type("s", enter=False)                         # ends watch, and is the first letter of the next line
+    term.shows(r"aspod IDLE > s$", at)
+    term.type("tatus")
+    term.shows(r"^ok   Status .*aspod IDLE >", at)
+    at = term.mark()
+    term.type("box")
+    term.shows(r"^axis +mode +dir +speed +% +relay +brake +% +mV +V +deg +deg$\n^az .*^warnings: .*aspod IDLE >", at)
+    at = term.mark()
+    term.type("params")
+    term.shows(r"^  name +value +unit +range +what it does$.*-- \d+/\d+ lines: any key for more, q to stop --", at)
+    term.key("q")
+    term.shows(r"aspod IDLE > ?$", at)
+    too_wide = [line for line in term.lines() if len(line) > columns]
+    assert not too_wide, "\n".join(too_wide)
+    term.type("clear")
+    term.until(lambda: term.visible()[0].startswith("aspod IDLE >"))      # the screen begins at the prompt
+    term.type("quit")
+    assert term.wait_exit() == 0
+    too_wide = [line for line in term.lines() if len(line) > columns]     # the exit summary too
+    assert not too_wide and "commands: " in term.screen(), "\n".join(too_wide)

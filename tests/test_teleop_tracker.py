@@ -18,7 +18,7 @@ from host_tools.teleop import session as teleop
 from host_tools.exit_codes import EXIT_FAILED, EXIT_OK, EXIT_USAGE
 from host_tools.teleop.session import Session, run_script
 from host_tools.client.bench import BenchClient
-from host_tools.teleop.box import AXIS_HEADER, box_block, box_state_text, pointing_error_deg
+from host_tools.teleop.box import box_block, box_state_text, pointing_error_deg
 from host_tools.datetimes import parse_when, split_seconds
 from host_tools.teleop.words import completions, help_text, parse_line
 from host_tools.worlds.world import LockstepBench
@@ -90,10 +90,10 @@ def test_expect_wait_aligned_and_watch_box_parse_to_their_steps():
 
 def test_help_and_completion_cover_the_new_words():
     text = help_text()
-    for word in ("box:", "expect REASON COMMAND", "wait aligned [az|el] DEG [TIMEOUT]", "watch [box] [seconds]"):
+    for word in ("\n  box  ", "expect REASON COMMAND", "watch [box] [seconds]"):
         assert word in text
-    flat = " ".join(text.split())                             # as wrapped for the terminal, unwrapped
-    assert "Also: `clock now`" in flat and "Also: `clock now`" in " ".join(help_text("clock").split())
+    assert "wait aligned [az|el] DEG [TIMEOUT]" in help_text("wait")
+    assert "Also: `clock now`" in " ".join(help_text("clock").split())
     assert "2026-03-20T06:50-07:00" in help_text("clock")
     assert "expect DIAL_NOT_LOW switch" in help_text("switch")
     assert completions("ex", 0, "ex") == ["expect"]
@@ -138,16 +138,17 @@ def test_the_panel_reads_as_the_box_does():
     text = "\n".join(lines)
     assert lines[0] == "box  main ON  sensor ON  feed-forward off  controller ENABLED  23.5 C  90 V bus 90.00 V"
     assert lines[1] == "UTC 2026-03-20 13:50:00  sun (ephemeris) az 92.50 el 4.10 deg, az +0.134 el +0.205 deg/min"
-    assert lines[2] == AXIS_HEADER
-    assert lines[3].split() == ["az", "SENSOR", "CW", "ON", "10.0", "%", "CW", "off", "10.0", "%", "+2.3", "mV",
-                                "0.200", "V", "91.50", "deg", "+1.00", "deg"]
-    assert lines[4].split()[5:8] == ["%", "CCW", "on"] and "-1.4 mV" in lines[4]
-    assert lines[5] == "pointing error 1.12 deg; relay switchings 7/0, chatter 0/2, reversals 0/1 (az/el); refusals 3"
-    assert lines[6] == "warnings: TEMP_HIGH, NO_SUN  (reading 0.1 s old)"
+    assert lines[2].split() == ["dial", "duty", "a-b", "a+b", "angle", "error"]       # each unit under its heading
+    assert lines[3].split() == ["axis", "mode", "dir", "speed", "%", "relay", "brake", "%", "mV", "V", "deg", "deg"]
+    assert lines[4].split() == ["az", "SENSOR", "CW", "ON", "10.0", "CW", "off", "10.0", "+2.3", "0.200", "91.50",
+                                "+1.00"]
+    assert lines[5].split()[5:7] == ["CCW", "on"] and lines[5].split()[8] == "-1.4"
+    assert lines[6] == "pointing error 1.12 deg; relay switchings 7/0, chatter 0/2, reversals 0/1 (az/el); refusals 3"
+    assert lines[7] == "warnings: TEMP_HIGH, NO_SUN  (reading 0.1 s old)"
     assert "TEMP_HIGH: control box within temp_warn_c of temp_max_c" in text and "NO_SUN: sensor power on" in text
     assert max(len(line) for line in lines) <= 96
     # as the watch block: the same lines without the docs, so the block keeps its height
-    assert box_block({"TelemetryTracker": msg, "TelemetryStatus": status_msg(10_050)}) == lines[:7]
+    assert box_block({"TelemetryTracker": msg, "TelemetryStatus": status_msg(10_050)}) == lines[:8]
 
 
 def test_the_panel_says_what_it_cannot_know():
@@ -155,9 +156,9 @@ def test_the_panel_says_what_it_cannot_know():
     off = tracker_msg(utc_s=0, warnings=int(TrackerWarning.NO_CLOCK), sensor=int(P.OFF), main=int(P.OFF))
     lines = box_block({"TelemetryTracker": off, "TelemetryStatus": status_msg(25_000)})
     assert lines[1].startswith("clock not set (NO_CLOCK): no sun angles, no pointing error; `clock now`")
-    assert lines[3].split()[10:] == ["off", "-", "0.00", "deg", "-"]       # cells unpowered, no error without a clock
-    assert lines[5].startswith("pointing error unknown (no clock)")
-    assert "reading 15.0 s old: TelemetryTracker stops while main and sensor power are off" in lines[6]
+    assert lines[4].split()[8:] == ["off", "-", "0.00", "-"]       # cells unpowered, no error without a clock
+    assert lines[6].startswith("pointing error unknown (no clock)")
+    assert "reading 15.0 s old: TelemetryTracker stops while main and sensor power are off" in " ".join(lines[7:])
     assert pointing_error_deg(off) is None
 
 
@@ -303,10 +304,10 @@ def test_box_shows_the_box_after_the_lines_before_it(session):
     ok, text = run(session, "box")
     lines = text.splitlines()
     assert ok and lines[0].startswith("box  main OFF  sensor ON  feed-forward off  controller IDLE")
-    assert lines[4].split()[:6] == ["el", "MANUAL", "CW", "BRAKE", "40.0", "%"]       # the dial just turned
-    assert float(lines[3].split()[12]) == pytest.approx(0.2, abs=0.05)   # a+b: the sun near sunrise
+    assert lines[5].split()[:5] == ["el", "MANUAL", "CW", "BRAKE", "40.0"]       # the dial just turned
+    assert float(lines[4].split()[9]) == pytest.approx(0.2, abs=0.05)   # a+b: the sun near sunrise
     assert "warnings: none" in text
     ok, text = run(session, "watch box 1")                    # on a pipe: the last reading, once, at the end
     watched = text.splitlines()
     assert ok and watched[0].startswith("box  main OFF  sensor ON") and "(no new telemetry" not in text
-    assert watched[2] == AXIS_HEADER and len(watched) == 7             # the block alone: no warning docs
+    assert watched[3].split()[0] == "axis" and len(watched) == 8             # the block alone: no warning docs

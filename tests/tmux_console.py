@@ -25,7 +25,8 @@ from tests.aspod_cli import ASPOD
 
 SHOWN_S = 120.0       # a step's effect on the screen: well under a second on a quiet machine; this ends a hang
 LOOK_S = 0.02
-EXITED = "aspod-exited"        # the line the pane's shell prints with the exit status: `aspod-exited N`
+EXITED = "aspod-exited"
+TOOLBAR = " link "             # how the console's bottom toolbar begins (host_tools/teleop/console.py toolbar_text)        # the line the pane's shell prints with the exit status: `aspod-exited N`
 
 
 class TmuxConsole:
@@ -55,6 +56,10 @@ class TmuxConsole:
         """The pane's text, its history first: each line as the terminal shows it, wrapped as it wrapped."""
         return self._tmux("capture-pane", "-p", "-S", "-", "-t", "t")
 
+    def lines(self) -> list[str]:
+        """The pane's lines as the program wrote them: a line the terminal wrapped is joined again (tmux -J)."""
+        return [line.rstrip() for line in self._tmux("capture-pane", "-p", "-J", "-S", "-", "-t", "t").split("\n")]
+
     def visible(self) -> list[str]:
         return self._tmux("capture-pane", "-p", "-t", "t").split("\n")[:self.rows]
 
@@ -78,9 +83,21 @@ class TmuxConsole:
             assert self.clock.now() < end, f"the screen never showed {pattern!r}:\n{text}"
             self.clock.sleep(LOOK_S)
 
+    def until(self, condition, bound_s: float = SHOWN_S) -> None:
+        """Wait until `condition()` is true (of the screen, say)."""
+        end = self.clock.now() + bound_s
+        while not condition():
+            assert self.clock.now() < end, f"the screen never came to the condition:\n{self.screen()}"
+            self.clock.sleep(LOOK_S)
+
     def mark(self) -> int:
-        """Where the screen's text ends now: `shows(..., after=mark)` looks only at what comes next."""
-        return len(self.screen().rstrip("\n"))
+        """Where the screen's text ends now (the bottom toolbar, ` link ...`, aside): `shows(..., after=mark)` looks
+        only at what comes next."""
+        text = self.screen().rstrip("\n")
+        last = text.rfind("\n") + 1
+        if text[last:].startswith(TOOLBAR):
+            text = text[:last].rstrip("\n")
+        return len(text)
 
     def exit_status(self) -> Optional[int]:
         """None while the program runs; its exit status once it has ended, as the shell that ran it said it."""

@@ -31,6 +31,7 @@ def run_teleop(args: TeleopSettings) -> int:
     from host_tools.client.live import HostClient
     from host_tools.sessions.capture import CaptureWriter, SessionInfo
     from host_tools.teleop.console import interactive_console
+    from host_tools.teleop.format import for_terminal
     from host_tools.teleop.record import ScriptRecord
     from host_tools.teleop.session import TeleopError, check_script, run_script
     from host_tools.teleop.words import read_script
@@ -92,15 +93,15 @@ def run_teleop(args: TeleopSettings) -> int:
                                             link=link_line, control=None if control is None else str(control.path)),
                              indent=1), flush=True)
             return status
-        print(link_line, flush=True)
+        print(for_terminal(link_line, sys.stdout), flush=True)
         if control_line is not None:
-            print(control_line, flush=True)
+            print(for_terminal(control_line, sys.stdout), flush=True)
         if lines is not None:
             status, session = run_script(client, lines, sys.stdout, keep_going=args.keep_going)
         else:
             status, session = interactive_console(client, opener=open_client)
         if args.summary or lines is None:
-            print(session.summary(), flush=True)
+            print(for_terminal(session.summary(), sys.stdout), flush=True)
         return status
     except (KeyboardInterrupt, SystemExit):      # Ctrl-C, or SIGTERM (cli/main.py: SystemExit(143))
         why = CloseWhy.STOPPED

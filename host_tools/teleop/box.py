@@ -1,12 +1,15 @@
 """`box` and `watch box`: the solar tracker's control box as a person standing at it would see it.
 
-    box  main ON  sensor ON  feed-forward off  controller ENABLED  23.0 C  90 V bus 90.00 V
-    UTC 2026-03-20 13:52:10  sun (ephemeris) az 92.84 el 4.62 deg, az +0.134 el +0.205 deg/min
-    axis mode   dir speed    dial relay brake    duty cells a-b     a+b       angle      error
-    az   SENSOR CW  ON      9.9 % open  off     0.0 %   +0.4 mV 0.243 V   92.65 deg  +0.19 deg
-    el   SENSOR CW  ON      9.9 % CW    off     9.9 %   +2.3 mV 0.241 V    4.40 deg  +0.22 deg
-    pointing error 0.29 deg; relay switchings 12/14, chatter 0/1, reversals 0/2 (az/el); refusals 4
-    warnings: none  (reading 0.1 s old)
+    box  main ON  sensor ON  feed-forward off  controller ENABLED  22.9 C  90 V bus 89.97 V
+    UTC 2026-03-20 13:50:20  sun (ephemeris) az 92.57 el 4.21 deg, az +0.134 el +0.205 deg/min
+                          dial             duty   a-b   a+b angle error
+    axis mode   dir speed    % relay brake    %    mV     V   deg   deg
+    az   SENSOR CW  ON    10.0 CW    off   10.0  +5.3 0.197 91.04 +1.53
+    el   SENSOR CW  ON    10.0 CW    off   10.0 +10.8 0.197  1.02 +3.19
+    pointing error 3.53 deg; relay switchings 1/1, chatter 0/0, reversals 0/0 (az/el); refusals 0
+    warnings: none  (reading 0.0 s old)
+
+(at 96 columns; on a narrower terminal the lines wrap between their parts)
 
 Everything comes from the latest TelemetryTracker (switches, dials, relays as sent: CW, CCW or
 open; brakes: on = applied, the speed switch's Brake; duties; the photocell pair's difference
@@ -31,7 +34,9 @@ from protocol.schema import Message
 from protocol.states import TRACKER_WARNING_DOCS, TrackerWarning
 from protocol.units import DEG
 
-from host_tools.teleop.format import INDENT, format_value, wrap
+from host_tools.teleop import format as teleop_format
+from host_tools.teleop.format import INDENT, fit_parts, format_value, wrap
+from host_tools.teleop.tables import Column, table_lines
 
 AXES = ("az", "el")
 _TRACKER = SCHEMA["TelemetryTracker"]
@@ -81,51 +86,50 @@ def _utc(seconds: int) -> str:
     return datetime.fromtimestamp(seconds, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
 
 
-def header_line(msg: Message, status: Optional[Message]) -> str:
+def header_parts(msg: Message, status: Optional[Message]) -> list[str]:
     parts = [f"box  main {position_word(msg.main)}", f"sensor {position_word(msg.sensor)}",
              f"feed-forward {'on' if msg.ff_active else 'off'}"]
     if status is not None:
         parts += [f"controller {format_value(_STATE_FIELD, status.state)}", f"{status.temp_c:.1f} C"]
     parts.append(f"90 V bus {msg.motor_supply_v:.2f} V")
-    return "  ".join(parts)
+    return parts
 
 
-def sun_line(msg: Message) -> str:
+def sun_parts(msg: Message) -> list[str]:
     if not clock_set(msg):
-        return ("clock not set (NO_CLOCK): no sun angles, no pointing error; `clock now` (or `clock "
-                "YYYY-MM-DDTHH:MM-07:00`) sets it")
-    return (f"UTC {_utc(msg.utc_s)}  sun (ephemeris) az {msg.sun_az:.2f} el {msg.sun_el:.2f} deg, "
-            f"az {msg.sun_rate_az * 60:+.3f} el {msg.sun_rate_el * 60:+.3f} deg/min")
+        return ["clock not set (NO_CLOCK): no sun angles, no pointing error; `clock now` sets it"]
+    return [f"UTC {_utc(msg.utc_s)}", f"sun (ephemeris) az {msg.sun_az:.2f} el {msg.sun_el:.2f} deg, "
+                                      f"az {msg.sun_rate_az * 60:+.3f} el {msg.sun_rate_el * 60:+.3f} deg/min"]
 
 
-# The axis table: (heading, width, right-aligned), one space between columns (90 columns in all).
-_COLUMNS = (("axis", 4, False), ("mode", 6, False), ("dir", 3, False), ("speed", 5, False), ("dial", 7, True),
-            ("relay", 5, False), ("brake", 5, False), ("duty", 7, True), ("cells a-b", 9, True), ("a+b", 7, True),
-            ("angle", 11, True), ("error", 10, True))
+# The axis table's columns: each unit under its heading, so that the panel fits 80 columns.
+AXIS_COLUMNS = (Column("\naxis"), Column("\nmode"), Column("\ndir"), Column("\nspeed"), Column("dial\n%", right=True),
+                Column("\nrelay"), Column("\nbrake"), Column("duty\n%", right=True), Column("a-b\nmV", right=True),
+                Column("a+b\nV", right=True), Column("angle\ndeg", right=True), Column("error\ndeg", right=True))
 
 
-def _row(cells: list[str]) -> str:
-    return " ".join(c.rjust(w) if right else c.ljust(w) for c, (_h, w, right) in zip(cells, _COLUMNS)).rstrip()
-
-
-AXIS_HEADER = _row([h for h, _w, _r in _COLUMNS])
-
-
-def axis_line(msg: Message, ax: str) -> str:
+def axis_cells(msg: Message, ax: str) -> list[str]:
+    """One axis's row of the panel: the cells photocells show only with the sensor power on, the error only with
+    the controller's clock."""
     get = lambda what: getattr(msg, f"{what}_{ax}")   # noqa: E731
     cells_on = msg.sensor == _POSITION.ON
-    return _row([ax, position_word(get("mode")), position_word(get("direction")), position_word(get("speed")),
-                 f"{get('dial'):.1f} %", relay_word(get("relay")), "on" if get("brake") else "off",
-                 f"{get('duty') * 100:.1f} %", f"{get('cell_diff') * 1000:+.1f} mV" if cells_on else "off",
-                 f"{get('cell_sum'):.3f} V" if cells_on else "-", f"{get('angle'):.2f} deg",
-                 f"{get('error'):+.2f} deg" if clock_set(msg) else "-"])
+    return [ax, position_word(get("mode")), position_word(get("direction")), position_word(get("speed")),
+            f"{get('dial'):.1f}", relay_word(get("relay")), "on" if get("brake") else "off",
+            f"{get('duty') * 100:.1f}", f"{get('cell_diff') * 1000:+.1f}" if cells_on else "off",
+            f"{get('cell_sum'):.3f}" if cells_on else "-", f"{get('angle'):.2f}",
+            f"{get('error'):+.2f}" if clock_set(msg) else "-"]
 
 
-def counters_line(msg: Message) -> str:
+def axis_table(msg: Message, width: int) -> list[str]:
+    return table_lines(AXIS_COLUMNS, [axis_cells(msg, ax) for ax in AXES], width)
+
+
+def counters_parts(msg: Message) -> list[str]:
     error = pointing_error_deg(msg)
-    first = f"pointing error {error:.2f} deg" if error is not None else "pointing error unknown (no clock)"
-    return (f"{first}; relay switchings {msg.switchings_az}/{msg.switchings_el}, chatter {msg.chatter_az}/"
-            f"{msg.chatter_el}, reversals {msg.reversals_az}/{msg.reversals_el} (az/el); refusals {msg.refusals}")
+    first = f"pointing error {error:.2f} deg;" if error is not None else "pointing error unknown (no clock);"
+    return [first, f"relay switchings {msg.switchings_az}/{msg.switchings_el},",
+            f"chatter {msg.chatter_az}/{msg.chatter_el},", f"reversals {msg.reversals_az}/{msg.reversals_el} (az/el);",
+            f"refusals {msg.refusals}"]
 
 
 def age_text(msg: Message, status: Optional[Message]) -> str:
@@ -145,8 +149,9 @@ def box_block(latest: dict, detail: bool = False) -> list[str]:
     if msg is None:
         return [NO_READING]
     names = warning_names(msg.warnings)
-    lines = [header_line(msg, status), sun_line(msg), AXIS_HEADER, axis_line(msg, "az"), axis_line(msg, "el"),
-             counters_line(msg), f"warnings: {', '.join(names) or 'none'}{age_text(msg, status)}"]
+    lines = [*fit_parts(header_parts(msg, status)), *fit_parts(sun_parts(msg)), *axis_table(msg, teleop_format.WIDTH),
+             *fit_parts(counters_parts(msg), sep=" "), *fit_parts([f"warnings: {', '.join(names) or 'none'}",
+                                                         age_text(msg, status).strip()])]
     if detail:
         for w in TrackerWarning:
             if w and msg.warnings & w:

@@ -14,8 +14,10 @@
 * Tab completes command words, parameter names after `get`/`set` (read from the controller with
   ParamList in the background), the positions the named switch has after `switch SWITCH`, and for the
   motions only the axes the controller takes (`move` neither `all` nor `gripper`).
-* Output follows the terminal's width; `watch` redraws in place until a key is pressed (or its
-  seconds, if given, run out); a long `help` is shown a screenful at a time.
+* Output follows the terminal's width (tables: teleop/tables.py); `watch` redraws in place until a key is pressed
+  (or its seconds, if given, run out), and that key begins the next line; a long `help` and `params` are shown a
+  screenful at a time; `clear` clears the screen and the scrollback.
+* A bottom toolbar: the link's state, the smoothed round trip, the controller's real-time factor (`toolbar_text`).
 * `wait` fails when a motion it waited for ended other than as asked (FAULT, DISABLED, ...).
 * `params` shows each parameter's unit and description when the controller sends them.
 """
@@ -36,32 +38,29 @@ from prompt_toolkit.key_binding import KeyBindings
 from prompt_toolkit.layout import Layout, Window
 from prompt_toolkit.layout.controls import FormattedTextControl
 from prompt_toolkit.patch_stdout import StdoutProxy
+from prompt_toolkit.shortcuts import clear
 
 from protocol.host_link import CommandHandle
 from protocol.link import LinkState
-from protocol.states import SWITCH_POSITIONS, ControllerState, MotionOutcome, Switch
+from protocol.states import SWITCH_POSITIONS, ControllerState, MotionOutcome, Switch, TimingMode
 
 from host_tools.client.params import ParamTable, read_param_table
 from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK
 from host_tools.teleop import format as teleop_format
 from host_tools.teleop import words as teleop_words
 from host_tools.teleop.box import box_block
-from host_tools.teleop.format import INDENT, Console, enum_word, format_faults, format_outcome
+from host_tools.teleop.format import INDENT, MIN_WIDTH, Console, enum_word, fit, format_faults, format_outcome
 from host_tools.teleop.motion import axis_word, position_text
 from host_tools.teleop.session import Session
 from host_tools.teleop.watch import TELEMETRY_AXES, TelemetryCache, arm_block
-from host_tools.teleop.words import TeleopError, completions, parse_line
+from host_tools.teleop.words import REFUSED_AXES, TeleopError, completions, parse_line
 
 PROMPT_REFRESH_S = 0.5
 PROMPT_AXES = 2            # the prompt names at most this many moving axes, then says how many more move
 WATCH_REFRESH_S = 0.1
 LINK_CHECK_S = 0.25        # how often the link's state is looked at, to say at once that it is lost
 MAX_WIDTH = 96             # the scripts' width: wider terminals keep it, narrower ones wrap to theirs
-MIN_WIDTH = 40
 MAX_WATCH_S = 3600.0
-# Axes the controller refuses for these motions (firmware_py/controller.py `_joint_motion`: `all` is
-# OUT_OF_RANGE; firmware_py/arm.py `move`, `jog`: the gripper opens and closes with `grip`).
-REFUSED_AXES = {"Move": ("all", "gripper"), "MoveBy": ("all", "gripper"), "Jog": ("all", "gripper")}
 # Switches that take no axis but `both` (protocol/messages.py BoxSwitch: "main and sensor: both only").
 BOTH_ONLY = ("main", "sensor")
 _STATE_NAMES = {int(s): s.name for s in ControllerState}
@@ -203,6 +202,23 @@ def prompt_text(client, cache: TelemetryCache, running: Callable[[], list] = lam
     return "aspod " + " ".join(parts) + " > "
 
 
+def toolbar_text(client, cache: TelemetryCache, columns: int) -> str:
+    """The bottom line: the link's state, the smoothed round trip, and how the controller's time keeps up
+    (`link UP /dev/pts/3 | round trip 2.1 ms | time paced 1.00x real time`), cut to the terminal's width."""
+    link = client.link
+    state = "LOST" if client.io_error is not None else link.state.value.upper()
+    parts = [f"link {state} {getattr(client, 'url', '')}".rstrip()]
+    srtt = link.srtt_s
+    parts.append(f"round trip {srtt * 1000:.1f} ms" if srtt is not None else "round trip -")
+    status = cache.status
+    if status is not None:
+        mode = enum_word(TimingMode, status.timing)
+        measured = status.timing not in (TimingMode.SIMULATED, TimingMode.REALTIME)
+        parts.append(f"time {mode}" + (f" {status.rtf_recent:.2f}x real time" if measured else ""))
+    text = " " + " | ".join(parts)
+    return text if len(text) < columns else text[:max(1, columns - 2)] + "…"
+
+
 def follow_width(columns: int) -> int:
     """Wrap the console's output to the terminal: at most the scripts' 96 columns, fewer on a narrower one."""
     width = max(MIN_WIDTH, min(MAX_WIDTH, columns - 1))
@@ -252,8 +268,9 @@ def page(console: Console, text: str, rows: int) -> None:
 
 
 def live_block(cache: TelemetryCache, block: Callable[[TelemetryCache], list[str]],
-               seconds: Optional[float]) -> None:
-    """Draw `block` in place, refreshed from telemetry, until a key is pressed or `seconds` are up."""
+               seconds: Optional[float]) -> str:
+    """Draw `block` in place, refreshed from telemetry, until a key is pressed or `seconds` are up; the character
+    typed to end it ("" for Enter, q, Escape, Ctrl-C or a key that types nothing), for the prompt to begin with."""
     done = []
     hint = f"(any key ends watch{f'; it ends by itself after {seconds:g} s' if seconds is not None else ''})"
 
@@ -261,18 +278,20 @@ def live_block(cache: TelemetryCache, block: Callable[[TelemetryCache], list[str
         lines = block(cache) if cache.latest else ["(no telemetry: is the rate 0? `telemetry 10` starts it)"]
         return "\n".join(lines + ([] if done else [hint]))
 
-    def end(_event=None) -> None:
+    def end(event=None) -> None:
         if app.is_running and not done:
             done.append(True)
-            app.exit(result=True)
+            typed = event.key_sequence[0].data if event is not None else ""
+            app.exit(result=typed if len(typed) == 1 and typed.isprintable() and typed not in "qQ" else "")
 
     app: Application = Application(layout=Layout(Window(FormattedTextControl(text), wrap_lines=True)),
-                                   key_bindings=_key_bindings(end, end), refresh_interval=WATCH_REFRESH_S)
+                                   key_bindings=_key_bindings(end, lambda _event: end()),
+                                   refresh_interval=WATCH_REFRESH_S)
 
     def pre_run() -> None:
         if seconds is not None:
             app.loop.call_later(seconds, end)
-    app.run(pre_run=pre_run)
+    return app.run(pre_run=pre_run) or ""
 
 
 class WrappingConsole(Console):
@@ -287,21 +306,6 @@ class WrappingConsole(Console):
         super().line("\n".join(fit(text, self.columns())))
 
 
-def fit(text: str, columns: int) -> list[str]:
-    """`text`'s lines, each longer than `columns` - 1 wrapped at spaces (a word longer than that is broken)."""
-    width = max(MIN_WIDTH, columns - 1)
-    out = []
-    for line in text.split("\n"):
-        if len(line) <= width:
-            out.append(line)
-            continue
-        lead = line[:len(line) - len(line.lstrip())]
-        indent = lead + ("     " if line.lstrip()[:5] in ("ok   ", "FAIL ") else "  ")
-        out += textwrap.wrap(line, width, initial_indent="", subsequent_indent=indent[:width // 2],
-                             drop_whitespace=True) or [line[:width]]
-    return out
-
-
 class TeleopConsole:
     """One interactive session: the prompt, the completer, the history; `run()` returns (status, session)."""
 
@@ -313,11 +317,13 @@ class TeleopConsole:
             history=history if history is not None else open_history(),
             completer=TeleopCompleter(lambda: self.params.names, lambda name: self.params.meta(name)),
             complete_while_typing=False,
+            bottom_toolbar=lambda: toolbar_text(self.session.client, self.session.telemetry, self.columns()),
             refresh_interval=PROMPT_REFRESH_S)
         self.session = Session(client, self.proxy, all_events=True)
         self.session.opener = opener             # `connect URL`, `connect` after the port is gone
         self.session.event_prefix = ""          # prompt_toolkit prints above the prompt: no need to step off it
         self.console = self.session.console = WrappingConsole(self.proxy, self.columns)
+        self.typed_ahead = ""                   # the key that ended `watch`: the next line begins with it
         self._stop = threading.Event()
         self._monitor = threading.Thread(target=self._watch_link, name="aspod-link-watch", daemon=True)
 
@@ -357,11 +363,14 @@ class TeleopConsole:
                 follow_width(self.columns())
                 try:
                     text = self.prompt.prompt(lambda: prompt_text(self.session.client, self.session.telemetry,
-                                                                  self.session.tracker.running))
+                                                                  self.session.tracker.running),
+                                              default=self.typed_ahead)
                 except KeyboardInterrupt:
                     continue             # Ctrl-C clears the line, as in a shell
                 except EOFError:
                     break
+                finally:
+                    self.typed_ahead = ""
                 number += 1
                 try:
                     step = parse_line(text, number)
@@ -395,15 +404,21 @@ class TeleopConsole:
             seconds = step.seconds if step.args and step.args[-1].lower() != "box" else None
             block = (lambda cache: box_block(cache.latest)) if step.view == "box" else arm_block
             self.proxy.flush()
-            live_block(self.session.telemetry, block, seconds)
+            self.typed_ahead = live_block(self.session.telemetry, block, seconds)
             return True
         if word == "params":
             failed = self.params.read()
             if failed is not None:
                 self.console.line(format_outcome(failed))
                 return False
-            self.console.lines([line for reply in self.params.replies
-                                for line in teleop_format.param_lines(reply, teleop_format.WIDTH)])
+            page(self.console, "\n".join(teleop_format.params_table(self.params.replies, teleop_format.WIDTH)),
+                 self.rows())
+            return True
+        if word == "clear":              # as the shell's `clear`: the screen, and the terminal's scrollback (E3)
+            self.proxy.flush()
+            clear()
+            self.prompt.output.write_raw("\033[3J")
+            self.prompt.output.flush()
             return True
         if step.waits_for_motion:
             return self.wait_motions(step)

@@ -7,6 +7,7 @@ protocol/reasons.py, protocol/states.py).
 """
 from __future__ import annotations
 
+import shutil
 import textwrap
 import threading
 from typing import Optional, TextIO
@@ -16,7 +17,10 @@ from protocol.reasons import Reason, reason_name
 from protocol.schema import Field, Message
 from protocol.states import FAULT_CAUSE_DOCS, Axis, CloseWhy, ControllerState, Fault, FaultCause, TimingIssue, TimingMode
 
+from host_tools.teleop.tables import Column, table_lines
+
 WIDTH = 96          # wrap long docs to fit a 100-column terminal
+MIN_WIDTH = 40      # the narrowest a line is wrapped to
 INDENT = "     "    # continuation lines line up under the text after "ok   " / "FAIL "
 
 
@@ -25,7 +29,7 @@ class Console:
 
     def __init__(self, out: TextIO) -> None:
         self.out = out
-        self.live = _isatty(out)
+        self.live = is_terminal(out)
         self._lock = threading.Lock()
         self._block_lines = 0      # lines of the live block just above the cursor (0: none)
 
@@ -47,22 +51,49 @@ class Console:
             self._block_lines = len(texts)
 
 
-def _isatty(out: TextIO) -> bool:
+def is_terminal(out: TextIO) -> bool:
     try:
         return out.isatty()
     except (AttributeError, ValueError):
         return False
 
 
-def param_lines(reply: Message, width: Optional[int] = None) -> list[str]:
-    """A ParamValue as `params` lists it: name, value, unit, range and what it does, on one line; where
-    that line is wider than `width`, the description goes wrapped below it."""
+def fit(text: str, columns: int) -> list[str]:
+    """`text`'s lines, each longer than `columns` - 1 wrapped at spaces (a word longer than that is broken)."""
+    width = max(MIN_WIDTH, columns - 1)
+    out = []
+    for line in text.split("\n"):
+        if len(line) <= width:
+            out.append(line)
+            continue
+        lead = line[:len(line) - len(line.lstrip())]
+        indent = lead + ("     " if line.lstrip()[:5] in ("ok   ", "FAIL ") else "  ")
+        out += textwrap.wrap(line, width, initial_indent="", subsequent_indent=indent[:width // 2], break_on_hyphens=False,
+                             drop_whitespace=True) or [line[:width]]
+    return out
+
+
+def for_terminal(text: str, out: TextIO) -> str:
+    """`text` wrapped at spaces to the terminal `out` is (the banner, the exit summary); as it is on a pipe."""
+    if not is_terminal(out):
+        return text
+    return "\n".join(fit(text, shutil.get_terminal_size().columns))
+
+
+def param_lines(reply: Message) -> list[str]:
+    """A ParamValue as a script's `params` lists it, as it comes: name, value, unit, range and what it does."""
     head = f"  {reply.name:<16} {reply.value:>12.6g} {reply.unit:<10} [{reply.min:g} .. {reply.max:g}]"
-    one = f"{head}  {reply.description}".rstrip()
-    if width is None or len(one) <= width or not reply.description:
-        return [one]
-    return [head.rstrip()] + textwrap.wrap(reply.description, width, initial_indent=" " * 6,
-                                           subsequent_indent=" " * 6)
+    return [f"{head}  {reply.description}".rstrip()]
+
+
+PARAM_COLUMNS = (Column("name"), Column("value", right=True), Column("unit"), Column("range"),
+                 Column("what it does", wrap=True))
+
+
+def params_table(replies: list[Message], width: int) -> list[str]:
+    """The console's `params`: every ParamValue in a table of `width`, descriptions wrapped in their column."""
+    return table_lines(PARAM_COLUMNS, [[r.name, f"{r.value:.6g}", r.unit, f"{r.min:g} .. {r.max:g}", r.description]
+                                       for r in replies], width, indent=2)
 
 
 def wrap(text: str, indent: str = INDENT) -> list[str]:
@@ -129,6 +160,19 @@ def pack(parts: list[str], first: str, indent: str = INDENT) -> str:
         line += sep + part
         placed += 1
     return "\n".join(lines + [line])
+
+
+def fit_parts(parts: list[str], sep: str = "  ", indent: str = "  ") -> list[str]:
+    """Parts joined by `sep` into lines of at most WIDTH, never splitting a part; a part that does not fit goes on
+    a new line under `indent` ("" parts are left out)."""
+    lines, line = [], ""
+    for part in filter(None, parts):
+        if line and len(line) + len(sep) + len(part) > WIDTH:
+            lines.append(line)
+            line = indent + part
+        else:
+            line = f"{line}{sep}{part}" if line else part
+    return lines + [line] if line else lines
 
 
 def reason_lines(reason: int, indent: str = INDENT) -> list[str]:

@@ -1,13 +1,14 @@
-"""`watch`: the arm and the controller, live, as one compact block (fits 80-100 columns).
+"""`watch`: the arm and the controller, live, as one compact block fitted to the terminal (40-96 columns).
 
     ENABLED  faults none  supply 27.99 V  temp 25.0 C  up 14.2 s  cmds 9  homed 6/6
-    axis     homed   position      velocity          current  mode      errors
-    j1       yes      3.005 deg     0.000 deg/s     1.048 A  HOLDING   -
+    axis    homed   position      velocity current mode    errors
+    j1      yes    3.005 deg   0.000 deg/s   1.048 A HOLDING -
     ...
-    gripper  yes     50.790 mm      0.000 mm/s      0.000 A  HOLDING   -
-    mount    yes     -1.143 deg     0.000 deg/s     0.156 A  HOLDING   -
+    gripper yes    50.790 mm    0.000 mm/s   0.000 A HOLDING -
+    mount   yes   -1.143 deg   0.000 deg/s   0.156 A HOLDING -
     arm loop 1000 us: exec max 838 / p99 512 us, late max 8067 us, overruns 61
-    all tasks: exec max 920 / p99 530 us, overruns 70; link rx/tx 120/355, errors 0
+    all tasks: exec max 920 / p99 530 us, overruns 70; link rx/tx 120/355, errors 0, backlog 0 B
+    time paced: 1.00x real time over the last second, lag 0.1 ms
 
 Axes, units and modes come from the TelemetryJoints declaration; the state and faults from
 TelemetryStatus. On a terminal the block is redrawn in place at up to 10 Hz; on a pipe or a
@@ -21,7 +22,9 @@ from typing import Callable, Optional
 from protocol.messages import SCHEMA
 from protocol.schema import Message
 
-from host_tools.teleop.format import Console, enum_word, format_faults, format_value, time_summary
+from host_tools.teleop import format as teleop_format
+from host_tools.teleop.format import Console, enum_word, fit_parts, format_faults, format_value, time_summary
+from host_tools.teleop.tables import Column, table_lines
 from host_tools.teleop.words import AXIS_ENUM
 
 REFRESH_S = 0.1
@@ -75,7 +78,7 @@ def error_names(axis: str, bits: int) -> str:
     return ",".join(names + ([f"0x{rest:x}"] if rest else []))
 
 
-def status_line(status: Optional[Message], joints: Optional[Message]) -> str:
+def status_parts(status: Optional[Message], joints: Optional[Message]) -> list[str]:
     parts = []
     if status is not None:
         state = format_value(_STATUS.fields[1], status.state)
@@ -88,42 +91,49 @@ def status_line(status: Optional[Message], joints: Optional[Message]) -> str:
     if joints is not None:
         homed = sum(bool(joints.homed >> int(AXIS_ENUM[a.upper()]) & 1) for a in TELEMETRY_AXES)
         parts.append(f"homed {homed}/{len(TELEMETRY_AXES)}")
-    return "  ".join(parts)
+    return parts
 
 
-def axis_lines(joints: Message) -> list[str]:
-    lines = [f"{'axis':<8} {'homed':<5} {'position':>10}{'':<5}{'velocity':>10}{'':<7}{'current':>8}  "
-             f"{'mode':<8}  errors"]
+def axis_rows(joints: Message) -> list[list[str]]:
+    rows = []
     for axis in TELEMETRY_AXES:
         get = lambda what: getattr(joints, f"{axis}_{what}")   # noqa: E731
         homed = "yes" if joints.homed >> int(AXIS_ENUM[axis.upper()]) & 1 else "no"
         pos_unit, vel_unit = _FIELD[f"{axis}_pos"].unit, _FIELD[f"{axis}_vel"].unit
         mode = enum_word(_FIELD[f"{axis}_mode"].enum, get("mode")).upper()
-        lines.append(f"{axis:<8} {homed:<5} {_num(get('pos')):>10} {pos_unit:<4}{_num(get('vel')):>10} "
-                     f"{vel_unit:<6}{_num(get('current')):>8} A  {mode:<8}  {error_names(axis, get('errors'))}")
-    return lines
+        rows.append([axis, homed, f"{_num(get('pos'))} {pos_unit}", f"{_num(get('vel'))} {vel_unit}",
+                     f"{_num(get('current'))} A", mode, error_names(axis, get("errors"))])
+    return rows
 
 
-def timing_lines(status: Optional[Message], joints: Optional[Message]) -> list[str]:
+AXIS_COLUMNS = (Column("axis"), Column("homed"), Column("position", right=True), Column("velocity", right=True),
+                Column("current", right=True), Column("mode"), Column("errors", wrap=True))
+
+
+def timing_parts(status: Optional[Message], joints: Optional[Message]) -> list[list[str]]:
+    """The loops' timing and the link's counters, each a list of parts (a line where the terminal is wide)."""
     lines = []
     if joints is not None:
-        lines.append(f"arm loop {joints.arm_period_us} us: exec max {joints.arm_exec_max_us} / "
-                     f"p99 {joints.arm_exec_p99_us} us, late max {joints.arm_late_max_us} us, "
-                     f"overruns {joints.arm_overruns}")
+        lines.append([f"arm loop {joints.arm_period_us} us:", f"exec max {joints.arm_exec_max_us} /",
+                      f"p99 {joints.arm_exec_p99_us} us,", f"late max {joints.arm_late_max_us} us,",
+                      f"overruns {joints.arm_overruns}"])
     if status is not None:
-        lines.append(f"all tasks: exec max {status.loop_max_us} / p99 {status.loop_p99_us} us, overruns "
-                     f"{status.overruns}; link rx/tx {status.frames_rx}/{status.frames_tx}, errors "
-                     f"{status.link_errors}, backlog {status.tx_backlog_bytes} B")
-        lines.append(time_summary(status.timing, status.rtf_recent, status.lag_ms))
+        lines.append(["all tasks:", f"exec max {status.loop_max_us} /", f"p99 {status.loop_p99_us} us,",
+                      f"overruns {status.overruns};", f"link rx/tx {status.frames_rx}/{status.frames_tx},", f"errors {status.link_errors},",
+                      f"backlog {status.tx_backlog_bytes} B"])
+        lines.append([time_summary(status.timing, status.rtf_recent, status.lag_ms)])
     return lines
 
 
 def arm_block(cache: TelemetryCache) -> list[str]:
+    """The whole `watch` block, fitted to the console's width (teleop_format.WIDTH)."""
     status, joints = cache.status, cache.joints
-    lines = [status_line(status, joints)]
+    lines = fit_parts(status_parts(status, joints))
     if joints is not None:
-        lines += axis_lines(joints)
-    return lines + timing_lines(status, joints)
+        lines += table_lines(AXIS_COLUMNS, axis_rows(joints), teleop_format.WIDTH)
+    for parts in timing_parts(status, joints):
+        lines += fit_parts(parts, sep=" ")
+    return lines
 
 
 def watch(client, cache: TelemetryCache, seconds: float, console: Console,

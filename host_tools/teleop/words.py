@@ -52,7 +52,7 @@ MAX_PROBLEMS = 50               # a script's problems listed before its check st
 MAX_LINE_CHARS = 1024           # a command line (its comment aside): the longest real ones are under 100
 
 LOCAL_COMMANDS = {
-    "help": "help [command]: list the commands, or describe one",
+    "help": "help [WORD]: list the commands, or describe one",
     "watch": f"watch [box] [seconds]: live arm and controller telemetry, or with `box` the solar tracker's "
              f"control box (default {WATCH_S:g} s; Ctrl-C ends it early); on a pipe, the last reading once",
     "box": "box: the solar tracker's control box as a person at it sees it, from the latest TelemetryTracker: "
@@ -75,12 +75,57 @@ LOCAL_COMMANDS = {
                "simulator stopped, say) or with URL, on the link at URL (`connect /dev/pts/7`: the key is the "
                "simulator's own, as at the start)",
     "sim": sim_words.summary(),
-    "traj": "traj load FILE: upload a planned trajectory (a file of `aspod plan --arm-to ... --output FILE`) to the "
+    "traj": "traj load FILE|run|clear: load FILE uploads a planned trajectory (a file of `aspod plan --arm-to ... --output FILE`) to the "
             "controller, replacing the knots it holds; traj run: start it (j1..j4 and the mount, from where they "
             "stand at rest; `wait` waits for it); traj clear: drop the knots. A script checks the file before "
             "anything is sent",
+    "clear": "clear: clear the screen (Ctrl-L does too); nothing in a script",
     "quit": "quit: leave",
 }
+# Axes the controller refuses for these motions (firmware_py/controller.py `_joint_motion`: `all` is OUT_OF_RANGE;
+# firmware_py/arm.py `move`, `jog`: the gripper opens and closes with `grip`): help and Tab leave them out.
+REFUSED_AXES = {"Move": ("all", "gripper"), "MoveBy": ("all", "gripper"), "Jog": ("all", "gripper")}
+
+# `help`: every word once, by the job it is for, with what it does in a line.
+INDEX = (
+    ("arm", (("enable", "IDLE to ENABLED: the motors may be driven"),
+             ("disable", "ENABLED to IDLE: outputs off"),
+             ("home", "find an axis's home switch and zero it there"),
+             ("move", "move an axis to an angle"),
+             ("moveby", "move an axis by an angle"),
+             ("jog", "turn an axis at a speed until `stop`"),
+             ("grip", "open or close the gripper"),
+             ("stop", "stop every motion"),
+             ("traj", "a planned trajectory: load a file, run it, clear it"),
+             ("wait", "until the motions end; or a pause"),
+             ("watch", "the arm live (`watch box`: the tracker's box)"))),
+    ("tracker", (("switch", "set a switch of the solar tracker's control box"),
+                 ("dial", "turn the speed dial"),
+                 ("box", "the control box as a person at it sees it"),
+                 ("boxstate", "read the box's switches and dials"),
+                 ("clock", "set the controller's clock (`clock now`)"))),
+    ("controller", (("status", "its state, faults and sensors"),
+                    ("reset", "clear latched faults, back to IDLE"),
+                    ("estop", "emergency stop, latched until `reset`"),
+                    ("params", "every parameter, its value and range"),
+                    ("get", "read a parameter"),
+                    ("set", "change a parameter (checked against its range)"),
+                    ("save", "keep the parameters in the controller's file"),
+                    ("telemetry", "how often telemetry comes"))),
+    ("link", (("connect", "a new session; `connect URL`: a new link"),
+              ("ping", "a round trip through the command channel"),
+              ("link", "both ends' link statistics"))),
+    ("simulator", (("sim", "the simulated plant: loads, faults, clouds"),)),
+    ("console", (("help", "this list; `help WORD`: one command"),
+                 ("expect", "a script's line: COMMAND refused with REASON"),
+                 ("clear", "clear the screen"),
+                 ("quit", "leave"))),
+)
+# A field's type and unit in words, for `help WORD`.
+TYPE_WORDS = {"f32": "a number", "bool": "on or off"}
+UNIT_WORDS = {"deg": "degrees", "deg/s": "degrees a second", "mm": "millimetres", "mm/s": "millimetres a second",
+              "s": "seconds", "ms": "milliseconds", "Hz": "times a second", "%": "percent", "V": "volts",
+              "A": "amperes"}
 TRAJ_ACTIONS = ("load", "run", "clear")
 
 SCRIPT_RULES = ("in a script (--script FILE, or a pipe), a motion that ends other than DONE counts as a failed "
@@ -211,10 +256,10 @@ def _type_range(fld: Field, value) -> Optional[str]:
     return fld.check(value)
 
 
-def usage(spec: MessageSpec) -> str:
+def usage(spec: MessageSpec, units: bool = True) -> str:
     def arg(f: Field) -> str:
         name = "|".join(enum_words(f)) if f.enum is not None and len(f.enum) <= 3 else f.name.upper()
-        name += f"({f.unit})" if f.unit else ""
+        name += f"({f.unit})" if f.unit and units else ""
         return f"[{name}]" if f.default is not None else name
     return " ".join([spec.teleop] + [arg(f) for f in spec.fields])
 
@@ -500,32 +545,64 @@ def check_script(lines: list[str]) -> tuple[list[Step], list[str]]:
 
 
 def help_text(word: Optional[str] = None) -> str:
-    cmds = commands()
+    """`help`: the index by job; `help WORD`: one command, its arguments in words."""
     if word is None:
-        rows = [line for w, s in sorted(cmds.items()) for line in _row(usage(s), " ".join((s.doc, *NOTES.get(w, ()))))]
-        rows += [line for text in LOCAL_COMMANDS.values() for line in _wrap(text, "  ")]
-        return "\n".join(["commands:"] + rows + _wrap(SCRIPT_RULES, ""))
+        return "\n".join(help_index())
     word = word.lower()
     if word == "sim":
         rows = [line for left, text in sim_words.help_lines() for line in _row(left, text, 26)]
         return "\n".join(rows + _wrap(sim_words.HELP_NOTE, "  "))
     if word in LOCAL_COMMANDS:
         return "\n".join(_wrap(LOCAL_COMMANDS[word], "") + (_wrap(SCRIPT_RULES, "  ") if word == "wait" else []))
-    spec = cmds.get(word)
+    spec = commands().get(word)
     if spec is None:
         return f"unknown command {word!r}"
-    lines = [usage(spec)] + _wrap(spec.doc, "  ")
+    lines = [usage(spec, units=False)] + _paragraph(spec.doc)
+    column = max(len(f.name) for f in spec.fields) + 2 if spec.fields else 0
     for f in spec.fields:
-        rng = f" range {f.range[0]}..{f.range[1]}" if f.range else ""
-        choices = f"; one of {', '.join(enum_words(f))}" if f.enum is not None else ""
-        default = f" (default {_default_word(f)})" if f.default is not None else ""
-        lines += _wrap(f"{f.name}: {f.type}{' [' + f.unit + ']' if f.unit else ''}{rng}: {f.doc}{choices}{default}",
-                       "  ")
+        lines += _row(f.name.upper(), argument_words(spec, f), column)
     if spec.reply == "MotionAccepted":
-        lines += _wrap("prints the motion id (axis#id); its end (MotionDone) is printed when it comes; `wait` "
-                       "waits for it", "  ")
-    lines += [line for note in NOTES.get(word, ()) for line in _wrap(note, "  ")]
+        lines += _paragraph("It prints the motion id (axis#id); its end (MotionDone) is printed when it comes; "
+                            "`wait` waits for it.")
+    lines += [line for note in NOTES.get(word, ()) for line in _paragraph(note)]
     return "\n".join(lines)
+
+
+def _paragraph(text: str) -> list[str]:
+    return textwrap.wrap(text, HELP_WIDTH, initial_indent="  ", subsequent_indent="  ")
+
+
+def help_index() -> list[str]:
+    lines = ["commands by job (`help WORD` for one; Tab completes):"]
+    for job, words in INDEX:
+        lines.append(job)
+        for word, what in words:
+            lines += _row(index_usage(word), what, 27)
+    return lines + _wrap(SCRIPT_RULES, "")
+
+
+def index_usage(word: str) -> str:
+    spec = _COMMANDS.get(word)
+    return usage(spec, units=False) if spec is not None else LOCAL_COMMANDS[word].split(": ", 1)[0]
+
+
+def argument_words(spec: MessageSpec, f: Field) -> str:
+    """One argument as a user reads it: `a number of degrees, from -360 to 360: target angle; if left out, 0`;
+    an enum as the one list of the words this command takes."""
+    if f.enum is not None:
+        allowed = [w for w in enum_words(f) if w not in REFUSED_AXES.get(spec.name, ())]
+        kind = ", ".join(allowed[:-1]) + f" or {allowed[-1]}" if len(allowed) > 1 else allowed[0]
+        doc = "" if allowed[0] in f.doc else f.doc
+    else:
+        kind = TYPE_WORDS.get(f.type) or ("a name" if f.type.startswith("str") else
+                                          "bytes in hex" if f.type.startswith("bytes") else "a whole number")
+        if f.unit:
+            kind += f" of {UNIT_WORDS.get(f.unit, f.unit)}"
+        if f.range:
+            kind += f", from {f.range[0]:g} to {f.range[1]:g}"
+        doc = f.doc
+    default = f"; if left out, {_default_word(f)}" if f.default is not None else ""
+    return f"{kind}{': ' + doc if doc else ''}{default}"
 
 
 # Conveniences teleop adds to a declared command, shown in its help.
