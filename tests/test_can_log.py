@@ -4,6 +4,7 @@ within the size asked (a frame more at most), every frame in order across them, 
 parts' names claimed before the run; bad sizes refused (exit 2). All on the simulated clock."""
 from __future__ import annotations
 
+import os
 import random
 
 import can
@@ -106,13 +107,17 @@ def test_a_rotated_run_that_never_ends_leaves_its_full_parts_and_the_destination
     the temporary, the destination what it was."""
     path = tmp_path / "hal.log"
     path.write_bytes(b"(0.000000) plant 123#01 R\n")
+    path.chmod(0o640)
     bench, log = _world_log(path, 50_000, close=False)
     assert len(log.parts) >= 2 and path.read_bytes() == b"(0.000000) plant 123#01 R\n"
     (left,) = [p for p in tmp_path.iterdir() if ".part" in p.name]
     assert left.name.startswith(".hal.log.") and left.name.endswith(".part.log")
     assert len(_frames(log.parts)) < log.frames
-    bench.close()                 # (ended after all: the last part in place)
+    bench.close()                 # (ended after all: the last part in place, with the mode the file had)
     assert len(_frames(log.files)) == log.frames
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert {p.stat().st_mode & 0o777 for p in log.parts} == {0o666 & ~umask} and path.stat().st_mode & 0o777 == 0o640
 
 
 def test_python_can_rotates_what_rotated_says():
