@@ -29,6 +29,11 @@ what goes into them is the command's own business.
 
 An appended output (`--log-file`) is claimed the same way and never renamed: each line is
 whole when it is written.
+
+A rotated output (`--can-log` with `--can-rotate-mb`) also writes numbered parts beside its destination, each put
+in place when it is full (host_tools/worlds/can_log.py). `Claims.series` claims their names, any number of them:
+refused, whatever `--force`, if a file of those names is already there (an earlier run's parts, which this run's
+would mix with or replace) or is an input or another output of the run. A part is made under a name no file has.
 """
 from __future__ import annotations
 
@@ -229,6 +234,7 @@ class Claims:
         self.inputs = [(what, Path(path)) for what, path in inputs]
         self.force = force
         self.claimed: list[tuple[str, Path]] = []
+        self.series_claimed: list[tuple[str, Path, "re.Pattern[str]", str]] = []  # option, folder, names, shown
 
     def _not_taken(self, path: Path, option: str) -> None:
         for what, taken in self.inputs:
@@ -238,6 +244,10 @@ class Claims:
         for other, taken in self.claimed:
             if _same(path, taken):
                 raise ValueError(f"{option} {path}: {other} writes there too: name another file")
+        real = Path(os.path.realpath(path))
+        for other, folder, names, shown in self.series_claimed:
+            if real.parent == folder and names.fullmatch(real.name):
+                raise ValueError(f"{option} {path}: {other} writes its parts there ({shown}): name another file")
 
     def file(self, path: Optional[Union[Path, str]], option: str, kind: Kind) -> Optional[Output]:
         """The output at `path` (None: none asked for), or ValueError saying why it may not be written."""
@@ -276,6 +286,28 @@ class Claims:
                                      + ("appends to it" if kind.appended else "overwrites it"))
         self.claimed.append((option, path))
         return Output(path, option, kind)
+
+    def series(self, output: Output, names: "re.Pattern[str]", shown: str) -> None:
+        """The further files a rotated `output` writes beside its destination: those whose names match `names`
+        (`shown` in a refusal: `hal_#NNN.log`), as many as the run makes. ValueError if one is there already, is an
+        input of the run or another of its outputs; `--force` does not change this (a run's parts never replace
+        another's)."""
+        folder = output.destination.parent
+        for what, taken in [*((f"{what}, an input of this run", path) for what, path in self.inputs),
+                            *((f"where {other} writes", path) for other, path in self.claimed)]:
+            real = Path(os.path.realpath(taken))
+            if real.parent == folder and names.fullmatch(real.name):
+                raise ValueError(f"{output.option} {output.path}: its parts are named {shown}, and {taken} is {what}: "
+                                 "name another file")
+        try:
+            there = sorted(entry.name for entry in os.scandir(folder) if names.fullmatch(entry.name))
+        except OSError as exc:
+            raise ValueError(f"{output.option} {output.path}: cannot list {folder} ({exc.strerror or exc})") from None
+        if there:
+            raise ValueError(f"{output.option} {output.path}: its parts are named {shown}, and {folder / there[0]} is "
+                             f"there already{f' (and {len(there) - 1} more)' if len(there) > 1 else ''}; parts are "
+                             "never replaced, --force or not: move them away or name another file")
+        self.series_claimed.append((output.option, folder, names, shown))
 
     def folder(self, path: Optional[Union[Path, str]], option: str) -> Optional[Path]:
         """A folder of outputs at `path` (made when the work starts, with any missing parents), or ValueError saying

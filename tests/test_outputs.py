@@ -207,6 +207,29 @@ def test_a_live_capture_stopped_by_a_signal_is_put_in_place_whole(home, tmp_path
 
 
 @pytest.mark.pty
+def test_a_rotated_can_log_stopped_by_sigint_is_its_parts_and_the_file_named(home, tmp_path):
+    """`--can-rotate-mb`: the parts are put in place as they fill, the newest frames in the file named, every
+    frame read back in order (docs/sessions.md)."""
+    env, key, _ = home
+    sim, url = _sim(env, key, "--speed", "max", "--can-log", str(tmp_path / "hal.log"), "--can-rotate-mb", "0.01")
+    try:
+        _ping(url, key)                  # by then the world has run well past 10 kB of frames (250 kB a second)
+    finally:
+        status, err = sim.stop(signal.SIGINT, timeout_s=60)
+    assert status == 0, err
+    assert "in parts of 0.01 MB: hal_#000.log, hal_#001.log, ... and the newest frames in it" in err
+    parts = sorted(p for p in tmp_path.iterdir() if p.name.startswith("hal_#"))
+    assert parts and [p.name for p in parts] == [f"hal_#{n:03}.log" for n in range(len(parts))]
+    times = []
+    for path in [*parts, tmp_path / "hal.log"]:
+        assert path.stat().st_size <= 10_000 + 200, path          # a candump line is under 200 bytes
+        with can.LogReader(str(path)) as log:
+            times += [msg.timestamp for msg in log]
+    assert len(times) > 100 and times == sorted(times)
+    assert _temporaries(tmp_path) == []
+
+
+@pytest.mark.pty
 def test_a_live_capture_killed_outright_leaves_the_destination_as_it_was_and_its_frames_in_the_temporary(home,
                                                                                                        tmp_path):
     env, key, _ = home

@@ -41,6 +41,17 @@ def bounded(kind, lo: float, hi: float):
     return parse
 
 
+def above_zero(text: str) -> float:
+    """An argparse type: a finite number above 0 (a size, with no upper bound of its own)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{shown(text)} is not a number above 0") from None
+    if not 0 < value < math.inf:        # NaN too: it compares false
+        raise argparse.ArgumentTypeError(f"{value} is not a finite number above 0")
+    return value
+
+
 def controller_id(text: str) -> bytes:
     """An argparse type: a controller's identity, 16 hex digits (8 bytes)."""
     try:

@@ -185,6 +185,7 @@ class SimSettings:
     record: Optional[Output] = None      # a session capture (pcapng) of the controller's line
     can_log: Optional[Output] = None     # the HAL bus through python-can's Logger (.blf, .asc, .log, ...)
     can_ids: Optional[frozenset[int]] = None     # ... of these frames only (--can-only, --can-skip; None: all)
+    can_rotate_bytes: Optional[int] = None       # ... in parts of this size (--can-rotate-mb; None: one file)
     control: bool = False                # serve the endpoint (aspod sim: unless --no-control; with --hal: info) ...
     control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/runtime_folder.py)
     foxglove: Optional[int] = None       # serve the telemetry over Foxglove's WebSocket on this port (0: any free one)
@@ -306,7 +307,8 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
     return SimSettings(port=port_settings(args), controller=controller_settings(args), plant=plant_settings(args),
                        seed=args.seed, speed=args.speed, hal=args.hal, hal_channel=args.hal_channel,
                        hal_options=tuple(hal_options.items()), record=capture_output(outputs, args.record),
-                       can_log=can_log_output(outputs, args.can_log), can_ids=can_log_ids(args),
+                       can_log=can_log_output(outputs, args.can_log, args.can_rotate_mb), can_ids=can_log_ids(args),
+                       can_rotate_bytes=can_rotate_bytes(args.can_rotate_mb),
                        control=not args.no_control, control_path=args.control, foxglove=foxglove)
 
 
@@ -419,15 +421,31 @@ def can_log_ids(args: argparse.Namespace) -> Optional[frozenset[int]]:
     return message_ids(only, skip)
 
 
-def can_log_output(outputs: Claims, path: Optional[Path]) -> Optional[Output]:
-    """A python-can log file: a suffix its `Logger` writes (which says the kind of file it is)."""
+def can_log_output(outputs: Claims, path: Optional[Path], rotate_mb: Optional[float] = None) -> Optional[Output]:
+    """A python-can log file: a suffix its `Logger` writes (which says the kind of file it is); with --can-rotate-mb
+    one its `SizedRotatingLogger` writes, and the names of the parts claimed too (host_tools/worlds/can_log.py)."""
     if path is None:
+        if rotate_mb is not None:
+            raise ValueError("--can-rotate-mb: only with --can-log (the size of each file the HAL bus log is cut into)")
         return None
-    from host_tools.worlds.can_log import KINDS
+    from host_tools.worlds.can_log import KINDS, ROTATED, part_names
     path = Path(path)
     if path.suffix.lower() not in KINDS:
         raise ValueError(f"--can-log {path}: python-can writes {', '.join(KINDS)}; name the file so")
-    return outputs.file(path, "--can-log", KINDS[path.suffix.lower()])
+    if rotate_mb is not None and path.suffix.lower() not in ROTATED:
+        raise ValueError(f"--can-log {path} with --can-rotate-mb: python-can rotates {', '.join(ROTATED)} only; "
+                         "name the file so")
+    output = outputs.file(path, "--can-log", KINDS[path.suffix.lower()])
+    if rotate_mb is not None:
+        named = output.destination
+        outputs.series(output, part_names(named), f"{named.stem}_#NNN{named.suffix}")
+    return output
+
+
+def can_rotate_bytes(rotate_mb: Optional[float]) -> Optional[int]:
+    """--can-rotate-mb in bytes (1 at least: python-can takes 0 as no rotation)."""
+    from host_tools.worlds.can_log import MEGABYTE
+    return None if rotate_mb is None else max(1, round(rotate_mb * MEGABYTE))
 
 
 def log_settings(args: argparse.Namespace) -> LogSettings:

@@ -38,7 +38,8 @@ from firmware_py.controller import ControllerConfig
 
 from timebase import PacedClock, RealClock
 
-from host_tools.cli.options import bounded, add_arm_args, add_controller_args, add_seed_arg, add_speed_arg, add_tracker_args, can_interface
+from host_tools.cli.options import (above_zero, bounded, add_arm_args, add_controller_args, add_seed_arg, add_speed_arg,
+                                      add_tracker_args, can_interface)
 from host_tools.cli.firmware import (apply_command_line, controller_config, controller_key, log_states, open_port,
                                      run_sim_over_hal, runtime_folder, serve_endpoint)
 from host_tools.cli.plant import resolve_sun, sun_line
@@ -126,8 +127,14 @@ def record_outputs(settings: SimSettings, plant: PlantSettings, world: World) ->
         world.record_link(CaptureWriter.create(settings.record, session_info(settings, plant, world)))
         log.info(f"aspod sim: recording the link to {settings.record} (aspod log {settings.record})")
     if settings.can_log is not None:
-        world.log_hal_bus(settings.can_log, settings.can_ids)
-        log.info(f"aspod sim: logging the HAL bus to {settings.can_log} (cantools decode protocol/hal.dbc)")
+        world.log_hal_bus(settings.can_log, settings.can_ids, settings.can_rotate_bytes)
+        parts = ""
+        if settings.can_rotate_bytes is not None:
+            from host_tools.worlds.can_log import MEGABYTE, part_path
+            first, second = (part_path(settings.can_log.destination, n).name for n in (0, 1))
+            parts = (f", in parts of {settings.can_rotate_bytes / MEGABYTE:g} MB: {first}, {second}, ... and the "
+                     "newest frames in it")
+        log.info(f"aspod sim: logging the HAL bus to {settings.can_log}{parts} (cantools decode protocol/hal.dbc)")
 
 
 def serve_foxglove(port: int, world: World) -> str:
@@ -191,6 +198,12 @@ def add_options(sim: argparse.ArgumentParser) -> None:
     sim.add_argument("--can-skip", action="append", default=[], metavar="NAME[,NAME]",
                      help="with --can-log: not these messages (repeatable), e.g. MOTOR_CMD,MOTOR_FB,PLANT_SYNC, "
                           "the 1 kHz ones")
+    sim.add_argument("--can-rotate-mb", type=above_zero, metavar="MB",
+                     help="with --can-log FILE (.blf, .asc, .log, .csv, .txt): cut it into parts of MB megabytes "
+                          "(10^6 bytes; each at most a frame more) through python-can's SizedRotatingLogger: hal.log "
+                          "is written as hal_#000.log, hal_#001.log, ... (python-can's names, less their wall time), "
+                          "each put in place when full, and the newest frames in hal.log; refused if a file of those "
+                          "names is there already (docs/sessions.md)")
     sim.add_argument("--foxglove", type=bounded(int, 0, 65535), nargs="?", const=FOXGLOVE_PORT, metavar="PORT",
                      help="serve the telemetry live over Foxglove's WebSocket protocol on 127.0.0.1:PORT (default "
                           f"{FOXGLOVE_PORT}; 0: a free port), said in an ASPOD-FOXGLOVE line: the topics of "

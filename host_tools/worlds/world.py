@@ -90,11 +90,12 @@ class World:
             self.fast_loop = FastLoop(self)
             self.scheduler.run_ahead(("arm", "plant", "hal"), self.fast_loop.run)
 
-    def log_hal_bus(self, output: Output, ids: Optional[frozenset[int]] = None) -> HalBusLog:
+    def log_hal_bus(self, output: Output, ids: Optional[frozenset[int]] = None,
+                    rotate_bytes: Optional[int] = None) -> HalBusLog:
         """Write every HAL frame (of `ids` only, if given) from now on to `output` through python-can's Logger
-        (`close` puts it in place)."""
+        (`close` puts it in place); with `rotate_bytes`, in parts of about that size (can_log.py)."""
         self.hal_log = HalBusLog(output, self.clock, {"plant": self.plant_bus, "controller": self.controller_bus},
-                                 ids)
+                                 ids, rotate_bytes)
         return self.hal_log
 
     def record_link(self, capture: CaptureWriter) -> None:
