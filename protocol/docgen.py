@@ -6,10 +6,13 @@ when the committed file differs from what this prints.
 """
 from __future__ import annotations
 
+import textwrap
+
 from protocol import auth, framing
 from protocol.controller_link import (COOKIE_EPOCH_S, COOKIE_RATE_PER_S, HELLO_REANSWER_S, MAX_PENDING_SESSIONS,
                                       MAX_UNDELIVERED_EVENTS, MAX_WAITING_COOKIES, MAX_WAITING_HELLOS,
                                       PENDING_MIN_LIFE_S)
+from protocol.declaration import HASH_RECIPE, HASH_RECIPE_PYTHON
 from protocol.host_link import SENT_TAGS
 from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
@@ -268,7 +271,14 @@ carries the ack) at once; the controller resends an event after its retransmissi
 {LinkConfig.initial_rto_s:g} s, then from the measured round trip, RFC 6298).
 
 **The schema hash** in `Hello` and `HelloReply` is a `u64`: the number shown in the header of this
-document, packed little-endian like every field.
+document, packed little-endian like every field. [schema.json](schema.json) (`aspod schema --json`) holds
+the declaration these tables come from as data, for a generator, and the hash is recomputed from that
+file alone.
+{textwrap.fill(HASH_RECIPE, 105)}
+In Python, with the standard library only (run in the folder that holds `docs/`):
+
+```python
+{HASH_RECIPE_PYTHON}```
 
 **Timing.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s until a `HelloReply` comes, and at
 once with the cookie of each `HelloCookie` for its nonce (an echo, not counted among its

@@ -48,6 +48,17 @@ MUST_UNDERSTAND_MASK = 0xF0
 MAX_PAYLOAD = 240
 HEADER = struct.Struct("<BBBHHHB")
 HEADER_SIZE = HEADER.size                 # 10
+# HEADER's fields in order, with what each holds (the table above; `aspod schema --json` gives their offsets)
+HEADER_FIELDS = (
+    ("version", "protocol version (VERSION)"),
+    ("flags", "bits 0-3 may be ignored; bits 4-7 must be understood (bit 4 AUTH: counter and tag present)"),
+    ("class", "MsgClass: how the frame is delivered"),
+    ("seq", "sequence number of this frame in its class's stream"),
+    ("ack", "piggybacked ack: last in-order reliable sequence number received from the peer"),
+    ("msg_id", "message id (protocol/messages.py)"),
+    ("length", "payload length, 0..MAX_PAYLOAD"),
+)
+assert len(HEADER_FIELDS) == len(HEADER.unpack(bytes(HEADER_SIZE)))
 COUNTER_SIZE = 6
 TAG_SIZE = 16
 CRC_SIZE = 4
@@ -55,6 +66,17 @@ MIN_RAW = HEADER_SIZE + CRC_SIZE
 MAX_RAW = HEADER_SIZE + COUNTER_SIZE + MAX_PAYLOAD + TAG_SIZE + CRC_SIZE   # 276
 MAX_ENCODED = MAX_RAW + MAX_RAW // 254 + 1                                 # COBS worst case
 COUNTER_MAX = (1 << 48) - 1
+
+# The CRC is zlib's crc32 (CRC-32/ISO-HDLC: IEEE 802.3, PKZIP), in the parameters of Williams's model as the
+# CRC catalogue (reveng) gives them: a client's CRC library takes these. Appended little-endian.
+CRC_WIDTH = 32
+CRC_POLY = 0x04C11DB7
+CRC_INIT = 0xFFFFFFFF
+CRC_REFIN = True
+CRC_REFOUT = True
+CRC_XOROUT = 0xFFFFFFFF
+CRC_CHECK = 0xCBF43926                    # the CRC of b"123456789"
+assert zlib.crc32(b"123456789") == CRC_CHECK
 
 _CRC = struct.Struct("<I")
 _cobs_encode = cobs.encode

@@ -304,6 +304,7 @@ EVERY_OUTPUT = [
     (["log", "c.pcapng", "--key-file", "link.key"], "--plot", "link.key", settings.log_settings),
     (["tracker-day"], "--plot", "config/aspod/params.json", settings.day_plot),
     (["wireshark"], "--output", "config/aspod/params.json", settings.wireshark_output),
+    (["schema", "--json"], "--output", "config/aspod/params.json", settings.schema_output),
     (["plan", "--problem", "problem.json"], "--plot", "problem.json", settings.plan_settings),
     (["campaign", "bench.py"], "--out", "bench.py", settings.campaign_settings),
     (["fuzz", "--replay", "finding.json", "--url", "/dev/null"], "--findings", "finding.json", settings.fuzz_settings),

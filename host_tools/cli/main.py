@@ -147,6 +147,8 @@ COMMANDS = (
     ("replay", dict(help="re-simulate a recorded session (aspod sim/demo --record) and report "
                          "the first divergence"), "replay"),
     ("wireshark", dict(help="write the Wireshark Lua dissector for this protocol's captures"), "wireshark"),
+    ("schema", dict(help="the protocol's declaration as data (--json): framing, messages, fields, enumerations, "
+                         "constants, for a generator of the link's other end"), "schema"),
     ("key", dict(help="make a link key (new FILE, mode 0600) or name one to compare two ends' (fingerprint FILE)"),
      "key"),
     ("completion", dict(help="print a shell completion script (bash or zsh)",

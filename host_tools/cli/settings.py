@@ -496,6 +496,14 @@ def wireshark_output(args: argparse.Namespace) -> Optional[Output]:
     return claims(args).file(args.output, "--output", DISSECTOR)
 
 
+def schema_output(args: argparse.Namespace) -> Optional[Output]:
+    """`aspod schema --json --output` (None: standard output); --output is for the JSON only."""
+    if args.output is not None and not args.json:
+        raise ValueError("--output writes the JSON declaration: say --json too")
+    from host_tools.cli.schema import DECLARATION
+    return claims(args).file(args.output, "--output", DECLARATION)
+
+
 def proxy_settings(args: argparse.Namespace) -> ProxySettings:
     from host_tools.sessions.impairment import Impairment
     impairment = Impairment.parse(args.impair)
