@@ -358,7 +358,7 @@ def refusals_json() -> dict[str, Any]:
 
     token = ping.encode(ping.type(0xCAFE))
     expected = next_seq()         # a NAK uses up no sequence number: each of these is the next command
-    pong = SCHEMA["Pong"]
+    pong, heartbeat, nak = SCHEMA["Pong"], SCHEMA["Heartbeat"], SCHEMA["Nak"]
     cases = [      # each made in turn (a counter above the last), and fed once
         (Reason.UNSUPPORTED_VERSION, "a Ping whose header says version 2 (signed right)",
          _made(line, MsgClass.COMMAND, expected, ping.id, token, version=2)),
@@ -376,6 +376,11 @@ def refusals_json() -> dict[str, Any]:
          _made(line, MsgClass.COMMAND, expected, pong.id, pong.encode(pong.type(0, 1, 2)))),
         (Reason.SEQUENCE_GAP, "a Ping numbered 5 beyond the next expected command (expected_seq says where)",
          _made(line, MsgClass.COMMAND, expected + 5, ping.id, token)),
+        # a LINK frame whose payload does not decode is refused with a NAK (a command's, with a Result: below)
+        (Reason.BAD_LENGTH, "a Heartbeat of 47 bytes, one short (its header's length says 47): the NAK names it",
+         _made(line, MsgClass.LINK, 0, heartbeat.id, bytes(heartbeat.size - 1))),
+        (Reason.OUT_OF_RANGE, "a Nak from the host whose reason, 200, is no reason code: the controller NAKs it",
+         _made(line, MsgClass.LINK, 0, nak.id, bytes([200]) + bytes(nak.size - 1))),
     ]
     for reason, how, wire in cases:
         refused(reason, how, wire, line.send_to_controller(wire))
@@ -428,8 +433,8 @@ def refusals_json() -> dict[str, Any]:
     wire = _made(line, MsgClass.COMMAND, next_seq(), ping.id, token)
     refused(Reason.SESSION_CLOSED, "a Ping after the Close, while the closed session lingers", wire,
             line.send_to_controller(wire))
-    return {"about": "Each NAK reason the link sends, with the frame it refuses (fed to the real link), and the one "
-                     "refusal that comes as a command's answer instead (OUT_OF_RANGE). See README.md.",
+    return {"about": "Each NAK reason the link sends, with the frame it refuses (fed to the real link), and a "
+                     "refusal that comes as a command's answer instead (a Result: OUT_OF_RANGE). See README.md.",
             "refusals": out}
 
 
