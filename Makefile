@@ -31,6 +31,7 @@ bench: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/python -m protocol.docgen > docs/protocol.md
 	$(BIN)/python -m host_tools.cli.main schema --json --output docs/schema.json
+	$(BIN)/python -m host_tools.sessions.vectors
 
 clean:
 	rm -rf $(VENV) build *.egg-info

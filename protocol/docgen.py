@@ -246,7 +246,8 @@ window ({LinkConfig.window} in flight, at most {REPLY_CACHE_SIZE}) keeps every r
 CLIENT = f"""## What a client needs besides the tables
 
 Written by hand for a client written from this document alone (an independent one was, and these are
-the points it had to guess); the code is cited.
+the points it had to guess); the code is cited. Test vectors to check one against (the keys of a handshake,
+frames of every class, every NAK, a capture) are in [vectors/](vectors/README.md).
 
 **Keys** (`protocol/auth.py`). The key file is hex (whitespace and `#` comment lines ignored),
 {auth.KEY_BYTES} bytes (at least {auth.MIN_KEY_BYTES}). Every key is a full 32-byte HMAC-SHA256:
