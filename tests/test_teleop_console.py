@@ -4,7 +4,10 @@ the prompt's state, history that never fails, output wrapped to the terminal."""
 from __future__ import annotations
 
 import io
+import os
 import re
+import subprocess
+import sys
 import threading
 from contextlib import contextmanager
 from types import SimpleNamespace
@@ -228,3 +231,22 @@ def test_losing_the_link_is_said_when_it_happens():
                                            ("\x15quit\r", None)])
     assert "! LINK LOST: /dev/pts/test: device disconnected" in screen
     assert "aspod LINK LOST > " in screen
+
+
+def test_a_pty_read_that_finds_nothing_names_a_second_reader_while_the_simulator_runs(tmp_path):
+    """pyserial's "returned no data" is the far end gone, or another program that read the bytes first: which of
+    the two is told by whether the simulator behind the control endpoint still runs."""
+    from host_tools.teleop.session import closed_text
+    error = ("device reports readiness to read but returned no data (device disconnected or multiple access on "
+             "port?)")
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+
+    def client(pid: int):
+        return SimpleNamespace(url="/dev/pts/9", io_error=error,
+                               control=SimpleNamespace(path=tmp_path / f"sim-{pid}.sock"))
+    assert closed_text(client(os.getpid())) == ("another program reads /dev/pts/9 too and took what was meant for "
+                                                "this one (multiple access on port?)")
+    assert closed_text(client(int(dead.stdout))) == "the simulator closed its end of /dev/pts/9 (it stopped?)"
+    gone = SimpleNamespace(url="/dev/pts/9", io_error="[Errno 5] Input/output error",
+                           control=SimpleNamespace(path=tmp_path / f"sim-{os.getpid()}.sock"))
+    assert closed_text(gone) == "the simulator closed its end of /dev/pts/9 (it stopped?)"

@@ -61,6 +61,7 @@ from host_tools.teleop.format import (INDENT, Console, failure_lines, format_mes
 from host_tools.teleop.motion import (MotionTracker, axis_word, end_lines, failure_text, limit_text, replaced_lines,
                                       started_text, still_running_lines)
 from host_tools.teleop.watch import TelemetryCache, arm_block, watch
+from host_tools.worlds.runtime_folder import owner_alive
 from host_tools.teleop.words import (LOCAL_COMMANDS, Step, TeleopError, all_words, build_message, check_script,
                                      commands, help_text, parse_line, parse_value, usage)
 
@@ -513,7 +514,8 @@ class Session:
 
 # What pyserial says when the other end of the line goes away: a pty whose simulator stopped (EIO, or readable with
 # nothing to read), a TCP connection closed by its peer.
-CLOSED_END = ("Errno 5]", "returned no data", "connection closed", "socket disconnected", "Connection reset",
+STOLEN = "returned no data"      # pyserial: readable, then nothing to read: the far end gone, or another reader
+CLOSED_END = ("Errno 5]", STOLEN, "connection closed", "socket disconnected", "Connection reset",
               "Broken pipe")
 
 
@@ -522,7 +524,11 @@ def closed_text(client) -> str:
     where, error = getattr(client, "url", "the line"), str(client.io_error)
     if not any(mark in error for mark in CLOSED_END):
         return f"{where}: {error}"
-    if getattr(client, "control", None) is not None:
+    control = getattr(client, "control", None)
+    if control is not None and STOLEN in error and owner_alive(control.path):
+        # a pty woke this reader and another took the bytes: the simulator still runs, a second program reads
+        return f"another program reads {where} too and took what was meant for this one (multiple access on port?)"
+    if control is not None:
         return f"the simulator closed its end of {where} (it stopped?)"
     return f"the other end of {where} closed it (the device unplugged, or the program serving it stopped)"
 
