@@ -203,7 +203,7 @@ def decode_speed(folder: Path, quick: bool) -> list[str]:
     bench.record(CaptureWriter.create(capture, SessionInfo(clock="simulated", tool="bench", seed=3,
                                                            settings=bench.settings())))
     bench.connect()
-    bench.call(M["SetTelemetryRate"](50))
+    bench.call(M["SetTelemetryRate"](30))
     seconds = 20 if quick else 60
     for i in range(seconds):
         bench.call(M["Ping"](i))

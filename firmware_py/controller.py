@@ -38,6 +38,7 @@ from typing import Callable, Optional
 
 from protocol import auth
 from protocol.controller_link import ControllerLink
+from protocol.line import max_telemetry_hz, tracker_every
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
@@ -68,7 +69,6 @@ LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often 
 RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world's pace (of the speed asked) is this far
 RTF_CLEAR_AFTER_S = 10.0          # above rtf_warn for this long (wall time at the speed asked): one warning per slow
                                   # spell, not a flutter
-TRACKER_TELEMETRY_MAX_HZ = 10.0   # the tracker turns at most 35.2 deg/min (full duty): 10 Hz is a sample per 0.06 deg
 _HANDLERS: dict[str, Callable] = {}
 TELEMETRY_STATUS, TELEMETRY_JOINTS, TELEMETRY_TRACKER = M["TelemetryStatus"], M["TelemetryJoints"], M["TelemetryTracker"]
 
@@ -453,7 +453,7 @@ class Controller:
             self._tracker_telemetry_count = 0
             return now + period
         self._tracker_telemetry_count += 1
-        if self._tracker_telemetry_count >= math.ceil(self.telemetry_hz / TRACKER_TELEMETRY_MAX_HZ - 1e-9):
+        if self._tracker_telemetry_count >= tracker_every(self.telemetry_hz):
             self._tracker_telemetry_count = 0
             self._tracker_telemetry_due = True
             return now + period / 2
@@ -552,8 +552,17 @@ class Controller:
     def _disable(self, msg: Message, now: float) -> Message:
         return M["Result"](int(self.supervisor.disable(now)))
 
+    @property
+    def max_telemetry_hz(self) -> Optional[int]:
+        """The highest telemetry rate the line carries (protocol/line.py); None: the line is not paced at a baud
+        (`--no-pacing`), so no limit."""
+        return max_telemetry_hz(self.uart.baud) if self.uart.paced else None
+
     @handles("SetTelemetryRate")
     def _set_telemetry(self, msg: Message, now: float) -> Message:
+        limit = self.max_telemetry_hz
+        if limit is not None and msg.rate_hz > limit:
+            return M["Result"](int(Reason.OUT_OF_RANGE))      # more than the line carries: nothing changes
         self.telemetry_hz = msg.rate_hz
         self._tracker_telemetry_due = False
         self._tracker_telemetry_count = 0

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 from typing import Optional, Protocol
 
-BAUD_RATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800)
-BITS_PER_BYTE = 10            # 8N1: start + 8 data + stop
+from protocol.line import BAUD_RATES, BITS_PER_BYTE   # 8N1: start + 8 data + stop (re-exported: the CLI's --baud)
+
+__all__ = ["BAUD_RATES", "BITS_PER_BYTE", "PacedUart", "Port"]
 MAX_PENDING_OUT = 64 * 1024   # bytes held for a host that is not reading before they are dropped
 RX_LOOKAHEAD = 4096           # bytes read ahead from the OS while the line delivers them
 

@@ -16,7 +16,7 @@ import json
 import struct
 from typing import Any, Optional
 
-from protocol import auth, controller_link, framing, host_link, link, messages, reliable
+from protocol import auth, controller_link, framing, host_link, line, link, messages, reliable
 from protocol.link import LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
@@ -281,6 +281,11 @@ _CONSTANTS = (
     (controller_link, "COOKIE_EPOCH_S", "s", "a cookie is valid in its time slot of this length and the next one"),
     (controller_link, "COOKIE_RATE_PER_S", "1/s", "HelloCookie answers a second, at most"),
     (controller_link, "MAX_WAITING_COOKIES", None, "Hellos waiting for a HelloCookie (one per nonce)"),
+    (line, "BITS_PER_BYTE", None, "line bits a byte takes (8N1): a line carries baud / this bytes a second"),
+    (line, "TELEMETRY_LINE_SHARE", None, "the share of the line's bytes a second telemetry may take: a "
+                                         "SetTelemetryRate needing more is refused OUT_OF_RANGE (docs/protocol.md, "
+                                         "Line timing)"),
+    (line, "TRACKER_TELEMETRY_MAX_HZ", "Hz", "TelemetryTracker is sent at most this often, whatever rate_hz"),
 )
 
 _LINK_CONFIG_DOCS = {

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import textwrap
 
-from protocol import auth, framing
+from protocol import auth, framing, line
 from protocol.controller_link import (COOKIE_EPOCH_S, COOKIE_RATE_PER_S, HELLO_REANSWER_S, MAX_PENDING_SESSIONS,
                                       MAX_UNDELIVERED_EVENTS, MAX_WAITING_COOKIES, MAX_WAITING_HELLOS,
                                       PENDING_MIN_LIFE_S)
@@ -20,6 +20,44 @@ from protocol.reasons import Reason
 from protocol.reliable import NOTHING_RECEIVED_ACK, REPLY_CACHE_SIZE, SEQ_MOD
 from protocol.schema import MsgClass
 from protocol.states import FAULT_DOCS, ControllerState
+
+_NOTHING = "nothing: 0, zeros"
+_FRAME = "the frame"
+# (reason, when, who sends it, within the NAK budget, what it names, expected_seq)
+NAK_ROWS = (
+    ("UNSUPPORTED_VERSION", f"the header's `version` is not {framing.VERSION}", "both", "yes", _NOTHING, "0"),
+    ("UNSUPPORTED_FLAGS", "a must-understand flag (bits 4-7) other than AUTH is set", "both", "yes", _NOTHING, "0"),
+    ("BAD_LENGTH", f"the header's `length` is above {framing.MAX_PAYLOAD}, or the frame's size is not the one `length` "
+     "gives", "both", "yes", _NOTHING, "0"),
+    ("UNAUTHENTICATED", "the frame has no AUTH flag (not answered if it is a `Nak`)", "both", "yes",
+     "the frame; `refused_tag` zeros", "0"),
+    ("BAD_MAC", "a `Hello`, `HelloReply` or `HelloCookie` whose tag is wrong under the receiver's handshake key; "
+     "with a session, any other frame whose tag verifies under no session key (not answered if it is a `Nak`)",
+     "both", "yes", _FRAME, "0"),
+    ("NO_SESSION", "the receiver has no session and the frame (not a handshake frame, not a `Nak`) verifies "
+     "under no key it holds (the controller: nor a pending session's)", "both", "yes", _FRAME, "0"),
+    ("UNKNOWN_MESSAGE", "authenticated, its `msg_id` declared nowhere", "both", "no", _FRAME, "0"),
+    ("WRONG_DIRECTION", "authenticated, its `msg_id` declared, but not in this class or not to this end (the "
+     "controller: a handshake frame under its handshake key other than `Hello`)", "both", "no", _FRAME, "0"),
+    ("BAD_LENGTH", "an authenticated LINK frame (`Hello`, `Heartbeat`, `Nak`) whose payload is not its message's "
+     "size", "controller", "no", _FRAME, "0"),
+    ("OUT_OF_RANGE", "an authenticated LINK frame with a field outside its declaration (a `Nak` whose `reason` is "
+     "no reason code)", "controller", "no", _FRAME, "0"),
+    ("SEQUENCE_GAP", "a command (at the controller) or an event (at the host) numbered beyond the next expected; "
+     "once per expected value", "controller, host", "no", _FRAME, "the next expected"),
+    ("REPLAY", f"a command numbered before the next expected and older than the last {REPLY_CACHE_SIZE} answered",
+     "controller", "no", _FRAME, "the next expected"),
+    ("SESSION_CLOSED", "a command or urgent request, not a duplicate, after the session's `Close` was executed",
+     "controller", "no", _FRAME, "the next expected command; 0 for an urgent request"),
+)
+NAK_TABLE = "\n".join(["| reason | sent when the frame is | sent by | budget | names | `expected_seq` |",
+                       "|---|---|---|---|---|---|"]
+                      + [f"| `{r}` | {when} | {who} | {budget} | {names} | {exp} |"
+                         for r, when, who, budget, names, exp in NAK_ROWS])
+RATE_TABLE = "\n".join(["| baud | line, bytes/s | telemetry may take, bytes/s | highest `rate_hz` |", "|---|---|---|---|"]
+                       + [f"| {b} | {line.line_bytes_per_s(b):g} | {line.telemetry_budget_bytes_per_s(b):g} | "
+                          f"{line.max_telemetry_hz(b)} |" for b in line.BAUD_RATES])
+
 
 INTRO = f"""# ASPOD link protocol, version {PROTOCOL_VERSION}
 
@@ -33,13 +71,25 @@ listen and transmit.
 
 Schema hash (sent in `Hello`): `{SCHEMA.hash:016x}`.
 
+MUST, MUST NOT and SHOULD are meant as in RFC 2119. Each rule is said once; the numbered rules of
+"Refusals, sequence numbers and limits, exactly" are pointed to as *rule N* from the other sections.
+The figures come from the constants named with them (in `protocol/`, and as data in
+[schema.json](schema.json)).
+
 ## Framing
 
 Each frame travels as `0x00 COBS(raw) 0x00`: Consistent Overhead Byte Stuffing removes
 every 0x00 from the frame, so a delimiter always means a frame boundary and any fault
 costs at most the frames it touches (MAVLink 2, with no stuffing, can lose hundreds of
-bytes to one stray start byte). The receiver keeps at most {framing.MAX_ENCODED} bytes between reads;
-a longer run without a delimiter is dropped and counted.
+bytes to one stray start byte). The receiver keeps at most {framing.MAX_ENCODED} bytes (`MAX_ENCODED`) between reads;
+a longer run without a delimiter is dropped and counted. Every frame carries both delimiters, so two
+frames in a row are separated by two 0x00 bytes; a receiver MUST skip empty segments.
+
+COBS is Cheshire and Baker's, coded as the `cobs` package and Wikipedia's description code it: each code
+byte n (1..255) is followed by n - 1 non-zero bytes and, unless n is 255 or the data ends there, stands
+for them and one 0x00. A sender MUST NOT append a final code byte `0x01` after data that ends with a
+full block of 254 non-zero bytes (coded `0xFF` and those bytes); the original paper's code appends one,
+and a receiver SHOULD accept it (this one does).
 
 Raw frame layout (little-endian):
 
@@ -61,6 +111,12 @@ The longest raw frame is {framing.MAX_RAW} bytes. CRC-32 has Hamming distance 5 
 2974 data bits (Koopman, DSN 2002), so every error of up to 4 bits in any frame here is
 detected; a CRC-16 would not give that.
 
+A receiver checks a frame whose CRC is right in this order (`protocol/framing.py` `decode_frame`):
+`length` above {framing.MAX_PAYLOAD} (`MAX_PAYLOAD`) is `BAD_LENGTH`; `version` other than {framing.VERSION} is
+`UNSUPPORTED_VERSION`; a bit of 4-7 set other than AUTH is `UNSUPPORTED_FLAGS`; a frame whose size is not
+the one its `length` gives ({framing.HEADER_SIZE} + length + {framing.CRC_SIZE} bytes, with AUTH {framing.HEADER_SIZE} + {framing.COUNTER_SIZE} + length + {framing.TAG_SIZE} + {framing.CRC_SIZE}) is `BAD_LENGTH`.
+Rule 10 says how each is answered.
+
 ## Sessions and authentication
 
 Every frame the link accepts is authenticated; an unauthenticated frame is refused
@@ -74,14 +130,19 @@ unless given the same file.
 1. The host sends `Hello` with its protocol version, its schema hash, a fresh 16-byte
    nonce and a zero cookie, signed with the handshake key `HMAC(psk, "aspod/v1/handshake/h2c")`.
 2. The controller answers a `Hello` without a fresh cookie with `HelloCookie` (handshake key
-   `.../c2h`): the nonce and an {auth.COOKIE_BYTES}-byte cookie, `HMAC(secret, "aspod/v1/cookie" | nonce |
-   slot)` under a secret of its own, the slot being its time in {COOKIE_EPOCH_S:g} s steps (signed 64-bit
-   little-endian); it keeps nothing for it. The host sends its `Hello` again at once with that cookie.
+   `.../c2h`): the nonce and a cookie, the first {auth.COOKIE_BYTES} bytes (`COOKIE_BYTES`) of
+   `HMAC-SHA256(secret, "aspod/v1/cookie" | nonce | slot)` under a secret of its own, where
+   `slot = floor(t / {COOKIE_EPOCH_S:g} s)` (`COOKIE_EPOCH_S`), `t` its clock in seconds, packed as a signed 64-bit
+   little-endian integer; it keeps nothing for it. The host sends its `Hello` again at once with that cookie.
 3. The controller answers a `Hello` whose cookie is that of its nonce in the present slot or the last
    one (so {COOKIE_EPOCH_S:g} to {2 * COOKIE_EPOCH_S:g} s old at most) with `HelloReply`, echoing the host nonce,
-   with its own fresh nonce and its identity (`controller_id`), or with `SCHEMA_MISMATCH` /
-   `UNSUPPORTED_VERSION` and both hashes and versions, so a mismatch is refused by name rather than
-   read as noise.
+   with its own fresh nonce and its identity (`controller_id`). Or it refuses the `Hello` by name: a
+   `Hello` whose `protocol_version` is not its own gets `result` `UNSUPPORTED_VERSION` (checked first), one
+   whose `schema_hash` is not its own `SCHEMA_MISMATCH`. A refused `HelloReply` carries the controller's
+   own `protocol_version` and `schema_hash` (the host has its own), the reason in `result`, the host's
+   nonce echoed, a `controller_nonce` of 16 zero bytes (no session is made), and `link_timeout_ms`,
+   `heartbeat_ms` and `controller_id` as an accepting one does (`protocol/controller_link.py`
+   `_answer_hello`). A host MUST NOT derive session keys from a `HelloReply` whose `result` is not `OK`.
 4. Both derive per-direction session keys `HMAC(psk, "aspod/v1/session/<dir>" | host
    nonce | controller nonce)`. The controller keeps the new session *pending* and
    adopts it when the first frame signed with its key arrives (the host sends a
@@ -103,15 +164,15 @@ then that the counter is above the last one accepted in this session. The counte
 committed only after the MAC verifies, so a forged frame with a huge counter cannot
 block genuine traffic. A frame recorded in an earlier session fails the MAC in a new
 one, whichever end restarted; keys differ per direction, so a frame reflected back to
-its sender fails too. A controller that has no session answers frames with
-`NO_SESSION`, signed with its *NAK key* `HMAC(psk, "aspod/v1/nak/c2h" | controller_id)`; a
-host that receives such a NAK while up starts a new session (its unanswered commands end
-`FAILED`/`SESSION_RESET`). It verifies it under the NAK key of the `controller_id` its
-`HelloReply` named, so that another controller holding the same key, shown a copy of the
-host's frame, cannot end the session. Since such a NAK could be recorded and played back,
-every NAK echoes the first {NAK_TAG_BYTES} bytes of the refused frame's tag (`refused_tag`), and a host
-that is up believes a handshake NAK only if that is the tag of one of the last {SENT_TAGS} frames it
-sent in this session; any other is counted as a replay and ignored
+its sender fails too.
+
+A controller that has no session answers frames with `Nak(NO_SESSION)`, signed with its *NAK key*
+`HMAC(psk, "aspod/v1/nak/c2h" | controller_id)` (rule 10). A host that is up MUST act on such a NAK
+(start a new session; its unanswered commands end `FAILED`/`SESSION_RESET`) only if it verifies under
+the NAK key of the `controller_id` its `HelloReply` named, so that another controller holding the same
+key, shown a copy of the host's frame, cannot end the session, and only if its `refused_tag` is the
+first {NAK_TAG_BYTES} bytes of the tag of one of the last {SENT_TAGS} frames (`SENT_TAGS`) the host sent in this session,
+since such a NAK could be recorded and played back; it MUST count any other as a replay and ignore it
 ([protocol_security.md](protocol_security.md)).
 
 ## Closing a session
@@ -133,8 +194,8 @@ The host waits for `Closed` and for every event up to `last_event_seq`, acknowle
 the host's repeated `Close` gets a `Nak(NO_SESSION)` under the controller's NAK key echoing its tag,
 or a `Nak(SESSION_CLOSED)`, and the host takes either as the end. A host that leaves without a
 `Close` (killed, or its line cut) is a lost link: the controller latches `LINK_LOST` after the
-link timeout. `why` says why the host closes (`CloseWhy`): `DONE`, `STOPPED` (a signal),
-`ERROR`.
+link timeout, and the next host finds the controller in FAULT with LINK_LOST latched and sends `Reset`
+before `Enable`. `why` says why the host closes (`CloseWhy`): `DONE`, `STOPPED` (a signal), `ERROR`.
 
 ## Classes and delivery
 
@@ -146,77 +207,156 @@ link timeout. `why` says why the host closes (`CloseWhy`): `DONE`, `STOPPED` (a 
 | TELEMETRY | {int(MsgClass.TELEMETRY)} | controller -> host | unreliable; sequence numbers count loss; dropped, and counted, when the line is backed up |
 | EVENT | {int(MsgClass.EVENT)} | controller -> host | reliable, in order; kept across sessions until delivered |
 
-**Commands** (go-back-N, window {LinkConfig.window}). The host numbers commands 0, 1, 2, ... per
-session. The controller executes only the next expected number; an earlier number is
-a duplicate, answered with the cached reply of the original and never executed
-again; a later number is a gap, answered once with `Nak(SEQUENCE_GAP, expected_seq)`,
-and the host resends from there. The reply to a command is a frame of the command's
-class whose `seq` is the command's and whose message is the declared reply (or
-`Result` with a reason code when the command could not be decoded). The host
-retransmits unanswered commands on an RFC 6298 timer (smoothed RTT + 4 x variance,
-{LinkConfig.min_rto_s * 1000:.0f} ms to {LinkConfig.max_rto_s:.0f} s, doubled on each expiry, no RTT sample from a
-retransmitted frame); after {LinkConfig.retry_limit} sends of one command it gives up: every command not
-yet answered ends `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the
-link stays suspended until a new handshake. Every command ends in exactly one of
-`succeeded` (answered OK), `rejected` (answered with a reason) or `failed` (never
-answered); none is lost silently.
+**Commands** (go-back-N) are numbered 0, 1, 2, ... per session and executed exactly once, in order
+(rule 2), resent on a timer (rule 1) within a window (rule 6), and answered with a frame the host
+matches by class and sequence number (rule 3). Every command ends in exactly one of `succeeded`
+(answered OK), `rejected` (answered with a reason) or `failed` (never answered); none is lost silently.
 
 **Urgent** requests carry their own sequence numbers, are executed on arrival whatever
-the state of the command stream, and are deduplicated the same way.
+the state of the command stream, and are deduplicated (rule 2).
 
 **Events** use the same machinery in the other direction: the host acknowledges them
-with the `ack` field of any frame (an `Ack` frame when it has nothing else to send).
-Events a session did not acknowledge are offered again in the next one (the newest
-{MAX_UNDELIVERED_EVENTS} are kept). A host may have received some of them and lost only its
-acknowledgement, so they come behind an `EventsCarriedOver` event that counts those an earlier
-session was sent (and those dropped for want of room): the host shows them as from an
-earlier session, possibly seen already, not as new. A host that closes sends what it has
-queued first (its last acknowledgements).
+with the `ack` field of any frame (an `Ack` frame when it has nothing else to send), at once.
+Events a session did not acknowledge are offered again in the next one, behind an
+`EventsCarriedOver` (rules 6 and 7). A host that closes sends what it has queued first (its last
+acknowledgements).
 
-**Heartbeats** go both ways with the sender's link statistics, {LinkConfig.heartbeat_s:.0f} s after the sender's
-last frame other than telemetry (any authenticated frame proves the link alive, and on a
-slow line a heartbeat queued between two commands would delay the second). The
-controller goes to its safe state (`LINK_LOST`, latched until `reset`) when a session
-has seen no valid frame for the link timeout (default {LinkConfig.link_timeout_s:.0f} s, `aspod sim
+**Heartbeats** go both ways with the sender's link statistics, {LinkConfig.heartbeat_s:g} s (`LinkConfig.heartbeat_s`) after the
+sender's last frame other than telemetry (any authenticated frame proves the link alive, and on a
+slow line a heartbeat queued between two commands would delay the second); the host sends them at
+least three times within the controller's `link_timeout_ms`. The controller goes to its safe state
+(`LINK_LOST`, latched until `reset`) when a session has seen no valid frame for the link timeout
+(default {LinkConfig.link_timeout_s:g} s, `LinkConfig.link_timeout_s`, the parameter `link_timeout_s`, `aspod sim
 --link-timeout`), and stops its periodic frames until the host returns.
 
-**Answers to bad input.** Every refused frame is counted. Frames that fail CRC or
-COBS are never answered (nothing in them can be trusted), nor are replays (a
-duplicating line makes them routinely). Other refusals of unauthenticated frames are
-answered with a `Nak` and the reason, at most {LinkConfig.nak_rate_per_s:.0f} a second, so garbage cannot make
-the controller flood the line. Refusals of authenticated frames are always answered.
-No input resets or stops the controller.
+**Answers to bad input** are rule 10: which frames are answered with a `Nak`, under which key, with
+which fields, at what rate. No input resets or stops the controller.
 """
 
 RULES = f"""## Refusals, sequence numbers and limits, exactly
 
 Written by hand from the code it cites; the numbers come from the constants named.
 
-**A refusal comes as the command's reply or as a link `Nak`.** A command that reaches its handler is
-answered with its declared reply (`Result`, `MotionAccepted`, `ParamValue`, `BoxState`, ...) whose
-`result` is the reason: the controller's state (`NOT_ALLOWED_IN_STATE`, `ESTOP`, `FAULT_LATCHED`), a
-limit (`SOFT_LIMIT`, `OUT_OF_RANGE`, `NOT_HOMED`, `BUSY`, `UNKNOWN_PARAM`, `DIAL_NOT_LOW`, ...). A
-command whose payload does not decode (a field outside its type, range or enumeration) never reaches
-a handler and is answered with `Result` and the decoder's reason (`OUT_OF_RANGE`, `BAD_LENGTH`, ...)
-(`protocol/controller_link.py` `_handle`). A frame refused before that is answered with a `Nak`:
-`UNKNOWN_MESSAGE` (no such id) and `WRONG_DIRECTION` (an id not sent in this class or direction)
-(`protocol/link.py` `_receive`); `SEQUENCE_GAP` (a command numbered beyond the next expected, once per
-expected value) and `REPLAY` (a duplicate older than the reply cache) (`controller_link.py` `_handle`);
-`UNAUTHENTICATED`, `BAD_MAC` and `NO_SESSION` (at most {LinkConfig.nak_rate_per_s:.0f} a second). A
-bad CRC or COBS and a replayed counter are never answered.
+**Rule 1. Retransmission: the same frame, signed again.** A host MUST resend a command or urgent request
+that has no answer when its retransmission timer expires as a new frame with the same `class`, `seq`,
+`msg_id` and payload, signed afresh: a counter above every one it sent before, so a new tag. A frame
+sent again byte for byte carries a counter already accepted, and the receiver drops it as a replay
+(counted in `replays`, never answered): it never reaches the reply cache, so a lost reply would end
+the command `FAILED` on a healthy link. This link queues frames unsigned and signs each one when it
+goes onto the wire, every resend included (`protocol/link.py` `take_frame` and `_sign`); the
+controller resends events the same way. The timer is RFC 6298's: smoothed RTT + 4 x variance, from
+{LinkConfig.min_rto_s * 1000:.0f} ms (`LinkConfig.min_rto_s`) to {LinkConfig.max_rto_s:g} s (`max_rto_s`), {LinkConfig.initial_rto_s:g} s (`initial_rto_s`) before the
+first sample, doubled on each expiry, no sample from a frame sent more than once (Karn); from the
+oldest expired frame on, every frame in flight goes again (go-back-N). After {LinkConfig.retry_limit} sends
+(`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
+`FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
+handshake. The controller never gives up an event: it offers its unacknowledged events again from the
+first (counted in `event_resumes`).
 
-**The host takes a command's answer in one of two shapes only:** its declared reply, or a `Result`
-refusing it (a `result` other than `OK`). Any other reply at the command's sequence number ends the
-command `REJECTED` with `UNKNOWN_MESSAGE`, the detail naming what came (`protocol/host_link.py`
-`_complete`): a caller must never read a message of another shape as its answer.
+**Rule 2. Exactly once, and duplicates from the cache.** The controller MUST execute a command only when
+its `seq` is the next one it expects (0 first in each session) and an urgent request only the first time
+its `seq` is seen, and MUST answer a duplicate without executing it again: a command numbered before the
+next expected, among the last {REPLY_CACHE_SIZE} it answered (`protocol/reliable.py` `REPLY_CACHE_SIZE`), gets the
+cached reply (the same message and payload, in a frame of its own); an older one gets `Nak(REPLAY)`
+(counted as a stale duplicate). Urgent requests are unordered: the last {REPLY_CACHE_SIZE} numbers seen are
+remembered with their replies, and a number not among them is taken as new. A command numbered beyond the
+next expected is a gap: the controller answers `Nak(SEQUENCE_GAP)` with `expected_seq` once per expected
+value (later frames of the same gap are dropped unanswered), and the host MUST send again from
+`expected_seq` at once. The host takes events the same way: a gap is answered `Nak(SEQUENCE_GAP)`, a
+duplicate only acknowledged again.
 
-**Only a reply uses up a sequence number.** A command answered with its reply, refused or not, is
+**Rule 3. Matching a reply to its command.** The reply to a command or urgent request is a frame of the
+same `class` with the same `seq`; its `msg_id` is the command's declared reply (or `Result`). A host MUST
+match a reply to its command by the header's `class` and `seq`, in the session whose key verified it
+(numbers start at 0 in every session, rule 8), never by `msg_id`, counter or tag, which differ. After a
+resend, the first reply for that class and `seq` is the answer; a later one (the answer to the other
+copy, from the cache: the same message) MUST be ignored, as must a reply whose `seq` has no command in
+flight (`protocol/host_link.py` `_handle`, `_complete`).
+
+**Rule 4. The host takes a command's answer in one of two shapes only:** its declared reply, or a
+`Result` refusing it (a `result` other than `OK`). Any other reply at the command's sequence number ends
+the command `REJECTED` with `UNKNOWN_MESSAGE`, the detail naming what came (`protocol/host_link.py`
+`_complete`): a caller must never read a message of another shape as its answer. A command that reaches
+its handler is answered with its declared reply (`Result`, `MotionAccepted`, `ParamValue`, `BoxState`, ...)
+whose `result` is the reason: the controller's state (`NOT_ALLOWED_IN_STATE`, `ESTOP`, `FAULT_LATCHED`), a
+limit (`SOFT_LIMIT`, `OUT_OF_RANGE`, `NOT_HOMED`, `BUSY`, `UNKNOWN_PARAM`, `DIAL_NOT_LOW`, ...). A command
+whose payload does not decode (a field outside its type, range or enumeration, a wrong size) never
+reaches a handler and is answered with `Result` and the decoder's reason (`OUT_OF_RANGE`, `BAD_LENGTH`,
+...) (`protocol/controller_link.py` `_handle`). Only the frames of rule 10 are refused with a `Nak`.
+
+**Rule 5. Only a reply uses up a sequence number.** A command answered with its reply, refused or not, is
 executed-and-answered: the receiver's next expected number moves on by one
 (`protocol/reliable.py` `ReliableReceiver.accept`) and a resend of it gets the same reply from the
 cache, never a second execution. A command refused with a `Nak` leaves the expected number where it
 was: the host sends that number again (for `SEQUENCE_GAP`, from `expected_seq`).
 
-**The speed limit of `Move`, `MoveBy` and `Jog`** is the axis's `<axis>_speed_dps` parameter (j1 to j4
+**Rule 6. Windows.** The host MUST keep the span of command sequence numbers in flight (from the oldest
+unanswered to the newest sent) below the command window, {LinkConfig.window} (`LinkConfig.window`, at most
+`REPLY_CACHE_SIZE` = {REPLY_CACHE_SIZE}), so every resend is still in the controller's reply cache; urgent requests
+have a window of their own of the same size. The controller keeps its events to the same window: at most
+{LinkConfig.window} events in flight (the event window, `LinkConfig.window`); later ones wait, and take their
+sequence number when they are first sent. Events not acknowledged when a session ends wait for the next
+one: the newest {MAX_UNDELIVERED_EVENTS} (`MAX_UNDELIVERED_EVENTS`), the older ones counted as dropped.
+
+**Rule 7. Events carried over.** When a session is adopted and events of an earlier session wait, the
+controller MUST send `EventsCarriedOver` first (event `seq` 0) if any of them was sent before or some were
+dropped. Its `count` says that the next `count` events (in order) were sent at least once to an earlier
+session, whose host may have seen them (its acknowledgement may be what was lost; the `StateChanged` to
+LINK_LOST is typically sent into the silence); the events after them were never sent and are new.
+Because no more than the event window is ever in flight, `count` is at most {LinkConfig.window} (`LinkConfig.window`):
+`count` = {LinkConfig.window} means a whole window went unacknowledged. `dropped` counts the events lost for want of
+room (rule 6). A host SHOULD show the `count` events as from an earlier session, possibly seen already,
+not as new (`protocol/host_link.py` `event_from_earlier_session`).
+
+**Rule 8. What restarts per session.** Command, urgent and event sequence numbers all start at 0 in every
+session, on both ends (`_new_channels` in `protocol/host_link.py` and `protocol/controller_link.py`),
+and the reply caches are emptied with them; the authentication counters start again too (new keys).
+Telemetry sequence numbers do not: they count on for the life of the link endpoint (`protocol/link.py`
+`send_telemetry`), the first telemetry frame's `seq` being 1, then 2, 3, ... modulo {SEQ_MOD}; a host counts a
+jump from `n` to `m` as `m - n - 1` frames lost (modulo {SEQ_MOD}), whatever the sessions did.
+
+**Rule 9. The ack before any event** (or, from the controller, before any command) is
+{NOTHING_RECEIVED_ACK} (`protocol/reliable.py` `NOTHING_RECEIVED_ACK`, one before sequence number 0
+modulo {SEQ_MOD}): the `ack` field always carries the last number received in order.
+
+**Rule 10. Refusals with a `Nak`.** A receiver MUST NOT answer a frame whose COBS or CRC is wrong
+(`BAD_FRAME`, `BAD_CRC`: nothing in it can be trusted), a frame whose counter is not above the last one
+accepted in its session (a replay: a duplicating line makes them routinely; counted as `REPLAY`), nor a
+`Nak` refused for its authentication (two ends would answer each other for ever). It answers every other
+refusal with a `Nak` (class LINK, `seq` 0), sent before anything else queued. Every refusal is counted.
+These are all the NAKs the link sends (`protocol/link.py` `_frame_error`, `_receive`; `protocol/controller_link.py`
+`_handle_handshake`, `_handle`, `_handle_link`; `protocol/host_link.py` `_event`):
+
+{NAK_TABLE}
+
+- **Budget.** NAKs marked "yes" answer frames no key the receiver holds vouches for; an end MUST send at
+  most {LinkConfig.nak_rate_per_s:g} of them a second (`LinkConfig.nak_rate_per_s`, a token bucket holding
+  {LinkConfig.nak_rate_per_s:g}), so garbage cannot make it flood the line, and count the rest unanswered. The other
+  NAKs refuse frames signed with a key of the session (or a `Hello` under the handshake key) and are
+  always sent, `SEQUENCE_GAP` once per expected value (rule 2).
+- **Key.** A NAK is signed as the frames its sender sends: with the session's key of its direction
+  (`session/c2h` from the controller, `session/h2c` from the host) while the sender has a session,
+  closing ones included; with none, the controller signs every NAK with its NAK key
+  `HMAC(psk, "aspod/v1/nak/c2h" | controller_id)`, the host with its handshake key
+  `HMAC(psk, "aspod/v1/handshake/h2c")`. A NAK signed without a session is not counter-checked (see
+  "Counters").
+- **Which frame it refuses.** A NAK of a frame refused for its header (`UNSUPPORTED_VERSION`,
+  `UNSUPPORTED_FLAGS`, and `BAD_LENGTH` of the header) names nothing: `refused_class`, `refused_seq`,
+  `refused_msg` are 0 and `refused_tag` is {NAK_TAG_BYTES} zero bytes, because a header that fails those checks
+  cannot be trusted to say what the frame was. Every other NAK names the refused frame: its `class`,
+  `seq` and `msg_id`, and the first {NAK_TAG_BYTES} bytes (`NAK_TAG_BYTES`) of its tag in `refused_tag` (zeros for
+  `UNAUTHENTICATED`: it had none). A NAK that names nothing refuses no command: the host resends on its
+  timer (rule 1).
+- **`expected_seq`** is set only in `SEQUENCE_GAP`, `REPLAY` and `SESSION_CLOSED` NAKs: the next
+  sequence number the NAK's sender expects in the refused frame's class (0 for an urgent request,
+  whose numbers are unordered). In every other NAK it is 0, whatever the sender expects.
+- **What a NAK makes the other end do.** The host starts a new session on a `NO_SESSION` NAK it believes
+  (see "Sessions and authentication"), sends again from `expected_seq` on a `SEQUENCE_GAP` of a command
+  (the controller likewise for an event), and takes a `SESSION_CLOSED` (or a believed `NO_SESSION`)
+  while it closes as the end of the session. Every other NAK is only counted (`naks_rx`): the command it
+  refused is resent on its timer (rule 1), until the retry limit.
+
+**Rule 11. The speed limit of `Move`, `MoveBy` and `Jog`** is the axis's `<axis>_speed_dps` parameter (j1 to j4
 and mount: 0.1 to 30 deg/s, no faster than the motor turns unloaded (J1 28, the mount 23), default the
 report's 3 deg/s; `firmware_py/arm_config.py`
 `parameter_table`), not the field's range of 0..360, which only bounds what decodes. A faster command is
@@ -225,22 +365,7 @@ its value, `asked` the speed asked (`firmware_py/axis.py` `_check_move`, `jog`).
 parameter's value. A target beyond a soft limit is refused `SOFT_LIMIT` with `limit` =
 `<axis>_min_deg` or `<axis>_max_deg`.
 
-**The ack before any event** (or, from the controller, before any command) is
-{NOTHING_RECEIVED_ACK} (`protocol/reliable.py` `NOTHING_RECEIVED_ACK`, one before sequence number 0
-modulo {SEQ_MOD}): the `ack` field always carries the last number received in order.
-
-**What restarts per session.** Command, urgent and event sequence numbers all start at 0 in every
-session, on both ends (`_new_channels` in `protocol/host_link.py` and `protocol/controller_link.py`),
-and the reply caches are emptied with them; the authentication counters start again too (new keys).
-Telemetry sequence numbers do not: they count on for the life of the link endpoint (`protocol/link.py`
-`send_telemetry`), so a gap in them is lost telemetry whatever the sessions did.
-
-**How far back duplicates are answered.** Each receiver keeps the replies to its last
-{REPLY_CACHE_SIZE} sequence numbers (`protocol/reliable.py` `REPLY_CACHE_SIZE`). A duplicate command
-(or event) among those is answered with the cached reply; an older one with `Nak(REPLAY)` (counted as
-a stale duplicate), never executed. Urgent requests are unordered: the last {REPLY_CACHE_SIZE} numbers
-seen are remembered with their replies, and a number not among them is taken as new. The sender's
-window ({LinkConfig.window} in flight, at most {REPLY_CACHE_SIZE}) keeps every resend within the cache.
+**Rule 12. The telemetry rate** is limited by the line: see "Line timing".
 """
 
 CLIENT = f"""## What a client needs besides the tables
@@ -253,7 +378,8 @@ frames of every class, every NAK, a capture) are in [vectors/](vectors/README.md
 {auth.KEY_BYTES} bytes (at least {auth.MIN_KEY_BYTES}). Every key is a full 32-byte HMAC-SHA256:
 `key = HMAC-SHA256(psk, label)`, where the label is plain bytes concatenated: `aspod/v1/handshake/h2c`
 and `.../c2h` for the handshake frames, `aspod/v1/session/h2c` + host_nonce + controller_nonce (and
-`c2h`) for a session; `h2c` signs what the host sends, `c2h` what the controller sends. A frame's tag
+`c2h`) for a session, `aspod/v1/nak/c2h` + controller_id for the controller's NAKs without a session;
+`h2c` signs what the host sends, `c2h` what the controller sends. A frame's tag
 is HMAC-SHA256 with that key, truncated to {framing.TAG_SIZE} bytes.
 
 **Counters.** Each direction of a session starts afresh with its new keys: the first frame may carry
@@ -268,8 +394,7 @@ and a receiver ignores it. The `ack` field of a session frame is the last number
 order from the peer's reliable stream: the host acknowledges events, the controller commands (urgent
 requests are answered, not acknowledged). A handshake frame belongs to no session and carries
 {NOTHING_RECEIVED_ACK}. The host answers every event with an `Ack` frame (or any session frame, which
-carries the ack) at once; the controller resends an event after its retransmission timeout (initially
-{LinkConfig.initial_rto_s:g} s, then from the measured round trip, RFC 6298).
+carries the ack) at once; the controller resends an event on its timer (rule 1).
 
 **The schema hash** in `Hello` and `HelloReply` is a `u64`: the number shown in the header of this
 document, packed little-endian like every field. [schema.json](schema.json) (`aspod schema --json`) holds
@@ -281,22 +406,14 @@ In Python, with the standard library only (run in the folder that holds `docs/`)
 ```python
 {HASH_RECIPE_PYTHON}```
 
-**Timing.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s until a `HelloReply` comes, and at
-once with the cookie of each `HelloCookie` for its nonce (an echo, not counted among its
-{LinkConfig.hello_tries} tries);
-both ends send a `Heartbeat` when they have sent nothing for {LinkConfig.heartbeat_s:g} s; the
-controller takes its safe state (LINK_LOST) after {LinkConfig.link_timeout_s:g} s without a valid frame
-(the parameter `link_timeout_s`). A host that leaves closes its session (`Close`, above): the next host
-finds the controller IDLE. A host that leaves without a `Close` is a lost link, and the next host finds the
-controller in FAULT with LINK_LOST latched and sends `Reset` before `Enable`.
+**Timing of the handshake.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s (`LinkConfig.initial_rto_s`)
+until a `HelloReply` comes, at most {LinkConfig.hello_tries} times (`LinkConfig.hello_tries`), and at once with the
+cookie of each `HelloCookie` for its nonce (an echo, not counted among its tries). Heartbeats and the link
+timeout: "Classes and delivery".
 
 **Motion ids are per axis**: each axis numbers its motions from 1, so a `MotionDone` is matched on
 `axis` and `motion_id` together. `Home` with axis all starts one motion per axis, named in
 `MotionAccepted`'s `<axis>_motion_id` fields.
-
-**Events carried over.** A new session first gets `EventsCarriedOver(count)` when events of an earlier
-session were sent but never acknowledged (the host that left may or may not have seen them; the
-`StateChanged` to LINK_LOST was typically sent into the silence): the next `count` events are those.
 
 **The control box** is read with `GetBoxState` (any time) and is also in `TelemetryTracker` while main
 or sensor power is on. `BoxSwitch` and `BoxDial` take an `axis` (TrackerAxis) always on the wire; the
@@ -306,14 +423,43 @@ main and sensor switches are one for both axes, so they take `BOTH` only (anothe
 `trk_dial_low_pct` (default 5 %), read with `ParamGet`.
 """
 
-LINE_TIMING = """## Line timing
+LINE_TIMING = f"""## Line timing
 
-The controller's serial side emulates the wire time of an 8N1 line (10 bits a byte) at
+The controller's serial side emulates the wire time of an 8N1 line ({line.BITS_PER_BYTE} bits a byte, `BITS_PER_BYTE`) at
 the configured baud, 9600 to 460800 (default 115200), in both directions: a pty or TCP
 socket carries bytes instantly, a real RS-422 line does not. At 9600 baud a byte takes
 1.04 ms, at 115200 87 us; a 64-byte frame takes 66.7 ms and 5.6 ms. `aspod sim
 --no-pacing` turns the emulation off (for fuzzing at full speed).
+
+**The telemetry rate is per message kind.** At `SetTelemetryRate`'s `rate_hz` the controller sends
+{" and ".join(f"`{n}`" for n in line.EVERY_PERIOD)} each `rate_hz` times a second, and while the control box is in
+use `TelemetryTracker` with every `ceil(rate_hz / {line.TRACKER_TELEMETRY_MAX_HZ:g})`-th of them, half a period later
+(at most {line.TRACKER_TELEMETRY_MAX_HZ:g} Hz, `TRACKER_TELEMETRY_MAX_HZ`): 30 Hz is 60 frames a second and 10 more.
+Telemetry frames the line has no room for are dropped, oldest first, beyond {LinkConfig.telemetry_backlog} queued
+(`LinkConfig.telemetry_backlog`), and counted (`telemetry_dropped`).
+
+**A rate the line cannot carry is refused.** A controller that paces its line at a baud MUST answer a
+`SetTelemetryRate` whose telemetry needs more than {line.TELEMETRY_LINE_SHARE:.0%} (`TELEMETRY_LINE_SHARE`) of the line
+with a `Result` of `OUT_OF_RANGE`, its rate unchanged (`protocol/line.py`, `firmware_py/controller.py`
+`_set_telemetry`): it refuses `rate_hz` when
+
+    rate_hz x ({" + ".join(f"W({SCHEMA[n].size})" for n in line.EVERY_PERIOD)}) + min(rate_hz, {line.TRACKER_TELEMETRY_MAX_HZ:g}) x W({SCHEMA["TelemetryTracker"].size})  >  baud / {line.BITS_PER_BYTE} x {line.TELEMETRY_LINE_SHARE:g}
+
+where `W(n)` is the most line bytes a signed frame with an n-byte payload takes: its raw size
+`r = {framing.HEADER_SIZE} + {framing.COUNTER_SIZE} + n + {framing.TAG_SIZE} + {framing.CRC_SIZE}`, plus COBS's `floor(r / 254) + 1`, plus the two delimiters
+({", ".join(f"W({SCHEMA[n].size}) = {line.wire_bytes(SCHEMA[n].size)}" for n in line.EVERY_PERIOD + line.AT_MOST_TRACKER_HZ)} bytes for
+{", ".join(f"`{n}`" for n in line.EVERY_PERIOD + line.AT_MOST_TRACKER_HZ)}). `TelemetryTracker` is counted whether or not the
+box is in use, since it may be switched on later. The rest of the line is kept for replies, events,
+heartbeats and handshake answers. `Result` has no field for the figure, so the limit at each baud is
+this table (`max_telemetry_hz`); a host SHOULD ask no more:
+
+{RATE_TABLE}
+
+Without pacing (`--no-pacing`: the emulated line has no rate) there is no limit but the field's range.
+The rate at boot, and at the start of a session after a `Close`, is the parameter `telemetry_hz`, which
+is not checked against the line.
 """
+
 
 
 FIELD_TYPES = """Field types: `u8` to `u64` and `i8` to `i32` (integers), `f32` (IEEE 754 single; finite, and a

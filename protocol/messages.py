@@ -154,12 +154,14 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("cookie", "bytes8", "the cookie of the controller's HelloCookie for this nonce (zeros in the "
                        "first Hello): proves the Hello was made after the controller's answer, not recorded"))),
     MessageSpec("HelloReply", 0x02, MsgClass.LINK, C,
-                "Answers Hello. `result` is OK or SCHEMA_MISMATCH / UNSUPPORTED_VERSION.",
+                "Answers Hello. `result` is OK, or UNSUPPORTED_VERSION / SCHEMA_MISMATCH: then `protocol_version` "
+                "and `schema_hash` are the controller's, `controller_nonce` is 16 zero bytes and no session is made.",
                 (_result(),
                  Field("protocol_version", "u8", "protocol version the controller speaks"),
                  Field("schema_hash", "u64", "hash of the controller's message declarations"),
                  Field("host_nonce", "bytes16", "the Hello's nonce, echoed (proves freshness)"),
-                 Field("controller_nonce", "bytes16", "fresh random value; part of the session key"),
+                 Field("controller_nonce", "bytes16", "fresh random value; part of the session key (zeros in a "
+                       "refusal)"),
                  Field("link_timeout_ms", "u32", "the controller's link timeout", "ms"),
                  Field("heartbeat_ms", "u32", "the controller's heartbeat period", "ms"),
                  Field("controller_id", "bytes8", "the controller's identity: its handshake NAKs are signed with a key "
@@ -176,14 +178,19 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
     MessageSpec("Ack", 0x04, MsgClass.LINK, Direction.BOTH,
                 "Carries only the header's piggybacked ack, when nothing else is going out."),
     MessageSpec("Nak", 0x05, MsgClass.LINK, Direction.BOTH,
-                "Refuses a frame with a reason; for SEQUENCE_GAP `expected_seq` says where to resume.",
+                "Refuses a frame with a reason (docs/protocol.md, rule 10: every reason the link sends, the key "
+                "that signs it, and which fields carry meaning); for SEQUENCE_GAP `expected_seq` says where to "
+                "resume.",
                 (Field("reason", "u8", "why", enum=Reason),
-                 Field("refused_class", "u8", "class of the refused frame"),
-                 Field("refused_seq", "u16", "sequence number of the refused frame"),
-                 Field("refused_msg", "u16", "message id of the refused frame"),
-                 Field("expected_seq", "u16", "next sequence number the sender of the NAK expects"),
+                 Field("refused_class", "u8", "class of the refused frame (0 if refused for its header)"),
+                 Field("refused_seq", "u16", "sequence number of the refused frame (0 if refused for its header)"),
+                 Field("refused_msg", "u16", "message id of the refused frame (0 if refused for its header)"),
+                 Field("expected_seq", "u16", "SEQUENCE_GAP, REPLAY and SESSION_CLOSED only: the next sequence "
+                       "number the NAK's sender expects in the refused frame's class (0 for an urgent request); 0 in "
+                       "every other NAK"),
                  Field("refused_tag", "bytes8", "first 8 bytes of the refused frame's MAC tag (zeros if it had "
-                       "none): binds the NAK to that one frame, so a recorded NAK refuses nothing later"))),
+                       "none or was refused for its header): binds the NAK to that one frame, so a recorded NAK "
+                       "refuses nothing later"))),
     # ---- commands (reliable, in order, exactly once) ----
     MessageSpec("Ping", 0x10, MsgClass.COMMAND, H, "Round-trip check through the command channel.",
                 (Field("token", "u32", "any value; echoed back", default=0),), reply="Pong", teleop="ping"),
@@ -196,8 +203,11 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 reply="Result", teleop="enable"),
     MessageSpec("Disable", 0x14, MsgClass.COMMAND, H, "ENABLED -> IDLE: outputs off.",
                 reply="Result", teleop="disable"),
-    MessageSpec("SetTelemetryRate", 0x15, MsgClass.COMMAND, H, "Sets the telemetry rate (0 stops it).",
-                (Field("rate_hz", "u16", "telemetry frames per second", "Hz", (0, 200)),),
+    MessageSpec("SetTelemetryRate", 0x15, MsgClass.COMMAND, H,
+                "Sets the telemetry rate (0 stops it). Refused with OUT_OF_RANGE, nothing changed, above what the "
+                "line carries at the controller's baud (docs/protocol.md, Line timing: 30 Hz at 115200).",
+                (Field("rate_hz", "u16", "times a second each telemetry message is sent (per message kind, not "
+                       "per frame)", "Hz", (0, 200)),),
                 reply="Result", teleop="telemetry"),
     MessageSpec("ParamGet", 0x16, MsgClass.COMMAND, H, "Reads one parameter.",
                 (Field("name", "str16", "parameter name"),), reply="ParamValue", teleop="get"),
@@ -474,7 +484,8 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 "First event of a session when an earlier session left events unacknowledged: the next `count` "
                 "events were sent to an earlier host, which may have seen them (its acknowledgement may be what "
                 "was lost); events that no session was sent follow them as new.",
-                (Field("count", "u16", "how many of the events that follow were offered to an earlier session"),
+                (Field("count", "u16", "how many of the events that follow (the first `count`) were sent to an "
+                       "earlier session at least once; at most the event window (8)"),
                  Field("dropped", "u16", "events lost since the last session because more were waiting for a "
                        "session than the controller keeps"))),
 ])

@@ -95,7 +95,8 @@ _TABLE: dict[Reason, tuple[str, str]] = {
                              "configure the same pre-shared key on both ends (--key-file)"),
     Reason.BAD_MAC: ("the frame's HMAC-SHA256 tag does not verify under the session or handshake key",
                      "use the controller's key (--key-file) and handshake again; a forged frame is ignored"),
-    Reason.REPLAY: ("the frame's 48-bit counter is not above the last one accepted (replayed or duplicated frame)",
+    Reason.REPLAY: ("the frame's 48-bit counter is not above the last one accepted (replayed or duplicated frame: "
+                    "counted, never answered); in a Nak, a command older than the reply cache",
                     "none: a genuine sender never reuses a counter; handshake again after a restart"),
     Reason.NO_SESSION: ("no session is established: HELLO must come first",
                         "send HELLO (teleop does this on connect) and retry"),
@@ -104,11 +105,13 @@ _TABLE: dict[Reason, tuple[str, str]] = {
     Reason.UNKNOWN_MESSAGE: ("the message id is not declared in this protocol version", "check the schema hash; upgrade"),
     Reason.WRONG_DIRECTION: ("the message is declared for the other direction or another class",
                              "send only host-to-controller messages in their declared class"),
-    Reason.BAD_LENGTH: ("the payload length does not match the message's declared fields", "check the schema hash"),
+    Reason.BAD_LENGTH: ("the header's length is above 240 or not the frame's size, or the payload length does not "
+                        "match the message's declared fields", "check the schema hash"),
     Reason.OUT_OF_RANGE: ("a field is outside its declared range or is not a finite number, or beyond a limit the "
-                          "controller sets (an axis's speed parameter, say), or not meaningful for that axis",
+                          "controller sets (an axis's speed parameter, a telemetry rate the line cannot carry, say), "
+                          "or not meaningful for that axis",
                           "see the message's field table in docs/protocol.md and the axis's parameters (`params`)"),
-    Reason.SEQUENCE_GAP: ("a command's sequence number skips ahead of the next expected one",
+    Reason.SEQUENCE_GAP: ("a command's (or an event's) sequence number skips ahead of the next expected one",
                           "none: the host retransmits from the expected sequence (go-back-N)"),
     Reason.NOT_ALLOWED_IN_STATE: ("the command is not allowed in the controller's present state",
                                   "check `status`; e.g. reset after a fault or e-stop before enabling"),

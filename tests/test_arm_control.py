@@ -294,7 +294,7 @@ def _session_bytes(seed: int) -> bytes:
     b = LockstepBench(seed=seed, to_host=tap)
     try:
         assert b.connect()
-        assert b.call(M["SetTelemetryRate"](50)).ok
+        assert b.call(M["SetTelemetryRate"](30)).ok
         assert b.call(M["Enable"]()).ok
         b.call(M["MoveBy"](int(Axis.J3), 2.0, 0))
         b.run_for(2.0)

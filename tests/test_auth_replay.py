@@ -207,6 +207,13 @@ def test_a_schema_mismatch_is_refused_by_name():
     assert wire.host.state is LinkState.REFUSED
     assert wire.host.refusal.reason is Reason.SCHEMA_MISMATCH
     assert f"{SCHEMA.hash:016x}" in wire.host.refusal.detail
+    # docs/protocol.md, "Sessions and authentication", step 3: the controller's own version and hash, the reason,
+    # the host's nonce echoed, an all-zero controller nonce (no session), and the rest as in an acceptance
+    reply = wire.host.controller_info
+    assert (reply.result, reply.protocol_version, reply.schema_hash) == (Reason.SCHEMA_MISMATCH, 1, SCHEMA.hash)
+    assert reply.host_nonce == wire.host._hello_nonce and reply.controller_nonce == bytes(16)
+    assert reply.controller_id == CONTROLLER_ID and reply.link_timeout_ms == 3000 and reply.heartbeat_ms == 1000
+    assert wire.host.session is None and not wire.controller._pending
     assert wire.host.submit(Ping(1), wire.now).outcome is Outcome.FAILED
     assert wire.executed == []
 
@@ -337,3 +344,43 @@ def test_a_genuine_frame_of_a_message_the_other_end_does_not_take_there_is_refus
         assert wire.host.stats.reasons.get(reason, 0) == before + 1, (cls, msg_id)
     assert wire.executed == []
     assert wire.call(Ping(5)).ok and wire.executed == [Ping(5)]          # and the session goes on
+
+
+def test_a_resend_is_the_same_frame_signed_again_and_answered_from_the_cache():
+    """docs/protocol.md, rules 1 to 3: the host's resend of a command whose reply was lost carries the same class,
+    seq, msg_id and payload under a new counter; the controller answers it from its reply cache without executing
+    it again, and the host matches the answer by class and seq. The first send played again byte for byte is a
+    replay: counted, never answered."""
+    from protocol.framing import FrameReceiver
+    wire = Wire()
+    wire.connect()
+    sent, lost = [], [True]
+
+    def step() -> None:
+        wire.now += 0.001
+        wire.host.poll(wire.now)
+        wire.controller.poll(wire.now)
+        data = wire.host.take_all(wire.now)
+        if data:
+            sent.append(data)
+            wire.controller.feed(data, wire.now)
+        data = wire.controller.take_all(wire.now)
+        if data and lost[0] and any(f.msg_id == SCHEMA["Pong"].id for f in FrameReceiver().feed(data)):
+            lost[0] = False                                # the first Pong is lost on the line
+        elif data:
+            wire.host.feed(data, wire.now)
+    handle = wire.host.submit(Ping(77), wire.now)
+    while not handle.done and wire.now < 10:
+        step()
+    assert handle.ok and handle.reply.token == 77 and handle.tries == 2
+    assert [m.spec.name for m in wire.executed].count("Ping") == 1
+    pings = [(raw, f) for raw in sent for f in FrameReceiver().feed(raw) if f.msg_id == SCHEMA["Ping"].id]
+    assert len(pings) == 2
+    (first_raw, first), (_, second) = pings
+    assert (first.cls, first.seq, first.msg_id, first.payload) == (second.cls, second.seq, second.msg_id,
+                                                                  second.payload)
+    assert second.counter > first.counter and second.tag != first.tag
+    replays, naks = wire.controller.stats.replays, wire.controller.stats.naks_tx
+    wire.controller.feed(first_raw, wire.now)
+    assert wire.controller.stats.replays == replays + 1 and wire.controller.stats.naks_tx == naks
+    assert wire.controller.take_all(wire.now) == b""

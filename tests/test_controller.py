@@ -3,10 +3,13 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import pytest
+
 from firmware_py.controller import ControllerConfig
 from hil_sim.plant import PlantParams
 from host_tools.teleop.format import describe_report
 from host_tools.worlds.world import LockstepBench
+from protocol.line import TELEMETRY_LINE_SHARE, max_telemetry_hz, telemetry_bytes_per_s
 from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M, SCHEMA
 from protocol.reasons import Reason
@@ -119,19 +122,48 @@ def test_hal_silence_is_a_fault(bench):
 def test_telemetry_rate_is_set_over_the_link(bench):
     def count(name):
         return sum(1 for m in bench.telemetry if m.spec.name == name)
-    # 40 Hz: TelemetryStatus (96 B on the wire) and TelemetryJoints (154 B) take 10 kB/s, 87 % of the 115200-baud
-    # line's 11.52 kB/s (at 50 Hz they would need 108 %: the link's bounded telemetry queue drops the excess)
-    assert bench.call(M["SetTelemetryRate"](40)).ok
+    # 30 Hz, the most a 115200-baud line carries (protocol/line.py): TelemetryStatus (96 B on the wire) and
+    # TelemetryJoints (154 B) take 7.5 kB/s, with TelemetryTracker's 10 Hz (158 B) 9.08 kB/s, within the 80 % of the
+    # line's 11.52 kB/s telemetry may take
+    assert bench.call(M["SetTelemetryRate"](30)).ok
     start, start_joints = count("TelemetryStatus"), count("TelemetryJoints")
     bench.run_for(1.0)
-    assert 36 <= count("TelemetryStatus") - start <= 41
-    assert 36 <= count("TelemetryJoints") - start_joints <= 41   # the arm's, at the same rate
+    assert 27 <= count("TelemetryStatus") - start <= 31
+    assert 27 <= count("TelemetryJoints") - start_joints <= 31   # the arm's, at the same rate
     assert bench.call(M["SetTelemetryRate"](0)).ok
     start = len(bench.telemetry)
     bench.run_for(1.0)
     assert len(bench.telemetry) - start <= 2
     refused = bench.call(M["SetTelemetryRate"](201))
     assert refused.reason is Reason.OUT_OF_RANGE and "rate_hz=201" in refused.detail   # refused by the host
+
+
+@pytest.mark.parametrize("baud, most", [(9600, 1), (115200, 30), (460800, 141)])
+def test_a_telemetry_rate_the_line_cannot_carry_is_refused(baud, most):
+    """docs/protocol.md, "Line timing": rate_hz counts each kind of telemetry message; a rate whose frames need more
+    than TELEMETRY_LINE_SHARE of the line at the controller's baud is refused OUT_OF_RANGE, the rate unchanged."""
+    assert max_telemetry_hz(baud) == most
+    assert telemetry_bytes_per_s(most) <= baud / 10 * TELEMETRY_LINE_SHARE < telemetry_bytes_per_s(most + 1)
+    bench = LockstepBench(seed=5, baud=baud)
+    try:
+        assert bench.connect()
+        assert bench.controller.max_telemetry_hz == most
+        refused = bench.call(M["SetTelemetryRate"](most + 1))
+        assert refused.reason is Reason.OUT_OF_RANGE and refused.reply.spec.name == "Result"
+        assert bench.controller.telemetry_hz == int(bench.controller.params["telemetry_hz"])
+        assert bench.call(M["SetTelemetryRate"](most)).ok and bench.controller.telemetry_hz == most
+    finally:
+        bench.close()
+
+
+def test_an_unpaced_line_has_no_telemetry_limit():
+    bench = LockstepBench(seed=5, paced=False)
+    try:
+        assert bench.connect()
+        assert bench.controller.max_telemetry_hz is None
+        assert bench.call(M["SetTelemetryRate"](200)).ok and bench.controller.telemetry_hz == 200
+    finally:
+        bench.close()
 
 
 def test_the_controller_refuses_out_of_range_values_that_reach_the_wire(bench):

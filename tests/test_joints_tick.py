@@ -119,7 +119,7 @@ def run_world(session: Callable[[LockstepBench], dict], seed: int, compiled: boo
     hal.send_motor_command = record
     try:
         assert bench.connect()
-        assert bench.call(M["SetTelemetryRate"](50)).ok
+        assert bench.call(M["SetTelemetryRate"](30)).ok
         run.seen = session(bench)
         run.joints = [snapshot(arm.joints[n]) for n in JOINTS]
         run.handed_back = arm.bank.handed_back

@@ -43,12 +43,34 @@ def test_the_document_states_the_rules_with_the_constants_of_the_code():
     rules = section("Refusals, sequence numbers and limits, exactly")
     flat = rules.replace("\n", " ")
     assert f"{NOTHING_RECEIVED_ACK} (`protocol/reliable.py` `NOTHING_RECEIVED_ACK`" in flat
-    assert f"last {REPLY_CACHE_SIZE} sequence numbers" in flat
-    assert f"window ({LinkConfig.window} in flight" in flat
+    assert f"among the last {REPLY_CACHE_SIZE} it answered (`protocol/reliable.py` `REPLY_CACHE_SIZE`)" in flat
+    assert f"the command window, {LinkConfig.window} (`LinkConfig.window`" in flat
     assert "`<axis>_speed_dps`" in flat and "0..360" in flat
-    for nak in ("UNKNOWN_MESSAGE", "WRONG_DIRECTION", "SEQUENCE_GAP", "REPLAY"):
-        assert f"`{nak}`" in flat
     assert "Only a reply uses up a sequence number" in flat
+    numbers = [int(n) for n in re.findall(r"\*\*Rule (\d+)\.", rules)]
+    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) >= 10
+
+
+def test_the_nak_table_lists_every_reason_the_link_sends():
+    """Rule 10: every NAK reason the link sends (docs/vectors/refusals.json has one of each), and the fields a NAK
+    refused for its header leaves empty."""
+    rules = section("Refusals, sequence numbers and limits, exactly")
+    table = {row.split("|")[1].strip(" `") for row in rules.splitlines() if row.startswith("| `")}
+    sent = {"UNSUPPORTED_VERSION", "UNSUPPORTED_FLAGS", "BAD_LENGTH", "UNAUTHENTICATED", "BAD_MAC", "NO_SESSION",
+            "UNKNOWN_MESSAGE", "WRONG_DIRECTION", "OUT_OF_RANGE", "SEQUENCE_GAP", "REPLAY", "SESSION_CLOSED"}
+    assert table == sent and {r.name for r in Reason} >= sent
+    flat = " ".join(rules.split())
+    assert "`expected_seq`** is set only in `SEQUENCE_GAP`, `REPLAY` and `SESSION_CLOSED` NAKs" in flat
+    assert f"at most {LinkConfig.nak_rate_per_s:g} of them a second (`LinkConfig.nak_rate_per_s`" in flat
+    assert "names nothing: `refused_class`, `refused_seq`, `refused_msg` are 0" in flat
+    assert "every NAK echoes" not in DOC
+
+
+def test_the_line_timing_table_is_the_controllers_limit():
+    from protocol.line import BAUD_RATES, max_telemetry_hz
+    timing = section("Line timing")
+    for baud in BAUD_RATES:
+        assert re.search(rf"^\| {baud} \| .* \| {max_telemetry_hz(baud)} \|$", timing, re.M), baud
 
 
 def test_a_handshake_frame_acknowledges_nothing_and_the_box_reads_without_power():

@@ -315,3 +315,54 @@ def test_the_plot_has_a_panel_for_what_the_session_carried_and_marks_its_faults(
     assert main(["log", str(lost), "--plot", str(png)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert SessionPlot().panels() == ["link"]
+
+
+def test_the_capture_format_is_as_sessions_md_says(tmp_path):
+    """docs/sessions.md, "The capture format", read with struct alone: the blocks and their options, the link type,
+    the direction bits, the time base (if_tsresol 9, if_tsoffset) and the section comment's grammar."""
+    import json
+    import re
+    path = tmp_path / "doc.pcapng"
+    writer = CaptureWriter.create(path, SessionInfo(clock="paced", tool="aspod sim", seed=3), started_s=1_800_000_000.7)
+    frame = encode_signed(MsgClass.LINK, 0, 0, SCHEMA["Ack"].id, b"", bytes(32), 1)[0]
+    writer.write("link", H2C, frame, 1.5)
+    writer.write("link", C2H, frame + frame, 2.25)
+    writer.close()
+    data, blocks, at = path.read_bytes(), [], 0
+    while at < len(data):
+        kind, total = struct.unpack_from("<II", data, at)
+        assert struct.unpack_from("<I", data, at + total - 4)[0] == total and total % 4 == 0
+        blocks.append((kind, data[at + 8:at + total - 4]))
+        at += total
+
+    def options(body: bytes, at: int) -> dict:
+        found = {}
+        while True:
+            code, size = struct.unpack_from("<HH", body, at)
+            if code == 0:
+                return found
+            found[code] = body[at + 4:at + 4 + size]
+            at += 4 + size + (-size % 4)
+    assert [k for k, _ in blocks] == [0x0A0D0D0A, 1, 6, 6, 6]
+    shb = blocks[0][1]
+    assert struct.unpack_from("<IHHq", shb) == (0x1A2B3C4D, 1, 0, -1)
+    shb_options = options(shb, 16)
+    assert shb_options[4] == b"aspod sim"
+    comment = shb_options[1].decode()
+    match = re.fullmatch(r"aspod-session (\{.*\})", comment)
+    doc = json.loads(match.group(1))
+    assert set(doc) == {"format", "protocol_version", "schema_hash", "clock", "tool", "seed", "settings"}
+    assert doc["format"] == 1 and doc["clock"] == "paced" and re.fullmatch(r"[0-9a-f]{16}", doc["schema_hash"])
+    assert list(doc) == sorted(doc) and "\n" not in comment
+    idb = blocks[1][1]
+    assert struct.unpack_from("<HHI", idb) == (147, 0, 0)
+    idb_options = options(idb, 8)
+    assert idb_options[2] == b"link" and idb_options[9] == bytes([9])
+    assert struct.unpack("<q", idb_options[14])[0] == 1_800_000_000
+    packets = []
+    for _, body in blocks[2:]:
+        iface, high, low, captured, original = struct.unpack_from("<IIIII", body)
+        flags = struct.unpack("<I", options(body, 20 + captured + (-captured % 4))[2])[0]
+        packets.append((iface, ((high << 32) | low) / 1e9, body[20:20 + captured], original, flags))
+    assert [(p[1], p[4]) for p in packets] == [(1.5, 2), (2.25, 1), (2.25, 1)]    # 2 outbound, 1 inbound
+    assert all(p[2] == frame[1:-1] and p[3] == len(frame) - 2 and b"\x00" not in p[2] for p in packets)

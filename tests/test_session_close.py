@@ -124,7 +124,7 @@ def test_a_close_whose_answer_is_lost_still_ends_cleanly_and_runs_once():
 
 
 def test_the_controller_says_nothing_more_after_the_close_and_does_not_watch_the_link(bench):
-    assert bench.call(M["SetTelemetryRate"](50)).ok
+    assert bench.call(M["SetTelemetryRate"](30)).ok
     assert bench.call(M["Enable"]()).ok
     assert bench.close_session(CloseWhy.STOPPED)
     telemetry = len(bench.telemetry)

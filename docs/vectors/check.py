@@ -8,8 +8,8 @@ and no third-party package: COBS, CRC-32, HMAC-SHA256 (on hashlib's SHA-256) and
 written out below, each as the documents and the RFCs describe it. Every byte of every vector is recomputed
 from its inputs (the key, the nonces, the header's fields, the message's fields) and compared: a difference
 is printed, and the exit status is 1. A third-party implementation can do the same with its own code in place
-of these functions. Where the documents leave something to be guessed, the check says so (`DOC GAP`, and
-docs/vectors/README.md).
+of these functions. Where the documents left something to be guessed, the check said so (`DOC GAP`; none is left:
+docs/vectors/README.md says where protocol.md now says each).
 """
 from __future__ import annotations
 
@@ -35,9 +35,9 @@ def cobs_encode(data: bytes) -> bytes:
     """Each block is a code byte (1 + the number of non-zero bytes that follow, at most 254 of them) and those
     bytes; a code below 0xFF stands for a zero after them, except at the very end.
 
-    DOC GAP (protocol.md, "Framing", says only "Consistent Overhead Byte Stuffing"): data that ends with a full
-    block of 254 non-zero bytes gets no final 0x01 here, as the `cobs` package the emulator uses (and Wikipedia's
-    description) encode it; the paper's own code appends one. Decoders take either; the bytes differ."""
+    protocol.md, "Framing": data that ends with a full block of 254 non-zero bytes gets no final 0x01 (as the
+    `cobs` package the emulator uses, and Wikipedia's description, encode it; the paper's own code appends one).
+    Decoders take either; the bytes differ."""
     out = bytearray()
     block = bytearray()
     full = False                  # the last block written was a full one (code 0xFF), nothing since
@@ -263,7 +263,7 @@ def check_sequence_numbers(session: list[dict]) -> None:
             expect(hd["seq"] == 0, f"{where}: a LINK frame's seq")
             continue
         if hd["class"] == 3:
-            # telemetry counts on for the endpoint's life; DOC GAP: from which number is not said (the first is 1)
+            # telemetry counts on for the endpoint's life, from 1 (protocol.md, rule 8)
             continue
         request = v["direction"] == "host -> controller"
         if request or hd["class"] == 4:            # a new number of its stream: the next one
@@ -297,8 +297,8 @@ def check_refusal(r: dict, keys: dict[str, dict]) -> None:
     expect(nak["reason"] == r["code"], f"{where}: NAK reason {nak['reason']}")
     problem = frame_problem(raw)
     if problem:
-        # DOC GAP: protocol.md does not say what a NAK of a frame whose header is refused names; the link names
-        # nothing (class, seq, message id 0, tag zeros).
+        # protocol.md, rule 10: a NAK of a frame refused for its header names nothing (class, seq, message id 0,
+        # tag zeros).
         expect(problem == r["reason"], f"{where}: the frame's header is refused for {problem}")
         expect((nak["refused_class"], nak["refused_seq"], nak["refused_msg"], nak["refused_tag"]) ==
                (0, 0, 0, "00" * 8), f"{where}: the NAK of a refused header names something")

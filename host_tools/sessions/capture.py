@@ -130,7 +130,9 @@ class CaptureWriter:
         self._pending = pending
         self._stream = stream
         self.failed = False
-        self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=f"aspod {info.tool}".strip())
+        # the tools name themselves `aspod sim`, ...: not `aspod aspod sim` (a bench's `vectors` gets the prefix)
+        application = info.tool if info.tool.startswith("aspod") else f"aspod {info.tool}".strip()
+        self._pcap = PcapngWriter(stream, comment=info.to_comment(), application=application)
         # On a world's clock (simulated, paced) the times written are the session's own, from 0: the wall-clock second
         # it began (now, unless told) is each interface's if_tsoffset, so Wireshark shows the day and hour (1970
         # without it) while the times stay the session's. On the wall clock they are Unix time already.
