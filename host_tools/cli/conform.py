@@ -1,0 +1,116 @@
+"""`aspod conform URL`: the conformance suite (host_tools/conform/) against any controller speaking the link
+protocol: a simulator on a pty or TCP, or a controller's firmware on a serial device.
+
+    aspod conform /dev/pts/5                         every check; the simulator's own key, found from the URL
+    aspod conform socket://127.0.0.1:40123 --skip-slow --junit conform.xml
+    aspod conform /dev/ttyUSB0 --baud 115200 --key-file robot.key --only handshake --only nak-echo
+
+One line per check (PASS, FAIL or SKIP, its name, its level and the section of docs/protocol.md it tests; a
+failure says what was expected and what came), then a summary. No check drives an output unless given
+--allow-motion. Exit status: 0 every MUST passed, 1 a MUST failed, 2 bad usage, 3 the link cannot be opened or no
+controller answers under the key (docs/conformance.md).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from host_tools.cli.options import add_link_args
+from host_tools.exit_codes import EXIT_FAILED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+
+log = logging.getLogger("aspod")
+
+EXAMPLES = [
+    "aspod conform /dev/pts/5",
+    "aspod conform socket://127.0.0.1:40123 --skip-slow --junit conform.xml",
+    "aspod conform /dev/ttyUSB0 --key-file robot.key --baud 115200",
+    "aspod conform /dev/pts/5 --only handshake --only nak-echo",
+    "aspod conform --list",
+]
+
+
+def add_options(conform: argparse.ArgumentParser) -> None:
+    conform.add_argument("url", nargs="?", default=None, metavar="URL",
+                         help="the controller's link: a device (/dev/pts/N, /dev/ttyUSB0) or a pyserial URL "
+                              "(socket://HOST:PORT)")
+    add_link_args(conform)
+    conform.add_argument("--allow-motion", action="store_true",
+                         help="also run the checks that drive outputs (Enable); without it none is sent")
+    conform.add_argument("--skip-slow", action="store_true",
+                         help="skip the slow checks (the link-loss failsafe waits out the link timeout; telemetry "
+                              "and heartbeat rates are measured over seconds)")
+    conform.add_argument("--only", action="append", default=[], metavar="NAME",
+                         help="run only this check (repeatable; --list names them); the handshake runs first")
+    conform.add_argument("--junit", type=Path, default=None, metavar="FILE.xml",
+                         help="also write the results as JUnit XML (for CI), whole or not at all")
+    conform.add_argument("--list", action="store_true", help="list the checks and the sections they test, and exit")
+
+
+def _selected(names: list[str]):
+    from host_tools.conform.checks import CHECKS, by_name
+    unknown = [n for n in names if n not in by_name()]
+    if unknown:
+        raise ValueError(f"--only: no check named {', '.join(unknown)}; the checks: "
+                         f"{', '.join(c.name for c in CHECKS)}")
+    if not names:
+        return list(CHECKS)
+    wanted = set(names) | {"handshake"}
+    return [c for c in CHECKS if c.name in wanted]
+
+
+def run(args: argparse.Namespace) -> int:
+    from host_tools.conform.checks import CHECKS, Options
+    if args.list:
+        for c in CHECKS:
+            marks = ", ".join(m for m, on in (("slow", c.slow), ("motion", c.motion)) if on)
+            print(f"{c.name} ({c.level}, {c.cites}{', ' + marks if marks else ''}): {c.what}")
+        return EXIT_OK
+    if args.url is None:
+        log.error("aspod conform: give the controller's link URL (aspod ports lists your simulators)")
+        return EXIT_USAGE
+    from host_tools.cli.settings import claims
+    from host_tools.conform.junit import JUNIT
+    checks = _selected(args.only)
+    junit = claims(args).file(args.junit, "--junit", JUNIT)
+    from host_tools.cli.main import host_key
+    psk = host_key(args.key_file, args.url)
+    from protocol.errors import LinkError
+    from host_tools.conform.probe import Probe
+    from host_tools.conform.runner import FAIL, PASS, SKIP, run_checks
+    try:
+        probe = Probe(args.url, psk, args.baud)
+    except LinkError as exc:
+        log.error(f"aspod conform: {exc}")
+        return EXIT_LINK
+    started = probe.now()
+    print(f"aspod conform {args.url}: {len(checks)} checks"
+          f"{'' if args.allow_motion else ' (no motion: --allow-motion to drive outputs)'}", flush=True)
+
+    def report(result) -> None:
+        print("\n".join(result.lines()), flush=True)
+
+    try:
+        results = run_checks(probe, checks, Options(args.allow_motion, args.skip_slow), report)
+        if probe.up:
+            probe.link.close(probe.now())
+            probe.pump()
+            probe.until(lambda: not probe.up and probe.link.state.value != "closing", 5.0)
+        answered = probe.link.handshake_seen.verified > 0 or probe.link.sessions_started > 0
+    finally:
+        probe.close()
+    elapsed_s = probe.now() - started
+    counts = {s: sum(r.status == s for r in results) for s in (PASS, FAIL, SKIP)}
+    musts = sum(r.failed_must for r in results)
+    print(f"{len(results)} checks in {elapsed_s:.1f} s: {counts[PASS]} passed, {counts[FAIL]} failed "
+          f"({musts} MUST), {counts[SKIP]} skipped")
+    if junit is not None:
+        from host_tools.conform.junit import junit_xml
+        junit.write_text(junit_xml(results, args.url, elapsed_s))
+        print(f"wrote {junit}")
+    sys.stdout.flush()
+    if not answered:
+        log.error(f"aspod conform: no controller answered on {args.url} under this key (--key-file)")
+        return EXIT_LINK
+    return EXIT_FAILED if musts else EXIT_OK
