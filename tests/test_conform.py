@@ -9,7 +9,6 @@ judges the link, not the emulator's plant.
 from __future__ import annotations
 
 import os
-import selectors
 import socket
 import struct
 import sys
@@ -20,158 +19,48 @@ from typing import Optional
 
 import pytest
 
+from protocol import auth
 from protocol.controller_link import ControllerLink
 from protocol.errors import ParseError
 from protocol.framing import Frame, FrameReceiver
 from protocol.link import PRIO_RELIABLE, LinkConfig
 from protocol.messages import SCHEMA
-from protocol.reasons import Reason
 from protocol.reliable import Verdict
-from protocol.schema import Message, MsgClass
-from protocol.states import ControllerState, Fault
-from timebase import RealClock
+from protocol.schema import MsgClass
 from host_tools.cli.main import main
 from host_tools.conform import checks as conform_checks
 from host_tools.conform.checks import CHECKS, SECTIONS, Options, by_name
+from host_tools.conform.controller import PlayedController
+from host_tools.conform.host_checks import HOST_CHECKS, judge_host, watch_host
 from host_tools.conform.junit import junit_xml
 from host_tools.conform.probe import Probe
 from host_tools.conform.runner import FAIL, PASS, SKIP, run_checks
 from host_tools.worlds.child import Child, run
+from host_tools.worlds.ports import TcpServerPort
 
 ROOT = Path(__file__).resolve().parent.parent
 KEY = bytes(range(32))
-M = SCHEMA
 
 
 # ---- a controller of the link alone, on TCP, in this process --------------------------------------------------
 
 class Toy:
-    """A `ControllerLink` (or `link_class`) with a small application: Ping, Status, Reset, Enable, Disable, telemetry
-    at its rate, one parameter, EStop, Stop, Close; the link's loss latches LINK_LOST (unless `failsafe` is False).
-    Served on 127.0.0.1 by a thread, one connection at a time, on the wall clock (`RealClock`)."""
+    """conform's own `PlayedController` (a `ControllerLink`, or `link_class`, with a small application), served on
+    a TCP port by a thread of this process: 1 s link timeout, 0.3 s heartbeats."""
 
     def __init__(self, link_class=ControllerLink, failsafe: bool = True, receiver: Optional[FrameReceiver] = None):
-        self.clock = RealClock()
-        self.started_s = self.clock.now()
-        self.state, self.faults = ControllerState.IDLE, 0
-        self.telemetry_hz, self.gain = 10, 1.0
-        self.failsafe = failsafe
-        self.link = link_class(KEY, self.execute, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0),
-                               on_link_lost=self.lost)
-        if receiver is not None:
-            self.link._rx = receiver
-        self.listener = socket.create_server(("127.0.0.1", 0))
-        self.url = f"socket://127.0.0.1:{self.listener.getsockname()[1]}"
+        self.played = PlayedController(KEY, link_class, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0),
+                                       failsafe=failsafe, receiver=receiver)
+        self.port = TcpServerPort(0)
+        self.url = self.port.url
         self._stop = False
-        self._telemetry_due = 0.0
-        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread = threading.Thread(target=self.played.serve, args=(self.port, lambda: self._stop), daemon=True)
         self._thread.start()
-
-    def uptime_ms(self) -> int:
-        return int((self.clock.now() - self.started_s) * 1000)
-
-    def _change(self, state: ControllerState, reason: Reason) -> None:
-        old, self.state = self.state, state
-        self.link.send_event(M["StateChanged"].type(int(state), int(old), int(reason), self.faults, self.uptime_ms()))
-
-    def lost(self, now: float) -> None:
-        if self.failsafe:
-            self.faults |= Fault.LINK_LOST
-            self._change(ControllerState.FAULT, Reason.LINK_TIMEOUT)
-
-    def execute(self, msg: Message, urgent: bool, now: float) -> Message:
-        name, ok = msg.spec.name, int(Reason.OK)
-        if name == "Ping":
-            return M["Pong"].type(ok, msg.token, self.uptime_ms())
-        if name == "GetStatus":
-            return M["Status"].type(ok, int(self.state), self.faults, 0, self.uptime_ms(), 28.0, 25.0,
-                                    self.link.commands_executed, self.telemetry_hz, 0, 0.0, 0.0, 0.0)
-        if name == "SetTelemetryRate":
-            self.telemetry_hz = msg.rate_hz
-            return M["Result"].type(ok)
-        if name in ("ParamList", "ParamGet", "ParamSet"):
-            if (name == "ParamList" and msg.index != 0) or (name != "ParamList" and msg.name != "toy_gain"):
-                reason = Reason.OUT_OF_RANGE if name == "ParamList" else Reason.UNKNOWN_PARAM
-                return M["ParamValue"].type(int(reason), "", 0.0, 0.0, 0.0, 0, 1, "", "")
-            reason = Reason.OK
-            if name == "ParamSet":
-                if 0.0 <= msg.value <= 10.0:
-                    self.gain = msg.value
-                else:
-                    reason = Reason.OUT_OF_RANGE
-            return M["ParamValue"].type(int(reason), "toy_gain", self.gain, 0.0, 10.0, 0, 1, "", "a number")
-        if name == "EStop":
-            self.faults |= Fault.ESTOP
-            self._change(ControllerState.ESTOP, Reason.HOST_REQUEST)
-            return M["Result"].type(ok)
-        if name == "Reset":
-            self.faults = 0
-            if self.state is not ControllerState.IDLE:
-                self._change(ControllerState.IDLE, Reason.HOST_REQUEST)
-            return M["Result"].type(ok)
-        if name in ("Enable", "Disable"):
-            state = ControllerState.ENABLED if name == "Enable" else ControllerState.IDLE
-            if self.state in (ControllerState.IDLE, ControllerState.ENABLED) and state is not self.state:
-                self._change(state, Reason.HOST_REQUEST)
-            return M["Result"].type(ok if self.state is state else int(Reason.NOT_ALLOWED_IN_STATE))
-        if name == "Stop":
-            return M["Result"].type(ok)
-        if name == "Close":
-            if self.state is ControllerState.ENABLED:
-                self._change(ControllerState.IDLE, Reason.HOST_REQUEST)
-            self.telemetry_hz = 10
-            self.link.send_event(M["SessionClosed"].type(msg.why, int(self.state), self.faults, self.uptime_ms()))
-            self.link.close_session()
-            return M["Closed"].type(ok, int(self.state), self.faults, self.link.last_event_seq, 1000)
-        return M["Result"].type(int(Reason.NOT_ALLOWED_IN_STATE))
-
-    def _telemetry(self, now: float) -> None:
-        if self.telemetry_hz == 0 or self.link.quiet or self.link.session is None or now < self._telemetry_due:
-            return
-        self._telemetry_due = max(self._telemetry_due + 1.0 / self.telemetry_hz, now - 0.5)
-        self.link.send_telemetry(M["TelemetryStatus"].type(
-            self.uptime_ms(), int(self.state), 0, self.faults, 28.0, 25.0, self.link.commands_executed,
-            0, 0, 0, 0, 0, 0, 0, 0, 0.0, 0.0))
-
-    def _serve(self) -> None:
-        self.listener.settimeout(0.05)
-        while not self._stop:
-            try:
-                conn, _ = self.listener.accept()
-            except OSError:
-                continue
-            with conn:
-                conn.setblocking(False)
-                selector = selectors.DefaultSelector()
-                selector.register(conn, selectors.EVENT_READ)
-                while not self._stop:
-                    data = b""
-                    if selector.select(0.001):
-                        try:
-                            data = conn.recv(4096)
-                        except BlockingIOError:
-                            pass
-                        except OSError:
-                            break
-                        if not data:
-                            break
-                    now = self.clock.now()
-                    if data:
-                        self.link.feed(data, now)
-                    self.link.poll(now)
-                    self._telemetry(now)
-                    out = self.link.take_all(now)
-                    if out:
-                        try:
-                            conn.sendall(out)
-                        except OSError:
-                            break
-                selector.close()
 
     def close(self) -> None:
         self._stop = True
         self._thread.join(5.0)
-        self.listener.close()
+        self.port.close()
 
 
 # ---- the broken variants: each breaks one rule ----------------------------------------------------------------
@@ -404,6 +293,61 @@ def test_the_probe_refuses_a_bad_url():
 
 def test_the_conformance_page_names_every_check_with_its_section():
     page = (ROOT / "docs" / "conformance.md").read_text()
-    for check in CHECKS:
+    for check in CHECKS + HOST_CHECKS:
         row = next((line for line in page.splitlines() if line.startswith(f"| `{check.name}`")), None)
         assert row is not None and f"| {check.section} |" in row, check.name
+
+
+# ---- --host: conform plays the controller, a host is judged ------------------------------------------------------
+
+def _host_session(url: str, key: bytes) -> None:
+    """A host's ordinary work: connect, a Ping, an EStop and its Reset, a clean close."""
+    from host_tools.client.live import HostClient
+    client = HostClient(url, key)
+    try:
+        client.connect()
+        for msg in (SCHEMA["Ping"].type(7), SCHEMA["EStop"].type(), SCHEMA["Reset"].type()):
+            assert client.call(msg, 10.0).ok
+    finally:
+        client.close()
+
+
+@pytest.mark.pty
+def test_conform_host_judges_a_good_host_and_passes_it(env, tmp_path):
+    child = Child(["conform", "--host", "--tcp", "0", "--wait", "20", "--junit", str(tmp_path / "host.xml")],
+                  env=env)
+    try:
+        url = child.ready("ASPOD-LINK ").split(" ", 1)[1]
+        key = auth.load_key(child.ready("ASPOD-KEY ").split(" ", 1)[1])
+        _host_session(url, key)
+        status = child.wait_exit(60.0)
+        out = child.proc.stdout.read().decode()
+    finally:
+        child.stop(timeout_s=10)
+    assert status == 0, out
+    for check in HOST_CHECKS:
+        assert f"PASS {check.name} ({check.level}, {check.cites})" in out, (check.name, out)
+    cases = ET.parse(tmp_path / "host.xml").getroot().find("testsuite").findall("testcase")
+    assert [c.get("name") for c in cases] == [c.name for c in HOST_CHECKS]
+
+
+@pytest.mark.realtime
+def test_conform_host_catches_a_host_that_never_acknowledges_events(monkeypatch):
+    from protocol.host_link import HostLink
+    from protocol.reliable import NOTHING_RECEIVED_ACK
+    monkeypatch.setattr(HostLink, "_ack_value", lambda self: NOTHING_RECEIVED_ACK)
+    monkeypatch.setattr(HostLink, "_event", lambda self, frame, spec, now: None)
+    port = TcpServerPort(0)
+    watched = []
+    server = threading.Thread(target=lambda: watched.append(watch_host(
+        port, KEY, 10.0, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0))), daemon=True)
+    server.start()
+    try:
+        _host_session(port.url, KEY)
+        server.join(30.0)
+    finally:
+        port.close()
+    results = {r.check.name: r for r in judge_host(watched[0])}
+    assert results["host-acks-events"].status == FAIL, results["host-acks-events"].lines()
+    assert results["host-authenticates"].status == PASS
+    assert results["host-commands-in-order"].status == PASS
