@@ -25,6 +25,7 @@ from protocol.errors import ParseError
 from protocol.framing import Frame, FrameReceiver
 from protocol.link import PRIO_RELIABLE, LinkConfig
 from protocol.messages import SCHEMA
+from protocol.reasons import Reason
 from protocol.reliable import Verdict
 from protocol.schema import MsgClass
 from host_tools.cli.main import main
@@ -48,8 +49,9 @@ class Toy:
     """conform's own `PlayedController` (a `ControllerLink`, or `link_class`, with a small application), served on
     a TCP port by a thread of this process: 1 s link timeout, 0.3 s heartbeats."""
 
-    def __init__(self, link_class=ControllerLink, failsafe: bool = True, receiver: Optional[FrameReceiver] = None):
-        self.played = PlayedController(KEY, link_class, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0),
+    def __init__(self, link_class=ControllerLink, failsafe: bool = True, receiver: Optional[FrameReceiver] = None,
+                 played_class=PlayedController):
+        self.played = played_class(KEY, link_class, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0),
                                        failsafe=failsafe, receiver=receiver)
         self.port = TcpServerPort(0)
         self.url = self.port.url
@@ -124,6 +126,15 @@ class LateResync(FrameReceiver):
                 continue
             out.append(item)
         return out
+
+
+class SlowLine(PlayedController):
+    """Refuses telemetry above 2 Hz (as a controller on a slow line may, with a reason)."""
+
+    def execute(self, msg, urgent, now):
+        if msg.spec.name == "SetTelemetryRate" and msg.rate_hz > 2:
+            return SCHEMA["Result"].type(int(Reason.OUT_OF_RANGE))
+        return super().execute(msg, urgent, now)
 
 
 def _run(toy: Toy, names: list[str], options: Options = Options()) -> dict[str, object]:
@@ -351,3 +362,9 @@ def test_conform_host_catches_a_host_that_never_acknowledges_events(monkeypatch)
     assert results["host-acks-events"].status == FAIL, results["host-acks-events"].lines()
     assert results["host-authenticates"].status == PASS
     assert results["host-commands-in-order"].status == PASS
+
+
+@pytest.mark.realtime
+def test_a_telemetry_rate_refused_for_the_line_is_measured_at_a_lower_one(toy_factory):
+    result = _run(toy_factory(played_class=SlowLine), ["telemetry-rate"])["telemetry-rate"]
+    assert result.status == PASS and "asked 2" in result.detail, result.lines()
