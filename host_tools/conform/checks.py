@@ -593,13 +593,18 @@ def link_loss_failsafe(ctx: Context) -> str:
                "after the last frame", f"the event here {waited_s:.3f} s after that frame was sent")
         expect(silent_s <= most_s, f"the safe state within {most_s:g} s of the last frame (the controller's "
                f"uptime: the link timeout {timeout_s:g} s, 20 % and {LOSS_SLACK_S:g} s)", f"{silent_s:.3f} s")
+        # then quiet: no telemetry made after the safe state (by its uptime), and no heartbeat once what was queued
+        # on the line before it has drained (a heartbeat period: 9600 baud carries about 1 kB a second)
         quiet_from = len(p.seen)
         heartbeat_s = ctx.info.heartbeat_ms / 1000.0
-        p.until(lambda: False, 2 * heartbeat_s + 0.2)
-        periodic = [s for s in p.seen[quiet_from:] if s.key == "session" and s.frame is not None and (
-            s.name == "Heartbeat" or s.frame.cls == MsgClass.TELEMETRY)]
-        expect(len(periodic) <= 1, "no heartbeats or telemetry while the host is gone",
-               f"{len(periodic)} in {2 * heartbeat_s:g} s")
+        p.until(lambda: False, 3 * heartbeat_s)
+        made_after = [s for s in p.seen[quiet_from:] if s.key == "session" and s.name == "TelemetryStatus"
+                      and s.msg.uptime_ms > lost.msg.uptime_ms + 100]
+        beats = [s for s in p.seen[quiet_from:] if s.key == "session" and s.name == "Heartbeat"
+                 and s.time_s >= lost.time_s + heartbeat_s]
+        expect(not made_after and not beats, "no heartbeats or telemetry while the host is gone",
+               f"{len(made_after)} TelemetryStatus made after the safe state, {len(beats)} Heartbeat(s) from "
+               f"{heartbeat_s:g} s to {3 * heartbeat_s:g} s after it")
     finally:
         p.mute = False
     status = ctx.status()
