@@ -23,7 +23,7 @@ from protocol import auth
 from protocol.controller_link import ControllerLink
 from protocol.errors import ParseError
 from protocol.framing import Frame, FrameReceiver
-from protocol.link import PRIO_RELIABLE, LinkConfig
+from protocol.link import PRIO_RELIABLE, LinkConfig, TokenBucket
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import Verdict
@@ -95,6 +95,14 @@ class RunsDuplicates(ControllerLink):
             self._queue(PRIO_RELIABLE, frame.cls, frame.seq, reply.spec.id, reply.spec.encode(reply))
             return
         super()._handle(frame, spec, now)
+
+
+class NaksEveryFrame(ControllerLink):
+    """Answers every unauthenticated frame with a NAK, however many come (no rate limit)."""
+
+    def __init__(self, *args, **kw) -> None:
+        super().__init__(*args, **kw)
+        self._naks = TokenBucket(1e6, 1e6)
 
 
 class IgnoresLinkTimeout(ControllerLink):
@@ -171,6 +179,7 @@ def test_the_toy_controller_passes_every_check(toy_factory):
     ("answers a replayed frame", dict(link_class=AnswersReplays), ["replay-dropped"]),
     ("NAKs without the echo", dict(link_class=NaksWithoutEcho), ["nak-echo"]),
     ("runs a duplicate twice", dict(link_class=RunsDuplicates), ["duplicate-from-cache"]),
+    ("NAKs every unsigned frame", dict(link_class=NaksEveryFrame), ["garbage-bounded"]),
     ("ignores the link timeout", dict(link_class=IgnoresLinkTimeout, failsafe=False), ["link-loss-failsafe"]),
     ("resynchronises a frame late", dict(receiver=LateResync()), ["framing-resync-garbage", "framing-resync-torn"]),
 ])

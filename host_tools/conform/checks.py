@@ -21,7 +21,7 @@ from typing import Callable, Optional
 from protocol import auth
 from protocol.framing import COUNTER_MAX, FLAG_AUTH, TAG_SIZE, decode_frame
 from protocol.host_link import CommandHandle
-from protocol.link import NAK_TAG_BYTES, LinkState
+from protocol.link import NAK_TAG_BYTES, LinkConfig, LinkState
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import REPLY_CACHE_SIZE
@@ -44,6 +44,8 @@ MUST, SHOULD = "MUST", "SHOULD"
 REPLY_BOUND_S = 10.0          # an answer not here in this long will not come (a retry limit ends sooner)
 RATE_TOLERANCE = 0.2          # telemetry at a set rate: within 20 %
 RATE_SPAN_MS = 3000           # measured over this much of the controller's uptime
+GARBAGE_FRAMES = 40          # unsigned frames sent at once
+NAK_RATE_PER_S = int(LinkConfig.nak_rate_per_s)     # answers to unsigned or malformed frames a second (protocol.md)
 TELEMETRY_RATES_HZ = (5, 2, 1)  # the telemetry rate tried: the first the controller takes
 LOSS_SLACK_S = 0.5            # the link-loss failsafe: within the link timeout plus 20 % and this
 
@@ -433,6 +435,36 @@ def forgery_refused(ctx: Context) -> str:
     expect_pong(answer, 0xF0F1, "(the genuine frame's: the forged ones never ran)")
     ctx.expect_executed(before, 2, "the genuine Ping, one GetStatus")
     return "refused, and the counter not committed"
+
+
+@check("garbage-bounded", CLASSES, f"{GARBAGE_FRAMES} unsigned frames at once get at most {NAK_RATE_PER_S} NAKs a "
+       "second (a burst of as many), all UNAUTHENTICATED, and change nothing: garbage cannot make the controller "
+       "flood the line, reset or stop")
+def garbage_bounded(ctx: Context) -> str:
+    p = ctx.probe
+    ctx.session()
+    before = ctx.status()
+    ping = SCHEMA["Ping"]
+    payload = ping.encode(ping.type(0x6A6A))
+    seq = p.next_command_seq
+    mark = len(p.seen)
+    p.write(b"".join(p.made(MsgClass.COMMAND, seq, ping.id, payload, flags=0) for _ in range(GARBAGE_FRAMES)))
+    pong = ctx.ping(0x6A6B)                  # the NAKs the burst gets come before this answer
+    naks = p.since(mark, MsgClass.LINK, "Nak")
+    elapsed_s = max(0, pong.uptime_ms - before.uptime_ms) / 1000.0
+    most = int(NAK_RATE_PER_S * (1 + elapsed_s)) + 1
+    expect(len(naks) <= most, f"at most {most} NAKs ({NAK_RATE_PER_S} a second and a burst of as many, over "
+           f"{elapsed_s:.3f} s of its uptime)", f"{len(naks)}")
+    wrong = [s for s in naks if s.msg.reason != Reason.UNAUTHENTICATED or s.key != "session"]
+    expect(not wrong, "Nak(UNAUTHENTICATED) under the session key", nak_fields(wrong[0]) if wrong else "")
+    after = ctx.status()
+    expect(after.state == before.state and after.uptime_ms > before.uptime_ms
+           and after.commands_executed - before.commands_executed == 2,
+           f"the controller as it was ({ControllerState(before.state).name}, its uptime going on, 2 commands "
+           f"executed: the Ping and a GetStatus)",
+           f"{ControllerState(after.state).name}, uptime {before.uptime_ms} -> {after.uptime_ms} ms, "
+           f"{after.commands_executed - before.commands_executed} executed")
+    return f"{len(naks)} NAKs for {GARBAGE_FRAMES} frames"
 
 
 @check("nak-echo", REFUSALS, "each refusal of an authenticated frame is a Nak under the session key naming the reason "
