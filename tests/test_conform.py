@@ -50,19 +50,29 @@ class Toy:
     a TCP port by a thread of this process: 1 s link timeout, 0.3 s heartbeats."""
 
     def __init__(self, link_class=ControllerLink, failsafe: bool = True, receiver: Optional[FrameReceiver] = None,
-                 played_class=PlayedController):
+                 played_class=PlayedController, gone_after: Optional[str] = None):
         self.played = played_class(KEY, link_class, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0),
-                                       failsafe=failsafe, receiver=receiver)
+                                   failsafe=failsafe, receiver=receiver)
         self.port = TcpServerPort(0)
         self.url = self.port.url
         self._stop = False
-        self._thread = threading.Thread(target=self.played.serve, args=(self.port, lambda: self._stop), daemon=True)
+        if gone_after is not None:           # the line goes (the port closed) once this command has run
+            execute = self.played.link._handler
+
+            def and_go(msg, urgent, now):
+                self._stop = self._stop or msg.spec.name == gone_after
+                return execute(msg, urgent, now)
+            self.played.link._handler = and_go
+        self._thread = threading.Thread(target=self._serve, daemon=True)
         self._thread.start()
+
+    def _serve(self) -> None:
+        self.played.serve(self.port, lambda: self._stop)
+        self.port.close()
 
     def close(self) -> None:
         self._stop = True
         self._thread.join(5.0)
-        self.port.close()
 
 
 # ---- the broken variants: each breaks one rule ----------------------------------------------------------------
@@ -255,6 +265,16 @@ def test_a_controller_with_another_key_exits_3(capsys, tmp_path, monkeypatch, to
     out = capsys.readouterr()
     assert code == 3, out
     assert "FAIL handshake" in out.out
+
+
+@pytest.mark.realtime
+def test_a_line_that_fails_during_the_run_exits_3_and_skips_the_rest(capsys, tmp_path, monkeypatch, toy_factory):
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    toy = toy_factory(gone_after="EStop")          # urgent-lane's EStop: the controller's line goes
+    code = main(["conform", toy.url, "--key-file", str(_key(tmp_path)), "--skip-slow"])
+    out = capsys.readouterr()
+    assert code == 3, out
+    assert "SKIP clean-close" in out.out and "not run: the line failed" in out.out, out.out
 
 
 def test_list_names_every_check(capsys):

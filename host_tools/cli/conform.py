@@ -8,8 +8,8 @@ protocol: a simulator on a pty or TCP, or a controller's firmware on a serial de
 
 One line per check (PASS, FAIL or SKIP, its name, its level and the section of docs/protocol.md it tests; a
 failure says what was expected and what came), then a summary. No check drives an output unless given
---allow-motion. Exit status: 0 every MUST passed, 1 a MUST failed, 2 bad usage, 3 the link cannot be opened or no
-controller answers under the key (with --host: no host sent anything) (docs/conformance.md).
+--allow-motion. Exit status: 0 every MUST passed, 1 a MUST failed, 2 bad usage, 3 the link cannot be opened, fails
+during the run, or no controller answers under the key (with --host: no host sent anything) (docs/conformance.md).
 """
 from __future__ import annotations
 
@@ -110,15 +110,16 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         results = run_checks(probe, checks, Options(args.allow_motion, args.skip_slow), report)
-        if probe.up:
-            probe.link.close(probe.now())
-            probe.pump()
-            probe.until(lambda: not probe.up and probe.link.state.value != "closing", 5.0)
+        if probe.up and probe.line_error is None:
+            _close_session(probe)
         answered = probe.link.handshake_seen.verified > 0 or probe.link.sessions_started > 0
     finally:
         probe.close()
     elapsed_s = probe.now() - started
     musts = _summary(results, elapsed_s, junit, args.url)
+    if probe.line_error is not None:
+        log.error(f"aspod conform: the line to {args.url} failed: {probe.line_error}")
+        return EXIT_LINK
     if not answered:
         log.error(f"aspod conform: no controller answered on {args.url} under this key (--key-file)")
         return EXIT_LINK
@@ -184,3 +185,15 @@ def run_host(args: argparse.Namespace) -> int:
     results = judge_host(watch, lambda result: print("\n".join(result.lines()), flush=True))
     musts = _summary(results, clock.now() - started, junit, f"host on {port.url}")
     return EXIT_FAILED if musts else EXIT_OK
+
+
+def _close_session(probe) -> None:
+    """The suite's last session closed cleanly (Close), so the controller is left IDLE, not LINK_LOST."""
+    import serial
+    from protocol.link import LinkState
+    try:
+        probe.link.close(probe.now())
+        probe.pump()
+        probe.until(lambda: probe.link.state is not LinkState.CLOSING, 5.0)
+    except (serial.SerialException, OSError) as exc:
+        log.warning(f"aspod conform: closing the session: {exc}")

@@ -82,6 +82,7 @@ class Probe:
         self.sent: list[tuple[float, bytes]] = []                # every write, in order
         self.mute = False                                        # True: the link's frames are not sent
         self.hold_events = False                                 # True: events are seen here, never given the link
+        self.line_error: Optional[str] = None                    # why the line failed, if it did (the runner's)
         self._pending = b""
         self._handshake = auth.handshake_keys(psk, is_controller=False)
 

@@ -63,6 +63,7 @@ def run_checks(probe: Probe, checks: Sequence[Check], options: Options,
                 if broken is None and not probe.up:
                     no_session = f"a new handshake after {check.name} failed: link {probe.link.state.value}"
         result.duration_s = probe.now() - started
+        probe.line_error = broken
         results.append(result)
         report(result)
     return results
