@@ -82,9 +82,9 @@ class Context:
     def link_timeout_s(self) -> float:
         return self.info.link_timeout_ms / 1000.0
 
-    def session(self) -> None:
-        """A session up, a new one if the last is gone (closed, suspended, refused)."""
-        if self.probe.up:
+    def session(self, new: bool = False) -> None:
+        """A session up: a new one if `new`, or if the last is gone (closed, suspended, refused)."""
+        if self.probe.up and not new:
             return
         if not self.probe.connect():
             link = self.probe.link
@@ -204,9 +204,7 @@ def expect_pong(seen: Seen, token: int, why: str) -> None:
        "version, timeouts and identity; the first frame under the session key adopts the session")
 def handshake(ctx: Context) -> str:
     p = ctx.probe
-    if p.up:
-        p.link.connect(p.now())
-    ctx.session()
+    ctx.session(new=True)
     cookies = [s for s in p.seen if s.name == "HelloCookie" and s.key == "handshake"]
     expect(bool(cookies), "a HelloCookie signed with the handshake key before the HelloReply", "none")
     info = ctx.info
@@ -661,9 +659,7 @@ def events_redelivered(ctx: Context) -> str:
     finally:
         p.hold_events = False
     first_event = len(p.events)
-    ctx.session() if not p.up else None
-    p.link.connect(p.now())          # a new session, the event never acknowledged
-    ctx.session()
+    ctx.session(new=True)            # the event never acknowledged
     p.until(lambda: any(m.spec.name == "StateChanged" and m.uptime_ms == held.msg.uptime_ms
                         for _, m, _ in p.events[first_event:]), ctx.bound_s)
     events = p.events[first_event:]
