@@ -37,7 +37,7 @@ def test_packages_import_only_across_allowed_borders(package):
 
 
 # host_tools inside: each part may import only the parts before it (docs/Code_Overview.md)
-HOST_LAYERS = ["exit_codes", "datetimes", "strict_json", "outputs", "progress", "plan", "sessions", "worlds", "client", "teleop", "apps", "campaign", "fuzz", "cli",
+HOST_LAYERS = ["exit_codes", "datetimes", "strict_json", "outputs", "progress", "plan", "sessions", "worlds", "client", "teleop", "apps", "campaign", "fuzz", "conform", "cli",
                "plugin"]
 
 

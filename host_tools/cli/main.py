@@ -149,6 +149,8 @@ COMMANDS = (
     ("wireshark", dict(help="write the Wireshark Lua dissector for this protocol's captures"), "wireshark"),
     ("schema", dict(help="the protocol's declaration as data (--json): framing, messages, fields, enumerations, "
                          "constants, for a generator of the link's other end"), "schema"),
+    ("conform", dict(help="the conformance suite against any controller speaking the link protocol: a simulator, "
+                          "or a firmware on a serial device; a report and JUnit XML"), "conform"),
     ("key", dict(help="make a link key (new FILE, mode 0600) or name one to compare two ends' (fingerprint FILE)"),
      "key"),
     ("completion", dict(help="print a shell completion script (bash or zsh)",
