@@ -23,9 +23,11 @@ more than `excused_after_s` after the time it asked for (the process was desched
 is overloaded), what the host sent meanwhile is still in the OS buffer and starts arriving now,
 at line rate. So the link watchdog may not fire until one longest frame (plus a poll) after the
 run (`stall_grace_s`): a host that sent anything during the stall is heard first. The watchdog's
-count moves forward by at most that grace per stall and never by more than the stall
-(`stalls_excused_s` sums it), so a dead host is still found one link timeout after its last frame,
-plus a few ms per stall, however often the controller is stopped.
+count moves forward by never more than the stall (`stalls_excused_s` sums it), and since the host's
+last frame by never more in all than the longest stall and one grace: a controller late at every run
+(an overloaded host: each run a stall of its own) does not renew the excuse at every run. So a dead
+host is still found one link timeout after its last frame, plus at most its longest stall and a
+grace, however often the controller is stopped.
 """
 from __future__ import annotations
 
@@ -56,6 +58,9 @@ class CommsTask:
         self._asked_s: Optional[float] = None    # the wake time the last run asked for
         self.stall_grace_s = uart.wire_time_s(MAX_ENCODED + 1) + poll_period_s   # one longest frame, one poll
         self.stalls_excused_s = 0.0
+        self._judged_rx: Optional[float] = None       # the last frame's time as the last step left it
+        self._longest_stall_s = 0.0                    # since the last frame: the longest stall ...
+        self._excused_since_rx_s = 0.0                 # ... and the excuses granted
 
     def attach(self, wake: Callable[[float], None], now: Callable[[], float]) -> None:
         """`wake(at_s)` brings this task's next run forward to `at_s` (the scheduler's `wake` for it)."""
@@ -85,13 +90,22 @@ class CommsTask:
         self._last_s = now
         asked = self._asked_s
         last_rx = self.link.last_valid_rx_s
+        if last_rx != self._judged_rx:                 # a frame came since the last excuse: they begin again
+            self._longest_stall_s = self._excused_since_rx_s = 0.0
         if asked is not None and now - asked > self.excused_after_s and last_rx is not None:
-            # hear out what the host sent while we were stopped before judging its silence
+            # hear out what the host sent while we were stopped before judging its silence; since the last frame,
+            # never more in all than the longest stall and a grace (a controller late at every run would otherwise
+            # renew the excuse at every run, and find a dead host late or never)
+            stall = now - asked
+            self._longest_stall_s = max(self._longest_stall_s, stall)
             heard_by = now + self.stall_grace_s - self.link.config.link_timeout_s
-            excused = min(now - asked, heard_by - last_rx)
+            excused = min(stall, heard_by - last_rx,
+                          self._longest_stall_s + self.stall_grace_s - self._excused_since_rx_s)
             if excused > 0:
                 self.link.last_valid_rx_s = last_rx + excused
                 self.stalls_excused_s += excused
+                self._excused_since_rx_s += excused
+        self._judged_rx = self.link.last_valid_rx_s
         try:
             data = self.uart.receive(now)
             if data:

@@ -155,6 +155,23 @@ def test_a_controller_stopped_again_and_again_still_finds_its_host_dead_one_link
     assert sup.state is ControllerState.FAULT
 
 
+def test_a_controller_late_at_every_run_still_finds_its_host_dead_one_link_timeout_later():
+    """An overloaded host makes every run late (here 60 ms at every 10 ms asked): each run is a stall, and the excuse
+    must not renew itself from one to the next, or a dead host is never found (a conformance run beside three CPU
+    hogs waited 21 s of the controller's time). A stall after which nothing has come in needs no hearing out."""
+    rig = LiveRig()
+    rig.host.connect(rig.wall.now())
+    assert rig.run_until(lambda: rig.host.state is LinkState.UP, 5.0)
+    assert rig.call(M["Enable"]()).ok
+    rig.world.link_scheduler.remove("host")             # the host process dies
+    last_heard = rig.controller.link.last_valid_rx_s
+    rig.stall(every_s=0.001, stall_s=0.06)
+    sup = rig.controller.supervisor
+    assert rig.run_until(lambda: Fault.LINK_LOST in sup.faults, 30.0)
+    found_after = rig.wall.now() - last_heard
+    assert 3.0 < found_after < 3.0 + 0.5, found_after
+
+
 def test_paused_the_world_stands_still_its_link_stays_up_and_nothing_is_said_to_be_slow():
     """The control endpoint's pause (host_tools/worlds/plant_control.py) on `aspod sim`'s world: simulated time, the
     plant and the motion stand still for 10 wall seconds (three link timeouts) while the host's heartbeats and
