@@ -312,8 +312,8 @@ def test_every_check_passes_against_the_emulator(env, tmp_path, where):
         done = run([sys.executable, "-m", "host_tools.cli.main", "conform", url, "--junit", str(report)],
                    cwd=ROOT, env=env, text=True, timeout_s=300, peers=(sim.pid,))
     finally:
-        sim.stop(timeout_s=10)
-    assert done.returncode == 0, done.stdout + done.stderr
+        _status, sim_said = sim.stop(timeout_s=10)
+    assert done.returncode == 0, done.stdout + done.stderr + "\nthe simulator said:\n" + sim_said
     lines = done.stdout.splitlines()
     for check in CHECKS:
         status = "SKIP" if check.motion else "PASS"

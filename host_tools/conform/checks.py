@@ -610,10 +610,15 @@ def link_loss_failsafe(ctx: Context) -> str:
                 s.name in ("TelemetryStatus", "Heartbeat") and s.msg.uptime_ms > last_ms + 1000 * most_s + 200))
 
         lost = p.answer(mark, lost_or_late, 2 * timeout_s + ctx.bound_s)
+        beats = [s.msg for s in p.seen[mark:] if s.key == "session" and s.name == "Heartbeat"]
+        heard = (f"; its heartbeats counted {beats[-1].frames_rx - beats[0].frames_rx} frame(s) from this end "
+                 "meanwhile" if len(beats) >= 2 else "")
+        writes = sum(1 for t, _ in p.sent if t > sent_s) - 1        # after the last Ping (none: it kept quiet)
+        heard += f"; this end wrote {writes} time(s) after the last Ping" if writes else ""
         expect(lost is not None and lost.name == "StateChanged",
                f"StateChanged(LINK_TIMEOUT) within the link timeout ({timeout_s:g} s)",
                f"none by its uptime {lost.msg.uptime_ms} ms, {lost.msg.uptime_ms - last_ms} ms after the last frame "
-               f"({lost.describe()})" if lost is not None else
+               f"({lost.describe()}){heard}" if lost is not None else
                f"none in {2 * timeout_s + ctx.bound_s:g} s of silence ({ctx.heard(mark)})")
         # not before the timeout: judged on this end's clock, from before the last frame went to after the event
         # came (a controller whose own time runs slow cannot look early); not after the deadline: judged on the
