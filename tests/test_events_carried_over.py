@@ -117,6 +117,31 @@ def test_a_marker_that_was_never_acknowledged_is_replaced_and_its_count_kept():
     assert sum(1 for m, _ in received.events if m.spec.name == "EventsCarriedOver") == 1
 
 
+def test_a_lost_link_sends_no_event_until_its_host_is_heard_again():
+    """While the watchdog says the link is lost, the session's events are neither sent nor resent: a new
+    connection on the line would get frames under a key it does not hold (issue 37's second client)."""
+    wire = Wire()
+    received = Received(wire.host)
+    wire.connect()
+    wire.step(200)
+    timeout = wire.controller.config.link_timeout_s
+    wire.controller.send_event(state_event(0))
+    sent = []
+    for _ in range(int((timeout + 10) / 0.01)):       # the host is gone: nothing it would send arrives
+        wire.now += 0.01
+        wire.controller.poll(wire.now)
+        if wire.controller.link_lost:
+            sent.append(wire.controller.take_all(wire.now))
+        else:
+            wire.controller.take_all(wire.now)
+    assert wire.controller.link_lost and sent and not any(sent)
+    assert wire.controller.next_timer_s() > wire.now          # and no timer spins on them
+    wire.controller.send_event(state_event(1))
+    wire.step(300)                                   # the host speaks again (its heartbeat): the events follow
+    assert not wire.controller.link_lost
+    assert [m.uptime_ms for m, _ in received.events] == [0, 1]
+
+
 class WireClient:
     """What teleop's Session needs of a client, over a sans-IO host link."""
 
