@@ -362,9 +362,10 @@ class ControllerLink(LinkEndpoint):
         self._events_dropped = 0
 
     # ---- session frames ----
+    def _peer_acked(self, ack: int, now: float) -> None:
+        self._events.acked_through(ack, now)
+
     def _handle(self, frame: Frame, spec, now: float) -> None:
-        for _ in self._events.acked_through(frame.ack, now):
-            pass
         cls = frame.cls
         if cls == MsgClass.LINK:
             self._handle_link(frame, spec, now)

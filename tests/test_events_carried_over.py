@@ -5,8 +5,10 @@ import io
 import random
 
 from protocol.controller_link import MAX_UNDELIVERED_EVENTS
+from protocol.framing import encode_signed
 from protocol.host_link import HostLink
 from protocol.messages import SCHEMA
+from protocol.schema import MsgClass
 from protocol.states import Axis, ControllerState, MotionOutcome
 from protocol.reasons import Reason
 
@@ -140,6 +142,22 @@ def test_a_lost_link_sends_no_event_until_its_host_is_heard_again():
     wire.step(300)                                   # the host speaks again (its heartbeat): the events follow
     assert not wire.controller.link_lost
     assert [m.uptime_ms for m, _ in received.events] == [0, 1]
+
+
+def test_an_ack_counts_on_every_session_frame_that_checks_out_even_a_refused_one():
+    wire = Wire()
+    received = Received(wire.host)
+    wire.connect()
+    wire.step(200)
+    wire.controller.send_event(state_event(0))
+    deliver_without_acks(wire, 50)
+    assert received.events and wire.controller._events.outstanding == 1
+    session = wire.host.session
+    session.tx_counter += 1
+    unknown = encode_signed(MsgClass.COMMAND, 0, 0, 0x7FFF, b"", session.keys.tx, session.tx_counter)[0]
+    wire.controller.feed(unknown, wire.now)          # refused UNKNOWN_MESSAGE, but it acknowledges event 0
+    assert wire.controller.stats.reasons.get(Reason.UNKNOWN_MESSAGE) == 1
+    assert wire.controller._events.outstanding == 0
 
 
 class WireClient:
