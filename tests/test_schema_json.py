@@ -195,6 +195,18 @@ def _run_recipe(folder: Path) -> list[str]:
     return done.stdout.split()
 
 
+def test_replies_are_sent_in_only_the_classes_of_the_requests_they_answer(data):
+    sent_in = {m["name"]: m["sent_in"] for m in data["messages"]}
+    assert sent_in["Pong"] == sent_in["Closed"] == sent_in["Status"] == ["COMMAND"]
+    assert sent_in["Result"] == ["COMMAND", "URGENT"]            # EStop's and Stop's reply, and any refusal
+    for m in data["messages"]:
+        if m["reply"] is not None:
+            assert m["class"] in sent_in[m["reply"]], m["name"]
+    to_host = SCHEMA.receivable(Direction.TO_HOST)           # and the host refuses one in another (WRONG_DIRECTION)
+    pong = SCHEMA["Pong"].id
+    assert (pong, int(MsgClass.URGENT)) not in to_host and (pong, int(MsgClass.COMMAND)) in to_host
+
+
 def test_the_nak_table_is_data_and_the_doc_renders_the_same_rows(data):
     """Rule 10 declared once (protocol/link_rules.py): the file holds every row, docs/protocol.md shows each."""
     from protocol import link_rules
