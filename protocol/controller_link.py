@@ -478,8 +478,10 @@ class ControllerLink(LinkEndpoint):
             return timer
         if self._events.suspended:
             return -math.inf
-        if not self.link_lost:       # events wait while the link is lost (`poll`)
+        if not self.link_lost:
             timer = min(timer, self._events.next_due_s())
+        elif self._events.waiting:   # the link is lost: new events still go out once, nothing is resent (`poll`)
+            timer = -math.inf
         if self.state is LinkState.CLOSING:
             return -math.inf if self._closing_since is None else \
                 min(timer, self._closing_since + self.config.link_timeout_s)
@@ -494,15 +496,15 @@ class ControllerLink(LinkEndpoint):
             return
         if self.state is not LinkState.CLOSING:
             self._watch(now)
-        # While the link is lost no event is sent or resent: nobody listens, and a new host on the line (a new
-        # connection) could not verify them under this session's key. They go out when this session's host is
+        # While the link is lost no event is resent: nobody listens, and a new host on the line (a new connection)
+        # could not verify them under this session's key. A new event still goes out once (the StateChanged to
+        # the safe state, into the silence, in case the host hears it); the rest go when this session's host is
         # heard again, or, if another session is adopted first, are carried over to it (rule 7).
-        if not self.link_lost:
-            for item in self._events.due(now):
-                self._queue(PRIO_RELIABLE, MsgClass.EVENT, item.seq, item.msg_id, item.payload)
-            if self._events.suspended:
-                self._events.resume()   # events are never dropped: keep offering them, in order
-                self.stats.event_resumes += 1
+        for item in self._events.due(now, resend=not self.link_lost):
+            self._queue(PRIO_RELIABLE, MsgClass.EVENT, item.seq, item.msg_id, item.payload)
+        if self._events.suspended:
+            self._events.resume()   # events are never dropped: keep offering them, in order
+            self.stats.event_resumes += 1
         self.stats.retransmits = self._events.retransmits
         if self._events.rtt.srtt_s is not None:
             self.stats.srtt_us = int(self._events.rtt.srtt_s * 1e6)

@@ -176,9 +176,10 @@ A host that has no session (before its handshake, or after one that failed) answ
 verify with `Nak(NO_SESSION)` under its handshake key, within the NAK budget (rule 10), or MAY ignore it; it
 MUST NOT act on the frame. The controller counts such a NAK (`naks_rx`) and does nothing else: a host's
 handshake-key NAK can be recorded and played back, so it never ends a session. A controller whose session's
-link is lost (no valid frame for the link timeout) sends nothing of that session, not even its unacknowledged
-events, until the session's host is heard again (`protocol/controller_link.py` `poll`); a new host on the line
-therefore hears nothing before its own handshake but answers to it.
+link is lost (no valid frame for the link timeout) sends no heartbeat and resends no event of that session
+until the session's host is heard again (`protocol/controller_link.py` `poll`); only an event made while the
+link is lost (the `StateChanged` to the safe state) goes out, once, into the silence. A new host on the line
+may therefore hear such a frame before its own handshake, at most one per event, never a resend.
 
 ## Closing a session
 
@@ -259,8 +260,8 @@ oldest expired frame on, every frame in flight goes again (go-back-N). After {Li
 (`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
 handshake. The controller never gives up an event: it offers its unacknowledged events again from the
-first (counted in the local `event_resumes`), except while the link is lost, when it sends no event at all
-(see "Sessions and authentication").
+first (counted in the local `event_resumes`); while the link is lost it resends none (see "Sessions and
+authentication").
 
 **Rule 2. Exactly once, and duplicates from the cache.** The controller MUST execute a command only when
 its `seq` is the next one it expects (0 first in each session) and an urgent request only the first time
@@ -319,7 +320,8 @@ one: the newest {MAX_UNDELIVERED_EVENTS} (`MAX_UNDELIVERED_EVENTS`), the older o
 **Rule 7. Events carried over.** When a session is adopted and events of an earlier session wait, the
 controller MUST send `EventsCarriedOver` first (event `seq` 0) if any of them was sent before or some were
 dropped. Its `count` says that the next `count` events (in order) were sent at least once to an earlier
-session, whose host may have seen them (its acknowledgement may be what was lost); the events after them were never sent and are new.
+session, whose host may have seen them (its acknowledgement may be what was lost; the `StateChanged` to
+LINK_LOST is typically sent into the silence); the events after them were never sent and are new.
 Because no more than the event window is ever in flight, `count` is at most {LinkConfig.window} (`LinkConfig.window`):
 `count` = {LinkConfig.window} means a whole window went unacknowledged. `dropped` counts the events lost for want of
 room (rule 6). A host SHOULD show the `count` events as from an earlier session, possibly seen already,
