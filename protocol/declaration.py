@@ -288,9 +288,9 @@ _CONSTANTS = (
     (framing, "MAX_PAYLOAD", "B", "the longest payload"),
     (framing, "MIN_RAW", "B", "the shortest raw frame: a header and a CRC"),
     (framing, "MAX_RAW", "B", "the longest raw frame: header, counter, the longest payload, tag and CRC"),
-    (framing, "MAX_ENCODED", "B", "the longest COBS-encoded frame; a receiver keeps at most this many bytes of a "
-                                  "frame not yet ended: a segment between two delimiters longer than this is dropped "
-                                  "whole and counted (crc_errors)"),
+    (framing, "MAX_ENCODED", "B", "the longest COBS-encoded frame: a segment (the bytes between two delimiters) "
+                                  "longer than this is no frame and is dropped whole, so a receiver needs to keep at "
+                                  "most this many bytes of a frame not yet ended"),
     (reliable, "SEQ_MOD", None, "sequence numbers count modulo this (16 bits)"),
     (reliable, "REPLY_CACHE_SIZE", None, "a receiver answers a duplicate of any of its last this many sequence "
                                          "numbers from its cache; an older one gets Nak(REPLAY)"),

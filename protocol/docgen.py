@@ -70,9 +70,10 @@ The figures come from the constants named with them (in `protocol/`, and as data
 Each frame travels as `0x00 COBS(raw) 0x00`: Consistent Overhead Byte Stuffing removes
 every 0x00 from the frame, so a delimiter always means a frame boundary and any fault
 costs at most the frames it touches (MAVLink 2, with no stuffing, can lose hundreds of
-bytes to one stray start byte). A receiver MUST keep at most {framing.MAX_ENCODED} bytes (`MAX_ENCODED`, the longest
-encoded frame) of a frame not yet ended: a segment between two delimiters longer than that is dropped whole, up to
-the next delimiter, and counted in `crc_errors`, however its bytes were split between reads. Every frame carries both delimiters, so two
+bytes to one stray start byte). A segment (the bytes between two delimiters) longer than {framing.MAX_ENCODED} bytes
+(`MAX_ENCODED`, the longest encoded frame) is no frame: a receiver MUST drop it whole, up to the next delimiter,
+and so needs to keep at most {framing.MAX_ENCODED} bytes of a frame not yet ended, however its bytes are split
+between reads. This one counts it in `crc_errors` (`protocol/framing.py` `FrameReceiver`). Every frame carries both delimiters, so two
 frames in a row are separated by two 0x00 bytes; a receiver MUST skip empty segments.
 
 COBS is Cheshire and Baker's, coded as the `cobs` package and Wikipedia's description code it: each code
