@@ -135,7 +135,7 @@ HANDSHAKE_HEADER = {
     "seq": 0,
     "ack": NOTHING_RECEIVED_ACK,
     "flags": framing.FLAG_AUTH,
-    "counter": "any: the receiver does not check it. " + HANDSHAKE_COUNTER,
+    "counter": "any: the receiver does not check it; " + HANDSHAKE_COUNTER,
     "first_hello_cookie": "zeros (COOKIE_BYTES of them); a Hello sent again after a HelloCookie echoes its cookie",
 }
 SESSION_COUNTER = ("each direction of each session has its own counter, from the session's first frame: a receiver "
