@@ -34,6 +34,7 @@ MIN_KEY_BYTES = 16
 NONCE_BYTES = 16
 CONTROLLER_ID_BYTES = 8
 COOKIE_BYTES = 8
+COOKIE_LABEL = b"aspod/v1/cookie"   # hello_cookie: HMAC(secret, COOKIE_LABEL | host_nonce | slot as i64 LE)
 TO_CONTROLLER = b"h2c"
 TO_HOST = b"c2h"
 
@@ -76,7 +77,7 @@ def hello_cookie(secret: bytes, host_nonce: bytes, epoch: int) -> bytes:
     """The cookie a controller gives a Hello's nonce in time slot `epoch`: an HMAC under a secret of its own, so it
     keeps no state for the Hellos it has only answered with a cookie (as TCP's SYN cookies, DTLS's
     HelloVerifyRequest, RFC 6347 4.2.1, and IKEv2's COOKIE, RFC 7296 2.6)."""
-    return hmac.digest(secret, b"aspod/v1/cookie" + host_nonce + epoch.to_bytes(8, "little", signed=True), "sha256")[:COOKIE_BYTES]
+    return hmac.digest(secret, COOKIE_LABEL + host_nonce + epoch.to_bytes(8, "little", signed=True), "sha256")[:COOKIE_BYTES]
 
 
 def new_nonce() -> bytes:

@@ -362,9 +362,10 @@ class ControllerLink(LinkEndpoint):
         self._events_dropped = 0
 
     # ---- session frames ----
+    def _peer_acked(self, ack: int, now: float) -> None:
+        self._events.acked_through(ack, now)
+
     def _handle(self, frame: Frame, spec, now: float) -> None:
-        for _ in self._events.acked_through(frame.ack, now):
-            pass
         cls = frame.cls
         if cls == MsgClass.LINK:
             self._handle_link(frame, spec, now)
@@ -433,6 +434,7 @@ class ControllerLink(LinkEndpoint):
         acknowledged or the link timeout has passed (from the next `poll`); then it is forgotten."""
         if self.session is not None:
             self.state = LinkState.CLOSING
+            self.link_lost = False               # its host just spoke (the Close): its events go out
             self._closing_since = None
             for periodic in self._after_hellos:      # heartbeats and telemetry queued before the Close: not sent
                 periodic.clear()
@@ -476,7 +478,10 @@ class ControllerLink(LinkEndpoint):
             return timer
         if self._events.suspended:
             return -math.inf
-        timer = min(timer, self._events.next_due_s())
+        if not self.link_lost:
+            timer = min(timer, self._events.next_due_s())
+        elif self._events.waiting:   # the link is lost: new events still go out once, nothing is resent (`poll`)
+            timer = -math.inf
         if self.state is LinkState.CLOSING:
             return -math.inf if self._closing_since is None else \
                 min(timer, self._closing_since + self.config.link_timeout_s)
@@ -489,7 +494,13 @@ class ControllerLink(LinkEndpoint):
         super().poll(now)
         if self.session is None:
             return
-        for item in self._events.due(now):
+        if self.state is not LinkState.CLOSING:
+            self._watch(now)
+        # While the link is lost no event is resent: nobody listens, and a new host on the line (a new connection)
+        # could not verify them under this session's key. A new event still goes out once (the StateChanged to
+        # the safe state, into the silence, in case the host hears it); the rest go when this session's host is
+        # heard again, or, if another session is adopted first, are carried over to it (rule 7).
+        for item in self._events.due(now, resend=not self.link_lost):
             self._queue(PRIO_RELIABLE, MsgClass.EVENT, item.seq, item.msg_id, item.payload)
         if self._events.suspended:
             self._events.resume()   # events are never dropped: keep offering them, in order
@@ -497,10 +508,11 @@ class ControllerLink(LinkEndpoint):
         self.stats.retransmits = self._events.retransmits
         if self._events.rtt.srtt_s is not None:
             self.stats.srtt_us = int(self._events.rtt.srtt_s * 1e6)
-        if self.state is LinkState.CLOSING:
-            if self._linger_over(now):
-                self._forget_session()
-            return
+        if self.state is LinkState.CLOSING and self._linger_over(now):
+            self._forget_session()
+
+    def _watch(self, now: float) -> None:
+        """The link watchdog: lost after `link_timeout_s` without a valid frame (`on_link_lost`), back at the next."""
         if self.last_valid_rx_s is not None and now - self.last_valid_rx_s > self.config.link_timeout_s:
             if not self.link_lost:
                 self.link_lost = True

@@ -16,7 +16,7 @@ import json
 import struct
 from typing import Any, Optional
 
-from protocol import auth, controller_link, framing, host_link, line, link, messages, reliable
+from protocol import auth, controller_link, framing, host_link, line, link, link_rules, messages, reliable
 from protocol.link import LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
@@ -81,6 +81,8 @@ def declaration() -> dict[str, Any]:
         "directions": {d.name: d.value for d in Direction},
         "messages": [_message(spec) for spec in specs],
         "enums": {e.__name__: _enum(e) for e in sorted(_enums(), key=lambda e: e.__name__)},
+        "link": link_rules.declared(),
+        "line": _line(),
         "constants": _constants(),
     }
 
@@ -173,6 +175,12 @@ def _authentication() -> dict[str, Any]:
         "cookie_bytes": auth.COOKIE_BYTES,
         "keys_doc": "Each key is HMAC-SHA256(psk, label bytes followed by the raw bytes of the fields `then` names, "
                     "from Hello and HelloReply), 32 bytes; psk is the pre-shared key file's bytes.",
+        "cookie": {"label": auth.COOKIE_LABEL.decode(), "then": ["host_nonce", "slot_i64le"],
+                   "key": "a secret of the controller's own (never on the wire)", "size": auth.COOKIE_BYTES,
+                   "slot_s": controller_link.COOKIE_EPOCH_S,
+                   "doc": "HelloCookie's cookie: the first `size` bytes of HMAC-SHA256(secret, label | host_nonce | "
+                          "slot), slot = floor(t / slot_s) of the controller's clock t in seconds, packed as a signed "
+                          "64-bit little-endian integer; valid in its slot and the next"},
         "keys": [
             key(f"handshake_{h2c}", f"aspod/v1/handshake/{h2c}", (), "Hello"),
             key(f"handshake_{c2h}", f"aspod/v1/handshake/{c2h}", (), "HelloCookie, HelloReply"),
@@ -183,6 +191,23 @@ def _authentication() -> dict[str, Any]:
             key(f"nak_{c2h}", f"aspod/v1/nak/{c2h}", ("controller_id",),
                 "a Nak the controller sends with no session (NO_SESSION and the like)"),
         ],
+    }
+
+
+def _line() -> dict[str, Any]:
+    """The serial line's capacity and the highest telemetry rate a controller pacing it accepts, per baud."""
+    return {
+        "doc": "docs/protocol.md, Line timing: a controller that paces its line at a baud refuses (Result "
+               "OUT_OF_RANGE) a SetTelemetryRate whose telemetry needs more than telemetry_line_share of the line; "
+               "`max_telemetry_hz` is the highest rate_hz accepted at each baud. From protocol/line.py.",
+        "bits_per_byte": line.BITS_PER_BYTE,
+        "telemetry_line_share": line.TELEMETRY_LINE_SHARE,
+        "every_period": list(line.EVERY_PERIOD),
+        "at_most_tracker_hz": list(line.AT_MOST_TRACKER_HZ),
+        "tracker_telemetry_max_hz": line.TRACKER_TELEMETRY_MAX_HZ,
+        "bauds": [{"baud": b, "line_bytes_per_s": line.line_bytes_per_s(b),
+                   "telemetry_budget_bytes_per_s": line.telemetry_budget_bytes_per_s(b),
+                   "max_telemetry_hz": line.max_telemetry_hz(b)} for b in line.BAUD_RATES],
     }
 
 
@@ -263,8 +288,9 @@ _CONSTANTS = (
     (framing, "MAX_PAYLOAD", "B", "the longest payload"),
     (framing, "MIN_RAW", "B", "the shortest raw frame: a header and a CRC"),
     (framing, "MAX_RAW", "B", "the longest raw frame: header, counter, the longest payload, tag and CRC"),
-    (framing, "MAX_ENCODED", "B", "the longest COBS-encoded frame; a receiver keeps at most this many bytes "
-                                  "between two delimiters"),
+    (framing, "MAX_ENCODED", "B", "the longest COBS-encoded frame: a segment (the bytes between two delimiters) "
+                                  "longer than this is no frame and is dropped whole, so a receiver needs to keep at "
+                                  "most this many bytes of a frame not yet ended"),
     (reliable, "SEQ_MOD", None, "sequence numbers count modulo this (16 bits)"),
     (reliable, "REPLY_CACHE_SIZE", None, "a receiver answers a duplicate of any of its last this many sequence "
                                          "numbers from its cache; an older one gets Nak(REPLAY)"),

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import textwrap
 
-from protocol import auth, framing, line
+from protocol import auth, framing, line, link_rules
 from protocol.controller_link import (COOKIE_EPOCH_S, COOKIE_RATE_PER_S, HELLO_REANSWER_S, MAX_PENDING_SESSIONS,
                                       MAX_UNDELIVERED_EVENTS, MAX_WAITING_COOKIES, MAX_WAITING_HELLOS,
                                       PENDING_MIN_LIFE_S)
@@ -18,42 +18,31 @@ from protocol.link import NAK_TAG_BYTES, LinkConfig
 from protocol.messages import PROTOCOL_VERSION, SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import NOTHING_RECEIVED_ACK, REPLY_CACHE_SIZE, SEQ_MOD
-from protocol.schema import MsgClass
 from protocol.states import FAULT_DOCS, ControllerState
 
-_NOTHING = "nothing: 0, zeros"
-_FRAME = "the frame"
-# (reason, when, who sends it, within the NAK budget, what it names, expected_seq)
-NAK_ROWS = (
-    ("UNSUPPORTED_VERSION", f"the header's `version` is not {framing.VERSION}", "both", "yes", _NOTHING, "0"),
-    ("UNSUPPORTED_FLAGS", "a must-understand flag (bits 4-7) other than AUTH is set", "both", "yes", _NOTHING, "0"),
-    ("BAD_LENGTH", f"the header's `length` is above {framing.MAX_PAYLOAD}, or the frame's size is not the one `length` "
-     "gives", "both", "yes", _NOTHING, "0"),
-    ("UNAUTHENTICATED", "the frame has no AUTH flag (not answered if it is a `Nak`)", "both", "yes",
-     "the frame; `refused_tag` zeros", "0"),
-    ("BAD_MAC", "a `Hello`, `HelloReply` or `HelloCookie` whose tag is wrong under the receiver's handshake key; "
-     "with a session, any other frame whose tag verifies under no session key (not answered if it is a `Nak`)",
-     "both", "yes", _FRAME, "0"),
-    ("NO_SESSION", "the receiver has no session and the frame (not a handshake frame, not a `Nak`) verifies "
-     "under no key it holds (the controller: nor a pending session's)", "both", "yes", _FRAME, "0"),
-    ("UNKNOWN_MESSAGE", "authenticated, its `msg_id` declared nowhere", "both", "no", _FRAME, "0"),
-    ("WRONG_DIRECTION", "authenticated, its `msg_id` declared, but not in this class or not to this end (the "
-     "controller: a handshake frame under its handshake key other than `Hello`)", "both", "no", _FRAME, "0"),
-    ("BAD_LENGTH", "an authenticated LINK frame (`Hello`, `Heartbeat`, `Nak`) whose payload is not its message's "
-     "size", "controller", "no", _FRAME, "0"),
-    ("OUT_OF_RANGE", "an authenticated LINK frame with a field outside its declaration (a `Nak` whose `reason` is "
-     "no reason code)", "controller", "no", _FRAME, "0"),
-    ("SEQUENCE_GAP", "a command (at the controller) or an event (at the host) numbered beyond the next expected; "
-     "once per expected value", "controller, host", "no", _FRAME, "the next expected"),
-    ("REPLAY", f"a command numbered before the next expected and older than the last {REPLY_CACHE_SIZE} answered",
-     "controller", "no", _FRAME, "the next expected"),
-    ("SESSION_CLOSED", "a command or urgent request, not a duplicate, after the session's `Close` was executed",
-     "controller", "no", _FRAME, "the next expected command; 0 for an urgent request"),
-)
-NAK_TABLE = "\n".join(["| reason | sent when the frame is | sent by | budget | names | `expected_seq` |",
-                       "|---|---|---|---|---|---|"]
-                      + [f"| `{r}` | {when} | {who} | {budget} | {names} | {exp} |"
-                         for r, when, who, budget, names, exp in NAK_ROWS])
+_SENT_BY = {("controller", "host"): "both", ("controller",): "controller", ("host",): "host"}
+_SIGNED = {link_rules.SESSION: "session", link_rules.SESSION_OR_NONE: "session, else none",
+           link_rules.NO_SESSION_KEY: "none"}
+
+
+def _names(rule: link_rules.NakRule) -> str:
+    if not rule.names:
+        return "nothing: 0, zeros"
+    return "the frame" if "refused_tag" in rule.names else "the frame; `refused_tag` zeros"
+
+
+NAK_TABLE = "\n".join(["| reason | sent when the frame is | sent by | budget | key | names | `expected_seq` |",
+                       "|---|---|---|---|---|---|---|"]
+                      + [f"| `{r.reason.name}` | {r.when} | {_SENT_BY[r.sent_by]} | {'yes' if r.budget else 'no'} | "
+                         f"{_SIGNED[r.signed]} | {_names(r)} | {r.expected_seq or '0'} |" for r in link_rules.NAK_RULES])
+NAK_EFFECTS = "\n".join(["| reason | what the end that receives it does |", "|---|---|"]
+                        + [f"| `{r.reason.name}` | {r.effect} |" for r in link_rules.NAK_RULES
+                           if r.effect != link_rules.NAK_RULES[0].effect])
+CLASS_TABLE = "\n".join(["| class | value | direction | delivery | `seq` | acknowledged by |", "|---|---|---|---|---|---|"]
+                        + [f"| {r.cls.name} | {int(r.cls)} | {r.direction} | {r.delivery} | {r.seq} | "
+                           f"{r.acknowledged_by} |" for r in link_rules.CLASS_RULES])
+LOCAL_COUNTERS = "\n".join(f"- `{name}`: {doc}" for name, doc in link_rules.LOCAL_COUNTERS)
+HEARTBEAT_SINCE = textwrap.fill(link_rules.HEARTBEAT_SINCE[0].upper() + link_rules.HEARTBEAT_SINCE[1:], 105)
 RATE_TABLE = "\n".join(["| baud | line, bytes/s | telemetry may take, bytes/s | highest `rate_hz` |", "|---|---|---|---|"]
                        + [f"| {b} | {line.line_bytes_per_s(b):g} | {line.telemetry_budget_bytes_per_s(b):g} | "
                           f"{line.max_telemetry_hz(b)} |" for b in line.BAUD_RATES])
@@ -81,8 +70,10 @@ The figures come from the constants named with them (in `protocol/`, and as data
 Each frame travels as `0x00 COBS(raw) 0x00`: Consistent Overhead Byte Stuffing removes
 every 0x00 from the frame, so a delimiter always means a frame boundary and any fault
 costs at most the frames it touches (MAVLink 2, with no stuffing, can lose hundreds of
-bytes to one stray start byte). The receiver keeps at most {framing.MAX_ENCODED} bytes (`MAX_ENCODED`) between reads;
-a longer run without a delimiter is dropped and counted. Every frame carries both delimiters, so two
+bytes to one stray start byte). A segment (the bytes between two delimiters) longer than {framing.MAX_ENCODED} bytes
+(`MAX_ENCODED`, the longest encoded frame) is no frame: a receiver MUST drop it whole, up to the next delimiter,
+and so needs to keep at most {framing.MAX_ENCODED} bytes of a frame not yet ended, however its bytes are split
+between reads. This one counts it in `crc_errors` (`protocol/framing.py` `FrameReceiver`). Every frame carries both delimiters, so two
 frames in a row are separated by two 0x00 bytes; a receiver MUST skip empty segments.
 
 COBS is Cheshire and Baker's, coded as the `cobs` package and Wikipedia's description code it: each code
@@ -128,7 +119,9 @@ it there ([protocol_security.md](protocol_security.md)). Two controllers never s
 unless given the same file.
 
 1. The host sends `Hello` with its protocol version, its schema hash, a fresh 16-byte
-   nonce and a zero cookie, signed with the handshake key `HMAC(psk, "aspod/v1/handshake/h2c")`.
+   nonce and a zero cookie, signed with the handshake key `HMAC(psk, "aspod/v1/handshake/h2c")`. Every
+   handshake frame (`Hello`, `HelloCookie`, `HelloReply`, and a `Nak` sent with no session) has class LINK,
+   `seq` 0 and `ack` {NOTHING_RECEIVED_ACK}; its counter is not checked ("Counters" below).
 2. The controller answers a `Hello` without a fresh cookie with `HelloCookie` (handshake key
    `.../c2h`): the nonce and a cookie, the first {auth.COOKIE_BYTES} bytes (`COOKIE_BYTES`) of
    `HMAC-SHA256(secret, "aspod/v1/cookie" | nonce | slot)` under a secret of its own, where
@@ -143,6 +136,11 @@ unless given the same file.
    nonce echoed, a `controller_nonce` of 16 zero bytes (no session is made), and `link_timeout_ms`,
    `heartbeat_ms` and `controller_id` as an accepting one does (`protocol/controller_link.py`
    `_answer_hello`). A host MUST NOT derive session keys from a `HelloReply` whose `result` is not `OK`.
+   A `Hello` sent again with the same nonce while its session is pending (its `HelloReply` lost, or crossing
+   it) is answered with the same `controller_nonce`, so either `HelloReply` gives the same keys; but not
+   within {HELLO_REANSWER_S:g} s of the last answer to that nonce (`HELLO_REANSWER_S`), and never once a frame of
+   that session has reached the controller (the nonce is then a replay). A host SHOULD take the first
+   `HelloReply` for its nonce and ignore the others.
 4. Both derive per-direction session keys `HMAC(psk, "aspod/v1/session/<dir>" | host
    nonce | controller nonce)`. The controller keeps the new session *pending* and
    adopts it when the first frame signed with its key arrives (the host sends a
@@ -175,14 +173,27 @@ first {NAK_TAG_BYTES} bytes of the tag of one of the last {SENT_TAGS} frames (`S
 since such a NAK could be recorded and played back; it MUST count any other as a replay and ignore it
 ([protocol_security.md](protocol_security.md)).
 
+A host that has no session (before its handshake, or after one that failed) answers a session frame it cannot
+verify with `Nak(NO_SESSION)` under its handshake key, within the NAK budget (rule 10), or MAY ignore it; it
+MUST NOT act on the frame. The controller counts such a NAK (`naks_rx`) and does nothing else: a host's
+handshake-key NAK can be recorded and played back, so it never ends a session. A controller whose session's
+link is lost (no valid frame for the link timeout) sends no heartbeat and resends no event of that session
+until the session's host is heard again (`protocol/controller_link.py` `poll`); only an event made while the
+link is lost (the `StateChanged` to the safe state) goes out, once, into the silence. A new host on the line
+may therefore hear such a frame before its own handshake, at most one per event, never a resend.
+
 ## Closing a session
 
 A host that is done sends `Close` (a command: in order after every command it sent before,
 exactly once). The controller stops every motion and goes to its safe state without a fault
 (outputs off, brakes on; ENABLED becomes IDLE; a latched FAULT or ESTOP stays latched: a close
-is no reset), starts the next session's telemetry at the parameter's rate, sends the motions'
-`MotionDone`s and `SessionClosed` (the session's last event), and answers `Closed` with the state,
-the faults, `last_event_seq` (the `SessionClosed`'s sequence number) and `linger_ms`. From then on
+is no reset) and sets the next session's telemetry rate to the parameter's. On the wire its answer
+`Closed` comes first, with the state, the faults, `last_event_seq` (the `SessionClosed`'s sequence number)
+and `linger_ms`; then the session's last events: a `StateChanged` to IDLE if it was ENABLED and the stopped
+motions' `MotionDone`s, then `SessionClosed`, always the last (`firmware_py/controller.py` `_close`
+submits the events while it executes the `Close`; a reply is queued at once, events when the event sender
+next runs). A host MUST NOT rely on that order: it waits for both the `Closed` and the events up to
+`last_event_seq`, whichever comes first. From then on
 the session sends no telemetry or heartbeat, has no link watchdog, and refuses every new command
 or urgent request with `Nak(SESSION_CLOSED)`; a `Close` sent again is a duplicate, answered with
 the cached `Closed`. It lingers for the host's acknowledgements: when every event is acknowledged
@@ -199,13 +210,7 @@ before `Enable`. `why` says why the host closes (`CloseWhy`): `DONE`, `STOPPED` 
 
 ## Classes and delivery
 
-| class | value | direction | delivery |
-|---|---|---|---|
-| LINK | {int(MsgClass.LINK)} | both | per frame: handshake, heartbeat, ack, nak |
-| COMMAND | {int(MsgClass.COMMAND)} | host -> controller, replies back | reliable, in order, exactly once |
-| URGENT | {int(MsgClass.URGENT)} | host -> controller, replies back | exactly once, bypasses ordering (stop, e-stop) |
-| TELEMETRY | {int(MsgClass.TELEMETRY)} | controller -> host | unreliable; sequence numbers count loss; dropped, and counted, when the line is backed up |
-| EVENT | {int(MsgClass.EVENT)} | controller -> host | reliable, in order; kept across sessions until delivered |
+{CLASS_TABLE}
 
 **Commands** (go-back-N) are numbered 0, 1, 2, ... per session and executed exactly once, in order
 (rule 2), resent on a timer (rule 1) within a window (rule 6), and answered with a frame the host
@@ -229,6 +234,11 @@ least three times within the controller's `link_timeout_ms`. The controller goes
 (default {LinkConfig.link_timeout_s:g} s, `LinkConfig.link_timeout_s`, the parameter `link_timeout_s`, `aspod sim
 --link-timeout`), and stops its periodic frames until the host returns.
 
+**Counters on the wire and off it.** {HEARTBEAT_SINCE}. Only the Heartbeat's counters travel; these, which this
+document names too, are local to each end (its own tools show them) and never sent:
+
+{LOCAL_COUNTERS}
+
 **Answers to bad input** are rule 10: which frames are answered with a `Nak`, under which key, with
 which fields, at what rate. No input resets or stops the controller.
 """
@@ -241,7 +251,7 @@ Written by hand from the code it cites; the numbers come from the constants name
 that has no answer when its retransmission timer expires as a new frame with the same `class`, `seq`,
 `msg_id` and payload, signed afresh: a counter above every one it sent before, so a new tag. A frame
 sent again byte for byte carries a counter already accepted, and the receiver drops it as a replay
-(counted in `replays`, never answered): it never reaches the reply cache, so a lost reply would end
+(never answered; counted in the Heartbeat's `auth_errors`, and in the local `replays`): it never reaches the reply cache, so a lost reply would end
 the command `FAILED` on a healthy link. This link queues frames unsigned and signs each one when it
 goes onto the wire, every resend included (`protocol/link.py` `take_frame` and `_sign`); the
 controller resends events the same way. The timer is RFC 6298's: smoothed RTT + 4 x variance, from
@@ -251,7 +261,8 @@ oldest expired frame on, every frame in flight goes again (go-back-N). After {Li
 (`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
 handshake. The controller never gives up an event: it offers its unacknowledged events again from the
-first (counted in `event_resumes`).
+first (counted in the local `event_resumes`); while the link is lost it resends none (see "Sessions and
+authentication").
 
 **Rule 2. Exactly once, and duplicates from the cache.** The controller MUST execute a command only when
 its `seq` is the next one it expects (0 first in each session) and an urgent request only the first time
@@ -263,7 +274,11 @@ remembered with their replies, and a number not among them is taken as new. A co
 next expected is a gap: the controller answers `Nak(SEQUENCE_GAP)` with `expected_seq` once per expected
 value (later frames of the same gap are dropped unanswered), and the host MUST send again from
 `expected_seq` at once. The host takes events the same way: a gap is answered `Nak(SEQUENCE_GAP)`, a
-duplicate only acknowledged again.
+duplicate only acknowledged again. Before, next and beyond are told apart in 16-bit serial arithmetic
+(RFC 1982, `protocol/reliable.py` `seq_delta`): with `d = (seq - expected) mod {SEQ_MOD}`, `d` = 0 is the next
+expected, 1..{SEQ_MOD // 2 - 1} a gap (beyond), {SEQ_MOD // 2}..{SEQ_MOD - 1} a duplicate (before); so across the wrap
+65535 is before 0 and 1 beyond it. The windows (rule 6) keep every honest number within {REPLY_CACHE_SIZE} of the
+next expected, far from the half-way point.
 
 **Rule 3. Matching a reply to its command.** The reply to a command or urgent request is a frame of the
 same `class` with the same `seq`; its `msg_id` is the command's declared reply (or `Result`). A host MUST
@@ -282,7 +297,12 @@ whose `result` is the reason: the controller's state (`NOT_ALLOWED_IN_STATE`, `E
 limit (`SOFT_LIMIT`, `OUT_OF_RANGE`, `NOT_HOMED`, `BUSY`, `UNKNOWN_PARAM`, `DIAL_NOT_LOW`, ...). A command
 whose payload does not decode (a field outside its type, range or enumeration, a wrong size) never
 reaches a handler and is answered with `Result` and the decoder's reason (`OUT_OF_RANGE`, `BAD_LENGTH`,
-...) (`protocol/controller_link.py` `_handle`). Only the frames of rule 10 are refused with a `Nak`.
+...) (`protocol/controller_link.py` `_handle`). So the shape tells where the refusal came from: a NaN or
+infinite `f32` (`ParamSet`'s `value` included), a `str16` name with a character outside its pattern, a `u8`
+enumeration value not declared, get `Result`; a name that decodes but is no parameter gets `ParamValue`
+with `UNKNOWN_PARAM`, a finite value outside the parameter's `min..max` `ParamValue` with `OUT_OF_RANGE`, an
+index at or past `count` in `ParamList` `ParamValue` with `OUT_OF_RANGE` (each as its message's table says).
+Only the frames of rule 10 are refused with a `Nak`.
 
 **Rule 5. Only a reply uses up a sequence number.** A command answered with its reply, refused or not, is
 executed-and-answered: the receiver's next expected number moves on by one
@@ -317,7 +337,13 @@ jump from `n` to `m` as `m - n - 1` frames lost (modulo {SEQ_MOD}), whatever the
 
 **Rule 9. The ack before any event** (or, from the controller, before any command) is
 {NOTHING_RECEIVED_ACK} (`protocol/reliable.py` `NOTHING_RECEIVED_ACK`, one before sequence number 0
-modulo {SEQ_MOD}): the `ack` field always carries the last number received in order.
+modulo {SEQ_MOD}): the `ack` field always carries the last number received in order. The controller MUST take
+the `ack` of every session frame that passes the MAC and counter checks, whatever is then done with the frame
+(refused with a `Nak` or a `Result`, a duplicate, a gap): the ack says what the host received, which a refusal of
+the frame does not change (`protocol/link.py` `_receive`, `_peer_acked`). So an acknowledgement of the
+`SessionClosed` on any frame, a refused one included, lets the controller forget a closed session (its `Closed` sent); a
+`Close` sent after that gets `Nak(NO_SESSION)`, not the cached `Closed` (see "Closing a session"). The host
+takes no meaning from the controller's `ack` (commands end on their replies) and MAY ignore it.
 
 **Rule 10. Refusals with a `Nak`.** A receiver MUST NOT answer a frame whose COBS or CRC is wrong
 (`BAD_FRAME`, `BAD_CRC`: nothing in it can be trusted), a frame whose counter is not above the last one
@@ -334,7 +360,9 @@ These are all the NAKs the link sends (`protocol/link.py` `_frame_error`, `_rece
   {LinkConfig.nak_rate_per_s:g}), so garbage cannot make it flood the line, and count the rest unanswered. The other
   NAKs refuse frames signed with a key of the session (or a `Hello` under the handshake key) and are
   always sent, `SEQUENCE_GAP` once per expected value (rule 2).
-- **Key.** A NAK is signed as the frames its sender sends: with the session's key of its direction
+- **Key** (the table's column: `session`, the session key; `none`, the key of an end with no session;
+  `session, else none`, whichever the sender has). A NAK is signed as the frames its sender sends: with
+  the session's key of its direction
   (`session/c2h` from the controller, `session/h2c` from the host) while the sender has a session,
   closing ones included; with none, the controller signs every NAK with its NAK key
   `HMAC(psk, "aspod/v1/nak/c2h" | controller_id)`, the host with its handshake key
@@ -350,11 +378,11 @@ These are all the NAKs the link sends (`protocol/link.py` `_frame_error`, `_rece
 - **`expected_seq`** is set only in `SEQUENCE_GAP`, `REPLAY` and `SESSION_CLOSED` NAKs: the next
   sequence number the NAK's sender expects in the refused frame's class (0 for an urgent request,
   whose numbers are unordered). In every other NAK it is 0, whatever the sender expects.
-- **What a NAK makes the other end do.** The host starts a new session on a `NO_SESSION` NAK it believes
-  (see "Sessions and authentication"), sends again from `expected_seq` on a `SEQUENCE_GAP` of a command
-  (the controller likewise for an event), and takes a `SESSION_CLOSED` (or a believed `NO_SESSION`)
-  while it closes as the end of the session. Every other NAK is only counted (`naks_rx`): the command it
-  refused is resent on its timer (rule 1), until the retry limit.
+- **What a NAK makes the other end do.** Every NAK received is counted (`naks_rx`). Besides, the end
+  that receives one of these does what the table says, and nothing else; every other NAK is only counted,
+  and a command it refused is resent on its timer (rule 1), until the retry limit.
+
+{NAK_EFFECTS}
 
 **Rule 11. The speed limit of `Move`, `MoveBy` and `Jog`** is the axis's `<axis>_speed_dps` parameter (j1 to j4
 and mount: 0.1 to 30 deg/s, no faster than the motor turns unloaded (J1 28, the mount 23), default the
@@ -374,7 +402,8 @@ Written by hand for a client written from this document alone (an independent on
 the points it had to guess); the code is cited. Test vectors to check one against (the keys of a handshake,
 frames of every class, every NAK, a capture) are in [vectors/](vectors/README.md).
 
-**Keys** (`protocol/auth.py`). The key file is hex (whitespace and `#` comment lines ignored),
+**Keys** (`protocol/auth.py`). The key file is hex; whitespace is ignored, and so is everything from a `#` to
+the end of its line, on a line of its own or after the hex digits (`parse_key`),
 {auth.KEY_BYTES} bytes (at least {auth.MIN_KEY_BYTES}). Every key is a full 32-byte HMAC-SHA256:
 `key = HMAC-SHA256(psk, label)`, where the label is plain bytes concatenated: `aspod/v1/handshake/h2c`
 and `.../c2h` for the handshake frames, `aspod/v1/session/h2c` + host_nonce + controller_nonce (and
@@ -382,11 +411,11 @@ and `.../c2h` for the handshake frames, `aspod/v1/session/h2c` + host_nonce + co
 `h2c` signs what the host sends, `c2h` what the controller sends. A frame's tag
 is HMAC-SHA256 with that key, truncated to {framing.TAG_SIZE} bytes.
 
-**Counters.** Each direction of a session starts afresh with its new keys: the first frame may carry
-any counter (0 will do), each later one a larger one, little-endian in its {framing.COUNTER_SIZE} bytes. The
-handshake frames (`Hello`, `HelloCookie`, `HelloReply`, and a `Nak` signed with the controller's NAK key)
-are not counter-checked (a replayed `Hello` is defeated by the nonces, `protocol_security.md`); the controller's
-handshake counter runs on for its whole life, so its `HelloReply` counters are not 1 in each session.
+**Counters** (little-endian in their {framing.COUNTER_SIZE} bytes). In a session, {link_rules.SESSION_COUNTER}. A
+handshake frame (`Hello`, `HelloCookie`, `HelloReply`, and a `Nak` sent with no session) may carry any counter: the receiver does not check it
+(a replayed `Hello` is defeated by the nonces and the cookie, `protocol_security.md`); {link_rules.HANDSHAKE_COUNTER}.
+So a `Hello`'s counter has nothing to do with the session's, and the controller's `HelloReply` counters are not 1
+in each session.
 
 **`seq` and `ack` of LINK frames.** `Hello`, `HelloCookie`, `HelloReply`, `Heartbeat`, `Ack` and `Nak` carry
 `seq` 0,
@@ -394,7 +423,8 @@ and a receiver ignores it. The `ack` field of a session frame is the last number
 order from the peer's reliable stream: the host acknowledges events, the controller commands (urgent
 requests are answered, not acknowledged). A handshake frame belongs to no session and carries
 {NOTHING_RECEIVED_ACK}. The host answers every event with an `Ack` frame (or any session frame, which
-carries the ack) at once; the controller resends an event on its timer (rule 1).
+carries the ack) at once; the controller resends an event on its timer (rule 1). What each class's `seq`
+holds and what acknowledges it: the table of "Classes and delivery".
 
 **The schema hash** in `Hello` and `HelloReply` is a `u64`: the number shown in the header of this
 document, packed little-endian like every field. [schema.json](schema.json) (`aspod schema --json`) holds

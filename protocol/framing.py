@@ -218,7 +218,7 @@ def find_frames(buf: bytes) -> tuple[list[bytes], int]:
 
 
 class FrameReceiver:
-    """Keeps the bytes between reads, never more than one frame's worth.
+    """Keeps the bytes of a frame not yet ended (since the last delimiter), never more than `MAX_ENCODED`.
 
     `feed` returns, in order, a `Frame` or a `ParseError` for every segment found.
     A partial segment that grows past the longest frame is dropped (counted in

@@ -341,7 +341,8 @@ class HostLink(LinkEndpoint):
     def _closed(self, now: float) -> None:
         self.closed = self._close.reply if self._close is not None and self._close.ok else None
         self.state = LinkState.CLOSED
-        self.send_message(SCHEMA["Ack"].type(), PRIO_RELIABLE)     # the last events' acknowledgement
+        # no Ack of its own: every event up to the last was acknowledged as it came (`_event`), and a second Ack
+        # would reach a controller that may have forgotten the session already and draw a Nak(NO_SESSION)
         self._fail_all(Reason.SESSION_CLOSED, now, "the session was closed")
 
     def abandon(self, now: float, detail: str) -> None:

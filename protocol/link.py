@@ -248,6 +248,7 @@ class LinkEndpoint:
             return
         session.rx_counter = frame.counter
         self._accepted(frame, now)
+        self._peer_acked(frame.ack, now)     # the ack of every session frame that checks out, refused or not
         spec = self._receivable.get((frame.msg_id, frame.cls))
         if spec is None:
             known = frame.msg_id in self.schema.by_id
@@ -307,6 +308,11 @@ class LinkEndpoint:
 
     def _handle(self, frame: Frame, spec, now: float) -> None:
         raise NotImplementedError
+
+    def _peer_acked(self, ack: int, now: float) -> None:
+        """A session frame that passed the MAC and counter checks carried `ack` (the controller: its events),
+        whatever is then done with the frame: the ack says what its sender received, which a refusal of the
+        frame itself does not change."""
 
     def _ack_value(self) -> int:
         raise NotImplementedError

@@ -25,13 +25,19 @@ def _result() -> Field:
     return Field("result", "u8", "outcome of the request: 0 OK, else a reason code", enum=Reason)
 
 
+# What Status and TelemetryStatus count in `commands_executed` (protocol/controller_link.py `_handle`).
+_EXECUTED = ("commands and urgent requests whose payload decoded and that reached the controller's handler, since "
+             "boot, across sessions, modulo 2^32: not duplicates answered from the cache, not those refused with a "
+             "Nak or for a payload that does not decode; each counts once its handler returns, so a GetStatus is not "
+             "in its own Status")
 _STATS = (
     Field("frames_rx", "u32", "valid frames received"),
     Field("frames_tx", "u32", "frames sent"),
     Field("bytes_rx", "u32", "bytes received, garbage included", "B"),
     Field("bytes_tx", "u32", "bytes sent", "B"),
     Field("crc_errors", "u32", "frames dropped for a bad CRC-32 or bad COBS"),
-    Field("auth_errors", "u32", "frames dropped for a bad or missing MAC or a replayed counter"),
+    Field("auth_errors", "u32", "frames refused UNAUTHENTICATED, BAD_MAC or NO_SESSION, and frames dropped for a "
+          "counter not above the last accepted (replays)"),
     Field("rejected", "u32", "authenticated frames refused with a reason code"),
     Field("naks_tx", "u32", "NAKs sent"),
     Field("naks_rx", "u32", "NAKs received"),
@@ -209,13 +215,17 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 (Field("rate_hz", "u16", "times a second each telemetry message is sent (per message kind, not "
                        "per frame)", "Hz", (0, 200)),),
                 reply="Result", teleop="telemetry"),
-    MessageSpec("ParamGet", 0x16, MsgClass.COMMAND, H, "Reads one parameter.",
+    MessageSpec("ParamGet", 0x16, MsgClass.COMMAND, H,
+                "Reads one parameter; a name that is no parameter is answered ParamValue with UNKNOWN_PARAM.",
                 (Field("name", "str16", "parameter name"),), reply="ParamValue", teleop="get"),
     MessageSpec("ParamSet", 0x17, MsgClass.COMMAND, H,
-                "Sets one parameter (range-checked; refused with a reason and nothing changes).",
+                "Sets one parameter. Refused, nothing changed, with ParamValue whose result is UNKNOWN_PARAM (no "
+                "such name), OUT_OF_RANGE (outside min..max, or against another parameter's value) or BUSY (a moving "
+                "axis uses it); a NaN or infinite value does not decode and gets a Result (rule 4).",
                 (Field("name", "str16", "parameter name"), Field("value", "f32", "new value")),
                 reply="ParamValue", teleop="set"),
-    MessageSpec("ParamList", 0x18, MsgClass.COMMAND, H, "Reads the parameter at `index` (0..count-1).",
+    MessageSpec("ParamList", 0x18, MsgClass.COMMAND, H, "Reads the parameter at `index` (0..count-1). An index at "
+                "or past `count` is answered ParamValue with OUT_OF_RANGE, an empty name, zeros and `count`.",
                 (Field("index", "u16", "position in the controller's parameter table"),), reply="ParamValue"),
     MessageSpec("ParamSave", 0x19, MsgClass.COMMAND, H,
                 "Writes every parameter to the controller's parameter file (atomically).",
@@ -329,7 +339,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("uptime_ms", "u32", "controller uptime", "ms"),
                  Field("supply_v", "f32", "supply voltage", "V"),
                  Field("temp_c", "f32", "controller temperature", "degC"),
-                 Field("commands_executed", "u32", "commands executed since boot"),
+                 Field("commands_executed", "u32", _EXECUTED),
                  Field("telemetry_hz", "u16", "telemetry rate", "Hz")) + _TIMING + (_RTF_TOTAL,)),
     MessageSpec("ParamValue", 0x83, MsgClass.COMMAND, C,
                 "Answers ParamGet, ParamSet and ParamList: the parameter with its range, unit and description.",
@@ -393,7 +403,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("faults", "u32", "latched fault bits"),
                  Field("supply_v", "f32", "supply voltage", "V"),
                  Field("temp_c", "f32", "controller temperature", "degC"),
-                 Field("commands_executed", "u32", "commands executed since boot"),
+                 Field("commands_executed", "u32", _EXECUTED),
                  Field("frames_rx", "u32", "valid frames received"),
                  Field("frames_tx", "u32", "frames sent"),
                  Field("link_errors", "u32", "CRC, framing and authentication failures"),

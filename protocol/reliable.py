@@ -119,15 +119,15 @@ class ReliableSender:
             return math.inf
         return min([p.due_s for p in self._inflight.values() if p.due_s is not None], default=math.inf)
 
-    def due(self, now: float) -> list[Pending]:
-        """Frames to send now: new ones the window admits and those whose timer expired.
+    def due(self, now: float, resend: bool = True) -> list[Pending]:
+        """Frames to send now: new ones the window admits and (with `resend`) those whose timer expired.
 
         Returns [] once suspended; check `take_failed()` after calling.
         """
         if self.suspended or not (self._inflight or self._waiting):
             return []          # nothing in flight, nothing waiting (most calls: the link polls every 1 ms)
         out: list[Pending] = []
-        expired = [p for p in self._inflight.values() if p.due_s is not None and now >= p.due_s]
+        expired = [p for p in self._inflight.values() if p.due_s is not None and now >= p.due_s] if resend else []
         if expired:
             if any(p.tries >= self.retry_limit for p in expired):
                 self.suspended = True

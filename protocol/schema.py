@@ -320,6 +320,11 @@ class Schema:
             if spec.reply is not None and spec.reply not in self.by_name:
                 raise ValueError(f"{spec.name} replies with undeclared {spec.reply}")
         self.reply_ids = frozenset(self.by_name[s.reply].id for s in self.by_id.values() if s.reply)
+        # a reply travels in the classes of the requests it answers (Result: both, as EStop's and Reset's reply;
+        # it is also how any command whose payload does not decode is refused, in the command's class)
+        self._reply_classes: dict[int, frozenset[int]] = {
+            reply_id: frozenset(int(s.cls) for s in self.by_id.values()
+                                if s.reply and self.by_name[s.reply].id == reply_id) for reply_id in self.reply_ids}
         text = f"v{version}\n" + "\n".join(s.canonical() for s in sorted(self.by_id.values(), key=lambda s: s.id))
         self.hash = int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "little")
         self._receivable: dict[Direction, dict[tuple[int, int], MessageSpec]] = {}
@@ -328,9 +333,9 @@ class Schema:
         return self.by_name[name]
 
     def class_allowed(self, spec: MessageSpec, cls: int) -> bool:
-        """Replies travel in their request's class (command or urgent); others in their own."""
+        """Replies travel in the class of the requests they answer (COMMAND, URGENT or both); others in their own."""
         if spec.id in self.reply_ids:
-            return cls in (MsgClass.COMMAND, MsgClass.URGENT)
+            return cls in self._reply_classes[spec.id]
         return spec.cls == cls
 
     def receivable(self, direction: Direction) -> dict[tuple[int, int], MessageSpec]:

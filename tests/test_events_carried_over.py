@@ -5,8 +5,10 @@ import io
 import random
 
 from protocol.controller_link import MAX_UNDELIVERED_EVENTS
+from protocol.framing import encode_signed
 from protocol.host_link import HostLink
 from protocol.messages import SCHEMA
+from protocol.schema import MsgClass
 from protocol.states import Axis, ControllerState, MotionOutcome
 from protocol.reasons import Reason
 
@@ -115,6 +117,54 @@ def test_a_marker_that_was_never_acknowledged_is_replaced_and_its_count_kept():
     assert marker.spec.name == "EventsCarriedOver" and not earlier
     assert marker.dropped == 2 and marker.count > 0
     assert sum(1 for m, _ in received.events if m.spec.name == "EventsCarriedOver") == 1
+
+
+def test_a_lost_link_resends_no_event_until_its_host_is_heard_again():
+    """While the watchdog says the link is lost, the session's events are not resent (a new event goes out once):
+    a new connection on the line got them every 2 s under a key it does not hold (issue 37's second client)."""
+    wire = Wire()
+    received = Received(wire.host)
+    wire.connect()
+    wire.step(200)
+    timeout = wire.controller.config.link_timeout_s
+    wire.controller.send_event(state_event(0))
+    sent = []
+    for _ in range(int((timeout + 10) / 0.01)):       # the host is gone: nothing it would send arrives
+        wire.now += 0.01
+        wire.controller.poll(wire.now)
+        if wire.controller.link_lost:
+            sent.append(wire.controller.take_all(wire.now))
+        else:
+            wire.controller.take_all(wire.now)
+    assert wire.controller.link_lost and sent and not any(sent)
+    assert wire.controller.next_timer_s() > wire.now          # and no timer spins on them
+    wire.controller.send_event(state_event(1))       # a new one goes out once, into the silence
+    wire.now += 0.01
+    wire.controller.poll(wire.now)
+    assert wire.controller.take_all(wire.now)
+    for _ in range(500):
+        wire.now += 0.01
+        wire.controller.poll(wire.now)
+        assert not wire.controller.take_all(wire.now)
+    wire.step(300)                                   # the host speaks again (its heartbeat): the events follow
+    assert not wire.controller.link_lost
+    assert [m.uptime_ms for m, _ in received.events] == [0, 1]
+
+
+def test_an_ack_counts_on_every_session_frame_that_checks_out_even_a_refused_one():
+    wire = Wire()
+    received = Received(wire.host)
+    wire.connect()
+    wire.step(200)
+    wire.controller.send_event(state_event(0))
+    deliver_without_acks(wire, 50)
+    assert received.events and wire.controller._events.outstanding == 1
+    session = wire.host.session
+    session.tx_counter += 1
+    unknown = encode_signed(MsgClass.COMMAND, 0, 0, 0x7FFF, b"", session.keys.tx, session.tx_counter)[0]
+    wire.controller.feed(unknown, wire.now)          # refused UNKNOWN_MESSAGE, but it acknowledges event 0
+    assert wire.controller.stats.reasons.get(Reason.UNKNOWN_MESSAGE) == 1
+    assert wire.controller._events.outstanding == 0
 
 
 class WireClient:

@@ -195,6 +195,48 @@ def _run_recipe(folder: Path) -> list[str]:
     return done.stdout.split()
 
 
+def test_replies_are_sent_in_only_the_classes_of_the_requests_they_answer(data):
+    sent_in = {m["name"]: m["sent_in"] for m in data["messages"]}
+    assert sent_in["Pong"] == sent_in["Closed"] == sent_in["Status"] == ["COMMAND"]
+    assert sent_in["Result"] == ["COMMAND", "URGENT"]            # EStop's and Stop's reply, and any refusal
+    for m in data["messages"]:
+        if m["reply"] is not None:
+            assert m["class"] in sent_in[m["reply"]], m["name"]
+    to_host = SCHEMA.receivable(Direction.TO_HOST)           # and the host refuses one in another (WRONG_DIRECTION)
+    pong = SCHEMA["Pong"].id
+    assert (pong, int(MsgClass.URGENT)) not in to_host and (pong, int(MsgClass.COMMAND)) in to_host
+
+
+def test_the_nak_table_is_data_and_the_doc_renders_the_same_rows(data):
+    """Rule 10 declared once (protocol/link_rules.py): the file holds every row, docs/protocol.md shows each."""
+    from protocol import link_rules
+    rules = data["link"]["naks"]["rules"]
+    assert rules == [r.as_data() for r in link_rules.NAK_RULES]
+    doc = (ROOT / "docs" / "protocol.md").read_text(encoding="utf-8")
+    for rule in rules:
+        assert Reason[rule["reason"]] is Reason(rule["code"])
+        assert rule["signed_with"] in data["link"]["naks"]["signing"]
+        assert set(rule["names"]) <= {f["name"] for f in next(m for m in data["messages"] if m["name"] == "Nak")[
+            "fields"]}
+        assert f"| `{rule['reason']}` | {rule['when']} |" in doc
+    by_reason = {r["reason"]: r for r in rules}
+    assert by_reason["UNSUPPORTED_VERSION"]["names"] == [] and by_reason["NO_SESSION"]["signed_with"] == "no_session"
+    assert [c["class"] for c in data["link"]["classes"]] == [c.name for c in MsgClass]
+    header = data["link"]["handshake_header"]
+    assert (header["class"], header["seq"], header["ack"]) == ("LINK", 0, 65535)
+
+
+def test_the_line_table_and_the_cookie_label_are_the_codes(data):
+    from protocol import line
+    assert [(b["baud"], b["max_telemetry_hz"]) for b in data["line"]["bauds"]] == \
+        [(b, line.max_telemetry_hz(b)) for b in line.BAUD_RATES]
+    cookie = data["authentication"]["cookie"]
+    assert cookie["label"].encode() == auth.COOKIE_LABEL and cookie["size"] == auth.COOKIE_BYTES
+    secret, nonce, slot = bytes(range(16)), bytes(range(16, 32)), 123
+    made = hmac.digest(secret, cookie["label"].encode() + nonce + struct.pack("<q", slot), "sha256")[:cookie["size"]]
+    assert made == auth.hello_cookie(secret, nonce, slot)
+
+
 def test_the_schema_hash_is_recomputed_from_the_file_alone(tmp_path):
     (tmp_path / "docs").mkdir()
     shutil.copy(COMMITTED, tmp_path / "docs" / "schema.json")

@@ -102,6 +102,21 @@ def test_commands_after_the_close_are_refused_and_a_repeated_close_is_answered_f
     assert [m.spec.name for m in wire.executed] == ["Close"]       # run once, the Ping never
 
 
+def test_a_clean_close_draws_no_nak():
+    """The host acknowledges each event as it comes and sends no Ack of its own when the close ends: one more would
+    reach a controller that forgot the session and draw a Nak(NO_SESSION) (the vectors' capture showed one)."""
+    from test_auth_replay import Wire
+    wire = Wire()
+    wire.connect()
+    wire.controller.send_event(M["StateChanged"](1, 1, 0, 0, 0))
+    wire.step(50)
+    handle = wire.host.close(wire.now)
+    wire.step(50)
+    assert handle.ok and wire.host.state is LinkState.CLOSED and wire.controller.session is None
+    wire.step(50)
+    assert wire.controller.stats.naks_tx == 0 and wire.host.stats.naks_rx == 0
+
+
 def test_a_close_whose_answer_is_lost_still_ends_cleanly_and_runs_once():
     """The Closed reply is lost: the host sends its Close again; the controller has forgotten the session (every
     event was acknowledged) and answers NO_SESSION under its NAK key, echoing the Close's tag: closed."""

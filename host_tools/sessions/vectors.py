@@ -196,24 +196,51 @@ class Carried:
 
 
 class _Application:
-    """The controller's application, standing in for firmware_py's: fixed replies, and `Close` as the firmware
-    does it (SessionClosed, then the link's close, then Closed naming the event's sequence number)."""
+    """The controller's application, standing in for firmware_py's: made-up sensor values, but a state that agrees
+    with itself from frame to frame (Enable makes it ENABLED, with its StateChanged; the close makes it IDLE again),
+    uptimes from the one clock, and `Close` as the firmware does it (the events, then the link's close, then Closed
+    naming the last event's sequence number)."""
+
+    SUPPLY_V, TEMP_C = 24.5, 31.25
 
     def __init__(self) -> None:
         self.link: Optional[ControllerLink] = None
+        self.state = ControllerState.IDLE
+
+    def uptime_ms(self, now: float) -> int:
+        """The controller's uptime: its link's, so that replies, events and Heartbeats agree."""
+        return self.link.uptime_ms(now)
+
+    def _change(self, state: ControllerState, reason: Reason, now: float) -> None:
+        self.link.send_event(SCHEMA["StateChanged"].type(int(state), int(self.state), int(reason), 0,
+                                                         self.uptime_ms(now)))
+        self.state = state
+
+    def telemetry(self, now: float) -> Message:
+        """A TelemetryStatus of this moment: the state, the link's own counts."""
+        stats = self.link.stats
+        return SCHEMA["TelemetryStatus"].type(
+            self.uptime_ms(now), int(self.state), int(Reason.OK), 0, self.SUPPLY_V, self.TEMP_C,
+            self.link.commands_executed, stats.frames_rx, stats.frames_tx, stats.crc_errors + stats.auth_errors,
+            180, 95, 0, 0, 0, 1.0, 0.0)
 
     def __call__(self, msg: Message, urgent: bool, now: float) -> Message:
         name = msg.spec.name
-        uptime_ms = int((now - START_S) * 1000) + 5000
+        uptime_ms = self.uptime_ms(now)
         if name == "Ping":
             return SCHEMA["Pong"].type(int(Reason.OK), msg.token, uptime_ms)
         if name == "GetStatus":
-            return SCHEMA["Status"].type(int(Reason.OK), int(ControllerState.IDLE), 0, int(Reason.OK), uptime_ms,
-                                         24.5, 31.25, 2, 10, 0, 1.0, 0.0, 1.0)
+            return SCHEMA["Status"].type(int(Reason.OK), int(self.state), 0, int(Reason.OK), uptime_ms,
+                                         self.SUPPLY_V, self.TEMP_C, self.link.commands_executed, 10, 0, 1.0, 0.0,
+                                         1.0)
+        if name == "Enable" and self.state is ControllerState.IDLE:
+            self._change(ControllerState.ENABLED, Reason.HOST_REQUEST, now)
         if name == "Close":
-            self.link.send_event(SCHEMA["SessionClosed"].type(msg.why, int(ControllerState.IDLE), 0, uptime_ms))
+            if self.state is ControllerState.ENABLED:
+                self._change(ControllerState.IDLE, Reason.SESSION_CLOSED, now)
+            self.link.send_event(SCHEMA["SessionClosed"].type(msg.why, int(self.state), 0, uptime_ms))
             self.link.close_session()
-            return SCHEMA["Closed"].type(int(Reason.OK), int(ControllerState.IDLE), 0, self.link.last_event_seq,
+            return SCHEMA["Closed"].type(int(Reason.OK), int(self.state), 0, self.link.last_event_seq,
                                          int(self.link.config.link_timeout_s * 1000))
         return SCHEMA["Result"].type(int(Reason.OK))
 
@@ -270,16 +297,14 @@ class _Line:
 
 
 def _session(line: _Line) -> None:
-    """The session of the capture: handshake, three commands, an urgent request, telemetry, an event, the close."""
+    """The session of the capture: handshake, three commands (the Enable's event), an urgent request, telemetry, the
+    close (its events)."""
     line.connect()
     line.command(SCHEMA["Ping"].type(0x12345678))
     line.command(SCHEMA["GetStatus"].type())
-    line.command(SCHEMA["Stop"].type())
-    line.controller.send_telemetry(SCHEMA["TelemetryStatus"].type(
-        5100, int(ControllerState.IDLE), int(Reason.OK), 0, 24.5, 31.25, 3, 7, 9, 0, 180, 95, 0, 0,
-        0, 1.0, 0.0))
-    line.controller.send_event(SCHEMA["StateChanged"].type(
-        int(ControllerState.ENABLED), int(ControllerState.IDLE), int(Reason.HOST_REQUEST), 0, 5120))
+    line.command(SCHEMA["Enable"].type())           # its StateChanged to ENABLED follows the Result
+    line.command(SCHEMA["Stop"].type())             # urgent: stops motion, keeps the state
+    line.controller.send_telemetry(line.app.telemetry(line.now))
     line.carry()
     handle = line.host.close(line.now, CloseWhy.DONE)
     line.carry()
