@@ -234,8 +234,8 @@ def test_losing_the_link_is_said_when_it_happens():
 
 
 def test_a_pty_read_that_finds_nothing_names_a_second_reader_while_the_simulator_runs(tmp_path):
-    """pyserial's "returned no data" is the far end gone, or another program that read the bytes first: which of
-    the two is told by whether the simulator behind the control endpoint still runs."""
+    """pyserial's "returned no data" is the far end gone, or another program that read the bytes first: a simulator
+    that no longer runs tells which; one whose process is still there (running, or stopping) leaves both said."""
     from host_tools.teleop.session import closed_text
     error = ("device reports readiness to read but returned no data (device disconnected or multiple access on "
              "port?)")
@@ -244,8 +244,9 @@ def test_a_pty_read_that_finds_nothing_names_a_second_reader_while_the_simulator
     def client(pid: int):
         return SimpleNamespace(url="/dev/pts/9", io_error=error,
                                control=SimpleNamespace(path=tmp_path / f"sim-{pid}.sock"))
-    assert closed_text(client(os.getpid())) == ("another program reads /dev/pts/9 too and took what was meant for "
-                                                "this one (multiple access on port?)")
+    assert closed_text(client(os.getpid())) == (                 # still running, or on its way out: either
+        "the simulator closed its end of /dev/pts/9 (it stopped?), or another program reads it too and took what was "
+        "meant for this one (multiple access on port?)")
     assert closed_text(client(int(dead.stdout))) == "the simulator closed its end of /dev/pts/9 (it stopped?)"
     gone = SimpleNamespace(url="/dev/pts/9", io_error="[Errno 5] Input/output error",
                            control=SimpleNamespace(path=tmp_path / f"sim-{os.getpid()}.sock"))

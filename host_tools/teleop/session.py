@@ -526,8 +526,10 @@ def closed_text(client) -> str:
         return f"{where}: {error}"
     control = getattr(client, "control", None)
     if control is not None and STOLEN in error and owner_alive(control.path):
-        # a pty woke this reader and another took the bytes: the simulator still runs, a second program reads
-        return f"another program reads {where} too and took what was meant for this one (multiple access on port?)"
+        # readable, then nothing: the simulator's end closing (it may still be on its way out) or a second program
+        # that read the bytes first; its process still there cannot tell which
+        return (f"the simulator closed its end of {where} (it stopped?), or another program reads it too and took "
+                "what was meant for this one (multiple access on port?)")
     if control is not None:
         return f"the simulator closed its end of {where} (it stopped?)"
     return f"the other end of {where} closed it (the device unplugged, or the program serving it stopped)"
