@@ -178,9 +178,21 @@ verify with `Nak(NO_SESSION)` under its handshake key, within the NAK budget (ru
 MUST NOT act on the frame. The controller counts such a NAK (`naks_rx`) and does nothing else: a host's
 handshake-key NAK can be recorded and played back, so it never ends a session. A controller whose session's
 link is lost (no valid frame for the link timeout) sends no heartbeat and resends no event of that session
-until the session's host is heard again (`protocol/controller_link.py` `poll`); only an event made while the
-link is lost (the `StateChanged` to the safe state) goes out, once, into the silence. A new host on the line
-may therefore hear such a frame before its own handshake, at most one per event, never a resend.
+until the session's host is heard again (`protocol/controller_link.py` `poll`); only the events made while the
+link is lost (the `FaultReport` of the link's loss and the `StateChanged` to the safe state) go out, once each,
+into the silence. A new host on the line may therefore hear such a frame before its own handshake, at most one
+per event, never a resend.
+
+A host that has closed its session (`Closed` and every event up to its `last_event_seq` taken and
+acknowledged) is done with it: it MAY ignore every frame of that session that still comes (a `SessionClosed`
+sent again, say) and SHOULD NOT acknowledge it, since the controller has forgotten the session and answers
+with `Nak(NO_SESSION)`. It SHOULD write its last `Ack` before it closes the port (the OS delivers what was
+written); an `Ack` that is lost all the same costs only this: the controller lingers for at most
+`link_timeout_s` and offers that `SessionClosed` to the next session among the events carried over (rule 7).
+
+An event (or a reply) that is authenticated but whose payload does not decode is counted as `rejected` and
+dropped; the host MUST still take its sequence number and acknowledge an event (else the controller would
+offer it for ever) and MUST NOT act on it. The host has no `Nak` for it (rule 10).
 
 ## Closing a session
 

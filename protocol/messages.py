@@ -31,14 +31,16 @@ _EXECUTED = ("commands and urgent requests whose payload decoded and that reache
              "Nak or for a payload that does not decode; each counts once its handler returns, so a GetStatus is not "
              "in its own Status")
 _STATS = (
-    Field("frames_rx", "u32", "valid frames received"),
+    Field("frames_rx", "u32", "frames received whose CRC and MAC (or, for the handshake, its key) verified"),
     Field("frames_tx", "u32", "frames sent"),
     Field("bytes_rx", "u32", "bytes received, garbage included", "B"),
     Field("bytes_tx", "u32", "bytes sent", "B"),
     Field("crc_errors", "u32", "frames dropped for a bad CRC-32 or bad COBS"),
     Field("auth_errors", "u32", "frames refused UNAUTHENTICATED, BAD_MAC or NO_SESSION, and frames dropped for a "
           "counter not above the last accepted (replays)"),
-    Field("rejected", "u32", "authenticated frames refused with a reason code"),
+    Field("rejected", "u32", "frames whose CRC was right refused with a reason code: for their header (version, "
+          "flags, length), or authenticated and refused (class, message, sequence, a payload that does not "
+          "decode), or a refused Hello"),
     Field("naks_tx", "u32", "NAKs sent"),
     Field("naks_rx", "u32", "NAKs received"),
     Field("retransmits", "u32", "reliable frames sent again"),
@@ -314,7 +316,8 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
     MessageSpec("Close", 0x70, MsgClass.COMMAND, H,
                 "Ends the session cleanly, in order after every command sent before it: the controller stops every "
                 "motion and goes to its safe state without a fault (outputs off, brakes on; ENABLED becomes IDLE; a "
-                "latched FAULT or ESTOP stays), sends SessionClosed, answers Closed, and forgets the session once the "
+                "latched FAULT or ESTOP stays), answers Closed, sends SessionClosed (the session's last event; a host "
+                "waits for both, in either order), and forgets the session once the "
                 "host has acknowledged its last event (or after `linger_ms`). Without a Close, a host that goes silent "
                 "is a lost link (LINK_LOST, latched).",
                 (Field("why", "u8", "why the host closes", enum=CloseWhy, default=int(CloseWhy.DONE)),),
@@ -404,7 +407,7 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                  Field("supply_v", "f32", "supply voltage", "V"),
                  Field("temp_c", "f32", "controller temperature", "degC"),
                  Field("commands_executed", "u32", _EXECUTED),
-                 Field("frames_rx", "u32", "valid frames received"),
+                 Field("frames_rx", "u32", "frames received whose CRC and MAC (or, for the handshake, its key) verified"),
                  Field("frames_tx", "u32", "frames sent"),
                  Field("link_errors", "u32", "CRC, framing and authentication failures"),
                  Field("loop_max_us", "u32", "longest task execution since boot", "us"),
