@@ -72,6 +72,7 @@ def test_the_console_fits_the_terminal_and_pages_helps_watches_and_clears(start_
     term.type("help")
     term.shows(r"^commands by job .*^arm$.*-- \d+/\d+ lines: any key for more, q to stop --")
     term.key("q")
+    term.until(lambda: "any key for more" not in term.screen())      # the pager's line gone: the prompt is back
     at = term.mark()
     term.type("help move")
     term.shows(r"^move AXIS TARGET \[SPEED\]$.*TARGET +a number of degrees, from -360 to 360.*aspod IDLE >", at)
@@ -93,6 +94,7 @@ def test_the_console_fits_the_terminal_and_pages_helps_watches_and_clears(start_
     term.type("params")
     term.shows(r"^  name +value +unit +range +what it does$.*-- \d+/\d+ lines: any key for more, q to stop --", at)
     term.key("q")
+    term.until(lambda: "any key for more" not in term.screen())
     term.shows(r"aspod IDLE > ?$", at)
     too_wide = [line for line in term.lines() if len(line) > columns]
     assert not too_wide, "\n".join(too_wide)
