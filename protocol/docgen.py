@@ -190,9 +190,18 @@ with `Nak(NO_SESSION)`. It SHOULD write its last `Ack` before it closes the port
 written); an `Ack` that is lost all the same costs only this: the controller lingers for at most
 `link_timeout_s` and offers that `SessionClosed` to the next session among the events carried over (rule 7).
 
-An event (or a reply) that is authenticated but whose payload does not decode is counted as `rejected` and
-dropped; the host MUST still take its sequence number and acknowledge an event (else the controller would
-offer it for ever) and MUST NOT act on it. The host has no `Nak` for it (rule 10).
+An event that is authenticated but whose payload does not decode is counted as `rejected` and dropped;
+the host MUST still take its sequence number and acknowledge it (else the controller would offer it for ever)
+and MUST NOT act on it. The host has no `Nak` for it (rule 10). A reply that does not decode ends its command
+`REJECTED` with the decoder's reason (`protocol/host_link.py` `_complete`): its sequence number was answered,
+so it is not sent again. An event whose message the controller does not declare as an event, or sends in
+another class, is refused with `Nak(UNKNOWN_MESSAGE)` or `Nak(WRONG_DIRECTION)` and its sequence number is not
+taken: only a broken controller sends one, and it offers it again (each refusal within the NAK budget). A
+controller `Heartbeat`, `Nak` or telemetry frame whose payload does not decode is counted as `rejected` and
+dropped, never answered.
+
+Before it closes a TCP connection a host SHOULD discard what it has not read, so that the connection ends
+with FIN after its last bytes rather than a reset, which may discard them (its last `Ack` among them).
 
 ## Closing a session
 
@@ -207,15 +216,20 @@ submits the events while it executes the `Close`; a reply is queued at once, eve
 next runs). A host MUST NOT rely on that order: it waits for both the `Closed` and the events up to
 `last_event_seq`, whichever comes first. From then on
 the session sends no telemetry or heartbeat, has no link watchdog, and refuses every new command
-or urgent request with `Nak(SESSION_CLOSED)`; a `Close` sent again is a duplicate, answered with
-the cached `Closed`. It lingers for the host's acknowledgements: when every event is acknowledged
+or urgent request with `Nak(SESSION_CLOSED)`; a `Close` resent (the same `seq`, rule 1) is a duplicate,
+answered with the cached `Closed`, while a `Close` under a new `seq` is a new command and gets
+`Nak(SESSION_CLOSED)`. The linger's clock starts when the controller executes the `Close`. It lingers for the host's acknowledgements: when every event is acknowledged
 (and the `Closed` is out), or after `linger_ms` (the link timeout), the controller forgets it.
 Events the host never acknowledged wait for the next session, as after any session.
 
 The host waits for `Closed` and for every event up to `last_event_seq`, acknowledges them (an
 `Ack`) and leaves. If the controller has already forgotten the session (its `Closed` was lost),
-the host's repeated `Close` gets a `Nak(NO_SESSION)` under the controller's NAK key echoing its tag,
-or a `Nak(SESSION_CLOSED)`, and the host takes either as the end. A host that leaves without a
+the host's resent `Close` gets a `Nak(NO_SESSION)` under the controller's NAK key echoing its tag, and
+the host takes it as the end. This host (`protocol/host_link.py`) also takes as the end a
+`Nak(SESSION_CLOSED)` of a frame it sent while closing (a command behind the `Close`), and its `close` waits
+at most twice the link timeout (1 to 30 s, `host_tools/client/live.py` `close_wait_s`); either way an event
+it did not acknowledge is not lost: it comes to the next session, behind an `EventsCarriedOver` (rule 7). A
+host MAY go on sending heartbeats while it waits; the closing session has no watchdog. A host that leaves without a
 `Close` (killed, or its line cut) is a lost link: the controller latches `LINK_LOST` after the
 link timeout, and the next host finds the controller in FAULT with LINK_LOST latched and sends `Reset`
 before `Enable`. `why` says why the host closes (`CloseWhy`): `DONE`, `STOPPED` (a signal), `ERROR`.
@@ -272,7 +286,9 @@ first sample, doubled on each expiry, no sample from a frame sent more than once
 oldest expired frame on, every frame in flight goes again (go-back-N). After {LinkConfig.retry_limit} sends
 (`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
-handshake. The controller never gives up an event: it offers its unacknowledged events again from the
+handshake. Urgent requests have the same window, retry limit and suspension, and share the commands' RTT
+estimate (one line, one round trip), but are not in order: each is answered on its own (`protocol/host_link.py`
+`_new_channels`). The controller never gives up an event: it offers its unacknowledged events again from the
 first (counted in the local `event_resumes`); while the link is lost it resends none (see "Sessions and
 authentication").
 
