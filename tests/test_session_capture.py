@@ -126,6 +126,18 @@ def test_without_the_key_macs_are_unchecked_and_with_another_key_every_signed_fr
     assert all(d.message is not None for d in wrong)       # the fields still read; only trust is withheld
 
 
+def test_a_hosts_no_session_nak_verifies_under_the_handshake_key_and_under_no_other():
+    """A host with no session NAKs a frame it cannot verify under its handshake key (protocol.md, rule 10)."""
+    nak = SCHEMA["Nak"]
+    payload = nak.encode(nak.type(8, MsgClass.EVENT, 3, SCHEMA["StateChanged"].id, 0, bytes(8)))
+    hs = auth.handshake_keys(PSK, is_controller=False)
+    decoder = SessionDecoder(PSK)
+    for key, direction, verdict in ((hs.tx, H2C, MAC_OK), (hs.rx, H2C, MAC_BAD), (hs.tx, C2H, MAC_BAD)):
+        wire, _ = encode_signed(MsgClass.LINK, 0, 0xFFFF, nak.id, payload, key, 1)
+        decoded = decoder.decode(wire[1:-1], 0.0, "link", direction)
+        assert decoded.mac == verdict and decoded.message.spec.name == "Nak", (direction, verdict)
+
+
 def test_stats_count_round_trips_and_retransmissions_and_telemetry_gaps(tmp_path):
     dropped = []
 

@@ -107,8 +107,10 @@ class SessionDecoder:
         for keys in reversed(self._sessions):
             if frame.verify(keys[direction]):
                 return MAC_OK
-        if frame.msg_id == NAK_ID and direction is Direction.TO_HOST:     # a controller's NAK with no session
-            if any(frame.verify(key) for key in self._nak_keys):
+        if frame.msg_id == NAK_ID:
+            # with no session, a controller signs its NAKs with its NAK key, a host with the handshake key
+            keys = self._nak_keys if direction is Direction.TO_HOST else [self._handshake[direction]]
+            if any(frame.verify(key) for key in keys):
                 return MAC_OK
         return MAC_BAD
 
