@@ -145,6 +145,12 @@ unless given the same file.
    nonce | controller nonce)`. The controller keeps the new session *pending* and
    adopts it when the first frame signed with its key arrives (the host sends a
    `Heartbeat` at once), so a replayed `Hello` cannot displace a live session.
+   Until then the live session, if any, goes on (its telemetry and heartbeats stay on the line: a
+   new host hears them under a key it does not hold, rule 10). Adopting the new session ends the
+   old one at once, without a `Close` and without latching `LINK_LOST` (the line is not lost): its
+   commands not answered are never answered (its host sees `SESSION_RESET` or its retry limit), and
+   its unacknowledged events wait for the new session (rule 7) (`protocol/controller_link.py`
+   `_promote`).
 
 A `Hello` can be recorded and played back, so the controller bounds its answers: a
 `Hello` whose nonce opened a session a host adopted is a replay (counted, never
@@ -286,9 +292,11 @@ first sample, doubled on each expiry, no sample from a frame sent more than once
 oldest expired frame on, every frame in flight goes again (go-back-N). After {LinkConfig.retry_limit} sends
 (`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
-handshake. Urgent requests have the same window, retry limit and suspension, and share the commands' RTT
-estimate (one line, one round trip), but are not in order: each is answered on its own (`protocol/host_link.py`
-`_new_channels`). The controller never gives up an event: it offers its unacknowledged events again from the
+handshake. A `Nak(SEQUENCE_GAP)` makes every command from its `expected_seq` on due at once: that resend is
+an expiry like any other (it counts toward the retry limit and doubles the timer; `protocol/reliable.py`
+`go_back`, `due`). Urgent requests have the same window, retry limit and suspension, and share the commands'
+RTT estimate (one line, one round trip), but are not in order: each is answered on its own and resent alone
+when its own timer expires, never go-back-N (`protocol/host_link.py` `_new_channels`). The controller never gives up an event: it offers its unacknowledged events again from the
 first (counted in the local `event_resumes`); while the link is lost it resends none (see "Sessions and
 authentication").
 
@@ -339,9 +347,14 @@ cache, never a second execution. A command refused with a `Nak` leaves the expec
 was: the host sends that number again (for `SEQUENCE_GAP`, from `expected_seq`).
 
 **Rule 6. Windows.** The host MUST keep the span of command sequence numbers in flight (from the oldest
-unanswered to the newest sent) below the command window, {LinkConfig.window} (`LinkConfig.window`, at most
+unanswered to the newest sent) below the command window, {LinkConfig.window} (`LinkConfig.window`): a
+command numbered `n` may be sent only while `(n - oldest unanswered) mod 65536` is at most
+{LinkConfig.window - 1}, so at most {LinkConfig.window} numbers are in flight (the window at most
 `REPLY_CACHE_SIZE` = {REPLY_CACHE_SIZE}), so every resend is still in the controller's reply cache; urgent requests
-have a window of their own of the same size. The controller keeps its events to the same window: at most
+have a window of their own of the same size. The command window is the host's duty: the controller SHOULD
+take commands beyond it as any others (each in order, once), since refusing them would only cost the host a
+resend; a host outside its window risks only that a resend falls out of the reply cache (rule 2). The
+controller MUST keep its events to the same window: at most
 {LinkConfig.window} events in flight (the event window, `LinkConfig.window`); later ones wait, and take their
 sequence number when they are first sent. Events not acknowledged when a session ends wait for the next
 one: the newest {MAX_UNDELIVERED_EVENTS} (`MAX_UNDELIVERED_EVENTS`), the older ones counted as dropped.
@@ -523,7 +536,9 @@ is not checked against the line.
 FIELD_TYPES = """Field types: `u8` to `u64` and `i8` to `i32` (integers), `f32` (IEEE 754 single; finite, and a
 value beyond +-3.4028235e38 cannot be sent), `bool` (one byte, 0 or 1), `bytesN` (N bytes), `strN` (a name:
 up to N of A-Z a-z 0-9 `_` `.` `-`, zero-padded to N bytes), `textN` (up to N printable ASCII characters,
-zero-padded to N bytes). A value outside its type or declared range is refused on encode and on decode.
+zero-padded to N bytes; on decode the text ends at the first zero byte, and every byte after it must be zero and
+every byte ASCII, or the field is refused `OUT_OF_RANGE`). A value outside its type or declared range is refused
+on encode and on decode.
 """
 
 
