@@ -15,7 +15,7 @@ import sys
 import threading
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import pytest
 
@@ -127,6 +127,29 @@ class IgnoresLinkTimeout(ControllerLink):
         self.link_lost = False
 
 
+class NoEventWindow(ControllerLink):
+    """Sends every event at once, however many are unacknowledged (no event window)."""
+
+    def _new_channels(self) -> None:
+        super()._new_channels()
+        self._events.window = 64
+
+
+class DropsBeyondWindow(ControllerLink):
+    """Of the new commands that come in one read, takes only a window's worth and drops the rest unanswered."""
+
+    def feed(self, data: bytes, now: float) -> None:
+        self.taken_in_this_read = 0
+        super().feed(data, now)
+
+    def _handle(self, frame: Frame, spec, now: float) -> None:
+        if frame.cls == MsgClass.COMMAND and self._commands.classify(frame.seq) is Verdict.NEW:
+            self.taken_in_this_read = getattr(self, "taken_in_this_read", 0) + 1
+            if self.taken_in_this_read > self.config.window:
+                return
+        super()._handle(frame, spec, now)
+
+
 class LateResync(FrameReceiver):
     """After a segment that does not decode, drops the next one too (resynchronises a frame late)."""
 
@@ -192,6 +215,8 @@ def test_the_toy_controller_passes_every_check(toy_factory):
     ("NAKs every unsigned frame", dict(link_class=NaksEveryFrame), ["garbage-bounded"]),
     ("ignores the link timeout", dict(link_class=IgnoresLinkTimeout, failsafe=False), ["link-loss-failsafe"]),
     ("resynchronises a frame late", dict(receiver=LateResync()), ["framing-resync-garbage", "framing-resync-torn"]),
+    ("sends events past its window", dict(link_class=NoEventWindow), ["event-window"]),
+    ("drops commands past the window", dict(link_class=DropsBeyondWindow), ["commands-beyond-window"]),
 ])
 def test_a_controller_broken_in_one_rule_is_caught_by_the_check_named_for_it(toy_factory, variant, kw, caught_by):
     results = _run(toy_factory(**kw), caught_by)
@@ -371,26 +396,70 @@ def test_conform_host_judges_a_good_host_and_passes_it(env, tmp_path):
     assert [c.get("name") for c in cases] == [c.name for c in HOST_CHECKS]
 
 
-@pytest.mark.realtime
-def test_conform_host_catches_a_host_that_never_acknowledges_events(monkeypatch):
-    from protocol.host_link import HostLink
-    from protocol.reliable import NOTHING_RECEIVED_ACK
-    monkeypatch.setattr(HostLink, "_ack_value", lambda self: NOTHING_RECEIVED_ACK)
-    monkeypatch.setattr(HostLink, "_event", lambda self, frame, spec, now: None)
+def _watch_a_host(session: Callable[[str, bytes], None] = None) -> dict[str, object]:
+    """conform's played controller on TCP in a thread, a host's session against it, the host checks' results."""
     port = TcpServerPort(0)
     watched = []
     server = threading.Thread(target=lambda: watched.append(watch_host(
         port, KEY, 10.0, LinkConfig(heartbeat_s=0.3, link_timeout_s=1.0))), daemon=True)
     server.start()
     try:
-        _host_session(port.url, KEY)
+        try:
+            (session or _host_session)(port.url, KEY)
+        except AssertionError:
+            pass                        # a broken host may fail its own work; its frames are judged all the same
         server.join(30.0)
     finally:
         port.close()
-    results = {r.check.name: r for r in judge_host(watched[0])}
+    return {r.check.name: r for r in judge_host(watched[0])}
+
+
+@pytest.mark.realtime
+def test_conform_host_catches_a_host_that_never_acknowledges_events(monkeypatch):
+    from protocol.host_link import HostLink
+    from protocol.reliable import NOTHING_RECEIVED_ACK
+    monkeypatch.setattr(HostLink, "_ack_value", lambda self: NOTHING_RECEIVED_ACK)
+    monkeypatch.setattr(HostLink, "_event", lambda self, frame, spec, now: None)
+    results = _watch_a_host()
     assert results["host-acks-events"].status == FAIL, results["host-acks-events"].lines()
     assert results["host-authenticates"].status == PASS
     assert results["host-commands-in-order"].status == PASS
+
+
+@pytest.mark.realtime
+def test_conform_host_catches_a_host_that_never_resends(monkeypatch):
+    from protocol.reliable import ReliableSender
+    due = ReliableSender.due
+    monkeypatch.setattr(ReliableSender, "due", lambda self, now, resend=True: due(self, now, resend=False))
+
+    def session(url: str, key: bytes) -> None:
+        from host_tools.client.live import HostClient
+        client = HostClient(url, key)
+        try:
+            client.connect()
+            client.call(SCHEMA["Ping"].type(1), 3.0)
+            client.call(SCHEMA["Ping"].type(2), 3.0)        # its reply is the one dropped: never asked for again
+        finally:
+            client.close()
+    results = _watch_a_host(session)
+    assert results["host-resends"].status == FAIL, results["host-resends"].lines()
+    assert "never" in results["host-resends"].seen
+    assert results["host-authenticates"].status == PASS
+
+
+@pytest.mark.realtime
+def test_conform_host_catches_a_host_that_believes_any_no_session(monkeypatch):
+    from protocol.host_link import HostLink
+    from protocol.link import LinkState
+
+    def believes(self, frame, now):
+        if self.state is LinkState.UP:
+            self.connect(now)
+    monkeypatch.setattr(HostLink, "_verifies_handshake_nak", lambda self, frame: True)
+    monkeypatch.setattr(HostLink, "_handle_handshake_nak", believes)
+    results = _watch_a_host()
+    assert results["host-resends"].status == PASS, results["host-resends"].lines()
+    assert results["host-ignores-forged-no-session"].status == FAIL, results["host-ignores-forged-no-session"].lines()
 
 
 @pytest.mark.realtime

@@ -371,6 +371,29 @@ def commands_in_order(ctx: Context) -> str:
     return f"{len(tokens)} in flight, answered in order"
 
 
+@check("commands-beyond-window", CLASSES, "twice the window of commands sent at once (a host outside rule 6): "
+       "each executed once, in order, answered with its own number and reply; the window is the host's duty, "
+       "never a reason to drop a command", level=SHOULD)
+def commands_beyond_window(ctx: Context) -> str:
+    p = ctx.probe
+    ctx.session()
+    before = ctx.executed()
+    ping = SCHEMA["Ping"]
+    tokens = [0xB10C0000 + n for n in range(2 * p.link.config.window)]
+    seqs = [p.take_command_seq() for _ in tokens]
+    mark = len(p.seen)
+    p.write(b"".join(p.command(ping.type(t), seq) for t, seq in zip(tokens, seqs)))
+    ctx.answer(mark, f"an answer to the last, numbered {seqs[-1]}", lambda s: s.frame.cls == MsgClass.COMMAND
+               and s.frame.seq == seqs[-1] and s.key == "session")
+    answers = [s for s in p.since(mark, MsgClass.COMMAND) if s.key == "session"]
+    expect([s.frame.seq for s in answers] == seqs, f"the answers numbered {seqs}, in order, once each",
+           f"{[s.frame.seq for s in answers]}")
+    for t, seen in zip(tokens, answers):
+        expect_pong(seen, t, f"to the Ping numbered {seen.frame.seq}")
+    ctx.expect_executed(before, len(tokens) + 1, "the Pings and one GetStatus")
+    return f"{len(tokens)} at once, answered in order"
+
+
 @check("duplicate-from-cache", CLASSES, "a command sent again with the same number (re-signed, a new counter) is "
        "answered from the reply cache, byte for byte the first reply, and never executed again")
 def duplicate_from_cache(ctx: Context) -> str:
@@ -686,6 +709,42 @@ def events_redelivered(ctx: Context) -> str:
            f"events {names}")
     _reset(ctx)
     return f"{count} carried over; reset"
+
+
+@check("event-window", CLASSES, "with its events unacknowledged, the controller keeps at most the event window (8) "
+       "in flight; once they are acknowledged it sends the later ones, each delivered once, in order")
+def event_window(ctx: Context) -> str:
+    p = ctx.probe
+    window = LinkConfig.window
+    ctx.session(new=True)                         # event numbers from 0
+    first_event = len(p.events)
+    mark = len(p.seen)
+    cycles = window // 2 + 1                      # an EStop and a Reset make two StateChanged each
+    p.hold_events = True
+    try:
+        for _ in range(cycles):
+            ctx.call(SCHEMA["EStop"].type())
+            _reset(ctx)
+        start_ms = ctx.ping(0xE1).uptime_ms       # half a second of its own time to send what it would
+        while ctx.ping(0xE2).uptime_ms - start_ms < 500:
+            pass
+        held = sorted({s.frame.seq for s in p.since(mark, MsgClass.EVENT) if s.key == "session"})
+    finally:
+        p.hold_events = False
+    expect(bool(held) and held[-1] - held[0] < window, f"event numbers within one window ({window}) while none "
+           "was acknowledged", f"numbers {held}")
+    made = 2 * cycles
+
+    def changes() -> list[Message]:
+        return [m for _, m, earlier in p.events[first_event:] if m.spec.name == "StateChanged" and not earlier]
+
+    p.until(lambda: len(changes()) >= made, ctx.bound_s)
+    changes = changes()
+    states = [ControllerState(m.state).name for m in changes]
+    expect(len(changes) == made and states[::2] == ["ESTOP"] * cycles and "ESTOP" not in states[1::2]
+           and len({m.uptime_ms for m in changes}) == made,
+           f"{made} StateChanged delivered once each, in order (ESTOP, out of it, ...)", f"{states}")
+    return f"{len(held)} in flight unacknowledged; all {made} delivered in order once acknowledged"
 
 
 @check("clean-close", CLOSING, "Close is answered Closed naming the session's last event, its SessionClosed; then "

@@ -30,6 +30,7 @@ class PlayedController:
                  failsafe: bool = True, receiver: Optional[FrameReceiver] = None, clock: Optional[Clock] = None,
                  on_frame_out: Callable[[bytes, float], None] = lambda wire, now: None,
                  on_bytes_in: Callable[[bytes, float], None] = lambda data, now: None) -> None:
+        self.psk = psk
         self.clock = clock or RealClock()
         self.started_s = self.clock.now()
         self.state, self.faults = ControllerState.IDLE, 0
@@ -40,6 +41,8 @@ class PlayedController:
             self.link._rx = receiver
         self.on_frame_out = on_frame_out      # each frame as it goes out (a watcher of the host)
         self.on_bytes_in = on_bytes_in        # what came from the host, before the link has it
+        self.drop: Callable[[bytes, float], bool] = lambda wire, now: False   # True: this frame never goes out
+        self.injected: list[bytes] = []       # frames made outside the link, written at the next turn
         self._telemetry_due = 0.0
 
     def uptime_ms(self) -> int:
@@ -128,9 +131,13 @@ class PlayedController:
         self._telemetry(now)
         moved = bool(data)
         while (wire := self.link.take_frame(now)) is not None:
-            self.on_frame_out(wire, now)
-            _write_all(port, wire, self.clock)
             moved = True
+            self.on_frame_out(wire, now)
+            if not self.drop(wire, now):
+                _write_all(port, wire, self.clock)
+        while self.injected:
+            moved = True
+            _write_all(port, self.injected.pop(0), self.clock)
         return moved
 
     def serve(self, port, done: Callable[[], bool]) -> None:

@@ -5,15 +5,23 @@ are judged against the same rules of docs/protocol.md as the controller's are (`
 The watch sees the host's bytes before the controller's link does, so it knows the keys the link knows at that
 moment: the handshake key, the live session's and the pending ones' (a host's first frame under a new session key
 is what adopts it). Each check reads the timeline and raises `Fail` or `Skip` as the controller's checks do.
+
+Two things a well-behaved controller would not do are done once each, to see the host's answer to them: the reply to
+the host's command 1 in its first session is dropped (the host must resend it, signed again, and take the cached
+reply), and when that resend has been answered, two `Nak(NO_SESSION)` a recording or another controller could make
+are sent (one under another controller's NAK key echoing a tag the host sent, one under this controller's NAK key
+echoing a tag it never sent): the host must ignore both and keep its session.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import Callable, Optional
 
+from protocol import auth
 from protocol.errors import ParseError
-from protocol.framing import Frame, FrameReceiver, decode_frame
-from protocol.link import HELLO_ID, LinkConfig
+from protocol.framing import Frame, FrameReceiver, decode_frame, encode_frame
+from protocol.link import HELLO_ID, NAK_ID, NAK_TAG_BYTES, LinkConfig
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.reliable import NOTHING_RECEIVED_ACK, seq_delta
@@ -26,6 +34,8 @@ from host_tools.conform.runner import FAIL, PASS, SKIP, Result
 
 EVENT_ACK_S = 1.0     # the controller's first retransmission timeout: an event not acknowledged by then goes again
 SETTLE_S = 0.5        # after the host's session ends, its last frames are awaited this long
+DROPPED_SEQ = 1       # the reply to the host's command of this number, in its first session, is dropped once
+RESEND_SLACK_S = 0.5  # a resend is due within the longest retransmission timeout and this
 
 
 @dataclass
@@ -40,6 +50,7 @@ class Seen:
     key: Optional[str] = None
     session: int = -1
     msg: Optional[Message] = None
+    dropped: bool = False          # a frame conform made and never sent (the reply the host must ask for again)
 
     @property
     def name(self) -> str:
@@ -51,11 +62,15 @@ class HostWatch:
     played: PlayedController
     seen: list[Seen] = field(default_factory=list)
     sessions: dict[bytes, int] = field(default_factory=dict)       # host nonce -> session number
+    dropped: Optional[Seen] = None          # the reply dropped on purpose
+    forged_at: Optional[float] = None       # when the two NAKs the host must ignore went out
+    _dropping: Optional[bytes] = None
     _rx: FrameReceiver = field(default_factory=FrameReceiver)
 
     def __post_init__(self) -> None:
         self.played.on_bytes_in = self.bytes_in
         self.played.on_frame_out = self.frame_out
+        self.played.drop = lambda wire, now: wire is self._dropping
 
     def _session_keys(self) -> list[tuple[int, object, bytes]]:
         """(number, rx key, host nonce) of the live session and the pending ones."""
@@ -93,7 +108,29 @@ class HostWatch:
         if live is not None and frame.verify(live.keys.tx):
             seen.session = self._number(live.host_nonce)
             seen.key = f"session {seen.session}"
+        if seen.session == 0 and frame.cls == MsgClass.COMMAND and frame.seq == DROPPED_SEQ:
+            if self.dropped is None:
+                seen.dropped, self.dropped, self._dropping = True, seen, wire
+            elif self.forged_at is None:
+                self._forge_no_session(now)
         self.seen.append(seen)
+
+    def _forge_no_session(self, now: float) -> None:
+        """Two NO_SESSION NAKs the host must not believe: another controller's (its NAK key under another identity)
+        echoing a tag the host sent, and this controller's echoing a tag the host never sent."""
+        link = self.played.link
+        sent = [s.frame.tag[:NAK_TAG_BYTES] for s in self.host(0)]
+        unsent = os.urandom(NAK_TAG_BYTES)
+        while unsent in sent:
+            unsent = os.urandom(NAK_TAG_BYTES)
+        other_id = bytes(b ^ 0xFF for b in link.controller_id)
+        for key, tag in ((auth.nak_key(self.played.psk, other_id), sent[-1]),
+                         (auth.nak_key(self.played.psk, link.controller_id), unsent)):
+            nak = SCHEMA["Nak"].type(int(Reason.NO_SESSION), MsgClass.COMMAND, DROPPED_SEQ, 0, 0, tag)
+            link._handshake_tx_counter += 1
+            self.played.injected.append(encode_frame(MsgClass.LINK, 0, NOTHING_RECEIVED_ACK, NAK_ID,
+                                                     SCHEMA["Nak"].encode(nak), key, link._handshake_tx_counter))
+        self.forged_at = now
 
     # ---- views of the timeline ----
     def host(self, session: Optional[int] = None) -> list[Seen]:
@@ -202,6 +239,43 @@ def host_commands_in_order(watch: HostWatch) -> str:
             highest = f.seq
             total += 1
     return f"{total} commands"
+
+
+@host_check("host-resends", CLASSES, f"a command whose reply is lost (conform drops the reply to command {DROPPED_SEQ} "
+            f"of the first session) is sent again with its number and message, signed again, within the longest "
+            f"retransmission timeout and {RESEND_SLACK_S:g} s")
+def host_resends(watch: HostWatch) -> str:
+    _needs_session(watch)
+    if watch.dropped is None:
+        raise Skip(f"the host sent no command numbered {DROPPED_SEQ} in its first session (the reply dropped is its)")
+    sends = [s for s in watch.host(0) if s.frame.cls == MsgClass.COMMAND and s.frame.seq == DROPPED_SEQ]
+    first = sends[0]
+    again = next((s for s in sends if s.time_s > watch.dropped.time_s), None)
+    expect(again is not None, f"command {DROPPED_SEQ} ({first.name}) sent again after its reply was lost", "never")
+    bound_s = watch.played.link.config.max_rto_s + RESEND_SLACK_S
+    delay_s = again.time_s - first.time_s
+    expect(delay_s <= bound_s, f"the resend within {bound_s:g} s of the first send", f"after {delay_s:.3f} s")
+    expect(again.frame.counter > first.frame.counter and again.frame.tag != first.frame.tag,
+           "the resend signed again under a new counter", f"counter {first.frame.counter} then {again.frame.counter}")
+    return f"{first.name} resent {delay_s * 1000:.0f} ms after its first send"
+
+
+@host_check("host-ignores-forged-no-session", SESSIONS, "a Nak(NO_SESSION) under another controller's NAK key, or "
+            "echoing a tag the host never sent, is ignored: the host keeps its session and sends no new Hello")
+def host_ignores_forged_no_session(watch: HostWatch) -> str:
+    _needs_session(watch)
+    forged_at = watch.forged_at
+    if forged_at is None:
+        raise Skip("they are sent once the host has resent a command (host-resends), which it did not")
+    closed = min([s.time_s for s in watch.to_host(0) if s.name == "Closed"], default=float("inf"))
+    until = min(closed, forged_at + watch.played.link.config.link_timeout_s)
+    hello = next((s for s in watch.host() if s.name == "Hello" and forged_at <= s.time_s <= until), None)
+    expect(hello is None, "no new Hello: the session kept",
+           f"a Hello {hello.time_s - forged_at:.3f} s after them" if hello else "")
+    later = [s for s in watch.host(0) if s.time_s > forged_at]
+    if not later:
+        raise Skip("the host sent nothing more in its session after them")
+    return f"{len(later)} frames of its session after them"
 
 
 @host_check("host-acks-events", CLASSES, f"the host acknowledges each event (the ack of any frame, an Ack if it has "
