@@ -146,6 +146,21 @@ def test_ctrl_c_keeps_the_rows_done_and_resume_runs_only_the_rest(tmp_path, monk
         assert [r["run"] for r in csv.DictReader(f)] == ["0", "1", "2", "3"]
 
 
+def test_resume_refuses_a_bench_file_changed_since_the_campaign_began(tmp_path):
+    cwd = campaign_folder(tmp_path)
+    began = through_pipe(["campaign", "short.txt", "--vary", "w=5,6", "--serial", "--out", "c"], cwd)
+    assert began.returncode == 0, began.stderr
+    rows = (cwd / "c" / "rows.csv").read_bytes()
+    journal = cwd / "c" / "runs.jsonl"
+    journal.write_text(journal.read_text().splitlines(keepends=True)[0])     # as if stopped after the first run
+    script = cwd / "short.txt"
+    script.write_text(script.read_text() + "ping\n")
+    refused = through_pipe(["campaign", "--resume", "c"], cwd)
+    assert refused.returncode == 2, refused.stderr
+    assert "the bench file has changed since the campaign began there" in refused.stderr
+    assert journal.read_text().count("\n") == 1 and (cwd / "c" / "rows.csv").read_bytes() == rows   # nothing run
+
+
 def test_resume_takes_no_other_option_and_needs_a_campaign(tmp_path):
     cwd = campaign_folder(tmp_path)
     (cwd / "empty").mkdir()

@@ -10,6 +10,7 @@ It needs the `campaign` extra (Dask, pyarrow, matplotlib, pytest): without it, i
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
 import shlex
@@ -57,6 +58,30 @@ def bench_spec(settings: CampaignSettings) -> BenchSpec:
     return BenchSpec(spec.kind, spec.target, world, spec.text, spec.cwd, spec.keep_going)
 
 
+def bench_digest(bench: BenchSpec) -> str:
+    """SHA-256 of the bench's file (a pytest node's file), as a resumed campaign must find it."""
+    path = Path(bench.cwd) / bench.target.split("::", 1)[0]
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise ValueError(f"bench {bench.target}: {exc}") from None
+
+
+def changed_bench(folder: Path, digest: str) -> str:
+    """Why the campaign begun in `folder` cannot go on with this bench ("" if it can): its file has changed since,
+    so the rows kept and the rows to come would be of two benches. A campaign begun before the digest was kept
+    goes on."""
+    try:
+        began = json.loads((folder / "campaign.json").read_text(encoding="utf-8")).get("bench_sha256")
+    except (OSError, ValueError, AttributeError):
+        return ""
+    if began is None or began == digest:
+        return ""
+    return (f"the bench file has changed since the campaign began there (SHA-256 {began[:12]}... then, "
+            f"{digest[:12]}... now): its rows and the rest would be of two benches; put the file back as it was, "
+            "or begin a new campaign in another folder")
+
+
 def unknown_columns(settings: CampaignSettings, bench: BenchSpec) -> list[str]:
     """What the summary and plots are asked for that no row will have (before any run): a message each, naming the
     column and the columns there are."""
@@ -74,9 +99,13 @@ def run_campaign(settings: CampaignSettings) -> int:
     require("campaign", "dask", "distributed", "pyarrow", "matplotlib", "pytest", what="campaign")
     try:
         bench = bench_spec(settings)
+        digest = bench_digest(bench)
         wrong = unknown_columns(settings, bench)
     except ValueError as exc:
         log.error(f"aspod campaign: {exc}")
+        return EXIT_USAGE
+    if settings.resume and (why := changed_bench(settings.out, digest)):
+        log.error(f"aspod campaign: --resume {settings.out}: {why}")
         return EXIT_USAGE
     for message in wrong:
         log.error(f"aspod campaign: {message}")
@@ -92,7 +121,8 @@ def run_campaign(settings: CampaignSettings) -> int:
     kept = {r.index: RunResult(r.index, *done[r.index]) for r in runs if r.index in done}
     todo = [r for r in runs if r.index not in kept]
     settings.out.mkdir(parents=True, exist_ok=True)
-    description = {"command": settings.command, "bench": settings.bench, "axes": settings.matrix.axes,
+    description = {"command": settings.command, "bench": settings.bench, "bench_sha256": digest,
+                   "axes": settings.matrix.axes,
                    "runs": len(runs), "seeds": [settings.matrix.seeds[0], settings.matrix.seeds[-1]],
                    "engine": settings.engine.describe()}
     results.write_json(settings.out / "campaign.json", {**description, "state": "running"}, [], [])
