@@ -140,9 +140,11 @@ def start_plant(procs, group: str, port: int) -> Proc:
 
 
 def link_of(proc: Proc) -> tuple[str, str]:
-    link, key = proc.line(), proc.line()
+    """The ready lines of `aspod firmware` or `aspod sim --hal`: the link, its key, the control endpoint."""
+    link, key, control = proc.line(), proc.line(), proc.line()
     assert link.startswith("ASPOD-LINK "), link
     assert key.startswith("ASPOD-KEY "), key
+    assert control.startswith("ASPOD-CONTROL ") and Path(control.split(" ", 1)[1]).exists(), control
     return link.split(" ", 1)[1], key.split(" ", 1)[1]
 
 

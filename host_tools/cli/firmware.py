@@ -236,6 +236,8 @@ def _run_controller(port_settings: PortSettings, settings: ControllerSettings, p
             endpoint = serve_endpoint(control_path, LinkInfo(about, where), link_scheduler, prog)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
+        if endpoint is not None:        # `info` only: the link and its key (no plant here to act on)
+            print(f"ASPOD-CONTROL {endpoint.path}", flush=True)
         log.info(f"{prog}: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
                  f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; "
                  f"HAL on {bus_settings.describe()}, timing {timing}; Ctrl-C stops")
