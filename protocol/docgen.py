@@ -164,7 +164,12 @@ under a flood of recorded `Hello`s, and a new host still connects
 ([protocol_security.md](protocol_security.md)).
 
 A receiver checks, in this order and before any state changes: CRC, header, MAC,
-then that the counter is above the last one accepted in this session. The counter is
+then that the counter is above the last one accepted in this session. Then it takes the frame's `ack`
+(rule 9), then checks that the message is one it receives in that class (`UNKNOWN_MESSAGE`,
+`WRONG_DIRECTION`), then, for a command or urgent request, its sequence number (while closing
+`SESSION_CLOSED`; a gap `SEQUENCE_GAP`; a duplicate the cached reply or `REPLAY`, rule 2), then its payload
+(`Result` with the decoder's reason, rule 4); only then does the handler run (`protocol/link.py` `_receive`,
+`protocol/controller_link.py` `_handle`). The counter is
 committed only after the MAC verifies, so a forged frame with a huge counter cannot
 block genuine traffic. A frame recorded in an earlier session fails the MAC in a new
 one, whichever end restarted; keys differ per direction, so a frame reflected back to
@@ -260,8 +265,10 @@ acknowledgements).
 
 **Heartbeats** go both ways with the sender's link statistics, {LinkConfig.heartbeat_s:g} s (`LinkConfig.heartbeat_s`) after the
 sender's last frame other than telemetry (any authenticated frame proves the link alive, and on a
-slow line a heartbeat queued between two commands would delay the second); the host sends them at
-least three times within the controller's `link_timeout_ms`. The controller goes to its safe state
+slow line a heartbeat queued between two commands would delay the second). The host's period is the
+smaller of {LinkConfig.heartbeat_s:g} s and a third of the controller's `link_timeout_ms` from its `HelloReply` (at
+least 10 ms; `protocol/host_link.py`), so three heartbeats fit in any link timeout; the controller's is its
+`heartbeat_ms`. The controller goes to its safe state
 (`LINK_LOST`, latched until `reset`) when a session has seen no valid frame for the link timeout
 (default {LinkConfig.link_timeout_s:g} s, `LinkConfig.link_timeout_s`, the parameter `link_timeout_s`, `aspod sim
 --link-timeout`), and stops its periodic frames until the host returns.

@@ -377,8 +377,9 @@ SCHEMA = Schema(PROTOCOL_VERSION, [
                 + (Field("limit", "str16", "refused for a limit (SOFT_LIMIT, or OUT_OF_RANGE for a speed): the "
                          "parameter that sets it, as ParamGet names it (empty otherwise)"),
                    Field("limit_value", "f32", "that parameter's value, in its unit (deg, deg/s, deg/s^2)"),
-                   Field("asked", "f32", "what the command asked, in the same unit (for MoveBy the target it "
-                         "computed: the present target plus the distance)"))),
+                   Field("asked", "f32", "the value checked against that limit, in its unit: for a speed limit "
+                         "the speed asked; for a soft limit the target (for MoveBy the target it computed: the "
+                         "present target plus the distance)"))),
     MessageSpec("TrajState", 0x87, MsgClass.COMMAND, C,
                 "Answers TrajClear and TrajPoint: OK or the reason it was refused, and the trajectory buffer as it "
                 "now stands (unchanged after a refusal).",
