@@ -114,7 +114,8 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
     """The controller's parameters: link, health limits, then the arm's (firmware_py/arm_config.py)."""
     return [
         ParamSpec("link_timeout_s", config.link.link_timeout_s, max(0.05, config.link.heartbeat_s * 1.5), 3600, "s",
-                  "safe state after this long without a valid frame"),
+                  "safe state after this long without a valid frame (at least 1.5 heartbeats: 1.5 s, or less "
+                  "if started with a link timeout under 3 s)"),
         ParamSpec("telemetry_hz", 10, 0, 200, "Hz",
                   "telemetry rate at boot, a whole number (SetTelemetryRate changes it live)"),
         ParamSpec("hal_stale_s", 0.2, 0.02, 10, "s",

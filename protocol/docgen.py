@@ -295,7 +295,9 @@ the command `FAILED` on a healthy link. This link queues frames unsigned and sig
 goes onto the wire, every resend included (`protocol/link.py` `take_frame` and `_sign`); the
 controller resends events the same way. The timer is RFC 6298's: smoothed RTT + 4 x variance, from
 {LinkConfig.min_rto_s * 1000:.0f} ms (`LinkConfig.min_rto_s`) to {LinkConfig.max_rto_s:g} s (`max_rto_s`), {LinkConfig.initial_rto_s:g} s (`initial_rto_s`) before the
-first sample, doubled on each expiry, no sample from a frame sent more than once (Karn); from the
+first sample, doubled on each expiry (once per expiry, however many frames expired together; up to
+`max_rto_s`) and kept so until the next sample sets it afresh (RFC 6298 5.5-5.7), no sample from a frame
+sent more than once (Karn); from the
 oldest expired frame on, every frame in flight goes again (go-back-N). After {LinkConfig.retry_limit} sends
 (`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
@@ -439,7 +441,12 @@ report's 3 deg/s; `firmware_py/arm_config.py`
 refused `OUT_OF_RANGE`, and its `MotionAccepted` says so: `limit` = `<axis>_speed_dps`, `limit_value`
 its value, `asked` the speed asked (`firmware_py/axis.py` `_check_move`, `jog`). A speed of 0 means that
 parameter's value. A target beyond a soft limit is refused `SOFT_LIMIT` with `limit` =
-`<axis>_min_deg` or `<axis>_max_deg`.
+`<axis>_min_deg` or `<axis>_max_deg`. A motion command is checked in this order, and the first check it
+fails is the one its `MotionAccepted` names: the controller's state (`ESTOP`, `FAULT_LATCHED`, else
+`NOT_ALLOWED_IN_STATE` unless ENABLED; `OUT_OF_RANGE` for the axis `all` where one axis is meant), the axis
+(`FAULT_LATCHED` if its fault is latched, `BUSY` while it homes), a target that is not finite, the speed and
+acceleration (`OUT_OF_RANGE`), homing for `Move` (`NOT_HOMED`; `MoveBy` and `Jog` need none), the soft
+limits (`SOFT_LIMIT`) (`firmware_py/controller.py` `_joint_motion`, `firmware_py/axis.py` `_check_move`).
 
 **Rule 12. The telemetry rate** is limited by the line: see "Line timing".
 """

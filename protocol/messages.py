@@ -44,7 +44,8 @@ _STATS = (
     Field("naks_tx", "u32", "NAKs sent"),
     Field("naks_rx", "u32", "NAKs received"),
     Field("retransmits", "u32", "reliable frames sent again"),
-    Field("srtt_us", "u32", "smoothed round-trip time of reliable frames (RFC 6298)", "us"),
+    Field("srtt_us", "u32", "smoothed round-trip time of reliable frames (RFC 6298); 0 before the first sample",
+          "us"),
 )
 
 
