@@ -369,17 +369,21 @@ def refusals_json() -> dict[str, Any]:
         line.command(ping.type(token))
     out: list[dict[str, Any]] = []
 
-    def refused(reason: Reason, how: str, wire: bytes, answer: Optional[bytes],
+    def refused(reason: Reason, how: str, wire: bytes, answer: Optional[bytes], receiver: dict[str, Any],
                 answered_by: Direction = Direction.TO_HOST) -> None:
         assert answer is not None, reason
         asked = Direction.TO_CONTROLLER if answered_by is Direction.TO_HOST else Direction.TO_HOST
         nak = frame_vector(answer, answered_by, keys, "Nak")
         assert nak["message"]["fields"][0]["value"] == int(reason), (reason, nak["message"])
-        out.append({"reason": reason.name, "code": int(reason), "how": how,
+        out.append({"reason": reason.name, "code": int(reason), "how": how, "receiver": receiver,
                     "refused": frame_vector(wire, asked, keys, how), "answer": nak})
 
     def next_seq() -> int:
         return line.controller._commands.expected
+
+    def controller(session: str = "up") -> dict[str, Any]:
+        """The refusing controller as the frame finds it: its session, and the command number it expects."""
+        return {"end": "controller", "session": session, "expected_command_seq": next_seq()}
 
     token = ping.encode(ping.type(0xCAFE))
     expected = next_seq()         # a NAK uses up no sequence number: each of these is the next command
@@ -408,12 +412,13 @@ def refusals_json() -> dict[str, Any]:
          _made(line, MsgClass.LINK, 0, nak.id, bytes([200]) + bytes(nak.size - 1))),
     ]
     for reason, how, wire in cases:
-        refused(reason, how, wire, line.send_to_controller(wire))
+        refused(reason, how, wire, line.send_to_controller(wire), controller())
         assert next_seq() == expected
 
     # OUT_OF_RANGE is no NAK: a command whose payload does not decode is answered with Result and the reason
     rate = SCHEMA["SetTelemetryRate"]
     carried = len(line.carried)
+    receiver = controller()
     handle = line.host.submit_payload(rate, struct.pack("<H", 201), line.now)
     line.carry()
     assert handle.reason is Reason.OUT_OF_RANGE, handle.describe()
@@ -421,6 +426,7 @@ def refusals_json() -> dict[str, Any]:
     out.append({"reason": "OUT_OF_RANGE", "code": int(Reason.OUT_OF_RANGE),
                 "how": "a SetTelemetryRate of 201 Hz (its range is 0..200): no NAK but the command's answer, a Result "
                        "with the decoder's reason; the sequence number is used up",
+                "receiver": receiver,
                 "refused": frame_vector(wire, Direction.TO_CONTROLLER, keys, "SetTelemetryRate"),
                 "answer": frame_vector(answer, Direction.TO_HOST, keys, "Result")})
 
@@ -428,8 +434,10 @@ def refusals_json() -> dict[str, Any]:
     while next_seq() <= 64:
         line.command(ping.type(next_seq()))
     wire = _made(line, MsgClass.COMMAND, 0, ping.id, token)
+    receiver = controller()
     refused(Reason.REPLAY, f"a Ping numbered 0 again, {next_seq()} commands later (the replies of the last 64 are "
-                           "kept): a fresh counter, an old sequence number", wire, line.send_to_controller(wire))
+                           "kept): a fresh counter, an old sequence number", wire, line.send_to_controller(wire),
+            receiver)
 
     # a controller with no session (restarted, the same key and identity) answers the host's next frame
     restarted = ControllerLink(PSK, _Application(), nonce_source=lambda: COOKIE_SECRET, controller_id=CONTROLLER_ID)
@@ -437,7 +445,7 @@ def refusals_json() -> dict[str, Any]:
     restarted.feed(wire, line.now)
     refused(Reason.NO_SESSION, "the host's next Ping to a controller that restarted (no session): the NAK is signed "
                                "with the controller's NAK key and echoes the Ping's tag", wire,
-            restarted.take_frame(line.now))
+            restarted.take_frame(line.now), {"end": "controller", "session": "none (it restarted)"})
 
     # the host refuses too: an event numbered beyond the next expected, made as the controller signs (its counter
     # moved on past it)
@@ -450,14 +458,16 @@ def refusals_json() -> dict[str, Any]:
     wire = seal(body + c_session.keys.tx.tag(body))
     line.host.feed(wire, line.now)
     refused(Reason.SEQUENCE_GAP, "an event numbered 3 when the host expects 0: the host NAKs it", wire,
-            line.host.take_frame(line.now), answered_by=Direction.TO_CONTROLLER)
+            line.host.take_frame(line.now), {"end": "host", "session": "up", "expected_event_seq": 0},
+            answered_by=Direction.TO_CONTROLLER)
 
     # SESSION_CLOSED: a command after the Close, before the host's last acknowledgement ends the linger
     line.host.close(line.now)
     line.controller.feed(line.host.take_frame(line.now), line.now)
     wire = _made(line, MsgClass.COMMAND, next_seq(), ping.id, token)
+    receiver = controller("closing")
     refused(Reason.SESSION_CLOSED, "a Ping after the Close, while the closed session lingers", wire,
-            line.send_to_controller(wire))
+            line.send_to_controller(wire), receiver)
     return {"about": "Each NAK reason the link sends, with the frame it refuses (fed to the real link), and a "
                      "refusal that comes as a command's answer instead (a Result: OUT_OF_RANGE). See README.md.",
             "refusals": out}
