@@ -95,6 +95,25 @@ def test_a_client_without_a_session_is_displaced_and_what_it_left_in_the_uart_is
     assert closed_by_peer(old)
 
 
+def test_the_last_bytes_a_client_writes_before_it_closes_reach_the_controller(line):
+    """A host writes its last Ack and closes (protocol.md, "Sessions and authentication"): the bytes and the end of
+    stream come in one read, and the bytes are still delivered (a conformance client lost its last Ack in 2 runs
+    of 6 when they were dropped with the client)."""
+    port, uart, connect = line
+    now = 0.0
+    for n in range(1, 4):
+        client = connect()
+        client.sendall(HELLO)
+        settle(uart, now, lambda: port.connections == n, f"client {n} taken")
+        got, now = delivered_after(uart, len(HELLO), now)
+        last = bytes([n]) * 40
+        client.sendall(last)
+        client.close()                                    # its last bytes and its end of stream, in one read
+        settle(uart, now, lambda: port.generation == n, f"client {n} gone")
+        got, now = delivered_after(uart, len(last), now)
+        assert got == last
+
+
 def test_a_client_that_proves_nothing_never_displaces_one_in_its_handshake(line):
     """The finding: a keyless local loop connecting every 5 ms kept every reconnecting host off `aspod sim --tcp`
     (0 of 4), each connection displacing the last. Now newcomers wait, and one that proves nothing takes the line

@@ -138,6 +138,7 @@ class TcpServerPort:
         self.refused = 0         # connections closed at once: the present client carries a live session
         self.dropped = 0         # candidates closed: too many waited, or one waited too long
         self.generation = 0      # changes of client (connected, replaced, gone)
+        self._client_left = False   # the last read found the client gone (its end of stream)
 
     def client_has_session(self) -> bool:
         """The present client brought the live session (it came after the client connected)."""
@@ -235,18 +236,19 @@ class TcpServerPort:
 
     def read(self, max_bytes: int) -> bytes:
         """The present client's bytes, judged while it has no live session; then newcomers are taken, heard and
-        perhaps admitted. Bytes of a client that left or was replaced during this read are not returned (they
-        were not the new client's); a client admitted in it brings what it sent while it waited."""
+        perhaps admitted. Bytes of a client replaced during this read are not returned (they were not the new
+        client's); a client that closed returns its last bytes (written before it closed, as a host's last Ack
+        is), and a client admitted in the read brings what it sent while it waited, after them."""
         now = self._clock.now()
-        generation = self.generation
         data = self._receive(max_bytes) if self._client is not None else b""
         if data and not self.client_has_session():
             self._judge(self._holder, data)
-        self._accept(now)     # after the present client's end of stream, if it came, was seen
+        generation = self.generation      # after the present client's end of stream, if it came with its last bytes
+        self._accept(now)
         self._hear_candidates()
         admitted = self._admit(now)
-        if admitted is not None:
-            return admitted
+        if admitted is not None:          # a client displaced: none of its bytes; one that left: its last ones first
+            return (data if self._client_left else b"") + admitted
         return data if self.generation == generation else b""
 
     def _receive(self, max_bytes: int) -> bytes:
@@ -265,7 +267,8 @@ class TcpServerPort:
                 pass
             except OSError:
                 gone = True
-        if gone:
+        self._client_left = gone
+        if gone:          # its last bytes are still its own: a host's last Ack before it closes (protocol.md)
             self._drop_client()
         return data
 
