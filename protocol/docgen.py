@@ -31,10 +31,12 @@ def _names(rule: link_rules.NakRule) -> str:
     return "the frame" if "refused_tag" in rule.names else "the frame; `refused_tag` zeros"
 
 
-NAK_TABLE = "\n".join(["| reason | sent when the frame is | sent by | budget | key | names | `expected_seq` |",
-                       "|---|---|---|---|---|---|---|"]
-                      + [f"| `{r.reason.name}` | {r.when} | {_SENT_BY[r.sent_by]} | {'yes' if r.budget else 'no'} | "
-                         f"{_SIGNED[r.signed]} | {_names(r)} | {r.expected_seq or '0'} |" for r in link_rules.NAK_RULES])
+NAK_TABLE = "\n".join(["| reason | stage | sent when the frame is | sent by | budget | key | names | `expected_seq` |",
+                       "|---|---|---|---|---|---|---|---|"]
+                      + [f"| `{r.reason.name}` | {r.stage} | {r.when} | {_SENT_BY[r.sent_by]} | "
+                         f"{'yes' if r.budget else 'no'} | {_SIGNED[r.signed]} | {_names(r)} | "
+                         f"{r.expected_seq or '0'} |" for r in link_rules.NAK_RULES])
+CHECK_ORDER = "\n".join(f"{n}. **{name}**: {what}" for n, (name, what) in enumerate(link_rules.CHECK_ORDER, 1))
 NAK_EFFECTS = "\n".join(["| reason | what the end that receives it does |", "|---|---|"]
                         + [f"| `{r.reason.name}` | {r.effect} |" for r in link_rules.NAK_RULES
                            if r.effect != link_rules.NAK_RULES[0].effect])
@@ -401,7 +403,11 @@ accepted in its session (a replay: a duplicating line makes them routinely; coun
 `Nak` refused for its authentication (two ends would answer each other for ever). It answers every other
 refusal with a `Nak` (class LINK, `seq` 0), sent before anything else queued. Every refusal is counted.
 These are all the NAKs the link sends (`protocol/link.py` `_frame_error`, `_receive`; `protocol/controller_link.py`
-`_handle_handshake`, `_handle`, `_handle_link`; `protocol/host_link.py` `_event`):
+`_handle_handshake`, `_handle`, `_handle_link`; `protocol/host_link.py` `_event`). The receiver makes its checks
+in this order, and refuses a frame at the first it fails (`stage` in the table below; `link.naks.check_order`
+in schema.json):
+
+{CHECK_ORDER}
 
 {NAK_TABLE}
 

@@ -29,6 +29,20 @@ SIGNING = {
                      "controller's nak_c2h key, the host's handshake_h2c key",
     NO_SESSION_KEY: "the controller's nak_c2h key; the host's handshake_h2c key (neither holds a session then)",
 }
+# The receiver's checks, in the order it makes them (docs/protocol.md, "Sessions and authentication"): a frame is
+# refused at the first it fails, and each NAK rule names its stage. A frame whose COBS or CRC is wrong, or whose
+# counter is not above the last accepted, is dropped unanswered; a command whose payload does not decode is
+# answered with its `Result` (rule 4), not a NAK.
+CHECK_ORDER = (
+    ("header", "the header's version, flags and length (protocol/framing.py decode_frame)"),
+    ("authentication", "the AUTH flag and the MAC under a key the receiver holds; then the counter, above the last "
+                       "accepted (a replay is dropped unanswered); then the frame's ack is taken (rule 9)"),
+    ("message", "the msg_id declared, and declared for this class and towards this end"),
+    ("sequence", "a command's or urgent request's or event's sequence number: the next expected, a duplicate, or "
+                 "a gap; a session that is closing"),
+    ("payload", "the payload decodes as its message (a LINK frame refused with a NAK; a command answered with a "
+                "Result instead)"),
+)
 NAMES_NOTHING = ()
 NAMES_FRAME = ("refused_class", "refused_seq", "refused_msg", "refused_tag")
 NAMES_FRAME_NO_TAG = ("refused_class", "refused_seq", "refused_msg")
@@ -46,53 +60,54 @@ class NakRule:
     names: tuple[str, ...]          # the Nak fields that name the refused frame; the others of them are zeros
     expected_seq: Optional[str]     # what `expected_seq` holds; None: 0
     effect: str                     # what the end that receives the Nak does
+    stage: str                      # the check of CHECK_ORDER the refused frame failed
 
     def as_data(self) -> dict:
         return {"reason": self.reason.name, "code": int(self.reason), "when": self.when, "sent_by": list(self.sent_by),
                 "counts_against_budget": self.budget, "signed_with": self.signed, "names": list(self.names),
-                "expected_seq": self.expected_seq, "effect": self.effect}
+                "expected_seq": self.expected_seq, "effect": self.effect, "stage": self.stage}
 
 
 _BOTH = ("controller", "host")
 _COUNTED = "counted (naks_rx), nothing else: a command it refused is resent on its timer (rule 1)"
 NAK_RULES = (
     NakRule(Reason.UNSUPPORTED_VERSION, f"the header's `version` is not {framing.VERSION}", _BOTH, True,
-            SESSION_OR_NONE, NAMES_NOTHING, None, _COUNTED),
+            SESSION_OR_NONE, NAMES_NOTHING, None, _COUNTED, stage="header"),
     NakRule(Reason.UNSUPPORTED_FLAGS, "a must-understand flag (bits 4-7) other than AUTH is set", _BOTH, True,
-            SESSION_OR_NONE, NAMES_NOTHING, None, _COUNTED),
+            SESSION_OR_NONE, NAMES_NOTHING, None, _COUNTED, stage="header"),
     NakRule(Reason.BAD_LENGTH, f"the header's `length` is above {framing.MAX_PAYLOAD}, or the frame's size is not "
-            "the one `length` gives", _BOTH, True, SESSION_OR_NONE, NAMES_NOTHING, None, _COUNTED),
+            "the one `length` gives", _BOTH, True, SESSION_OR_NONE, NAMES_NOTHING, None, _COUNTED, stage="header"),
     NakRule(Reason.UNAUTHENTICATED, "the frame has no AUTH flag (not answered if it is a `Nak`)", _BOTH, True,
-            SESSION_OR_NONE, NAMES_FRAME_NO_TAG, None, _COUNTED),
+            SESSION_OR_NONE, NAMES_FRAME_NO_TAG, None, _COUNTED, stage="authentication"),
     NakRule(Reason.BAD_MAC, "a `Hello`, `HelloReply` or `HelloCookie` whose tag is wrong under the receiver's "
             "handshake key; with a session, any other frame whose tag verifies under no key the receiver holds "
-            "(not answered if it is a `Nak`)", _BOTH, True, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED),
+            "(not answered if it is a `Nak`)", _BOTH, True, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="authentication"),
     NakRule(Reason.NO_SESSION, "the receiver has no session and the frame (not a handshake frame, not a `Nak`) "
             "verifies under no key it holds (the controller: nor a pending session's); for example a host on a new "
             "connection that hears the events of a session it never had", _BOTH, True, NO_SESSION_KEY, NAMES_FRAME,
             None, "the host, up or closing: see \"Sessions and authentication\" (a believed one starts a new session, "
             "or ends the close); the controller: counted (naks_rx), nothing else (a host's NO_SESSION is signed with "
-            "the handshake key, which a recording replays)"),
+            "the handshake key, which a recording replays)", stage="authentication"),
     NakRule(Reason.UNKNOWN_MESSAGE, "authenticated, its `msg_id` declared nowhere", _BOTH, False, SESSION,
-            NAMES_FRAME, None, _COUNTED),
+            NAMES_FRAME, None, _COUNTED, stage="message"),
     NakRule(Reason.WRONG_DIRECTION, "authenticated, its `msg_id` declared, but not in this class or not to this "
             "end (the controller: a handshake frame under its handshake key other than `Hello`)", _BOTH, False,
-            SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED),
+            SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="message"),
     NakRule(Reason.BAD_LENGTH, "an authenticated LINK frame (`Hello`, `Heartbeat`, `Nak`) whose payload is not its "
-            "message's size", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED),
+            "message's size", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="payload"),
     NakRule(Reason.OUT_OF_RANGE, "an authenticated LINK frame with a field outside its declaration (a `Nak` whose "
-            "`reason` is no reason code)", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED),
+            "`reason` is no reason code)", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="payload"),
     NakRule(Reason.SEQUENCE_GAP, "a command (at the controller) or an event (at the host) numbered beyond the next "
             "expected (rule 2); once per expected value", _BOTH, False, SESSION, NAMES_FRAME,
             "the next sequence number expected in the refused frame's class",
-            "the host resends its commands from `expected_seq` at once; the controller its events"),
+            "the host resends its commands from `expected_seq` at once; the controller its events", stage="sequence"),
     NakRule(Reason.REPLAY, f"a command numbered before the next expected and older than the last {REPLY_CACHE_SIZE} "
             "answered", ("controller",), False, SESSION, NAMES_FRAME, "the next command sequence number expected",
-            _COUNTED),
+            _COUNTED, stage="sequence"),
     NakRule(Reason.SESSION_CLOSED, "a command or urgent request, not a duplicate, after the session's `Close` was "
             "executed", ("controller",), False, SESSION, NAMES_FRAME,
             "the next command sequence number expected; 0 for an urgent request",
-            "a host that is closing takes it as the end of the session; any other host counts it"),
+            "a host that is closing takes it as the end of the session; any other host counts it", stage="sequence"),
 )
 
 
@@ -170,6 +185,7 @@ def declared() -> dict:
                "class's numbering and acknowledgement, the header of the frames sent outside a session, and the "
                "counters a Heartbeat carries. From protocol/link_rules.py.",
         "naks": {"signing": SIGNING, "rules": [rule.as_data() for rule in NAK_RULES],
+                 "check_order": [{"stage": name, "checks": what} for name, what in CHECK_ORDER],
                  "doc": "A Nak is class LINK, seq 0. `names`: the fields that name the refused frame (its class, "
                         "seq, msg_id and the first NAK_TAG_BYTES of its tag); the others of those are zeros. "
                         "`expected_seq` null: 0. `counts_against_budget`: at most LinkConfig.nak_rate_per_s such "

@@ -218,12 +218,35 @@ def test_the_nak_table_is_data_and_the_doc_renders_the_same_rows(data):
         assert rule["signed_with"] in data["link"]["naks"]["signing"]
         assert set(rule["names"]) <= {f["name"] for f in next(m for m in data["messages"] if m["name"] == "Nak")[
             "fields"]}
-        assert f"| `{rule['reason']}` | {rule['when']} |" in doc
+        assert f"| `{rule['reason']}` | {rule['stage']} | {rule['when']} |" in doc
+        assert rule["stage"] in [stage["stage"] for stage in data["link"]["naks"]["check_order"]]
     by_reason = {r["reason"]: r for r in rules}
     assert by_reason["UNSUPPORTED_VERSION"]["names"] == [] and by_reason["NO_SESSION"]["signed_with"] == "no_session"
     assert [c["class"] for c in data["link"]["classes"]] == [c.name for c in MsgClass]
     header = data["link"]["handshake_header"]
     assert (header["class"], header["seq"], header["ack"]) == ("LINK", 0, 65535)
+
+
+def test_a_frame_that_fails_two_checks_is_refused_at_the_first_in_the_declared_order():
+    """The check order (link.naks.check_order) as the controller's link makes it: a frame wrong at two stages is
+    answered for the earlier one, for each pair of neighbouring stages that answer with a Nak."""
+    from host_tools.sessions import vectors
+    line = vectors._Line()
+    line.connect()
+    ping = SCHEMA["Ping"]
+    token, gap = ping.encode(ping.type(1)), line.controller._commands.expected + 3
+    other_key = bytes(32)
+    cases = [   # (the reason of the earlier stage, a frame wrong at it and at the next)
+        ("UNSUPPORTED_VERSION", vectors._made(line, MsgClass.COMMAND, gap, ping.id, token, version=2, key=other_key)),
+        ("BAD_MAC", vectors._made(line, MsgClass.COMMAND, gap, 0x0777, token, key=other_key)),
+        ("UNKNOWN_MESSAGE", vectors._made(line, MsgClass.COMMAND, gap, 0x0777, token)),
+        ("SEQUENCE_GAP", vectors._made(line, MsgClass.COMMAND, gap, ping.id, token[:-1])),
+    ]
+    for reason, wire in cases:
+        answer = framing.decode_frame(line.send_to_controller(wire)[1:-1])
+        nak = SCHEMA.decode(answer.msg_id, answer.payload)
+        assert nak.spec.name == "Nak" and Reason(nak.reason).name == reason, (reason, nak)
+        line.controller._commands._nak_sent_for = None           # a gap is NAKed once per expected number
 
 
 def test_the_line_table_and_the_cookie_label_are_the_codes(data):
