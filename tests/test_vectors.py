@@ -103,6 +103,18 @@ def test_every_refusal_of_the_link_has_its_vector():
     assert len(naks) == len(refusals) - 1
 
 
+def test_each_refusal_says_the_state_its_answer_follows_from():
+    """`receiver` is the refusing end before the frame: its answer is signed with the next counter, and a NAK of a
+    gap or an old duplicate names the number it expects."""
+    for r in json.loads((FOLDER / "refusals.json").read_text())["refusals"]:
+        receiver, answer = r["receiver"], r["answer"]
+        assert answer["counter"] == receiver["last_counter_sent"] + 1, r["how"]
+        fields = {f["name"]: f["value"] for f in answer["message"]["fields"]}
+        if r["reason"] in ("SEQUENCE_GAP", "REPLAY", "SESSION_CLOSED"):
+            expected = receiver.get("expected_command_seq", receiver.get("expected_event_seq"))
+            assert fields["expected_seq"] == expected, r["how"]
+
+
 def test_every_message_class_has_a_frame_in_the_session():
     frames = json.loads((FOLDER / "frames.json").read_text())["frames"]
     seen = {(MsgClass(f["header"]["class"]).name, f["direction"]) for f in frames}

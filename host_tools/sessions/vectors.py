@@ -382,8 +382,10 @@ def refusals_json() -> dict[str, Any]:
         return line.controller._commands.expected
 
     def controller(session: str = "up") -> dict[str, Any]:
-        """The refusing controller as the frame finds it: its session, and the command number it expects."""
-        return {"end": "controller", "session": session, "expected_command_seq": next_seq()}
+        """The refusing controller as the frame finds it: its session, the command number it expects, and the last
+        counter it signed with (its answer takes the next)."""
+        return {"end": "controller", "session": session, "expected_command_seq": next_seq(),
+                "last_counter_sent": line.controller.session.tx_counter}
 
     token = ping.encode(ping.type(0xCAFE))
     expected = next_seq()         # a NAK uses up no sequence number: each of these is the next command
@@ -412,7 +414,8 @@ def refusals_json() -> dict[str, Any]:
          _made(line, MsgClass.LINK, 0, nak.id, bytes([200]) + bytes(nak.size - 1))),
     ]
     for reason, how, wire in cases:
-        refused(reason, how, wire, line.send_to_controller(wire), controller())
+        receiver = controller()
+        refused(reason, how, wire, line.send_to_controller(wire), receiver)
         assert next_seq() == expected
 
     # OUT_OF_RANGE is no NAK: a command whose payload does not decode is answered with Result and the reason
@@ -445,7 +448,8 @@ def refusals_json() -> dict[str, Any]:
     restarted.feed(wire, line.now)
     refused(Reason.NO_SESSION, "the host's next Ping to a controller that restarted (no session): the NAK is signed "
                                "with the controller's NAK key and echoes the Ping's tag", wire,
-            restarted.take_frame(line.now), {"end": "controller", "session": "none (it restarted)"})
+            restarted.take_frame(line.now), {"end": "controller", "session": "none (it restarted)",
+                                             "last_counter_sent": 0})
 
     # the host refuses too: an event numbered beyond the next expected, made as the controller signs (its counter
     # moved on past it)
@@ -456,9 +460,11 @@ def refusals_json() -> dict[str, Any]:
                        event.size) + c_session.tx_counter.to_bytes(6, "little") + event.encode(
         event.type(int(ControllerState.IDLE), int(ControllerState.ENABLED), int(Reason.OK), 0, 9000))
     wire = seal(body + c_session.keys.tx.tag(body))
+    host_counter = line.host.session.tx_counter
     line.host.feed(wire, line.now)
     refused(Reason.SEQUENCE_GAP, "an event numbered 3 when the host expects 0: the host NAKs it", wire,
-            line.host.take_frame(line.now), {"end": "host", "session": "up", "expected_event_seq": 0},
+            line.host.take_frame(line.now), {"end": "host", "session": "up", "expected_event_seq": 0,
+                                             "last_counter_sent": host_counter},
             answered_by=Direction.TO_CONTROLLER)
 
     # SESSION_CLOSED: a command after the Close, before the host's last acknowledgement ends the linger
