@@ -174,7 +174,7 @@ then that the counter is above the last one accepted in this session. Then it ta
 `protocol/controller_link.py` `_handle`). The counter is
 committed only after the MAC verifies, so a forged frame with a huge counter cannot
 block genuine traffic. A frame recorded in an earlier session fails the MAC in a new
-one, whichever end restarted; keys differ per direction, so a frame reflected back to
+one, whichever end restarted (it is answered `Nak(BAD_MAC)` within the NAK budget, rule 10); keys differ per direction, so a frame reflected back to
 its sender fails too.
 
 A controller that has no session answers frames with `Nak(NO_SESSION)`, signed with its *NAK key*
@@ -273,7 +273,9 @@ least 10 ms; `protocol/host_link.py`), so three heartbeats fit in any link timeo
 `heartbeat_ms`. The controller goes to its safe state
 (`LINK_LOST`, latched until `reset`) when a session has seen no valid frame for the link timeout
 (default {LinkConfig.link_timeout_s:g} s, `LinkConfig.link_timeout_s`, the parameter `link_timeout_s`, `aspod sim
---link-timeout`), and stops its periodic frames until the host returns.
+--link-timeout`), and stops its periodic frames until the host returns: the next valid frame of the same
+session ends the silence (no new handshake is needed; heartbeats, telemetry and event resends go on), while
+the `LINK_LOST` fault stays latched until `Reset`.
 
 **Counters on the wire and off it.** {HEARTBEAT_SINCE}. Only the Heartbeat's counters travel; these, which this
 document names too, are local to each end (its own tools show them) and never sent:
@@ -300,8 +302,8 @@ controller resends events the same way. The timer is RFC 6298's: smoothed RTT + 
 first sample, doubled on each expiry (once per expiry, however many frames expired together; up to
 `max_rto_s`) and kept so until the next sample sets it afresh (RFC 6298 5.5-5.7), no sample from a frame
 sent more than once (Karn); from the
-oldest expired frame on, every frame in flight goes again (go-back-N). After {LinkConfig.retry_limit} sends
-(`LinkConfig.retry_limit`) of one command the host gives up: every command not yet answered ends
+oldest expired frame on, every frame in flight goes again (go-back-N). When the timer of the
+{LinkConfig.retry_limit}th send (`LinkConfig.retry_limit`) of one command expires, the host gives up: every command not yet answered ends
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
 handshake. A `Nak(SEQUENCE_GAP)` makes every command from its `expected_seq` on due at once: that resend is
 an expiry like any other (it counts toward the retry limit and doubles the timer; `protocol/reliable.py`
@@ -336,7 +338,8 @@ copy, from the cache: the same message) MUST be ignored, as must a reply whose `
 flight (`protocol/host_link.py` `_handle`, `_complete`).
 
 **Rule 4. The host takes a command's answer in one of two shapes only:** its declared reply, or a
-`Result` refusing it (a `result` other than `OK`). Any other reply at the command's sequence number ends
+`Result` refusing it (a `result` other than `OK`). Any other reply at the command's sequence number (a
+`Result` saying `OK` to a command whose declared reply is another message included) ends
 the command `REJECTED` with `UNKNOWN_MESSAGE`, the detail naming what came (`protocol/host_link.py`
 `_complete`): a caller must never read a message of another shape as its answer. A command that reaches
 its handler is answered with its declared reply (`Result`, `MotionAccepted`, `ParamValue`, `BoxState`, ...)
@@ -499,8 +502,10 @@ In Python, with the standard library only (run in the folder that holds `docs/`)
 
 **Timing of the handshake.** The host sends `Hello` again every {LinkConfig.initial_rto_s:g} s (`LinkConfig.initial_rto_s`)
 until a `HelloReply` comes, at most {LinkConfig.hello_tries} times (`LinkConfig.hello_tries`), and at once with the
-cookie of each `HelloCookie` for its nonce (an echo, not counted among its tries). Heartbeats and the link
-timeout: "Classes and delivery".
+cookie of each `HelloCookie` for its nonce (an echo, not counted among its tries). Every `Hello` of one
+handshake has the same nonce and carries the last cookie received for it (zeros until one came), a timed
+resend included; each send, an echo included, starts the {LinkConfig.initial_rto_s:g} s timer afresh (`protocol/host_link.py`
+`_send_hello`). Heartbeats and the link timeout: "Classes and delivery".
 
 **Motion ids are per axis**: each axis numbers its motions from 1, so a `MotionDone` is matched on
 `axis` and `motion_id` together. `Home` with axis all starts one motion per axis, named in
@@ -509,7 +514,8 @@ timeout: "Classes and delivery".
 **The control box** is read with `GetBoxState` (any time) and is also in `TelemetryTracker` while main
 or sensor power is on. `BoxSwitch` and `BoxDial` take an `axis` (TrackerAxis) always on the wire; the
 main and sensor switches are one for both axes, so they take `BOTH` only (another value is refused
-`OUT_OF_RANGE`). The dial is read through a 10-bit ADC: a percentage is rounded to the nearest of
+`OUT_OF_RANGE`). Every `BoxSwitch` and `BoxDial` that decodes is answered with `BoxState`, its `result`
+the reason (`OUT_OF_RANGE`, `SWITCH_POSITION`, `DIAL_NOT_LOW`, ...) and the box as it then is. The dial is read through a 10-bit ADC: a percentage is rounded to the nearest of
 1023 counts (50 % reads back 50.049 %). The dial counts as low at or below the parameter
 `trk_dial_low_pct` (default 5 %), read with `ParamGet`.
 """
@@ -556,8 +562,8 @@ is not checked against the line.
 FIELD_TYPES = """Field types: `u8` to `u64` and `i8` to `i32` (integers), `f32` (IEEE 754 single; finite, and a
 value beyond +-3.4028235e38 cannot be sent), `bool` (one byte, 0 or 1), `bytesN` (N bytes), `strN` (a name:
 up to N of A-Z a-z 0-9 `_` `.` `-`, zero-padded to N bytes), `textN` (up to N printable ASCII characters,
-zero-padded to N bytes; on decode the text ends at the first zero byte, and every byte after it must be zero and
-every byte ASCII, or the field is refused `OUT_OF_RANGE`). A value outside its type or declared range is refused
+zero-padded to N bytes). On decode a `strN` or `textN` ends at its first zero byte, and every byte after it must
+be zero and every byte ASCII, or the field is refused `OUT_OF_RANGE`. A value outside its type or declared range is refused
 on encode and on decode.
 """
 
