@@ -193,3 +193,17 @@ def test_black_box_finds_a_controller_whose_parameter_moved_on_a_refused_set(tmp
     finding = _black_box(tmp_path, PLANT_REFUSED_SET, "plant_refused_set()", "ParamSet")
     assert finding.failure.kind == "oracle" and "refused" in finding.failure.error \
         and "a refused command changed the controller" in finding.failure.error, finding.failure
+
+
+@pytest.mark.pty
+def test_a_case_that_closes_its_session_cleanly_is_not_a_finding(tmp_path):
+    """A case's Close, answered Closed: the session is over, as the protocol says, and the fuzzer opens a new one
+    before its health check, as a host does. Before, the check's Ping was refused and the case saved as a hang
+    (in `--cases 60 --seed 5` against the real simulator, once the grammar drew from the target's limits)."""
+    steps = [{"kind": "command", "delay_s": 0.0, "msg": "Close", "payload": "02"},
+             {"kind": "command", "delay_s": 0.0, "msg": "GetBoxState", "payload": ""}]
+    path = findings.Finding("blackbox", findings.Failure("hang", "TargetGone: Ping: SESSION_RESET"),
+                            steps=steps).save(tmp_path / "found")
+    target = f"{sys.executable} -m host_tools.cli.main sim --pty --no-pacing"
+    done = aspod("fuzz", "--replay", str(path), "--target-cmd", target, cwd=tmp_path)
+    assert done.returncode == 0 and "no longer fails" in done.stdout, done.stdout + done.stderr

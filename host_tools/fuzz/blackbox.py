@@ -185,11 +185,15 @@ class Session:
         self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
         self.last_write_s = self.clock.now()
         self.lapsed = False                    # our own silence outlasted the link timeout since the last check
+        self.open_session()
+
+    def open_session(self) -> None:
+        """A session, by the handshake (at first, and after a case's Close ended the one before, as a host does)."""
         self.accepted_counter = -1             # the host's counter on the last frame the target answered
         self.host.connect(self.clock.now())
-        if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
-            raise TargetGone(f"no session with {url} within {settings.health_timeout_s * 2:.0f} s "
-                             f"(link {self.host.state.value})")
+        wait_s = self.settings.health_timeout_s * 2
+        if not self.pump_until(lambda: self.host.state is LinkState.UP, wait_s):
+            raise TargetGone(f"no session with {self.url} within {wait_s:.0f} s (link {self.host.state.value})")
 
     def _event(self, msg, now: float) -> None:
         self.learned.learn(msg)
@@ -657,6 +661,9 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
     """Run `case` and the health check, then set back the parameters it changed; the failure, or None."""
     try:
         handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
+        session.pump_until(lambda: all(h.done for _spec, _payload, h in handles), session.settings.health_timeout_s)
+        if any(spec.name == "Close" and h.ok for spec, _payload, h in handles):
+            session.open_session()     # the case ended its session cleanly: not a finding (a Ping would be refused)
         problem = health.check(handles, maybe)
         for _spec, _payload, h in handles:
             session.learned.learn(h.reply)
