@@ -114,7 +114,9 @@ def reply_violation(command: MessageSpec, payload: Optional[bytes], reply: Messa
         return f"a Result saying OK, with no reason, in answer to {command.name}, which {command.reply} answers"
     refused = payload_violation(command, payload) if payload is not None else None
     if refused is not None and not (name == "Result" and result != Reason.OK):
-        return f"{command.name} taken (answered {name} {_said(result)}) though the declaration refuses it: {refused}"
+        how = "taken" if result in (None, Reason.OK) else "passed to its handler"    # its own refusal, not the codec's
+        return (f"{command.name} {how} (answered {name} {_said(result)}, not a Result refusing it) though the "
+                f"declaration refuses it: {refused}")
     return None
 
 
