@@ -52,6 +52,8 @@ from timebase import RealClock
 
 from host_tools.client.lines import SerialLine
 from host_tools.fuzz import findings as findings_mod
+from host_tools.fuzz import oracles
+from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries
 from host_tools.client.params import ParamTable, read_param_table
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
@@ -148,8 +150,10 @@ class _Peer:
 class Session:
     """One connection to the target: the line, the host's end of the link, the target's process if ours."""
 
-    def __init__(self, settings: BlackBoxSettings, psk: Optional[bytes]) -> None:
+    def __init__(self, settings: BlackBoxSettings, psk: Optional[bytes],
+                 learned: Optional[Boundaries] = None) -> None:
         self.settings, self.psk, self.clock = settings, psk, RealClock()
+        self.learned = Boundaries() if learned is None else learned    # fed every reply, event and telemetry frame
         self.child = None
         self.line = None
         self.url = settings.url
@@ -174,19 +178,25 @@ class Session:
         if self.child is not None and self.psk is None:   # no --key-file: the key the target made, on its next line
             key_file = self.child.ready("ASPOD-KEY ").split(" ", 1)[1].strip()
             self.psk = auth.load_key(key_file, "the target's key file (its ASPOD-KEY line)")
-        self.host = HostLink(self.psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event)
+        self.host = HostLink(self.psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event,
+                             on_telemetry=lambda msg, now: self.learned.learn(msg))
         self.sent: list[bytes] = []
         self.started: dict[int, int] = {}      # axis -> the last motion id a command of ours started
         self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
         self.last_write_s = self.clock.now()
         self.lapsed = False                    # our own silence outlasted the link timeout since the last check
+        self.open_session()
+
+    def open_session(self) -> None:
+        """A session, by the handshake (at first, and after a case's Close ended the one before, as a host does)."""
         self.accepted_counter = -1             # the host's counter on the last frame the target answered
         self.host.connect(self.clock.now())
-        if not self.pump_until(lambda: self.host.state is LinkState.UP, settings.health_timeout_s * 2):
-            raise TargetGone(f"no session with {url} within {settings.health_timeout_s * 2:.0f} s "
-                             f"(link {self.host.state.value})")
+        wait_s = self.settings.health_timeout_s * 2
+        if not self.pump_until(lambda: self.host.state is LinkState.UP, wait_s):
+            raise TargetGone(f"no session with {self.url} within {wait_s:.0f} s (link {self.host.state.value})")
 
     def _event(self, msg, now: float) -> None:
+        self.learned.learn(msg)
         if msg.spec.name == "MotionDone":
             self.ended[msg.axis] = max(self.ended.get(msg.axis, 0), msg.motion_id)
 
@@ -229,6 +239,7 @@ class Session:
         """Send `msg` in sequence and pump until it has an outcome or `timeout_s` passes; its handle (done or not)."""
         handle = self.host.submit(msg, self.clock.now())
         self.pump_until(lambda: handle.done, timeout_s)
+        self.learned.learn(handle.reply)
         return handle
 
     def pump_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
@@ -288,7 +299,8 @@ class Case:
         self.steps = steps
 
     @classmethod
-    def draw(cls, draw: RandomDraw, settings: BlackBoxSettings, words: Words = NO_WORDS) -> "Case":
+    def draw(cls, draw: RandomDraw, settings: BlackBoxSettings, words: Words = NO_WORDS,
+             learned: Boundaries = NO_BOUNDARIES) -> "Case":
         commands = settings.commands
         steps = []
         for _ in range(1 + draw.pick(settings.max_steps)):
@@ -296,12 +308,13 @@ class Case:
             step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(4) else draw.pick(DELAY_MAX_MS + 1) / 1000.0}
             if kind == "command":
                 spec = commands[draw.pick(len(commands))]
-                step.update(msg=spec.name, payload=draw_payload(spec, draw, words)[:MAX_PAYLOAD].hex())
+                step.update(msg=spec.name, payload=draw_payload(spec, draw, words, learned)[:MAX_PAYLOAD].hex())
             elif kind == "frame":
                 spec = TO_CONTROLLER[draw.pick(len(TO_CONTROLLER))]
                 step.update(msg=spec.name, cls=int(spec.cls) if draw.pick(8) else draw.int_in(0, 255),
                             seq=FRAME_SEQS[draw.pick(len(FRAME_SEQS))], offset=draw.pick(OFFSET_MAX + 1),
-                            any_seq=draw.int_in(0, 0xFFFF), payload=draw_payload(spec, draw, words)[:MAX_PAYLOAD].hex(),
+                            any_seq=draw.int_in(0, 0xFFFF),
+                            payload=draw_payload(spec, draw, words, learned)[:MAX_PAYLOAD].hex(),
                             mac=MACS[4 + draw.pick(len(MACS) - 4)] if draw.pick(2) else "good",
                             version=1 if draw.pick(8) else draw.int_in(0, 255),
                             flags=0x10 if draw.pick(8) else draw.int_in(0, 255),
@@ -571,6 +584,13 @@ class TargetParams:
                   f"{len(table.replies)} read and the grammar", file=sys.stderr)
         return cls(table)
 
+    def untouched(self, case: "Case") -> dict[str, float]:
+        """The parameters as found that only the case's commands in sequence may have changed: not owed, not named
+        by a ParamSet frame the fuzzer crafted (which may run whatever its class)."""
+        crafted = {_param_name(bytes.fromhex(step["payload"])) for step in case.steps
+                   if step["kind"] == "frame" and step.get("msg") == "ParamSet"}
+        return {name: value for name, value in self.found.items() if name not in self.owed and name not in crafted}
+
     def values_after(self, session: Session, case: "Case", handles: list) -> tuple[dict[str, float], bool]:
         """What each parameter the case may have changed holds now: the last accepted ParamSet's reply says, and
         ParamGet asks where nothing does (a ParamSet not answered, a crafted ParamSet frame, which may run whatever
@@ -641,7 +661,15 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
     """Run `case` and the health check, then set back the parameters it changed; the failure, or None."""
     try:
         handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
+        session.pump_until(lambda: all(h.done for _spec, _payload, h in handles), session.settings.health_timeout_s)
+        if any(spec.name == "Close" and h.ok for spec, _payload, h in handles):
+            session.open_session()     # the case ended its session cleanly: not a finding (a Ping would be refused)
         problem = health.check(handles, maybe)
+        for _spec, _payload, h in handles:
+            session.learned.learn(h.reply)
+        told = oracles.case_violation(handles, params.untouched(case))   # the declaration's oracles
+        if told is not None:
+            problem = told
         if problem is None and params.restore(session, case, handles):
             problem = health.rebase()
             if problem is not None:
@@ -664,9 +692,10 @@ class BlackBoxFuzzer:
         """`psk` None: each target started by `command` says its own key (its ASPOD-KEY line)."""
         self.settings, self.psk = settings, psk
         self.params: Optional[TargetParams] = None     # read at the first session
+        self.learned = Boundaries()       # what the target's replies said of its limits (host_tools/fuzz/boundaries.py)
 
     def _open(self) -> tuple[Session, HealthCheck]:
-        session = Session(self.settings, self.psk)
+        session = Session(self.settings, self.psk, self.learned)
         try:
             health = HealthCheck(session)
             if self.params is None:
@@ -687,7 +716,7 @@ class BlackBoxFuzzer:
             while (self.settings.cases is None or result.cases < self.settings.cases) and (
                     self.settings.seconds is None or _CLOCK.now() - start < self.settings.seconds):
                 case_seed = rng.getrandbits(32)
-                case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings, self.params.words)
+                case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings, self.params.words, self.learned)
                 failure = run_case(case, session, health, case_seed, self.params)
                 result.cases += 1
                 result.steps += len(case.steps)

@@ -11,6 +11,8 @@ engine steers the choices), `RandomDraw` over a seeded `random.Random` (black-bo
 Texts whose valid values the declaration cannot know (a parameter's name is the controller's, not the protocol's)
 come from `Words`, a dictionary by field name, as libFuzzer's `-dict` gives words: without it no `ParamSet`
 named a parameter, and the first campaign never set one (firmware_py/controller.py `_param_changed` unrun).
+Numbers whose edges the declaration cannot know (a table's length, a parameter's range, a buffer's capacity, a
+constant a handler compares with) come from `Boundaries` (host_tools/fuzz/boundaries.py), learned from the target.
 """
 from __future__ import annotations
 
@@ -23,11 +25,13 @@ from typing import Any, Mapping, Protocol as TypingProtocol, Sequence
 from protocol.messages import SCHEMA
 from protocol.schema import Direction, Field, MessageSpec
 
+from host_tools.fuzz.boundaries import F32_MAX, NO_BOUNDARIES, Boundaries, f32, f32_step
+
 _INT_LIMITS = {"b": (-2**7, 2**7 - 1), "B": (0, 2**8 - 1), "h": (-2**15, 2**15 - 1), "H": (0, 2**16 - 1),
                "i": (-2**31, 2**31 - 1), "I": (0, 2**32 - 1), "q": (-2**63, 2**63 - 1), "Q": (0, 2**64 - 1),
                "?": (0, 1)}
 _F32 = struct.Struct("<f")
-F32_MAX = 3.4028234663852886e38
+_f32, _f32_step = f32, f32_step
 
 Words = Mapping[str, Sequence[str]]       # valid texts by field name (a parameter's name: its controller's)
 NO_WORDS: Words = MappingProxyType({})
@@ -89,23 +93,6 @@ class RandomDraw:
 
     def left(self) -> int:
         return 1 << 30
-
-
-def _f32(value: float) -> float:
-    """`value` as the nearest f32 (infinite beyond its range)."""
-    if math.isnan(value) or math.isinf(value):
-        return value
-    if abs(value) > F32_MAX:
-        return math.copysign(math.inf, value)
-    return _F32.unpack(_F32.pack(value))[0]
-
-
-def _f32_step(value: float, towards: float) -> float:
-    """The next f32 after `value` towards `towards`: the first value beyond a float boundary."""
-    bits = struct.unpack("<i", _F32.pack(value))[0]
-    up = (towards > value) == (bits >= 0)
-    return struct.unpack("<f", struct.pack("<i", bits + (1 if up else -1)))[0] if value != 0 else (
-        math.copysign(1.4e-45, towards - value))
 
 
 def interesting(fld: Field) -> list[Any]:
@@ -193,15 +180,28 @@ def draw_valid(fld: Field, draw: Draw, words: Words = NO_WORDS) -> Any:
     return draw_value(fld, draw)
 
 
-def draw_payload(spec: MessageSpec, draw: Draw, words: Words = NO_WORDS) -> bytes:
+def draw_payload(spec: MessageSpec, draw: Draw, words: Words = NO_WORDS,
+                 learned: Boundaries = NO_BOUNDARIES) -> bytes:
     """A payload for `spec`: bytes of any length (1 in 8); every field from the grammar (3 in 8); or every field
     valid but one, which comes from the grammar (half): a message that decodes, and so reaches its handler, with
-    one field at or beyond its edge (a fuzzer of single fields, as boofuzz mutates one primitive at a time)."""
+    one field at or beyond its edge (a fuzzer of single fields, as boofuzz mutates one primitive at a time).
+    A field the target told something about (`learned`) takes, one time in three, a value below, at or past
+    one of the target's own limits for it, and one time in six an interior value the target uses."""
     how = draw.pick(8)
     if how == 0:
         return draw.raw(spec.size + 4)
-    if how <= 3 or not spec.fields:
-        return pack_raw(spec, [draw_value(f, draw) for f in spec.fields])
-    odd = draw.pick(len(spec.fields))
-    return pack_raw(spec, [draw_value(f, draw) if i == odd else draw_valid(f, draw, words)
-                           for i, f in enumerate(spec.fields)])
+    odd = draw.pick(len(spec.fields)) if how > 3 and spec.fields else -1
+    values: list[Any] = []
+    for i, fld in enumerate(spec.fields):
+        told = learned.values_for(spec, fld, values) if learned else ()
+        inner = learned.interior_for(fld) if learned else ()
+        which = draw.pick(6) if told or inner else 5
+        if which <= 1 and told:
+            values.append(told[draw.pick(len(told))])
+        elif which == 2 and inner:
+            values.append(inner[draw.pick(len(inner))])
+        elif odd < 0 or i == odd:
+            values.append(draw_value(fld, draw))
+        else:
+            values.append(draw_valid(fld, draw, words))
+    return pack_raw(spec, values)

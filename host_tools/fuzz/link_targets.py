@@ -30,8 +30,10 @@ from protocol.messages import SCHEMA
 from protocol.reliable import Outcome, Verdict
 from protocol.schema import MsgClass, MessageSpec
 
+from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries, constants_of
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, TO_HOST, Draw, FdpDraw, Words, draw_payload
-from host_tools.fuzz.targets import Target, check
+from host_tools.fuzz.oracles import nak_violation, payload_violation, reply_violation
+from host_tools.fuzz.targets import OracleFailure, Target, check
 
 MACS = ("good", "good", "good", "good", "stale-counter", "other-key", "handshake-key", "flipped", "none")
 SEQS = ("expected", "expected", "expected", "duplicate", "gap", "any")
@@ -95,6 +97,7 @@ class _LinkTarget(Target):
     engine_options = ("-use_counters=0",)
     specs: tuple[MessageSpec, ...] = ()
     words: Words = NO_WORDS    # valid texts the declaration cannot know, by field name (`grammar.Words`)
+    learned: Boundaries = NO_BOUNDARIES    # the target's own limits and constants (host_tools/fuzz/boundaries.py)
     bench = None
     _dir = None
     MAX_FRAMES = 12
@@ -159,7 +162,7 @@ class _LinkTarget(Target):
         how = SEQS[draw.pick(len(SEQS))]
         seq = {"expected": expected, "duplicate": (expected - 1 - draw.pick(4)) & 0xFFFF,
                "gap": (expected + 1 + draw.pick(4)) & 0xFFFF}.get(how, draw.int_in(0, 0xFFFF))
-        recipe = FrameRecipe(spec, cls, seq, draw_payload(spec, draw, self.words)[:MAX_PAYLOAD],
+        recipe = FrameRecipe(spec, cls, seq, draw_payload(spec, draw, self.words, self.learned)[:MAX_PAYLOAD],
                              MACS[draw.pick(len(MACS))])
         if draw.pick(16) == 0:
             recipe.version = draw.int_in(0, 255)
@@ -195,19 +198,17 @@ class _LinkTarget(Target):
         before = self.digest() if verdict == "refused" else None      # only a refused frame's is compared
         delivered = self.delivered()
         decodes = False
-        if verdict == "runs":
-            try:
-                SCHEMA.by_id[recipe.spec.id if recipe.msg_id is None else recipe.msg_id].decode(recipe.payload)
-                decodes = True
-            except Exception:      # noqa: BLE001 (any failure to decode: the endpoint must not run it)
-                decodes = False
+        if verdict == "runs":     # judged by the declaration, not by the codec under test (host_tools/fuzz/oracles.py)
+            refused = payload_violation(SCHEMA.by_id[recipe.spec.id if recipe.msg_id is None else recipe.msg_id],
+                                        recipe.payload)
+            decodes = refused is None
         endpoint.feed(wire, now)
         check(endpoint._rx.buffered <= MAX_ENCODED, "bounded", lambda: f"{endpoint._rx.buffered} bytes buffered")
         ran = self.delivered() - delivered
         if verdict == "runs":
             check(ran == int(decodes), "exactly once",
                   lambda: f"{recipe.spec.name} seq {recipe.seq}: ran {ran} times, its payload "
-                          f"{'decodes' if decodes else 'does not decode'}")
+                          f"{'decodes' if decodes else 'is refused by the declaration: ' + refused}")
         else:
             check(ran == 0, "exactly once", lambda: f"a frame that must be {verdict} ran {ran} times ({recipe})")
             if verdict == "refused":
@@ -267,7 +268,12 @@ class ControllerLinkTarget(_LinkTarget):
 
     def fresh(self) -> None:
         super().fresh()
-        self.words = {"name": tuple(self.bench.controller.params.order)}    # ParamGet's and ParamSet's
+        controller = self.bench.controller
+        self.words = {"name": tuple(controller.params.order)}    # ParamGet's and ParamSet's
+        self.learned = learned_from(controller)
+        link = controller.link
+        link._handler = _judging_replies(link._handler)
+        link._send_nak = _judging_naks(link._send_nak)
 
     def sender(self):
         host = self.bench.host
@@ -294,6 +300,43 @@ class ControllerLinkTarget(_LinkTarget):
                 tuple((ch.mode, _exact(getattr(ch, "target_rad", None)), ch.motion_id) for ch in c.arm.channels),
                 None if link.session is None else link.session.host_nonce,
                 (link._commands.expected, tuple(link._urgent._seen)), link.commands_executed)
+
+
+def learned_from(controller) -> Boundaries:
+    """What the controller says of itself, as its replies say it (every parameter's ParamValue, its TrajState), and
+    the float constants in its handlers' code, its interior values: the in-process engine's dictionary of the
+    target's own limits. Read through the handlers' reply builders, so nothing changes and no command is counted.
+    The replies' own numbers are left out of the interior values (their limits are kept as edges): 76 parameters'
+    values would drown the handlers' few constants."""
+    from firmware_py.controller import _HANDLERS
+    from protocol.reasons import Reason
+    learned = Boundaries()
+    for name in controller.params.order:
+        learned.learn(controller._param_value(Reason.OK, name), numbers=False)
+    learned.learn(controller._traj_state(Reason.OK), numbers=False)
+    learned.add_interior(constants_of(_HANDLERS.values()))
+    return learned
+
+
+def _judging_replies(handler):
+    """The controller's command handler, each reply judged against the declaration and the command it answers."""
+    def judged(msg, urgent: bool, now: float):
+        reply = handler(msg, urgent, now)
+        problem = reply_violation(msg.spec, None, reply)
+        if problem is not None:
+            raise OracleFailure("replies as declared", problem)
+        return reply
+    return judged
+
+
+def _judging_naks(send_nak):
+    """The controller's NAK sender, each NAK judged: it names why it refused."""
+    def judged(reason, frame, expected: int) -> None:
+        problem = nak_violation(SCHEMA["Nak"].type(int(reason), 0, 0, 0, expected, bytes(8)))
+        if problem is not None:
+            raise OracleFailure("a refusal says why", problem)
+        send_nak(reason, frame, expected)
+    return judged
 
 
 class HostLinkTarget(_LinkTarget):

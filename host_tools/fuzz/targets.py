@@ -7,7 +7,7 @@ be reproduced by replaying at most that many inputs on a fresh target (host_tool
 
     frames           protocol/framing.py: the frame finder and FrameReceiver, over bytes as they come or
                      frames the target completes (CRC, COBS) so the header checks are reached
-    codec            protocol/schema.py: every message's decode and encode
+    codec            protocol/schema.py: every message's decode and encode, judged against the declaration
     controller-link  the controller's link endpoint with a live session and its real handlers (link_targets.py)
     host-link        the host's link endpoint with a live session (link_targets.py)
     hal              the HAL bus decoders at both ends: the controller's (firmware_py/hal.py) and the plant's
@@ -30,8 +30,10 @@ from protocol import auth, files
 from protocol.errors import EncodeError, KeyFileError, ParseError
 from protocol.framing import HEADER, MAX_ENCODED, MAX_PAYLOAD, Frame, FrameReceiver, seal
 from protocol.messages import SCHEMA
+from protocol.schema import MessageSpec
 
 from host_tools.fuzz.grammar import Draw, FdpDraw, draw_payload, draw_value
+from host_tools.fuzz.oracles import payload_violation
 
 
 class OracleFailure(AssertionError):
@@ -109,28 +111,38 @@ _SPECS = tuple(sorted(SCHEMA.by_id.values(), key=lambda s: s.id))
 
 
 class CodecTarget(Target):
-    """Every message, both ways. Decode: only ParseError; what decodes encodes back to the same bytes.
-    Encode (values from the grammar, any type's): only EncodeError; what encodes decodes to the same message."""
+    """Every message, both ways. Decode: only ParseError; a payload decodes exactly when the declaration allows it
+    (`oracles.payload_violation`, its own decoding: a decoder and an encoder that both accept one past a declared
+    maximum round-trip, so the round trip alone cannot see it); what decodes encodes back to the same bytes.
+    Encode (values from the grammar, any type's): only EncodeError; what encodes is a payload the declaration
+    allows, and decodes to the same message."""
 
     name = "codec"
     about = "every message's decode and encode (protocol/schema.py), payloads from the grammar or any bytes"
     covers = ("protocol/schema.py",)
 
-    def __init__(self, decode: Optional[Callable[[Any, bytes], Any]] = None) -> None:
+    def __init__(self, decode: Optional[Callable[[Any, bytes], Any]] = None,
+                 specs: tuple[MessageSpec, ...] = _SPECS) -> None:
         self.decode = decode if decode is not None else (lambda spec, payload: spec.decode(payload))
+        self.specs = specs
 
     def one_input(self, data: bytes) -> None:
         draw = FdpDraw(data)
-        spec = _SPECS[draw.pick(len(_SPECS))]
+        spec = self.specs[draw.pick(len(self.specs))]
         if draw.pick(2):
             payload = draw_payload(spec, draw)
+            refused = payload_violation(spec, payload)
             try:
                 msg = self.decode(spec, payload)
-            except ParseError:
+            except ParseError as exc:
+                why = str(exc)
+                check(refused is not None, "decodes as declared",
+                      lambda: f"{spec.name}: {payload.hex()} refused ({why}), which the declaration allows")
                 return
             again = spec.encode(msg)
             check(again == payload, "round trip",
                   lambda: f"{spec.name}: {payload.hex()} decoded, encoded back as {again.hex()}")
+            check(refused is None, "decodes as declared", lambda: f"{spec.name}: {payload.hex()} decoded: {refused}")
             return
         values = [draw_value(f, draw) for f in spec.fields]
         if draw.pick(4) == 0 and values:       # a value of the wrong type
@@ -140,6 +152,8 @@ class CodecTarget(Target):
             payload = spec.encode(msg)
         except (EncodeError, TypeError):
             return
+        refused = payload_violation(spec, payload)
+        check(refused is None, "encodes as declared", lambda: f"{spec.name}: {msg!r} encoded: {refused}")
         back = self.decode(spec, payload)      # what encode accepts decode accepts: a ParseError here is a finding
         check(spec.encode(back) == payload, "round trip", lambda: f"{spec.name}: {msg!r} came back as {back!r}")
 
