@@ -15,6 +15,7 @@ import threading
 from pathlib import Path
 from types import SimpleNamespace
 
+from host_tools.client.live import HostClient
 from host_tools.fuzz import findings
 from host_tools.fuzz.findings import Failure, Finding
 from host_tools.fuzz.grammar import RandomDraw
@@ -193,3 +194,22 @@ class Served:
         self.stopping = True
         self.thread.join(10.0)
         self.port.close()
+
+
+def test_a_listener_that_raises_does_not_stop_the_client(caplog):
+    """A listener of the caller's that raises (here on a MotionDone of the mount) stopped HostClient's pump thread:
+    the link went silent for good, every later call waited its whole timeout and nothing said why. Now the error is
+    logged with its traceback and the link goes on."""
+    served = Served()
+    client = HostClient(served.port.url, served.psk)
+    try:
+        client.event_listeners.append(lambda msg, now: ("j1", "j2")[msg.axis])
+        client.connect(30.0)
+        assert client.wait_for(served.controller.in_session, 30.0)    # the controller has adopted the session
+        served.steps.put(event("MotionDone", axis=5, motion_id=1, outcome=2, reason=0, position=0.0, uptime_ms=1))
+        assert client.wait_for(lambda: len(client.events) == 1, 30.0)
+        assert client.call(SCHEMA["Ping"].type(token=3), 30.0).ok      # before the mend: never answered
+        assert "IndexError: tuple index out of range" in caplog.text
+    finally:
+        client.close()
+        served.close()
