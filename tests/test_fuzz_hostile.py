@@ -124,6 +124,17 @@ def test_a_host_that_hangs_on_an_event_is_a_hang(tmp_path):
     assert status == 0 and "no longer fails" in out, out + err
 
 
+def test_a_host_a_busy_machine_holds_up_is_not_a_hang(tmp_path):
+    """The tool without a defect, its threads at SCHED_IDLE on one CPU beside a busy loop there (0.9 s busy in each
+    second): its link falls silent for most of a second at a time, past --hang-s 0.5 of wall time, but not of its
+    own. Judged on the wall clock, the same run made 40 hang findings in 40 cases."""
+    status, out, err = fuzz("--host-cmd", shlex.join(HOST + ["starved"]), "--cases", "40", "--hang-s", "0.5",
+                            "--findings", str(tmp_path), "--json")
+    figures = json.loads("\n".join(out.splitlines()[2:]))
+    assert status == 0 and figures["findings"] == [], out + err
+    assert figures["longest_silence_s"] > 0.5, figures       # what a wall clock would have taken for a hang
+
+
 def test_teleop_refused_a_motion_by_a_result_over_a_pty_lives_on(tmp_path):
     """The teleop defect above, end to end: `aspod teleop` running `move j1 10`, its Move refused by a Result. Before
     the mend this replay failed as a crash (a traceback on teleop's stderr)."""

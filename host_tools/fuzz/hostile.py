@@ -76,6 +76,8 @@ RAW_MAX = MAX_ENCODED + 8
 CASE_WAIT_S = 0.5              # a case's reply steps wait this long for the host's commands, then the case ends
 SAVED_STEPS = 600              # a finding keeps at most this many steps (the host's session's last)
 IDLE_WAIT_S = 0.001
+LOOK_S = 0.05                  # past its bound of wall time, how often a silent host's own time is looked at
+THREADS_LOOK_S = 0.5           # a host's threads, and its own time's readings of /proc, at most this often
 STOP_WAIT_S = 2.0              # of its own time, for a host to end after SIGTERM (then SIGKILL)
 TAIL_LINES = 40                # of the host's stderr, kept for a finding
 TRACEBACK = "Traceback (most recent call last):"
@@ -109,6 +111,7 @@ class HostileResult:
     steps: int = 0
     wall_s: float = 0.0
     sessions: int = 0            # hosts started (or, without --host-cmd, sessions a host opened)
+    longest_silence_s: float = 0.0   # the longest a host in session said nothing, of wall time
     findings: list[str] = field(default_factory=list)
     unsaved: list[dict] = field(default_factory=list)
 
@@ -119,7 +122,8 @@ class HostileResult:
     def figures(self) -> dict:
         """`--json`'s object."""
         return {"cases": self.cases, "steps": self.steps, "wall_s": round(self.wall_s, 2),
-                "cases_per_s": round(self.cases_per_s, 2), "sessions": self.sessions, "findings": self.findings,
+                "cases_per_s": round(self.cases_per_s, 2), "sessions": self.sessions,
+                "longest_silence_s": round(self.longest_silence_s, 2), "findings": self.findings,
                 "unsaved": len(self.unsaved)}
 
     def describe(self) -> str:
@@ -146,7 +150,9 @@ class Host:
         self.err: deque[str] = deque(maxlen=TAIL_LINES)
         self.traceback = False
         self.in_session = False          # it has opened a session with the fuzzer
-        self.own = OwnTime(self.proc.pid, RealClock(), tree=True, fresh_s=0.5)
+        self.threads: tuple[int, ...] = ()
+        self.own = self._own_time()
+        self._threads_s = _CLOCK.now()
         self._readers = [threading.Thread(target=self._read, args=(pipe, keep), daemon=True)
                          for pipe, keep in ((self.proc.stdout, False), (self.proc.stderr, True))]
         for reader in self._readers:
@@ -158,6 +164,30 @@ class Host:
                 line = raw.decode(errors="replace").rstrip("\n")
                 self.err.append(line)
                 self.traceback = self.traceback or TRACEBACK in line
+
+    def _own_time(self) -> OwnTime:
+        """Its own time from now on: its process tree's, and its threads' (a client's pump thread kept from running
+        while the main thread sleeps on a call is a host kept from running, not a hung one: /proc/PID/schedstat is
+        the main thread's alone)."""
+        return OwnTime(self.proc.pid, RealClock(), tree=True, fresh_s=THREADS_LOOK_S, peers=self.threads)
+
+    def heard(self) -> None:
+        """It said something on the link: its silence, if any, begins now (its threads looked at again now and
+        then, for the threads it has started since)."""
+        now = _CLOCK.now()
+        if now - self._threads_s < THREADS_LOOK_S:
+            self.own.begin()
+            return
+        self._threads_s = now
+        try:
+            threads = tuple(sorted(int(t) for t in os.listdir(f"/proc/{self.proc.pid}/task") if int(t) != self.proc.pid))
+        except (OSError, ValueError):
+            threads = self.threads
+        if threads != self.threads:
+            self.threads = threads
+            self.own = self._own_time()
+        else:
+            self.own.begin()
 
     def status(self) -> Optional[int]:
         return self.proc.poll()
@@ -389,6 +419,7 @@ class HostileController:
         self.clock = RealClock()
         self.host: Optional[Host] = None
         self.sessions = 0
+        self.longest_silence_s = 0.0     # of wall time, of a host in session: what a wall clock would have judged
         self._new_controller()
 
     def _new_controller(self) -> None:
@@ -400,7 +431,7 @@ class HostileController:
             self.port.live_session = lambda: self.link.session if not self.link.link_lost else None
             self.port.vouch = self.link.vouch
         self.heard_s = self.clock.now()
-        self.silent_own: Optional[OwnTime] = None
+        self._silence: Optional[tuple[float, Optional[str]]] = None    # the latest look at a silence: (when, verdict)
         self._session_nonce: Optional[bytes] = None
 
     # the line
@@ -410,9 +441,11 @@ class HostileController:
         now = self.clock.now()
         self.link.now = now
         if data:
-            self.heard_s = now
+            if self.link.state is LinkState.UP and (self.host is None or self.host.in_session):
+                self.longest_silence_s = max(self.longest_silence_s, now - self.heard_s)
+            self.heard_s, self._silence = now, None
             if self.host is not None:
-                self.host.own.begin()
+                self.host.heard()
             self.link.feed(data, now)
         self.link.poll(now)
         self.link.release_late(now)
@@ -443,7 +476,7 @@ class HostileController:
         except OSError as exc:
             raise ValueError(f"--host-cmd {' '.join(argv)}: {exc}") from None
         self.sessions += 1
-        self.heard_s = self.clock.now()
+        self.heard_s, self._silence = self.clock.now(), None
 
     def stop_host(self) -> str:
         """Stop the host (if it runs); its stderr's last lines."""
@@ -508,10 +541,11 @@ class HostileController:
             if self.settings.host_cmd or self.link.session is None or self.link.state is not LinkState.UP:
                 return None          # no host of ours, and none in session: nobody to wait for
             return f"the host sent nothing for {self.clock.now() - self.heard_s:.1f} s (of wall time: not ours)"
-        look = self.host.own.look()
-        if not out_of_time(look, hang_s):
-            return None
-        return f"the host sent nothing on the link for {look.describe()}, past {hang_s:g} s"
+        if self._silence is None or self.clock.now() - self._silence[0] >= LOOK_S:     # (/proc read at most so often)
+            look = self.host.own.look()
+            self._silence = (self.clock.now(), f"the host sent nothing on the link for {look.describe()}, past "
+                                               f"{hang_s:g} s" if out_of_time(look, hang_s) else None)
+        return self._silence[1]
 
     def run_probe(self) -> Optional[findings_mod.Failure]:
         from host_tools.worlds.child import run
@@ -698,6 +732,7 @@ class HostileFuzzer:
                     if len(result.findings) + len(result.unsaved) == settings.max_findings:
                         break
                 result.wall_s, result.sessions = _CLOCK.now() - start, controller.sessions
+                result.longest_silence_s = controller.longest_silence_s
                 on_case(result)
         finally:
             controller.close()
