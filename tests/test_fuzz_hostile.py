@@ -135,6 +135,19 @@ def test_a_host_a_busy_machine_holds_up_is_not_a_hang(tmp_path):
     assert figures["longest_silence_s"] > 0.5, figures       # what a wall clock would have taken for a hang
 
 
+def test_a_probe_that_fails_is_a_finding_saved_once_per_run(tmp_path):
+    """--probe says the host is unwell (here: exit 3 once the key file exists, so at every case): an oracle finding,
+    saved once; the same failure again is counted, not saved (a finding per bug, not per case)."""
+    probe = "sh -c 'test -e {key} && exit 3'"
+    status, out, err = fuzz("--host-cmd", shlex.join(HOST), "--probe", probe, "--cases", "3", "--hang-s", "5",
+                            "--findings", str(tmp_path), "--json")
+    figures = json.loads("\n".join(out.splitlines()[2:]))
+    assert status == 1 and len(figures["findings"]) == 1 and figures["repeats"] == 2, out + err
+    found = findings.load(Path(figures["findings"][0]))
+    assert found.failure.kind == "oracle" and found.failure.oracle == "probe"
+    assert found.failure.error.startswith("the probe `sh -c 'test -e ") and "ended: exit status 3" in found.failure.error
+
+
 def test_teleop_refused_a_motion_by_a_result_over_a_pty_lives_on(tmp_path):
     """The teleop defect above, end to end: `aspod teleop` running `move j1 10`, its Move refused by a Result. Before
     the mend this replay failed as a crash (a traceback on teleop's stderr)."""

@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import os
 import random
+import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -81,6 +83,7 @@ THREADS_LOOK_S = 0.5           # a host's threads, and its own time's readings o
 STOP_WAIT_S = 2.0              # of its own time, for a host to end after SIGTERM (then SIGKILL)
 TAIL_LINES = 40                # of the host's stderr, kept for a finding
 TRACEBACK = "Traceback (most recent call last):"
+EXCEPTION_LINE = re.compile(r"^[A-Za-z_][\w.]*(Error|Exception|Interrupt|Exit)\b")    # a traceback's last line
 EXIT_OK = (0, 1, 3)            # aspod's own: done, a command failed, the link failed (host_tools/exit_codes.py)
 
 
@@ -112,6 +115,7 @@ class HostileResult:
     wall_s: float = 0.0
     sessions: int = 0            # hosts started (or, without --host-cmd, sessions a host opened)
     longest_silence_s: float = 0.0   # the longest a host in session said nothing, of wall time
+    repeats: int = 0             # failures like one saved already in this run (`signature`), counted, not saved
     findings: list[str] = field(default_factory=list)
     unsaved: list[dict] = field(default_factory=list)
 
@@ -124,12 +128,25 @@ class HostileResult:
         return {"cases": self.cases, "steps": self.steps, "wall_s": round(self.wall_s, 2),
                 "cases_per_s": round(self.cases_per_s, 2), "sessions": self.sessions,
                 "longest_silence_s": round(self.longest_silence_s, 2), "findings": self.findings,
-                "unsaved": len(self.unsaved)}
+                "repeats": self.repeats, "unsaved": len(self.unsaved)}
 
     def describe(self) -> str:
         return (f"as a controller: {self.cases} cases ({self.steps} steps) in {self.wall_s:.1f} s, "
                 f"{self.cases_per_s:.1f} cases/s, {self.sessions} host sessions, {len(self.findings)} findings"
+                + (f" ({self.repeats} more like them, not saved)" if self.repeats else "")
                 + (f", {len(self.unsaved)} not saved (on stderr)" if self.unsaved else ""))
+
+
+def signature(failure: findings_mod.Failure) -> tuple:
+    """What makes two failures of a host the same bug: the kind and oracle, and the exception a traceback ends with
+    (its type and the place it was raised), else the error with its numbers taken out (a probe's exit status, a
+    silence's seconds)."""
+    lines = failure.trace.splitlines()
+    ends = [i for i, line in enumerate(lines) if EXCEPTION_LINE.match(line)]
+    if ends:
+        places = [line.strip() for line in lines[:ends[-1]] if line.strip().startswith("File ")]
+        return (failure.kind, failure.oracle, lines[ends[-1]].split(":", 1)[0], places[-1] if places else "")
+    return (failure.kind, failure.oracle, re.sub(r"[\d.]+", "N", failure.error))
 
 
 # ---- the host under test ------------------------------------------------------------------------------------
@@ -554,14 +571,14 @@ class HostileController:
             done = run(argv, timeout_s=self.settings.hang_s,
                        peers=(self.host.proc.pid,) if self.host is not None else ())
         except subprocess.TimeoutExpired:
-            return self._failure("hang", f"the probe {' '.join(argv)} did not end within {self.settings.hang_s:g} "
-                                         "s of its own time")
+            return self._failure("hang", f"the probe `{shlex.join(argv)}` did not end within "
+                                         f"{self.settings.hang_s:g} s of its own time")
         except OSError as exc:
-            raise ValueError(f"--probe {' '.join(argv)}: {exc}") from None
+            raise ValueError(f"--probe {shlex.join(argv)}: {exc}") from None
         if done.returncode != 0:
             said = (done.stderr or b"").decode(errors="replace").strip().splitlines()[-3:]
-            return self._failure("oracle", f"the probe {' '.join(argv)} {describe_exit(done.returncode)}"
-                                 + (f": {' / '.join(said)}" if said else ""), oracle="probe")
+            return self._failure("oracle", f"the probe `{shlex.join(argv)}` ended: {describe_exit(done.returncode)}"
+                                 + (f" ({' / '.join(said)})" if said else ""), oracle="probe")
         return None
 
     def _failure(self, kind: str, error: str, oracle: str = "") -> findings_mod.Failure:
@@ -707,6 +724,7 @@ class HostileFuzzer:
     def __init__(self, settings: HostileSettings, psk: bytes, key_path: Path, port) -> None:
         self.settings = settings
         self.controller = HostileController(settings, psk, key_path, port)
+        self.seen: set[tuple] = set()         # the signatures of the findings saved in this run
 
     def run(self, on_case: Callable[[HostileResult], None] = lambda r: None) -> HostileResult:
         settings, controller, result = self.settings, self.controller, HostileResult()
@@ -740,9 +758,15 @@ class HostileFuzzer:
         return result
 
     def _found(self, failure: findings_mod.Failure, steps: list[dict], result: HostileResult) -> None:
+        """Save a finding, shrunk; one already saved in this run (the same `signature`) is counted, not saved."""
         import json
         stderr = self.controller.stop_host()
         failure.trace = failure.trace or stderr
+        said = signature(failure)
+        if said in self.seen:
+            result.repeats += 1
+            return
+        self.seen.add(said)
         finding = findings_mod.Finding(TARGET, failure, steps=[dict(s) for s in steps],
                                        url=" ".join(self.settings.host_cmd) or self.controller.port.url,
                                        execs=result.cases)
