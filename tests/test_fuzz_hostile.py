@@ -21,9 +21,10 @@ from host_tools.fuzz.findings import Failure, Finding
 from host_tools.fuzz.grammar import RandomDraw
 from host_tools.fuzz.hostile import TARGET, HostileController, HostileSettings
 from host_tools.teleop.session import Session
-from host_tools.worlds.child import ASPOD, run
+from host_tools.worlds.child import ASPOD, Child, run
 from host_tools.worlds.ports import PtyPort
 from host_tools.teleop.words import parse_line
+from protocol import auth
 from protocol.host_link import CommandHandle
 from protocol.link import LinkState
 from protocol.messages import SCHEMA
@@ -146,6 +147,28 @@ def test_a_probe_that_fails_is_a_finding_saved_once_per_run(tmp_path):
     found = findings.load(Path(figures["findings"][0]))
     assert found.failure.kind == "oracle" and found.failure.oracle == "probe"
     assert found.failure.error.startswith("the probe `sh -c 'test -e ") and "ended: exit status 3" in found.failure.error
+
+
+def test_a_host_the_user_starts_is_pointed_at_it_as_at_aspod_sim(tmp_path):
+    """Without --host-cmd the fuzzer says its line and key as `aspod sim` does and waits for a host; cases count
+    only while one is in session. Here over TCP, with a key of the user's."""
+    key = tmp_path / "link.key"
+    auth.write_key(key, secrets.token_bytes(32))
+    fuzzer = Child(["fuzz", "--as-controller", "--serve", "tcp:0", "--key-file", str(key), "--cases", "10",
+                    "--json", "--no-progress", "--findings", str(tmp_path)])
+    host = None
+    try:
+        url = fuzzer.ready("ASPOD-LINK ").split(" ", 1)[1]
+        assert url.startswith("socket://127.0.0.1:")
+        assert fuzzer.ready("ASPOD-KEY ").split(" ", 1)[1] == str(key)
+        host = Child(["-m", "host_tools.fuzz.hostile_planted", url, str(key), "60"], command=[sys.executable])
+        assert fuzzer.wait_exit(60.0) == 0
+        figures = json.loads(fuzzer.proc.stdout.read().decode())
+        assert figures["cases"] == 10 and figures["sessions"] >= 1 and figures["findings"] == []
+    finally:
+        for child in (fuzzer, host):
+            if child is not None:
+                child.stop()
 
 
 def test_teleop_refused_a_motion_by_a_result_over_a_pty_lives_on(tmp_path):
