@@ -15,6 +15,8 @@ import threading
 from pathlib import Path
 from types import SimpleNamespace
 
+import pytest
+
 from host_tools.client.live import HostClient
 from host_tools.fuzz import findings
 from host_tools.fuzz.findings import Failure, Finding
@@ -89,6 +91,8 @@ def event(name: str, **values) -> dict:
     return {"kind": "event", "msg": name, "payload": spec.encode(spec.type(**values)).hex()}
 
 
+@pytest.mark.pty
+@pytest.mark.long
 def test_it_finds_a_host_that_crashes_on_an_event_shrinks_and_replays_it(tmp_path):
     """The planted host names a MotionDone's axis from a table one short: the fuzzer, from nothing, finds it (seed 1:
     at case 11 of at most 300), shrinks it, and `--replay` fails as found; against the host without the defect the
@@ -113,6 +117,8 @@ def test_it_finds_a_host_that_crashes_on_an_event_shrinks_and_replays_it(tmp_pat
     assert status == 0 and "no longer fails" in out, out + err
 
 
+@pytest.mark.pty
+@pytest.mark.long
 def test_a_host_that_hangs_on_an_event_is_a_hang(tmp_path):
     """The planted host waits for ever on a lock it holds when a TemperatureWarning says HOT: no traceback, no exit,
     its link silent: a hang, once it has had --hang-s of its own time."""
@@ -125,6 +131,8 @@ def test_a_host_that_hangs_on_an_event_is_a_hang(tmp_path):
     assert status == 0 and "no longer fails" in out, out + err
 
 
+@pytest.mark.pty
+@pytest.mark.cpu_hog
 def test_a_host_a_busy_machine_holds_up_is_not_a_hang(tmp_path):
     """The tool without a defect, its threads at SCHED_IDLE on one CPU beside a busy loop there (0.9 s busy in each
     second): its link falls silent for most of a second at a time, past --hang-s 0.5 of wall time, but not of its
@@ -136,6 +144,7 @@ def test_a_host_a_busy_machine_holds_up_is_not_a_hang(tmp_path):
     assert figures["longest_silence_s"] > 0.5, figures       # what a wall clock would have taken for a hang
 
 
+@pytest.mark.pty
 def test_a_probe_that_fails_is_a_finding_saved_once_per_run(tmp_path):
     """--probe says the host is unwell (here: exit 3 once the key file exists, so at every case): an oracle finding,
     saved once; the same failure again is counted, not saved (a finding per bug, not per case)."""
@@ -149,6 +158,7 @@ def test_a_probe_that_fails_is_a_finding_saved_once_per_run(tmp_path):
     assert found.failure.error.startswith("the probe `sh -c 'test -e ") and "ended: exit status 3" in found.failure.error
 
 
+@pytest.mark.pty
 def test_a_host_the_user_starts_is_pointed_at_it_as_at_aspod_sim(tmp_path):
     """Without --host-cmd the fuzzer says its line and key as `aspod sim` does and waits for a host; cases count
     only while one is in session. Here over TCP, with a key of the user's."""
@@ -171,6 +181,7 @@ def test_a_host_the_user_starts_is_pointed_at_it_as_at_aspod_sim(tmp_path):
                 child.stop()
 
 
+@pytest.mark.pty
 def test_teleop_refused_a_motion_by_a_result_over_a_pty_lives_on(tmp_path):
     """The teleop defect above, end to end: `aspod teleop` running `move j1 10`, its Move refused by a Result. Before
     the mend this replay failed as a crash (a traceback on teleop's stderr)."""
@@ -182,6 +193,8 @@ def test_teleop_refused_a_motion_by_a_result_over_a_pty_lives_on(tmp_path):
     assert status == 0 and "no longer fails" in out, out + err
 
 
+@pytest.mark.pty
+@pytest.mark.long
 def test_teleop_survives_a_short_run(tmp_path):
     """Twenty cases against `aspod teleop` running a script of every kind of line it sends (seed 1): no finding."""
     script = tmp_path / "s.txt"
@@ -205,6 +218,7 @@ def test_a_finding_with_a_bad_step_is_refused_before_any_host_starts(tmp_path):
     assert status == 2 and "replay it with --as-controller" in err, out + err
 
 
+@pytest.mark.long
 def test_the_command_refuses_what_does_not_fit_with_its_reason(tmp_path):
     for args, reason in ((["--url", "/dev/pts/1"], "give no TARGET, --list, --url or --target-cmd"),
                          (["--replay", str(tmp_path / "f.json")], "needs --host-cmd: the host to replay it against"),
@@ -243,6 +257,7 @@ class Served:
         self.port.close()
 
 
+@pytest.mark.pty
 def test_a_listener_that_raises_does_not_stop_the_client(caplog):
     """A listener of the caller's that raises (here on a MotionDone of the mount) stopped HostClient's pump thread:
     the link went silent for good, every later call waited its whole timeout and nothing said why. Now the error is

@@ -242,7 +242,6 @@ class HostileLink(ControllerLink):
         self.armed: deque[dict] = deque()       # reply steps waiting for a reply
         self.late: list[tuple[float, tuple]] = []
         self.last_command: Optional[Frame] = None
-        self.draw = RandomDraw(random.Random(0))
         self.now = 0.0
 
     def _handle(self, frame: Frame, spec, now: float) -> None:
