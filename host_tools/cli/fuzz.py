@@ -270,7 +270,8 @@ def add_options(fuzz: argparse.ArgumentParser) -> None:
     hostile.add_argument("--as-controller", action="store_true",
                          help="play a controller for a host to connect to (prints ASPOD-LINK and ASPOD-KEY as aspod "
                               "sim does) and answer it with mutated replies, telemetry, events, NAKs, stalls, floods")
-    hostile.add_argument("--serve", default="pty", metavar="pty|tcp:PORT", help="the line served (default pty)")
+    hostile.add_argument("--serve", default="pty", metavar="pty|tcp:PORT|DEVICE",
+                         help="the line served: a new pty (default), a TCP port (tcp:0 picks one) or a serial device")
     hostile.add_argument("--host-cmd", default=None, metavar="COMMAND",
                          help="start the host with COMMAND, once per session ({url} and {key} put in); it fails if "
                               "it dies (a signal, a traceback, an exit status not --host-exit-ok) or goes silent")
