@@ -155,7 +155,8 @@ def test_a_probe_that_fails_is_a_finding_saved_once_per_run(tmp_path):
     assert status == 1 and len(figures["findings"]) == 1 and figures["repeats"] == 2, out + err
     found = findings.load(Path(figures["findings"][0]))
     assert found.failure.kind == "oracle" and found.failure.oracle == "probe"
-    assert found.failure.error.startswith("the probe `sh -c 'test -e ") and "ended: exit status 3" in found.failure.error
+    error = found.failure.error
+    assert error.startswith("the probe `sh -c 'test -e ") and "ended: exit status 3" in error
 
 
 @pytest.mark.pty

@@ -157,7 +157,7 @@ def load(path: Path) -> Finding:
         raise bad(f"\"inputs\" must be a list of hexadecimal strings ({exc})") from None
     steps = data.get("steps", [])
     if data["target"] == "hostile":            # a host attacked by the hostile controller (hostile.py)
-        from host_tools.fuzz.hostile import check_steps
+        from host_tools.fuzz.hostile_cases import check_steps
     elif data["target"] == "blackbox" or steps:
         from host_tools.fuzz.blackbox import check_steps
     if data["target"] in ("hostile", "blackbox") or steps:

@@ -29,21 +29,17 @@ step since the host started (the host's state may need them all), shrunk by repl
 """
 from __future__ import annotations
 
-import os
 import random
-import re
 import shlex
-import signal
 import subprocess
 import sys
-import threading
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional
 
 from protocol.controller_link import ControllerLink
-from protocol.framing import MAX_ENCODED, MAX_PAYLOAD, Frame
+from protocol.framing import MAX_PAYLOAD, Frame
 from protocol.link import NAK_ID, PRIO_URGENT, LinkConfig, LinkState, _Outgoing
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
@@ -52,39 +48,18 @@ from protocol.states import ControllerState
 from timebase import RealClock
 
 from host_tools.fuzz import findings as findings_mod
-from host_tools.fuzz.blackbox import _hex, _number, _one_of, _whole
-from host_tools.fuzz.grammar import TO_HOST, RandomDraw, draw_payload, draw_valid, pack_raw
-from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
+from host_tools.fuzz.grammar import RandomDraw, draw_payload, draw_valid, pack_raw
+from host_tools.fuzz.hostile_cases import SAVED_STEPS, check_steps, draw_case
+from host_tools.fuzz.hostile_host import EXIT_OK, Host, signature, with_values
+from host_tools.fuzz.link_targets import FrameRecipe, build
 from host_tools.worlds.child import describe_exit, out_of_time
 from host_tools.worlds.own_time import OwnTime
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
 TARGET = "hostile"             # a finding's target
-REPLIES = tuple(SCHEMA[name] for name in dict.fromkeys(s.reply for s in SCHEMA.by_id.values() if s.reply))
-EVENTS = tuple(s for s in TO_HOST if s.cls == MsgClass.EVENT)
-TELEMETRY = tuple(s for s in TO_HOST if s.cls == MsgClass.TELEMETRY)
-HELLOS = (SCHEMA["HelloReply"], SCHEMA["HelloCookie"])
-FLOODS = TELEMETRY + (SCHEMA["Heartbeat"], SCHEMA["Nak"])
-STEP_KINDS = ("reply",) * 6 + ("event",) * 3 + ("telemetry",) * 2 + ("frame",) * 3 + ("nak", "hello", "raw", "flood")
-REPLY_HOWS = ("fields", "fields", "fields", "other", "refusal", "class", "seq", "drop", "late", "twice", "nak")
-WRONGS = ("mac", "mac", "version", "flags", "length", "msg_id", "cls", "seq")
-STALL_ONE_IN = 100             # a stall in one step of this many
-STALL_MIN_S, STALL_MAX_S = 0.3, 2.5
-LATE_MAX_S = 2.0               # a late reply's delay, at most
-MAX_STEPS = 6                  # a case's steps, at most
-DELAY_MAX_MS = 19              # the pause before a step, at most (0 three times in four)
-FLOOD_MIN, FLOOD_MAX = 10, 200
-RAW_MAX = MAX_ENCODED + 8
 CASE_WAIT_S = 0.5              # a case's reply steps wait this long for the host's commands, then the case ends
-SAVED_STEPS = 600              # a finding keeps at most this many steps (the host's session's last)
 IDLE_WAIT_S = 0.001
 LOOK_S = 0.05                  # past its bound of wall time, how often a silent host's own time is looked at
-THREADS_LOOK_S = 0.5           # a host's threads, and its own time's readings of /proc, at most this often
-STOP_WAIT_S = 2.0              # of its own time, for a host to end after SIGTERM (then SIGKILL)
-TAIL_LINES = 40                # of the host's stderr, kept for a finding
-TRACEBACK = "Traceback (most recent call last):"
-EXCEPTION_LINE = re.compile(r"^[A-Za-z_][\w.]*(Error|Exception|Interrupt|Exit)\b")    # a traceback's last line
-EXIT_OK = (0, 1, 3)            # aspod's own: done, a command failed, the link failed (host_tools/exit_codes.py)
 
 
 @dataclass(frozen=True)
@@ -135,101 +110,6 @@ class HostileResult:
                 f"{self.cases_per_s:.1f} cases/s, {self.sessions} host sessions, {len(self.findings)} findings"
                 + (f" ({self.repeats} more like them, not saved)" if self.repeats else "")
                 + (f", {len(self.unsaved)} not saved (on stderr)" if self.unsaved else ""))
-
-
-def signature(failure: findings_mod.Failure) -> tuple:
-    """What makes two failures of a host the same bug: the kind and oracle, and the exception a traceback ends with
-    (its type and the place it was raised), else the error with its numbers taken out (a probe's exit status, a
-    silence's seconds)."""
-    lines = failure.trace.splitlines()
-    ends = [i for i, line in enumerate(lines) if EXCEPTION_LINE.match(line)]
-    if ends:
-        places = [line.strip() for line in lines[:ends[-1]] if line.strip().startswith("File ")]
-        return (failure.kind, failure.oracle, lines[ends[-1]].split(":", 1)[0], places[-1] if places else "")
-    return (failure.kind, failure.oracle, re.sub(r"[\d.]+", "N", failure.error))
-
-
-# ---- the host under test ------------------------------------------------------------------------------------
-
-def with_values(words: tuple[str, ...], url: str, key: str) -> list[str]:
-    """A command's words with `{url}` and `{key}` put in."""
-    return [w.replace("{url}", url).replace("{key}", key) for w in words]
-
-
-class Host:
-    """The host's process, started by the fuzzer: its stdout and stderr read as it writes them (a full pipe would
-    stop it: a false hang), a traceback on stderr noted, its own time for the judging of its silence."""
-
-    def __init__(self, argv: list[str]) -> None:
-        self.argv = argv
-        self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, start_new_session=True)
-        self.err: deque[str] = deque(maxlen=TAIL_LINES)
-        self.traceback = False
-        self.in_session = False          # it has opened a session with the fuzzer
-        self.threads: tuple[int, ...] = ()
-        self.own = self._own_time()
-        self._threads_s = _CLOCK.now()
-        self._readers = [threading.Thread(target=self._read, args=(pipe, keep), daemon=True)
-                         for pipe, keep in ((self.proc.stdout, False), (self.proc.stderr, True))]
-        for reader in self._readers:
-            reader.start()
-
-    def _read(self, pipe, keep: bool) -> None:
-        for raw in iter(pipe.readline, b""):
-            if keep:
-                line = raw.decode(errors="replace").rstrip("\n")
-                self.err.append(line)
-                self.traceback = self.traceback or TRACEBACK in line
-
-    def _own_time(self) -> OwnTime:
-        """Its own time from now on: its process tree's, and its threads' (a client's pump thread kept from running
-        while the main thread sleeps on a call is a host kept from running, not a hung one: /proc/PID/schedstat is
-        the main thread's alone)."""
-        return OwnTime(self.proc.pid, RealClock(), tree=True, fresh_s=THREADS_LOOK_S, peers=self.threads)
-
-    def heard(self) -> None:
-        """It said something on the link: its silence, if any, begins now (its threads looked at again now and
-        then, for the threads it has started since)."""
-        now = _CLOCK.now()
-        if now - self._threads_s < THREADS_LOOK_S:
-            self.own.begin()
-            return
-        self._threads_s = now
-        try:
-            threads = tuple(sorted(int(t) for t in os.listdir(f"/proc/{self.proc.pid}/task") if int(t) != self.proc.pid))
-        except (OSError, ValueError):
-            threads = self.threads
-        if threads != self.threads:
-            self.threads = threads
-            self.own = self._own_time()
-        else:
-            self.own.begin()
-
-    def status(self) -> Optional[int]:
-        return self.proc.poll()
-
-    def stderr(self) -> str:
-        for reader in self._readers:
-            if self.proc.poll() is not None:
-                reader.join(0.5)         # its last lines, the traceback among them
-        return "\n".join(self.err)
-
-    def stop(self) -> None:
-        """SIGTERM to its process group, SIGKILL after `STOP_WAIT_S` of its own time."""
-        for sig in (signal.SIGTERM, signal.SIGKILL):
-            if self.proc.poll() is not None:
-                break
-            try:
-                os.killpg(self.proc.pid, sig)
-            except ProcessLookupError:
-                break
-            own = OwnTime(self.proc.pid, RealClock(), tree=True)
-            while self.proc.poll() is None and not out_of_time(own.look(), STOP_WAIT_S):
-                _CLOCK.sleep(0.01)
-        self.proc.wait()
-        for reader in self._readers:
-            reader.join(1.0)
 
 
 # ---- the controller's end ------------------------------------------------------------------------------------
@@ -362,67 +242,6 @@ class _Peer:
 
     def __init__(self, counter: int) -> None:
         self.rx_counter = counter
-
-
-# ---- cases ---------------------------------------------------------------------------------------------------
-
-def draw_case(draw: RandomDraw, case: int) -> list[dict]:
-    steps = []
-    for _ in range(1 + draw.pick(MAX_STEPS)):
-        kind = "stall" if draw.pick(STALL_ONE_IN) == 0 else STEP_KINDS[draw.pick(len(STEP_KINDS))]
-        step: dict = {"case": case, "kind": kind,
-                      "delay_s": 0.0 if draw.pick(4) else draw.pick(DELAY_MAX_MS + 1) / 1000.0}
-        if kind == "reply":
-            how = REPLY_HOWS[draw.pick(len(REPLY_HOWS))]
-            step["how"] = how
-            if how == "fields":           # the payload is drawn for the reply it meets, from this seed
-                step["fields"] = draw.int_in(0, (1 << 32) - 1)
-            elif how == "other":
-                spec = REPLIES[draw.pick(len(REPLIES))]
-                step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex())
-            elif how == "refusal":
-                result = SCHEMA["Result"]
-                step.update(payload=pack_raw(result, [draw.int_in(0, 255) if draw.pick(4) == 0 else
-                                                      draw_valid(result.fields[0], draw)]).hex())
-            elif how == "class":
-                step["cls"] = draw.int_in(0, 255) if draw.pick(2) else int((MsgClass.COMMAND, MsgClass.URGENT,
-                                                                             MsgClass.EVENT, MsgClass.TELEMETRY,
-                                                                             MsgClass.LINK)[draw.pick(5)])
-            elif how == "seq":
-                step.update(seq=("duplicate", "gap", "any")[draw.pick(3)], offset=draw.pick(4),
-                            any_seq=draw.int_in(0, 0xFFFF))
-            elif how == "late":
-                step["late_s"] = draw.int_in(1, int(LATE_MAX_S * 100)) / 100.0
-            elif how == "nak":
-                nak = SCHEMA["Nak"]
-                step.update(reason=int(draw_valid(nak.fields[0], draw)) if draw.pick(4) else draw.int_in(0, 255),
-                            expected=draw.int_in(0, 0xFFFF))
-        elif kind in ("event", "telemetry"):
-            spec = (EVENTS if kind == "event" else TELEMETRY)[draw.pick(len(EVENTS if kind == "event" else TELEMETRY))]
-            step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex())
-        elif kind == "frame":
-            spec = TO_HOST[draw.pick(len(TO_HOST))]
-            step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex(),
-                        wrong=WRONGS[draw.pick(len(WRONGS))], mac=MACS[4 + draw.pick(len(MACS) - 4)],
-                        value=draw.int_in(0, 255), length_delta=draw.int_in(1, 4) * (1 if draw.pick(2) else -1),
-                        msg_id=draw.int_in(0, 0xFFFF), seq=draw.int_in(0, 0xFFFF))
-        elif kind == "nak":
-            nak = SCHEMA["Nak"]
-            step.update(payload=draw_payload(nak, draw).hex(), names_command=bool(draw.pick(2)))
-        elif kind == "hello":
-            spec = HELLOS[draw.pick(len(HELLOS))]
-            step.update(msg=spec.name, payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex(),
-                        same_nonce=bool(draw.pick(2)))
-        elif kind == "raw":
-            step["bytes"] = draw.raw(RAW_MAX).hex()
-        elif kind == "flood":
-            spec = FLOODS[draw.pick(len(FLOODS))]
-            step.update(msg=spec.name, count=draw.int_in(FLOOD_MIN, FLOOD_MAX),
-                        payload=draw_payload(spec, draw)[:MAX_PAYLOAD].hex())
-        elif kind == "stall":
-            step["seconds"] = draw.int_in(int(STALL_MIN_S * 10), int(STALL_MAX_S * 10)) / 10.0
-        steps.append(step)
-    return steps
 
 
 # ---- the fuzzer ----------------------------------------------------------------------------------------------
@@ -814,64 +633,6 @@ class HostileFuzzer:
             return finding
         return findings_mod.Finding(finding.target, finding.failure, steps=steps, url=finding.url,
                                     execs=finding.execs, minimized=True)
-
-
-# ---- a finding's steps, checked before any host starts ---------------------------------------------------------
-
-def _flag(v: object) -> Optional[str]:
-    return None if isinstance(v, bool) else "true or false"
-
-
-_NAMES = lambda specs: _one_of(s.name for s in specs)      # noqa: E731
-_FIELDS: dict[str, dict[str, Callable[[object], Optional[str]]]] = {
-    "reply": {"how": _one_of(REPLY_HOWS)},
-    "event": {"msg": _NAMES(EVENTS), "payload": _hex(MAX_PAYLOAD)},
-    "telemetry": {"msg": _NAMES(TELEMETRY), "payload": _hex(MAX_PAYLOAD)},
-    "frame": {"msg": _NAMES(TO_HOST), "payload": _hex(MAX_PAYLOAD), "wrong": _one_of(WRONGS), "mac": _one_of(MACS),
-              "value": _whole(0, 255), "length_delta": _whole(-4, 4), "msg_id": _whole(0, 0xFFFF),
-              "seq": _whole(0, 0xFFFF)},
-    "nak": {"payload": _hex(MAX_PAYLOAD), "names_command": _flag},
-    "hello": {"msg": _NAMES(HELLOS), "payload": _hex(MAX_PAYLOAD), "same_nonce": _flag},
-    "raw": {"bytes": _hex(RAW_MAX)},
-    "flood": {"msg": _NAMES(FLOODS), "count": _whole(FLOOD_MIN, FLOOD_MAX), "payload": _hex(MAX_PAYLOAD)},
-    "stall": {"seconds": _number(STALL_MIN_S, STALL_MAX_S)},
-}
-_REPLY_FIELDS: dict[str, dict[str, Callable[[object], Optional[str]]]] = {     # by "how"
-    "fields": {"fields": _whole(0, (1 << 32) - 1)},
-    "other": {"msg": _NAMES(REPLIES), "payload": _hex(MAX_PAYLOAD)},
-    "refusal": {"payload": _hex(MAX_PAYLOAD)},
-    "class": {"cls": _whole(0, 255)},
-    "seq": {"seq": _one_of(("duplicate", "gap", "any")), "offset": _whole(0, 3), "any_seq": _whole(0, 0xFFFF)},
-    "late": {"late_s": _number(0.01, LATE_MAX_S)},
-    "nak": {"reason": _whole(0, 255), "expected": _whole(0, 0xFFFF)},
-}
-_OPTIONAL = {"wire": _hex(MAX_ENCODED + 2), "payload": _hex(MAX_PAYLOAD)}
-_COMMON = {"case": _whole(0, (1 << 63) - 1), "kind": _one_of(_FIELDS), "delay_s": _number(0, DELAY_MAX_MS / 1000)}
-
-
-def check_steps(steps: object) -> None:
-    """`steps` as this fuzzer writes them: 1..SAVED_STEPS objects, each with its kind's fields, each of its type and
-    within the bounds the fuzzer draws it from; ValueError naming the step, the field and what it must be (so that
-    a replay neither crashes, nor stalls for ever, nor floods without end)."""
-    if not isinstance(steps, list) or not 1 <= len(steps) <= SAVED_STEPS:
-        raise ValueError(f"\"steps\" must be a list of 1..{SAVED_STEPS} steps")
-    for index, step in enumerate(steps):
-        if not isinstance(step, dict):
-            raise ValueError(f"step {index} must be an object")
-        rules = dict(_COMMON)
-        kind = step.get("kind")
-        rules.update(_FIELDS.get(kind, {}) if isinstance(kind, str) else {})
-        if kind == "reply" and isinstance(step.get("how"), str):
-            rules.update(_REPLY_FIELDS.get(step["how"], {}))
-        for name, rule in rules.items():
-            if name not in step:
-                raise ValueError(f"step {index} ({kind if kind in _FIELDS else 'a step'}) has no \"{name}\"; it "
-                                 f"must be {rule(None)}")
-        for name, rule in {**_OPTIONAL, **rules}.items():
-            if name in step and (must := rule(step[name])) is not None:
-                shown = repr(step[name])
-                raise ValueError(f"step {index}, \"{name}\": {shown if len(shown) <= 40 else shown[:37] + '...'}; "
-                                 f"it must be {must}")
 
 
 # ---- the line and the key, as `aspod sim` says them ---------------------------------------------------------------
