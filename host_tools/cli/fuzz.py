@@ -40,6 +40,8 @@ def run_fuzz(settings: FuzzSettings) -> int:
         return _replay(settings)
     if settings.mode == "blackbox":
         return _blackbox(settings)
+    if settings.mode == "hostile":
+        return _hostile(settings)
     return _inprocess(settings)
 
 
@@ -154,10 +156,38 @@ def _blackbox(settings: FuzzSettings) -> int:
     return EXIT_FAILED if result.findings or result.unsaved else EXIT_OK
 
 
+def _hostile(settings: FuzzSettings) -> int:
+    """--as-controller: serve the line, attack the host (host_tools/fuzz/hostile.py)."""
+    from host_tools.fuzz.hostile import fuzz_as_controller
+    bar = _progress_bar(settings, settings.hostile.cases, "case")
+
+    def on_case(r) -> None:
+        if bar is not None:
+            bar.update(r.cases - bar.n)
+            bar.set_postfix_str(f"{r.cases_per_s:,.1f} cases/s, {r.sessions} sessions, {len(r.findings)} findings")
+
+    try:
+        result = fuzz_as_controller(settings.hostile, settings.key_file, on_case)
+    finally:
+        if bar is not None:
+            bar.close()
+    for path in result.findings:
+        log.error(f"aspod fuzz: finding {path}")
+    print(json.dumps(result.figures(), indent=1) if settings.as_json else result.describe())
+    return EXIT_FAILED if result.findings or result.unsaved else EXIT_OK
+
+
 def _replay(settings: FuzzSettings) -> int:
     from host_tools.fuzz import findings
     finding = findings.load(settings.replay)
-    if finding.target == "blackbox":
+    if (finding.target == "hostile") != (settings.hostile is not None):
+        raise ValueError(f"{settings.replay} is a finding of " + ("a host attacked by --as-controller: replay it with "
+                         "--as-controller --host-cmd ..." if finding.target == "hostile" else
+                         f"{finding.target}, not of a host: replay it without --as-controller"))
+    if finding.target == "hostile":
+        from host_tools.fuzz.hostile import replay_as_controller
+        failure = replay_as_controller(settings.hostile, settings.key_file, finding)
+    elif finding.target == "blackbox":
         if settings.blackbox is None:
             raise ValueError(f"{settings.replay} is a black-box finding (against {finding.url}): "
                              "give --url or --target-cmd to replay it against")
@@ -175,7 +205,7 @@ def _replay(settings: FuzzSettings) -> int:
     if failure is None:
         print(f"{settings.replay}: no longer fails (it was: {said})")
         return EXIT_OK
-    same = failure.signature == finding.failure.signature if finding.target != "blackbox" else (
+    same = failure.signature == finding.failure.signature if finding.target not in ("blackbox", "hostile") else (
         failure.kind == finding.failure.kind)
     print(f"{settings.replay}: fails {'as found' if same else 'differently'}: {failure.describe()}")
     if failure.trace:
@@ -191,6 +221,7 @@ EXAMPLES = [
     "aspod fuzz --target-cmd 'aspod sim --pty --no-pacing' --time 60",
     "aspod fuzz --url /dev/pts/5 --key-file link.key --only BoxDial --time 600",
     "aspod fuzz --replay fuzz-findings/crash-codec-0123456789ab.json",
+    "aspod fuzz --as-controller --host-cmd 'aspod teleop {url} --key-file {key} --script s.txt' --time 60",
 ]
 
 
@@ -214,7 +245,8 @@ def add_options(fuzz: argparse.ArgumentParser) -> None:
     fuzz.add_argument("--cases", type=bounded(int, 1, 10**9), default=None, metavar="N", help="black-box: cases")
     fuzz.add_argument("--hang-s", type=bounded(float, 0.01, 86400), default=None, metavar="S",
                       help="in process and --replay: an input past S seconds of its own time (the time the host kept "
-                           "it waiting for a CPU does not count) is a hang (default 10)")
+                           "it waiting for a CPU does not count) is a hang (default 10); --as-controller: a host "
+                           "silent on the link, or a probe unanswered, for S seconds of its own time")
     fuzz.add_argument("--max-findings", type=bounded(int, 1, 10**6), default=None, metavar="N",
                       help="black-box: stop after N findings (default: go on to --time or --cases)")
     fuzz.add_argument("--jobs", type=bounded(int, 1, 10000), default=1, metavar="N",
@@ -234,6 +266,21 @@ def add_options(fuzz: argparse.ArgumentParser) -> None:
     fuzz.add_argument("--serial", action="store_true", help="no Dask: the jobs one after the other, here")
     fuzz.add_argument("--coverage", action="store_true",
                       help="in process: afterwards, the line coverage each target's corpus reaches (coverage.py)")
+    hostile = fuzz.add_argument_group("a ground tool attacked by a hostile controller (docs/fuzzing.md)")
+    hostile.add_argument("--as-controller", action="store_true",
+                         help="play a controller for a host to connect to (prints ASPOD-LINK and ASPOD-KEY as aspod "
+                              "sim does) and answer it with mutated replies, telemetry, events, NAKs, stalls, floods")
+    hostile.add_argument("--serve", default="pty", metavar="pty|tcp:PORT|DEVICE",
+                         help="the line served: a new pty (default), a TCP port (tcp:0 picks one) or a serial device")
+    hostile.add_argument("--host-cmd", default=None, metavar="COMMAND",
+                         help="start the host with COMMAND, once per session ({url} and {key} put in); it fails if "
+                              "it dies (a signal, a traceback, an exit status not --host-exit-ok) or goes silent")
+    hostile.add_argument("--probe", default=None, metavar="COMMAND",
+                         help="after each case run COMMAND ({url} and {key} put in): the host is healthy if it exits 0 "
+                              "within --hang-s of its own time")
+    hostile.add_argument("--host-exit-ok", action="append", type=bounded(int, 0, 255), default=None, metavar="N",
+                         help="an exit status of the host that is not a crash (repeatable; default 0, 1, 3: aspod's "
+                              "done, a command failed, the link failed)")
     fuzz.add_argument("--json", action="store_true", help="print one JSON object at the end")
     fuzz.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from host_tools.campaign.matrix import Matrix
     from host_tools.fuzz.blackbox import BlackBoxSettings
     from host_tools.fuzz.campaign import CampaignPlan
+    from host_tools.fuzz.hostile import HostileSettings
     from host_tools.worlds.bench_world import WorldSettings
     from host_tools.sessions.impairment import Impairment
     from host_tools.apps.tracker_day import DaySettings
@@ -636,21 +637,22 @@ class FuzzSettings:
     as_json: bool = False
     progress: bool = True
     hang_s: float = HANG_S             # in process and in-process replay: an input's own time past which it hangs
+    hostile: Optional["HostileSettings"] = None   # --as-controller: the ground tool attacked (and its replay)
 
 
-def _target_command(text: str) -> tuple[str, ...]:
-    """--target-cmd's words, as a shell would split them; `aspod` is the aspod of this Python, wherever the shell's
+def _target_command(text: str, option: str = "--target-cmd") -> tuple[str, ...]:
+    """`option`'s words, as a shell would split them; `aspod` is the aspod of this Python, wherever the shell's
     PATH points. ValueError naming a line that does not split or a program that is not there."""
     import shutil
     from host_tools.worlds.child import ASPOD
     try:
         command = tuple(shlex.split(text))
     except ValueError as exc:
-        raise ValueError(f"--target-cmd {text}: {exc} (it is split as a shell would)") from None
+        raise ValueError(f"{option} {text}: {exc} (it is split as a shell would)") from None
     if command and command[0] == "aspod":
         return ASPOD + command[1:]
     if command and shutil.which(command[0]) is None:
-        raise ValueError(f"--target-cmd {text}: no program {command[0]} (not a file that can be run, nor on PATH)")
+        raise ValueError(f"{option} {text}: no program {command[0]} (not a file that can be run, nor on PATH)")
     return command
 
 
@@ -661,6 +663,8 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
     common = dict(key_file=args.key_file, coverage=args.coverage, as_json=args.json, progress=not args.no_progress,
                   hang_s=HANG_S if args.hang_s is None else args.hang_s)
     live = args.url is not None or args.target_cmd is not None
+    if args.as_controller:
+        return _hostile_settings(args, common)
     if args.list:
         if args.targets or live or args.replay is not None:
             raise ValueError("--list names the in-process targets and runs nothing: give it alone")
@@ -704,6 +708,31 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
     for name in plan.targets:
         outputs.folder(plan.corpus(name), "--corpus")        # libFuzzer would only skip what it cannot keep
     return FuzzSettings("inprocess", plan=plan, engine=EngineSettings(args.workers, args.scheduler, args.serial),
+                        **common)
+
+
+def _hostile_settings(args: argparse.Namespace, common: dict) -> FuzzSettings:
+    """`--as-controller`: this process serves the line as a controller and attacks the host (host_tools/fuzz/
+    hostile.py); with --replay, one such finding again."""
+    from host_tools.fuzz.hostile import EXIT_OK, HostileSettings
+    from host_tools.worlds.ports import check_endpoint
+    if args.targets or args.list or args.url is not None or args.target_cmd is not None:
+        raise ValueError("--as-controller serves a line for a host to connect to: give no TARGET, --list, --url or "
+                         "--target-cmd (--serve, --host-cmd and --probe say where and whom)")
+    if args.runs is not None or args.jobs != 1 or args.coverage or args.only or args.skip is not None:
+        raise ValueError("--runs, --jobs, --coverage, --only and --skip are not for --as-controller")
+    check_endpoint(args.serve)
+    host_cmd = _target_command(args.host_cmd, "--host-cmd") if args.host_cmd else ()
+    probe = _target_command(args.probe, "--probe") if args.probe else ()
+    if args.replay is not None and not host_cmd:
+        raise ValueError(f"--replay {args.replay} --as-controller needs --host-cmd: the host to replay it against")
+    seconds = args.time if args.time is not None else (None if args.cases else 60.0)
+    claims(args).folder(args.findings, "--findings")     # a finding made and then not saved would be lost
+    hostile = HostileSettings(args.serve, host_cmd, probe, seconds, args.cases, args.seed, args.findings, args.baud,
+                              HANG_S if args.hang_s is None else args.hang_s,
+                              tuple(args.host_exit_ok) if args.host_exit_ok else EXIT_OK,
+                              max_findings=args.max_findings)
+    return FuzzSettings("replay" if args.replay is not None else "hostile", hostile=hostile, replay=args.replay,
                         **common)
 
 

@@ -6,6 +6,7 @@ its single outcome; telemetry and events are kept and handed to listeners.
 """
 from __future__ import annotations
 
+import logging
 import termios
 import threading
 from typing import Callable, Optional
@@ -24,6 +25,7 @@ from host_tools.client.control import ControlClient
 from host_tools.client.lines import open_lines
 from host_tools.sessions.capture import CaptureWriter
 
+log = logging.getLogger("aspod")
 CLOSE_WAIT_MIN_S = 1.0
 CLOSE_WAIT_MAX_S = 30.0
 
@@ -90,13 +92,21 @@ class HostClient:
                 self.capture.write("link", Direction.TO_CONTROLLER, out, RealClock.wall_time())
 
     def _telemetry(self, msg: Message, now: float) -> None:
-        for listener in self.telemetry_listeners:
-            listener(msg, now)
+        self._tell(self.telemetry_listeners, msg, now)
 
     def _event(self, msg: Message, now: float) -> None:
         self.events.append(msg)
-        for listener in self.event_listeners:
-            listener(msg, now)
+        self._tell(self.event_listeners, msg, now)
+
+    def _tell(self, listeners: list, msg: Message, now: float) -> None:
+        """Hand `msg` to each listener. One that raises is logged with its traceback and the others still hear it:
+        before, it ended the pump thread, the link went silent for good, and every later call waited its whole
+        timeout with nothing to say why (found by `aspod fuzz --as-controller`, docs/fuzzing.md)."""
+        for listener in listeners:
+            try:
+                listener(msg, now)
+            except Exception:      # noqa: BLE001 (the caller's bug: said, and the link goes on)
+                log.exception(f"aspod: a listener of {msg.spec.name} on {self.url} raised; the link goes on")
 
     # ---- caller side ----
     def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:

@@ -156,8 +156,11 @@ def load(path: Path) -> Finding:
     except (TypeError, ValueError) as exc:
         raise bad(f"\"inputs\" must be a list of hexadecimal strings ({exc})") from None
     steps = data.get("steps", [])
-    if data["target"] == "blackbox" or steps:
+    if data["target"] == "hostile":            # a host attacked by the hostile controller (hostile.py)
+        from host_tools.fuzz.hostile_cases import check_steps
+    elif data["target"] == "blackbox" or steps:
         from host_tools.fuzz.blackbox import check_steps
+    if data["target"] in ("hostile", "blackbox") or steps:
         try:
             check_steps(steps)
         except ValueError as exc:

@@ -289,7 +289,8 @@ class Session:
             return self._box_hints(msg, handle)
         if handle.reply is None or msg.spec.reply != "MotionAccepted":
             return []
-        limit = [f"{INDENT}{limit_text(msg, handle.reply)}"] if handle.reply.limit else []
+        refusal = handle.reply       # a MotionAccepted names the limit; a Result (a payload that did not decode) not
+        limit = [f"{INDENT}{limit_text(msg, refusal)}"] if getattr(refusal, "limit", None) else []
         if handle.reason == Reason.OUT_OF_RANGE:
             hints = [f"{INDENT}{f.name}: {f.doc}" for f in msg.spec.fields if f.name == "axis"]
             return hints + limit + [f"{INDENT}see `help {step.word}`"]
