@@ -36,6 +36,7 @@ NAK_TABLE = "\n".join(["| reason | stage | sent when the frame is | sent by | bu
                       + [f"| `{r.reason.name}` | {r.stage} | {r.when} | {_SENT_BY[r.sent_by]} | "
                          f"{'yes' if r.budget else 'no'} | {_SIGNED[r.signed]} | {_names(r)} | "
                          f"{r.expected_seq or '0'} |" for r in link_rules.NAK_RULES])
+HELLO_CHECKS = "\n".join(f"{n}. **{name}**: {what}" for n, (name, what) in enumerate(link_rules.HELLO_CHECKS, 1))
 CHECK_ORDER = "\n".join(f"{n}. **{name}**: {what}" for n, (name, what) in enumerate(link_rules.CHECK_ORDER, 1))
 NAK_EFFECTS = "\n".join(["| reason | what the end that receives it does |", "|---|---|"]
                         + [f"| `{r.reason.name}` | {r.effect} |" for r in link_rules.NAK_RULES
@@ -104,6 +105,8 @@ The longest raw frame is {framing.MAX_RAW} bytes. CRC-32 has Hamming distance 5 
 2974 data bits (Koopman, DSN 2002), so every error of up to 4 bits in any frame here is
 detected; a CRC-16 would not give that.
 
+A segment (the bytes between two delimiters) that is not valid COBS, or decodes to fewer than
+{framing.MIN_RAW} bytes (`MIN_RAW`: a header and a CRC), is `BAD_FRAME`, dropped unanswered and counted.
 A receiver checks a frame whose CRC is right in this order (`protocol/framing.py` `decode_frame`):
 `length` above {framing.MAX_PAYLOAD} (`MAX_PAYLOAD`) is `BAD_LENGTH`; `version` other than {framing.VERSION} is
 `UNSUPPORTED_VERSION`; a bit of 4-7 set other than AUTH is `UNSUPPORTED_FLAGS`; a frame whose size is not
@@ -385,7 +388,9 @@ not as new (`protocol/host_link.py` `event_from_earlier_session`).
 
 **Rule 8. What restarts per session.** Command, urgent and event sequence numbers all start at 0 in every
 session, on both ends (`_new_channels` in `protocol/host_link.py` and `protocol/controller_link.py`),
-and the reply caches are emptied with them; the authentication counters start again too (new keys).
+and the reply caches are emptied with them; the authentication counters start again too (new keys),
+and so does the host's retransmission timer: its RTT estimate is forgotten and the first timeout is
+{LinkConfig.initial_rto_s:g} s again (`initial_rto_s`) until the new session's first sample.
 Telemetry sequence numbers do not: they count on for the life of the link endpoint (`protocol/link.py`
 `send_telemetry`), the first telemetry frame's `seq` being 1, then 2, 3, ... modulo {SEQ_MOD}; a host counts a
 jump from `n` to `m` as `m - n - 1` frames lost (modulo {SEQ_MOD}), whatever the sessions did.
@@ -462,9 +467,26 @@ limits (`SOFT_LIMIT`) (`firmware_py/controller.py` `_joint_motion`, `firmware_py
 
 CLIENT = f"""## What a client needs besides the tables
 
-Written by hand for a client written from this document alone (an independent one was, and these are
-the points it had to guess); the code is cited. Test vectors to check one against (the keys of a handshake,
+Written by hand for a client written from this document alone (independent ones were, and these are
+the points they had to guess); the code is cited. Test vectors to check one against (the keys of a handshake,
 frames of every class, every NAK, a capture) are in [vectors/](vectors/README.md).
+
+**The line.** On a pty or a serial device the host MUST put the line in raw mode (8 data bits, no parity,
+1 stop bit, no echo, no line discipline: every byte through as it is; pyserial does this when it opens a port,
+`stty raw -echo` does it by hand): a terminal's line discipline changes bytes (CR to LF, XON/XOFF, echo), which
+shows only as CRC errors and resends. `aspod sim --pty` keeps its pty open for its whole life: hosts may open and
+close it in turn, one at a time. Over TCP a host connects to the controller's port (protocol_security.md says who
+holds it).
+
+**The checks of a `Hello`**, in order; the first it fails decides the answer (`link.hello_checks` in
+schema.json; `protocol/controller_link.py` `_handle_handshake`):
+
+{HELLO_CHECKS}
+
+So a `Hello` with a wrong version or schema hash still gets a `HelloCookie` first, and its refusal comes as the
+`HelloReply` to its echo. A host whose `HelloReply` refuses it (any `result` but OK) SHOULD NOT send that `Hello`
+again: the refusal stands until the host, the controller or the key changes (this host's link stops, `REFUSED`,
+and says why).
 
 **Keys** (`protocol/auth.py`). The key file is hex; whitespace is ignored, and so is everything from a `#` to
 the end of its line, on a line of its own or after the hex digits (`parse_key`),

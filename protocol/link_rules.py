@@ -61,13 +61,23 @@ class NakRule:
     expected_seq: Optional[str]     # what `expected_seq` holds; None: 0
     effect: str                     # what the end that receives the Nak does
     stage: str                      # the check of CHECK_ORDER the refused frame failed
+    actions: tuple[tuple[str, str], ...] = ()   # (end, NAK_ACTIONS key) for an end that acts on it; others count it
 
     def as_data(self) -> dict:
         return {"reason": self.reason.name, "code": int(self.reason), "when": self.when, "sent_by": list(self.sent_by),
                 "counts_against_budget": self.budget, "signed_with": self.signed, "names": list(self.names),
-                "expected_seq": self.expected_seq, "effect": self.effect, "stage": self.stage}
+                "expected_seq": self.expected_seq, "effect": self.effect, "stage": self.stage,
+                "actions": dict(self.actions)}
 
 
+NAK_ACTIONS = {     # what an end does with a Nak it acts on (every other Nak, and these at the other end, it counts)
+    "new_session_if_believed": "a host that is up starts a new session (its unanswered commands end FAILED, "
+                               "SESSION_RESET) if the Nak verifies under its controller's NAK key and echoes one of "
+                               "its last SENT_TAGS tags (rule 10, \"Sessions and authentication\"); a closing host "
+                               "takes it as the end of the close",
+    "resend_from_expected_seq": "resends its reliable frames of that class from `expected_seq` at once (rule 1)",
+    "session_ended_if_closing": "a host that is closing takes the session as ended",
+}
 _BOTH = ("controller", "host")
 _COUNTED = "counted (naks_rx), nothing else: a command it refused is resent on its timer (rule 1)"
 NAK_RULES = (
@@ -81,13 +91,15 @@ NAK_RULES = (
             SESSION_OR_NONE, NAMES_FRAME_NO_TAG, None, _COUNTED, stage="authentication"),
     NakRule(Reason.BAD_MAC, "a `Hello`, `HelloReply` or `HelloCookie` whose tag is wrong under the receiver's "
             "handshake key; with a session, any other frame whose tag verifies under no key the receiver holds "
-            "(not answered if it is a `Nak`)", _BOTH, True, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="authentication"),
+            "(not answered if it is a `Nak`)", _BOTH, True, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED,
+            stage="authentication"),
     NakRule(Reason.NO_SESSION, "the receiver has no session and the frame (not a handshake frame, not a `Nak`) "
             "verifies under no key it holds (the controller: nor a pending session's); for example a host on a new "
             "connection that hears the events of a session it never had", _BOTH, True, NO_SESSION_KEY, NAMES_FRAME,
             None, "the host, up or closing: see \"Sessions and authentication\" (a believed one starts a new session, "
             "or ends the close); the controller: counted (naks_rx), nothing else (a host's NO_SESSION is signed with "
-            "the handshake key, which a recording replays)", stage="authentication"),
+            "the handshake key, which a recording replays)", stage="authentication",
+            actions=(("host", "new_session_if_believed"),)),
     NakRule(Reason.UNKNOWN_MESSAGE, "authenticated, its `msg_id` declared nowhere", _BOTH, False, SESSION,
             NAMES_FRAME, None, _COUNTED, stage="message"),
     NakRule(Reason.WRONG_DIRECTION, "authenticated, its `msg_id` declared, but not in this class or not to this "
@@ -96,18 +108,21 @@ NAK_RULES = (
     NakRule(Reason.BAD_LENGTH, "an authenticated LINK frame (`Hello`, `Heartbeat`, `Nak`) whose payload is not its "
             "message's size", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="payload"),
     NakRule(Reason.OUT_OF_RANGE, "an authenticated LINK frame with a field outside its declaration (a `Nak` whose "
-            "`reason` is no reason code)", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="payload"),
+            "`reason` is no reason code)", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED,
+            stage="payload"),
     NakRule(Reason.SEQUENCE_GAP, "a command (at the controller) or an event (at the host) numbered beyond the next "
             "expected (rule 2); once per expected value", _BOTH, False, SESSION, NAMES_FRAME,
             "the next sequence number expected in the refused frame's class",
-            "the host resends its commands from `expected_seq` at once; the controller its events", stage="sequence"),
+            "the host resends its commands from `expected_seq` at once; the controller its events", stage="sequence",
+            actions=(("host", "resend_from_expected_seq"), ("controller", "resend_from_expected_seq"))),
     NakRule(Reason.REPLAY, f"a command numbered before the next expected and older than the last {REPLY_CACHE_SIZE} "
             "answered", ("controller",), False, SESSION, NAMES_FRAME, "the next command sequence number expected",
             _COUNTED, stage="sequence"),
     NakRule(Reason.SESSION_CLOSED, "a command or urgent request, not a duplicate, after the session's `Close` was "
             "executed", ("controller",), False, SESSION, NAMES_FRAME,
             "the next command sequence number expected; 0 for an urgent request",
-            "a host that is closing takes it as the end of the session; any other host counts it", stage="sequence"),
+            "a host that is closing takes it as the end of the session; any other host counts it", stage="sequence",
+            actions=(("host", "session_ended_if_closing"),)),
 )
 
 
@@ -120,31 +135,56 @@ class ClassRule:
     delivery: str
     seq: str            # what the header's `seq` holds
     acknowledged_by: str
+    sender: str         # who sends this class's first frames: "host", "controller" or "both" (replies go back)
+    reliable: bool      # resent until answered or acknowledged
+    ordered: bool       # taken only in sequence-number order (a gap is NAKed, rule 2)
+    resent: str         # RESENT_GO_BACK, RESENT_ALONE or RESENT_NEVER
 
 
+RESENT_GO_BACK = "go_back_n"      # from the oldest expired frame on, every frame in flight again (rule 1)
+RESENT_ALONE = "alone"            # each on its own timer
+RESENT_NEVER = "never"
 CLASS_RULES = (
     ClassRule(MsgClass.LINK, "both", "per frame: handshake, heartbeat, ack, nak", "0 (ignored by the receiver)",
               "nothing: a LINK frame is never acknowledged or resent by the link (the host resends `Hello` on its "
-              "own timer)"),
+              "own timer)",
+              "both", False, False, RESENT_NEVER),
     ClassRule(MsgClass.COMMAND, "host -> controller, replies back", "reliable, in order, exactly once",
               "0, 1, 2, ... per session, modulo 65536; a reply carries its command's",
               "the reply, a frame of the same class and `seq` (rule 3); the `ack` field of the controller's frames "
-              "also carries the last command received in order, which the host needs not read"),
+              "also carries the last command received in order, which the host needs not read",
+              "host", True, True, RESENT_GO_BACK),
     ClassRule(MsgClass.URGENT, "host -> controller, replies back", "exactly once, bypasses ordering (stop, e-stop)",
               "0, 1, 2, ... per session, modulo 65536, numbered apart from commands; a reply carries its request's",
-              "the reply only (same class and `seq`); no `ack` field carries urgent numbers"),
+              "the reply only (same class and `seq`); no `ack` field carries urgent numbers",
+              "host", True, False, RESENT_ALONE),
     ClassRule(MsgClass.TELEMETRY, "controller -> host", "unreliable; sequence numbers count loss; dropped, and "
               "counted, when the line is backed up", "1, 2, 3, ... for the controller's life, modulo 65536 (rule 8)",
-              "nothing"),
+              "nothing",
+              "controller", False, False, RESENT_NEVER),
     ClassRule(MsgClass.EVENT, "controller -> host", "reliable, in order; kept across sessions until delivered",
               "0, 1, 2, ... per session, modulo 65536",
               "the `ack` field of every session frame the host sends (an `Ack` frame when it has nothing else), "
-              "cumulative: the last event received in order"),
+              "cumulative: the last event received in order",
+              "controller", True, True, RESENT_GO_BACK),
 )
 
 HANDSHAKE_COUNTER = ("this implementation numbers each end's handshake frames 1, 2, 3, ... with one counter for the "
                      "life of its link endpoint (across connects and sessions), apart from every session's counters")
 # The header of every frame sent outside a session: Hello, HelloCookie, HelloReply, and a Nak sent with no session.
+HANDSHAKE_MESSAGES = ("Hello", "HelloReply", "HelloCookie")     # signed with the handshake key, outside any session
+# A Hello is checked in this order (protocol/controller_link.py _handle_handshake, _answer_hello); the first it fails
+# decides the answer.
+HELLO_CHECKS = (
+    ("mac", "not under the handshake key: Nak(BAD_MAC) within the NAK budget, no cookie, no reply"),
+    ("message", "a HelloReply or HelloCookie sent to the controller: Nak(WRONG_DIRECTION)"),
+    ("payload", "does not decode as a Hello: a Nak with the decoder's reason"),
+    ("replayed_nonce", "the nonce of a session a host adopted: dropped (counted as a replay), no answer"),
+    ("cookie", "zeros, stale or another nonce's: a HelloCookie only (rate-limited), nothing else is checked"),
+    ("reanswer", "its nonce waiting for an answer, or answered less than HELLO_REANSWER_S ago: dropped"),
+    ("version", "not this controller's protocol version: HelloReply UNSUPPORTED_VERSION"),
+    ("schema_hash", "not this controller's schema hash: HelloReply SCHEMA_MISMATCH"),
+)
 HANDSHAKE_HEADER = {
     "class": MsgClass.LINK.name,
     "seq": 0,
@@ -184,7 +224,7 @@ def declared() -> dict:
         "doc": "The link's rules that are tables (docs/protocol.md rules 1-12): every Nak the link sends, each "
                "class's numbering and acknowledgement, the header of the frames sent outside a session, and the "
                "counters a Heartbeat carries. From protocol/link_rules.py.",
-        "naks": {"signing": SIGNING, "rules": [rule.as_data() for rule in NAK_RULES],
+        "naks": {"signing": SIGNING, "rules": [rule.as_data() for rule in NAK_RULES], "actions": NAK_ACTIONS,
                  "check_order": [{"stage": name, "checks": what} for name, what in CHECK_ORDER],
                  "doc": "A Nak is class LINK, seq 0. `names`: the fields that name the refused frame (its class, "
                         "seq, msg_id and the first NAK_TAG_BYTES of its tag); the others of those are zeros. "
@@ -193,7 +233,10 @@ def declared() -> dict:
                         "COBS or CRC, a frame whose counter is not above the last accepted (a replay), a Nak refused "
                         "for its authentication."},
         "classes": [{"class": r.cls.name, "value": int(r.cls), "direction": r.direction, "delivery": r.delivery,
-                     "seq": r.seq, "acknowledged_by": r.acknowledged_by} for r in CLASS_RULES],
+                     "seq": r.seq, "acknowledged_by": r.acknowledged_by, "sender": r.sender,
+                     "reliable": r.reliable, "ordered": r.ordered, "resent": r.resent} for r in CLASS_RULES],
+        "handshake_messages": list(HANDSHAKE_MESSAGES),
+        "hello_checks": [{"check": name, "refused": what} for name, what in HELLO_CHECKS],
         "ack_field": {"doc": "the header's `ack` in a session frame: the last sequence number its sender received in "
                              "order from the peer's reliable stream (the host: events; the controller: commands), "
                              "NOTHING_RECEIVED_ACK before any. The controller takes it from every session frame that "

@@ -249,6 +249,30 @@ def test_a_frame_that_fails_two_checks_is_refused_at_the_first_in_the_declared_o
         line.controller._commands._nak_sent_for = None           # a gap is NAKed once per expected number
 
 
+def test_a_hello_is_checked_in_the_declared_order(data):
+    """link.hello_checks as the controller's link makes them: a Hello with another version and schema hash gets a
+    HelloCookie first (the cookie before anything it carries), and its echo the version's refusal (the version
+    before the hash)."""
+    from protocol.controller_link import ControllerLink
+    names = [c["check"] for c in data["link"]["hello_checks"]]
+    assert names.index("cookie") < names.index("version") < names.index("schema_hash")
+    psk = bytes(range(32))
+    link = ControllerLink(psk, lambda msg, urgent, now: None)
+    keys = auth.handshake_keys(psk, is_controller=False)
+    hello = SCHEMA["Hello"]
+
+    def answer(cookie: bytes, counter: int, now: float):
+        body = hello.encode(hello.type(PROTOCOL_VERSION + 1, SCHEMA.hash ^ 1, bytes(16), cookie))
+        link.feed(framing.encode_frame(MsgClass.LINK, 0, 0xFFFF, hello.id, body, keys.tx, counter), now)
+        link.poll(now + 1.0)
+        frame = framing.decode_frame(link.take_frame(now + 1.0)[1:-1])
+        return SCHEMA.decode(frame.msg_id, frame.payload)
+    first = answer(bytes(auth.COOKIE_BYTES), 1, 0.0)
+    assert first.spec.name == "HelloCookie"
+    second = answer(first.cookie, 2, 1.0)
+    assert second.spec.name == "HelloReply" and Reason(second.result) is Reason.UNSUPPORTED_VERSION
+
+
 def test_the_line_table_and_the_cookie_label_are_the_codes(data):
     from protocol import line
     assert [(b["baud"], b["max_telemetry_hz"]) for b in data["line"]["bauds"]] == \
