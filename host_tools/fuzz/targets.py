@@ -15,7 +15,8 @@ be reproduced by replaying at most that many inputs on a fresh target (host_tool
     key-file         the key file loader (protocol/auth.py)
     teleop           teleop's line parser and script checker (host_tools/teleop/words.py)
 
-Your own code: `aspod fuzz module:factory` loads any object with `name` and `one_input` (see docs/fuzzing.md).
+Your own code: `aspod fuzz module:factory` loads any object with `one_input(data)`; `close` is optional (see
+docs/fuzzing.md).
 """
 from __future__ import annotations
 
@@ -379,4 +380,20 @@ def load_target(spec: str) -> Target:
         raise ValueError(f"fuzz target {spec}: its factory raised {type(exc).__name__}: {exc}") from None
     if not callable(getattr(target, "one_input", None)):
         raise ValueError(f"fuzz target {spec}: {target!r} has no one_input(data)")
-    return target
+    return target if callable(getattr(target, "close", None)) else _Closable(target)
+
+
+class _Closable:
+    """Your own target with no `close` (it is optional): the target itself in every other respect."""
+
+    def __init__(self, target: Any) -> None:
+        self.__dict__["_target"] = target
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._target, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._target, name, value)
+
+    def close(self) -> None:
+        """Nothing to release."""
