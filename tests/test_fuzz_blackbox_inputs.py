@@ -198,10 +198,13 @@ def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypat
 
     fuzzer = blackbox.BlackBoxFuzzer(blackbox.BlackBoxSettings(url="fake", cases=1, findings=tmp_path), b"k" * 32)
     fuzzer.params = blackbox.TargetParams(ParamTable())       # as the first `_open` leaves it: here, none read
-    monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), None))
-    monkeypatch.setattr(blackbox, "run_case", lambda *a: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
+    class FakeHealth:
+        cases = 0                 # checked
 
-    def refuse(self, folder):
+    monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), FakeHealth()))
+    monkeypatch.setattr(blackbox, "run_case", lambda *a, **k: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
+
+    def refuse(self, folder, path=None):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(findings.Finding, "save", refuse)
     result = fuzzer.run()
