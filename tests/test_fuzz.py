@@ -505,7 +505,7 @@ def test_black_box_learns_the_targets_parameters_sets_them_and_sets_them_back_af
                 env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")})     # not the user's params file
     try:
         url = sim.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
-        settings = BlackBoxSettings(url=url, seconds=None, cases=40, seed=3, findings=tmp_path / "found",
+        settings = BlackBoxSettings(url=url, seconds=None, cases=80, seed=3, findings=tmp_path / "found",
                                     only=("ParamSet",))
         fuzzer = BlackBoxFuzzer(settings, psk)
         result = fuzzer.run()
@@ -516,7 +516,7 @@ def test_black_box_learns_the_targets_parameters_sets_them_and_sets_them_back_af
             session.close()
     finally:
         sim.stop()
-    assert result.findings == [] and result.cases == 40
+    assert result.findings == [] and result.cases == 80
     assert fuzzer.params.words["name"] == order
     assert result.params_put_back >= 3 and not fuzzer.params.owed, (result, fuzzer.params.owed)
     assert after.failed is None and {r.name: r.value for r in after.replies} == fuzzer.params.found

@@ -58,7 +58,7 @@ from host_tools.client.params import ParamTable, read_param_table
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
 from host_tools.fuzz.shrink import minimal_steps
-from host_tools.worlds.child import out_of_time
+from host_tools.worlds.child import LOOK_S, out_of_time
 from host_tools.worlds.own_time import Look, OwnTime
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
@@ -75,9 +75,9 @@ CHECK_EVERY = 16               # cases between two health checks while the targe
 RATE_FLOOR = 0.05              # a --url target's deadlines stretch with its measured slowness, at most 1/this
 RATE_KEEP = 0.7                # the weight of the rate measured before, against the latest check's
 RTT_FACTOR = 50                # a --url target's deadlines are at least this many of its recent round trips
-SILENCE_ONE_IN = 4000          # a silence (about 2 s at the default timeout) in one step of this many (one in 200
-#                                until 2026-11-29: at 350 steps/s the silences took most of the run)
-PAUSE_ONE_IN = 16              # a pause before a step in one step of this many (one in four until 2026-11-29: the
+SILENCE_ONE_IN = 20000         # a silence (about 2 s at the default timeout) in one step of this many: at about 350
+#                                steps a second, one a minute (one in 200 until 2026-11-29: most of a run)
+PAUSE_ONE_IN = 64              # a pause before a step in one step of this many (one in four until 2026-11-29: the
 #                                pauses took 8.4 s of a 15 s run, profiled)
 SILENCE_MIN, SILENCE_MAX = 0.5, 0.8   # of the link timeout: near it, with room for this process being held up
 OWN_TIME_LOOK_S = 0.5          # past a wait's bound of wall time, how often a target we started is looked at
@@ -216,6 +216,10 @@ class Session:
         self.accepted_counter = -1             # the host's counter on the last frame the target answered
         self.events = 0                        # events the target sent since the last health check
         self.pace = Pace()                     # a --url target's, for its deadlines
+        # the own time `pump_until` judges by (the target's if ours, else this process's): one kept, its /proc read
+        # at most every LOOK_S (a new one for each wait read /proc twice, 1.5 ms, several times a case: profiled)
+        self._own = (self.child.own_time() if self.child is not None
+                     else OwnTime(os.getpid(), self.clock, fresh_s=LOOK_S))
         self.renew()
 
     def renew(self) -> None:
@@ -279,7 +283,8 @@ class Session:
 
     def pump_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
         """Pump until `done()`: False once `timeout_s` is past (`bound`) or the target we started has exited."""
-        past = self.bound(timeout_s)
+        self._own.begin()
+        past = Bound(timeout_s if self.child is not None else self.pace.deadline_s(timeout_s), self._own)
         while not done():
             if self.exited() or past():
                 return False
@@ -569,7 +574,11 @@ class HealthCheck:
 
     def _call(self, msg):
         s = self.session
-        handle = s.call(msg, s.settings.health_timeout_s)
+        return self._reply(s.call(msg, s.settings.health_timeout_s), msg)
+
+    def _reply(self, handle, msg):
+        """`handle`'s reply; TargetGone if it has none (not answered, or refused)."""
+        s = self.session
         if not handle.done:
             status = s.exited()
             raise TargetGone(f"{msg.spec.name} not answered within {s.settings.health_timeout_s:g} s"
@@ -594,8 +603,10 @@ class HealthCheck:
                     f"{self.last.faults:#x}")
         return None
 
-    def _status(self):
-        status = self._call(SCHEMA["GetStatus"].type())
+    def _status(self, handle=None):
+        """The target's status (from `handle`, a GetStatus sent already, if given)."""
+        msg = SCHEMA["GetStatus"].type()
+        status = self._call(msg) if handle is None else self._reply(handle, msg)
         self.session.accepted_counter = self.session.host.session.tx_counter   # answered: its counter was taken
         self.status_s = _CLOCK.now()
         return status
@@ -642,16 +653,19 @@ class HealthCheck:
         not yet counted (`note`)."""
         if handles is not None:
             self.note(handles, maybe)
-        self.settle()
         s = self.session
         self.token = (self.token + 1) & 0xFFFFFFFF
-        asked_s = _CLOCK.now()
-        pong = self._call(SCHEMA["Ping"].type(token=self.token))
-        rtt_s = _CLOCK.now() - asked_s
+        ping = SCHEMA["Ping"].type(token=self.token)
+        asked = s.host.submit(ping, s.clock.now())    # both at once, behind the cases' commands: they are taken in
+        told = s.host.submit(SCHEMA["GetStatus"].type(), s.clock.now())      # order, so one wait, not three
+        s.pump_until(lambda: asked.done and told.done, s.settings.health_timeout_s)
+        self.settle()            # (answered before the two, unless lost on the way)
+        pong = self._reply(asked, ping)
+        rtt_s = asked.latency_s or 0.0
         if pong.token != self.token:
             return f"Pong carries token {pong.token}, the Ping {self.token}"
         since_s = self.status_s
-        status = self._status()
+        status = self._status(told)
         before, self.last = self.last, status
         cases, ran, sent, maybe, accepted, unfinished = (self.cases, self.ran, self.sent, self.maybe, self.accepted,
                                                          self.unfinished)
