@@ -10,7 +10,7 @@ memory on a simulated clock, so every command it sends is authentic and in seque
 payloads come from the project's grammar (`host_tools.fuzz.grammar`), with the controller's parameter names as the
 words for the `name` field:
 
-    PYTHONPATH=examples aspod fuzz fuzz_controller:target --runs 20000
+    aspod fuzz examples/fuzz_controller.py:target --runs 20000
 
 finds the bug (a ParamSet of `gain` 0) and saves every command since the world was built, shrunk.
 """

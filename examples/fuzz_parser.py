@@ -4,7 +4,7 @@ A settings record parser written by hand, as a user's own code might be, with a 
 by one, so a record one byte short gets past it, and `struct.error` escapes where the parser promises only its own
 `SettingsError`. The fuzz target is any object with `one_input(data)` (no `close` needed):
 
-    PYTHONPATH=examples aspod fuzz fuzz_parser:target --runs 20000
+    aspod fuzz examples/fuzz_parser.py:target --runs 20000
 
 finds it within a few hundred executions, shrinks the input to a few bytes, and saves it in fuzz-findings/.
 """

@@ -20,7 +20,7 @@ from host_tools.fuzz.targets import builtin_targets, load_target
 from host_tools.worlds.child import run
 from protocol.errors import ParseError
 from protocol.messages import SCHEMA
-from aspod_cli import ASPOD as ASPOD_ARGV, aspod
+from aspod_cli import aspod
 
 PLANTED_CODEC = "host_tools.fuzz.planted:planted_codec_target"
 
@@ -537,12 +537,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def _fuzz_example(tmp_path: Path, spec: str) -> tuple[subprocess.CompletedProcess, list[findings.Finding]]:
-    """`aspod fuzz SPEC` (an example of your own code in examples/, as docs/fuzzing.md runs it), with its findings."""
-    config = tmp_path.parent / f"{tmp_path.name}-config"
-    done = run([*ASPOD_ARGV, "fuzz", spec, "--runs", "20000", "--no-progress", "--findings", "found"], cwd=tmp_path,
-               text=True, timeout_s=300, env={**os.environ, "XDG_CONFIG_HOME": str(config),
-                                               "PYTHONPATH": os.pathsep.join([str(EXAMPLES), os.environ.get(
-                                                   "PYTHONPATH", "")])})
+    """`aspod fuzz examples/SPEC` (your own code, as docs/fuzzing.md runs it), with its findings."""
+    done = aspod("fuzz", f"{EXAMPLES / spec}", "--runs", "20000", "--no-progress", "--findings", "found", cwd=tmp_path)
     return done, [findings.load(p) for p in sorted((tmp_path / "found").glob("*.json"))]
 
 
@@ -550,7 +546,7 @@ def test_your_own_parser_is_fuzzed_by_the_command_and_its_bug_found(tmp_path):
     """examples/fuzz_parser.py: a hand-written parser whose bounds check is off by one. Its target has
     `one_input` and no `close` (optional): before, the command crashed (AttributeError: no attribute 'close')."""
     pytest.importorskip("atheris")
-    done, found = _fuzz_example(tmp_path, "fuzz_parser:target")
+    done, found = _fuzz_example(tmp_path, "fuzz_parser.py:target")
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     assert len(found) == 1 and found[0].failure.kind == "crash", found
     assert found[0].failure.error.startswith("error: unpack_from") and "fuzz_parser.py" in found[0].failure.where
@@ -562,7 +558,7 @@ def test_your_own_controller_on_the_link_is_fuzzed_by_the_command_and_its_bug_fo
     handlers; its ParamSet divides by `gain`, and 0 is in range. The fuzzer reaches the handler through a live
     session and finds it."""
     pytest.importorskip("atheris")
-    done, found = _fuzz_example(tmp_path, "fuzz_controller:target")
+    done, found = _fuzz_example(tmp_path, "fuzz_controller.py:target")
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     assert len(found) == 1 and found[0].failure.kind == "crash", found
     assert found[0].failure.error.startswith("ZeroDivisionError") and "fuzz_controller.py" in found[0].failure.where

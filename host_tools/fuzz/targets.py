@@ -32,6 +32,7 @@ from protocol.errors import EncodeError, KeyFileError, ParseError
 from protocol.framing import HEADER, MAX_ENCODED, MAX_PAYLOAD, Frame, FrameReceiver, seal
 from protocol.messages import SCHEMA
 
+from host_tools.fuzz.own import own_module
 from host_tools.fuzz.grammar import Draw, FdpDraw, draw_payload, draw_value
 
 
@@ -360,14 +361,15 @@ def builtin_targets() -> dict[str, Callable[[], Target]]:
 
 
 def load_target(spec: str) -> Target:
-    """A built-in target by name, or `module:factory` (a callable returning an object with `one_input`)."""
+    """A built-in target by name, or `module:factory` or `file.py:factory` (a callable returning an object with
+    `one_input`)."""
     if ":" not in spec:
         factory = builtin_targets().get(spec)
         if factory is None:
             raise ValueError(f"no fuzz target {spec!r}; the targets are {', '.join(builtin_targets())}, "
                              f"or module:factory for your own")
         return factory()
-    module_name, _, attr = spec.partition(":")
+    module_name, attr = own_module(spec), spec.rpartition(":")[2]
     try:
         factory = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError, TypeError, ValueError) as exc:     # TypeError: ".x", a relative name
