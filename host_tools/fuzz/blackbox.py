@@ -18,16 +18,17 @@ At the first session the fuzzer reads the target's parameter table (ParamList): 
 words for ParamGet and ParamSet, and after each case what the case's ParamSets changed is set back, so every case
 starts from the configuration found (`TargetParams`).
 
-After each case, the health check: a Ping through the session answered with its token; GetStatus with the
-controller's uptime rising, its commands-executed counter moved by exactly the commands that ran (those whose
-payload decodes, each once), and its state changed only if a command of the case was accepted, or into FAULT
-for a cause outside the case (the arm faulting under a motion we started, our own silence past the link
-timeout, the target saying it is too slow for real time). A failed check
-is a finding: its steps, the bytes sent and the pauses, saved (host_tools/fuzz/findings.py). With `--target-cmd`
-the fuzzer starts the target itself, restarts it after a crash, and shrinks a finding by replaying subsets of
-its steps on fresh targets; a target it started is a hang only once it has had `health_timeout_s` of its own time
-(host_tools/worlds/own_time.py: the wall time less its waits for a CPU) without answering, so a busy machine is
-not taken for a hung target. A target it did not start is judged on the wall clock.
+The health check, every `check_every` cases (sooner when the target does not behave as a case expects: see
+`run_case`): a Ping through the session answered with its token; GetStatus with the controller's uptime rising,
+its commands-executed counter moved by exactly the commands that ran (those whose payload decodes, each once), and
+its state changed only if a command was accepted, or into FAULT for a cause outside the cases (the arm faulting
+under a motion we started, our own silence past the link timeout, the target saying it is too slow for real time).
+A failed check is pinned to its case (`BlackBoxFuzzer.bisect`) and is a finding: its steps, the bytes sent and the
+pauses, saved once a bug (host_tools/fuzz/findings.py). With `--target-cmd` the fuzzer starts the target itself,
+restarts it after a crash, and shrinks a finding on fresh targets (host_tools/fuzz/shrink.py); a target it started
+is a hang only once it has had `health_timeout_s` of its own time (host_tools/worlds/own_time.py: the wall time
+less its waits for a CPU) without answering, so a busy machine is not taken for a hung target. A target it did not
+start is judged on the wall clock stretched by its measured pace (`Pace`) and this process's own time.
 """
 from __future__ import annotations
 
@@ -69,7 +70,7 @@ MOTION_FAULTS = (Fault.ENCODER | Fault.STALL | Fault.FOLLOWING_ERROR | Fault.OVE
 COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT))
 STEP_KINDS = ("command",) * 6 + ("frame",) * 5 + ("replay", "replay", "raw", "raw", "hello", "burst")
 EXIT_WAIT_S = 2.0              # after the line broke, how long (of its own time) a target we started has to exit
-READ_WAIT_S = 0.002            # a wait for the target's bytes looks at the line this often (the fuzzer's turns are short)
+READ_WAIT_S = 0.002            # a wait for the target's bytes looks at the line this often
 READ_SIZE = 4096               # bytes taken from the line at a time (all that is there, as one read)
 CHECK_EVERY = 16               # cases between two health checks while the target behaves as the cases expect
 RATE_FLOOR = 0.05              # a --url target's deadlines stretch with its measured slowness, at most 1/this
@@ -299,8 +300,8 @@ class Session:
 
     def bound(self, timeout_s: float) -> "Bound":
         """`timeout_s` from now: of the target's own time if we started it; else stretched by the target's measured
-        slowness, at least RTT_FACTOR of its recent round trips (`measured`), and of this process's own time (a
-        fuzzer kept from running has not yet read what the target said)."""
+        pace (`Pace`), and of this process's own time (a fuzzer kept from running has not yet read what the target
+        said). (`pump_until` judges by the one own time the session keeps.)"""
         if self.child is not None:
             return Bound(timeout_s, self.child.own_time())
         return Bound(self.pace.deadline_s(timeout_s), OwnTime(os.getpid(), self.clock))
@@ -583,7 +584,7 @@ class HealthCheck:
             status = s.exited()
             raise TargetGone(f"{msg.spec.name} not answered within {s.settings.health_timeout_s:g} s"
                              + (" of its own time" if s.child is not None else
-                                f" x{s.pace.slowness:.2g}, its measured slowness" if s.pace.slowness > 1 else "")
+                                f" (x{s.pace.slowness:.2g} for its measured slowness)" if s.pace.slowness > 1 else "")
                              + (f" (the target exited with status {status})" if status is not None else "")
                              + f"; link {s.host.state.value}")
         if not handle.ok:
