@@ -9,11 +9,15 @@
    comparable, not equal: a target that keeps its world between inputs does not repeat a run exactly, so the
    difference is the cost of about N2 - N1 executions, and a row is worth running more than once.
 2. **Black-box over a pty.** `aspod fuzz --target-cmd 'aspod sim --pty ...'` for 20 s (8 s) at --no-pacing and
-   at 115200 baud: cases and steps per second (each case is a few steps and a health check of two commands).
-3. **Beside boofuzz.** The planted simulator (host_tools/fuzz/planted.py: BoxDial at exactly 100 % crashes the
-   controller) over TCP at --no-pacing, 60 s each (20 s with --quick): `aspod fuzz` black-box with its grammar from
-   the declaration, and boofuzz 0.4.2 with the best grammar written for it by hand (bench/boofuzz_peer.py): cases
-   per second, and whether and when each found the bug. One after the other, never together.
+   at 115200 baud: cases and steps per second (each case is a few steps; a health check of two commands comes
+   every 16 cases, or sooner when the target's behaviour changes).
+3. **Beside boofuzz.** The same unpaced TCP target for both, one after the other, never together: `aspod fuzz`
+   black-box with its grammar from the declaration, and boofuzz 0.4.2 with the best grammar written for it by hand
+   (bench/boofuzz_peer.py). First the real simulator (`aspod sim --no-pacing`), 30 s each (10 s with --quick):
+   cases per second, side by side, and their ratio. Then the planted simulator (host_tools/fuzz/planted.py:
+   BoxDial at exactly 100 % crashes the controller), 60 s each (20 s): whether and when each found the bug, cases
+   per second over the whole run and, for `aspod fuzz`, over the time it ran cases (pinning each finding to its
+   case and shrinking it on fresh targets left out).
 """
 from __future__ import annotations
 
@@ -123,13 +127,24 @@ def black_box(tmp: Path, quick: bool) -> list[str]:
 
 def beside_boofuzz(tmp: Path, quick: bool) -> list[str]:
     from bench.boofuzz_peer import run_boofuzz
+    seconds = 10 if quick else 30
+    lines = [f"the real simulator over TCP at --no-pacing, {seconds} s each:"]
+    r = _blackbox(tmp, "host_tools.cli.main", "--tcp=0", seconds, False)
+    b = run_boofuzz(tmp / "boofuzz-real", seconds, planted=False)
+    lines.append(f"  aspod fuzz  {r['cases_per_s']:6.1f} cases/s ({r['cases']} cases, {r['checks']} health checks, "
+                 f"{len(r['findings'])} findings; {_load()})")
+    lines.append(f"  boofuzz     {b.cases_per_s:6.1f} cases/s ({b.cases} cases; {_load()})")
+    lines.append(f"  aspod fuzz / boofuzz: {r['cases_per_s'] / b.cases_per_s:.2f}" if b.cases_per_s else
+                 "  boofuzz ran no case")
     seconds = 20 if quick else 60
-    lines = [f"the planted BoxDial crash over TCP at --no-pacing, {seconds} s each:"]
+    lines.append(f"the planted BoxDial crash over TCP at --no-pacing, {seconds} s each:")
     r = _blackbox(tmp, "host_tools.fuzz.planted", "--tcp=0", seconds, False)
     crashes = [f for f in r["findings"] if Path(f).name.startswith("crash-")]
-    first = json.loads((tmp / crashes[0]).read_text())["execs"] if crashes else None
-    lines.append(f"  aspod fuzz  {r['cases_per_s']:6.1f} cases/s; planted bug "
-                 + (f"found after {first} cases" if crashes else "not found") + f" ({r['cases']} cases; {_load()})")
+    first = json.loads((tmp / crashes[0]).read_text()) if crashes else None
+    lines.append(f"  aspod fuzz  {r['cases_per_s']:6.1f} cases/s ({r['fuzzing_cases_per_s']:.1f} running cases); "
+                 "planted bug " + (f"found after {first['execs']} cases, {first['count']} times, one file, "
+                                   f"{len(first['steps'])} step{'s' if len(first['steps']) > 1 else ''}"
+                                   if first else "not found") + f" ({r['cases']} cases; {_load()})")
     b = run_boofuzz(tmp / "boofuzz", seconds, planted=True)
     lines.append(f"  boofuzz     {b.cases_per_s:6.1f} cases/s; planted bug "
                  + (f"found after {b.found_after_cases} cases" if b.found else "not found") + f" ({b.cases} cases; "

@@ -238,6 +238,8 @@ def named_files(text: str) -> list[tuple[str, bool]]:
     for i, word in enumerate(ws):
         if word.startswith("lua_script:"):
             word = word.split(":", 1)[1]
+        if re.fullmatch(r"[\w./-]+\.py:\w+", word):          # aspod fuzz FILE.py:FACTORY (your own target)
+            word = word.rsplit(":", 1)[0]
         if PATHLIKE.match(word) and not word.startswith("fuzz-findings/"):
             found.append((word, i > 0 and (ws[i - 1] in OUTPUT_OPTIONS or ws[i - 2:i] == ["key", "new"])))
     return found

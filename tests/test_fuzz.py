@@ -505,7 +505,7 @@ def test_black_box_learns_the_targets_parameters_sets_them_and_sets_them_back_af
                 env={**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")})     # not the user's params file
     try:
         url = sim.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
-        settings = BlackBoxSettings(url=url, seconds=None, cases=40, seed=3, findings=tmp_path / "found",
+        settings = BlackBoxSettings(url=url, seconds=None, cases=80, seed=3, findings=tmp_path / "found",
                                     only=("ParamSet",))
         fuzzer = BlackBoxFuzzer(settings, psk)
         result = fuzzer.run()
@@ -516,7 +516,7 @@ def test_black_box_learns_the_targets_parameters_sets_them_and_sets_them_back_af
             session.close()
     finally:
         sim.stop()
-    assert result.findings == [] and result.cases == 40
+    assert result.findings == [] and result.cases == 80
     assert fuzzer.params.words["name"] == order
     assert result.params_put_back >= 3 and not fuzzer.params.owed, (result, fuzzer.params.owed)
     assert after.failed is None and {r.name: r.value for r in after.replies} == fuzzer.params.found
@@ -531,3 +531,34 @@ def test_a_refused_frame_while_the_joints_home_compiled_is_not_a_finding(tmp_pat
     finding = Path(__file__).parent / "data" / "nan_target_refused_frame_finding.json"
     done = aspod("fuzz", "--replay", str(finding), cwd=tmp_path, timeout_s=600)
     assert done.returncode == 0 and "no longer fails" in done.stdout, done.stdout + done.stderr[-3000:]
+
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def _fuzz_example(tmp_path: Path, spec: str) -> tuple[subprocess.CompletedProcess, list[findings.Finding]]:
+    """`aspod fuzz examples/SPEC` (your own code, as docs/fuzzing.md runs it), with its findings."""
+    done = aspod("fuzz", f"{EXAMPLES / spec}", "--runs", "20000", "--no-progress", "--findings", "found", cwd=tmp_path)
+    return done, [findings.load(p) for p in sorted((tmp_path / "found").glob("*.json"))]
+
+
+def test_your_own_parser_is_fuzzed_by_the_command_and_its_bug_found(tmp_path):
+    """examples/fuzz_parser.py: a hand-written parser whose bounds check is off by one. Its target has
+    `one_input` and no `close` (optional): before, the command crashed (AttributeError: no attribute 'close')."""
+    pytest.importorskip("atheris")
+    done, found = _fuzz_example(tmp_path, "fuzz_parser.py:target")
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert len(found) == 1 and found[0].failure.kind == "crash", found
+    assert found[0].failure.error.startswith("error: unpack_from") and "fuzz_parser.py" in found[0].failure.where
+    assert found[0].minimized and len(found[0].inputs) == 1, found[0].inputs
+
+
+def test_your_own_controller_on_the_link_is_fuzzed_by_the_command_and_its_bug_found(tmp_path):
+    """examples/fuzz_controller.py: a controller of the user's own on protocol.controller_link, with its own
+    handlers; its ParamSet divides by `gain`, and 0 is in range. The fuzzer reaches the handler through a live
+    session and finds it."""
+    pytest.importorskip("atheris")
+    done, found = _fuzz_example(tmp_path, "fuzz_controller.py:target")
+    assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    assert len(found) == 1 and found[0].failure.kind == "crash", found
+    assert found[0].failure.error.startswith("ZeroDivisionError") and "fuzz_controller.py" in found[0].failure.where

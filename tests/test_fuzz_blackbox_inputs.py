@@ -124,10 +124,12 @@ def test_every_step_the_fuzzer_draws_passes_the_check():
     """The check's bounds are the draw's: what the fuzzer writes, it can replay."""
     settings = blackbox.BlackBoxSettings(url="x", cases=1)
     kinds = set()
-    for seed in range(3000):
+    for seed in range(60000):         # until every kind came (a silence is one step in 20,000)
         case = blackbox.Case.draw(RandomDraw(random.Random(seed)), settings)
         blackbox.check_steps(blackbox._steps_with_seed(case, random.Random(seed).getrandbits(32)))
         kinds |= {s["kind"] for s in case.steps}
+        if kinds == set(blackbox._STEP_FIELDS) and seed >= 3000:
+            break
     assert kinds == set(blackbox._STEP_FIELDS)
     for k in range(31):       # each silence the draw can make, at its ends too
         blackbox.check_steps([{"kind": "silence", "delay_s": 0.019, "fraction": 0.5 + k / 100.0}])
@@ -198,10 +200,13 @@ def test_a_finding_that_cannot_be_saved_goes_to_stderr_whole(tmp_path, monkeypat
 
     fuzzer = blackbox.BlackBoxFuzzer(blackbox.BlackBoxSettings(url="fake", cases=1, findings=tmp_path), b"k" * 32)
     fuzzer.params = blackbox.TargetParams(ParamTable())       # as the first `_open` leaves it: here, none read
-    monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), None))
-    monkeypatch.setattr(blackbox, "run_case", lambda *a: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
+    class FakeHealth:
+        cases = 0                 # checked
 
-    def refuse(self, folder):
+    monkeypatch.setattr(fuzzer, "_open", lambda: (FakeSession(), FakeHealth()))
+    monkeypatch.setattr(blackbox, "run_case", lambda *a, **k: findings.Failure("oracle", "HealthCheck: wrong", "", "x"))
+
+    def refuse(self, folder, path=None):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(findings.Finding, "save", refuse)
     result = fuzzer.run()

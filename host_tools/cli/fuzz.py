@@ -144,12 +144,15 @@ def _blackbox(settings: FuzzSettings) -> int:
         log.error(f"aspod fuzz: finding {path}")
     figures = {"cases": result.cases, "steps": result.steps, "wall_s": round(result.wall_s, 2),
                "cases_per_s": round(result.cases_per_s, 2), "restarts": result.restarts, "findings": result.findings,
-               "unsaved": len(result.unsaved), "params_put_back": result.params_put_back}
+               "unsaved": len(result.unsaved), "params_put_back": result.params_put_back, "checks": result.checks,
+               "repeats": result.repeats, "pinning_s": round(result.pinning_s, 2),
+               "fuzzing_cases_per_s": round(result.fuzzing_cases_per_s, 2)}
     if settings.as_json:
         print(json.dumps(figures, indent=1))
     else:
         print(f"black-box: {result.cases} cases ({result.steps} steps) in {result.wall_s:.1f} s, "
-              f"{result.cases_per_s:.1f} cases/s, {len(result.findings)} findings"
+              f"{result.cases_per_s:.1f} cases/s, {result.checks} health checks, {len(result.findings)} findings"
+              + (f" ({result.repeats} found again, counted in their files)" if result.repeats else "")
               + (f", {len(result.unsaved)} not saved (on stderr)" if result.unsaved else "")
               + (f"; {result.params_put_back} parameters set back after the case that changed them"
                  if result.params_put_back else ""))
@@ -247,6 +250,10 @@ def add_options(fuzz: argparse.ArgumentParser) -> None:
                       help="in process and --replay: an input past S seconds of its own time (the time the host kept "
                            "it waiting for a CPU does not count) is a hang (default 10); --as-controller: a host "
                            "silent on the link, or a probe unanswered, for S seconds of its own time")
+    fuzz.add_argument("--check-every", type=bounded(int, 1, 1000), default=None, metavar="N",
+                      help="black-box: a health check every N cases, sooner when the target's behaviour changes "
+                           "(default 16 with --target-cmd, whose failures are pinned to their case on a fresh target; "
+                           "1 with --url)")
     fuzz.add_argument("--max-findings", type=bounded(int, 1, 10**6), default=None, metavar="N",
                       help="black-box: stop after N findings (default: go on to --time or --cases)")
     fuzz.add_argument("--jobs", type=bounded(int, 1, 10000), default=1, metavar="N",

@@ -687,7 +687,7 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
             blackbox = BlackBoxSettings(args.url or "", command, args.baud, seconds, args.cases, args.seed,
                                         args.findings, skip=tuple(args.skip) if args.skip is not None
                                         else ("ParamSave",), only=tuple(args.only),
-                                        max_findings=args.max_findings)
+                                        max_findings=args.max_findings, check_every=args.check_every)
             return FuzzSettings("replay" if args.replay is not None else "blackbox", blackbox=blackbox,
                                 replay=args.replay, **common)
         return FuzzSettings("replay", replay=args.replay, **common)
@@ -697,9 +697,10 @@ def fuzz_settings(args: argparse.Namespace) -> FuzzSettings:
         raise ValueError(f"a TARGET named twice ({' '.join(args.targets)}): --jobs N runs one several times")
     if not args.targets:
         raise ValueError("name an in-process TARGET (aspod fuzz --list), or --url/--target-cmd, or --replay FILE")
-    if args.cases is not None or args.only or args.skip is not None or args.max_findings is not None:
-        raise ValueError("--cases, --only, --skip and --max-findings are for black-box fuzzing (--url or "
-                         "--target-cmd)")
+    if (args.cases is not None or args.only or args.skip is not None or args.max_findings is not None
+            or args.check_every is not None):
+        raise ValueError("--cases, --only, --skip, --check-every and --max-findings are for black-box fuzzing "
+                         "(--url or --target-cmd)")
     seconds = args.time if args.time is not None else (None if args.runs else 60.0)
     plan = CampaignPlan(tuple(args.targets), args.jobs, args.corpus, args.findings, seconds, args.runs, args.seed,
                         common["hang_s"])

@@ -18,22 +18,25 @@ At the first session the fuzzer reads the target's parameter table (ParamList): 
 words for ParamGet and ParamSet, and after each case what the case's ParamSets changed is set back, so every case
 starts from the configuration found (`TargetParams`).
 
-After each case, the health check: a Ping through the session answered with its token; GetStatus with the
-controller's uptime rising, its commands-executed counter moved by exactly the commands that ran (those whose
-payload decodes, each once), and its state changed only if a command of the case was accepted, or into FAULT
-for a cause outside the case (the arm faulting under a motion we started, our own silence past the link
-timeout, the target saying it is too slow for real time). A failed check
-is a finding: its steps, the bytes sent and the pauses, saved (host_tools/fuzz/findings.py). With `--target-cmd`
-the fuzzer starts the target itself, restarts it after a crash, and shrinks a finding by replaying subsets of
-its steps on fresh targets; a target it started is a hang only once it has had `health_timeout_s` of its own time
-(host_tools/worlds/own_time.py: the wall time less its waits for a CPU) without answering, so a busy machine is
-not taken for a hung target. A target it did not start is judged on the wall clock.
+The health check, every `check_every` cases (sooner when the target does not behave as a case expects: see
+`run_case`): a Ping through the session answered with its token; GetStatus with the controller's uptime rising,
+its commands-executed counter moved by exactly the commands that ran (those whose payload decodes, each once), and
+its state changed only if a command was accepted, or into FAULT for a cause outside the cases (the arm faulting
+under a motion we started, our own silence past the link timeout, the target saying it is too slow for real time).
+A failed check is pinned to its case (`BlackBoxFuzzer.bisect`) and is a finding: its steps, the bytes sent and the
+pauses, saved once a bug (host_tools/fuzz/findings.py). With `--target-cmd` the fuzzer starts the target itself,
+restarts it after a crash, and shrinks a finding on fresh targets (host_tools/fuzz/shrink.py); a target it started
+is a hang only once it has had `health_timeout_s` of its own time (host_tools/worlds/own_time.py: the wall time
+less its waits for a CPU) without answering, so a busy machine is not taken for a hung target. A target it did not
+start is judged on the wall clock stretched by its measured pace (`Pace`) and this process's own time.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
 import random
+import select
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,7 +60,8 @@ from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries
 from host_tools.client.params import ParamTable, read_param_table
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
-from host_tools.worlds.child import out_of_time
+from host_tools.fuzz.shrink import minimal_steps
+from host_tools.worlds.child import LOOK_S, out_of_time
 from host_tools.worlds.own_time import Look, OwnTime
 
 _CLOCK = RealClock()           # the wall clock (timebase: the one module that reads it)
@@ -68,12 +72,20 @@ MOTION_FAULTS = (Fault.ENCODER | Fault.STALL | Fault.FOLLOWING_ERROR | Fault.OVE
 COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT))
 STEP_KINDS = ("command",) * 6 + ("frame",) * 5 + ("replay", "replay", "raw", "raw", "hello", "burst")
 EXIT_WAIT_S = 2.0              # after the line broke, how long (of its own time) a target we started has to exit
-READ_WAIT_S = 0.002            # a read waits this long for a first byte (the fuzzer's turns are short)
-SILENCE_ONE_IN = 200           # a silence (about 2 s at the default timeout) in one step of this many
+READ_WAIT_S = 0.002            # a wait for the target's bytes looks at the line this often
+READ_SIZE = 4096               # bytes taken from the line at a time (all that is there, as one read)
+CHECK_EVERY = 16               # cases between two health checks while the target behaves as the cases expect
+RATE_FLOOR = 0.05              # a --url target's deadlines stretch with its measured slowness, at most 1/this
+RATE_KEEP = 0.7                # the weight of the rate measured before, against the latest check's
+RTT_FACTOR = 50                # a --url target's deadlines are at least this many of its recent round trips
+SILENCE_ONE_IN = 20000         # a silence (about 2 s at the default timeout) in one step of this many: at about 350
+#                                steps a second, one a minute (one in 200 until 2026-11-29: most of a run)
+PAUSE_ONE_IN = 64              # a pause before a step in one step of this many (one in four until 2026-11-29: the
+#                                pauses took 8.4 s of a 15 s run, profiled)
 SILENCE_MIN, SILENCE_MAX = 0.5, 0.8   # of the link timeout: near it, with room for this process being held up
 OWN_TIME_LOOK_S = 0.5          # past a wait's bound of wall time, how often a target we started is looked at
 MAX_STEPS = 6                  # a case's steps, at most
-DELAY_MAX_MS = 19              # the pause before a step, at most (0 three times in four)
+DELAY_MAX_MS = 19              # the pause before a step, at most
 BURST_MIN, BURST_MAX = 2, 21   # commands in a burst
 SENT_KEPT = 64                 # the frames a replay step picks from (the last sent)
 FRAME_SEQS = ("duplicate", "gap", "any")   # a crafted frame's sequence number: an old one, ahead, any
@@ -83,7 +95,12 @@ RAW_MAX = MAX_ENCODED + 8      # a raw step's bytes, at most
 
 
 class TargetGone(Exception):
-    """The target stopped answering or exited: the case that did it is a finding."""
+    """The target stopped answering or exited: the case that did it is a finding. `broken`: the line itself failed
+    (the target closed its end), rather than an answer not coming."""
+
+    def __init__(self, message: str, broken: bool = False) -> None:
+        super().__init__(message)
+        self.broken = broken
 
 
 @dataclass(frozen=True)
@@ -102,6 +119,9 @@ class BlackBoxSettings:
     only: tuple[str, ...] = ()               # if given, the only commands sent in sequence (one handler's fuzzing)
     minimize_s: float = 60.0
     max_findings: Optional[int] = None       # stop after this many
+    check_every: Optional[int] = None        # cases between two health checks (sooner when the target's behaviour
+    #   changes: see `run_case`); by default CHECK_EVERY for a target we start (a failure is pinned to its case by
+    #   running them again on a fresh one), 1 for a --url target (one that is gone cannot be asked again)
 
     def __post_init__(self) -> None:
         if not self.url and not self.command:
@@ -116,6 +136,10 @@ class BlackBoxSettings:
                              "command to send")
         if not 1 <= self.max_steps <= MAX_STEPS:
             raise ValueError(f"max_steps {self.max_steps}: must be 1..{MAX_STEPS}")
+        if self.check_every is None:
+            object.__setattr__(self, "check_every", CHECK_EVERY if self.command else 1)
+        if not 1 <= self.check_every <= 1000:
+            raise ValueError(f"--check-every {self.check_every}: must be 1..1000")
 
     @property
     def commands(self) -> list:
@@ -132,11 +156,20 @@ class BlackBoxResult:
     unsaved: list[dict] = field(default_factory=list)     # findings that could not be saved (on stderr)
     restarts: int = 0
     params_put_back: int = 0     # parameters an accepted ParamSet changed, set back after its case
+    checks: int = 0              # health checks made (one every `check_every` cases, or when behaviour changed)
+    repeats: int = 0             # findings of a signature already found: counted in its file, not saved again
+    pinning_s: float = 0.0       # of `wall_s`, spent pinning findings to their case, shrinking them, restarting
     error: str = ""
 
     @property
     def cases_per_s(self) -> float:
         return self.cases / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def fuzzing_cases_per_s(self) -> float:
+        """Cases a second of running cases (the time spent on findings left out)."""
+        fuzzing_s = self.wall_s - self.pinning_s
+        return self.cases / fuzzing_s if fuzzing_s > 0 else 0.0
 
 
 class _Peer:
@@ -174,7 +207,8 @@ class Session:
             self.url = self.child.ready("ASPOD-LINK ").split(" ", 1)[1].strip()
         url = self.url
         self.line = SerialLine(url, settings.baud)
-        self.line.serial.timeout = READ_WAIT_S
+        self.line.serial.timeout = 0          # reads take what is there; `pump` waits for it on the line's descriptor
+        self._fd = self.line.serial.fileno()
         if self.child is not None and self.psk is None:   # no --key-file: the key the target made, on its next line
             key_file = self.child.ready("ASPOD-KEY ").split(" ", 1)[1].strip()
             self.psk = auth.load_key(key_file, "the target's key file (its ASPOD-KEY line)")
@@ -185,18 +219,27 @@ class Session:
         self.ended: dict[int, int] = {}        # axis -> the last motion id a MotionDone ended
         self.last_write_s = self.clock.now()
         self.lapsed = False                    # our own silence outlasted the link timeout since the last check
-        self.open_session()
-
-    def open_session(self) -> None:
-        """A session, by the handshake (at first, and after a case's Close ended the one before, as a host does)."""
         self.accepted_counter = -1             # the host's counter on the last frame the target answered
+        self.events = 0                        # events the target sent since the last health check
+        self.pace = Pace()                     # a --url target's, for its deadlines
+        # the own time `pump_until` judges by (the target's if ours, else this process's): one kept, its /proc read
+        # at most every LOOK_S (a new one for each wait read /proc twice, 1.5 ms, several times a case: profiled)
+        self._own = (self.child.own_time() if self.child is not None
+                     else OwnTime(os.getpid(), self.clock, fresh_s=LOOK_S))
+        self.renew()
+
+    def renew(self) -> None:
+        """A new session (the first, or after a Close of the case's ended the one before)."""
+        self.closed = False
         self.host.connect(self.clock.now())
-        wait_s = self.settings.health_timeout_s * 2
-        if not self.pump_until(lambda: self.host.state is LinkState.UP, wait_s):
-            raise TargetGone(f"no session with {self.url} within {wait_s:.0f} s (link {self.host.state.value})")
+        if not self.pump_until(lambda: self.host.state is LinkState.UP, self.settings.health_timeout_s * 2):
+            raise TargetGone(f"no session with {self.url} within {self.settings.health_timeout_s * 2:.0f} s "
+                             f"(link {self.host.state.value})")
 
     def _event(self, msg, now: float) -> None:
         self.learned.learn(msg)
+        self.events += 1
+        self.closed |= msg.spec.name == "SessionClosed"     # a Close of ours ran (a frame we built may carry one)
         if msg.spec.name == "MotionDone":
             self.ended[msg.axis] = max(self.ended.get(msg.axis, 0), msg.motion_id)
 
@@ -218,14 +261,18 @@ class Session:
         try:
             self.line.write(data)
         except OSError as exc:
-            raise TargetGone(f"writing to {self.url}: {exc}") from None
+            raise TargetGone(f"writing to {self.url}: {exc}", broken=True) from None
 
-    def pump(self, wire_out: bool = True) -> None:
-        """One turn: what came in to the host, its timers, what it has to send."""
+    def pump(self, wire_out: bool = True, wait_s: float = 0.0) -> None:
+        """One turn: what came in to the host (waiting at most `wait_s` for it), its timers, what it has to send.
+        All that is there is read at once: pyserial's socket:// says at most one byte is waiting, so reading by
+        what it says took a select and a recv a byte (95 % of the fuzzer's time, profiled)."""
         try:
-            data = self.line.read()
-        except OSError as exc:
-            raise TargetGone(f"reading {self.url}: {exc}") from None
+            if wait_s > 0:
+                select.select([self._fd], [], [], wait_s)
+            data = self.line.serial.read(READ_SIZE)
+        except (OSError, ValueError) as exc:        # ValueError: a descriptor closed under the select
+            raise TargetGone(f"reading {self.url}: {exc}", broken=True) from None
         now = self.clock.now()
         if data:
             self.host.feed(data, now)
@@ -244,16 +291,27 @@ class Session:
 
     def pump_until(self, done: Callable[[], bool], timeout_s: float) -> bool:
         """Pump until `done()`: False once `timeout_s` is past (`bound`) or the target we started has exited."""
-        past = self.bound(timeout_s)
+        self._own.begin()
+        past = Bound(timeout_s if self.child is not None else self.pace.deadline_s(timeout_s), self._own)
         while not done():
             if self.exited() or past():
                 return False
-            self.pump()
+            self.pump(wait_s=READ_WAIT_S)
         return True
 
+    def wait(self, seconds: float, wire_out: bool = True) -> None:
+        """Pump for `seconds` of wall time (a step's pause, a silence)."""
+        end = _CLOCK.now() + seconds
+        while (left := end - _CLOCK.now()) > 0:
+            self.pump(wire_out, min(READ_WAIT_S, left))
+
     def bound(self, timeout_s: float) -> "Bound":
-        """`timeout_s` from now: of the target's own time if we started it, else of the wall clock."""
-        return Bound(timeout_s, self.child.own_time() if self.child is not None else None)
+        """`timeout_s` from now: of the target's own time if we started it; else stretched by the target's measured
+        pace (`Pace`), and of this process's own time (a fuzzer kept from running has not yet read what the target
+        said). (`pump_until` judges by the one own time the session keeps.)"""
+        if self.child is not None:
+            return Bound(timeout_s, self.child.own_time())
+        return Bound(self.pace.deadline_s(timeout_s), OwnTime(os.getpid(), self.clock))
 
     def exited(self) -> Optional[int]:
         return None if self.child is None else self.child.exit_status()
@@ -269,6 +327,26 @@ class Session:
             return ""
         _status, err = self.child.stop()
         return "\n".join(err.splitlines()[-12:])
+
+
+class Pace:
+    """How fast a --url target runs, measured at each health check: its rate (its simulated seconds a wall second,
+    from its uptime) and its round trip (the check's Ping). A target we did not start is judged on the wall clock,
+    so its deadlines stretch by its slowness (at most 1/RATE_FLOOR), at once when it slows down and gradually when
+    it speeds up again, and are at least RTT_FACTOR of its recent round trips."""
+
+    def __init__(self) -> None:
+        self.slowness = 1.0
+        self.rtt_s = 0.0
+
+    def measured(self, rate: float, rtt_s: float) -> None:
+        if rate > 0:
+            slow = 1.0 / max(RATE_FLOOR, min(1.0, rate))
+            self.slowness = max(slow, RATE_KEEP * self.slowness + (1 - RATE_KEEP) * slow)
+        self.rtt_s = RATE_KEEP * self.rtt_s + (1 - RATE_KEEP) * rtt_s if self.rtt_s else rtt_s
+
+    def deadline_s(self, timeout_s: float) -> float:
+        return max(timeout_s * self.slowness, RTT_FACTOR * self.rtt_s)
 
 
 class Bound:
@@ -298,6 +376,15 @@ class Case:
     def __init__(self, steps: list[dict]) -> None:
         self.steps = steps
 
+    @property
+    def closes(self) -> bool:
+        """A step of it is a Close (sent in sequence, or a frame of ours that may run): the session may end."""
+        return any(step.get("msg") == "Close" and step["kind"] in ("command", "burst", "frame") for step in self.steps)
+
+    @property
+    def silent(self) -> bool:
+        return any(step["kind"] == "silence" for step in self.steps)
+
     @classmethod
     def draw(cls, draw: RandomDraw, settings: BlackBoxSettings, words: Words = NO_WORDS,
              learned: Boundaries = NO_BOUNDARIES) -> "Case":
@@ -305,7 +392,8 @@ class Case:
         steps = []
         for _ in range(1 + draw.pick(settings.max_steps)):
             kind = "silence" if draw.pick(SILENCE_ONE_IN) == 0 else STEP_KINDS[draw.pick(len(STEP_KINDS))]
-            step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(4) else draw.pick(DELAY_MAX_MS + 1) / 1000.0}
+            step: dict = {"kind": kind, "delay_s": 0.0 if draw.pick(PAUSE_ONE_IN) else
+                          draw.pick(DELAY_MAX_MS + 1) / 1000.0}
             if kind == "command":
                 spec = commands[draw.pick(len(commands))]
                 step.update(msg=spec.name, payload=draw_payload(spec, draw, words, learned)[:MAX_PAYLOAD].hex())
@@ -340,9 +428,7 @@ class Case:
         handles, maybe = [], 0
         for step in self.steps:
             if step["delay_s"]:
-                end = _CLOCK.now() + step["delay_s"]
-                while _CLOCK.now() < end:
-                    session.pump()
+                session.wait(step["delay_s"])
             kind = step["kind"]
             repeat = step.get("count", 1) if kind == "burst" else 1
             for _ in range(repeat):
@@ -371,10 +457,8 @@ class Case:
                                                host._handshake_tx_counter)
                     step["wire"] = wire.hex()
                     session.write(wire)
-                elif kind == "silence":
-                    end = _CLOCK.now() + step["fraction"] * session.settings.link_timeout_s
-                    while _CLOCK.now() < end:
-                        session.pump(wire_out=False)   # read and keep, send nothing: not even a heartbeat
+                elif kind == "silence":      # read and keep, send nothing: not even a heartbeat
+                    session.wait(step["fraction"] * session.settings.link_timeout_s, wire_out=False)
                 session.pump()
         return handles, maybe
 
@@ -477,22 +561,40 @@ def _shown(value: object) -> str:
 
 
 class HealthCheck:
-    """The target after a case: alive, answering, counting right, in the state it should be."""
+    """The target after the cases since the last check: alive, answering, counting right, in the state it should
+    be. A case's commands are counted as it ends (`note`); the check (`check`) judges them all together."""
 
     def __init__(self, session: Session) -> None:
         self.session = session
         self.token = 0
+        self._clear()
         self.last = self._status()
         past = session.bound(session.settings.health_timeout_s)
         while self.last.state == ControllerState.BOOT and not past():   # its boot check still running
             self.last = self._status()
 
+    def _clear(self) -> None:
+        self.outstanding: list = []   # their commands not yet answered
+        self.cases = 0           # cases since the last check
+        self.ran = 0             # their commands that must have run (those whose payload decodes, answered)
+        self.sent = 0            # their commands sent in sequence
+        self.maybe = 0           # what of theirs may have run: authentic urgent frames, commands the host gave up on
+        self.accepted = False    # any of their commands (or an authentic urgent frame) accepted
+        self.unfinished = False  # a command of theirs had no outcome when its case ended
+        self.violation: Optional[str] = None    # the first reply that broke the declaration (host_tools/fuzz/oracles.py)
+
     def _call(self, msg):
         s = self.session
-        handle = s.call(msg, s.settings.health_timeout_s)
+        return self._reply(s.call(msg, s.settings.health_timeout_s), msg)
+
+    def _reply(self, handle, msg):
+        """`handle`'s reply; TargetGone if it has none (not answered, or refused)."""
+        s = self.session
         if not handle.done:
             status = s.exited()
-            raise TargetGone(f"{msg.spec.name} not answered within {s.settings.health_timeout_s:.0f} s"
+            raise TargetGone(f"{msg.spec.name} not answered within {s.settings.health_timeout_s:g} s"
+                             + (" of its own time" if s.child is not None else
+                                f" (x{s.pace.slowness:.2g} for its measured slowness)" if s.pace.slowness > 1 else "")
                              + (f" (the target exited with status {status})" if status is not None else "")
                              + f"; link {s.host.state.value}")
         if not handle.ok:
@@ -504,6 +606,7 @@ class HealthCheck:
         parameter table read, a case's parameters set back). What is wrong if the state or faults changed since
         the last check for no cause outside the target (reading or setting back parameters must not), else None."""
         before, self.last = self.last, self._status()
+        self._clear()
         changed = (self.last.state, self.last.faults) != (before.state, before.faults)
         if changed and not (self.last.state == ControllerState.FAULT
                             and self._explained(self.last.faults & ~before.faults)):
@@ -511,40 +614,99 @@ class HealthCheck:
                     f"{self.last.faults:#x}")
         return None
 
-    def _status(self):
-        status = self._call(SCHEMA["GetStatus"].type())
+    def _status(self, handle=None):
+        """The target's status (from `handle`, a GetStatus sent already, if given)."""
+        msg = SCHEMA["GetStatus"].type()
+        status = self._call(msg) if handle is None else self._reply(handle, msg)
         self.session.accepted_counter = self.session.host.session.tx_counter   # answered: its counter was taken
+        self.status_s = _CLOCK.now()
         return status
 
-    def check(self, handles: list, maybe: int = 0) -> Optional[str]:
-        """None if healthy, else what is wrong (TargetGone if it does not answer)."""
+    def note(self, handles: list, maybe: int = 0) -> bool:
+        """Count a case's commands as their replies come: a case does not wait for its own (the next one runs while
+        they come, as a host's commands may; `settle` waits for them all). True if every command answered since
+        the last `note` was answered as the case expects: none lost with the session, none accepted whose payload
+        does not decode."""
+        self.outstanding += handles
+        self.cases += 1
+        self.sent += len(handles)
+        self.maybe += maybe
+        self.accepted |= maybe > 0
+        return self._count()
+
+    def _count(self) -> bool:
+        expected, left = True, []
+        for spec, payload, h in self.outstanding:
+            if not h.done:
+                left.append((spec, payload, h))
+                continue
+            if h.ok and h.reply is not None and h.reply.spec.name == "MotionAccepted":
+                self.session.note_started(h.reply)
+            self.session.learned.learn(h.reply)
+            told = oracles.case_violation([(spec, payload, h)], {})      # each reply against the declaration
+            self.violation = self.violation or told
+            expected &= told is None
+            decodes = _decodes(spec, payload)
+            unknown = h.outcome is Outcome.FAILED and decodes     # the host gave up on it: it may have run
+            self.accepted |= h.ok or unknown
+            self.ran += h.outcome is not Outcome.FAILED and decodes
+            self.maybe += unknown
+            expected &= not (h.outcome is Outcome.FAILED or (h.ok and not decodes))
+        self.outstanding = left
+        return expected
+
+    def settle(self) -> None:
+        """Wait for the replies to every command counted (at most the health deadline)."""
         s = self.session
-        s.pump_until(lambda: all(h.done for _spec, _payload, h in handles), s.settings.health_timeout_s)
+        s.pump_until(lambda: all(h.done for _spec, _payload, h in self.outstanding), s.settings.health_timeout_s)
+        self._count()
+        if self.outstanding:
+            self.unfinished, self.outstanding = True, []
+
+    def check(self, handles: Optional[list] = None, maybe: int = 0) -> Optional[str]:
+        """None if healthy, else what is wrong (TargetGone if it does not answer); `handles`: a case's commands
+        not yet counted (`note`)."""
+        if handles is not None:
+            self.note(handles, maybe)
+        s = self.session
         self.token = (self.token + 1) & 0xFFFFFFFF
-        pong = self._call(SCHEMA["Ping"].type(token=self.token))
+        ping = SCHEMA["Ping"].type(token=self.token)
+        asked = s.host.submit(ping, s.clock.now())    # both at once, behind the cases' commands: they are taken in
+        told = s.host.submit(SCHEMA["GetStatus"].type(), s.clock.now())      # order, so one wait, not three
+        s.pump_until(lambda: asked.done and told.done, s.settings.health_timeout_s)
+        self.settle()            # (answered before the two, unless lost on the way)
+        pong = self._reply(asked, ping)
+        rtt_s = asked.latency_s or 0.0
         if pong.token != self.token:
             return f"Pong carries token {pong.token}, the Ping {self.token}"
-        status = self._status()
+        since_s = self.status_s
+        status = self._status(told)
         before, self.last = self.last, status
+        cases, ran, sent, maybe, accepted, unfinished = (self.cases, self.ran, self.sent, self.maybe, self.accepted,
+                                                         self.unfinished)
+        violation = self.violation
+        self._clear()
+        if violation is not None:
+            return violation
+        if s.child is None and self.status_s > since_s:       # a --url target's pace, for its deadlines
+            s.pace.measured((status.uptime_ms - before.uptime_ms) / 1000.0 / (self.status_s - since_s), rtt_s)
         if status.uptime_ms <= before.uptime_ms and status.uptime_ms > 1000:   # (a wrap after 49 days)
             return f"uptime did not rise: {before.uptime_ms} ms then {status.uptime_ms} ms"
-        if all(h.done for _spec, _payload, h in handles):
-            ran = sum(1 for spec, payload, h in handles if h.outcome is not Outcome.FAILED and _decodes(spec, payload))
+        whose = "the case's" if cases <= 1 else f"the {cases} cases'"
+        if not unfinished:
             moved = (status.commands_executed - before.commands_executed) & 0xFFFFFFFF
             if not ran + 2 <= moved <= ran + 2 + maybe:        # + the last GetStatus and this Ping
                 return (f"commands executed moved by {moved}, expected {ran + 2}" + (f"..{ran + 2 + maybe}" if maybe
-                        else "") + f" ({ran} of the case's {len(handles)} commands decode, + Ping and GetStatus"
-                        + (f", + {maybe} authentic urgent frames" if maybe else "") + "): not exactly once")
-        for _spec, _payload, h in handles:
-            if h.ok and h.reply is not None and h.reply.spec.name == "MotionAccepted":
-                s.note_started(h.reply)
-        accepted = any(h.ok for _spec, _payload, h in handles) or maybe > 0
+                        else "") + f" ({ran} of {whose} {sent} commands decode, + Ping and GetStatus"
+                        + (f", + up to {maybe} that may have run: authentic urgent frames, commands the host gave up "
+                           f"on" if maybe else "") + "): not exactly once")
         explained = self._explained(status.faults & ~before.faults)
         s.lapsed = False
+        s.events = 0
         if not accepted and (status.state, status.faults) != (before.state, before.faults) and not (
                 status.state == ControllerState.FAULT and explained):
             return (f"state {before.state}/faults {before.faults:#x} became {status.state}/{status.faults:#x} "
-                    f"with no command of the case accepted")
+                    f"with no command of {whose} accepted")
         return None
 
     def _explained(self, new: int) -> bool:
@@ -590,6 +752,13 @@ class TargetParams:
         crafted = {_param_name(bytes.fromhex(step["payload"])) for step in case.steps
                    if step["kind"] == "frame" and step.get("msg") == "ParamSet"}
         return {name: value for name, value in self.found.items() if name not in self.owed and name not in crafted}
+
+    def touched(self, case: "Case", handles: list) -> bool:
+        """Whether the case may have changed a parameter (a ParamSet of it accepted or not answered, or one crafted
+        and signed), or one is owed from before."""
+        return bool(self.owed) or any(spec.name == "ParamSet" and (h.ok or not h.done)
+                                      for spec, _payload, h in handles) or any(
+            step["kind"] == "frame" and step.get("msg") == "ParamSet" and step["mac"] == "good" for step in case.steps)
 
     def values_after(self, session: Session, case: "Case", handles: list) -> tuple[dict[str, float], bool]:
         """What each parameter the case may have changed holds now: the last accepted ParamSet's reply says, and
@@ -656,30 +825,38 @@ def _decodes(spec, payload: bytes) -> bool:
         return False
 
 
-def run_case(case: Case, session: Session, health: HealthCheck, seed: int,
-             params: TargetParams) -> Optional[findings_mod.Failure]:
-    """Run `case` and the health check, then set back the parameters it changed; the failure, or None."""
+def run_case(case: Case, session: Session, health: HealthCheck, seed: int, params: TargetParams,
+             check: bool = True) -> Optional[findings_mod.Failure]:
+    """Run `case`; then the health check if `check`, or if the target did not behave as the case expects (a
+    command of it not answered, lost with the session, or accepted though its payload does not decode; an event
+    the target sent; a Close, our own silence, a parameter the case may have changed), and set back the
+    parameters it changed. The failure, or None; `health.cases` is 0 after a check."""
     try:
         handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
-        session.pump_until(lambda: all(h.done for _spec, _payload, h in handles), session.settings.health_timeout_s)
-        if any(spec.name == "Close" and h.ok for spec, _payload, h in handles):
-            session.open_session()     # the case ended its session cleanly: not a finding (a Ping would be refused)
-        problem = health.check(handles, maybe)
-        for _spec, _payload, h in handles:
-            session.learned.learn(h.reply)
-        told = oracles.case_violation(handles, params.untouched(case))   # the declaration's oracles
-        if told is not None:
-            problem = told
-        if problem is None and params.restore(session, case, handles):
-            problem = health.rebase()
-            if problem is not None:
-                problem = f"while the fuzzer set back the case's parameters: {problem}"
+        expected = health.note(handles, maybe)
+        if case.closes or any(spec.name == "ParamSet" for spec, _payload, _h in handles):
+            health.settle()          # what its Closes and ParamSets did, from their replies
+            told = oracles.case_violation(handles, params.untouched(case))    # a refused ParamSet moved nothing
+            health.violation = health.violation or told
+            expected &= told is None
+        renew = session.closed or any(spec.name == "Close" and h.outcome is not Outcome.REJECTED
+                                      for spec, _payload, h in handles)
+        if renew:
+            session.renew()          # the case closed the session (or may have: a Close without an answer)
+        touched = params.touched(case, handles)
+        problem = None
+        if check or not expected or renew or case.silent or touched or session.events or session.lapsed:
+            problem = health.check()
+            if problem is None and touched and params.restore(session, case, handles):
+                problem = health.rebase()
+                if problem is not None:
+                    problem = f"while the fuzzer set back the case's parameters: {problem}"
     except TargetGone as exc:
         past = session.bound(EXIT_WAIT_S)
         while session.child is not None and session.exited() is None and not past():
             _CLOCK.sleep(0.01)    # a line that broke: the process may be on its way out
         status = session.exited()
-        kind = "crash" if status is not None else "hang"
+        kind = "crash" if status is not None or (exc.broken and session.child is None) else "hang"
         still = "" if status is not None or past.last is None else f"; it still ran after {past.last.describe()}"
         return findings_mod.Failure(kind, f"TargetGone: {exc}{still}", session.url, "health")
     if problem is not None:
@@ -712,41 +889,110 @@ class BlackBoxFuzzer:
         rng = random.Random(self.settings.seed)
         session, health = self._open()
         start = _CLOCK.now()        # after the first session: reading 76 parameters takes 2.6 s at 115200 baud
+        pending: list[tuple[Case, int]] = []      # the cases since the last good health check, with their seeds
+        known = findings_mod.Known(self.settings.findings)
         try:
-            while (self.settings.cases is None or result.cases < self.settings.cases) and (
-                    self.settings.seconds is None or _CLOCK.now() - start < self.settings.seconds):
-                case_seed = rng.getrandbits(32)
-                case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings, self.params.words, self.learned)
-                failure = run_case(case, session, health, case_seed, self.params)
-                result.cases += 1
-                result.steps += len(case.steps)
+            while True:
+                more = (self.settings.cases is None or result.cases < self.settings.cases) and (
+                    self.settings.seconds is None or _CLOCK.now() - start < self.settings.seconds)
+                if more:
+                    case_seed = rng.getrandbits(32)
+                    case = Case.draw(RandomDraw(random.Random(case_seed)), self.settings, self.params.words,
+                                     self.learned)
+                    pending.append((case, case_seed))
+                    failure = run_case(case, session, health, case_seed, self.params,
+                                       check=len(pending) >= self.settings.check_every)
+                    result.cases += 1
+                    result.steps += len(case.steps)
+                elif health.cases:      # the last cases are judged too
+                    failure = run_case(Case([]), session, health, 0, self.params)
+                else:
+                    break
+                if health.cases == 0:
+                    result.checks += 1
+                    if failure is None:
+                        pending = []
                 if failure is not None:
+                    pinning_from = _CLOCK.now()
                     stderr = session.close()
                     if stderr:
                         failure.trace = stderr
+                    case, case_seed, failure = self.bisect(pending, failure, session)
+                    pending = []
                     finding = findings_mod.Finding("blackbox", failure, steps=_steps_with_seed(case, case_seed),
                                                    url=self.settings.url or " ".join(self.settings.command),
                                                    execs=result.cases)
-                    if self.settings.command:
-                        finding = self.minimize(finding)
-                    try:
-                        result.findings.append(str(finding.save(self.settings.findings)))
-                    except OSError as exc:     # not lost: it goes to stderr whole, with the reason
-                        result.unsaved.append(finding.to_json())
-                        print(f"aspod fuzz: a finding could not be saved in {self.settings.findings} ({exc}); "
-                              f"here it is:\n{json.dumps(finding.to_json(), indent=1)}", file=sys.stderr)
+                    self._keep(finding, known, result)
+                    result.pinning_s += _CLOCK.now() - pinning_from
+                    pinning_from = _CLOCK.now()
                     if len(result.findings) + len(result.unsaved) == self.settings.max_findings:
                         break
                     if not self.settings.command:
                         break                  # not ours to restart: the target is as the case left it
                     result.restarts += 1
                     session, health = self._open()
+                    result.pinning_s += _CLOCK.now() - pinning_from
                 result.wall_s, result.params_put_back = _CLOCK.now() - start, self.params.put_back
                 on_case(result)
         finally:
             session.close()
         result.wall_s = _CLOCK.now() - start
         return result
+
+    def _keep(self, finding: findings_mod.Finding, known: "findings_mod.Known", result: BlackBoxResult) -> None:
+        """Save `finding`, minimized, or count it in the file of its signature if that is known already."""
+        if known.count(finding) is not None:          # its bug found before: no minimizing, no second file
+            result.repeats += 1
+            return
+        if self.settings.command:
+            finding = self.minimize(finding)
+        try:
+            path = known.save(finding)
+            if str(path) not in result.findings:
+                result.findings.append(str(path))
+            else:
+                result.repeats += 1
+        except OSError as exc:     # not lost: it goes to stderr whole, with the reason
+            result.unsaved.append(finding.to_json())
+            print(f"aspod fuzz: a finding could not be saved in {self.settings.findings} ({exc}); "
+                  f"here it is:\n{json.dumps(finding.to_json(), indent=1)}", file=sys.stderr)
+
+    def bisect(self, pending: list[tuple["Case", int]], failure: findings_mod.Failure,
+               session: Session) -> tuple["Case", int, findings_mod.Failure]:
+        """The case of `pending` (those since the last good health check, judged together) that failed: each run
+        again alone with a check after it, in order, on a fresh target (one we started) or on the same one reset
+        to its status now (a --url target that still answers); the first that fails, with its failure. If none
+        does (or the target cannot be asked again), the last, its failure saying so."""
+        pending = [(c, seed) for c, seed in pending if c.steps]
+        last, last_seed = pending[-1] if pending else (Case([]), 0)
+        if len(pending) <= 1:
+            return last, last_seed, failure
+        replayed = "on a fresh target" if self.settings.command else "on the same target"
+        try:
+            if self.settings.command:
+                session, health = self._open()
+            elif failure.kind == "oracle":
+                session = Session(self.settings, self.psk)
+                health = HealthCheck(session)
+            else:
+                raise TargetGone("gone")
+        except TargetGone:
+            failure.error += (f" (after {len(pending)} cases checked together, not asked again: the target does "
+                              f"not answer; saved with the last)")
+            return last, last_seed, failure
+        try:
+            for case, seed in pending:
+                again = run_case(Case([dict(step) for step in case.steps]), session, health, seed, self.params)
+                if again is not None:
+                    stderr = session.close()
+                    if stderr:
+                        again.trace = stderr
+                    return case, seed, again
+        finally:
+            session.close()
+        failure.error += (f" (after {len(pending)} cases checked together; none failed alone when run again one "
+                          f"at a time {replayed}: saved with the last)")
+        return last, last_seed, failure
 
     def replay(self, finding: findings_mod.Finding) -> Optional[findings_mod.Failure]:
         """Run a finding's steps on a fresh session: the failure, or None (it no longer fails)."""
@@ -757,26 +1003,39 @@ class BlackBoxFuzzer:
         except TargetGone as exc:
             return findings_mod.Failure("hang", f"TargetGone: {exc}", "", "health")
         try:
-            return run_case(Case([dict(s) for s in finding.steps]), session, health, seed, self.params)
+            failure = run_case(Case([dict(s) for s in finding.steps]), session, health, seed, self.params)
+            if failure is not None:
+                stderr = session.close()
+                if stderr:
+                    failure.trace = stderr
+            return failure
         finally:
             session.close()
 
     def minimize(self, finding: findings_mod.Finding) -> findings_mod.Finding:
-        """Fewer steps that fail the same way (kind and oracle), each tried on a fresh target."""
+        """Fewest steps, then each step's payload and knobs set back to valid or zero values one at a time, while
+        it fails with the same signature, each try on a fresh target. `minimized` only if that ran to its end and
+        the result, replayed once more, still fails so."""
         deadline = _CLOCK.now() + self.settings.minimize_s
-        wanted = finding.failure.kind
+        wanted = findings_mod.signature(finding, with_trigger=False)     # the trigger is what shrinking finds
+        cut = []
 
         def fails(steps: list[dict]) -> bool:
             if _CLOCK.now() > deadline:
+                cut.append(True)
                 return False
             failure = self.replay(findings_mod.Finding(finding.target, finding.failure, steps=steps))
-            return failure is not None and failure.kind == wanted
+            return failure is not None and findings_mod.signature(
+                findings_mod.Finding(finding.target, failure, steps=steps), with_trigger=False) == wanted
 
-        steps = findings_mod._ddmin(list(finding.steps), fails)
-        if len(steps) == len(finding.steps):
-            return finding
-        return findings_mod.Finding(finding.target, finding.failure, steps=steps, url=finding.url,
-                                    execs=finding.execs, minimized=True)
+        steps = minimal_steps(finding.steps, fails)
+        failure = self.replay(findings_mod.Finding(finding.target, finding.failure, steps=steps)) if not cut else None
+        done = failure is not None and findings_mod.signature(
+            findings_mod.Finding(finding.target, failure, steps=steps), with_trigger=False) == wanted
+        if not done:
+            steps = finding.steps if not cut else steps
+        return findings_mod.Finding(finding.target, failure if done else finding.failure, steps=steps,
+                                    url=finding.url, execs=finding.execs, minimized=done)
 
 
 def _steps_with_seed(case: Case, seed: int) -> list[dict]:

@@ -71,7 +71,8 @@ def instrumenting(spec: str):
     """atheris' import hook for the target `spec`: the code under test, nothing else of ours (nor the fast loop,
     but for `hal`). For your own target (`module:factory`): the whole package its module is in (its top-level
     package, as atheris takes it, where that is not one of ours)."""
-    module = spec.split(":")[0] if ":" in spec else None
+    from host_tools.fuzz.own import own_module         # (the standard library only: nothing under test yet)
+    module = own_module(spec) if ":" in spec else None
     own = [module.rpartition(".")[0] or module] if module else []
     exclude = [m for m in modules_not_under_test(INSTRUMENTED) if not _under(m, own)]
     if spec != "hal":

@@ -6,6 +6,10 @@ between inputs; for a stateful one, every input since its world was built). Blac
 
 `minimize` shrinks an in-process finding while it still fails the same way (the same kind, oracle, exception
 type and place): first whole inputs are dropped (delta debugging), then chunks of each remaining input.
+
+One file a bug: findings are grouped by `signature` (the failure's kind, oracle, place and error with its numbers
+left out, and for a black-box finding the message and fields of the step that triggers it). A finding whose
+signature a folder holds already is counted in that file (`count`) and not saved again (`Known`).
 `replay` runs one on a fresh target, each input bounded by a `HangWatch` (host_tools/fuzz/hangs.py), so that a
 hang found comes back as a hang rather than hanging the replay.
 """
@@ -13,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import time
 
 from timebase import RealClock
@@ -90,21 +95,24 @@ class Finding:
     execs: int = 0             # executions before it was found
     minimized: bool = False
     found_at: str = ""
+    count: int = 1             # times its signature was found (a second hit counts here, not in a file of its own)
 
     def to_json(self) -> dict:
         return {"format": FORMAT, "target": self.target, "failure": asdict(self.failure),
                 "inputs": [i.hex() for i in self.inputs], "steps": self.steps, "url": self.url, "execs": self.execs,
-                "minimized": self.minimized, "found_at": self.found_at}
+                "minimized": self.minimized, "found_at": self.found_at, "count": self.count,
+                "signature": signature(self)}
 
     def name(self) -> str:
         digest = hashlib.sha1(json.dumps([self.target, self.inputs and [i.hex() for i in self.inputs],
                                           self.steps], sort_keys=True).encode()).hexdigest()[:12]
         return f"{self.failure.kind}-{self.target.replace(':', '_').replace('/', '_')}-{digest}.json"
 
-    def save(self, folder: Path) -> Path:
+    def save(self, folder: Path, path: Optional[Path] = None) -> Path:
+        """Written (whole, or not at all) to `path`, or to `folder` under its own name."""
         folder.mkdir(parents=True, exist_ok=True)
         self.found_at = self.found_at or time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(_CLOCK.wall_time()))
-        path = folder / self.name()
+        path = path or folder / self.name()
         tmp = path.with_name(path.name + ".tmp")
         tmp.write_text(json.dumps(self.to_json(), indent=1) + "\n")
         tmp.replace(path)
@@ -148,6 +156,11 @@ def load(path: Path) -> Finding:
     minimized = data.get("minimized", False)
     if not isinstance(minimized, bool):
         raise bad(f"\"minimized\" must be true or false (a JSON boolean), not {json.dumps(minimized)[:40]}")
+    count = data.get("count", 1)
+    if type(count) is not int or not 1 <= count < 1 << 63:
+        raise bad(f"\"count\" must be a whole number 1..{(1 << 63) - 1}, not {str(count)[:40]}")
+    if not isinstance(data.get("signature", ""), str):
+        raise bad("\"signature\" must be a string")
     inputs = data.get("inputs", [])
     if not isinstance(inputs, list):
         raise bad("\"inputs\" must be a list of hexadecimal strings")
@@ -166,7 +179,89 @@ def load(path: Path) -> Finding:
         except ValueError as exc:
             raise bad(str(exc)) from None
     return Finding(data["target"], Failure(**failure), inputs, [dict(s) for s in steps], data.get("url", ""),
-                   execs, minimized, data.get("found_at", ""))
+                   execs, minimized, data.get("found_at", ""), count)
+
+
+# ---- one file a bug ----
+_NUMBER = re.compile(r"\d+(\.\d+)?")
+_TRACE_PLACE = re.compile(r'File "([^"]+)", line (\d+)')
+
+
+def signature(finding: Finding, with_trigger: bool = True) -> str:
+    """What makes two findings one bug. In process: the failure's kind, oracle, exception type and place. Black-box:
+    its kind and oracle; where the target's own traceback (its stderr) puts it, and the exception, if it left one,
+    else the error with its numbers left out (a port, a count, a time); and the trigger (`shrink.trigger`: the
+    message and fields of the step that set it off). Without the trigger (`with_trigger` False) it is what a
+    shrinking keeps: the trigger is what shrinking finds."""
+    failure = finding.failure
+    if finding.target != "blackbox":
+        return "|".join(failure.signature)
+    from host_tools.fuzz.shrink import trigger
+    return "|".join((failure.kind, failure.oracle, _place(failure)) + ((trigger(finding.steps),) if with_trigger
+                                                                         else ()))
+
+
+def _place(failure: Failure) -> str:
+    """The innermost place and exception of the target's traceback in `failure.trace`; else its error, numbers
+    left out."""
+    places = _TRACE_PLACE.findall(failure.trace)
+    if places:
+        file, line = places[-1]
+        last = [ln for ln in failure.trace.splitlines() if ln and not ln.startswith(" ")][-1:]
+        exception = last[0].split(":", 1)[0] if last else ""
+        return f"{_short(file)}:{line} {exception}"
+    return _NUMBER.sub("#", failure.error.split(" (after ", 1)[0])
+
+
+class Known:
+    """The findings a folder holds, by signature: one found again is counted in its file, not saved again."""
+
+    def __init__(self, folder: Path, leave_out: Optional[Path] = None) -> None:
+        self.folder = folder
+        self._paths: dict[str, Path] = {}
+        if folder.is_dir():
+            for path in sorted(folder.glob("*.json")):
+                if path == leave_out:
+                    continue
+                try:
+                    self._paths.setdefault(signature(load(path)), path)
+                except (FindingError, OSError):
+                    continue          # not one of ours, or unreadable: not a bug's file
+
+    def path(self, finding: Finding) -> Optional[Path]:
+        """The file of `finding`'s bug, if the folder holds it. A black-box finding not yet minimized matches a
+        known one of the same kind and place whose trigger's message is among its steps."""
+        wanted = signature(finding)
+        if wanted in self._paths:
+            return self._paths[wanted]
+        if finding.target == "blackbox" and not finding.minimized:
+            head = signature(finding, with_trigger=False) + "|"
+            messages = {step.get("msg") for step in finding.steps}
+            for known, path in self._paths.items():
+                if known.startswith(head) and known[len(head):].split(".", 1)[0] in messages:
+                    return path
+        return None
+
+    def count(self, finding: Finding) -> Optional[Path]:
+        """If `finding`'s bug is known: its file, with its count one more; else None."""
+        path = self.path(finding)
+        if path is None:
+            return None
+        try:
+            known = load(path)
+        except (FindingError, OSError):
+            return None
+        known.count += 1
+        known.save(self.folder, path)
+        return path
+
+    def save(self, finding: Finding) -> Path:
+        """`finding` saved (or, if its bug is known by now, counted); its file."""
+        path = self.count(finding)
+        if path is None:
+            path = finding.save(self.folder)
+            self._paths[signature(finding)] = path
+        return path
 
 
 # ---- in process: replay and minimize ----
@@ -206,9 +301,11 @@ def minimize(finding: Finding, make_target: Callable[[], object], budget_s: floa
     target = make_target()
     wanted = finding.failure.signature
     deadline = _CLOCK.now() + budget_s
+    cut = []
 
     def fails(inputs: list[bytes]) -> bool:
         if _CLOCK.now() > deadline:
+            cut.append(True)
             return False
         failure = run_inputs(target, inputs)
         return failure is not None and failure.signature == wanted
@@ -220,22 +317,25 @@ def minimize(finding: Finding, make_target: Callable[[], object], budget_s: floa
         inputs = _ddmin(inputs, fails)
         for i in range(len(inputs)):
             inputs[i] = _shrink_bytes(inputs, i, fails)
-        failure = run_inputs(target, inputs) or finding.failure
-        return Finding(finding.target, failure, inputs, execs=finding.execs, minimized=True,
-                       found_at=finding.found_at)
+        failure = run_inputs(target, inputs)
+        done = not cut and failure is not None and failure.signature == wanted   # ran to its end, and still fails
+        return Finding(finding.target, failure if failure is not None else finding.failure, inputs,
+                       execs=finding.execs, minimized=done, found_at=finding.found_at)
     finally:
         target.close()
 
 
-def _ddmin(items: list, fails: Callable[[list], bool]) -> list:
-    """Zeller's delta debugging: a smaller list that still fails (the last item, the failing one, is kept)."""
+def _ddmin(items: list, fails: Callable[[list], bool], keep_last: bool = True) -> list:
+    """Zeller's delta debugging: a smaller list that still fails. `keep_last`: the last item is the failing one
+    (an in-process input that raised) and is kept; a black-box case's failing step may be any of them."""
     n = 2
+    kept = 1 if keep_last else 0
     while len(items) > 1:
-        chunk = max(1, (len(items) - 1) // n)
+        chunk = max(1, (len(items) - kept) // n)
         reduced = False
-        for start in range(0, len(items) - 1, chunk):
+        for start in range(0, len(items) - kept, chunk):
             candidate = items[:start] + items[start + chunk:]
-            if candidate and candidate[-1] is items[-1] and fails(candidate):
+            if candidate and (not keep_last or candidate[-1] is items[-1]) and fails(candidate):
                 items, n, reduced = candidate, max(n - 1, 2), True
                 break
         if not reduced:

@@ -156,7 +156,13 @@ def run_job(settings: JobSettings, on_progress: Callable[[Progress], None] = lam
 
 
 def _minimized(path: Path, settings: JobSettings) -> Path:
+    """The child's finding minimized and saved, or, if its bug is in the folder already (its signature), counted
+    in that file and this one removed."""
     finding = findings_mod.load(path)
+    known = findings_mod.Known(settings.findings, leave_out=path)
+    if (counted := known.count(finding)) is not None:
+        path.unlink(missing_ok=True)
+        return counted
     if finding.failure.kind == "hang":
         return path                  # each try would run until the bound: kept as found
     smaller = findings_mod.minimize(finding, lambda: load_target(settings.target), settings.minimize_s)

@@ -15,7 +15,8 @@ be reproduced by replaying at most that many inputs on a fresh target (host_tool
     key-file         the key file loader (protocol/auth.py)
     teleop           teleop's line parser and script checker (host_tools/teleop/words.py)
 
-Your own code: `aspod fuzz module:factory` loads any object with `name` and `one_input` (see docs/fuzzing.md).
+Your own code: `aspod fuzz module:factory` loads any object with `one_input(data)`; `close` is optional (see
+docs/fuzzing.md).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ from protocol.framing import HEADER, MAX_ENCODED, MAX_PAYLOAD, Frame, FrameRecei
 from protocol.messages import SCHEMA
 from protocol.schema import MessageSpec
 
+from host_tools.fuzz.own import own_module
 from host_tools.fuzz.grammar import Draw, FdpDraw, draw_payload, draw_value
 from host_tools.fuzz.oracles import payload_violation
 
@@ -373,14 +375,15 @@ def builtin_targets() -> dict[str, Callable[[], Target]]:
 
 
 def load_target(spec: str) -> Target:
-    """A built-in target by name, or `module:factory` (a callable returning an object with `one_input`)."""
+    """A built-in target by name, or `module:factory` or `file.py:factory` (a callable returning an object with
+    `one_input`)."""
     if ":" not in spec:
         factory = builtin_targets().get(spec)
         if factory is None:
             raise ValueError(f"no fuzz target {spec!r}; the targets are {', '.join(builtin_targets())}, "
                              f"or module:factory for your own")
         return factory()
-    module_name, _, attr = spec.partition(":")
+    module_name, attr = own_module(spec), spec.rpartition(":")[2]
     try:
         factory = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError, TypeError, ValueError) as exc:     # TypeError: ".x", a relative name
@@ -393,4 +396,20 @@ def load_target(spec: str) -> Target:
         raise ValueError(f"fuzz target {spec}: its factory raised {type(exc).__name__}: {exc}") from None
     if not callable(getattr(target, "one_input", None)):
         raise ValueError(f"fuzz target {spec}: {target!r} has no one_input(data)")
-    return target
+    return target if callable(getattr(target, "close", None)) else _Closable(target)
+
+
+class _Closable:
+    """Your own target with no `close` (it is optional): the target itself in every other respect."""
+
+    def __init__(self, target: Any) -> None:
+        self.__dict__["_target"] = target
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._target, name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        setattr(self._target, name, value)
+
+    def close(self) -> None:
+        """Nothing to release."""
