@@ -8,7 +8,10 @@ says what each path has carried.
 """
 from __future__ import annotations
 
+import fcntl
 import selectors
+import struct
+import termios
 
 import serial
 
@@ -62,15 +65,22 @@ class SerialLine:
         """Up to the first byte waits `READ_TIMEOUT_S`; the rest is whatever is already there.
 
         pyserial's `read(size)` waits out its whole timeout unless `size` bytes come, so read one byte,
-        then what `in_waiting` reports (for `socket://` that is 0 or 1, so keep going while it says more
-        is there)."""
+        then as many as are waiting. pyserial's `in_waiting` for `socket://` says 0 or 1 (a select), which
+        made a read a select and a recv a byte (9 us a byte, 20 kB in 0.18 CPU s); the kernel's count
+        (FIONREAD, on a socket, a pty or a tty alike) says them all."""
         data = self.serial.read(1)
         while data and len(data) < READ_SIZE:
-            waiting = self.serial.in_waiting
+            waiting = self._waiting()
             if not waiting:
                 break
             data += self.serial.read(min(waiting, READ_SIZE - len(data)))
         return data
+
+    def _waiting(self) -> int:
+        try:
+            return struct.unpack("i", fcntl.ioctl(self.serial.fileno(), termios.FIONREAD, b"\0\0\0\0"))[0]
+        except (OSError, AttributeError, ValueError, serial.SerialException):   # no descriptor (loop://): ask pyserial
+            return self.serial.in_waiting
 
     def write(self, data: bytes) -> None:
         self.serial.write(data)
