@@ -162,8 +162,10 @@ def _framing() -> dict[str, Any]:
 def _authentication() -> dict[str, Any]:
     h2c, c2h = auth.TO_CONTROLLER.decode(), auth.TO_HOST.decode()
 
-    def key(name: str, label: str, then: tuple[str, ...], signs: str) -> dict[str, Any]:
-        return {"name": name, "label": label, "then": list(then), "signs": signs}
+    def key(name: str, label: str, then: tuple[str, ...], signs: str, sender: str, messages: list[str],
+            when: str) -> dict[str, Any]:
+        return {"name": name, "label": label, "then": list(then), "signs": signs, "sender": sender,
+                "messages": messages, "when": when}
     return {
         "mac": "HMAC-SHA256",
         "tag_size": framing.TAG_SIZE,
@@ -185,14 +187,20 @@ def _authentication() -> dict[str, Any]:
                           "slot), slot = floor(t / slot_s) of the controller's clock t in seconds, packed as a signed "
                           "64-bit little-endian integer; valid in its slot and the next"},
         "keys": [
-            key(f"handshake_{h2c}", f"aspod/v1/handshake/{h2c}", (), "Hello"),
-            key(f"handshake_{c2h}", f"aspod/v1/handshake/{c2h}", (), "HelloCookie, HelloReply"),
+            key(f"handshake_{h2c}", f"aspod/v1/handshake/{h2c}", (), "Hello; and a Nak the host sends with no session",
+                "host", ["Hello", "Nak"], "Hello always; Nak only while the host holds no session"),
+            key(f"handshake_{c2h}", f"aspod/v1/handshake/{c2h}", (), "HelloCookie, HelloReply", "controller",
+                ["HelloCookie", "HelloReply"], "always"),
             key(f"session_{h2c}", f"aspod/v1/session/{h2c}", ("host_nonce", "controller_nonce"),
-                "every other frame the host sends in the session"),
+                "every other frame the host sends in the session", "host", ["*"],
+                "every frame but a Hello while the host holds a session"),
             key(f"session_{c2h}", f"aspod/v1/session/{c2h}", ("host_nonce", "controller_nonce"),
-                "every other frame the controller sends in the session"),
+                "every other frame the controller sends in the session", "controller", ["*"],
+                "every frame but a HelloCookie or HelloReply while the controller holds a session (a closing one "
+                "included)"),
             key(f"nak_{c2h}", f"aspod/v1/nak/{c2h}", ("controller_id",),
-                "a Nak the controller sends with no session (NO_SESSION and the like)"),
+                "a Nak the controller sends with no session (NO_SESSION and the like)", "controller", ["Nak"],
+                "only while the controller holds no session"),
         ],
     }
 

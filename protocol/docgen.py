@@ -310,8 +310,9 @@ oldest expired frame on, every frame in flight goes again (go-back-N). When the 
 `FAILED` with `LINK_SUSPENDED` (it may or may not have run), and the link stays suspended until a new
 handshake. A `Nak(SEQUENCE_GAP)` makes every command from its `expected_seq` on due at once: that resend is
 an expiry like any other (it counts toward the retry limit and doubles the timer; `protocol/reliable.py`
-`go_back`, `due`). Urgent requests have the same window, retry limit and suspension, and share the commands'
-RTT estimate (one line, one round trip), but are not in order: each is answered on its own and resent alone
+`go_back`, `due`). Urgent requests have the same window (a span of sequence numbers, as for commands), retry
+limit and suspension, and share the commands' RTT estimate and timer (one line, one round trip: one estimator,
+so an expiry of either doubles the timeout of both), but are not in order: each is answered on its own and resent alone
 when its own timer expires, never go-back-N (`protocol/host_link.py` `_new_channels`). The controller never gives up an event: it offers its unacknowledged events again from the
 first (counted in the local `event_resumes`); while the link is lost it resends none (see "Sessions and
 authentication").

@@ -43,6 +43,12 @@ CHECK_ORDER = (
     ("payload", "the payload decodes as its message (a LINK frame refused with a NAK; a command answered with a "
                 "Result instead)"),
 )
+SIGNING_KEYS = {      # SIGNING as data: each end's key (authentication.keys[].name) with and without a session
+    SESSION: {"host": {"session": "session_h2c"}, "controller": {"session": "session_c2h"}},
+    SESSION_OR_NONE: {"host": {"session": "session_h2c", "no_session": "handshake_h2c"},
+                      "controller": {"session": "session_c2h", "no_session": "nak_c2h"}},
+    NO_SESSION_KEY: {"host": {"no_session": "handshake_h2c"}, "controller": {"no_session": "nak_c2h"}},
+}
 NAMES_NOTHING = ()
 NAMES_FRAME = ("refused_class", "refused_seq", "refused_msg", "refused_tag")
 NAMES_FRAME_NO_TAG = ("refused_class", "refused_seq", "refused_msg")
@@ -103,7 +109,8 @@ NAK_RULES = (
     NakRule(Reason.UNKNOWN_MESSAGE, "authenticated, its `msg_id` declared nowhere", _BOTH, False, SESSION,
             NAMES_FRAME, None, _COUNTED, stage="message"),
     NakRule(Reason.WRONG_DIRECTION, "authenticated, its `msg_id` declared, but not in this class or not to this "
-            "end (the controller: a handshake frame under its handshake key other than `Hello`)", _BOTH, False,
+            "end (the controller: a handshake frame under its handshake key other than `Hello`; the host NAKs no "
+            "handshake frame: one that is not a `HelloReply` or `HelloCookie` it ignores)", _BOTH, False,
             SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="message"),
     NakRule(Reason.BAD_LENGTH, "an authenticated LINK frame (`Hello`, `Heartbeat`, `Nak`) whose payload is not its "
             "message's size", ("controller",), False, SESSION_OR_NONE, NAMES_FRAME, None, _COUNTED, stage="payload"),
@@ -119,7 +126,7 @@ NAK_RULES = (
             "answered", ("controller",), False, SESSION, NAMES_FRAME, "the next command sequence number expected",
             _COUNTED, stage="sequence"),
     NakRule(Reason.SESSION_CLOSED, "a command or urgent request, not a duplicate, after the session's `Close` was "
-            "executed", ("controller",), False, SESSION, NAMES_FRAME,
+            "executed (before any gap: one numbered beyond the next expected gets this, not SEQUENCE_GAP)", ("controller",), False, SESSION, NAMES_FRAME,
             "the next command sequence number expected; 0 for an urgent request",
             "a host that is closing takes it as the end of the session; any other host counts it", stage="sequence",
             actions=(("host", "session_ended_if_closing"),)),
@@ -224,7 +231,7 @@ def declared() -> dict:
         "doc": "The link's rules that are tables (docs/protocol.md rules 1-12): every Nak the link sends, each "
                "class's numbering and acknowledgement, the header of the frames sent outside a session, and the "
                "counters a Heartbeat carries. From protocol/link_rules.py.",
-        "naks": {"signing": SIGNING, "rules": [rule.as_data() for rule in NAK_RULES], "actions": NAK_ACTIONS,
+        "naks": {"signing": SIGNING, "signing_keys": SIGNING_KEYS, "rules": [rule.as_data() for rule in NAK_RULES], "actions": NAK_ACTIONS,
                  "check_order": [{"stage": name, "checks": what} for name, what in CHECK_ORDER],
                  "doc": "A Nak is class LINK, seq 0. `names`: the fields that name the refused frame (its class, "
                         "seq, msg_id and the first NAK_TAG_BYTES of its tag); the others of those are zeros. "
@@ -245,6 +252,23 @@ def declared() -> dict:
         "session_counter": SESSION_COUNTER,
         "answers": "a command or urgent request is answered with its declared `reply`, or with a `Result` whose "
                    "`result` is not OK (rule 4); a payload that does not decode is answered with a `Result`",
+        "undecodable_payload": [      # what the receiver does with an authenticated frame whose payload does not decode
+            {"class": "COMMAND", "receiver": "controller", "answer": "Result with the decoder's reason (uses up the "
+                                                                      "sequence number)"},
+            {"class": "URGENT", "receiver": "controller", "answer": "Result with the decoder's reason"},
+            {"class": "LINK", "receiver": "controller", "answer": "Nak with the decoder's reason (stage payload)"},
+            {"class": "LINK", "receiver": "host", "answer": "none: counted as rejected"},
+            {"class": "EVENT", "receiver": "host", "answer": "none: counted as rejected, its sequence number taken "
+                                                            "and acknowledged, never acted on"},
+            {"class": "COMMAND", "receiver": "host", "answer": "none: the command ends (rule 4: a reply that does "
+                                                              "not decode)"},
+            {"class": "TELEMETRY", "receiver": "host", "answer": "none: counted as rejected"},
+        ],
+        "never_answered": ["a segment that is not valid COBS or is shorter than MIN_RAW (BAD_FRAME)",
+                           "a frame whose CRC is wrong (BAD_CRC)",
+                           "a frame whose counter is not above the last accepted in its session (a replay)",
+                           "a Nak refused for its authentication",
+                           "a handshake frame the host receives that is not a HelloReply or HelloCookie"],
         "heartbeat_counters": {"on_the_wire": list(HEARTBEAT_COUNTERS), "since": HEARTBEAT_SINCE,
                                "local_only": [{"name": n, "doc": d} for n, d in LOCAL_COUNTERS]},
     }

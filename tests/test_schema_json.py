@@ -220,6 +220,10 @@ def test_the_nak_table_is_data_and_the_doc_renders_the_same_rows(data):
             "fields"]}
         assert f"| `{rule['reason']}` | {rule['stage']} | {rule['when']} |" in doc
         assert rule["stage"] in [stage["stage"] for stage in data["link"]["naks"]["check_order"]]
+    key_names = {k["name"] for k in data["authentication"]["keys"]}
+    for ends in data["link"]["naks"]["signing_keys"].values():
+        assert {name for end in ends.values() for name in end.values()} <= key_names
+    assert set(data["link"]["naks"]["signing_keys"]) == set(data["link"]["naks"]["signing"])
     by_reason = {r["reason"]: r for r in rules}
     assert by_reason["UNSUPPORTED_VERSION"]["names"] == [] and by_reason["NO_SESSION"]["signed_with"] == "no_session"
     assert [c["class"] for c in data["link"]["classes"]] == [c.name for c in MsgClass]
