@@ -17,8 +17,9 @@ after the other, each for the budget (60 s with --quick, 10 minutes without; the
 The fuzzers are run through their command lines and judged by the findings they save, so a change of their options
 or of their JSON does not break this. A finding is the plant's when it no longer fails replayed against the real
 code (`aspod fuzz --replay`, the in-process finding's target renamed to the real one; one finding of each kind, kind
-being the failure and its error's words); one that still fails there is the real code's (a real bug, or a false
-finding), and is said so. "reached": the plant's defect acted at least once
+being the failure and its error's words) in a run where the plant's defect acted; one that still fails there is the
+real code's (a real bug, or a false finding), and one that does not in a run where the defect never acted is a false
+finding; both are said so. "reached": the plant's defect acted at least once
 in the run (each plant notes it on `$ASPOD_PLANT_LOG`), whether or not the fuzzer saw it. The seconds to find are
 from the fuzzer's start (its target's start and the first session included) to the first time the defect acted, in
 a run that found it; the executions are the fuzzer's own count in its finding (cases, black box).
@@ -56,7 +57,7 @@ class Outcome:
     seconds: Optional[float] = None
     reached: bool = False
     note: str = ""
-    others: int = 0                      # findings that fail on the real code too (a real bug, or a false finding)
+    others: int = 0                      # findings not the plant's: the real code's (a real bug, or false)
 
     def cell(self) -> str:
         if self.status in ("found", "REPORTED"):
@@ -121,6 +122,10 @@ def _judge(plant: Plant, findings: list[Path], replay: Callable[[Path], Optional
             (ours if clean else others).append(paths)
     said = [f"{len(paths)} finding(s) failing on the real code too: {_signature(paths[0])[1].strip()}"
             for paths in others]
+    if ours and not reached:         # the defect never acted: not the plant's, and not the real code's either
+        said += [f"{len(paths)} finding(s) that do not fail again, the plant never having acted (false): "
+                 f"{_signature(paths[0])[1].strip()}" for paths in ours]
+        others, ours = others + ours, []
     if unreplayed:
         said.append(f"{unreplayed} kind(s) of finding could not be replayed")
     if len(groups) > REPLAYED_AT_MOST:
@@ -181,15 +186,42 @@ def _sim(module: Sequence[str], run: Path, key: Path) -> list[str]:
 
 def _as_controller_built() -> bool:
     done = subprocess.run([*ASPOD, "fuzz", "--help"], capture_output=True, text=True, timeout=120)
-    return "--as-controller" in done.stdout
+    return "--as-controller" in done.stdout and "--host-cmd" in done.stdout
+
+
+def _teleop(module: Sequence[str], run: Path, budget_s: float) -> str:
+    """A teleop host for the hostile controller to connect: a script that asks the status every second for the
+    budget, so that the host lives, and shows every event as it comes."""
+    script = run / "host.teleop"
+    script.write_text("status\nwait 1\n" * int(budget_s + 60))
+    return shlex.join([sys.executable, "-m", *module, "teleop", "{url}", "--key-file", "{key}", "--script",
+                       str(script), "--keep-going"])
+
+
+def as_controller(plant: Plant, run: Path, budget_s: float) -> Outcome:
+    """`aspod fuzz --as-controller` against a planted teleop (written to the issue's words before that mode was on
+    main: `--host-cmd` with `{url}` and `{key}`, as its first tests run it)."""
+    if not _as_controller_built():
+        return Outcome("not run", note="--as-controller not built")
+    log, found = run / "fired.log", run / "found"
+    env = _env(run, log)
+    start = _CLOCK.wall_time()
+    done = subprocess.run([*ASPOD, "fuzz", "--as-controller", "--host-cmd",
+                           _teleop(("bench.fuzz_plants", plant.name), run, budget_s), "--time", f"{budget_s:g}",
+                           "--json", "--no-progress", "--findings", str(found)],
+                          capture_output=True, text=True, timeout=budget_s * 2 + 600, cwd=run, env=env)
+    if done.returncode not in (0, 1):
+        return Outcome("not run", note=f"aspod fuzz exited {done.returncode}: {done.stderr.strip()[-300:]}")
+    real = _teleop(("host_tools.cli.main",), run, budget_s)
+
+    def replay(path: Path) -> Optional[bool]:
+        return _replays_clean([*ASPOD, "fuzz", "--as-controller", "--replay", str(path), "--host-cmd", real], env, run)
+    return _judge(plant, _findings(found), replay, _first_fired(log, plant.name), start)
 
 
 def black_box(plant: Plant, run: Path, budget_s: float) -> Outcome:
     if plant.black_box != "sim":
-        if not _as_controller_built():
-            return Outcome("not run", note="--as-controller not built")
-        return Outcome("not run", note="--as-controller is built: its run against `python -m bench.fuzz_plants "
-                                       "host-event teleop URL ...` is not written yet")
+        return as_controller(plant, run, budget_s)
     key, log, found = run / "link.key", run / "fired.log", run / "found"
     auth.write_key(key, bytes(range(32)))
     env = _env(run, log)
@@ -284,8 +316,8 @@ def plants_table(tmp: Path, budget_s: float, plants: Sequence[str], fuzzers: Seq
         false = [n for n in plants if results[(n, fuzzer)].status == "REPORTED"]
         others = [n for n in plants if results[(n, fuzzer)].others]
         yield (f"  {fuzzer}: {len(found)} of the {len(ran)} bugs it ran against found within {budget_s:g} s; "
-               f"{len(false)} false finding(s) on the slow path; findings that fail on the real code too in "
-               f"{len(others)} of its runs")
+               f"{len(false)} false finding(s) on the slow path; findings not the plant's (false, or the real "
+               f"code's) in {len(others)} of its runs")
 
 
 def main(quick: bool = False, budget_s: Optional[float] = None, plants: Sequence[str] = tuple(PLANTS),

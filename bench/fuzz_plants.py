@@ -285,32 +285,21 @@ def _controller_link(name: str):
     return Planted()
 
 
-def param_index_target():
-    return _controller_link("param-index")
+def _planted_link_target(name: str) -> Callable[[], object]:
+    """The factory of plant `name`'s controller-link target, for `aspod fuzz bench.fuzz_plants:NAME_target`."""
+    def factory():
+        return _controller_link(name)
+    factory.__name__ = f"{name.replace('-', '_')}_target"
+    return factory
 
 
-def jog_range_target():
-    return _controller_link("jog-range")
-
-
-def move_park_target():
-    return _controller_link("move-park")
-
-
-def disable_estop_target():
-    return _controller_link("disable-estop")
-
-
-def hello_table_target():
-    return _controller_link("hello-table")
-
-
-def traj_two_target():
-    return _controller_link("traj-two")
-
-
-def slow_param_target():
-    return _controller_link("slow-param")
+param_index_target = _planted_link_target("param-index")
+jog_range_target = _planted_link_target("jog-range")
+move_park_target = _planted_link_target("move-park")
+disable_estop_target = _planted_link_target("disable-estop")
+hello_table_target = _planted_link_target("hello-table")
+traj_two_target = _planted_link_target("traj-two")
+slow_param_target = _planted_link_target("slow-param")
 
 
 def host_event_target():
