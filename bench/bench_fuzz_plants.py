@@ -184,6 +184,15 @@ def _sim(module: Sequence[str], run: Path, key: Path) -> list[str]:
             "--params", str(run / "params.json"), "--no-pacing"]
 
 
+def _cases(stdout: str) -> str:
+    """The cases a black-box run's --json says it ran ("" if it says nothing readable)."""
+    try:
+        r = json.loads(stdout[stdout.find("{"):])      # after any line the fuzzer prints before it (ASPOD-LINK ...)
+        return f"{r['cases']:,} cases in {r['wall_s']:.0f} s, {r['cases_per_s']:.1f} cases/s"
+    except (ValueError, KeyError, TypeError):
+        return ""
+
+
 def _as_controller_built() -> bool:
     done = subprocess.run([*ASPOD, "fuzz", "--help"], capture_output=True, text=True, timeout=120)
     return "--as-controller" in done.stdout and "--host-cmd" in done.stdout
@@ -199,8 +208,7 @@ def _teleop(module: Sequence[str], run: Path, budget_s: float) -> str:
 
 
 def as_controller(plant: Plant, run: Path, budget_s: float) -> Outcome:
-    """`aspod fuzz --as-controller` against a planted teleop (written to the issue's words before that mode was on
-    main: `--host-cmd` with `{url}` and `{key}`, as its first tests run it)."""
+    """`aspod fuzz --as-controller --host-cmd` against a planted teleop (`{url}` and `{key}` filled in by the fuzzer)."""
     if not _as_controller_built():
         return Outcome("not run", note="--as-controller not built")
     log, found = run / "fired.log", run / "found"
@@ -216,7 +224,9 @@ def as_controller(plant: Plant, run: Path, budget_s: float) -> Outcome:
 
     def replay(path: Path) -> Optional[bool]:
         return _replays_clean([*ASPOD, "fuzz", "--as-controller", "--replay", str(path), "--host-cmd", real], env, run)
-    return _judge(plant, _findings(found), replay, _first_fired(log, plant.name), start)
+    outcome = _judge(plant, _findings(found), replay, _first_fired(log, plant.name), start)
+    outcome.note = "; ".join(n for n in (outcome.note, _cases(done.stdout)) if n)
+    return outcome
 
 
 def black_box(plant: Plant, run: Path, budget_s: float) -> Outcome:
@@ -232,12 +242,7 @@ def black_box(plant: Plant, run: Path, budget_s: float) -> Outcome:
                           capture_output=True, text=True, timeout=budget_s * 2 + 600, cwd=run, env=env)
     if done.returncode not in (0, 1):
         return Outcome("not run", note=f"aspod fuzz exited {done.returncode}: {done.stderr.strip()[-300:]}")
-    figures = ""
-    try:
-        r = json.loads(done.stdout)
-        figures = f"{r['cases']:,} cases in {r['wall_s']:.0f} s, {r['cases_per_s']:.1f} cases/s"
-    except (ValueError, KeyError, TypeError):
-        pass
+    figures = _cases(done.stdout)
     real = shlex.join(_sim(("host_tools.cli.main",), run, key))
 
     def replay(path: Path) -> Optional[bool]:
