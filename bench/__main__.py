@@ -1,6 +1,6 @@
-"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load, sessions (proxy, capture decoding, two links), campaigns (Dask throughput and overhead, lock-step against live), fuzzing (in process, black-box, beside boofuzz), time-optimal planning (beside toppra) and the start (the command line, aspod sim, children's memory, numba's cache), in that order.
+"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load, sessions (proxy, capture decoding, two links), campaigns (Dask throughput and overhead, lock-step against live), fuzzing (in process, black-box, beside boofuzz; and planted bugs found or missed), time-optimal planning (beside toppra) and the start (the command line, aspod sim, children's memory, numba's cache), in that order.
 
-    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|handshake|sessions|campaign|fuzz|plan|start]
+    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|handshake|sessions|campaign|fuzz|fuzz-plants|plan|start]
 
 These print figures and ratios beside a peer measured in the same run; they are not
 pass/fail tests. The exit status is 0 when every benchmark produced its figures
@@ -19,8 +19,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="fewer frames and pings, 5 s loops instead of 60 s, 5 simulated s of lock-step "
                              "instead of 20, shorter tracking moves and no pick-and-place: a smoke run")
     parser.add_argument("--only", choices=("codec", "rtt", "realtime", "lockstep", "tracking", "tracker", "live",
-                                                  "handshake", "sessions", "campaign", "fuzz", "plan", "start"),
-                        help="run one benchmark only")
+                                                  "handshake", "sessions", "campaign", "fuzz", "fuzz-plants", "plan",
+                                                  "start"),
+                        help="run one benchmark only (fuzz: its speed and then the planted bugs; fuzz-plants: only the "
+                             "planted bugs)")
     return parser
 
 
@@ -101,6 +103,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.only in (None, "fuzz"):
         from bench import bench_fuzz
         if bench_fuzz.main(quick=args.quick).error:
+            status = 1
+        print()
+    if args.only in (None, "fuzz", "fuzz-plants"):
+        from bench import bench_fuzz_plants
+        if bench_fuzz_plants.main(quick=args.quick).error:
             status = 1
         if args.only is None:
             print()

@@ -510,8 +510,11 @@ def _grammar_size(requests: list[Request]) -> tuple[int, dict[str, int]]:
     return sum(per.values()), per
 
 
-def run_boofuzz(tmp: Path, duration_s: float, planted: bool, baud: Optional[int] = None) -> BoofuzzResult:
-    """Start the live target, fuzz it with boofuzz for `duration_s` or until it dies, and say what happened."""
+def run_boofuzz(tmp: Path, duration_s: float, planted: bool, baud: Optional[int] = None,
+                command: Optional[tuple[str, ...]] = None) -> BoofuzzResult:
+    """Start the live target, fuzz it with boofuzz for `duration_s` or until it dies, and say what happened.
+    `command`: what runs `sim ...` (default: the planted simulator if `planted`, else aspod); the benchmark of
+    planted bugs gives its own (bench/fuzz_plants.py)."""
     tmp = Path(tmp)
     tmp.mkdir(parents=True, exist_ok=True)
     psk = auth.new_nonce() + auth.new_nonce()
@@ -522,7 +525,7 @@ def run_boofuzz(tmp: Path, duration_s: float, planted: bool, baud: Optional[int]
     args = ["sim", "--tcp", "0", "--key-file", str(key_file), "--params", str(tmp / "params.json"), "--no-control"]
     args += ["--no-pacing"] if baud is None else ["--baud", str(baud)]
     load_before = os.getloadavg()[0]
-    child = Child(args, env=env, command=PLANTED if planted else ASPOD)
+    child = Child(args, env=env, command=command or (PLANTED if planted else ASPOD))
     stderr_tail: deque[str] = deque(maxlen=50)
     child.follow_stderr(stderr_tail.append)
     clock = RealClock()
