@@ -63,6 +63,14 @@ def test_the_target_s_replies_give_its_limits_below_at_and_past_each_end():
     def handler(x, y):
         return x == 123.0 or (lambda: y > -7.25)()
     assert {123.0, -7.25} <= set(constants_of([handler]))
+    assert PARK_DEG in constants_of([parks])          # a float the handler reads from its module, by name
+
+
+PARK_DEG = 321.5       # a module's named constant, as handlers compare with (bench/fuzz_plants.py's move-park)
+
+
+def parks(target: float) -> bool:
+    return target == PARK_DEG
 
 
 def test_what_a_black_box_hears_becomes_the_grammar_s():

@@ -151,18 +151,23 @@ _TYPE_LIMITS = {"u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFFFFFF), "u6
 
 
 def constants_of(functions: Iterable[Callable]) -> tuple:
-    """The float constants in the code of `functions` and the code nested in it: what a handler compares with
-    (`x == 123.0`), which the engine cannot see in a float comparison (an int comparison it sees: atheris traces
+    """The float constants in the code of `functions` and the code nested in it, and the float globals that code
+    reads (`PARK_DEG = 123.0` at the top of its module): what a handler compares with (`x == 123.0`,
+    `x == PARK_DEG`), which the engine cannot see in a float comparison (an int comparison it sees: atheris traces
     it to libFuzzer, whose mutations then insert the value)."""
     found: dict = {}
-    todo = [getattr(fn, "__code__", None) for fn in functions]
+    todo = [(getattr(fn, "__code__", None), getattr(fn, "__globals__", {})) for fn in functions]
     while todo:
-        code = todo.pop()
+        code, names = todo.pop()
         if code is None:
             continue
         for const in code.co_consts:
             if isinstance(const, types.CodeType):
-                todo.append(const)
+                todo.append((const, names))
             elif isinstance(const, float):
                 found[const] = None
+        for name in code.co_names:
+            value = names.get(name)
+            if type(value) is float:
+                found[value] = None
     return tuple(found)
