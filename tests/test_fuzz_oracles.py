@@ -207,3 +207,17 @@ def test_a_case_that_closes_its_session_cleanly_is_not_a_finding(tmp_path):
     target = f"{sys.executable} -m host_tools.cli.main sim --pty --no-pacing"
     done = aspod("fuzz", "--replay", str(path), "--target-cmd", target, cwd=tmp_path)
     assert done.returncode == 0 and "no longer fails" in done.stdout, done.stdout + done.stderr
+
+
+def test_a_state_and_faults_the_protocol_does_not_allow_together_are_a_finding():
+    """A fault is latched on entry to a safe state and cleared only by the Reset that leaves it (protocol.md, "Fault
+    bits"): bench/fuzz_plants.py's disable-estop (Disable in ESTOP goes to IDLE, the ESTOP bit still latched) breaks
+    it; every pair the real supervisor makes keeps it."""
+    from host_tools.fuzz.oracles import state_violation
+    from protocol.states import ControllerState as S, Fault
+    assert "latched only in a safe state" in state_violation(S.IDLE, int(Fault.ESTOP))
+    assert state_violation(S.ENABLED, int(Fault.LINK_LOST)) is not None
+    assert "without the ESTOP fault bit" in state_violation(S.ESTOP, 0)
+    for state, faults in ((S.IDLE, 0), (S.ENABLED, 0), (S.ESTOP, int(Fault.ESTOP)), (S.FAULT, int(Fault.STALL)),
+                          (S.BOOT, 0), (S.ESTOP, int(Fault.ESTOP | Fault.LINK_LOST))):
+        assert state_violation(state, faults) is None, (state, faults)

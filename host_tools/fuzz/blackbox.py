@@ -692,6 +692,9 @@ class HealthCheck:
             s.pace.measured((status.uptime_ms - before.uptime_ms) / 1000.0 / (self.status_s - since_s), rtt_s)
         if status.uptime_ms <= before.uptime_ms and status.uptime_ms > 1000:   # (a wrap after 49 days)
             return f"uptime did not rise: {before.uptime_ms} ms then {status.uptime_ms} ms"
+        told = oracles.state_violation(status.state, status.faults)
+        if told is not None:
+            return told
         whose = "the case's" if cases <= 1 else f"the {cases} cases'"
         if not unfinished:
             moved = (status.commands_executed - before.commands_executed) & 0xFFFFFFFF

@@ -32,7 +32,7 @@ from protocol.schema import MsgClass, MessageSpec
 
 from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries, constants_of
 from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, TO_HOST, Draw, FdpDraw, Words, draw_payload
-from host_tools.fuzz.oracles import nak_violation, payload_violation, reply_violation
+from host_tools.fuzz.oracles import nak_violation, payload_violation, reply_violation, state_violation
 from host_tools.fuzz.targets import OracleFailure, Target, check
 
 MACS = ("good", "good", "good", "good", "stale-counter", "other-key", "handshake-key", "flipped", "none")
@@ -272,7 +272,7 @@ class ControllerLinkTarget(_LinkTarget):
         self.words = {"name": tuple(controller.params.order)}    # ParamGet's and ParamSet's
         self.learned = learned_from(controller)
         link = controller.link
-        link._handler = _judging_replies(link._handler)
+        link._handler = _judging_replies(link._handler, controller.supervisor)
         link._send_nak = _judging_naks(link._send_nak)
 
     def sender(self):
@@ -318,13 +318,17 @@ def learned_from(controller) -> Boundaries:
     return learned
 
 
-def _judging_replies(handler):
-    """The controller's command handler, each reply judged against the declaration and the command it answers."""
+def _judging_replies(handler, supervisor):
+    """The controller's command handler, each reply judged against the declaration and the command it answers, and
+    the state it leaves against the states the protocol allows."""
     def judged(msg, urgent: bool, now: float):
         reply = handler(msg, urgent, now)
         problem = reply_violation(msg.spec, None, reply)
         if problem is not None:
             raise OracleFailure("replies as declared", problem)
+        problem = state_violation(supervisor.state, supervisor.faults)
+        if problem is not None:
+            raise OracleFailure("states as declared", f"after {msg.spec.name}: {problem}")
         return reply
     return judged
 

@@ -14,6 +14,8 @@ own (`payload_violation`), and the codec's checks (`Field.check`, `fast_check`) 
     param_refusal_changed  a ParamSet refused whose reply says the value in force moved (a refused frame must
                          change nothing)
     nak_violation        a Nak that does not say why
+    state_violation      a state and faults the protocol does not allow together (a fault latched outside the safe
+                         states)
     case_violation       a black-box case's replies, by the two above the last
 
 Each returns None when all is well, else what is wrong, in words a finding can carry.
@@ -29,6 +31,7 @@ from typing import Any, Mapping, Optional
 from protocol.messages import SCHEMA
 from protocol.reasons import Reason
 from protocol.schema import Field, Message, MessageSpec
+from protocol.states import ControllerState, Fault
 
 _WHOLE = {"u8": (0, 0xFF), "u16": (0, 0xFFFF), "u32": (0, 0xFFFFFFFF), "u64": (0, 2**64 - 1), "i8": (-0x80, 0x7F),
           "i16": (-0x8000, 0x7FFF), "i32": (-0x80000000, 0x7FFFFFFF), "bool": (0, 1)}
@@ -123,6 +126,22 @@ def reply_violation(command: MessageSpec, payload: Optional[bytes], reply: Messa
 def nak_violation(nak: Message) -> Optional[str]:
     """None if a Nak names why it refused (a reason other than OK, of the declared reasons)."""
     return declared_violation(nak.spec, nak) or (None if nak.reason != Reason.OK else "a Nak with no reason (OK)")
+
+
+SAFE_STATES = (ControllerState.FAULT, ControllerState.ESTOP)
+
+
+def state_violation(state: int, faults: int) -> Optional[str]:
+    """None if the controller's state and faults are a pair the protocol allows: a fault bit is latched on entry to
+    a safe state (FAULT or ESTOP) and cleared only by the Reset that leaves it (docs/protocol.md, "Fault bits"), so
+    outside the safe states no fault is latched, and ESTOP is entered with the ESTOP bit."""
+    name = ControllerState(state).name if state in ControllerState._value2member_map_ else str(state)
+    if state not in SAFE_STATES and faults:
+        return (f"state {name} with faults {faults:#x} latched: a fault is latched only in a safe state (FAULT, "
+                f"ESTOP) and cleared only by the Reset that leaves it")
+    if state == ControllerState.ESTOP and not faults & Fault.ESTOP:
+        return f"state ESTOP without the ESTOP fault bit (faults {faults:#x})"
+    return None
 
 
 def param_refusal_changed(name: str, refused: Message, before: Mapping[str, float]) -> Optional[str]:
