@@ -70,6 +70,27 @@ def test_a_bug_found_again_is_counted_in_its_file_not_saved_again(tmp_path):
     assert json.loads(first.read_text())["signature"].endswith("|BoxDial.percent")
 
 
+def test_a_bug_whose_first_finding_could_not_be_shrunk_is_still_one_file(tmp_path):
+    """A finding saved unshrunk (its shrinking ran out of time) keeps a trigger that is only its last step's; the
+    same bug found again with other steps counts in that file, as long as kind, oracle and place agree (the
+    disable-estop plant of bench/fuzz_plants.py made five files in 90 s before)."""
+    known = findings.Known(tmp_path)
+    state = "HealthCheck: state IDLE with faults 0x2 latched: a fault is latched only in a safe state"
+
+    def finding(*names):
+        steps = [{"kind": "command", "delay_s": 0.0, "msg": name, "payload": ""} for name in names]
+        return findings.Finding("blackbox", findings.Failure("oracle", state, "x", "health"), steps=steps,
+                                minimized=False)
+    first = known.save(finding("EStop", "Disable", "Jog"))
+    for names in (("Ping", "EStop", "Disable"), ("EStop", "Disable", "Move", "Home")):
+        assert known.save(finding(*names)) == first
+    assert findings.Known(tmp_path).count(finding("EStop", "Disable", "Grip")) == first
+    assert [p.name for p in tmp_path.glob("*.json")] == [first.name] and findings.load(first).count == 4
+    crash = findings.Finding("blackbox", findings.Failure("crash", "TargetGone: gone", "x", "health"),
+                             steps=[{"kind": "command", "delay_s": 0.0, "msg": "Jog", "payload": ""}], minimized=False)
+    assert known.save(crash) != first                       # another bug: another file
+
+
 class _Picky:
     """A target of one's own that fails on any input holding the byte 0x2a."""
 

@@ -219,14 +219,20 @@ class Known:
     def __init__(self, folder: Path, leave_out: Optional[Path] = None) -> None:
         self.folder = folder
         self._paths: dict[str, Path] = {}
+        self._unshrunk: set[Path] = set()     # black-box files not minimized: matched on kind, oracle and place
         if folder.is_dir():
             for path in sorted(folder.glob("*.json")):
                 if path == leave_out:
                     continue
                 try:
-                    self._paths.setdefault(signature(load(path)), path)
+                    self._remember(load(path), path)
                 except (FindingError, OSError):
                     continue          # not one of ours, or unreadable: not a bug's file
+
+    def _remember(self, finding: Finding, path: Path) -> None:
+        self._paths.setdefault(signature(finding), path)
+        if finding.target == "blackbox" and not finding.minimized:
+            self._unshrunk.add(path)
 
     def path(self, finding: Finding) -> Optional[Path]:
         """The file of `finding`'s bug, if the folder holds it. A black-box finding not yet minimized matches a
@@ -238,8 +244,9 @@ class Known:
             head = signature(finding, with_trigger=False) + "|"
             messages = {step.get("msg") for step in finding.steps}
             for known, path in self._paths.items():
-                if known.startswith(head) and known[len(head):].split(".", 1)[0] in messages:
-                    return path
+                if known.startswith(head) and (path in self._unshrunk
+                                               or known[len(head):].split(".", 1)[0] in messages):
+                    return path         # (a known one not shrunk either: its trigger is no better than a guess)
         return None
 
     def count(self, finding: Finding) -> Optional[Path]:
@@ -260,7 +267,7 @@ class Known:
         path = self.count(finding)
         if path is None:
             path = finding.save(self.folder)
-            self._paths[signature(finding)] = path
+            self._remember(finding, path)
         return path
 
 
