@@ -75,9 +75,18 @@ SKIP = {
     "aspod fuzz --replay fuzz-findings/crash-blackbox-....json --target-cmd '...'":
         "a pattern: the finding's name holds a hash known only once a fuzz run has found it "
         "(tests/test_fuzz.py and tests/test_fuzz_hangs.py replay real findings)",
+    "aspod fuzz --as-controller --replay fuzz-findings/crash-hostile-....json --host-cmd '...'":
+        "a pattern: a hostile controller's finding and your host's command (tests/test_fuzz_hostile.py replays one)",
     "aspod fuzz --replay fuzz-findings/oracle-my.module_factory-....json my.module:factory":
         "a pattern: your own module and a finding of it (tests/test_fuzz.py replays one)",
     "wireshark s.pcapng": "Wireshark's window: needs a display and a human",
+    "aspod fuzz --as-controller --time 60": "it serves until a host comes, and the next line is that host (teleop, "
+                                            "its link and key those the fuzzer printed): tests/test_fuzz_hostile.py "
+                                            "points a host the test starts at it",
+    "aspod teleop /dev/pts/7 --key-file /run/user/.../sim-123.key": "the host of the line above, at what it printed",
+    "aspod fuzz --as-controller --serve tcp:5555 --key-file link.key --probe 'curl -fs localhost:8080/health'":
+        "a ground tool of your own, its key, and its health endpoint on port 8080 (tests/test_fuzz_hostile.py runs "
+        "a probe against a host the test starts)",
     "python -m can.viewer -i udp_multicast -c 239.74.163.2": "a curses viewer: needs a terminal and a human to quit it",
     "candump vcan0 | .venv/bin/python -m cantools decode protocol/hal.dbc":
         "needs a SocketCAN interface (vcan0: root to create it) and can-utils' candump",
@@ -86,6 +95,10 @@ SKIP = {
 # Too long for the suite as shown; run with options that the same doc shows on another command.
 SHORTER = {
     ".venv/bin/aspod tracker-day --mode relay --dial 3 --json": "--from 11:00 --to 13:00",
+    "aspod fuzz --as-controller --host-cmd 'aspod teleop {url} --key-file {key} --script examples/ground_check.txt' "
+    "--time 60": "--time 10",
+    "aspod fuzz --as-controller --host-cmd 'aspod teleop {url} --key-file {key} --script examples/ground_check.txt "
+    "--keep-going' --time 60": "--time 10",
     ".venv/bin/aspod tracker-day --mode relay --dial 100 --plot hunt.png": "--from 11:00 --to 13:00",
     ".venv/bin/aspod tracker-day --mode feedforward --dial 100 --json": "--from 11:00 --to 13:00",
 }
@@ -233,7 +246,9 @@ def expected_status(comment: str) -> int:
 def named_files(text: str) -> list[tuple[str, bool]]:
     """The relative files a command names, each with whether it names it as an output (after `>` or an
     output option)."""
-    ws = words(text)
+    ws = []
+    for word in words(text):      # a command quoted inside one (--target-cmd, --host-cmd) names files too
+        ws += words(word) if " " in word else [word]
     found = []
     for i, word in enumerate(ws):
         if word.startswith("lua_script:"):
@@ -322,7 +337,7 @@ def test_every_file_the_docs_name_exists_or_an_earlier_command_writes_it():
 def test_examples_holds_only_files_the_docs_use():
     named = {name for commands in BY_DOC.values() for c in commands for name, _ in named_files(c.text)}
     unused = [str(p.relative_to(ROOT)) for p in sorted((ROOT / "examples").rglob("*"))
-              if p.is_file() and str(p.relative_to(ROOT)) not in named]
+              if p.is_file() and "__pycache__" not in p.parts and str(p.relative_to(ROOT)) not in named]
     assert not unused, f"in examples/ but named by no doc command: {unused}"
 
 
