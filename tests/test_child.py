@@ -75,6 +75,22 @@ def test_follow_stderr_hands_each_line_over_as_it_comes_and_stop_still_ends_the_
     assert got == ["line 0", "line 1", "line 2"]
 
 
+def test_a_child_read_as_it_goes_is_never_stopped_by_a_full_pipe_and_its_last_lines_are_kept():
+    """After its ready line a parent may read nothing more of a long-running child (the black-box fuzzer's target):
+    a child writing more than a pipe holds (64 KiB) then stops in its write, and an `aspod sim` logging each
+    state change did so after 10,000 fuzzing cases, taken for a hung target. `keep_reading` reads both pipes as
+    they fill: 1 MB on each, and the child ends by itself; `stop` gives its last stderr lines."""
+    child = Child(["import sys\nprint('READY', flush=True)\n"
+                   "for k in range(20000):\n"
+                   "    print(f'err {k} ' + 'e' * 40, file=sys.stderr, flush=True)\n"
+                   "    print('o' * 50, flush=True)\n"], command=PY)
+    child.ready("READY")
+    child.keep_reading()
+    assert child.wait_exit(timeout_s=60) == 0           # without keep_reading: ChildError, it waits in a write
+    status, rest = child.stop()
+    assert status == 0 and rest.splitlines() == [f"err {k} " + "e" * 40 for k in range(19988, 20000)]
+
+
 # a child that pins itself to one core at nice 19 (a hog runs there) and spins for some of its own CPU time, then
 # says it is ready; with "wait", it then waits for SIGINT, and spins as long again before it ends
 STARVED = """

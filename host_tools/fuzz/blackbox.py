@@ -212,6 +212,8 @@ class Session:
         if self.child is not None and self.psk is None:   # no --key-file: the key the target made, on its next line
             key_file = self.child.ready("ASPOD-KEY ").split(" ", 1)[1].strip()
             self.psk = auth.load_key(key_file, "the target's key file (its ASPOD-KEY line)")
+        if self.child is not None:
+            self.child.keep_reading()      # a target's pipes, read as it writes: one full stops it (a false hang)
         self.host = HostLink(self.psk, LinkConfig(link_timeout_s=settings.link_timeout_s), on_event=self._event,
                              on_telemetry=lambda msg, now: self.learned.learn(msg))
         self.sent: list[bytes] = []

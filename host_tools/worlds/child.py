@@ -22,6 +22,7 @@ times as long, for a child never given a CPU at all. `run` is `subprocess.run` w
 """
 from __future__ import annotations
 
+import collections
 import re
 import selectors
 import signal
@@ -43,6 +44,7 @@ WALL_FACTOR = 20             # a bound of own time is also one of this many time
 LOOK_S = 1.0                 # how often a wait that has not ended looks at the child's own time
 STDERR_TAIL_BYTES = 4096     # of an ended child's stderr, quoted in the ChildError
 STDERR_TAIL_WAIT_S = 1.0     # for each read of it
+STDERR_TAIL_LINES = 12       # of a child read as it goes (`keep_reading`), kept for `stop`
 
 
 class ChildError(OSError):
@@ -84,6 +86,8 @@ class Child:
         self.seen: list[str] = []       # stderr lines read so far
         self.stopped = False            # the parent asked it to stop
         self._follower: Optional[threading.Thread] = None
+        self._drainer: Optional[threading.Thread] = None     # reads its stdout as it goes (`keep_reading`)
+        self._tail: Optional[collections.deque] = None      # its last stderr lines, if read as it goes
 
     def _stream(self, stream) -> IO[bytes]:
         if stream is None or stream == "stdout":
@@ -180,6 +184,21 @@ class Child:
         self._follower = threading.Thread(target=follow, name=f"{self.name} stderr", daemon=True)
         self._follower.start()
 
+    def keep_reading(self, tail: int = STDERR_TAIL_LINES) -> None:
+        """From now on read all it writes as it writes it: stdout dropped, stderr's last `tail` lines kept for
+        `stop`. For a parent that reads nothing more of a long-running child: a pipe no one reads holds 64 KiB, and
+        then stops the child in its next write (an `aspod sim` logging every state change stopped so after about
+        10,000 cases of the black-box fuzzer, which took it for a hung target; 2026-11-29)."""
+        self._tail = collections.deque(maxlen=tail)
+        self.follow_stderr(self._tail.append)
+        stdout = self.proc.stdout
+
+        def drain() -> None:
+            while stdout.read(65536):
+                pass
+        self._drainer = threading.Thread(target=drain, name=f"{self.name} stdout", daemon=True)
+        self._drainer.start()
+
     def wait_for(self, held: Callable[[float], bool], timeout_s: float) -> bool:
         """Until `held(seconds)` is True: a wait of at most that many seconds for something this child is to do
         (`lambda s: client.wait_for(predicate, s)`), asked again until the child has had `timeout_s` of its own time
@@ -227,11 +246,14 @@ class Child:
             except subprocess.TimeoutExpired as exc:    # (after SIGKILL: a grandchild still holds the pipe)
                 err = exc.stderr or err
         self.proc.wait()
-        if self._follower is not None:
-            self._follower.join(EOF_EXIT_WAIT_S)
+        for reader in (self._follower, self._drainer):
+            if reader is not None:
+                reader.join(EOF_EXIT_WAIT_S)
         for stream in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
             if stream is not None and not stream.closed:
                 stream.close()
+        if self._tail is not None:
+            return self.proc.returncode, "\n".join(self._tail)
         return self.proc.returncode, (err or b"").decode(errors="replace")
 
 
