@@ -183,3 +183,21 @@ def test_the_planted_bug_found_again_and_again_is_one_file_counted_and_shrunk_to
     assert [(s["kind"], s["msg"], s["payload"], s["delay_s"]) for s in finding.steps] == [
         ("command", "BoxDial", _dial(100.0, shrink._plain_value(axis)), 0.0)], finding.steps
     assert finding.failure.kind == "crash" and "planted.py" in findings.signature(finding)
+
+
+@pytest.mark.pty
+def test_a_fault_latched_by_a_limit_the_case_set_is_not_a_finding_while_the_fuzzer_sets_it_back():
+    """A case sets supply_min_v to 60 V (accepted: in its range) and closes; SUPPLY_LOW latches a few ticks later,
+    after the check that followed the case, while the fuzzer sets the limit back. Before, that was a finding
+    ("while the fuzzer set back the case's parameters: state 1/faults 0x0 became 3/0x8", 2026-11-29); the fault
+    is the limit's, as the controller should."""
+    name = SCHEMA["ParamSet"].fields[0]
+    payload = b"supply_min_v".ljust(name.text_size, b"\0") + struct.pack("<f", 60.0)
+    steps = [{"kind": "command", "delay_s": 0.0, "msg": "ParamSet", "payload": payload.hex(), "seed": 1},
+             {"kind": "command", "delay_s": 0.0, "msg": "Close", "payload": "00"}]
+    settings = blackbox.BlackBoxSettings(command=tuple(PLANTED.replace("-m host_tools.fuzz.planted",
+                                                                       "-m host_tools.cli.main").split()), cases=1)
+    fuzzer = blackbox.BlackBoxFuzzer(settings, None)
+    for _ in range(3):
+        assert fuzzer.replay(findings.Finding("blackbox", findings.Failure("oracle", "", "", "health"),
+                                              steps=steps)) is None
