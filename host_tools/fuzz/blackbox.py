@@ -14,6 +14,10 @@ sequence numbers right. Each case is a few steps drawn from a seeded generator (
     burst     several commands written at once;  silence   no byte (not even a heartbeat) for 50-80 % of the
               controller's link timeout, which must not count it as lost
 
+One case in `CHAIN_ONE_IN` is a sequence instead (grammar.py `draw_chain`): commands whose replies say what the
+last one must carry (TrajClear and TrajPoints, then TrajRun with the count of knots held), each sent once the
+reply before it has come, with what that reply said.
+
 At the first session the fuzzer reads the target's parameter table (ParamList): its names are the grammar's
 words for ParamGet and ParamSet, and after each case what the case's ParamSets changed is set back, so every case
 starts from the configuration found (`TargetParams`).
@@ -58,7 +62,8 @@ from host_tools.fuzz import findings as findings_mod
 from host_tools.fuzz import oracles
 from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries
 from host_tools.client.params import ParamTable, read_param_table
-from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_payload, draw_value, pack_raw
+from host_tools.fuzz.grammar import (NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_chain, draw_payload, draw_value,
+                                     pack_raw, refollow)
 from host_tools.fuzz.link_targets import MACS, FrameRecipe, build
 from host_tools.fuzz.shrink import minimal_steps
 from host_tools.worlds.child import LOOK_S, out_of_time
@@ -78,6 +83,7 @@ CHECK_EVERY = 16               # cases between two health checks while the targe
 RATE_FLOOR = 0.05              # a --url target's deadlines stretch with its measured slowness, at most 1/this
 RATE_KEEP = 0.7                # the weight of the rate measured before, against the latest check's
 RTT_FACTOR = 50                # a --url target's deadlines are at least this many of its recent round trips
+CHAIN_ONE_IN = 8               # a case is a sequence of commands that builds state (grammar.draw_chain) one in this many
 SILENCE_ONE_IN = 20000         # a silence (about 2 s at the default timeout) in one step of this many: at about 350
 #                                steps a second, one a minute (one in 200 until 2026-11-29: most of a run)
 PAUSE_ONE_IN = 64              # a pause before a step in one step of this many (one in four until 2026-11-29: the
@@ -391,6 +397,10 @@ class Case:
     def draw(cls, draw: RandomDraw, settings: BlackBoxSettings, words: Words = NO_WORDS,
              learned: Boundaries = NO_BOUNDARIES) -> "Case":
         commands = settings.commands
+        chain = draw_chain(commands, draw, settings.max_steps) if draw.pick(CHAIN_ONE_IN) == 0 else []
+        if chain:        # a sequence, each command sent once the last one's reply says what it must carry
+            return cls([{"kind": "command", "delay_s": 0.0, "msg": spec.name, "follow": True,
+                         "payload": draw_payload(spec, draw, words, learned, follow=True).hex()} for spec in chain])
         steps = []
         for _ in range(1 + draw.pick(settings.max_steps)):
             kind = "silence" if draw.pick(SILENCE_ONE_IN) == 0 else STEP_KINDS[draw.pick(len(STEP_KINDS))]
@@ -437,6 +447,9 @@ class Case:
                 if kind in ("command", "burst"):
                     spec = SCHEMA[step.get("msg", "Ping")]
                     payload = bytes.fromhex(step.get("payload", "00000000"))
+                    if step.get("follow"):
+                        payload = self._follow(spec, payload, handles, session, draw)
+                        step["payload"] = payload.hex()      # as sent
                     handles.append((spec, payload, session.host.submit_payload(spec, payload, session.clock.now())))
                     if kind == "burst":
                         session.write(session.host.take_all(session.clock.now()))   # all at once, no read between
@@ -463,6 +476,15 @@ class Case:
                     session.wait(step["fraction"] * session.settings.link_timeout_s, wire_out=False)
                 session.pump()
         return handles, maybe
+
+    @staticmethod
+    def _follow(spec, payload: bytes, handles: list, session: Session, draw: RandomDraw) -> bytes:
+        """`payload` as the replies to the case's commands before it say the next one must carry (waiting for them,
+        at most the health deadline: a reply not come is the health check's to judge)."""
+        session.pump_until(lambda: all(h.done for _spec, _payload, h in handles), session.settings.health_timeout_s)
+        for _spec, _payload, h in handles:
+            session.learned.follow(h.reply)
+        return refollow(spec, payload, session.learned, draw)
 
     @staticmethod
     def _frame(step: dict, session: Session, draw: RandomDraw) -> bytes:
@@ -525,6 +547,7 @@ _STEP_FIELDS: dict[str, dict[str, Callable[[object], Optional[str]]]] = {    # w
 _STEP_OPTIONAL: dict[str, Callable[[object], Optional[str]]] = {
     "seed": _whole(0, (1 << 32) - 1),               # the case's, on its first step
     "wire": _hex(MAX_ENCODED + 2),                  # a frame as it was sent, delimiters included
+    "follow": lambda v: None if type(v) is bool else "true or false",    # a command of a sequence (`draw_chain`)
 }
 _BURST_OPTIONAL = {"msg": _STEP_FIELDS["command"]["msg"], "payload": _STEP_FIELDS["command"]["payload"]}
 _COMMON = {"kind": _one_of(_STEP_FIELDS), "delay_s": _number(0, DELAY_MAX_MS / 1000)}

@@ -10,9 +10,11 @@ is one draw in 65,536 for a grammar that does not know the length, and one in a 
 count or limit a reply revealed; for a parameter's name, its range (ParamSet's value, drawn one f32 step below,
 at and past each end); and interior values, numbers seen in replies or harvested from the handlers' code, which
 no comparison traced in process would give the engine (atheris 2.3.0 traces comparisons of ints, bytes and str
-to libFuzzer, not of floats: its tracer's TraceCompareOp). `learn` takes any message the target sent; the
-in-process link targets feed it their controller's own replies when their world is built, the black-box fuzzer
-every reply, event and telemetry frame it hears.
+to libFuzzer, not of floats: its tracer's TraceCompareOp). Besides, what the target's last reply says the next
+command must carry to be taken (`now_for`: the knot the trajectory buffer takes next), for the sequences that
+build state step by step (grammar.py `draw_chain`). `learn` takes any message the target sent; the in-process
+link targets feed it their controller's own replies when their world is built (and `follow` each reply after),
+the black-box fuzzer every reply, event and telemetry frame it hears.
 """
 from __future__ import annotations
 
@@ -64,6 +66,13 @@ _COUNTS = {("ParamValue", "count"): ("ParamList.index",),
            ("TrajState", "knots"): ("TrajPoint.index", "TrajRun.count"),
            ("TrajState", "capacity"): ("TrajPoint.index", "TrajRun.count")}
 _TIMES = {("TrajState", "t_last"): ("TrajPoint.t",)}     # a knot must come strictly after the last one
+# What a reply says the next command must carry to be taken, as things stand now (`Boundaries.now_for`): the knot
+# the buffer takes next, the count a run must name, a time at or just after the last knot's (the first knot is at
+# 0, the last one's time while the buffer is empty; a later one after it).
+_NEXT = {("TrajState", "knots"): ("TrajPoint.index", "TrajRun.count")}
+_NEXT_TIME = {("TrajState", "t_last"): ("TrajPoint.t",)}
+FOLLOWS = frozenset(where for table in (_NEXT, _NEXT_TIME) for targets in table.values() for where in targets)
+FOLLOWED = frozenset(reply for table in (_NEXT, _NEXT_TIME) for reply, _field in table)    # replies that tell it
 
 
 class Boundaries:
@@ -75,6 +84,7 @@ class Boundaries:
         self.interior: list[float] = []                      # numbers the target uses (in replies, in its code)
         self._interior_seen: set[float] = set()
         self._spill = 0                                      # where the next interior value goes once full
+        self.now: dict[str, tuple] = {}                      # "Message.field" -> what the next one must carry
 
     def __bool__(self) -> bool:
         return bool(self.edges or self.ranges or self.interior)
@@ -103,6 +113,7 @@ class Boundaries:
         capacity, the time of its last knot; and (`numbers`) every float in it, as an interior value."""
         if msg is None:
             return
+        self.follow(msg)
         name = msg.spec.name
         values = msg.as_dict()
         for fld in msg.spec.fields:
@@ -118,6 +129,23 @@ class Boundaries:
             self.add_interior((f32_step(limit, -math.inf), limit, f32_step(limit, math.inf)))
         if numbers:
             self.add_interior(v for v in values.values() if isinstance(v, float))
+
+    def follow(self, msg: Optional[Message]) -> None:
+        """What `msg`, a reply of the target's, says the next command of a sequence must carry (cheap: the
+        in-process targets call it on every reply)."""
+        if msg is None or msg.spec.name not in FOLLOWED:
+            return
+        name = msg.spec.name
+        for fld in msg.spec.fields:
+            for where in _NEXT.get((name, fld.name), ()):
+                self.now[where] = (int(getattr(msg, fld.name)),)
+            for where in _NEXT_TIME.get((name, fld.name), ()):
+                t = f32(getattr(msg, fld.name))
+                self.now[where] = (t, f32_step(t, math.inf), f32(t + 1.0))
+
+    def now_for(self, spec: MessageSpec, fld: Field) -> tuple:
+        """The values `fld` of `spec` must take to be taken next, as the target's last reply said (empty: none)."""
+        return self.now.get(f"{spec.name}.{fld.name}", ())
 
     def values_for(self, spec: MessageSpec, fld: Field, before: list) -> tuple:
         """The learned values for `fld` of `spec`, given the fields drawn before it (ParamSet's value: the edges of

@@ -31,12 +31,14 @@ from protocol.reliable import Outcome, Verdict
 from protocol.schema import MsgClass, MessageSpec
 
 from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries, constants_of
-from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, TO_HOST, Draw, FdpDraw, Words, draw_payload
+from host_tools.fuzz.grammar import NO_WORDS, TO_CONTROLLER, TO_HOST, Draw, FdpDraw, Words, draw_chain, draw_payload
 from host_tools.fuzz.oracles import nak_violation, payload_violation, reply_violation, state_violation
 from host_tools.fuzz.targets import OracleFailure, Target, check
 
 MACS = ("good", "good", "good", "good", "stale-counter", "other-key", "handshake-key", "flipped", "none")
 SEQS = ("expected", "expected", "expected", "duplicate", "gap", "any")
+CHAIN_COMMANDS = tuple(s for s in TO_CONTROLLER if s.cls in (MsgClass.COMMAND, MsgClass.URGENT) and s.reply)
+CHAIN_MOST = 6                 # commands in a sequence (`_LinkTarget.chain`), at most
 
 
 @dataclass
@@ -224,7 +226,10 @@ class _LinkTarget(Target):
             op = draw.pick(16)
             session, handshake = self.sender()
             peer_session = self.receiver().session
-            if op <= 12 and session is not None and peer_session is not None:
+            if op == 12 and session is not None and peer_session is not None and self.chain(draw, session,
+                                                                                            peer_session, handshake):
+                pass
+            elif op <= 12 and session is not None and peer_session is not None:
                 recipe = self.recipe(draw)
                 wire = build(recipe, session, peer_session, handshake, draw.int_in(0, 0xFFFF) if draw.pick(4) == 0
                              else self.ack_value(), draw)
@@ -241,6 +246,20 @@ class _LinkTarget(Target):
 
     def ack_value(self) -> int:
         raise NotImplementedError
+
+    def chain(self, draw: Draw, session, peer_session, handshake) -> bool:
+        """A sequence of commands that builds state (`grammar.draw_chain`), each in sequence, signed, and with the
+        fields the last reply says it must carry (the world answers each as it is fed); False if there is none."""
+        chain = draw_chain(CHAIN_COMMANDS, draw, CHAIN_MOST) if self.learned is not NO_BOUNDARIES else []
+        for spec in chain:
+            rx = self.receiver_for(int(spec.cls))
+            seq = rx.expected if rx is not None and rx.in_order else draw.int_in(0, 0xFFFF)
+            recipe = FrameRecipe(spec, int(spec.cls), seq, draw_payload(spec, draw, self.words, self.learned,
+                                                                        follow=True), "good")
+            wire = build(recipe, session, peer_session, handshake, self.ack_value(), draw)
+            self.sent = (self.sent + [wire])[-64:]
+            self.feed(wire, recipe)
+        return bool(chain)
 
 
 def _difference(before: tuple, after: tuple) -> str:
@@ -272,7 +291,7 @@ class ControllerLinkTarget(_LinkTarget):
         self.words = {"name": tuple(controller.params.order)}    # ParamGet's and ParamSet's
         self.learned = learned_from(controller)
         link = controller.link
-        link._handler = _judging_replies(link._handler, controller.supervisor)
+        link._handler = _judging_replies(link._handler, controller.supervisor, self.learned)
         link._send_nak = _judging_naks(link._send_nak)
 
     def sender(self):
@@ -318,11 +337,13 @@ def learned_from(controller) -> Boundaries:
     return learned
 
 
-def _judging_replies(handler, supervisor):
+def _judging_replies(handler, supervisor, learned: Boundaries):
     """The controller's command handler, each reply judged against the declaration and the command it answers, and
-    the state it leaves against the states the protocol allows."""
+    the state it leaves against the states the protocol allows; and what it says a sequence's next command must
+    carry, learned (`Boundaries.follow`)."""
     def judged(msg, urgent: bool, now: float):
         reply = handler(msg, urgent, now)
+        learned.follow(reply)
         problem = reply_violation(msg.spec, None, reply)
         if problem is not None:
             raise OracleFailure("replies as declared", problem)

@@ -17,6 +17,7 @@ from typing import Callable
 
 from protocol.messages import SCHEMA
 
+from host_tools.fuzz.boundaries import FOLLOWS
 from host_tools.fuzz.findings import _ddmin
 
 
@@ -56,7 +57,8 @@ def _plainer(step: dict):
         spec = SCHEMA[step["msg"]]
         payload = bytes.fromhex(step["payload"])
         if len(payload) == spec.size:
-            for candidate in _fields_back(spec, payload):
+            kept = {f.name for f in spec.fields if f"{spec.name}.{f.name}" in FOLLOWS} if step.get("follow") else ()
+            for candidate in _fields_back(spec, payload, kept):
                 yield {**step, "payload": candidate.hex()}
         elif len(payload) > spec.size:
             yield {**step, "payload": payload[:spec.size].hex()}
@@ -66,15 +68,17 @@ def _plainer(step: dict):
         yield {**step, "bytes": data[len(data) // 2:].hex()}
 
 
-def _fields_back(spec, payload: bytes):
-    """`payload` with one field at a time set back to a plain valid value (`_plain_value`)."""
+def _fields_back(spec, payload: bytes, kept=()):
+    """`payload` with one field at a time set back to a plain valid value (`_plain_value`), but those `kept` (a
+    sequence's command carries what the reply before it says, whatever its payload held: set back, the finding
+    would show a value never sent)."""
     offset = 0
     for fld in spec.fields:
         code = "<" + fld.struct_code
         size = struct.calcsize(code)
         value = _plain_value(fld)
         plain = value.ljust(size, b"\x00") if isinstance(value, bytes) else struct.pack(code, value)
-        if payload[offset:offset + size] != plain:
+        if fld.name not in kept and payload[offset:offset + size] != plain:
             yield payload[:offset] + plain + payload[offset + size:]
         offset += size
 
