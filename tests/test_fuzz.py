@@ -562,3 +562,46 @@ def test_your_own_controller_on_the_link_is_fuzzed_by_the_command_and_its_bug_fo
     assert done.returncode == 1 and "Traceback" not in done.stderr, done.stderr[-2000:]
     assert len(found) == 1 and found[0].failure.kind == "crash", found
     assert found[0].failure.error.startswith("ZeroDivisionError") and "fuzz_controller.py" in found[0].failure.where
+
+
+CLOSES_BADLY = '''
+class World:
+    """A stateful target of a user's own whose close fails on what an input left (a byte 0x5a seen)."""
+    stateful = True
+    fresh_every = 4
+
+    def __init__(self):
+        self.seen = None
+
+    def fresh(self):
+        self.close()
+        self.seen = bytearray()
+
+    def one_input(self, data):
+        self.seen += data[:1]
+
+    def close(self):
+        if self.seen is not None and 0x5A in self.seen:
+            raise RuntimeError("close found what an input left")
+        self.seen = None
+
+
+def target():
+    return World()
+'''
+
+
+def test_a_stateful_target_failing_as_its_world_is_made_fresh_is_a_finding_that_replays(tmp_path):
+    """Before, an exception in `fresh()` (here its close of the world the last inputs left) killed the fuzzing
+    child with no finding saved (the child exit 77, `aspod fuzz` exit 2)."""
+    pytest.importorskip("atheris")
+    (tmp_path / "closes_badly.py").write_text(CLOSES_BADLY)
+    done = aspod("fuzz", "closes_badly.py:target", "--runs", "20000", "--no-progress", "--findings", "found",
+                 cwd=tmp_path)
+    found = sorted((tmp_path / "found").glob("*.json"))
+    assert done.returncode == 1 and len(found) == 1, done.stderr[-2000:]
+    finding = findings.load(found[0])
+    assert "close found what an input left" in finding.failure.error and any(
+        i[:1] == b"Z" for i in finding.inputs), finding
+    again = aspod("fuzz", "--replay", str(found[0]), "closes_badly.py:target", cwd=tmp_path)
+    assert again.returncode == 1 and "close found what an input left" in again.stdout + again.stderr, again

@@ -93,7 +93,13 @@ class Harness:
 
     def __call__(self, data: bytes) -> None:
         if self.stateful and self.execs % self.fresh_every == 0:
-            self.target.fresh()
+            try:
+                self.target.fresh()   # (which closes the world the last inputs left: that may fail on their state)
+            except Exception as exc:
+                if not self.history:
+                    raise                   # no input ran: the target cannot be built, no finding
+                self.save(exc, self.history)
+                raise
             self.history.clear()
         self.execs += 1
         if self.execs & 255 == 0 and _CLOCK.now() - self._said_s >= PROGRESS_EVERY_S:

@@ -273,19 +273,24 @@ class Known:
 
 # ---- in process: replay and minimize ----
 def run_inputs(target, inputs: list[bytes], watch: Optional[HangWatch] = None) -> Optional[Failure]:
-    """Feed `inputs` to `target` from fresh, each within `watch`'s time if given; the failure they cause, or None."""
-    fresh_every = target.fresh_every if getattr(target, "stateful", False) else 1
-    for index, data in enumerate(inputs):
-        if getattr(target, "stateful", False) and index % fresh_every == 0:
-            target.fresh()
-        try:
+    """Feed `inputs` to `target` from fresh, each within `watch`'s time if given, and then (a stateful target) make
+    it fresh once more, as the fuzzer does after its window, which closes the world the inputs left; the failure
+    they cause, or None."""
+    stateful = getattr(target, "stateful", False)
+    fresh_every = target.fresh_every if stateful else 1
+    try:
+        for index, data in enumerate(inputs):
+            if stateful and index % fresh_every == 0:
+                target.fresh()
             if watch is None:
                 target.one_input(data)
             else:
                 with watch.input():
                     target.one_input(data)
-        except (Exception, Hang) as exc:       # noqa: BLE001 (whatever escapes is the finding)
-            return failure_of(exc)
+        if stateful and inputs:
+            target.fresh()
+    except (Exception, Hang) as exc:       # noqa: BLE001 (whatever escapes is the finding)
+        return failure_of(exc)
     return None
 
 
@@ -300,21 +305,30 @@ def replay(finding: Finding, make_target: Callable[[], object], hang_s: float = 
         with HangWatch(hang_s) as watch:
             return run_inputs(target, finding.inputs, watch)
     finally:
-        target.close()
+        _close(target)
 
 
 def minimize(finding: Finding, make_target: Callable[[], object], budget_s: float = 60.0) -> Finding:
-    """`finding` with fewer and shorter inputs that fail the same way (within `budget_s` of trying)."""
-    target = make_target()
+    """`finding` with fewer and shorter inputs that fail the same way (within `budget_s` of trying). Each try after
+    one that failed gets a new target: one that failed may stay broken (a close that raised, its world not let go),
+    and every later try would then fail, shrinking the finding to nothing."""
+    held = [make_target()]
     wanted = finding.failure.signature
     deadline = _CLOCK.now() + budget_s
     cut = []
+
+    def run(inputs: list[bytes]) -> Optional[Failure]:
+        failure = run_inputs(held[0], inputs)
+        if failure is not None:
+            _close(held[0])
+            held[0] = make_target()
+        return failure
 
     def fails(inputs: list[bytes]) -> bool:
         if _CLOCK.now() > deadline:
             cut.append(True)
             return False
-        failure = run_inputs(target, inputs)
+        failure = run(inputs)
         return failure is not None and failure.signature == wanted
 
     try:
@@ -324,12 +338,21 @@ def minimize(finding: Finding, make_target: Callable[[], object], budget_s: floa
         inputs = _ddmin(inputs, fails)
         for i in range(len(inputs)):
             inputs[i] = _shrink_bytes(inputs, i, fails)
-        failure = run_inputs(target, inputs)
+        failure = run(inputs)
         done = not cut and failure is not None and failure.signature == wanted   # ran to its end, and still fails
         return Finding(finding.target, failure if failure is not None else finding.failure, inputs,
                        execs=finding.execs, minimized=done, found_at=finding.found_at)
     finally:
+        _close(held[0])
+
+
+def _close(target) -> None:
+    """Close `target` after its inputs ran: a close that fails on what they left is their failure, which
+    `run_inputs` (its last `fresh`) has returned already."""
+    try:
         target.close()
+    except Exception:         # noqa: BLE001 (a user's own target may raise anything)
+        pass
 
 
 def _ddmin(items: list, fails: Callable[[list], bool], keep_last: bool = True) -> list:
