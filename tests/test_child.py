@@ -91,12 +91,12 @@ def test_a_child_read_as_it_goes_is_never_stopped_by_a_full_pipe_and_its_last_li
     assert status == 0 and rest.splitlines() == [f"err {k} " + "e" * 40 for k in range(19988, 20000)]
 
 
-# a child that pins itself to one core at nice 19 (a hog runs there) and spins for some of its own CPU time, then
+# a child that pins itself to one core at SCHED_IDLE (a hog runs there) and spins for some of its own CPU time, then
 # says it is ready; with "wait", it then waits for SIGINT, and spins as long again before it ends
 STARVED = """
 import os, signal, sys, time
 os.sched_setaffinity(0, {int(sys.argv[1])})
-os.nice(19)
+os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))    # starved whatever the test's nice (test_fuzz_hangs)
 
 def spin():
     end = time.process_time() + float(sys.argv[2])
