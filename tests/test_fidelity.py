@@ -652,7 +652,7 @@ def box_rows() -> list[Row]:
 @lru_cache(maxsize=None)
 def planned_example():
     """The example planned here: time-optimal (ab2 and rk4), and by dynamic programming on the report's grid."""
-    from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
+    from host_tools.plan.energy import DpGrid, Pricing, costs_of, plan_cost_optimal
     from host_tools.plan.example import DP_INTERVALS, DP_SPEED_STEP, DP_SPEEDS, report_problem
     from host_tools.plan.timeopt import plan_time_optimal
     problem, with_gravity = report_problem(), report_problem(gravity=True)
@@ -662,12 +662,14 @@ def planned_example():
     up = plan_time_optimal(with_gravity, 1000)
     up_energy = plan_cost_optimal(with_gravity, "energy", grid)
     heat = plan_cost_optimal(with_gravity, "thermal", grid)
-    return fastest, energy, costs_of(up.grid.t, up.profile.sd), up_energy, heat
+    spanning = DpGrid(DP_INTERVALS, DP_SPEEDS, 1.2 * up.profile.sd.max() / (DP_SPEEDS - 1))   # aspod plan's default
+    electrical = plan_cost_optimal(with_gravity, "electrical", spanning)
+    return fastest, energy, costs_of(up.grid.t, up.profile.sd, Pricing.of(with_gravity)), up_energy, heat, electrical
 
 
 def planner_rows() -> list[Row]:
     from host_tools.plan.example import PATH, beside_report
-    fastest, energy, up_costs, up_energy, heat = planned_example()
+    fastest, energy, up_costs, up_energy, heat, electrical = planned_example()
     rk4, ab2 = fastest["rk4"], fastest["ab2"]
     rows = [Row("P1", "the object's path", "garbled in the text: only \"1/2 s\" survives for one coordinate "
                 "(4.1)", f"w(s) = ({PATH[0][0]} + {PATH[1][0] - PATH[0][0]:.3f} s, {PATH[0][1]} + "
@@ -695,9 +697,15 @@ def planner_rows() -> list[Row]:
             f"with gravity on: {up_costs['energy']:.4f} J time-optimal ({up_costs['time']:.3f} s), "
             f"{up_energy.costs['energy']:.4f} J energy-optimal ({up_energy.profile.duration:.2f} s)",
             "the rise in potential energy, whatever the profile: it cannot choose one"),
-        Row("P9", "heat sum(u^2 dt), with gravity", "not in the report",
-            f"least at {heat.profile.duration:.2f} s: {heat.costs['thermal']:.0f} against "
-            f"{up_costs['thermal']:.0f} time-optimal", "beyond the report"),
+        Row("P9", "copper loss sum(R i^2 dt), with gravity", "not in the report",
+            f"least at {heat.profile.duration:.2f} s: {heat.costs['thermal']:.2f} J against "
+            f"{up_costs['thermal']:.2f} J time-optimal (ASPOD's J1 drive at each shoulder, J2 at each elbow)",
+            "beyond the report: the report gives no motor for the example"),
+        Row("P10", "electrical energy, with gravity", "not in the report",
+            f"least at {electrical.profile.duration:.3f} s: {electrical.costs['electrical']:.2f} J against "
+            f"{up_costs['electrical']:.2f} J time-optimal and {up_energy.costs['electrical']:.0f} J for the "
+            f"index's {up_energy.profile.duration:.0f} s plan", "beyond the report: work, copper loss, and the "
+            "drives' 21 W an arm (hil_sim); the default objective of `aspod plan`"),
     ]
     return rows
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from host_tools.plan.bounds import Limits
-from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
+from host_tools.plan.energy import DpGrid, Pricing, costs_of, plan_cost_optimal
 from host_tools.plan.errors import PlanError
 from host_tools.plan.example import REPORTED, report_problem
 from host_tools.cli.main import main
@@ -89,7 +89,7 @@ def test_the_reports_energy_index_cannot_choose_a_profile():
     for gravity, expected in ((True, None), (False, 0.0)):
         problem = report_problem(gravity=gravity)
         fastest = plan_time_optimal(problem, nodes=1000)
-        plans = [costs_of(fastest.grid.t, fastest.profile.sd)["energy"]]
+        plans = [costs_of(fastest.grid.t, fastest.profile.sd, Pricing.of(problem))["energy"]]
         for objective, bound in (("energy", None), ("thermal", 2.0), ("work", 3.0)):
             plans.append(plan_cost_optimal(problem, objective, max_time=bound).costs["energy"])
         jp = problem.system.joint_path(problem.path, [0.0, 1.0])
@@ -108,6 +108,59 @@ def test_minimum_heat_within_a_time_bound_meets_the_bound_and_costs_more_the_tig
     assert tight.profile.worst_violation == 0.0 and free.profile.worst_violation == 0.0
     assert free.profile.duration < 0.2 * plan_cost_optimal(problem, "work").profile.duration
     assert tight.profile.duration > plan_time_optimal(problem, nodes=1000).duration
+
+
+def test_the_electrical_energy_chooses_a_profile_in_earth_and_in_orbit_and_the_reports_index_says_it_cannot(
+        tmp_path):
+    """The default objective: the motors' work, their copper losses (ASPOD's J1 and J2 drives, R i^2) and the
+    drives' own draw. With gravity and without, its plan lies between the fastest and a crawl and costs less by
+    it than either; the report's index is the same for every profile, and `aspod plan` says so, naming what it
+    equals (the rise of potential energy: 3.759 J with gravity, 0 without)."""
+    for gravity in (True, False):
+        problem = report_problem(gravity=gravity)
+        pricing = Pricing.of(problem)
+        fastest = plan_time_optimal(problem, nodes=1000)
+        grid = DpGrid(100, 201, 1.2 * fastest.profile.sd.max() / 200)
+        cheapest = plan_cost_optimal(problem, "electrical", grid)
+        crawl = plan_cost_optimal(problem, "energy")                    # the report's grid: its tie-break, slow
+        assert fastest.duration < cheapest.profile.duration < crawl.profile.duration / 10
+        assert cheapest.costs["electrical"] < costs_of(fastest.grid.t, fastest.profile.sd, pricing)["electrical"]
+        assert cheapest.costs["electrical"] < crawl.costs["electrical"] / 5
+        said = run([sys.executable, "-m", "host_tools.cli.main", "plan", "--objective", "energy", "--json",
+                    "--nodes", "300", "--dp-intervals", "40"] + ["--gravity"] * gravity, text=True, timeout_s=300)
+        co = json.loads(said.stdout)["cost_optimal"]
+        assert co["chooses"] is False and "cannot choose" in co["why"]
+        assert f"{3.759 if gravity else 0.0:.3f}" in co["why"] and "potential energy" in co["why"]
+
+
+def test_weights_and_regeneration_price_the_plan_and_bad_ones_are_refused(tmp_path):
+    problem = report_problem(gravity=True)
+    grid = DpGrid(40, 101, 0.08)
+    plain = plan_cost_optimal(problem, "electrical", grid)
+    back = plan_cost_optimal(problem, "electrical", grid, pricing=Pricing.of(problem, regen=True))
+    assert back.costs["electrical"] < plain.costs["electrical"]        # what the arms give back on the way down
+    heavy = plan_cost_optimal(problem, "electrical", grid, pricing=Pricing.of(problem, weights=(1, 1, 10, 10)))
+    assert heavy.costs["electrical"] > plain.costs["electrical"]
+    for weights in ((1, 1, 1), (1, 1, -1, 1), (1, 1, float("nan"), 1)):
+        with pytest.raises(PlanError, match="weight"):
+            Pricing.of(problem, weights=weights)
+    spec = {"path": {"kind": "line", "start": [0.688, 0.331], "end": [1.716, 0.504]}, "weights": [2, 1, 1, 1],
+            "motors": {"resistance_ohm": [1, 1, 1, 1], "torque_constant": [0.1, 0.1, 0.1, 0.1],
+                       "ratio": [100, 100, 100, 100], "drive_w": 5}}
+    (tmp_path / "p.json").write_text(json.dumps(spec))
+    out = json.loads(run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "p.json"),
+                          "--json", "--nodes", "200", "--dp-intervals", "20"], text=True, timeout_s=300).stdout)
+    assert out["model"]["weights"] == [2, 1, 1, 1] and out["model"]["motors"]["drive_w"] == 5
+    assert out["model"]["motors"]["copper_w_per_nm2"] == [0.01] * 4                  # 1 / (0.1 x 100)^2
+    for bad, reason in (({"resistance_ohm": [1, 1, 1, 1]}, "torque_constant"),
+                        ({**spec["motors"], "efficiency": [1, 1, 1, 2]}, "motors.efficiency"),
+                        ({**spec["motors"], "volts": 3}, "unknown keys")):
+        (tmp_path / "bad.json").write_text(json.dumps({**spec, "motors": bad}))
+        done = run([sys.executable, "-m", "host_tools.cli.main", "plan", "--problem", str(tmp_path / "bad.json")],
+                   text=True, timeout_s=300)
+        assert done.returncode == 2 and reason in done.stderr, done.stderr
+    done = run([sys.executable, "-m", "host_tools.cli.main", "plan", "--weights", "1,x,1,1"], text=True, timeout_s=60)
+    assert done.returncode == 2 and "--weights" in done.stderr
 
 
 def test_state_dependent_limits_keep_the_voltage_within_bounds():
@@ -177,7 +230,7 @@ def test_the_command_plans_the_example_as_json_and_draws_the_figures(tmp_path):
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert len(out["beside_report"]) == 3 and all(abs(r["error_s"]) < 0.016 for r in out["beside_report"])
-    assert out["cost_optimal"]["objective"] == "energy"
+    assert out["cost_optimal"]["objective"] == "electrical" and "why" not in out["cost_optimal"]    # can choose
     assert len(out["figures"]) == 7
     assert all((tmp_path / "f" / name).stat().st_size > 10_000 for name in
                ("fig11_limit_curves.png", "fig14_time_optimal_torques.png", "fig17_comparison.png"))

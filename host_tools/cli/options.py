@@ -68,6 +68,16 @@ def squeeze_force(text: str) -> float:
     return float("inf") if text.strip().lower() == "free" else bounded(float, 0.0, 1e6)(text)
 
 
+def weights_list(text: str) -> tuple[float, ...]:
+    """Weights, one a joint, comma-separated: each a number 0..1e6."""
+    parts = text.split(",")
+    one = bounded(float, 0.0, 1e6)
+    try:
+        return tuple(one(part) for part in parts)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{shown(text)}: each weight {exc}") from None
+
+
 def speed_factor(text: str) -> float:
     if text.strip().lower() == "max":
         return math.inf

@@ -1,6 +1,6 @@
 """`aspod plan`: the report's trajectory planning (docs/planning.md).
 
-    aspod plan                                   the report's example: minimum time, then minimum energy
+    aspod plan                                   the report's example: minimum time, then minimum electrical energy
     aspod plan --json --plot figures             ... as JSON, and its Figs. 11-17 as PNG files
     aspod plan --objective thermal --max-time 2  minimum heat in the motors within 2 s
     aspod plan --problem FILE                    a path, arms and limits of your own (host_tools/plan/problem_file.py)
@@ -22,10 +22,10 @@ from typing import Any, Optional
 
 import numpy as np
 
-from host_tools.cli.options import bounded, squeeze_force
+from host_tools.cli.options import bounded, squeeze_force, weights_list
 from host_tools.cli.settings import ArmMoveSettings, PlanSettings
 from host_tools.exit_codes import EXIT_OK
-from host_tools.plan.energy import DpGrid, costs_of, plan_cost_optimal
+from host_tools.plan.energy import DpGrid, Pricing, costs_of, motors_of, plan_cost_optimal, potential_rise
 from host_tools.plan.example import REPORTED, beside_report, report_problem
 from host_tools.plan.problem_file import load_problem
 from host_tools.plan.reach import plan_reach_checked
@@ -34,11 +34,12 @@ from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
 
 log = logging.getLogger("aspod")
 EXCESS_WARNED = 0.01      # a time-optimal plan past a limit by more than this share of it is said on stderr
+SPAN_MARGIN = 1.2         # the DP's speeds span this times the minimum-time plan's highest s' (by default)
 
 
-def _reach_result(problem, settings: PlanSettings) -> dict:
+def _reach_result(problem, settings: PlanSettings, pricing: Pricing) -> tuple[dict, float]:
     """The reachability planner's minimum time, on nodes + 1 grid points (order 2: placed where time is lost), its
-    excess checked between them."""
+    excess checked between them; and its highest s'."""
     plan, excess, rounds = plan_reach_checked(problem, settings.nodes + 1, settings.squeeze, order=settings.order,
                                               placed=settings.order == 2)
     out = {"method": "reach", "order": plan.order, "nodes": len(plan.s) - 1, "duration_s": round(plan.duration, 6),
@@ -51,8 +52,8 @@ def _reach_result(problem, settings: PlanSettings) -> dict:
     if plan.iterations:                                  # back-emf limits: the linearized plans it took
         out["back_emf_plans"] = plan.iterations
     if settings.squeeze is None and plan.order == 1:     # costs_of takes s'' constant between the nodes
-        out["costs"] = costs_of(problem.terms(plan.s), plan.profile.sd)
-    return out
+        out["costs"] = costs_of(problem.terms(plan.s), plan.profile.sd, pricing)
+    return out, float(np.max(plan.profile.sd))
 
 
 def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
@@ -128,25 +129,27 @@ def _plan(settings: PlanSettings) -> tuple[dict, Optional[TimeOptimal]]:
     """The result (its "_cost": the DP plan, for the figures), and the phase plane's plan (None by reachability)."""
     example = settings.problem is None
     problem = report_problem(settings.gravity, settings.links) if example else load_problem(settings.problem)
+    pricing = Pricing.of(problem, settings.weights, settings.regen)
     if settings.method == "reach":
-        return _with_cost(problem, settings, {
+        reach, peak = _reach_result(problem, settings, pricing)
+        return _with_cost(problem, settings, pricing, {
             "problem": "the report's example" if example else str(settings.problem),
-            "model": _model(problem), "time_optimal": _reach_result(problem, settings)}), None
+            "model": _model(problem, pricing), "time_optimal": reach}, peak), None
     fastest = plan_time_optimal(problem, settings.nodes, settings.integrator)
     result = {
         "problem": "the report's example" if example else str(settings.problem),
-        "model": _model(problem),
+        "model": _model(problem, pricing),
         "time_optimal": {"method": "phase", "integrator": fastest.integrator, "nodes": settings.nodes,
                          "duration_s": round(fastest.duration, 6),
                          "switching_points": [p.describe() for p in fastest.switching_points],
                          "islands": len(fastest.grid.speeds.islands),
                          "worst_violation": round(fastest.profile.worst_violation, 6),
                          "saturated_time": round(fastest.profile.saturated_time, 4),
-                         "costs": costs_of(fastest.grid.t, fastest.profile.sd)},
+                         "costs": costs_of(fastest.grid.t, fastest.profile.sd, pricing)},
     }
     if example:
         result["beside_report"] = beside_report(fastest.switching_points)
-    return _with_cost(problem, settings, result), fastest
+    return _with_cost(problem, settings, pricing, result, float(np.max(fastest.profile.sd))), fastest
 
 
 def _not_finite(value: Any, where: str = "") -> str:
@@ -165,23 +168,40 @@ def _not_finite(value: Any, where: str = "") -> str:
     return ""
 
 
-def _model(problem) -> dict:
+def _model(problem, pricing: Pricing) -> dict:
     return {"links": problem.system.arms[0].links, "gravity": problem.system.gravity,
-            "path": problem.path.describe(), "limits": problem.limits.describe()}
+            "path": problem.path.describe(), "limits": problem.limits.describe(),
+            "motors": motors_of(problem).describe(), "weights": [float(w) for w in pricing.weights],
+            "regeneration": pricing.regen}
 
 
-def _with_cost(problem, settings: PlanSettings, result: dict) -> dict:
-    """The dynamic-programming plan, when the objective is not time alone (kept as "_cost" for the figures)."""
+def _with_cost(problem, settings: PlanSettings, pricing: Pricing, result: dict, peak_sd: float) -> dict:
+    """The dynamic-programming plan, when the objective is not time alone (kept as "_cost" for the figures); its
+    grid's speeds span `peak_sd`, the minimum-time plan's highest s', unless --dp-speed-step says otherwise."""
     if settings.objective == "time":
         return result
-    cost = plan_cost_optimal(problem, settings.objective,
-                             DpGrid(settings.dp_intervals, settings.dp_speeds, settings.dp_speed_step),
-                             settings.max_time)
+    step = settings.dp_speed_step or SPAN_MARGIN * peak_sd / (settings.dp_speeds - 1)
+    cost = plan_cost_optimal(problem, settings.objective, DpGrid(settings.dp_intervals, settings.dp_speeds, step),
+                             settings.max_time, pricing)
     result["cost_optimal"] = {"objective": cost.objective, "duration_s": round(cost.profile.duration, 6),
                               "max_time": settings.max_time, "time_weight": cost.time_weight,
                               "grid": {"intervals": cost.grid.intervals, "speeds": cost.grid.speeds,
                                        "speed_step": cost.grid.speed_step},
                               "worst_violation": round(cost.profile.worst_violation, 6), "costs": cost.costs}
+    fastest_cost = result["time_optimal"].get("costs", {}).get(settings.objective)
+    if fastest_cost is not None and cost.costs[settings.objective] > fastest_cost * (1 + 1e-6) and (
+            settings.max_time is None or result["time_optimal"]["duration_s"] <= settings.max_time):
+        result["cost_optimal"]["coarse"] = (
+            f"the minimum-time plan costs less by this objective ({fastest_cost:.4g} against "
+            f"{cost.costs[settings.objective]:.4g}): the grid does not hold the cheapest profile; give more "
+            f"--dp-speeds or --dp-intervals, or a --dp-speed-step that spans the minimum-time plan's speeds")
+    if settings.objective == "energy" and not np.any(pricing.weights != pricing.weights[0]):
+        rise = potential_rise(problem)
+        result["cost_optimal"]["chooses"] = False
+        result["cost_optimal"]["why"] = (
+            f"the report's index, sum u.dq, cannot choose a profile: from rest to rest it equals the change of the "
+            f"potential energy along the path, {rise * pricing.weights[0]:.4f} J here, for every profile (this one is "
+            f"the grid's tie-break); --objective electrical or thermal can choose")
     result["_cost"] = cost
     return result
 
@@ -218,7 +238,15 @@ def _text(result: dict) -> str:
         co = result["cost_optimal"]
         lines.append(f"minimum {co['objective']} (dynamic programming, {co['grid']['intervals']} x "
                      f"{co['grid']['speeds']}): {co['duration_s']:.4f} s")
-    lines.append("costs of each plan (energy: the report's sum u.dq, J; work: sum |u dq|, J; thermal: sum u^2 dt):")
+        for note in ("why", "coarse"):
+            if note in co:
+                lines.append(f"  {co[note]}")
+    motors = result["model"]["motors"]
+    lines.append(f"motors: {motors['source']}; weights {', '.join(f'{w:g}' for w in result['model']['weights'])}"
+                 + (", with regeneration" if result["model"]["regeneration"] else ""))
+    lines.append("costs of each plan, J (electrical: work + copper loss R i^2"
+                 + ("" if result["model"]["regeneration"] else ", none given back") + "; energy: the report's "
+                 "sum u.dq, the same for every profile; work: sum |u dq|; thermal: copper loss):")
     for name, costs in ((("minimum time", to["costs"]),) if "costs" in to else ()) + (
             (("minimum " + result["cost_optimal"]["objective"], result["cost_optimal"]["costs"]),)
             if "cost_optimal" in result else ()):
@@ -234,6 +262,7 @@ EXAMPLES = [
     "aspod plan",
     "aspod plan --json --plot figures",
     "aspod plan --objective thermal --max-time 2",
+    "aspod plan --objective electrical --weights 1,1,2,2 --regen",
     "aspod plan --problem my_path.json --objective time --integrator ab2",
     "aspod plan --method reach --nodes 99 --squeeze free --objective time",
     "aspod plan --method reach --order 2 --nodes 99 --objective time",
@@ -244,9 +273,16 @@ EXAMPLES = [
 def add_options(plan: argparse.ArgumentParser) -> None:
     plan.add_argument("--problem", type=Path, default=None, metavar="FILE",
                       help="a path, arms, object and limits from a JSON file (default: the report's example)")
-    plan.add_argument("--objective", choices=("time", "energy", "work", "thermal"), default="energy",
+    plan.add_argument("--objective", choices=("time", "electrical", "energy", "work", "thermal"),
+                      default="electrical",
                       help="time: the minimum-time plan alone; otherwise also the dynamic-programming plan "
-                           "minimising this (default energy, the report's index)")
+                           "minimising this: electrical (default), the energy the motors draw, their work and copper "
+                           "losses; energy, the report's index, which cannot choose a profile (it is the change of "
+                           "potential energy for all); work; thermal, the copper losses")
+    plan.add_argument("--weights", type=weights_list, default=None, metavar="W1,W2,W3,W4",
+                      help="each joint's weight in the minimum-cost plan (default: the problem file's, else 1 each)")
+    plan.add_argument("--regen", action="store_true",
+                      help="electrical: energy a joint gives back returns to the supply (default: it is lost)")
     plan.add_argument("--max-time", type=bounded(float, 1e-6, 1e6), default=None, metavar="S",
                       help="the minimum-cost plan's time bound in seconds")
     plan.add_argument("--method", choices=("phase", "reach"), default="phase",
@@ -268,8 +304,9 @@ def add_options(plan: argparse.ArgumentParser) -> None:
                       help="dynamic programming: intervals in s (default 100, the report's)")
     plan.add_argument("--dp-speeds", type=bounded(int, 3, 2001), default=201,
                       help="dynamic programming: speeds per node (default 201, the report's)")
-    plan.add_argument("--dp-speed-step", type=bounded(float, 1e-6, 100.0), default=0.005, metavar="STEP",
-                      help="dynamic programming: the step between speeds, 1/s (default 0.005, the report's)")
+    plan.add_argument("--dp-speed-step", type=bounded(float, 1e-6, 100.0), default=None, metavar="STEP",
+                      help="dynamic programming: the step between speeds, 1/s (default: the speeds span the "
+                           "minimum-time plan's highest s'; the report's 0.005 spans 0..1, a fifth of it)")
     plan.add_argument("--gravity", action="store_true",
                       help="the example with gravity on (the report's points are matched with it off)")
     plan.add_argument("--links", choices=("point", "rod"), default="point",

@@ -760,7 +760,7 @@ class PlanSettings:
     nodes: int
     dp_intervals: int
     dp_speeds: int
-    dp_speed_step: float
+    dp_speed_step: Optional[float]           # None: the speeds span the minimum-time plan's
     max_time: Optional[float]
     as_json: bool
     plot: Optional[Path]
@@ -768,13 +768,19 @@ class PlanSettings:
     squeeze: Optional[float] = None          # --method reach: the bound on |squeeze| (N), inf for free
     order: int = 1                           # --method reach: 2, s'' linear on placed grid points
     arm: Optional[ArmMoveSettings] = None    # --arm-to: ASPOD's own arm instead of the report's two
+    weights: Optional[tuple[float, ...]] = None   # each joint's weight in the minimum-cost plan (None: the file's)
+    regen: bool = False                      # electrical: energy given back returns to the supply
 
 
 def plan_settings(args: argparse.Namespace) -> PlanSettings:
     if args.problem is not None and (args.gravity or args.links != "point"):
         raise ValueError("--gravity and --links shape the report's example; a --problem file says its own")
     if args.max_time is not None and args.objective == "time":
-        raise ValueError("--max-time bounds a minimum-cost plan: give --objective energy, work or thermal")
+        raise ValueError("--max-time bounds a minimum-cost plan: give --objective electrical, energy, work or thermal")
+    if args.weights is not None and args.objective == "time":
+        raise ValueError("--weights price a minimum-cost plan: give --objective electrical, energy, work or thermal")
+    if args.regen and args.objective != "electrical":
+        raise ValueError("--regen counts energy given back in --objective electrical")
     if args.method == "reach" and args.plot is not None:
         raise ValueError("--plot draws the phase-plane planner's figures: give --method phase")
     if args.squeeze is not None and args.method != "reach":
@@ -788,7 +794,7 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
     claims(args).folder(args.plot, "--plot")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
-                        args.method, args.squeeze, args.order, arm)
+                        args.method, args.squeeze, args.order, arm, args.weights, args.regen)
 
 
 def arm_move_settings(args: argparse.Namespace) -> Optional[ArmMoveSettings]:

@@ -6,18 +6,24 @@ k only; here a step is admissible only if they are within the limits at both of 
 limits where the report's could exceed them at the far node. Bellman's principle, from the end
 at rest back to the start at rest, gives the cheapest admissible profile.
 
-The objectives (`OBJECTIVES`):
+The objectives (`OBJECTIVES`), each a sum over the joints, each joint's share times its weight (default 1):
 
 (Each interval's cost is taken by the trapezoidal rule, from the torques at both its ends.)
 
+- "electrical" (the default): the electrical energy the motors draw, sum of (u_i dq_i + c_i u_i^2 dt), their
+  mechanical work plus their copper losses R i^2, with c_i = R_i / (k_t,i N_i eta_i)^2 from the joints' motors
+  (motors.py: the problem's, or ASPOD's own J1 and J2 drives where it names none), and the drives' own draw
+  while enabled times the time. Without regeneration (the
+  default) a joint that is driven back (its power negative) draws nothing and gives nothing back; with it, that
+  energy returns to the supply. It can choose: a slow crawl pays its copper losses for longer, a fast move pays
+  the square of its torques.
 - "energy": the report's index, sum of u^T dq. **It cannot choose a profile**: for a rigid, frictionless chain
   moving from rest to rest, u^T dq summed is the work done on the chain, which is the change of its kinetic
-  energy (zero) plus the change of its potential energy, whatever the speed. With gravity off it is about 0
-  for every profile; on any path it is the same for every profile, up to the grid's rounding. The DP then
-  returns whichever admissible profile rounding favours; the report's Figs. 15-16 show one such.
+  energy (zero) plus the change of its potential energy, whatever the speed (`potential_rise`). With gravity off
+  it is about 0 for every profile; on any path it is the same for every profile, up to the grid's rounding. The
+  DP then returns whichever admissible profile rounding favours; the report's Figs. 15-16 show one such.
 - "work": sum of |u_i dq_i|, the work the motors do without getting any back (no regeneration).
-- "thermal": sum of w_i u_i^2 dt, the heat in the motors' windings when w_i = R_i / (k_t,i N_i)^2 (torque per
-  amp and gear ratio); the weights default to 1.
+- "thermal": sum of c_i u_i^2 dt, the heat in the motors' windings.
 
 Slow motions cost less heat and no more work, so the user gives a time bound: the DP minimises cost + mu * time,
 and mu is found by bisection so that the time is within the bound.
@@ -30,10 +36,11 @@ from typing import Optional, Sequence
 import numpy as np
 
 from host_tools.plan.errors import PlanError
+from host_tools.plan.motors import Motors, aspod_drives
 from host_tools.plan.phase import Problem, Terms
 from host_tools.plan.profile import Profile, profile_from_speeds
 
-OBJECTIVES = ("energy", "work", "thermal")
+OBJECTIVES = ("electrical", "energy", "work", "thermal")
 
 
 @dataclass(frozen=True)
@@ -51,7 +58,36 @@ class DpGrid:
             raise PlanError("grid", "the speed step must be a positive number")
 
 
-def costs_of(terms: Terms, sd: np.ndarray, weights: Optional[Sequence[float]] = None) -> dict:
+@dataclass(frozen=True)
+class Pricing:
+    """How a plan's cost is counted beside its objective: each joint's weight, its motor's copper coefficient
+    (motors.py `Motors.copper`) and whether energy a joint gives back returns to the supply."""
+
+    weights: np.ndarray
+    copper: np.ndarray
+    regen: bool = False
+    drive_w: float = 0.0
+
+    @classmethod
+    def of(cls, problem: Problem, weights: Optional[Sequence[float]] = None, regen: bool = False) -> "Pricing":
+        """For `problem`: `weights` (else the problem's, else 1 each), its motors' copper (else ASPOD's drives')."""
+        joints = len(problem.limits.lower)
+        given = weights if weights is not None else problem.weights
+        w = np.ones(joints) if given is None else np.asarray(given, float)
+        if w.shape != (joints,) or not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise PlanError("weights", f"one finite, non-negative weight per joint ({joints})")
+        motors = motors_of(problem)
+        copper = motors.copper()
+        if copper.shape != (joints,):
+            raise PlanError("motors", f"one motor per joint ({joints})")
+        return cls(w, copper, regen, motors.drive_w)
+
+
+def motors_of(problem: Problem) -> Motors:
+    return problem.motors if problem.motors is not None else aspod_drives()
+
+
+def costs_of(terms: Terms, sd: np.ndarray, pricing: Pricing) -> dict:
     """Each objective's value for the profile s' = sd at the nodes of `terms` (torques at each interval's start)."""
     x = sd * sd
     ds = np.diff(terms.s)
@@ -61,9 +97,16 @@ def costs_of(terms: Terms, sd: np.ndarray, weights: Optional[Sequence[float]] = 
     dq = np.diff(terms.joints.q, axis=0)
     with np.errstate(divide="ignore"):
         dt = 2 * ds / (sd[:-1] + sd[1:])
-    w = np.ones(u.shape[1]) if weights is None else np.asarray(weights, float)
-    out = {name: float(np.sum(_step_cost(name, u, far, dq, dt, w))) for name in OBJECTIVES}
+    out = {name: float(np.sum(_step_cost(name, u, far, dq, dt, pricing))) for name in OBJECTIVES}
     return {**out, "time": float(dt.sum())}
+
+
+def potential_rise(problem: Problem, nodes: int = 2000) -> float:
+    """The change of the arms' and the object's potential energy from the path's start to its end (J): what the
+    report's index equals for every rest-to-rest profile (the gravity torques' work along the path)."""
+    terms = problem.terms(np.linspace(0.0, 1.0, nodes + 1))
+    dq = np.diff(terms.joints.q, axis=0)
+    return float(np.sum((terms.c[:-1] + terms.c[1:]) / 2 * dq))
 
 
 @dataclass
@@ -74,15 +117,21 @@ class CostOptimal:
     costs: dict
     time_weight: float              # mu, the price of a second in the objective's units
     terms: Terms
+    pricing: Pricing
 
 
-def _step_cost(objective: str, u: np.ndarray, far: np.ndarray, dq: np.ndarray, dt, weights: np.ndarray):
+def _step_cost(objective: str, u: np.ndarray, far: np.ndarray, dq: np.ndarray, dt, pricing: Pricing):
     """One interval's cost by the trapezoidal rule: torques `u` at its start and `far` at its end."""
+    w = pricing.weights
     if objective == "energy":
-        return ((u + far) * dq).sum(axis=-1) / 2
+        return ((u + far) * dq) @ w / 2
     if objective == "work":
-        return (np.abs(u * dq) + np.abs(far * dq)).sum(axis=-1) / 2
-    return ((u * u + far * far) @ weights) * dt / 2
+        return (np.abs(u * dq) + np.abs(far * dq)) @ w / 2
+    heat = (u * u + far * far) * pricing.copper * np.asarray(dt)[..., None] / 2
+    if objective == "thermal":
+        return heat @ w
+    drawn = (u + far) * dq / 2 + heat                   # electrical: work plus copper loss, joint by joint
+    return (drawn if pricing.regen else np.maximum(drawn, 0.0)) @ w + pricing.drive_w * np.asarray(dt)
 
 
 def _within(effort: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -93,7 +142,7 @@ class _Stages:
     """Every interval's admissible steps, their cost and their time, worked out once (float32: about 70 MB on
     the report's grid) so that the search for the time price mu only repeats Bellman's recursion."""
 
-    def __init__(self, terms: Terms, problem: Problem, grid: DpGrid, objective: str, weights: np.ndarray) -> None:
+    def __init__(self, terms: Terms, problem: Problem, grid: DpGrid, objective: str, pricing: Pricing) -> None:
         self.v = v = np.arange(grid.speeds) * grid.speed_step
         x = v * v
         lo, hi = problem.limits.lo, problem.limits.hi
@@ -112,7 +161,7 @@ class _Stages:
                 dt = 2 * ds / (v[:, None] + v[None, :])
             ok &= np.isfinite(dt) & (v[:, None] <= problem.speed_cap) & (v[None, :] <= problem.speed_cap)
             dt = np.where(ok, dt, 0.0)
-            self.cost[k] = np.where(ok, _step_cost(objective, u, far, q[k + 1] - q[k], dt, weights), np.inf)
+            self.cost[k] = np.where(ok, _step_cost(objective, u, far, q[k + 1] - q[k], dt, pricing), np.inf)
             self.time[k] = dt
 
     def solve(self, mu: float) -> Optional[np.ndarray]:
@@ -132,17 +181,16 @@ class _Stages:
         return self.v[np.asarray(path)]
 
 
-def plan_cost_optimal(problem: Problem, objective: str = "energy", grid: DpGrid = DpGrid(),
-                      max_time: Optional[float] = None, weights: Optional[Sequence[float]] = None) -> CostOptimal:
-    """The cheapest rest-to-rest profile by `objective` on `grid`, within `max_time` seconds if given."""
+def plan_cost_optimal(problem: Problem, objective: str = "electrical", grid: DpGrid = DpGrid(),
+                      max_time: Optional[float] = None, pricing: Optional[Pricing] = None) -> CostOptimal:
+    """The cheapest rest-to-rest profile by `objective` on `grid`, within `max_time` seconds if given (`pricing`:
+    the weights, motors and regeneration; default `Pricing.of(problem)`)."""
     if objective not in OBJECTIVES:
         raise PlanError("objective", f"{objective!r}: one of {', '.join(OBJECTIVES)}")
     if max_time is not None and not (max_time > 0 and np.isfinite(max_time)):
         raise PlanError("time", "the time bound must be a positive number of seconds")
     terms = problem.terms(np.linspace(0.0, 1.0, grid.intervals + 1))
-    w = np.ones(terms.a.shape[1]) if weights is None else np.asarray(weights, float)
-    if w.shape != (terms.a.shape[1],) or not np.all(np.isfinite(w)) or np.any(w < 0):
-        raise PlanError("weights", "one finite, non-negative weight per joint")
+    w = Pricing.of(problem) if pricing is None else pricing
 
     stages = _Stages(terms, problem, grid, objective, w)
 
@@ -174,4 +222,4 @@ def plan_cost_optimal(problem: Problem, objective: str = "energy", grid: DpGrid 
                 high, sd, t = mid, sd_mid, t_mid
         mu = high
     profile = profile_from_speeds(terms, problem.limits, sd)
-    return CostOptimal(objective, grid, profile, costs_of(terms, sd, w), mu, terms)
+    return CostOptimal(objective, grid, profile, costs_of(terms, sd, w), mu, terms, w)

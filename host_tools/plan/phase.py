@@ -25,6 +25,7 @@ import numpy as np
 from host_tools.plan.bounds import Limits
 from host_tools.plan.errors import PlanError
 from host_tools.plan.model import JointPath, TwoArms
+from host_tools.plan.motors import Motors
 
 INTEGRATORS = ("ab2", "rk4")
 SPEED_CAP = 1e3            # s' never considered above this (1/s): a path the limits do not bound is refused
@@ -39,6 +40,9 @@ class Problem:
     limits: Limits
     speed_cap: float = float("inf")      # s' never above this (a joint speed limit on a straight joint-space path);
     #                                      the phase plane, the DP and the reachability planner (order 1) honour it
+    motors: Optional[Motors] = None       # the joints' motors (motors.py), for the electrical and heat objectives;
+    #                                      None: ASPOD's own drives (`energy.motors_of`)
+    weights: Optional[tuple[float, ...]] = None    # each joint's weight in a minimum-cost plan (default 1 each)
 
     def terms(self, s) -> "Terms":
         """The coefficients at `s`; PlanError "bounds" where they overflow a float (computed without numpy's

@@ -4,10 +4,15 @@
      "arms":    {"separation": 2.0, "lengths": [1, 1], "masses": [1, 1], "elbows": [1, 1], "links": "point"},
      "object":  {"mass": 0.25, "size": [0.25, 0.1], "grasps": [[-0.125, 0], [0.125, 0]]},
      "gravity": 9.81,
-     "limits":  {"symmetric": [30, 20, 35, 15]}}
+     "limits":  {"symmetric": [30, 20, 35, 15]},
+     "motors":  {"resistance_ohm": [6, 6, 6, 6], "torque_constant": [0.035, 0.035, 0.035, 0.035],
+                 "ratio": [1600, 600, 1600, 600], "efficiency": [0.69, 0.71, 0.69, 0.71], "drive_w": 42},
+     "weights": [1, 1, 1, 1]}
 
 `limits` may instead give "lower" and "upper", and "back_emf" (per joint) for DC motors' voltage limits
-(bounds.py; both minimum-time methods plan them, --method reach with order 1 only). Paths: "line" (start, end),
+(bounds.py; both minimum-time methods plan them, --method reach with order 1 only). `motors` (one value a joint;
+efficiency optional, 1; drive_w, the drives' draw while enabled, optional, 0) price the electrical and heat objectives (motors.py; without them, ASPOD's
+own drives), `weights` each joint's share of a minimum-cost plan (`aspod plan --weights` over them). Paths: "line" (start, end),
 "polynomial" (x, y: coefficients, lowest power first), "piecewise" (knots, pieces). Anything else, or a value of
 the wrong kind, is refused with the reason.
 """
@@ -21,12 +26,13 @@ from host_tools.plan.bounds import Limits
 from host_tools.plan.errors import PlanError, finite
 from host_tools.plan.example import LIMITS
 from host_tools.plan.model import GRAVITY, Held, two_arms
+from host_tools.plan.motors import Motors
 from host_tools.plan.paths import path_from_dict
 from host_tools.plan.phase import Problem
 from protocol import files
 
 MAX_BYTES = 1 << 20
-KEYS = {"path", "arms", "object", "gravity", "limits"}
+KEYS = {"path", "arms", "object", "gravity", "limits", "motors", "weights"}
 # Magnitudes far beyond any arm's, within which the planner's arithmetic stays well inside a float (its torques
 # go as mass x length^2 x speed^2); beyond them a problem is refused, not computed into overflows and NaNs.
 # Below, a link's length and mass, and a joint's range of torque, are at least a millimetre, a gram (or nothing:
@@ -35,6 +41,7 @@ MAX_LENGTH_M, MIN_LENGTH_M = 1e3, 1e-3    # links, the arms' separation, the obj
 MAX_MASS_KG, MIN_MASS_KG = 1e6, 1e-3      # links and the object: a thousand tonnes
 MAX_LIMIT, MIN_LIMIT_RANGE = 1e9, 1e-3    # torque limits, N m (or a motor's voltage, V)
 MAX_BACK_EMF = 1e6                        # back-emf constants, per joint
+MAX_MOTOR = 1e6                           # a motor's resistance (ohm), torque constant (N m/A), gear ratio; a weight
 
 
 def _numbers(value, n: int, what: str, bound: float) -> tuple:
@@ -48,7 +55,8 @@ def _numbers(value, n: int, what: str, bound: float) -> tuple:
 
 
 SECTION_KEYS = {"arms": {"separation", "lengths", "masses", "elbows", "links"},
-                "object": {"mass", "size", "grasps"}, "limits": {"symmetric", "lower", "upper", "back_emf"}}
+                "object": {"mass", "size", "grasps"}, "limits": {"symmetric", "lower", "upper", "back_emf"},
+                "motors": {"resistance_ohm", "torque_constant", "ratio", "efficiency", "drive_w"}}
 
 
 def _section(spec: dict, key: str) -> dict:
@@ -116,7 +124,23 @@ def problem_from_dict(spec: dict) -> Problem:
         j = narrow[0]
         raise PlanError("file", f"joint {j + 1}'s limits [{bounds.lower[j]:g}, {bounds.upper[j]:g}] are less than "
                                 f"{MIN_LIMIT_RANGE:g} apart")
-    return Problem(system, path_from_dict(spec["path"]), bounds)
+    return Problem(system, path_from_dict(spec["path"]), bounds, motors=_motors(spec),
+                   weights=None if "weights" not in spec else _at_least(
+                       _numbers(spec["weights"], 4, "weights", MAX_MOTOR), 0.0, "weights"))
+
+
+def _motors(spec: dict):
+    if "motors" not in spec:
+        return None
+    given = _section(spec, "motors")
+    missing = sorted({"resistance_ohm", "torque_constant", "ratio"} - set(given))
+    if missing:
+        raise PlanError("file", f"motors needs {', '.join(missing)} (one value a joint)")
+    values = [_numbers(given[key], 4, f"motors.{key}", MAX_MOTOR) for key in ("resistance_ohm", "torque_constant",
+                                                                              "ratio")]
+    efficiency = _numbers(given.get("efficiency", [1, 1, 1, 1]), 4, "motors.efficiency", 1.0)
+    drive_w = _at_least(_numbers([given.get("drive_w", 0.0)], 1, "motors.drive_w", MAX_MOTOR), 0.0, "motors.drive_w")
+    return Motors(*values, efficiency, drive_w[0])
 
 
 def load_problem(path: Path) -> Problem:
