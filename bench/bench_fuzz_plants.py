@@ -9,8 +9,9 @@ after the other, each for the budget (60 s with --quick, 10 minutes without; the
 10 minutes on this machine, and no false finding):
 
 - **in process**: `aspod fuzz bench.fuzz_plants:NAME_target` (one atheris job, one core);
-- **black box**: `aspod fuzz --target-cmd 'python -m bench.fuzz_plants NAME sim --tcp=0 --no-pacing ...'` to the
-  end of the budget (the host plant: `aspod fuzz --as-controller` against a planted teleop, when it exists);
+- **black box**: `aspod fuzz --target-cmd 'python -m bench.fuzz_plants NAME sim --tcp=0 --no-pacing ...'` to its
+  first finding or the end of the budget (the host plant: `aspod fuzz --as-controller` against a planted teleop);
+  a finding not the plant's ends the run as the plant's would, and is counted as false;
 - **boofuzz** (bench/boofuzz_peer.py) on the same black-box plant over TCP, for the plants whose effect is a crash
   or silence, all its health check can see (and the slow path, which it must not report).
 
@@ -217,6 +218,7 @@ def as_controller(plant: Plant, run: Path, budget_s: float) -> Outcome:
     start = _CLOCK.wall_time()
     done = subprocess.run([*ASPOD, "fuzz", "--as-controller", "--host-cmd",
                            _teleop(("bench.fuzz_plants", plant.name), run, budget_s), "--time", f"{budget_s:g}",
+                           "--max-findings", "1",
                            "--json", "--no-progress", "--findings", str(found)],
                           capture_output=True, text=True, timeout=budget_s * 2 + 600, cwd=run, env=env)
     if done.returncode not in (0, 1):
@@ -239,7 +241,7 @@ def black_box(plant: Plant, run: Path, budget_s: float) -> Outcome:
     target = _sim(("bench.fuzz_plants", plant.name), run, key)
     start = _CLOCK.wall_time()
     done = subprocess.run([*ASPOD, "fuzz", "--target-cmd", shlex.join(target), "--key-file", str(key), "--time",
-                           f"{budget_s:g}", "--json", "--no-progress", "--findings", str(found)],
+                           f"{budget_s:g}", "--max-findings", "1", "--json", "--no-progress", "--findings", str(found)],
                           capture_output=True, text=True, timeout=budget_s * 2 + 600, cwd=run, env=env)
     if done.returncode not in (0, 1):
         return Outcome("not run", note=f"aspod fuzz exited {done.returncode}: {done.stderr.strip()[-300:]}")
