@@ -83,7 +83,7 @@ CHECK_EVERY = 16               # cases between two health checks while the targe
 RATE_FLOOR = 0.05              # a --url target's deadlines stretch with its measured slowness, at most 1/this
 RATE_KEEP = 0.7                # the weight of the rate measured before, against the latest check's
 RTT_FACTOR = 50                # a --url target's deadlines are at least this many of its recent round trips
-CHAIN_ONE_IN = 8               # a case is a sequence of commands that builds state (grammar.draw_chain) one in this many
+CHAIN_ONE_IN = 8               # one case in this many is a sequence of commands that builds state (grammar.draw_chain)
 SILENCE_ONE_IN = 20000         # a silence (about 2 s at the default timeout) in one step of this many: at about 350
 #                                steps a second, one a minute (one in 200 until 2026-11-29: most of a run)
 PAUSE_ONE_IN = 64              # a pause before a step in one step of this many (one in four until 2026-11-29: the

@@ -182,12 +182,13 @@ def draw_valid(fld: Field, draw: Draw, words: Words = NO_WORDS) -> Any:
 
 def draw_payload(spec: MessageSpec, draw: Draw, words: Words = NO_WORDS,
                  learned: Boundaries = NO_BOUNDARIES, follow: bool = False) -> bytes:
-    """`follow`: a payload the target takes, to go on a sequence (`draw_chain`): every field valid, and those the
-    target's last reply says the next command must carry (`Boundaries.now_for`) as it says. Else a payload for `spec`: bytes of any length (1 in 8); every field from the grammar (3 in 8); or every field
+    """A payload for `spec`: bytes of any length (1 in 8); every field from the grammar (3 in 8); or every field
     valid but one, which comes from the grammar (half): a message that decodes, and so reaches its handler, with
     one field at or beyond its edge (a fuzzer of single fields, as boofuzz mutates one primitive at a time).
     A field the target told something about (`learned`) takes, one time in three, a value below, at or past
-    one of the target's own limits for it, and one time in six an interior value the target uses."""
+    one of the target's own limits for it, and one time in six an interior value the target uses. `follow`: a
+    payload the target takes, to go on a sequence (`draw_chain`): every field valid, and those the target's last
+    reply says the next command must carry (`Boundaries.now_for`) as it says."""
     if follow:
         return pack_raw(spec, [_now_or(learned.now_for(spec, fld), lambda fld=fld: draw_valid(fld, draw, words), draw)
                                for fld in spec.fields])

@@ -11,10 +11,10 @@
 
 `limits` may instead give "lower" and "upper", and "back_emf" (per joint) for DC motors' voltage limits
 (bounds.py; both minimum-time methods plan them, --method reach with order 1 only). `motors` (one value a joint;
-efficiency optional, 1; drive_w, the drives' draw while enabled, optional, 0) price the electrical and heat objectives (motors.py; without them, ASPOD's
-own drives), `weights` each joint's share of a minimum-cost plan (`aspod plan --weights` over them). Paths: "line" (start, end),
-"polynomial" (x, y: coefficients, lowest power first), "piecewise" (knots, pieces). Anything else, or a value of
-the wrong kind, is refused with the reason.
+efficiency optional, 1; drive_w, the drives' draw while enabled, optional, 0) price the electrical and heat
+objectives (motors.py; without them, ASPOD's own drives), `weights` each joint's share of a minimum-cost plan
+(`aspod plan --weights` over them). Paths: "line" (start, end), "polynomial" (x, y: coefficients, lowest power
+first), "piecewise" (knots, pieces). Anything else, or a value of the wrong kind, is refused with the reason.
 """
 from __future__ import annotations
 
