@@ -60,7 +60,7 @@ from timebase import RealClock
 from host_tools.client.lines import SerialLine
 from host_tools.fuzz import findings as findings_mod
 from host_tools.fuzz import oracles
-from host_tools.fuzz.boundaries import NO_BOUNDARIES, Boundaries
+from host_tools.fuzz.boundaries import FOLLOWS, NO_BOUNDARIES, Boundaries
 from host_tools.client.params import ParamTable, read_param_table
 from host_tools.fuzz.grammar import (NO_WORDS, TO_CONTROLLER, RandomDraw, Words, draw_chain, draw_payload, draw_value,
                                      pack_raw, refollow)
@@ -83,7 +83,7 @@ CHECK_EVERY = 16               # cases between two health checks while the targe
 RATE_FLOOR = 0.05              # a --url target's deadlines stretch with its measured slowness, at most 1/this
 RATE_KEEP = 0.7                # the weight of the rate measured before, against the latest check's
 RTT_FACTOR = 50                # a --url target's deadlines are at least this many of its recent round trips
-CHAIN_ONE_IN = 8               # one case in this many is a sequence of commands that builds state (grammar.draw_chain)
+CHAIN_ONE_IN = 16              # one case in this many is a sequence of commands that builds state (grammar.draw_chain)
 SILENCE_ONE_IN = 20000         # a silence (about 2 s at the default timeout) in one step of this many: at about 350
 #                                steps a second, one a minute (one in 200 until 2026-11-29: most of a run)
 PAUSE_ONE_IN = 64              # a pause before a step in one step of this many (one in four until 2026-11-29: the
@@ -480,7 +480,10 @@ class Case:
     @staticmethod
     def _follow(spec, payload: bytes, handles: list, session: Session, draw: RandomDraw) -> bytes:
         """`payload` as the replies to the case's commands before it say the next one must carry (waiting for them,
-        at most the health deadline: a reply not come is the health check's to judge)."""
+        at most the health deadline: a reply not come is the health check's to judge); a command that carries
+        nothing a reply says (TrajClear) goes at once."""
+        if not any(f"{spec.name}.{fld.name}" in FOLLOWS for fld in spec.fields):
+            return payload
         session.pump_until(lambda: all(h.done for _spec, _payload, h in handles), session.settings.health_timeout_s)
         for _spec, _payload, h in handles:
             session.learned.follow(h.reply)
@@ -867,19 +870,20 @@ def run_case(case: Case, session: Session, health: HealthCheck, seed: int, param
     try:
         handles, maybe = case.run(session, RandomDraw(random.Random(seed)))
         expected = health.note(handles, maybe)
-        if case.closes or any(spec.name == "ParamSet" for spec, _payload, _h in handles):
-            health.settle()          # what its Closes and ParamSets did, from their replies
-            told = oracles.case_violation(handles, params.untouched(case))    # a refused ParamSet moved nothing
-            health.violation = health.violation or told
-            expected &= told is None
+        if case.closes:
+            health.settle()          # what its Closes did, from their replies: a session to renew
         renew = session.closed or any(spec.name == "Close" and h.outcome is not Outcome.REJECTED
                                       for spec, _payload, h in handles)
         if renew:
             session.renew()          # the case closed the session (or may have: a Close without an answer)
         touched = params.touched(case, handles)
+        param_set = any(spec.name == "ParamSet" for spec, _payload, _h in handles)
         problem = None
-        if check or not expected or renew or case.silent or touched or session.events or session.lapsed:
-            problem = health.check()
+        if (check or not expected or renew or case.silent or touched or param_set or session.events
+                or session.lapsed):
+            problem = health.check()         # (it waits for every reply of the cases, its Ping's behind them)
+            if problem is None and param_set:   # a refused ParamSet moved nothing (judged once its replies came)
+                problem = oracles.case_violation(handles, params.untouched(case))
             if problem is None and touched and params.restore(session, case, handles):
                 problem = health.rebase(limits_changed=True)
                 if problem is not None:
