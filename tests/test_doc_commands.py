@@ -106,7 +106,9 @@ SHORTER = {
 # A command whose tool may refuse, by name, what a busy machine made: replay refuses a recording whose world stalled
 # more than 100 ms between two reports (README, "Not built yet"; docs/sessions.md), and the doc records one here.
 # That refusal, exit 2 with these words, is the tool judging its input rightly, not the doc going wrong.
-REFUSED_ON_A_BUSY_MACHINE = {"aspod replay run.pcapng": "the recording's world stalled"}
+REFUSED_ON_A_BUSY_MACHINE = {command: "the recording's world stalled" for command in (
+    "aspod replay run.pcapng", "aspod replay sim.pcapng",           # (sim.pcapng: a clean clone's CI, 2026-11-29)
+    "aspod replay sim.pcapng --param j1_acc_dps2=1.5", "aspod replay sim.pcapng --json --output replayed.pcapng")}
 
 SERVERS = {"sim": "ASPOD-LINK ", "proxy": "ASPOD-LINK ", "firmware": "ASPOD-LINK ", "plant": "ASPOD-PLANT ready"}
 READY_LAST = {"sim": "ASPOD-CONTROL", "firmware": "ASPOD-KEY"}       # the last of its ready lines
