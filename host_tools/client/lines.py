@@ -19,7 +19,7 @@ from protocol.errors import LinkError
 from protocol.reasons import Reason
 from timebase import Clock
 from host_tools.sessions.redundancy import FrameMerger
-from host_tools.worlds.ports import check_url
+from host_tools.worlds.ports import check_url, open_url
 
 READ_SIZE = 4096
 READ_TIMEOUT_S = 0.001
@@ -48,8 +48,7 @@ def parse_links(url: str) -> list[tuple[str, str]]:
 
 def _open(url: str, baud: int, timeout: float) -> serial.SerialBase:
     try:
-        check_url(url)
-        return serial.serial_for_url(url, baudrate=baud, timeout=timeout, write_timeout=2.0)
+        return open_url(url, baud, timeout, write_timeout=2.0)
     except (serial.SerialException, ValueError) as exc:
         raise LinkError(Reason.NO_SESSION, f"cannot open {url}: {exc}") from exc
 

@@ -28,7 +28,7 @@ from protocol.reasons import Reason
 from protocol.schema import Message, MsgClass
 from timebase import Clock, RealClock
 
-from host_tools.worlds.ports import check_url
+from host_tools.worlds.ports import open_url
 
 READ_TIMEOUT_S = 0.005
 READ_SIZE = 4096
@@ -71,8 +71,7 @@ class Probe:
         self.psk = psk
         self.clock = clock or RealClock()
         try:
-            check_url(url)
-            self.port = serial.serial_for_url(url, baudrate=baud, timeout=READ_TIMEOUT_S, write_timeout=2.0)
+            self.port = open_url(url, baud, timeout=READ_TIMEOUT_S, write_timeout=2.0)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise LinkError(Reason.NO_SESSION, f"cannot open {url}: {exc}") from exc
         self.events: list[tuple[float, Message, bool]] = []      # (time, event, from an earlier session)

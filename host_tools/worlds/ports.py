@@ -296,9 +296,7 @@ class DevicePort:
     """A real serial device (or any pyserial URL) opened non-blocking."""
 
     def __init__(self, url: str, baud: int) -> None:
-        import serial   # only this port needs pyserial on the controller side
-        check_url(url)
-        self._serial = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        self._serial = open_url(url, baud, timeout=0, write_timeout=0)
         self.url = url
 
     def read(self, max_bytes: int) -> bytes:
@@ -432,6 +430,20 @@ def check_url(url: str) -> None:
         if not (sep and host and port.isdigit() and 1 <= int(port) <= 65535):
             article = "an" if scheme == "rfc2217" else "a"
             raise ValueError(f"{url}: {article} {scheme} link is {scheme}://HOST:PORT, PORT a number 1..65535")
+
+
+def open_url(url: str, baud: int, timeout: Optional[float], write_timeout: Optional[float]):
+    """The pyserial port of `url` (`check_url` first: ValueError naming what is wrong), sending each write as it
+    is made: on `socket://` pyserial leaves Nagle's algorithm on, and a small frame written while the last was
+    not yet acknowledged waited for the peer's delayed ACK, 40 ms on Linux (the black-box fuzzer's commands were
+    answered in 43 ms, 3 ms with it off: measured). pyserial's SerialException on a failure to open."""
+    import serial
+    check_url(url)
+    port = serial.serial_for_url(url, baudrate=baud, timeout=timeout, write_timeout=write_timeout)
+    sock = getattr(port, "_socket", None)        # (pyserial's socket://: no public handle)
+    if isinstance(sock, socket.socket) and sock.family in (socket.AF_INET, socket.AF_INET6):
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return port
 
 
 def tcp_port(spec: str) -> Optional[int]:
