@@ -2,8 +2,8 @@
 one defect, installed in the target's own process by this module, never in the real code.
 
 The emulator never imports this module. A plant is installed in one process by `install(name)`: the copy replaces
-the real function there (a handler in `firmware_py.controller._HANDLERS`, a decoder's check on one message's spec,
-a method of `ControllerLink`, teleop's formatter of reports), so the same defect is fuzzed
+the real function there (a command handler on the class that owns it, firmware_py/handlers.py; a decoder's check on
+one message's spec; a method of `ControllerLink`; teleop's formatter of reports), so the same defect is fuzzed
 
 - in process: `aspod fuzz bench.fuzz_plants:NAME_target` (the controller-link or host-link target, planted);
 - black box: `python -m bench.fuzz_plants NAME sim --tcp=0 ...` is `aspod sim ...` with the plant installed, for
@@ -72,16 +72,16 @@ def _set_attr(owner, attr: str, value) -> None:
     _undo.append(lambda: setattr(owner, attr, old))
 
 
-def _replace_handler(name: str, make: Callable[[Callable], Callable]) -> None:
-    """Put `make(real)` in place of the controller's handler of command `name`."""
-    from firmware_py import controller
-    real = controller._HANDLERS[name]
-    controller._HANDLERS[name] = make(real)
-    _undo.append(lambda: controller._HANDLERS.__setitem__(name, real))
+def _replace_handler(owner: type, name: str, make: Callable[[Callable], Callable]) -> None:
+    """Put `make(real)` in place of the handler of command `name` on its class `owner` (firmware_py/handlers.py: the
+    attribute the class records for it), for every controller built after."""
+    attr = owner.commands[name]
+    _set_attr(owner, attr, make(getattr(owner, attr)))
 
 
 # ---- param-index: a boundary known only at run time ----
 def plant_param_index() -> None:
+    from firmware_py.param_commands import ParamCommands
     from protocol.reasons import Reason
 
     def make(real):
@@ -92,7 +92,7 @@ def plant_param_index() -> None:
                 fired("param-index")
             return self._param_value(Reason.OK, self.params.order[msg.index])
         return param_list
-    _replace_handler("ParamList", make)
+    _replace_handler(ParamCommands, "ParamList", make)
 
 
 # ---- jog-range: a decoder that accepts one f32 step past the declared maximum ----
@@ -120,6 +120,8 @@ _PARKED: dict[int, float] = {}     # filled by nothing: the park shortcut's tabl
 
 
 def plant_move_park() -> None:
+    from firmware_py.arm_commands import ArmCommands
+
     def make(real):
         def move(self, msg, now):
             if msg.target == PARK_DEG:                          # the park angle: a shortcut
@@ -127,11 +129,12 @@ def plant_move_park() -> None:
                 _PARKED[msg.axis]                               # the defect: KeyError, the table is empty
             return real(self, msg, now)
         return move
-    _replace_handler("Move", make)
+    _replace_handler(ArmCommands, "Move", make)
 
 
 # ---- disable-estop: a wrong transition of the session's state machine ----
 def plant_disable_estop() -> None:
+    from firmware_py.controller import Controller
     from protocol.messages import MESSAGES as M
     from protocol.reasons import Reason
     from protocol.states import ControllerState
@@ -147,7 +150,7 @@ def plant_disable_estop() -> None:
                 sup._set(ControllerState.IDLE, Reason.HOST_REQUEST, now)
             return M["Result"](int(Reason.OK))
         return disable
-    _replace_handler("Disable", make)
+    _replace_handler(Controller, "Disable", make)
 
 
 # ---- hello-table: a table that grows with every handshake ----
@@ -173,6 +176,7 @@ def plant_hello_table() -> None:
 
 # ---- traj-two: a crash only after TrajClear, two TrajPoints, TrajRun(2) ----
 def plant_traj_two() -> None:
+    from firmware_py.arm_commands import ArmCommands
     from protocol.reasons import Reason
 
     def make_clear(real):
@@ -195,8 +199,8 @@ def plant_traj_two() -> None:
                 self.planted_segments = list(zip(knots, knots[1:]))
             return reply
         return traj_run
-    _replace_handler("TrajClear", make_clear)
-    _replace_handler("TrajRun", make_run)
+    _replace_handler(ArmCommands, "TrajClear", make_clear)
+    _replace_handler(ArmCommands, "TrajRun", make_run)
 
 
 # ---- host-event: a host tool that crashes on a malformed event ----
@@ -218,6 +222,7 @@ def plant_host_event() -> None:
 
 # ---- slow-param: slow on the wall clock, right, and not stuck ----
 def plant_slow_param() -> None:
+    from firmware_py.param_commands import ParamCommands
     from protocol.reasons import Reason
 
     def make(real):
@@ -228,7 +233,7 @@ def plant_slow_param() -> None:
                 WALL.sleep(SLOW_S)                              # the tracker's tables recomputed: slow, not stuck
             return reply
         return param_set
-    _replace_handler("ParamSet", make)
+    _replace_handler(ParamCommands, "ParamSet", make)
 
 
 @dataclass(frozen=True)

@@ -2,8 +2,11 @@
 
 `Controller.attach(scheduler)` adds its tasks; whoever builds the world (host_tools)
 owns the scheduler, the clock, the serial port and the HAL bus, and passes them in.
-Commands are handled by methods declared with `@handles("MessageName")`; at start-up
-every command the protocol declares for the controller must have one.
+Commands are handled beside the state they change, by methods marked `@handles("MessageName")`
+(firmware_py/handlers.py): the arm's motions and trajectories in arm_commands.py, the parameters' in
+param_commands.py, the tracker's box and clock in tracker/commands.py, the session's and the safe state's
+here. Each controller gathers its own table of them; at start-up every command the protocol declares for the
+controller must have one handler.
 
 Two times (docs/realtime.md). The control tasks run on the scheduler given to `attach`, whose
 clock is the controller's time: the wall clock on real hardware, simulated time paced to the wall
@@ -40,26 +43,29 @@ from protocol import auth
 from protocol.controller_link import ControllerLink
 from protocol.line import max_telemetry_hz, tracker_every
 from protocol.link import LinkConfig
-from protocol.messages import MESSAGES as M, SCHEMA
+from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
-from protocol.schema import Direction, Message, MsgClass
-from protocol.states import (ARM_AXES, ARM_CHANNELS, TRACKER_AXES, Axis, ControllerState, Fault, FaultCause,
-                             GripAction, TimingIssue, TimingMode)
+from protocol.schema import Message
+from protocol.states import (ARM_CHANNELS, TRACKER_AXES, Axis, ControllerState, Fault, FaultCause, TimingIssue,
+                             TimingMode)
 from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 from timebase.scheduler import Scheduler
 
 from firmware_py import arm_config, standstill
 from firmware_py.arm_config import DRIVES
-from firmware_py.arm import ArmController, Measured, MotionStart
+from firmware_py.arm import ArmController, Measured
+from firmware_py.arm_commands import ArmCommands
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
+from firmware_py.handlers import CommandOwner, handles, handler_table
 from kernels import compiled_by_default
+from firmware_py.param_commands import ParamCommands
 from firmware_py.params import ParamSpec, ParamStore
 from firmware_py.axis import AxisError
 from firmware_py.standstill import ForeignCommands, StandstillWatch, Uncommanded
 from firmware_py.supervisor import FAULT_REASON, Supervisor
-from firmware_py.trajectory import TrajectoryBuffer, knot_of
+from firmware_py.tracker.commands import TrackerCommands
 from firmware_py.tracker.task import TrackerController, check_param as tracker_check_param
 from firmware_py.tracker.task import parameter_table as tracker_parameter_table
 from firmware_py.uart import PacedUart
@@ -69,19 +75,7 @@ LATE_WARNING_EVERY_S = 1.0        # a late loop is warned of at most this often 
 RTF_CLEAR_MARGIN = 0.05           # BELOW_REAL_TIME clears once the world's pace (of the speed asked) is this far
 RTF_CLEAR_AFTER_S = 10.0          # above rtf_warn for this long (wall time at the speed asked): one warning per slow
                                   # spell, not a flutter
-_HANDLERS: dict[str, Callable] = {}
 TELEMETRY_STATUS, TELEMETRY_JOINTS, TELEMETRY_TRACKER = M["TelemetryStatus"], M["TelemetryJoints"], M["TelemetryTracker"]
-
-
-def handles(name: str) -> Callable:
-    """Declare a method as the handler of command `name`, next to its code (as Klipper's DECL_COMMAND)."""
-    if name not in SCHEMA.by_name:
-        raise ValueError(f"no message {name!r} is declared in protocol/messages.py")
-
-    def register(fn: Callable) -> Callable:
-        _HANDLERS[name] = fn
-        return fn
-    return register
 
 
 @dataclass
@@ -168,7 +162,11 @@ def _check_own_param(params: ParamStore, name: str, value: float) -> Optional[st
 ENCODER_FAULTS = AxisError.ENCODER_GLITCH | AxisError.ENCODER_STALE    # a joint's position not to be judged by
 
 
-class Controller:
+class Controller(CommandOwner):
+    """The controller's tasks, its safe state and its link; it handles the session's and the safe state's commands
+    itself (it owns the supervisor, the link and the telemetry), the others in the subsystem that owns their state,
+    all through its own table (`handlers`)."""
+
     def __init__(self, psk: bytes, uart: PacedUart, hal: ControllerHal,
                  config: Optional[ControllerConfig] = None,
                  nonce_source: Callable[[], bytes] = auth.new_nonce) -> None:
@@ -180,7 +178,6 @@ class Controller:
         self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
                                  on_motion_done=self._motion_done, on_late=self._loop_late,
                                  compiled_joints=self.config.compiled_joints)
-        self.trajectory = TrajectoryBuffer()
         self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
                                          allowed=lambda: self.supervisor.outputs_allowed)
         self._tracker_telemetry_due = False      # the telemetry task's next run sends TelemetryTracker
@@ -219,11 +216,11 @@ class Controller:
         self.foreign = ForeignCommands()
         self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
         self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
-        missing = [s.name for s in SCHEMA.by_id.values()
-                   if s.direction is Direction.TO_CONTROLLER and s.cls in (MsgClass.COMMAND, MsgClass.URGENT)
-                   and s.name not in _HANDLERS]
-        if missing:
-            raise RuntimeError(f"commands declared without a handler: {', '.join(missing)}")
+        self.arm_commands = ArmCommands(self.arm, lambda: self.supervisor.state)
+        self.param_commands = ParamCommands(self.params, self.arm.in_motion_by)
+        self.tracker_commands = TrackerCommands(self.tracker, self._wake_tracker)
+        # command name -> its handler, this controller's own (firmware_py/handlers.py)
+        self.handlers = handler_table([self, self.arm_commands, self.param_commands, self.tracker_commands])
 
     def _now(self) -> float:
         return self.scheduler.clock.now() if self.scheduler else 0.0
@@ -518,10 +515,15 @@ class Controller:
         if hasattr(self, "tracker"):
             self.tracker.param_changed(name, value)
 
-    # ---- commands ----
+    def _wake_tracker(self, now: float) -> None:
+        """Run the tracker's task at `now` (its outputs follow a box change at once, not at the next 10 ms tick)."""
+        if self.scheduler is not None and "tracker" in self.scheduler.tasks:
+            self.scheduler.wake("tracker", now)
+
+    # ---- commands: the session's and the safe state's here, the others beside their state (`handlers`) ----
     def _execute(self, msg: Message, urgent: bool, link_now: float) -> Message:
         """Run a command at the controller's time (the link's clock may be the wall clock)."""
-        return _HANDLERS[msg.spec.name](self, msg, self._now())
+        return self.handlers[msg.spec.name](msg, self._now())
 
     @handles("Ping")
     def _ping(self, msg: Message, now: float) -> Message:
@@ -571,48 +573,9 @@ class Controller:
             self.scheduler.wake("telemetry", now)
         return M["Result"](int(Reason.OK))
 
-    def _param_value(self, reason: Reason, name: str) -> Message:
-        spec = self.params.specs.get(name)
-        if spec is None:
-            return M["ParamValue"](int(reason), name, 0.0, 0.0, 0.0, 0, len(self.params.order), "", "")
-        return M["ParamValue"](int(reason), name, self.params[name], spec.lo, spec.hi,
-                               self.params.order.index(name), len(self.params.order), spec.unit, spec.doc)
-
-    @handles("ParamGet")
-    def _param_get(self, msg: Message, now: float) -> Message:
-        known = msg.name in self.params.specs
-        return self._param_value(Reason.OK if known else Reason.UNKNOWN_PARAM, msg.name)
-
-    @handles("ParamSet")
-    def _param_set(self, msg: Message, now: float) -> Message:
-        if self.arm.in_motion_by(msg.name) is not None:
-            return self._param_value(Reason.BUSY, msg.name)
-        reason, _detail = self.params.set(msg.name, msg.value)
-        return self._param_value(reason, msg.name)
-
-    @handles("ParamList")
-    def _param_list(self, msg: Message, now: float) -> Message:
-        if msg.index >= len(self.params.order):
-            return self._param_value(Reason.OUT_OF_RANGE, "")
-        return self._param_value(Reason.OK, self.params.order[msg.index])
-
-    @handles("ParamSave")
-    def _param_save(self, msg: Message, now: float) -> Message:
-        """The file written, or why not (the OS's reason), to the host: `ParamSaved.detail`."""
-        reason, detail = self.params.save()
-        text = detail if reason is not Reason.OK else str(self.params.path)
-        reply = M["ParamSaved"]
-        return reply(int(reason), reply.spec.fields[1].fit(text))
-
     @handles("EStop")
     def _estop(self, msg: Message, now: float) -> Message:
         return M["Result"](int(self.supervisor.estop(now)))
-
-    @handles("Stop")
-    def _stop(self, msg: Message, now: float) -> Message:
-        """Every axis decelerates at its limit and holds; accepted in any state."""
-        self.arm.stop_all(now)
-        return M["Result"](int(Reason.OK))
 
     # ---- the session's end ----
     @handles("Close")
@@ -629,122 +592,6 @@ class Controller:
         self.link.close_session()
         return M["Closed"](int(Reason.OK), int(sup.state), int(sup.faults), self.link.last_event_seq,
                            int(self.link.config.link_timeout_s * 1000))
-
-    # ---- the solar tracker's control box and the clock ----
-    def _box_state(self, reason: Reason) -> Message:
-        box = self.tracker.box
-        return M["BoxState"](int(reason), int(box.main), int(box.sensor),
-                             int(box.mode[0]), int(box.direction[0]), int(box.speed[0]), box.dial_pct(0),
-                             int(box.mode[1]), int(box.direction[1]), int(box.speed[1]), box.dial_pct(1))
-
-    def _box_changed(self, now: float) -> None:
-        """Outputs follow a box change at once, not at the next 10 ms tick."""
-        if self.scheduler is not None and "tracker" in self.scheduler.tasks:
-            self.scheduler.wake("tracker", now)
-
-    @handles("BoxSwitch")
-    def _box_switch(self, msg: Message, now: float) -> Message:
-        reason, _detail = self.tracker.switch(msg.switch, msg.position, msg.axis)
-        if reason is Reason.OK:
-            self._box_changed(now)
-        return self._box_state(reason)
-
-    @handles("BoxDial")
-    def _box_dial(self, msg: Message, now: float) -> Message:
-        reason, _detail = self.tracker.dial(msg.percent, msg.axis)
-        if reason is Reason.OK:
-            self._box_changed(now)
-        return self._box_state(reason)
-
-    @handles("GetBoxState")
-    def _get_box_state(self, msg: Message, now: float) -> Message:
-        return self._box_state(Reason.OK)
-
-    @handles("SetClock")
-    def _set_clock(self, msg: Message, now: float) -> Message:
-        self.tracker.set_clock(msg.utc_s + msg.utc_ms / 1000.0, now)
-        return M["Result"](int(Reason.OK))
-
-    # ---- motion: refused unless ENABLED; MotionDone events report the end ----
-    def _motion_refusal(self) -> Optional[Reason]:
-        state = self.supervisor.state
-        if state is ControllerState.ENABLED:
-            return None
-        return {ControllerState.ESTOP: Reason.ESTOP, ControllerState.FAULT: Reason.FAULT_LATCHED}.get(
-            state, Reason.NOT_ALLOWED_IN_STATE)
-
-    def _accepted(self, axis: int, start: MotionStart) -> Message:
-        """MotionAccepted for `start`: every motion it started (by axis), or the refusal and the limit it broke."""
-        reply = M["MotionAccepted"]
-        ids = [start.started.get(int(a), 0) & 0xFFFFFFFF for a in ARM_AXES]
-        motion_id = start.started.get(axis, 0) & 0xFFFFFFFF
-        return reply(int(start.reason), axis, motion_id, *ids, start.limit, _finite(start.limit_value),
-                     _finite(start.asked))
-
-    def _joint_motion(self, msg: Message, start: Callable[[], MotionStart]) -> Message:
-        refusal = self._motion_refusal()
-        if refusal is not None or msg.axis == Axis.ALL:
-            return self._accepted(msg.axis, MotionStart(refusal or Reason.OUT_OF_RANGE))
-        return self._accepted(msg.axis, start())
-
-    @handles("Move")
-    def _move(self, msg: Message, now: float) -> Message:
-        return self._joint_motion(msg, lambda: self.arm.move(msg.axis, msg.target, msg.speed, False, now))
-
-    @handles("MoveBy")
-    def _move_by(self, msg: Message, now: float) -> Message:
-        return self._joint_motion(msg, lambda: self.arm.move(msg.axis, msg.distance, msg.speed, True, now))
-
-    @handles("Jog")
-    def _jog(self, msg: Message, now: float) -> Message:
-        return self._joint_motion(msg, lambda: self.arm.jog(msg.axis, msg.speed, now))
-
-    @handles("Home")
-    def _home(self, msg: Message, now: float) -> Message:
-        refusal = self._motion_refusal()
-        if refusal is not None:
-            return self._accepted(msg.axis, MotionStart(refusal))
-        if msg.axis == Axis.ALL:
-            return self._accepted(msg.axis, self.arm.home_all(now))
-        return self._accepted(msg.axis, self.arm.home(msg.axis, now))
-
-    # ---- trajectories: knots into the buffer, then j1..j4 and the mount along them at once ----
-    def _traj_state(self, reason: Reason) -> Message:
-        buffer = self.trajectory
-        return M["TrajState"](int(reason), len(buffer.knots), buffer.capacity, buffer.t_last_s,
-                              self.arm.trajectory_running())
-
-    @handles("TrajClear")
-    def _traj_clear(self, msg: Message, now: float) -> Message:
-        if self.arm.trajectory_running():
-            return self._traj_state(Reason.BUSY)
-        self.trajectory.clear()
-        return self._traj_state(Reason.OK)
-
-    @handles("TrajPoint")
-    def _traj_point(self, msg: Message, now: float) -> Message:
-        if self.arm.trajectory_running():
-            return self._traj_state(Reason.BUSY)
-        reason, _detail = self.trajectory.append(msg.index, knot_of(msg))
-        return self._traj_state(reason)
-
-    @handles("TrajRun")
-    def _traj_run(self, msg: Message, now: float) -> Message:
-        everyone = int(Axis.ALL)
-        refusal = self._motion_refusal()
-        if refusal is None:
-            refusal = self.trajectory.check_count(msg.count)[0]
-        if refusal is not Reason.OK:
-            return self._accepted(everyone, MotionStart(refusal))
-        axis, start = self.arm.run_trajectory(self.trajectory.profiles(), now)
-        return self._accepted(everyone if axis is None else axis, start)
-
-    @handles("Grip")
-    def _grip(self, msg: Message, now: float) -> Message:
-        refusal = self._motion_refusal()
-        if refusal is not None:
-            return self._accepted(int(Axis.GRIPPER), MotionStart(refusal))
-        return self._accepted(int(Axis.GRIPPER), self.arm.grip(msg.action == GripAction.CLOSE, now))
 
 
 def _finite(value: float) -> float:

@@ -461,7 +461,7 @@ fails is the one its `MotionAccepted` names: the controller's state (`ESTOP`, `F
 `NOT_ALLOWED_IN_STATE` unless ENABLED; `OUT_OF_RANGE` for the axis `all` where one axis is meant), the axis
 (`FAULT_LATCHED` if its fault is latched, `BUSY` while it homes), a target that is not finite, the speed and
 acceleration (`OUT_OF_RANGE`), homing for `Move` (`NOT_HOMED`; `MoveBy` and `Jog` need none), the soft
-limits (`SOFT_LIMIT`) (`firmware_py/controller.py` `_joint_motion`, `firmware_py/axis.py` `_check_move`).
+limits (`SOFT_LIMIT`) (`firmware_py/arm_commands.py` `_joint_motion`, `firmware_py/axis.py` `_check_move`).
 
 **Rule 12. The telemetry rate** is limited by the line: see "Line timing".
 """

@@ -201,7 +201,7 @@ target.close()
 def test_a_controller_link_finding_replays_alone_to_the_same_failure(tmp_path):
     """The controller-link target keeps its world between inputs: a finding is every input since the world was
     built, and replayed alone, on a world built anew, it fails the same way, every time. Found here over the
-    planted BoxDial handler (in a child: planting changes that process's handler table)."""
+    planted BoxDial handler (in a child: planting changes that process's handler class)."""
     planted = "host_tools.fuzz.planted:planted_controller_link_target"
     done = subprocess.run([sys.executable, "-c", _FIND_PLANTED_LINK, planted, str(tmp_path)], capture_output=True,
                           text=True, timeout=300)

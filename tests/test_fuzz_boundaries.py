@@ -1,7 +1,7 @@
 """Boundaries learned from the target (host_tools/fuzz/boundaries.py): what its replies say of its limits becomes
 the grammar's, and an off-by-one against a length the target knows only at run time is found, in process and
-black-box. The defect is planted in a copy (this process's handler table, patched for the test; a simulator started
-from a script the test writes)."""
+black-box. The defect is planted in a copy (this process's handler class, patched for the test: firmware_py/handlers.py;
+a simulator started from a script the test writes)."""
 from __future__ import annotations
 
 import json
@@ -24,14 +24,14 @@ from aspod_cli import aspod
 # controller knows only at run time (its parameters): an index equal to the count reads past the table.
 PLANT_PARAM_LIST = '''
 def plant_param_list():
-    from firmware_py import controller
+    from firmware_py.param_commands import ParamCommands
     from protocol.reasons import Reason
 
     def param_list(self, msg, now):
         if msg.index > len(self.params.order):                 # the defect: should be >=
             return self._param_value(Reason.OUT_OF_RANGE, "")
         return self._param_value(Reason.OK, self.params.order[msg.index])
-    controller._HANDLERS["ParamList"] = param_list
+    ParamCommands._param_list = param_list
 '''
 
 
@@ -47,7 +47,7 @@ def test_the_target_s_replies_give_its_limits_below_at_and_past_each_end():
         controller, learned = target.bench.controller, target.learned
         count = len(controller.params.order)
         assert learned.edges["ParamList.index"] == {count - 1, count, count + 1}
-        capacity = controller.trajectory.capacity
+        capacity = controller.arm_commands.trajectory.capacity
         assert {capacity - 1, capacity, capacity + 1, 0, 1} <= learned.edges["TrajPoint.index"]
         for name, spec in controller.params.specs.items():
             assert learned.ranges[name] == pytest.approx((spec.lo, spec.hi), rel=1e-6)
@@ -101,10 +101,10 @@ def test_what_a_black_box_hears_becomes_the_grammar_s():
 
 
 def _planted_param_list(monkeypatch):
-    from firmware_py import controller
+    from firmware_py.param_commands import ParamCommands
     scope: dict = {}
     exec(PLANT_PARAM_LIST, scope)
-    monkeypatch.setitem(controller._HANDLERS, "ParamList", controller._HANDLERS["ParamList"])   # put back after
+    monkeypatch.setattr(ParamCommands, "_param_list", ParamCommands._param_list)   # put back after
     scope["plant_param_list"]()
 
 
@@ -142,14 +142,14 @@ def test_in_process_a_handler_s_magic_float_is_reached_from_its_own_code(monkeyp
     """A Jog handler that fails on exactly 123.25 deg/s (planted): atheris traces no float comparison, so the value
     comes from the handlers' code (`constants_of`), drawn as an interior value: found within 3,000 random inputs.
     Drawn from the declaration alone (any f32 of the range, its ends, one past), it is one value in 2^32."""
-    from firmware_py import controller
-    real = controller._HANDLERS["Jog"]
+    from firmware_py.arm_commands import ArmCommands
+    real = ArmCommands._jog
 
     def magic_jog(self, msg, now):
         if msg.speed == 123.25:
             raise ArithmeticError("the planted magic value")
         return real(self, msg, now)
-    monkeypatch.setitem(controller._HANDLERS, "Jog", magic_jog)
+    monkeypatch.setattr(ArmCommands, "_jog", magic_jog)
     rng = random.Random(41)
     execs, failure = first_failure(ControllerLinkTarget(), [rng.randbytes(rng.randint(20, 300)) for _ in range(3000)])
     assert failure is not None and "the planted magic value" in failure.error, failure

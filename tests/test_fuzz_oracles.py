@@ -1,5 +1,5 @@
 """Oracles beyond "no crash" (host_tools/fuzz/oracles.py), judged against the declaration and the link's rules: each
-finds its planted defect (in a copy: a spec copied, a handler table patched for the test and put back, a simulator
+finds its planted defect (in a copy: a spec copied, a handler class patched for the test and put back, a simulator
 started from a script the test writes) and holds on the real code."""
 from __future__ import annotations
 
@@ -118,10 +118,10 @@ def test_in_process_a_reply_of_another_type_and_a_refusal_without_its_reason_are
     """Planted in controller-link: GetBoxState answered with a Result saying OK (a refusal with no reason, of a type
     the command's rule does not allow), and, apart, a NAK of a sequence gap sent with reason OK. Each is found as its
     oracle's failure; the real controller passes the same inputs."""
-    from firmware_py import controller
+    from firmware_py.tracker.commands import TrackerCommands
     from protocol.controller_link import ControllerLink
     inputs = _random_inputs(21, 4000)
-    monkeypatch.setitem(controller._HANDLERS, "GetBoxState", lambda self, msg, now: SCHEMA["Result"].type(0))
+    monkeypatch.setattr(TrackerCommands, "_get_box_state", lambda self, msg, now: SCHEMA["Result"].type(0))
     _, failure = first_failure(ControllerLinkTarget(), inputs)
     assert failure is not None and failure.oracle == "replies as declared" and "GetBoxState" in failure.error, failure
     monkeypatch.undo()
@@ -170,9 +170,9 @@ def test_black_box_finds_a_controller_that_takes_one_past_the_declared_maximum(t
 
 PLANT_REFUSED_SET = '''
 def plant_refused_set():
-    from firmware_py import controller
+    from firmware_py.param_commands import ParamCommands
     from protocol.reasons import Reason
-    real = controller._HANDLERS["ParamSet"]
+    real = ParamCommands._param_set
 
     def param_set(self, msg, now):
         reply = real(self, msg, now)
@@ -181,7 +181,7 @@ def plant_refused_set():
             self.params.set(msg.name, spec.hi)          # the defect: a refused value still clamps the parameter
             return self._param_value(Reason.OUT_OF_RANGE, msg.name)
         return reply
-    controller._HANDLERS["ParamSet"] = param_set
+    ParamCommands._param_set = param_set
 '''
 
 

@@ -1,11 +1,13 @@
 """The fuzzing benchmark's planted bugs are real (bench/fuzz_plants.py): each planted copy misbehaves on an input
 made by hand to trigger it, where the real code does not; the slow path is slow but right.
 
-Each test runs the same input on the real code and on the planted copy, in a lock-step world on the simulated
-clock, and puts the real code back at its end."""
+Each test runs the same input on the real code and on the planted copy, in lock-step worlds on the simulated
+clock (a planted handler in a world built after the plant: a controller takes its handlers when it is built,
+firmware_py/handlers.py), and puts the real code back at its end."""
 from __future__ import annotations
 
 import struct
+from contextlib import contextmanager
 
 import pytest
 
@@ -32,6 +34,18 @@ def world(tmp_path):
     fuzz_plants.uninstall_all()
 
 
+@contextmanager
+def planted_world(tmp_path, name: str):
+    """A connected lock-step world built after plant `name` is installed (taken out by `world` at the test's end)."""
+    fuzz_plants.install(name)
+    bench = LockstepBench(seed=0, controller_config=ControllerConfig(params_path=tmp_path / "planted.json"))
+    try:
+        assert bench.connect(timeout_s=10.0)
+        yield bench
+    finally:
+        bench.close()
+
+
 def reply(bench, msg):
     handle = bench.call(msg)
     assert handle.done
@@ -49,13 +63,13 @@ def next_f32_up(x: float) -> float:
     return struct.unpack("<f", struct.pack("<I", struct.unpack("<I", struct.pack("<f", x))[0] + 1))[0]
 
 
-def test_param_index_raises_at_the_count_only_when_planted(world):
+def test_param_index_raises_at_the_count_only_when_planted(tmp_path, world):
     count = len(world.controller.params.order)
     assert reply(world, M["ParamList"].type(count)).result == Reason.OUT_OF_RANGE
-    fuzz_plants.install("param-index")
-    assert reply(world, M["ParamList"].type(count - 1)).result == Reason.OK
-    with pytest.raises(IndexError):
-        world.call(M["ParamList"].type(count))
+    with planted_world(tmp_path, "param-index") as planted:
+        assert reply(planted, M["ParamList"].type(count - 1)).result == Reason.OK
+        with pytest.raises(IndexError):
+            planted.call(M["ParamList"].type(count))
 
 
 def test_jog_range_accepts_one_f32_past_the_declared_maximum(world):
@@ -76,13 +90,13 @@ def test_jog_range_accepts_one_f32_past_the_declared_maximum(world):
     assert world.controller.link.commands_executed == before + 1
 
 
-def test_move_park_raises_at_the_interior_value_only(world):
+def test_move_park_raises_at_the_interior_value_only(tmp_path, world):
     move = M["Move"].type
     assert reply(world, move(int(Axis.J1), fuzz_plants.PARK_DEG, 0.0)).spec.name == "MotionAccepted"
-    fuzz_plants.install("move-park")
-    assert reply(world, move(int(Axis.J1), 122.99999237060547, 0.0)).spec.name == "MotionAccepted"
-    with pytest.raises(KeyError):
-        world.call(move(int(Axis.J1), fuzz_plants.PARK_DEG, 0.0))
+    with planted_world(tmp_path, "move-park") as planted:
+        assert reply(planted, move(int(Axis.J1), 122.99999237060547, 0.0)).spec.name == "MotionAccepted"
+        with pytest.raises(KeyError):
+            planted.call(move(int(Axis.J1), fuzz_plants.PARK_DEG, 0.0))
 
 
 def _estop_disable_enable(bench) -> tuple:
@@ -95,14 +109,9 @@ def _estop_disable_enable(bench) -> tuple:
 
 def test_disable_estop_leaves_estop_without_reset(tmp_path, world):
     assert _estop_disable_enable(world) == (Reason.ESTOP, ControllerState.ESTOP, Fault.ESTOP)
-    planted = LockstepBench(seed=0, controller_config=ControllerConfig(params_path=tmp_path / "planted.json"))
-    try:
-        assert planted.connect(timeout_s=10.0)
-        fuzz_plants.install("disable-estop")
+    with planted_world(tmp_path, "disable-estop") as planted:
         enabled, state, faults = _estop_disable_enable(planted)
         assert (enabled, state) == (Reason.OK, ControllerState.ENABLED) and faults & Fault.ESTOP
-    finally:
-        planted.close()
 
 
 def test_hello_table_grows_each_handshake_until_the_controller_fails(tmp_path, world):
@@ -136,16 +145,11 @@ def _traj_sequence(bench, clear: bool):
 
 def test_traj_two_raises_only_after_the_sequence(tmp_path, world):
     assert _traj_sequence(world, clear=True).reply.result == Reason.NOT_ALLOWED_IN_STATE
-    fuzz_plants.install("traj-two")
-    planted = LockstepBench(seed=0, controller_config=ControllerConfig(params_path=tmp_path / "planted.json"))
-    try:
-        assert planted.connect(timeout_s=10.0)
+    with planted_world(tmp_path, "traj-two") as planted:
         assert _traj_sequence(planted, clear=False).reply.result == Reason.NOT_ALLOWED_IN_STATE   # no TrajClear
         reply(planted, M["TrajClear"].type())
         with pytest.raises(IndexError):
             _traj_sequence(planted, clear=True)
-    finally:
-        planted.close()
 
 
 def test_host_event_crashes_the_host_on_a_zero_limit():
@@ -161,16 +165,17 @@ def test_host_event_crashes_the_host_on_a_zero_limit():
         fuzz_plants.uninstall_all()
 
 
-def test_slow_param_is_slow_and_right(world, monkeypatch):
+def test_slow_param_is_slow_and_right(tmp_path, world, monkeypatch):
     clock = SimClock()
     monkeypatch.setattr(fuzz_plants, "WALL", clock)
     real = reply(world, M["ParamSet"].type("trk_dwell_s", 2.0))
-    fuzz_plants.install("slow-param")
-    planted = reply(world, M["ParamSet"].type("trk_dwell_s", 2.0))
-    assert planted == real and planted.result == Reason.OK
-    assert clock.now() == fuzz_plants.SLOW_S
-    assert reply(world, M["ParamSet"].type("temp_warn_c", 6.0)).result == Reason.OK
-    assert clock.now() == fuzz_plants.SLOW_S          # only the trk_* parameters are slow
+    assert clock.now() == 0.0
+    with planted_world(tmp_path, "slow-param") as planted:
+        slow = reply(planted, M["ParamSet"].type("trk_dwell_s", 2.0))
+        assert slow == real and slow.result == Reason.OK
+        assert clock.now() == fuzz_plants.SLOW_S
+        assert reply(planted, M["ParamSet"].type("temp_warn_c", 6.0)).result == Reason.OK
+        assert clock.now() == fuzz_plants.SLOW_S          # only the trk_* parameters are slow
 
 
 def test_every_plant_has_its_targets():

@@ -1,8 +1,8 @@
 """Sequences that build state (host_tools/fuzz/grammar.py `draw_chain`): a crash only after TrajClear, two
 TrajPoints and TrajRun(2) is found in process and black box, where commands drawn one by one never reached it
 (docs/fuzzing.md, "What it finds": 49,835 executions in process, none black box, before sequences). The defect is
-planted in a copy: this process's handler table patched for the test, a simulator started from a script the test
-writes."""
+planted in a copy: this process's handler class patched for the test (firmware_py/handlers.py), a simulator started
+from a script the test writes."""
 from __future__ import annotations
 
 import json
@@ -22,9 +22,9 @@ from test_fuzz_boundaries import first_failure, sim_script
 # TrajClear empties a cache that only a run of 3+ knots fills; TrajRun of two knots reads it: IndexError.
 PLANT_TRAJ_TWO = '''
 def plant_traj_two():
-    from firmware_py import controller
+    from firmware_py.arm_commands import ArmCommands
     from protocol.reasons import Reason
-    real_clear, real_run = controller._HANDLERS["TrajClear"], controller._HANDLERS["TrajRun"]
+    real_clear, real_run = ArmCommands._traj_clear, ArmCommands._traj_run
 
     def traj_clear(self, msg, now):
         reply = real_clear(self, msg, now)
@@ -36,7 +36,7 @@ def plant_traj_two():
         if msg.count == len(self.trajectory.knots) == 2 and getattr(self, "segments", None) is not None:
             self.segments[0]                   # the defect: the cache is empty
         return real_run(self, msg, now)
-    controller._HANDLERS["TrajClear"], controller._HANDLERS["TrajRun"] = traj_clear, traj_run
+    ArmCommands._traj_clear, ArmCommands._traj_run = traj_clear, traj_run
 '''
 
 
@@ -63,9 +63,9 @@ def test_in_process_a_crash_after_a_sequence_is_found(monkeypatch):
     written); the real handlers pass the same inputs."""
     namespace: dict = {}
     exec(PLANT_TRAJ_TWO, namespace)
-    from firmware_py import controller
-    monkeypatch.setitem(controller._HANDLERS, "TrajClear", controller._HANDLERS["TrajClear"])
-    monkeypatch.setitem(controller._HANDLERS, "TrajRun", controller._HANDLERS["TrajRun"])
+    from firmware_py.arm_commands import ArmCommands
+    monkeypatch.setattr(ArmCommands, "_traj_clear", ArmCommands._traj_clear)      # put back after
+    monkeypatch.setattr(ArmCommands, "_traj_run", ArmCommands._traj_run)
     namespace["plant_traj_two"]()
     rng = random.Random(5)
     inputs = [rng.randbytes(rng.randint(20, 300)) for _ in range(3000)]

@@ -76,7 +76,7 @@ def true_deg(bench: LockstepBench, axis: Axis) -> float:
 def controller_view(bench: LockstepBench) -> tuple:
     """What a refusal must leave alone: the buffer's knots and each joint's mode, motion, setpoint and target."""
     arm = bench.controller.arm
-    return (list(bench.controller.trajectory.knots),
+    return (list(bench.controller.arm_commands.trajectory.knots),
             [(c.mode, c.motion_id, c.outcome, c.pos_sp_rad, c.target_rad) for c in arm.joints.values()])
 
 
@@ -344,7 +344,7 @@ def test_over_a_line_that_drops_and_duplicates_frames_each_knot_and_the_run_happ
         ids = send_trajectory(BenchClient(bench), knots)
         assert link.commands_executed - executed_before == len(knots) + 2       # TrajClear, the knots, TrajRun
         assert bench.host.stats.retransmits > 0          # frames were lost and sent again: the case is there
-        assert [k.t_s for k in bench.controller.trajectory.knots] == pytest.approx([k.t_s for k in knots])
+        assert [k.t_s for k in bench.controller.arm_commands.trajectory.knots] == pytest.approx([k.t_s for k in knots])
         assert ids == [m + 1 for m in motions_before]    # one run: one new motion per joint
         assert bench.wait_until(lambda: all(done(bench, int(a), i) for a, i in zip(JOINTS, ids)), 15.0)
         assert [arm.channels[int(a)].motion_id for a in JOINTS] == ids

@@ -1,6 +1,7 @@
 """Line coverage reached by a corpus: every input of a target's corpus run again under coverage.py, in a child
 process (so that lines run when the modules are imported count too), against the files the target names as
-its own (`Target.covers`) and the controller's command handlers (the functions declared with `@handles`).
+its own (`Target.covers`) and the controller's command handlers (the functions declared with `@handles`, in the
+files of the subsystems that own them: firmware_py/handlers.py).
 
     python -m host_tools.fuzz.coverage_report TARGET CORPUS_DIR OUT.json     (the child; `line_coverage` runs it)
 """
@@ -14,7 +15,10 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-HANDLERS_FILE = "firmware_py/controller.py"
+# the files of the command handlers: the controller's own and each subsystem's (tests/test_handlers.py checks these
+# are the files of a controller's table)
+HANDLER_FILES = ("firmware_py/controller.py", "firmware_py/arm_commands.py", "firmware_py/param_commands.py",
+                 "firmware_py/tracker/commands.py")
 
 
 def _handler_lines(path: Path) -> set[int]:
@@ -29,10 +33,10 @@ def _handler_lines(path: Path) -> set[int]:
 
 def line_coverage(target: str, corpus: Path, files: tuple[str, ...]) -> dict[str, dict]:
     """{file: {"covered": n, "statements": m, "percent": p}} for each of `files`, and "handlers" (the controller's
-    command handlers) when the target reaches them."""
+    command handlers, in every file of HANDLER_FILES) when the target reaches them."""
     with tempfile.TemporaryDirectory(prefix="aspod-cov-") as tmp:
         data = Path(tmp) / "coverage.json"
-        include = ",".join(str(ROOT / f) for f in files + (HANDLERS_FILE,))
+        include = ",".join(str(ROOT / f) for f in dict.fromkeys(files + HANDLER_FILES))
         subprocess.run([sys.executable, "-m", "coverage", "run", f"--data-file={tmp}/.coverage",
                         f"--include={include}", "-m", "host_tools.fuzz.coverage_report", target, str(corpus.resolve())],
                        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
@@ -40,15 +44,19 @@ def line_coverage(target: str, corpus: Path, files: tuple[str, ...]) -> dict[str
                        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=ROOT)
         report = json.loads(data.read_text())["files"]
     out: dict[str, dict] = {}
+    handlers: set = set()          # (file, line) of every handler's statements
+    reached: set = set()
     for name, entry in report.items():
         rel = str(Path(name).resolve().relative_to(ROOT)) if Path(name).is_absolute() else name
         executed, missing = set(entry["executed_lines"]), set(entry["missing_lines"])
         if rel in files:
             out[rel] = _figures(executed, executed | missing)
-        if rel == HANDLERS_FILE:
-            handlers = _handler_lines(ROOT / rel) & (executed | missing)
-            if executed & handlers:
-                out["handlers"] = _figures(executed & handlers, handlers)
+        if rel in HANDLER_FILES:
+            lines = _handler_lines(ROOT / rel) & (executed | missing)
+            handlers |= {(rel, n) for n in lines}
+            reached |= {(rel, n) for n in lines & executed}
+    if reached:
+        out["handlers"] = _figures(reached, handlers)
     return out
 
 

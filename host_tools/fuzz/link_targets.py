@@ -323,17 +323,17 @@ class ControllerLinkTarget(_LinkTarget):
 
 def learned_from(controller) -> Boundaries:
     """What the controller says of itself, as its replies say it (every parameter's ParamValue, its TrajState), and
-    the float constants in its handlers' code, its interior values: the in-process engine's dictionary of the
-    target's own limits. Read through the handlers' reply builders, so nothing changes and no command is counted.
+    the float constants in its handlers' code (every subsystem's, in its own table `Controller.handlers`, as planted
+    in this process), its interior values: the in-process engine's dictionary of the target's own limits. Read
+    through the handlers' reply builders, so nothing changes and no command is counted.
     The replies' own numbers are left out of the interior values (their limits are kept as edges): 76 parameters'
     values would drown the handlers' few constants."""
-    from firmware_py.controller import _HANDLERS
     from protocol.reasons import Reason
     learned = Boundaries()
     for name in controller.params.order:
-        learned.learn(controller._param_value(Reason.OK, name), numbers=False)
-    learned.learn(controller._traj_state(Reason.OK), numbers=False)
-    learned.add_interior(constants_of(_HANDLERS.values()))
+        learned.learn(controller.param_commands._param_value(Reason.OK, name), numbers=False)
+    learned.learn(controller.arm_commands._traj_state(Reason.OK), numbers=False)
+    learned.add_interior(constants_of(controller.handlers.values()))
     return learned
 
 

@@ -72,9 +72,10 @@ def planted_controller_link_target():
 
 
 def plant_dial_defect() -> None:
-    """Replace the controller's BoxDial handler by the planted one (in this process only)."""
-    from firmware_py import controller
-    real = controller._HANDLERS["BoxDial"]
+    """Replace the tracker's BoxDial handler by the planted one (in this process only, for every controller built
+    after: firmware_py/handlers.py)."""
+    from firmware_py.tracker.commands import TrackerCommands
+    real = TrackerCommands._box_dial
     if getattr(real, "planted", False):
         return                                               # planted already (a target made again)
     table = [round(p * 1023 / 100) for p in range(100)]     # the defect: 0..99 %, one entry short of 100 %
@@ -83,7 +84,7 @@ def plant_dial_defect() -> None:
         table[int(msg.percent)]                              # IndexError at exactly 100 %
         return real(self, msg, now)
     planted_box_dial.planted = True
-    controller._HANDLERS["BoxDial"] = planted_box_dial
+    TrackerCommands._box_dial = planted_box_dial
 
 
 if __name__ == "__main__":

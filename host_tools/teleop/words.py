@@ -82,7 +82,7 @@ LOCAL_COMMANDS = {
     "clear": "clear: clear the screen (Ctrl-L does too); nothing in a script",
     "quit": "quit: leave",
 }
-# Axes the controller refuses for these motions (firmware_py/controller.py `_joint_motion`: `all` is OUT_OF_RANGE;
+# Axes the controller refuses for these motions (firmware_py/arm_commands.py `_joint_motion`: `all` is OUT_OF_RANGE;
 # firmware_py/arm.py `move`, `jog`: the gripper opens and closes with `grip`): help and Tab leave them out.
 REFUSED_AXES = {"Move": ("all", "gripper"), "MoveBy": ("all", "gripper"), "Jog": ("all", "gripper")}
 
