@@ -279,3 +279,12 @@ TIMING_ISSUE_DOCS: dict[TimingIssue, str] = {
 }
 
 assert set(TIMING_ISSUE_DOCS) == set(TimingIssue)
+
+
+class GraspState(enum.IntEnum):
+    """How one hand holds the shared object (`hil_sim/held_object.py`); the plant reports it, a controller reads it."""
+
+    FREE = 0       # the hand holds nothing: the object was never grasped by it
+    HELD = 1       # the grasp holds: the force across it is within friction x the jaws' force
+    SLIPPING = 2   # past that limit: the object slides in the hand, the force stays at the limit
+    DROPPED = 3    # the grasp let go (jaws open, twice the limit at once, or slid off the object's end)

@@ -33,8 +33,9 @@ from firmware_py.tracker import task as tracker_task
 from firmware_py.tracker.box import ADC_COUNTS, quantize_dial
 from hil_sim.arm import (ArmPlant, LoadModel, gripper_position_m, joint_inertias_kg_m2, mount_static_moment_nm,
                          static_torques_nm)
-from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, J1, J2, J3, MOUNT, REPORT_TEST_LOAD_KG,
-                                ArmPlantParams, square_tube_weight_lb)
+from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, GRIPPER, J1, J2, J3, MOUNT,
+                                REPORT_TEST_LOAD_KG, ArmPlantParams, square_tube_weight_lb)
+from hil_sim.held_object import ObjectParams
 from hil_sim.plant import Plant, PlantParams
 from hil_sim.tracker import TRACKER_PARAMS, TrackerPlant
 from host_tools.apps.tracker_day import DayHal, DaySettings, run_day
@@ -710,12 +711,65 @@ def planner_rows() -> list[Row]:
     return rows
 
 
+# ---- the shared object (issue 39) -------------------------------------------------------------------------------
+
+def object_rows(params: ObjectParams = ObjectParams()) -> list[Row]:
+    """The object two hands carry (`hil_sim/held_object.py`): the report's figures, the planner's, and those
+    chosen here. The compared column tags each: [REPORT], [PLANNER], [EMU] (chosen or assumed for the emulator),
+    [NOBODY] (no source gives it)."""
+    p = params
+    (g0x, g0z), (g1x, g1z) = p.grasps_m
+    (kx, kz), (cx, cz) = p.stiffness_n_m, p.damping_n_s_m
+    hold_duty = {spec.name: spec.default for spec in arm_config.parameter_table()}["grip_hold_duty"]
+    supply_v = PlantParams().supply_nominal_v
+    jaws_n = (ARM_PLANT_PARAMS.channels[GRIPPER].drive.stall_torque_nm(hold_duty * supply_v)
+              / ARM_PLANT_PARAMS.gripper.lead_m_per_rad)
+    limit_n = p.friction * jaws_n
+    period = p.stiffest_period_s()
+    report_object = (0.25, 0.25, 0.1)
+    return [
+        Row("G1", "the object's mass and size", "\"a mass of 0.25 kg with a length dimension of 0.25 m and [a h]eight "
+            "dimension of 0.1 m\" (4.1, OCR)", f"{p.mass_kg} kg, {p.size_m[0]} x {p.size_m[1]} m (`ObjectParams`)",
+            "[REPORT] same" if (p.mass_kg, *p.size_m) == report_object else "[REPORT] changed"),
+        Row("G2", "its moment of inertia about its centre", "not in the report",
+            f"{p.inertia_kg_m2:.3g} kg m^2: a uniform block, m (a^2 + b^2) / 12",
+            "[EMU] from the report's mass and size, the density assumed uniform"),
+        Row("G3", "how it is held", "not in the report: no grasp type, grasp points, friction or compliance (1)",
+            f"at ({g0x}, {g0z}) and ({g1x}, {g1z}) m from its centre: its ends, each a spring-damper to one hand "
+            "passing a force and no moment; nothing pins its angle",
+            "[PLANNER] the planner's grasps and its pin (`plan/model.py`, `Held`)"),
+        Row("G4", "grasp stiffness", "not in the report; its one positioning tolerance is 1 cm (DEFLECTION AND "
+            "MOMENT ANALYSIS)", f"{kx:.0f} N/m along x, {kz:.0f} N/m along z, each grasp: 1 cm is "
+            f"{kx * 0.01:.0f} N", "[EMU] chosen from the 1 cm specification"),
+        Row("G5", "grasp damping", "not in the report",
+            f"{cx:.0f} N s/m along x, {cz:.0f} N s/m along z: damping ratio {p.damping_ratio(0):.2f} and "
+            f"{p.damping_ratio(1):.2f} for the object on its two grasps",
+            "[EMU] chosen: settles in a few periods with little overshoot"),
+        Row("G6", "friction coefficient of the grip", "not in the report", f"{p.friction}",
+            "[NOBODY] assumed"),
+        Row("G7", "the jaws' force", "not in the report (the gripper: 2.0 lb, a push/pull motor; WRIST AND "
+            "GRIPPER)", f"{jaws_n:.1f} N at hold duty {hold_duty} (`grip_hold_duty`) and {supply_v:.0f} V: the "
+            "plant's gripper drive stalled on the object", "[EMU] the plant's ASSUMED gripper motor and screw"),
+        Row("G8", "the grip's limit", "not in the report",
+            f"slips past {p.friction} x {jaws_n:.1f} = {limit_n:.1f} N across a grasp, the force held at that; "
+            f"lets go past twice it at once ({2 * limit_n:.1f} N), with the jaws open (below {p.open_jaw_n} N) or "
+            "slid off the object", "[NOBODY] the rule chosen here"),
+        Row("G9", "gravity on the example", "not stated (4); the plane is not stated either",
+            f"Earth {G_EARTH_M_S2} m/s^2 or orbit 0 (`gravity_m_s2`), as the arm (`hil_sim/arm.py`)",
+            "[NOBODY] both are run"),
+        Row("G10", "the step", "not in the report",
+            f"1 ms, the plant's; the fastest mode is the object turning on its grasps, {period * 1000:.1f} ms "
+            f"(omega = {2 * math.pi / period:.0f} rad/s, omega dt = {2 * math.pi * 0.001 / period:.2f}, stable below 2)",
+            "[EMU] velocity Verlet, the dampers implicit"),
+    ]
+
+
 # ---- the page ----------------------------------------------------------------------------------------------------
 
 SECTIONS: dict[str, Callable[[], list[Row]]] = {
     "links": link_rows, "deflections": deflection_rows, "moments": moment_rows, "torques": torque_rows,
     "worst-case": worst_rows, "mount": mount_rows, "speed": speed_rows, "tracker": tracker_rows, "box": box_rows,
-    "planner": planner_rows}
+    "planner": planner_rows, "object": object_rows}
 
 HEADER = ("| id | figure | report (where) | emulator | compared |", "|---|---|---|---|---|")
 BLOCK = re.compile(r"(?P<head><!-- table:(?P<key>[\w-]+) [^>]*-->\n)(?P<body>.*?)"
@@ -766,7 +820,7 @@ def test_the_page_has_each_table_once_and_names_only_rows_it_has():
     ids = re.findall(r"^\| ([A-Z]+\d+) \|", text, re.M)
     assert len(ids) == len(set(ids)), "row ids are unique"
     prose = BLOCK.sub("", text)
-    named = set(re.findall(r"\b(?:L|D|E|T|W|M|S|SU|B|P)\d+\b", prose))
+    named = set(re.findall(r"\b(?:L|D|E|T|W|M|S|SU|B|P|G)\d+\b", prose))
     assert named <= set(ids), f"the prose names rows the tables do not have: {sorted(named - set(ids))}"
 
 
