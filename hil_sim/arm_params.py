@@ -333,3 +333,51 @@ class ArmPlantParams:
 
 
 ARM_PLANT_PARAMS = ArmPlantParams()
+
+
+# ---- the example arm (issue 39): the report's coordinated example, built as an arm ------------------------
+# docs/two_arms.md; the firmware keeps its own copy of these numbers (docs/fidelity.md, table "example-arm", says
+# where each comes from). [REPORT]: the report's section 4 example (unit links, unit masses,
+# bases 2.0 m apart; host_tools/plan/example.py). [EMU]: chosen for the emulator (the report gives the example no
+# drive). ASPOD's: this file's own channel, unchanged (the report gives the example nothing for it).
+#
+# [REPORT] the example's links: 1.0 m and 1.0 kg each, uniform rods (the planner's links="rod"); nothing else on
+# the arm (no elbow hardware, no wrist, no gripper mass: the planner's model exactly); the hand, where the held
+# object's grasp acts, on the J3 axis (tip 0). Link I, the shoulder hardware and the mount as ASPOD's: they load
+# only the mount, which stays at home for the example (the object lives in the arm plane).
+EXAMPLE_ARM_GEOMETRY = ArmGeometry(
+    link2_m=1.0, link3_m=1.0, link2_kg=1.0, link3_kg=1.0,          # [REPORT] section 4
+    elbow_hw_kg=0.0, wrist_fixed_kg=0.0, wrist_turned_kg=0.0,      # the two rods and nothing else
+    wrist_turned_cg_m=0.0, wrist_turned_inertia_kg_m2=0.0,
+    roll_inertia_kg_m2=0.0,
+    tip_m=0.0)                                                     # [PLANNER] the hand at link III's end
+
+# [EMU] one 28 V brushed PM DC motor class at both joints through a 50:1 gear head: 1.7 N m/A at the joint,
+# no-load 28 / (0.04 * 50) = 14 rad/s, the rotor reflected 0.075 kg m^2. Its rating, 0.8 N m at the motor, is
+# 0.8 * 50 * 0.85 = 34 N m at the gear head's output (`MotorSpec.rated_torque_nm` is there).
+MOTOR_EXAMPLE_ARM = MotorSpec(
+    name="example arm's PM DC gear-head motor", nominal_v=28.0,
+    r_ohm=0.4, l_h=0.5e-3, kt_nm_a=0.04, ke_v_s_rad=0.04,
+    rotor_inertia_kg_m2=3.0e-5, coulomb_nm=5.0e-3, stiction_nm=7.0e-3, viscous_nm_s_rad=2.0e-6,
+    gearhead=GearStage("gear head 50:1", 50.0, 0.85),
+    rated_torque_nm=0.8 * 50.0 * 0.85)
+
+# [EMU] ranges: the example's path spans shoulder -40.5..112.5 deg and elbow 66.9..149.4 deg over both arms (rod
+# links), so the shoulder's limit switches at -90 and +135 deg (hard stops -95, +140), the elbow's at 0 and +170
+# (hard stops -5, +175). Home flags at 0 as ASPOD's. The shoulder powers on 0.1 rad below its flag as ASPOD's
+# joints do; 0.1 rad below the elbow's flag is past its hard stop, so it powers on halfway between the two
+# (-2.5 deg, its lower limit switch closed). Encoders 400 counts per motor turn as ASPOD's. Output friction and
+# inertia (0.2 / 0.1 N m, 2e-3 / 1e-3 kg m^2) and the brakes' rule (`BRAKE_HOLD_FACTOR` x rated: 51 N m) as
+# ASPOD's J1 and J2.
+EXAMPLE_ARM_CHANNELS = (
+    ChannelParams(_drive("j1", MOTOR_EXAMPLE_ARM, (), out_coulomb_nm=0.2, out_inertia_kg_m2=2e-3,
+                         stop_deg=(-95.0, 140.0)),
+                  ENCODER_CPR, home_rad=0.0, limit_lo_rad=-90 * DEG, limit_hi_rad=135 * DEG, start_pos_rad=-0.1),
+    ChannelParams(_drive("j2", MOTOR_EXAMPLE_ARM, (), out_coulomb_nm=0.1, out_inertia_kg_m2=1e-3,
+                         stop_deg=(-5.0, 175.0)),
+                  ENCODER_CPR, home_rad=0.0, limit_lo_rad=0.0, limit_hi_rad=170 * DEG, start_pos_rad=-2.5 * DEG),
+    *CHANNEL_PARAMS[2:],                                           # J3, J4, gripper, mount: ASPOD's
+)
+
+# The example arm's plant: its geometry and its shoulder and elbow drives; the rest ASPOD's.
+EXAMPLE_ARM_PLANT = ArmPlantParams(channels=EXAMPLE_ARM_CHANNELS, geometry=EXAMPLE_ARM_GEOMETRY)

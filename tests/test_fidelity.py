@@ -33,8 +33,9 @@ from firmware_py.tracker import task as tracker_task
 from firmware_py.tracker.box import ADC_COUNTS, quantize_dial
 from hil_sim.arm import (ArmPlant, LoadModel, gripper_position_m, joint_inertias_kg_m2, mount_static_moment_nm,
                          static_torques_nm)
-from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, GRIPPER, J1, J2, J3, MOUNT,
-                                REPORT_TEST_LOAD_KG, ArmPlantParams, square_tube_weight_lb)
+from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, BRAKE_HOLD_FACTOR, EXAMPLE_ARM_PLANT,
+                                GRIPPER, J1, J2, J3, MOUNT, REPORT_TEST_LOAD_KG, ArmPlantParams,
+                                square_tube_weight_lb)
 from hil_sim.held_object import ObjectParams
 from hil_sim.plant import Plant, PlantParams
 from hil_sim.tracker import TRACKER_PARAMS, TrackerPlant
@@ -764,12 +765,89 @@ def object_rows(params: ObjectParams = ObjectParams()) -> list[Row]:
     ]
 
 
+# ---- the example arm (issue 39) ----------------------------------------------------------------------------------
+
+EXAMPLE_LIMITS_NM = (30.0, 20.0, 35.0, 15.0)        # the report's section 4: |u1| .. |u4|, arm 1's then arm 2's
+EXAMPLE_CURRENT_LIMITS_A = (21.0, 12.0)             # the firmware's i_limit_a for the example's shoulder, elbow
+
+
+@lru_cache(maxsize=None)
+def example_arm_path():
+    """The example's minimum-time plan with the example arm's rod links, in Earth gravity: each joint's range
+    (deg) and peak speed (rad/s) along it, in the planner's order (arm 1 shoulder, elbow, arm 2 shoulder, elbow)."""
+    from host_tools.plan.example import report_problem
+    from host_tools.plan.reach import plan_reach
+    problem = report_problem(gravity=True, links="rod")
+    profile = plan_reach(problem, 100).profile
+    jp = problem.system.joint_path(problem.path, profile.s)
+    q = np.degrees(jp.q)
+    return q.min(axis=0), q.max(axis=0), np.abs(jp.q_s * profile.sd[:, None]).max(axis=0)
+
+
+def example_arm_rows(arm: ArmPlantParams = EXAMPLE_ARM_PLANT) -> list[Row]:
+    """The example arm (`EXAMPLE_ARM_PLANT`): the report's example's two links, drives chosen for it, ASPOD's
+    wrist, gripper and mount. Tagged as the object's rows: [REPORT], [PLANNER], [EMU]."""
+    geo, aspod = arm.geometry, ARM_PLANT_PARAMS
+    shoulder, elbow = arm.channels[J1].drive, arm.channels[J2].drive
+    motor = shoulder.motor
+    low, high, speeds = example_arm_path()
+    limits = [(math.degrees(c.limit_lo_rad), math.degrees(c.limit_hi_rad)) for c in arm.channels[:2]]
+    stops = [(math.degrees(c.drive.stop_lo_rad), math.degrees(c.drive.stop_hi_rad)) for c in arm.channels[:2]]
+    inside = all(lo <= low[j::2].min() and high[j::2].max() <= hi for j, (lo, hi) in enumerate(limits))
+    extra = (geo.elbow_hw_kg, geo.wrist_fixed_kg, geo.wrist_turned_kg, geo.wrist_turned_inertia_kg_m2,
+             geo.roll_inertia_kg_m2, geo.tip_m)
+    (ks, ke) = (shoulder.kt_out_nm_a, elbow.kt_out_nm_a)
+    worst_shoulder, worst_elbow = max(EXAMPLE_LIMITS_NM[0::2]), max(EXAMPLE_LIMITS_NM[1::2])
+    (i_shoulder, i_elbow) = EXAMPLE_CURRENT_LIMITS_A
+    no_load = PlantParams().supply_nominal_v / shoulder.ke_out_v_s_rad
+    return [
+        Row("X1", "the example's links", "\"manipulator links have unit mass (kg) and unit length (m)\" (4)",
+            f"link II {geo.link2_m} m, {geo.link2_kg} kg; link III {geo.link3_m} m, {geo.link3_kg} kg; uniform rods "
+            "(`EXAMPLE_ARM_GEOMETRY`)", "[REPORT] same; rods: [PLANNER] links=\"rod\" (the report does not say "
+            "rods or points; points place its switching points nearer, P1)"),
+        Row("X2", "what else the arm carries", "nothing said beyond the two links (4)",
+            "nothing: no elbow hardware, wrist or gripper mass; the hand, where the object's grasp acts, on the J3 "
+            "axis (tip 0 m)" if not any(extra) else "some wrist or elbow mass", "[PLANNER] the planner's model"),
+        Row("X3", "the bases", "\"The distance between the bases of the manipulators is 2.0 [m]\" (4, OCR)",
+            "(0, 0) and (2.0, 0) m in the object's frame, both arms' x along it (`two_arms.EXAMPLE_BASES_M`)",
+            "[REPORT] same"),
+        Row("X4", "the drives", "none: torque limits only",
+            f"one 28 V PM DC motor at each joint: {motor.r_ohm} ohm, {motor.l_h * 1000} mH, {motor.kt_nm_a} N m/A, "
+            f"rotor {motor.rotor_inertia_kg_m2:.1e} kg m^2; {motor.gearhead.ratio:.0f}:1 gear head, efficiency "
+            f"{motor.gearhead.efficiency}: {ks:.2f} N m/A and {no_load:.0f} rad/s no-load at the joint, the rotor "
+            f"{shoulder.ratio ** 2 * motor.rotor_inertia_kg_m2:.3f} kg m^2 there", "[EMU] chosen for the example"),
+        Row("X5", "torque limits", f"|u1| < {EXAMPLE_LIMITS_NM[0]:.0f}, |u2| < {EXAMPLE_LIMITS_NM[1]:.0f}, "
+            f"|u3| < {EXAMPLE_LIMITS_NM[2]:.0f}, |u4| < {EXAMPLE_LIMITS_NM[3]:.0f} N m (4)",
+            f"the drives' current limits: shoulder {i_shoulder:.0f} A, {i_shoulder * ks:.1f} N m; elbow "
+            f"{i_elbow:.0f} A, {i_elbow * ke:.1f} N m", "[EMU] one drive for both arms, covering the larger limit: "
+            + ("each covered" if i_shoulder * ks >= worst_shoulder and i_elbow * ke >= worst_elbow else "NOT covered")),
+        Row("X6", "brakes", "none", f"{shoulder.brake_hold_nm:.0f} N m at each joint: {BRAKE_HOLD_FACTOR} x the gear "
+            f"head's {motor.rated_torque_nm:.0f} N m rating "
+            f"({motor.rated_torque_nm / (motor.gearhead.ratio * motor.gearhead.efficiency):.1f} N m at the motor)",
+            "[EMU] ASPOD's rule (`BRAKE_HOLD_FACTOR`)"),
+        Row("X7", "joint ranges", "none; the path is lost (4.1)",
+            f"along the planned path (rod links) the shoulders span {low[0::2].min():.1f}..{high[0::2].max():.1f}°, "
+            f"the elbows {low[1::2].min():.1f}..{high[1::2].max():.1f}°; limit switches {limits[0][0]:.0f}..+"
+            f"{limits[0][1]:.0f}° and {limits[1][0]:.0f}..+{limits[1][1]:.0f}°, hard stops {stops[0][0]:.0f}..+"
+            f"{stops[0][1]:.0f}° and {stops[1][0]:.0f}..+{stops[1][1]:.0f}°",
+            "[EMU] chosen around the path: " + ("it lies inside" if inside else "it does NOT lie inside")),
+        Row("X8", "joint speeds", "none given (the report's plan has no time: P5)",
+            f"the minimum-time plan in Earth gravity peaks at {' / '.join(f'{v:.1f}' for v in speeds)} rad/s; "
+            f"no-load {no_load:.0f} rad/s", f"[EMU] the fastest joint at {speeds.max() / no_load * 100:.0f} % of "
+            "no-load"),
+        Row("X9", "J3, J4, gripper, mount", "none: the example's arms have two joints (4)",
+            "ASPOD's own channels (`CHANNEL_PARAMS`: T10-T12), the mount held at home (the object lives in the "
+            "arm plane)" if arm.channels[J3:] == aspod.channels[J3:] and arm.mount == aspod.mount
+            else "changed from ASPOD's", "[EMU] ASPOD's, unchanged"),
+    ]
+
+
 # ---- the page ----------------------------------------------------------------------------------------------------
 
 SECTIONS: dict[str, Callable[[], list[Row]]] = {
     "links": link_rows, "deflections": deflection_rows, "moments": moment_rows, "torques": torque_rows,
     "worst-case": worst_rows, "mount": mount_rows, "speed": speed_rows, "tracker": tracker_rows, "box": box_rows,
-    "planner": planner_rows, "object": object_rows}
+    "planner": planner_rows, "object": object_rows, "example-arm": example_arm_rows}
 
 HEADER = ("| id | figure | report (where) | emulator | compared |", "|---|---|---|---|---|")
 BLOCK = re.compile(r"(?P<head><!-- table:(?P<key>[\w-]+) [^>]*-->\n)(?P<body>.*?)"
@@ -820,7 +898,7 @@ def test_the_page_has_each_table_once_and_names_only_rows_it_has():
     ids = re.findall(r"^\| ([A-Z]+\d+) \|", text, re.M)
     assert len(ids) == len(set(ids)), "row ids are unique"
     prose = BLOCK.sub("", text)
-    named = set(re.findall(r"\b(?:L|D|E|T|W|M|S|SU|B|P|G)\d+\b", prose))
+    named = set(re.findall(r"\b(?:L|D|E|T|W|M|S|SU|B|P|G|X)\d+\b", prose))
     assert named <= set(ids), f"the prose names rows the tables do not have: {sorted(named - set(ids))}"
 
 
