@@ -20,8 +20,12 @@ on the gripper axis); a payload is a point at the tip. From it, each step:
   about that joint with the other joints frozen. The off-diagonal (coupling) and the
   velocity terms are neglected: every joint sees its rotor through a 300:1 to 1600:1
   train (J1: 1.5e-5 kg m^2 * 1600^2 = 38 kg m^2 against at most 4 kg m^2 of arm), and
-  the report keeps joints at or below 1/2 RPM. The mount sees the whole arm (and its own
+  the report keeps joints at or below 1/2 RPM. Not so for the example arm's 50:1 drives
+  (`EXAMPLE_ARM_PLANT`): along the example's plan what this leaves out peaks at 20 N m at a
+  shoulder and 18 N m at an elbow (docs/plant.md). The mount sees the whole arm (and its own
   mobile arm and guide wheels) about the shaft.
+* an external force at the tip (`ArmPlant.set_hand_force`, the held object's): its torques
+  J^T F on J1-J3, as gravity's on a mass there; none on J4, the gripper or the mount.
 
 The gripper is the push/pull motor on a lead screw: opening = screw angle * lead. Hard
 stops at closed and at the full stroke; an object of a given width puts a stop at that
@@ -94,11 +98,13 @@ class LoadModel:
         tx, tz = wx + self._tip * c3, wz + self._tip * s3
         return (ex, ez), (wx, wz), (rx, rz), (tx, tz), (c1, c2, c3)
 
-    def loads(self, q1: float, q2: float, q3: float) -> tuple[list[float], list[float]]:
-        """Gravity torques and inertias per channel at joint angles q1..q3, as the plant's tick computes them
-        (`hil_sim.arm_tick.gravity_and_inertia`, the model's one implementation): (load_nm, inertia)."""
+    def loads(self, q1: float, q2: float, q3: float,
+              hand_force_n: tuple[float, float] = (0.0, 0.0)) -> tuple[list[float], list[float]]:
+        """Gravity torques (and `hand_force_n`'s at the tip, x and z in the arm plane) and inertias per channel at
+        joint angles q1..q3, as the plant's tick computes them (`hil_sim.arm_tick.gravity_and_inertia`, the
+        model's one implementation): (load_nm, inertia)."""
         load, inertia = [0.0] * len(_CHANNELS), [0.0] * len(_CHANNELS)
-        gravity_and_inertia(q1, q2, q3, (*self.tick_constants, -math.inf, math.inf), load, inertia)
+        gravity_and_inertia(q1, q2, q3, (*self.tick_constants, -math.inf, math.inf, *hand_force_n), load, inertia)
         return load, inertia
 
     def _outer_radii(self, pose) -> tuple[float, ...]:
@@ -176,7 +182,8 @@ class ArmPlant:
 
     `step(dt_s, duty, enable, brake, supply_v)` takes per-channel arrays (order `ARM_CHANNELS`)
     and integrates; read `i_a` (current sense), `encoder_counts`, the switch arrays and
-    the gripper's `grip_force_n` afterwards.
+    the gripper's `grip_force_n` afterwards. `set_hand_force` puts a force at the hand for the
+    steps that follow (the held object's: `hil_sim.two_arms`).
 
     Every step is the plant's one tick (`tick`, a `hil_sim.arm_tick.ArmTick`: `arm_plant_tick`
     over flat rows of numbers, compiled by numba with `compiled`, None: as `ASPOD_COMPILED` says;
@@ -199,6 +206,7 @@ class ArmPlant:
         self.object_width_m: Optional[float] = None
         self._load_nm = [0.0] * len(ch)
         self._inertia = [0.0] * len(ch)
+        self.hand_force_n = (0.0, 0.0)
         self.payload_kg = 0.0
         self.g_m_s2 = GRAVITY_M_S2["earth"]
         self._loads = LoadModel(params.geometry, params.mount, self.payload_kg, self.g_m_s2)
@@ -240,6 +248,20 @@ class ArmPlant:
         self.object_width_m = float(width_m)
         self.motors.set_stops(GRIPPER, width_m / self._lead, self._gripper_stops_rad[1])
 
+    def set_hand_force(self, fx_n: float, fz_n: float) -> None:
+        """An external force at the hand [N], in the arm plane (x, z as the geometry's), from now on: the
+        joints carry it as J^T F (`hil_sim.arm_tick.gravity_and_inertia`), held over every step until set again.
+        0 (the default): none, and the plant is to the bit what it was without. The hand is the gripper's tip
+        (`ArmGeometry.tip_m` along the gripper from J3). The force is taken in the arm plane whatever the
+        mount's angle: a force in that plane puts no torque on the mount's vertical shaft, and whoever applies
+        it (`hil_sim.two_arms`) keeps the mount at home, where that plane is the object's."""
+        fx_n, fz_n = float(fx_n), float(fz_n)
+        if not (math.isfinite(fx_n) and math.isfinite(fz_n)):
+            raise ValueError(f"the hand force must be finite (N), got ({fx_n!r}, {fz_n!r})")
+        self.hand_force_n = (fx_n, fz_n)
+        self.tick.set_hand_force(fx_n, fz_n)
+        self._update_loads()
+
     def set_joint_state(self, channel: int, pos_rad: float, vel_rad_s: float = 0.0) -> None:
         """Move one channel's output shaft by hand (tests, scenarios); its encoder counts the move."""
         pos = self.motors.pos_rad
@@ -278,7 +300,7 @@ class ArmPlant:
 
     def _update_loads(self) -> None:
         q = self.motors.positions()
-        load, inertia = self.load_model().loads(q[0], q[1], q[2])
+        load, inertia = self.load_model().loads(q[0], q[1], q[2], self.hand_force_n)
         self._load_nm[:], self._inertia[:] = load, inertia
 
     # -- measured and true values --
@@ -330,7 +352,7 @@ class ArmPlant:
         return gripper_position_m(self.motors.pos_rad, self.params.geometry, self.params.mount)
 
     def static_torques_nm(self) -> tuple[float, float, float]:
-        """Gravity holding torques at J1, J2, J3 in the present pose and mode."""
+        """Holding torques at J1, J2, J3 in the present pose and mode: gravity's and the hand force's."""
         return tuple([float(t) for t in self._load_nm[:3]])
 
     @property

@@ -110,10 +110,12 @@ class LoadConstants(NamedTuple):
 
 
 # constants: the mass model's, then the gripper's end switches (screw angle, rad), which open its motor
-# circuit for travel toward their end (-inf, +inf if they cut nothing)
+# circuit for travel toward their end (-inf, +inf if they cut nothing), then the external force at the hand [N]
+# in the arm plane (x, z), held over a tick's substeps (`ArmPlant.set_hand_force`; 0: none)
 LOAD_CONSTANTS = len(LoadConstants._fields)
 GRIPPER_CLOSED_RAD, GRIPPER_OPEN_RAD = LOAD_CONSTANTS, LOAD_CONSTANTS + 1
-CONSTANTS = LOAD_CONSTANTS + 2
+HAND_FX_N, HAND_FZ_N = LOAD_CONSTANTS + 2, LOAD_CONSTANTS + 3
+CONSTANTS = LOAD_CONSTANTS + 4
 
 
 class GripperCut(NamedTuple):
@@ -230,12 +232,12 @@ def arm_plant_tick(h_s: float, substeps: int, supply_v: float, outputs_enabled: 
 def gravity_and_inertia(q1: float, q2: float, q3: float, constants, load_nm, load_inertia) -> None:
     """The lumped mass model at joint angles q1..q3 [rad]: holding torques and inertias, in place.
 
-    Gravity torques into `load_nm` (J1-J3), the inertias each channel turns, the other joints
-    frozen, into `load_inertia` (J1-J4, mount); hil_sim/arm.py's module docstring gives the model.
-    `constants`: the `LoadConstants`, then the gripper's two.
+    Gravity torques, and an external force's at the hand, into `load_nm` (J1-J3), the inertias each
+    channel turns, the other joints frozen, into `load_inertia` (J1-J4, mount); hil_sim/arm.py's module
+    docstring gives the model. `constants`: the `LoadConstants`, the gripper's two, the hand force's two.
     """
     (l2, l3, cg, tip, g, k1, k2, k3, rod2, rod3, turned, i3, i4, link2_kg, elbow_kg, link3_kg, fixed_kg, turned_kg, p,
-     r0, reach, at_base, mobile_arm, guide_wheels, two, _, _) = constants
+     r0, reach, at_base, mobile_arm, guide_wheels, two, _, _, fx, fz) = constants
     # The arm plane, from J1: elbow e, wrist w, turned part's cg r, tip t; absolute angles a1..a3.
     c1, s1 = math.cos(q1), math.sin(q1)
     a2 = q1 + q2
@@ -249,6 +251,12 @@ def gravity_and_inertia(q1: float, q2: float, q3: float, constants, load_nm, loa
     t3 = g * k3 * c3
     t2 = g * k2 * c2 + t3
     load_nm[J1], load_nm[J2], load_nm[J3] = g * k1 * c1 + t2, t2, t3
+    if fx != 0.0 or fz != 0.0:
+        # A force F at the tip P loads joint J as gravity does: (P_z - J_z) F_x - (P_x - J_x) F_z, J^T F.
+        # (Skipped without one, so that the loads are to the bit what they were before the hand force.)
+        load_nm[J1] += tz * fx - tx * fz
+        load_nm[J2] += (tz - ez) * fx - (tx - ex) * fz
+        load_nm[J3] += (tz - wz) * fx - (tx - wx) * fz
     # Inertias [kg m^2]: rods m L^2/12 about their centres plus m d^2 (parallel axes), points m d^2 (p: payload).
     span = (wx - ex) ** two + (wz - ez) ** two                     # link III's length squared
     i2 = (rod3 + link3_kg * span / 4.0 + fixed_kg * span + turned
@@ -358,6 +366,10 @@ class ArmTick:
         """The mass model's constants into `constants` (again when the payload or gravity has changed)."""
         self._model = model
         self.constants[:LOAD_CONSTANTS] = model.tick_constants
+
+    def set_hand_force(self, fx_n: float, fz_n: float) -> None:
+        """The external force at the hand [N] (arm plane) the ticks from now on hold over their substeps."""
+        self.constants[HAND_FX_N], self.constants[HAND_FZ_N] = fx_n, fz_n
 
     def _set_step_length(self, dt_s: float) -> None:
         """Split `dt_s` into equal substeps no longer than `max_substep_s`, as `ArmPlant.step` does."""

@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil_sim.arm_params import GRIPPER, J1, MOUNT
+from hil_sim.arm_params import EXAMPLE_ARM_PLANT, GRIPPER, J1, MOUNT
 from hil_sim.arm_tick_compiled import compiled_arm_plant_tick
 from hil_sim.commands import N_CHANNELS
 from hil_sim.faults import CHANNEL_FAULTS, FAULTS_BY_NAME
@@ -115,6 +115,11 @@ class Twins:
             (plant.inject if on else plant.clear)(name, channel)
         self.check()
 
+    def hand_force(self, fx_n: float, fz_n: float) -> None:
+        for plant in self.both:
+            plant.arm.set_hand_force(fx_n, fz_n)
+        self.check()
+
     def move_by_hand(self, channel: int, pos_rad: float) -> None:
         for plant in self.both:
             plant.arm.set_joint_state(channel, pos_rad)
@@ -141,7 +146,8 @@ COMMAND = st.tuples(
     st.booleans(), st.booleans(),                           # outputs enabled, brake all
     st.one_of(st.none(), st.tuples(st.lists(DUTY, min_size=N, max_size=N), CHANNEL_BOOLS, CHANNEL_BOOLS)))
 FAULT_CHANGE = st.tuples(st.sampled_from(sorted(FAULTS_BY_NAME)), st.integers(0, N - 1), st.booleans())
-SEGMENT = st.tuples(COMMAND, st.integers(1, 120), st.lists(FAULT_CHANGE, max_size=2))
+HAND_FORCE = st.one_of(st.just((0.0, 0.0)), st.tuples(st.floats(-200.0, 200.0), st.floats(-200.0, 200.0)))
+SEGMENT = st.tuples(COMMAND, st.integers(1, 120), st.lists(FAULT_CHANGE, max_size=2), HAND_FORCE)
 
 
 @both_ways
@@ -151,11 +157,13 @@ SEGMENT = st.tuples(COMMAND, st.integers(1, 120), st.lists(FAULT_CHANGE, max_siz
 def test_any_commands_faults_and_step_lengths(compiled, gravity, payload_kg,
                                                                          segments):
     """Duties of both signs, out of range and NaN; enable and brake per channel and global; the
-    safe command (no per-channel one); faults injected and cleared before each segment."""
+    safe command (no per-channel one); faults injected and cleared and a force at the hand (none, or up to
+    200 N along x and z) set before each segment."""
     twins = Twins(compiled, gravity=gravity, payload_kg=payload_kg)
-    for (dt_s, enabled, brake_all, per_channel), steps, faults in segments:
+    for (dt_s, enabled, brake_all, per_channel), steps, faults, hand_force in segments:
         for name, channel, on in faults:
             twins.fault(name, channel if FAULTS_BY_NAME[name].per_channel else None, on)
+        twins.hand_force(*hand_force)
         duty, enable, brake = per_channel or (None, None, None)
         twins.step(dt_s, enabled, brake_all, duty, enable, brake, n=steps)
 
@@ -289,6 +297,23 @@ def test_payload_gravity_and_the_safe_command_changed_between_steps(compiled):
         twins.drive(duty, n=100)
         twins.step(DT, True, False, n=50)               # the safe command: every channel off and braked
         twins.step(DT, False, False, duty, ALL_ON, ALL_OFF, n=50)   # outputs disabled
+
+
+# ---- a force at the hand, on the example arm ------------------------------------------------------------
+@both_ways
+@pytest.mark.parametrize("gravity", ["earth", "orbit"])
+def test_a_hand_force_changed_every_step_on_the_example_arm_alike(compiled, gravity):
+    """The example arm (`EXAMPLE_ARM_PLANT`: its 50:1 drives, its hand on the J3 axis) driven with its brakes
+    released, a force at the hand set anew every step as the held object sets it (`hil_sim.two_arms`), split
+    into substeps too; then braked under it, then the force gone."""
+    twins = Twins(compiled, gravity=gravity, arm_params=EXAMPLE_ARM_PLANT)
+    duty = [0.2, -0.3, 0.1, 0.0, -0.3, 0.0]
+    for k in range(400):
+        twins.hand_force(30.0 * math.sin(k / 17.0), -2.0 + 20.0 * math.cos(k / 23.0))
+        twins.step(DT if k % 50 else 0.0025, True, False, duty, ALL_ON, ALL_OFF)
+    twins.drive([0.0] * N, n=100, brake=ALL_ON)
+    twins.hand_force(0.0, 0.0)
+    twins.drive(duty, n=100)
 
 
 # ---- the switch: compiled by default with ASPOD_COMPILED=1, and not without numba ----------------------
