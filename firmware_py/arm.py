@@ -279,6 +279,24 @@ class ArmController:
         self._trajectory = {index: self.channels[index].motion_id for index in channels}
         return None, MotionStart(Reason.OK, started=dict(self._trajectory))
 
+    def retime_trajectory(self, started: dict[int, int], start_s: float) -> bool:
+        """Move the start of the trajectory `started` (channel -> motion id, as `run_trajectory` gave them) to
+        `start_s` (a coordinated start: trajectory_sync.py); False, nothing changed, unless every one of its joints
+        still runs it."""
+        running = [self.channels[k] for k, motion_id in started.items()
+                   if self.channels[k].motion_id == motion_id and self.channels[k].outcome is MotionOutcome.RUNNING]
+        if len(running) != len(started):
+            return False
+        for channel in running:
+            channel.retime(start_s)
+        return True
+
+    def stop_trajectory(self, started: dict[int, int], now: float) -> None:
+        """Stop the joints that still run the trajectory `started` (channel -> motion id)."""
+        for k, motion_id in started.items():
+            if self.channels[k].motion_id == motion_id:
+                self.channels[k].stop(now)
+
     def trajectory_running(self) -> bool:
         """Whether a joint still runs the motion the last trajectory started on it."""
         return any(self.channels[k].motion_id == motion_id and self.channels[k].outcome is MotionOutcome.RUNNING

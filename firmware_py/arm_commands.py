@@ -3,7 +3,8 @@ TrajRun), beside the trajectory buffer they fill.
 
 Every motion but Stop is refused unless the controller is ENABLED (`state` says which state it is in); an accepted
 one is answered by MotionAccepted with the motions it started, and its end by a MotionDone event (the arm's
-`on_motion_done`). Stop is accepted in any state.
+`on_motion_done`). Stop is accepted in any state. With a coordinated start (`sync`), TrajRun leads or arms the
+start of another arm's controller too (firmware_py/trajectory_sync.py).
 """
 from __future__ import annotations
 
@@ -18,15 +19,18 @@ from protocol.states import ARM_AXES, Axis, ControllerState, GripAction
 from firmware_py.arm import ArmController, MotionStart
 from firmware_py.handlers import CommandOwner, handles
 from firmware_py.trajectory import TrajectoryBuffer, knot_of
+from firmware_py.trajectory_sync import TrajectorySync
 
 
 class ArmCommands(CommandOwner):
     """The commands of one arm (`arm`) and its trajectory buffer; `state()` is the controller's state now."""
 
-    def __init__(self, arm: ArmController, state: Callable[[], ControllerState]) -> None:
+    def __init__(self, arm: ArmController, state: Callable[[], ControllerState],
+                 sync: Optional[TrajectorySync] = None) -> None:
         self.arm = arm
         self.trajectory = TrajectoryBuffer()
         self._state = state
+        self.sync = sync             # a coordinated start with another arm's controller; None: TrajRun starts at once
 
     # ---- motion: refused unless ENABLED; MotionDone events report the end ----
     def _motion_refusal(self) -> Optional[Reason]:
@@ -112,7 +116,9 @@ class ArmCommands(CommandOwner):
             refusal = self.trajectory.check_count(msg.count)[0]
         if refusal is not Reason.OK:
             return self._accepted(everyone, MotionStart(refusal))
-        axis, start = self.arm.run_trajectory(self.trajectory.profiles(), now)
+        profiles = self.trajectory.profiles()
+        axis, start = (self.arm.run_trajectory(profiles, now) if self.sync is None
+                       else self.sync.run(profiles, msg.count, now))
         return self._accepted(everyone if axis is None else axis, start)
 
 

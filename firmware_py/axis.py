@@ -447,6 +447,11 @@ class Axis:
         the axis has settled at the curve's end."""
         self._start(profile, AxisMode.MOVING, profile.end_pos_rad, now)
 
+    def retime(self, start_s: float) -> None:
+        """The trajectory being followed starts at `start_s` instead (a coordinated start: until then the setpoint
+        is its first knot, at rest)."""
+        self._profile_t0 = start_s
+
     def stop(self, now: float, outcome: MotionOutcome = MotionOutcome.STOPPED) -> None:
         """Decelerate at the acceleration limit, then hold (accepted in any state)."""
         if not self.in_motion:

@@ -66,6 +66,7 @@ from firmware_py.axis import AxisError
 from firmware_py.standstill import ForeignCommands, StandstillWatch, Uncommanded
 from firmware_py.supervisor import FAULT_REASON, Supervisor
 from firmware_py.tracker.commands import TrackerCommands
+from firmware_py.trajectory_sync import SyncRole, TrajectorySync
 from firmware_py.tracker.task import TrackerController, check_param as tracker_check_param
 from firmware_py.tracker.task import parameter_table as tracker_parameter_table
 from firmware_py.uart import PacedUart
@@ -89,6 +90,11 @@ class ControllerConfig:
     health_period_s: float = 0.01
     boot_timeout_s: float = 1.0       # HAL inputs must arrive this soon after start
     params_path: Optional[Path] = None  # where parameters persist; None: defaults only, save refused
+    # coordinated arms: this controller leads or follows another's trajectory start (firmware_py/trajectory_sync.py);
+    # None: alone, TrajRun starts at once
+    trajectory_sync: Optional[SyncRole] = None
+    # its tasks' names on a scheduler it shares with another controller ("arm2": "arm2/hal"); "": as named
+    name: str = ""
     # the joints' tick (firmware_py/joints_tick.py) compiled by numba (firmware_py/joints_compiled.py); default: the
     # environment, ASPOD_COMPILED=1 (kernels/)
     compiled_joints: bool = field(default_factory=compiled_by_default)
@@ -216,7 +222,10 @@ class Controller(CommandOwner):
         self.foreign = ForeignCommands()
         self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
         self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
-        self.arm_commands = ArmCommands(self.arm, lambda: self.supervisor.state)
+        # a coordinated start with another arm's controller (trajectory_sync.py); None: TrajRun starts at once
+        self.trajectory_sync = (TrajectorySync(self.config.trajectory_sync, hal, self.arm)
+                                if self.config.trajectory_sync is not None else None)
+        self.arm_commands = ArmCommands(self.arm, lambda: self.supervisor.state, self.trajectory_sync)
         self.param_commands = ParamCommands(self.params, self.arm.in_motion_by)
         self.tracker_commands = TrackerCommands(self.tracker, self._wake_tracker)
         # command name -> its handler, this controller's own (firmware_py/handlers.py)
@@ -240,17 +249,22 @@ class Controller(CommandOwner):
         self.started_s = now
         link_now = link_scheduler.clock.now()
         self.link.started_s = link_now
-        link_scheduler.add("comms", self.comms.step, link_now)
-        self.comms.attach(lambda at_s: link_scheduler.wake("comms", at_s), link_scheduler.clock.now)
+        link_scheduler.add(self.task_name("comms"), self.comms.step, link_now)
+        self.comms.attach(lambda at_s: link_scheduler.wake(self.task_name("comms"), at_s), link_scheduler.clock.now)
         self.arm.judge_lateness = scheduler.clock.timing().mode == "realtime"
         if link_scheduler is not scheduler:       # a live run: the wall clock watches the control clock's waits
-            link_scheduler.add("time-watch", self._time_watch, link_now + TIME_WATCH_S, tolerance_s=1.0)
-        scheduler.add("hal", self._hal_step, now, period_s=self.config.hal_period_s)
+            link_scheduler.add(self.task_name("time-watch"), self._time_watch, link_now + TIME_WATCH_S, tolerance_s=1.0)
+        scheduler.add(self.task_name("hal"), self._hal_step, now, period_s=self.config.hal_period_s)
         # the motor loops first at each tick: they read the HAL themselves, so nothing else delays them
-        scheduler.add("arm", self.arm.step, now, period_s=self.config.arm_period_s, priority=0)
-        scheduler.add("tracker", self.tracker.step, now, period_s=self.tracker.period_s, priority=5)
-        scheduler.add("health", self._health_step, now + self.config.health_period_s, tolerance_s=0.005)
-        scheduler.add("telemetry", self._telemetry_step, now + 0.1, tolerance_s=0.01)
+        scheduler.add(self.task_name("arm"), self.arm.step, now, period_s=self.config.arm_period_s, priority=0)
+        scheduler.add(self.task_name("tracker"), self.tracker.step, now, period_s=self.tracker.period_s, priority=5)
+        scheduler.add(self.task_name("health"), self._health_step, now + self.config.health_period_s, tolerance_s=0.005)
+        scheduler.add(self.task_name("telemetry"), self._telemetry_step, now + 0.1, tolerance_s=0.01)
+
+    def task_name(self, task: str) -> str:
+        """The scheduler's name of this controller's task `task`: as named, or after `ControllerConfig.name` and a
+        slash when several controllers share a scheduler (two arms: "arm2/hal")."""
+        return f"{self.config.name}/{task}" if self.config.name else task
 
     def uptime_ms(self, now: float) -> int:
         return int((now - (self.started_s or 0.0)) * 1000) & 0xFFFFFFFF
@@ -395,6 +409,8 @@ class Controller(CommandOwner):
         if self.hal.is_stale(now, stale_s):
             self._trip(Fault.HAL_STALE, now, Reason.HAL_STALE, self._hal_input_age(now))
         self._standstill_check(now)
+        if self.trajectory_sync is not None:
+            self.trajectory_sync.check(now)
         if self._supply_low():
             sup.enter_safe_state(Fault.SUPPLY_LOW, now)
         if self._temp_out_of_range():
@@ -498,7 +514,7 @@ class Controller(CommandOwner):
         for k, channel in enumerate(arm.channels):
             values += (_finite(arm.position(k)), _finite(arm.velocity(k)), _finite(currents[k]), int(channel.mode),
                        arm.errors(k) & 0xFFFF)
-        stats = self.scheduler.tasks["arm"].stats if self.scheduler else None
+        stats = self.scheduler.tasks[self.task_name("arm")].stats if self.scheduler else None
         if stats is None:
             values += (0, 0, 0, 0)
         else:
@@ -517,8 +533,8 @@ class Controller(CommandOwner):
 
     def _wake_tracker(self, now: float) -> None:
         """Run the tracker's task at `now` (its outputs follow a box change at once, not at the next 10 ms tick)."""
-        if self.scheduler is not None and "tracker" in self.scheduler.tasks:
-            self.scheduler.wake("tracker", now)
+        if self.scheduler is not None and self.task_name("tracker") in self.scheduler.tasks:
+            self.scheduler.wake(self.task_name("tracker"), now)
 
     # ---- commands: the session's and the safe state's here, the others beside their state (`handlers`) ----
     def _execute(self, msg: Message, urgent: bool, link_now: float) -> Message:
@@ -570,7 +586,7 @@ class Controller(CommandOwner):
         self._tracker_telemetry_due = False
         self._tracker_telemetry_count = 0
         if self.scheduler is not None:
-            self.scheduler.wake("telemetry", now)
+            self.scheduler.wake(self.task_name("telemetry"), now)
         return M["Result"](int(Reason.OK))
 
     @handles("EStop")

@@ -61,6 +61,7 @@ class HalInputs:
     temp_c: float = math.nan         # ANALOG_IN controller_temp_c [degC]
     updated_s: Optional[float] = None  # `now` of the last ANALOG_IN
     tick_s: Optional[float] = None     # `now` of the last PLANT_SYNC
+    tick_period_s: float = 0.001       # the simulated time a plant tick stands for (PLANT_SYNC period_us)
     # MOTOR_FB, per arm channel in ARM_CHANNELS order
     counts: list = field(default_factory=lambda: [0] * _N)        # raw 32-bit counts, unsigned
     currents_a: list = field(default_factory=lambda: [0.0] * _N)
@@ -115,6 +116,8 @@ class ControllerHal(HalEndpoint):
     def _on_sync(self, values: list, now: float) -> None:
         self.inputs.tick = values[0]
         self.inputs.tick_s = now
+        if values[2] > 0:
+            self.inputs.tick_period_s = values[2] * 1e-6
 
     def _on_analog(self, values: list, now: float) -> None:
         self.inputs.supply_v, self.inputs.temp_c = values

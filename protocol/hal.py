@@ -101,6 +101,11 @@ class HalCodec:
         """The frame IDs the DBC declares as sent by `node` (CONTROLLER, PLANT)."""
         return frozenset(m.frame_id for m in self.database.messages if node in (m.senders or ()))
 
+    def ids_between_peers(self, node: str) -> frozenset[int]:
+        """The frame IDs `node` both sends and listens to (TRAJ_START): one node of that kind to another."""
+        return frozenset(m.frame_id for m in self.database.messages if node in (m.senders or ())
+                         and any(node in s.receivers for s in m.signals))
+
     @property
     def names(self) -> tuple[str, ...]:
         """Declared message names, in frame-ID (priority) order."""
@@ -444,8 +449,9 @@ class HalEndpoint:
     def sends_as(self, node: str) -> None:
         """The DBC node this endpoint is: frames with the IDs that node sends, when they come in, came from
         another node (`own_id_frames`): on a bus that gives a node its own frames back, a filter drops those
-        first (host_tools/worlds/nodes.py OwnEchoFilter)."""
-        self.own_ids = self.codec.ids_sent_by(node)
+        first (host_tools/worlds/nodes.py OwnEchoFilter). A frame the node also listens to (one between peers,
+        TRAJ_START) is not among them."""
+        self.own_ids = self.codec.ids_sent_by(node) - self.codec.ids_between_peers(node)
 
     def foreign_frames(self) -> int:
         """Frames with this node's own IDs that another node sent: those that reached the endpoint, and, on a bus

@@ -13,7 +13,7 @@ import pytest
 
 from timebase.scheduler import run_live
 from host_tools.worlds.plant_control import PlantControl
-from host_tools.worlds.ports import BufferPort
+from host_tools.worlds.ports import BufferPort, exchange
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
 from protocol.host_link import HostLink
@@ -43,13 +43,7 @@ class LiveRig:
         self.world.clock.start()
 
     def _host_step(self, now: float) -> float:
-        if self.port.outbox:
-            self.host.feed(bytes(self.port.outbox), now)
-            self.port.outbox.clear()
-        self.host.poll(now)
-        out = self.host.take_all(now)
-        if out:
-            self.port.deliver(out)
+        exchange(self.port, self.host, now)
         return now + 0.001
 
     def cost(self, wall_per_tick_s: float) -> None:

@@ -77,7 +77,7 @@ class OwnEchoFilter(BusView):
 
     def __init__(self, bus: can.BusABC, node: str, codec: Optional[HalCodec] = None) -> None:
         codec = codec or HalCodec()
-        own = codec.ids_sent_by(node)
+        own = codec.ids_sent_by(node) - codec.ids_between_peers(node)     # (a peer's TRAJ_START passes)
         if not own:
             raise ValueError(f"no HAL frame is declared as sent by {node!r}; nodes: {', '.join(NODES)}")
         super().__init__(bus)

@@ -361,6 +361,18 @@ class BufferPort:
         pass
 
 
+def exchange(port: BufferPort, host, now: float) -> None:
+    """A host link's turn on an in-memory line: what the controller wrote to `port` in, the link's timers, what it
+    has to send out (a `protocol.host_link.HostLink`, polled on a clock of the caller's)."""
+    if port.outbox:
+        host.feed(bytes(port.outbox), now)
+        port.outbox.clear()
+    host.poll(now)
+    out = host.take_all(now)
+    if out:
+        port.deliver(out)
+
+
 class RecordedPort:
     """Any port above, with every byte the controller reads and writes kept in a session capture.
 

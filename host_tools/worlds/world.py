@@ -38,6 +38,7 @@ from timebase import Clock, PacedClock, RealClock, SimClock
 from host_tools.worlds.link_time import LinkScheduler, LinkTime
 from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.plant_control import PlantControl
+from host_tools.worlds.second_arm import SecondArm, SecondArmNodes, SecondHost, leading
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from host_tools.worlds.settings import PlantSettings
 
@@ -67,7 +68,8 @@ class World:
                  paced: bool = True, controller_config: Optional[ControllerConfig] = None,
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
                  plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None,
-                 direct_values: bool = True, link_time: Optional[LinkTime] = None, fast_loop: bool = True) -> None:
+                 direct_values: bool = True, link_time: Optional[LinkTime] = None, fast_loop: bool = True,
+                 second_arm: Optional[SecondArm] = None) -> None:
         self.clock = clock
         self.hal_log: Optional[HalBusLog] = None
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
@@ -77,16 +79,25 @@ class World:
         self.scheduler = Scheduler(clock, stopwatch=None if deterministic else RealClock.precise_now)
         self.scheduler.add("plant", self.plant_node.step, period_s=self.plant_node.period_s)
         self.uart = PacedUart(port, baud, paced)
-        self.controller = build_controller(psk, self.uart, self.controller_bus, controller_config,
-                                           nonce_source=seeded_nonces(seed) if deterministic else new_nonce)
+        if second_arm is not None:
+            controller_config = leading(controller_config)
+        nonces = seeded_nonces(seed) if deterministic else new_nonce
+        self.controller = build_controller(psk, self.uart, self.controller_bus, controller_config, nonce_source=nonces)
         self.link_scheduler = (Scheduler(link_clock) if link_clock is not None
                                else LinkScheduler(self.scheduler, link_time) if link_time is not None
                                else self.scheduler)
         self.controller.attach(self.scheduler, self.link_scheduler)
+        # the second arm: its own controller, link, bus and plant node, on these schedulers (second_arm.py)
+        self.arm2: Optional[SecondArmNodes] = None
+        if second_arm is not None:
+            self.arm2 = SecondArmNodes(second_arm, psk, self.plant_node, self.scheduler, self.link_scheduler,
+                                       seed=seed + 1, baud=baud, paced=paced, plant=plant,
+                                       direct_values=direct_values,
+                                       nonce_source=seeded_nonces(seed + 1) if deterministic else new_nonce)
         # the three 1 kHz tasks many ticks a call between events (host_tools/worlds/fast_loop.py): deterministic and
-        # compiled only
+        # compiled only, one arm
         self.fast_loop: Optional[FastLoop] = None
-        if deterministic and fast_loop and FastLoop.fits(self):
+        if deterministic and fast_loop and second_arm is None and FastLoop.fits(self):
             self.fast_loop = FastLoop(self)
             self.scheduler.run_ahead(("arm", "plant", "hal"), self.fast_loop.run)
 
@@ -114,6 +125,8 @@ class World:
         self.plant_bus.shutdown()
         self.controller_bus.shutdown()
         self.uart.close()
+        if self.arm2 is not None:
+            self.arm2.close()
 
 
 class LockstepBench:
@@ -145,12 +158,18 @@ class LockstepBench:
                  plant_params: Optional[PlantParams] = None, plant: PlantSettings = PlantSettings(),
                  sleeping_line: bool = True, clock: Optional[SimClock] = None,
                  direct_values: bool = True, impairment: Optional[Impairment] = None,
-                 link_time: Optional[LinkTime] = None, fast_loop: bool = True) -> None:
+                 link_time: Optional[LinkTime] = None, fast_loop: bool = True, arms: int = 1,
+                 second_plant_params: Optional[PlantParams] = None) -> None:
+        if arms not in (1, 2):
+            raise ValueError(f"a bench has 1 or 2 arms, not {arms}")
         self.clock = clock if clock is not None else SimClock()
         self.port = BufferPort(notifies=sleeping_line)
+        port2 = BufferPort(notifies=False) if arms == 2 else None
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, plant_params=plant_params,
-                           plant=plant, direct_values=direct_values, link_time=link_time, fast_loop=fast_loop)
+                           plant=plant, direct_values=direct_values, link_time=link_time, fast_loop=fast_loop,
+                           second_arm=None if port2 is None else SecondArm(port2, controller_config,
+                                                                           second_plant_params or plant_params))
         self.link_clock = self.world.link_scheduler.clock    # the host's time: the world's, unless `link_time`
         self.events: list = []
         self.telemetry: list = []
@@ -170,6 +189,11 @@ class LockstepBench:
         self._host_last_s: Optional[float] = None
         self._sent_to_no_one: Callable[[bytes], None] = lambda data: None     # while the host is gone (`record`)
         self.world.link_scheduler.add("host", self._host_step)
+        # the second arm's host (`arms=2`), on its own link: `bench.arm2.call(msg)`
+        self.arm2: Optional[SecondHost] = None
+        if port2 is not None:
+            self.arm2 = SecondHost(HostLink(psk, host_config, nonce_source=seeded_nonces(seed + 2)), port2,
+                                   self.world.link_scheduler, self.wait_until, step_s)
         # An impaired line (aspod proxy's model) between them: bytes go in when written and come out when due.
         self.line = None if impairment is None else ImpairedLink(impairment)
         if self.line is not None:

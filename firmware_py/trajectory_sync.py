@@ -1,0 +1,102 @@
+"""Coordinated arms: two controllers start their trajectories on one plant tick (docs/two_arms.md).
+
+Each arm has its own controller, and both follow the plant's ticks (PLANT_SYNC), the one clock they share. A
+controller set to lead (`SyncRole.LEADER`) starts its trajectory on TrajRun `LEAD_TICKS` ticks ahead and says on
+which tick (TRAJ_START on the HAL bus). A controller set to follow (`SyncRole.FOLLOWER`) takes TrajRun as the arming
+of its trajectory: checked as TrajRun checks it and answered with its motions, each joint holding the first knot
+(a Hermite curve before its start is its start, at rest); it starts on the tick the leader's TRAJ_START names. If
+none comes within `ARMED_S`, or one names a tick already past or another knot count, its joints stop where they
+hold (MotionDone STOPPED) and nothing has moved. A host arms the followers first, then runs the leader.
+
+With no role (the default) TrajRun starts at once, as a lone controller's does, and nothing here is built: the bus
+carries no new frame.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+from firmware_py.arm import ArmController, MotionStart
+from firmware_py.hal import ControllerHal
+from firmware_py.hermite import HermiteProfile
+from protocol.reasons import Reason
+
+LEAD_TICKS = 10          # the leader starts this many plant ticks after its TrajRun: its TRAJ_START's margin
+ARMED_S = 10.0           # a follower's armed trajectory waits this long for the leader's start, then stops
+TICK_MOD = 1 << 32       # PLANT_SYNC's tick wraps at 2**32
+
+
+class SyncRole(enum.Enum):
+    LEADER = "leader"
+    FOLLOWER = "follower"
+
+
+@dataclass
+class _Armed:
+    knots: int
+    started: dict[int, int]          # channel -> the motion id the armed trajectory runs there
+    deadline_s: float
+
+
+class TrajectorySync:
+    """One controller's part in a coordinated start: `run` in place of the arm's own start, `check` from a periodic
+    task (a follower's wait ends)."""
+
+    def __init__(self, role: SyncRole, hal: ControllerHal, arm: ArmController) -> None:
+        self.role, self.hal, self.arm = role, hal, arm
+        self.armed: Optional[_Armed] = None
+        self.starts = 0              # trajectories started on a coordinated tick (led, or followed)
+        self.unmatched = 0           # TRAJ_STARTs a follower could not follow (none armed, another count, too late)
+        self.last_start_tick: Optional[int] = None
+        self._layout = hal.codec.layout("TRAJ_START", ("start_tick", "knots"))
+        if role is SyncRole.FOLLOWER:
+            hal.on_frame("TRAJ_START", self._on_start, ("start_tick", "knots"))
+
+    def run(self, profiles: Sequence[HermiteProfile], knots: int, now: float) -> tuple[Optional[int], MotionStart]:
+        """TrajRun's start for this role: (the channel that refused, or None; the motions started)."""
+        if self.hal.inputs.tick_s is None:
+            return None, MotionStart(Reason.NOT_ALLOWED_IN_STATE, "no plant tick seen yet: nothing to start on")
+        if self.role is SyncRole.LEADER:
+            tick = (self.hal.inputs.tick + LEAD_TICKS) % TICK_MOD
+            axis, start = self.arm.run_trajectory(profiles, self._time_of(tick))
+            if start.reason is Reason.OK:
+                self.hal.send_frame(self._layout, [tick, knots])
+                self.starts += 1
+                self.last_start_tick = tick
+            return axis, start
+        axis, start = self.arm.run_trajectory(profiles, now + 2 * ARMED_S)       # held at its start meanwhile
+        if start.reason is Reason.OK:
+            self.armed = _Armed(knots, dict(start.started), now + ARMED_S)
+        return axis, start
+
+    def check(self, now: float) -> None:
+        """A follower's armed trajectory that waited `ARMED_S` in vain stops."""
+        if self.armed is not None and now >= self.armed.deadline_s:
+            self._disarm(now)
+
+    def _time_of(self, tick: int) -> float:
+        """The controller's time of plant tick `tick`, from the last PLANT_SYNC (ticks apart, wrapping)."""
+        inputs = self.hal.inputs
+        ahead = (tick - inputs.tick) % TICK_MOD
+        if ahead >= TICK_MOD // 2:
+            ahead -= TICK_MOD
+        return inputs.tick_s + ahead * inputs.tick_period_s
+
+    def _on_start(self, values: list, now: float) -> None:
+        armed, (tick, knots) = self.armed, values
+        start_s = self._time_of(int(tick)) if self.hal.inputs.tick_s is not None else now - 1.0
+        if armed is None or knots != armed.knots or start_s < now:
+            self.unmatched += 1
+            if armed is not None:
+                self._disarm(now)          # another trajectory's start, or too late to start together: none
+            return
+        if self.arm.retime_trajectory(armed.started, start_s):
+            self.starts += 1
+            self.last_start_tick = int(tick)
+        self.armed = None
+
+    def _disarm(self, now: float) -> None:
+        if self.armed is not None:
+            self.arm.stop_trajectory(self.armed.started, now)
+            self.armed = None

@@ -1,0 +1,103 @@
+"""The second arm of a two-arm world (`World(second_arm=...)`, docs/two_arms.md): its own controller on its own link,
+its own HAL bus and plant node, on the world's schedulers.
+
+Each arm is what it would be alone: a controller and the plant's side of its motors on a bus of their own. What
+joins them is physical, so it is the plant's: both plant nodes step on one scheduler, tick for tick (their
+PLANT_SYNC ticks are one count), and the plant relays a leading controller's TRAJ_START from one arm's bus to the
+other's, as a sync line between the two controllers would carry it (firmware_py/trajectory_sync.py). The first
+arm's controller leads, the second follows.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+from firmware_py.controller import Controller, ControllerConfig
+from firmware_py.trajectory_sync import SyncRole
+from firmware_py.uart import PacedUart, Port
+from hil_sim.hal_node import PlantNode
+from hil_sim.plant import PlantParams
+from host_tools.worlds.local_bus import open_local_pair
+from host_tools.worlds.nodes import build_controller, build_plant_node
+from host_tools.worlds.ports import BufferPort, exchange
+from host_tools.worlds.settings import PlantSettings
+from protocol.host_link import HostLink
+from protocol.link import LinkState
+from timebase.scheduler import Scheduler
+
+NAME = "arm2"        # the second controller's tasks on the shared schedulers: "arm2/hal", ...
+
+
+@dataclass(frozen=True)
+class SecondArm:
+    """A second arm for a world: the port its controller's link is on, its controller's settings (its name and its
+    part in a coordinated start are set here) and its plant's."""
+
+    port: Port
+    controller_config: Optional[ControllerConfig] = None
+    plant_params: Optional[PlantParams] = None
+
+
+def leading(config: Optional[ControllerConfig]) -> ControllerConfig:
+    """The first arm's controller settings in a two-arm world: it leads the coordinated starts."""
+    return dataclasses.replace(config or ControllerConfig(), trajectory_sync=SyncRole.LEADER)
+
+
+class SecondArmNodes:
+    """The second arm's nodes, built and started on `scheduler` (its control tasks, its plant) and `link_scheduler`
+    (its comms), beside the first arm's `first_plant`."""
+
+    def __init__(self, arm: SecondArm, psk: bytes, first_plant: PlantNode, scheduler: Scheduler,
+                 link_scheduler: Scheduler, *, seed: int, baud: int, paced: bool, plant: PlantSettings,
+                 direct_values: bool, nonce_source: Callable[[], bytes]) -> None:
+        self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
+        self.plant_node = build_plant_node(self.plant_bus, seed, arm.plant_params, plant)
+        self.plant = self.plant_node.plant
+        scheduler.add(f"{NAME}/plant", self.plant_node.step, period_s=self.plant_node.period_s)
+        self.uart = PacedUart(arm.port, baud, paced)
+        config = dataclasses.replace(arm.controller_config or ControllerConfig(), name=NAME,
+                                     trajectory_sync=SyncRole.FOLLOWER)
+        self.controller = build_controller(psk, self.uart, self.controller_bus, config, nonce_source=nonce_source)
+        self.controller.attach(scheduler, link_scheduler)
+        relay_trajectory_starts(first_plant, self.plant_node)
+        relay_trajectory_starts(self.plant_node, first_plant)
+
+    def close(self) -> None:
+        self.plant_bus.shutdown()
+        self.controller_bus.shutdown()
+        self.uart.close()
+
+
+def relay_trajectory_starts(source: PlantNode, to: PlantNode) -> None:
+    """Every TRAJ_START `source`'s bus carries goes on `to`'s bus too (the sync line between two controllers)."""
+    layout = to.codec.layout("TRAJ_START")
+    source.on_frame("TRAJ_START", lambda values, now: to.send_frame(layout, values))
+
+
+class SecondHost:
+    """The second arm's host in a lock-step bench (`LockstepBench(arms=2).arm2`): a host link on the second
+    controller's port, polled every `step_s` of the link's clock; `connect` and `call` run the bench's world as the
+    bench's own do."""
+
+    def __init__(self, host: HostLink, port: BufferPort, link_scheduler: Scheduler,
+                 wait_until: Callable[..., bool], step_s: float) -> None:
+        self.host, self.port, self.step_s = host, port, step_s
+        self._clock = link_scheduler.clock
+        self._wait_until = wait_until
+        link_scheduler.add(f"{NAME}/host", self._step)
+
+    def _step(self, now: float) -> float:
+        exchange(self.port, self.host, now)
+        return now + self.step_s
+
+    def connect(self, controller: Controller, timeout_s: float = 5.0) -> bool:
+        self.host.connect(self._clock.now())
+        return self._wait_until(lambda: self.host.state is LinkState.UP and controller.link.session is not None
+                                and controller.link.session.host_nonce == self.host.session.host_nonce, timeout_s,
+                                between_loops=True)
+
+    def call(self, msg, timeout_s: float = 30.0):
+        handle = self.host.submit(msg, self._clock.now())
+        self._wait_until(lambda: handle.done, timeout_s, between_loops=True)
+        return handle

@@ -1,0 +1,107 @@
+"""Two arms, two controllers, one start: the first arm's controller leads (its TrajRun starts its trajectory a few plant
+ticks ahead and says on which, TRAJ_START), the second's follows (its TrajRun arms the trajectory; it starts on the
+leader's tick), relayed between their buses by the plant, on the simulated clock (firmware_py/trajectory_sync.py,
+host_tools/worlds/second_arm.py)."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from firmware_py.trajectory_sync import ARMED_S, LEAD_TICKS, SyncRole
+from host_tools.client.trajectory import upload_trajectory
+from host_tools.worlds.world import LockstepBench
+from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
+from protocol.reasons import Reason
+from protocol.states import Axis, ControllerState, MotionOutcome
+from tests.test_trajectory import smooth_knots
+
+J1 = int(Axis.J1)
+
+
+def homed(call, events: list, wait_until) -> None:
+    assert call(M["Enable"]()).ok
+    reply = call(M["Home"](int(Axis.ALL))).reply
+    started = {int(a): getattr(reply, f"{a.name.lower()}_motion_id") for a in Axis if a is not Axis.ALL}
+    assert wait_until(lambda: all(any(e.spec.name == "MotionDone" and e.axis == a and e.motion_id == i for e in events)
+                                  for a, i in started.items()), 60.0)
+
+
+@pytest.fixture
+def bench():
+    bench = LockstepBench(seed=5, arms=2)
+    second_events: list = []
+    bench.arm2.host.on_event = lambda m, now: second_events.append(m)
+    bench.arm2.events = second_events
+    assert bench.connect() and bench.arm2.connect(bench.world.arm2.controller)
+    homed(bench.call, bench.events, bench.wait_until)
+    homed(bench.arm2.call, second_events, bench.wait_until)
+    yield bench
+    bench.close()
+
+
+def moved(channel, held_rad: float) -> bool:
+    """Off the first knot by more than a rounding: the two controllers reckon the start tick's time along two sums of
+    floats, which may differ in the last bit (a setpoint a hair past its start, 1e-30 rad along)."""
+    return abs(channel.pos_sp_rad - held_rad) > 1e-12
+
+
+def test_the_two_arms_start_their_trajectories_on_one_tick(bench):
+    first, second = bench.controller, bench.world.arm2.controller
+    assert (first.trajectory_sync.role, second.trajectory_sync.role) == (SyncRole.LEADER, SyncRole.FOLLOWER)
+    knots_1, knots_2 = smooth_knots(holding_deg_of(first)), smooth_knots(holding_deg_of(second))
+    upload_trajectory(bench, knots_1)
+    upload_trajectory(bench.arm2, knots_2)
+    armed = bench.arm2.call(M["TrajRun"](len(knots_2)))
+    assert armed.ok and second.trajectory_sync.armed is not None
+    bench.run_for(0.01)
+    held_2 = second.arm.channels[J1].pos_sp_rad          # the first knot (as the wire carried it), at rest
+    bench.run_for(0.5)                                   # armed, holding: nothing moves
+    assert not moved(second.arm.channels[J1], held_2)
+    led = bench.call(M["TrajRun"](len(knots_1)))
+    assert led.ok
+    tick = first.trajectory_sync.last_start_tick
+    assert first.hal.inputs.tick < tick
+    held_1 = first.arm.channels[J1].pos_sp_rad           # its first knot, until the tick
+    # each controller's setpoint leaves its first knot on the same plant tick, the one TRAJ_START named
+    left = {}
+    while len(left) < 2:
+        bench.run_for(0.001)
+        for name, controller, held in (("first", first, held_1), ("second", second, held_2)):
+            if name not in left and moved(controller.arm.channels[J1], held):
+                left[name] = controller.hal.inputs.tick
+        assert first.hal.inputs.tick - tick < 50, f"no start near tick {tick}: {left}"
+    assert left["first"] == left["second"] and 0 <= left["first"] - tick <= 1
+    assert second.trajectory_sync.last_start_tick == tick and second.trajectory_sync.starts == 1
+    assert tick - LEAD_TICKS <= first.hal.inputs.tick
+    # a peer's TRAJ_START is no foreign frame: neither controller took it for another node driving its motors
+    assert first.hal.foreign_frames() == 0 == second.hal.foreign_frames()
+    assert first.supervisor.state is second.supervisor.state is ControllerState.ENABLED
+
+
+def holding_deg_of(controller) -> list[float]:
+    return [math.degrees(controller.arm.channels[int(a)].pos_sp_rad) for a in TRAJECTORY_JOINTS]
+
+
+def test_a_follower_the_leader_never_starts_stops_where_it_holds(bench):
+    second = bench.world.arm2.controller
+    knots = smooth_knots(holding_deg_of(second))
+    upload_trajectory(bench.arm2, knots)
+    reply = bench.arm2.call(M["TrajRun"](len(knots))).reply
+    ids = {int(a): getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS}
+    assert reply.result == Reason.OK
+    bench.wait_until(lambda: second.trajectory_sync.armed is None, ARMED_S + 1.0)
+    assert bench.wait_until(lambda: all(any(e.spec.name == "MotionDone" and e.axis == a and e.motion_id == i
+                                            for e in bench.arm2.events) for a, i in ids.items()), 5.0)
+    ends = [e for e in bench.arm2.events if e.spec.name == "MotionDone" and (e.axis, e.motion_id) in ids.items()]
+    assert {MotionOutcome(e.outcome) for e in ends} == {MotionOutcome.STOPPED}
+    assert abs(second.arm.channels[J1].pos_sp_rad - math.radians(knots[0].q_deg[0])) < 1e-6   # never left knot 0
+
+
+def test_a_single_arm_world_has_no_coordination_and_sends_no_new_frame():
+    bench = LockstepBench(seed=5)
+    try:
+        assert bench.controller.trajectory_sync is None and bench.world.arm2 is None
+        assert "TRAJ_START" not in bench.world.plant_node.sent_by_name
+    finally:
+        bench.close()
