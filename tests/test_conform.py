@@ -366,12 +366,15 @@ def test_the_conformance_page_names_every_check_with_its_section():
 # ---- --host: conform plays the controller, a host is judged ------------------------------------------------------
 
 def _host_session(url: str, key: bytes) -> None:
-    """A host's ordinary work: connect, a Ping, an EStop and its Reset, a clean close."""
+    """A host's ordinary work: connect, a Ping, an EStop and its Reset, a Ping, a clean close. conform drops the
+    Reset's reply (command 1) and, once it has sent it again, two forged NAKs the host must ignore; the last Ping's
+    reply comes behind them on the line, so the host is still in its session when they come (without it the host
+    closed at once on the Reset's reply, and a host that believed them was in CLOSING: never caught, a race)."""
     from host_tools.client.live import HostClient
     client = HostClient(url, key)
     try:
         client.connect()
-        for msg in (SCHEMA["Ping"].type(7), SCHEMA["EStop"].type(), SCHEMA["Reset"].type()):
+        for msg in (SCHEMA["Ping"].type(7), SCHEMA["EStop"].type(), SCHEMA["Reset"].type(), SCHEMA["Ping"].type(8)):
             assert client.call(msg, 10.0).ok
     finally:
         client.close()
