@@ -6,9 +6,11 @@ and the gripper (`firmware_py/gripper.py`), and sends one MOTOR_CMD frame with e
 channel's duty, enable and brake. A channel is enabled only while the supervisor allows
 outputs and its axis is driving; otherwise it is braked.
 
-Gravity feed-forward: J1..J3's holding torques from the firmware's mass model
-(`arm_config.MassModel`) at the present joint angles, times the `gravity_m_s2` parameter
-(0 in orbit), computed once per tick.
+The arm it drives is described by an `ArmDescription` (firmware_py/arm_config.py: its drives, mass model and
+gripper), the controller's (`ControllerConfig.arm`), so each controller drives its own arm.
+
+Gravity feed-forward: J1..J3's holding torques from the arm's mass model (`arm_config.MassModel`) at the present
+joint angles, times the `gravity_m_s2` parameter (0 in orbit), computed once per tick.
 
 Faults: an axis fault calls `on_fault(fault, reason, now, measured)` with the controller-wide fault
 bit and reason (`AXIS_FAULTS`), which takes the one path to the safe state; `measured` says, for a
@@ -34,7 +36,7 @@ from protocol.reasons import Reason
 from protocol.states import ARM_CHANNELS, AxisMode, Fault, FaultCause, MotionOutcome
 
 from firmware_py import arm_config
-from firmware_py.arm_config import DRIVES, GRIPPER, MASSES
+from firmware_py.arm_config import DRIVE_NAMES, ArmDescription
 from firmware_py.axis import Axis, AxisError, LimitBreach, Refusal
 from firmware_py.gripper import Gripper
 from firmware_py.hal import ControllerHal, HalInputs
@@ -46,8 +48,8 @@ from firmware_py.trajectory import REST_TOLERANCE_DPS, START_TOLERANCE_DEG
 from protocol.messages import TRAJECTORY_JOINTS
 
 GRIPPER_INDEX = ARM_CHANNELS.index("gripper")
-# the joints' rows (DRIVES order) run in channel order, as the reference loop runs them
-assert [ARM_CHANNELS.index(drive.name) for drive in DRIVES] == sorted(ARM_CHANNELS.index(d.name) for d in DRIVES)
+# the joints' rows (an arm's drives, DRIVE_NAMES' order) run in channel order, as the reference loop runs them
+assert [ARM_CHANNELS.index(name) for name in DRIVE_NAMES] == sorted(ARM_CHANNELS.index(name) for name in DRIVE_NAMES)
 # The parameter that sets each of an axis's limits (firmware_py/arm_config.py parameter_table), by LimitBreach.limit.
 LIMIT_PARAMETER = {"min": "{axis}_min_deg", "max": "{axis}_max_deg", "speed": "{axis}_speed_dps",
                    "acceleration": "{axis}_acc_dps2"}
@@ -124,19 +126,20 @@ def fault_of(bits: int) -> tuple[Fault, Reason]:
 
 
 class ArmController:
-    """The five joint axes and the gripper, in HAL channel order.
+    """The five joint axes and the gripper of the arm `arm` describes, in HAL channel order.
 
     The joints' hot state lives in a `JointBank` and each tick runs through `joints_tick`
     (firmware_py/joints_tick.py), the `BankedAxis` objects its facade. `compiled_joints`: that tick
     compiled by numba (firmware_py/joints_compiled.py), the same to the bit.
     """
 
-    def __init__(self, hal: ControllerHal, params: ParamStore, dt_s: float = 0.001,
+    def __init__(self, hal: ControllerHal, params: ParamStore, arm: ArmDescription, dt_s: float = 0.001,
                  on_fault: FaultSink = lambda fault, reason, now, measured: None,
                  on_motion_done: MotionSink = lambda *args: None,
                  on_late: LateSink = lambda late_s, now: False, compiled_joints: bool = False) -> None:
         self.hal = hal
         self.params = params
+        self.description = arm
         self.dt_s = dt_s
         self._on_fault = on_fault
         self._on_motion_done = on_motion_done
@@ -146,8 +149,8 @@ class ArmController:
         self.outputs_allowed = False
         values = params.values()
         self.joints: dict[str, Axis] = {}
-        self.bank = JointBank(len(DRIVES), len(ARM_CHANNELS), compiled_joints, MASSES.row)
-        for index, drive in enumerate(DRIVES):
+        self.bank = JointBank(len(arm.drives), len(ARM_CHANNELS), compiled_joints, arm.masses.row)
+        for index, drive in enumerate(arm.drives):
             gravity = self._gravity_torque(index)
             k = ARM_CHANNELS.index(drive.name)
             config = arm_config.axis_config(drive, values, dt_s)
@@ -155,8 +158,8 @@ class ArmController:
             self.joints[drive.name] = BankedAxis(self.bank, index, k, config, gravity_nm=gravity,
                                                  on_fault=on_axis_fault)
         # the bank's rows run in channel order, the gripper's channel between two spans of them
-        self._rows_before_gripper = sum(ARM_CHANNELS.index(drive.name) < GRIPPER_INDEX for drive in DRIVES)
-        self.gripper = Gripper(GRIPPER, on_fault=self._gripper_fault)
+        self._rows_before_gripper = sum(ARM_CHANNELS.index(name) < GRIPPER_INDEX for name in DRIVE_NAMES)
+        self.gripper = Gripper(arm.gripper, on_fault=self._gripper_fault)
         self._apply_gripper_params()
         # HAL channel order; the gripper sits at GRIPPER_INDEX
         self.channels: list = [self.joints.get(name, self.gripper) for name in ARM_CHANNELS]
@@ -180,13 +183,13 @@ class ArmController:
         planned with, so a lower speed let the loop's clamp hold the joint back until FOLLOWING_ERROR tripped, and a
         lower acceleration made a jog's stop at the soft limit take minutes, past the limit into the hard stop
         (an attack on 2026-11-27)."""
-        for drive in DRIVES:
+        for drive in self.description.drives:
             if name in (f"{drive.name}_speed_dps", f"{drive.name}_acc_dps2") and self.joints[drive.name].in_motion:
                 return drive.name
         return None
 
     def param_changed(self, name: str, value: float) -> None:
-        for drive in DRIVES:
+        for drive in self.description.drives:
             if name.startswith(drive.name + "_") or name in ("encoder_stale_s", "current_stale_s"):
                 self.joints[drive.name].reconfigure(arm_config.axis_config(drive, self.params.values(), self.dt_s))
         if name.startswith("grip_"):

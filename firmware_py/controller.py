@@ -52,8 +52,8 @@ from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 from timebase.scheduler import Scheduler
 
-from firmware_py import arm_config, standstill
-from firmware_py.arm_config import DRIVES
+from firmware_py import standstill
+from firmware_py.arm_config import ASPOD_ARM, DRIVE_NAMES, ArmDescription
 from firmware_py.arm import ArmController, Measured
 from firmware_py.arm_commands import ArmCommands
 from firmware_py.comms import CommsTask
@@ -101,6 +101,9 @@ class ControllerConfig:
     # who this controller is, 8 bytes (HelloReply's controller_id; its handshake NAKs are bound to it): fixed, a
     # restarted controller is recognised at once by its host; None: new at each start (docs/protocol_security.md)
     controller_id: Optional[bytes] = None
+    # the arm it drives: its drives, mass model and gripper, and from them the arm's parameters
+    # (firmware_py/arm_config.py); ASPOD's, or the report's example arm (EXAMPLE_ARM)
+    arm: ArmDescription = ASPOD_ARM
 
     def __post_init__(self) -> None:
         if self.controller_id is not None and len(self.controller_id) != 8:
@@ -111,7 +114,7 @@ class ControllerConfig:
 
 
 def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
-    """The controller's parameters: link, health limits, then the arm's (firmware_py/arm_config.py)."""
+    """The controller's parameters: link, health limits, then its arm's (`config.arm`: firmware_py/arm_config.py)."""
     return [
         ParamSpec("link_timeout_s", config.link.link_timeout_s, max(0.05, config.link.heartbeat_s * 1.5), 3600, "s",
                   "safe state after this long without a valid frame (at least 1.5 heartbeats: 1.5 s, or less "
@@ -136,7 +139,7 @@ def parameter_table(config: ControllerConfig) -> list[ParamSpec]:
         ParamSpec("temp_max_c", 45.0, -40, 125, "degC", "controller hotter than this is a fault (report: 45 C)"),
         ParamSpec("temp_warn_c", 5.0, 0, 40, "degC",
                   "warn (TemperatureWarning, TEMP_LOW/TEMP_HIGH) within this of temp_min_c or temp_max_c"),
-    ] + standstill.parameter_table() + arm_config.parameter_table() + tracker_parameter_table()
+    ] + standstill.parameter_table() + config.arm.parameter_table() + tracker_parameter_table()
 
 
 def check_param(params: ParamStore, config: ControllerConfig, name: str, value: float) -> Optional[str]:
@@ -144,7 +147,7 @@ def check_param(params: ParamStore, config: ControllerConfig, name: str, value: 
     the tracker's hysteresis past its deadband, trk_ff neither 0 nor 1, the controller's own pairs); None if it
     would. The controller's veto of a ParamSet, and the command line's check of --param before a world is built."""
     return (_check_own_param(params, name, value)
-            or arm_config.check_param(params.values(), config.arm_period_s, name, value)
+            or config.arm.check_param(params.values(), config.arm_period_s, name, value)
             or tracker_check_param(params, name, value))
 
 
@@ -181,8 +184,8 @@ class Controller(CommandOwner):
         self.hal = hal
         self.params = ParamStore(parameter_table(self.config), self.config.params_path, self._param_changed,
                                  check=lambda name, value: check_param(self.params, self.config, name, value))
-        self.arm = ArmController(hal, self.params, self.config.arm_period_s, on_fault=self._arm_fault,
-                                 on_motion_done=self._motion_done, on_late=self._loop_late,
+        self.arm = ArmController(hal, self.params, self.config.arm, self.config.arm_period_s,
+                                 on_fault=self._arm_fault, on_motion_done=self._motion_done, on_late=self._loop_late,
                                  compiled_joints=self.config.compiled_joints)
         self.tracker = TrackerController(hal, self.params, hal.codec.cycle_time_s("TRACKER_CMD") or 0.01,
                                          allowed=lambda: self.supervisor.outputs_allowed)
@@ -216,7 +219,7 @@ class Controller(CommandOwner):
                                                                    or self._plant_silent()))
         self.supervisor.add_fault_check(Fault.SUPPLY_LOW, self._supply_low)
         self.supervisor.add_fault_check(Fault.OVER_TEMPERATURE, self._temp_out_of_range)
-        self._watched = [(ARM_CHANNELS.index(drive.name), self.arm.joints[drive.name]) for drive in DRIVES]
+        self._watched = [(ARM_CHANNELS.index(name), self.arm.joints[name]) for name in DRIVE_NAMES]
         self.standstill = StandstillWatch(self.params, [ARM_CHANNELS[k] for k, _ in self._watched]
                                           + [f"tracker {axis}" for axis in TRACKER_AXES])
         self.foreign = ForeignCommands()

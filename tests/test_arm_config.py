@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from firmware_py.arm_config import DRIVES, GRIPPER, MASSES, SUPPLY_NOMINAL_V, default_gains
+from firmware_py.arm_config import ASPOD_ARM, SUPPLY_NOMINAL_V, default_gains
 from hil_sim.arm import static_torques_nm
 from hil_sim.arm_params import ARM_PLANT_PARAMS, CHANNEL_PARAMS
 from protocol.hal import HalCodec
@@ -27,7 +27,7 @@ def test_the_dbc_lists_the_arm_channels_in_their_declared_order():
     assert tuple(c.drive.name for c in CHANNEL_PARAMS) == ARM_CHANNELS
 
 
-@pytest.mark.parametrize("drive", DRIVES, ids=lambda d: d.name)
+@pytest.mark.parametrize("drive", ASPOD_ARM.drives, ids=lambda d: d.name)
 def test_drive_constants_match_the_plant(drive):
     plant = PLANT[drive.name]
     d = plant.drive
@@ -41,7 +41,7 @@ def test_drive_constants_match_the_plant(drive):
     assert plant.limit_lo_rad < math.radians(drive.soft_min_deg) < math.radians(drive.soft_max_deg) < plant.limit_hi_rad
 
 
-@pytest.mark.parametrize("drive", DRIVES, ids=lambda d: d.name)
+@pytest.mark.parametrize("drive", ASPOD_ARM.drives, ids=lambda d: d.name)
 def test_feed_forwards_are_the_plants_motor_equations(drive):
     """Turning at w takes duty kt N w / V against the back-EMF, the motor's own (no gear train's
     efficiency in it); holding torque tau at the joint takes tau R / (eta kt N V). (The back-EMF's once
@@ -58,14 +58,14 @@ def test_feed_forwards_are_the_plants_motor_equations(drive):
 
 def test_gripper_constants_match_the_plant():
     g = ARM_PLANT_PARAMS.gripper
-    assert GRIPPER.lead_m_per_rad == pytest.approx(g.lead_m_per_rad)
-    assert GRIPPER.open_switch_m == pytest.approx(g.open_switch_m)
-    assert GRIPPER.ratio == pytest.approx(PLANT["gripper"].drive.ratio)
+    assert ASPOD_ARM.gripper.lead_m_per_rad == pytest.approx(g.lead_m_per_rad)
+    assert ASPOD_ARM.gripper.open_switch_m == pytest.approx(g.open_switch_m)
+    assert ASPOD_ARM.gripper.ratio == pytest.approx(PLANT["gripper"].drive.ratio)
 
 
 @pytest.mark.parametrize("pose", [(0.0, 0.0, 0.0), (0.5, -1.2, 0.3), (1.2, -2.0, -0.6), (-0.8, 1.0, 1.5)])
 @pytest.mark.parametrize("payload_kg", [0.0, 0.3])
 def test_gravity_model_matches_the_plant(pose, payload_kg):
     plant = static_torques_nm(*pose, ARM_PLANT_PARAMS.geometry, 9.80665, payload_kg)
-    firmware = MASSES.holding_torques_nm(*pose, 9.80665, payload_kg)
+    firmware = ASPOD_ARM.masses.holding_torques_nm(*pose, 9.80665, payload_kg)
     assert firmware == pytest.approx(plant, rel=1e-6, abs=1e-9)

@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V
+from firmware_py.arm_config import ASPOD_ARM, SUPPLY_NOMINAL_V
 from host_tools.apps.arm_plan import ARM_JOINTS, HELD, ArmPlanSettings, plan_move
 from host_tools.plan.errors import PlanError
 
-LIMITS_A = {d.name: d.i_limit_a for d in DRIVES}
-SPEEDS = {d.name: math.radians(30.0) for d in DRIVES}      # the speed parameters' largest value
+LIMITS_A = {d.name: d.i_limit_a for d in ASPOD_ARM.drives}
+SPEEDS = {d.name: math.radians(30.0) for d in ASPOD_ARM.drives}      # the speed parameters' largest value
 START = {"j1": math.radians(60), "j2": math.radians(-110), "j3": math.radians(-40), "j4": 0.0, "mount": 0.0}
 TARGET = {"j1": math.radians(21.2), "j2": math.radians(-116.9), "j3": math.radians(5.7), "j4": math.radians(30),
           "mount": math.radians(-45)}
@@ -25,17 +25,16 @@ def motor_demands(move, gravity, payload):
     dq = move.path.q1 - move.path.q0
     sdd = np.concatenate([prof.sdd, prof.sdd[-1:]])
     q = move.path.q(prof.s)
-    drives = {d.name: d for d in DRIVES}
     currents, volts = [], []
     for k, name in enumerate(move.names):
-        d = drives[name]
+        d = ASPOD_ARM.drive(name)
         qd, qdd = prof.sd * dq[k], sdd * dq[k]
         angles = np.tile([START["j1"], START["j2"], START["j3"]], (len(q), 1))
         for j, other in enumerate(move.names):
             if other in HELD:
                 angles[:, HELD.index(other)] = q[:, j]
         hold = 0.0 if name not in HELD else np.array(
-            [MASSES.holding_torques_nm(*row, gravity, payload)[HELD.index(name)] for row in angles])
+            [ASPOD_ARM.masses.holding_torques_nm(*row, gravity, payload)[HELD.index(name)] for row in angles])
         torque = (d.inertia_kg_m2 + d.load_inertia_kg_m2) * qdd + d.viscous_nm_s_rad * qd + hold
         i = torque / (d.efficiency * d.kt_nm_a * d.ratio)
         currents.append(i / d.i_limit_a)

@@ -391,7 +391,7 @@ def worst_rows(arm: ArmPlantParams = ARM_PLANT_PARAMS) -> list[Row]:
     rated_joint_lb_in = lb_in(d1.rated_output_torque_nm)
     lever_in = inches(LoadModel(arm.geometry).pose(*p1)[3][0])
     payload_rated = (rated_joint_lb_in - w1) / lever_in
-    limit_a = arm_config.JOINTS["j1"].i_limit_a
+    limit_a = arm_config.ASPOD_ARM.drive("j1").i_limit_a
     limit_lb_in = lb_in(limit_a * d1.kt_out_nm_a)
     payload_limit = (limit_lb_in - w1) / lever_in
     return [
@@ -411,7 +411,7 @@ def worst_rows(arm: ArmPlantParams = ARM_PLANT_PARAMS) -> list[Row]:
             f"{payload_rated:.3f} lb ({lb_to_g(payload_rated):.0f} g) at the tip, {lever_in:.0f} in from J1",
             f"{payload_rated / lb(REPORT_TEST_LOAD_KG):.1f} × the 1 oz test load"),
         Row("W6", "J1 at the firmware's current limit", "none given",
-            f"{limit_a:.1f} A (`arm_config.DRIVES`) gives {limit_lb_in * 16:.0f} oz-in, "
+            f"{limit_a:.1f} A (`arm_config.ASPOD_ARM`) gives {limit_lb_in * 16:.0f} oz-in, "
             f"{limit_lb_in / rated_joint_lb_in:.2f} × the rating: {payload_limit:.2f} lb "
             f"({lb_to_g(payload_limit):.0f} g) of payload stretched out",
             "above the gear head's rating" if limit_lb_in > rated_joint_lb_in else "within the gear head's rating"),
@@ -464,13 +464,13 @@ def mount_drive_gravity_nm(arm: ArmPlantParams) -> float:
 
 def axis_configs() -> dict:
     """The firmware's axis configurations from its default parameters (what `Move` runs with)."""
-    values = {spec.name: spec.default for spec in arm_config.parameter_table()}
-    return {d.name: arm_config.axis_config(d, values, 0.001) for d in arm_config.DRIVES}
+    values = {spec.name: spec.default for spec in arm_config.ASPOD_ARM.parameter_table()}
+    return {d.name: arm_config.axis_config(d, values, 0.001) for d in arm_config.ASPOD_ARM.drives}
 
 
 def speed_rows(arm: ArmPlantParams = ARM_PLANT_PARAMS) -> list[Row]:
     configs = axis_configs()
-    specs = {spec.name: spec for spec in arm_config.parameter_table()}
+    specs = {spec.name: spec for spec in arm_config.ASPOD_ARM.parameter_table()}
     speeds = {name: math.degrees(c.vel_limit_rad_s) for name, c in configs.items()}
     highest = {name: specs[f"{name}_speed_dps"].hi for name in configs}
     j2 = configs["j2"]
@@ -721,7 +721,7 @@ def object_rows(params: ObjectParams = ObjectParams()) -> list[Row]:
     p = params
     (g0x, g0z), (g1x, g1z) = p.grasps_m
     (kx, kz), (cx, cz) = p.stiffness_n_m, p.damping_n_s_m
-    hold_duty = {spec.name: spec.default for spec in arm_config.parameter_table()}["grip_hold_duty"]
+    hold_duty = {spec.name: spec.default for spec in arm_config.ASPOD_ARM.parameter_table()}["grip_hold_duty"]
     supply_v = PlantParams().supply_nominal_v
     jaws_n = (ARM_PLANT_PARAMS.channels[GRIPPER].drive.stall_torque_nm(hold_duty * supply_v)
               / ARM_PLANT_PARAMS.gripper.lead_m_per_rad)

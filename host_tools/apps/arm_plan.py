@@ -2,7 +2,9 @@
 
 The path is a straight line in joint space, q(s) = q0 + s (q1 - q0), for the joints that move (J1..J4 and the
 mount). The model
-is the firmware's (firmware_py/arm_config.py), as ground software would have it, not the plant's truth:
+is the firmware's description of ASPOD's arm (firmware_py/arm_config.py `ASPOD_ARM`), as ground software would have
+it, not the plant's truth (it holds for ASPOD's arm alone, whose rotors outweigh their loads; not for the example
+arm's, whose loads are up to 35 times their rotors: its moves are the two-arm planner's, host_tools/plan):
 
 * each joint is its own axis: inertia J = the rotor reflected through the train plus the output's own, plus the
   drive's typical (outstretched) arm load, so the mass matrix is diagonal and constant (the plant neglects the
@@ -29,7 +31,7 @@ import math
 from dataclasses import dataclass
 import numpy as np
 
-from firmware_py.arm_config import DRIVES, MASSES, SUPPLY_NOMINAL_V, Drive, axis_config, parameter_table
+from firmware_py.arm_config import ASPOD_ARM, SUPPLY_NOMINAL_V, Drive, axis_config
 from firmware_py.hermite import HermiteProfile
 from firmware_py.trajectory import TRAJECTORY_KNOTS
 from host_tools.client.trajectory import Knot
@@ -90,8 +92,7 @@ class ArmJoints:
 
     @property
     def drives(self) -> list[Drive]:
-        by_name = {d.name: d for d in DRIVES}
-        return [by_name[n] for n in self.names]
+        return [ASPOD_ARM.drive(n) for n in self.names]
 
     def gravity_nm(self, q: np.ndarray) -> np.ndarray:
         """(N, joints): the holding torque of each moving joint along q (N, joints)."""
@@ -99,7 +100,8 @@ class ArmJoints:
         for k, name in enumerate(self.names):
             if name in HELD:
                 full[:, HELD.index(name)] = q[:, k]
-        torques = np.array([MASSES.holding_torques_nm(*row, self.gravity_m_s2, self.payload_kg) for row in full])
+        torques = np.array([ASPOD_ARM.masses.holding_torques_nm(*row, self.gravity_m_s2, self.payload_kg)
+                            for row in full])
         return np.stack([torques[:, HELD.index(n)] if n in HELD else np.zeros(len(q)) for n in self.names], axis=1)
 
     def coefficients(self, path: JointLine, s) -> Coefficients:
@@ -177,8 +179,8 @@ def knots_within_speed(move: "PlannedMove", speed_limits_rad_s: dict[str, float]
 def homed_pose_rad() -> dict[str, float]:
     """Where each joint of the trajectory holds after `home all` with the controller's default configuration: its
     home angle, backed off its switch (firmware_py/homing.py)."""
-    config = {p.name: p.default for p in parameter_table()}
-    axes = {d.name: axis_config(d, config, 0.001) for d in DRIVES}
+    config = {p.name: p.default for p in ASPOD_ARM.parameter_table()}
+    axes = {d.name: axis_config(d, config, 0.001) for d in ASPOD_ARM.drives}
     return {n: axes[n].home_pos_rad - axes[n].home_dir * axes[n].home_backoff_rad for n in ARM_JOINTS}
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from firmware_py.arm_config import parameter_table
+from firmware_py.arm_config import ASPOD_ARM
 from host_tools.apps.arm_plan import ARM_JOINTS, ArmPlanSettings, plan_move
 from host_tools.apps.kinematics import DEMO_SCENE, steps
 from host_tools.apps.pick_place import SPEC_M, DemoFailed, PickAndPlace, StepResult
@@ -22,8 +22,9 @@ from host_tools.plan.errors import PlanError
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 
 GRAVITY_M_S2 = {"earth": 9.80665, "orbit": 0.0}
-# each joint's speed parameter at its largest value
-PLANNED_SPEED_DPS = {p.name[:-len("_speed_dps")]: p.hi for p in parameter_table() if p.name.endswith("_speed_dps")}
+# each joint's speed parameter at its largest value (ASPOD's arm: the pick-and-place's)
+PLANNED_SPEED_DPS = {p.name[:-len("_speed_dps")]: p.hi for p in ASPOD_ARM.parameter_table()
+                     if p.name.endswith("_speed_dps")}
 
 
 @dataclass

@@ -60,11 +60,11 @@ def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
     """ASPOD's own arm from `arm.start_deg` to `arm.target_deg` in minimum time, within the controller's default
     current and speed limits and the supply (host_tools/apps/arm_plan.py); the knots written to `arm.output`, a
     file teleop's `traj load` takes. PlanError (exit 2) for a move it cannot plan."""
-    from firmware_py.arm_config import parameter_table
+    from firmware_py.arm_config import ASPOD_ARM
     from hil_sim.arm_params import GRAVITY_M_S2
     from host_tools.apps.arm_plan import ArmPlanSettings, knots_within_speed, plan_move
     from host_tools.client.trajectory import trajectory_json
-    defaults = {p.name: p.default for p in parameter_table()}
+    defaults = {p.name: p.default for p in ASPOD_ARM.parameter_table()}
     start = {name: math.radians(deg) for name, deg in arm.start_deg}
     target = {name: math.radians(deg) for name, deg in arm.target_deg}
     current = {name: defaults[f"{name}_i_lim_a"] for name in start}
