@@ -264,7 +264,7 @@ ASPOD_ARM = ArmDescription("ASPOD", (
 # 0.85: 1.7 N m/A at the joint, 14 rad/s unloaded at 28 V, the rotor 0.075 kg m^2 at the joint (plus the output's own
 # 2e-3 and 1e-3). Current limits 21 A at the shoulder (35.7 N m: the example's |u1| < 30 and |u3| < 35) and 12 A at
 # the elbow (20.4 N m: |u2| < 20, |u4| < 15), at most 30 A (the current that would drag the brake, 1.5 x the motor's
-# rated 0.8 N m). Soft limits -90..135 and 0..170 deg (the example's paths span -40.5..112.5 and 66.9..149.4). Speed
+# rated 0.8 N m). Soft limits -90..135 and -3..170 deg (the example's paths span -40.5..112.5 and 66.9..149.4). Speed
 # cap 600 deg/s (10.5 rad/s, 75 % of no-load; the minimum-time plans peak at 6.9 rad/s). Typical load, the arm
 # stretched out: at J1 link II's m l^2 / 3, link III's m l^2 / 12 + m (1.5 l)^2 (2.667 kg m^2); at J2 m l^2 / 3.
 #
@@ -292,7 +292,7 @@ def _example_drive(name: str, output_inertia_kg_m2: float, load_inertia_kg_m2: f
 _M, _L = EXAMPLE_LINK_KG, EXAMPLE_LINK_M
 EXAMPLE_ARM = ArmDescription("example", (
     _example_drive("j1", 2e-3, _M * _L ** 2 / 3 + _M * _L ** 2 / 12 + _M * (1.5 * _L) ** 2, (-90.0, 135.0), 21.0),
-    _example_drive("j2", 1e-3, _M * _L ** 2 / 3, (0.0, 170.0), 12.0),
+    _example_drive("j2", 1e-3, _M * _L ** 2 / 3, (-3.0, 170.0), 12.0),     # (homed at -1.15 deg: inside)
 ) + ASPOD_ARM.drives[2:], MassModel(link2_m=_L, link3_m=_L, link2_kg=_M, link3_kg=_M, elbow_hw_kg=0.0,
                                     wrist_fixed_kg=0.0, wrist_turned_kg=0.0, wrist_turned_cg_m=0.0, tip_m=0.0),
     ASPOD_ARM.gripper)

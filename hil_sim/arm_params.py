@@ -363,10 +363,11 @@ MOTOR_EXAMPLE_ARM = MotorSpec(
     rated_torque_nm=0.8 * 50.0 * 0.85)
 
 # [EMU] ranges: the example's path spans shoulder -40.5..112.5 deg and elbow 66.9..149.4 deg over both arms (rod
-# links), so the shoulder's limit switches at -90 and +135 deg (hard stops -95, +140), the elbow's at 0 and +170
+# links), so the shoulder's limit switches at -90 and +135 deg (hard stops -95, +140), the elbow's at -4 and +170
 # (hard stops -5, +175). Home flags at 0 as ASPOD's. The shoulder powers on 0.1 rad below its flag as ASPOD's
-# joints do; 0.1 rad below the elbow's flag is past its hard stop, so it powers on halfway between the two
-# (-2.5 deg, its lower limit switch closed). Encoders 400 counts per motor turn as ASPOD's. Output friction and
+# joints do; 0.1 rad below the elbow's flag is past its hard stop, so it powers on at -2.5 deg. Homing backs a
+# joint off its flag to -1.15 deg: the elbow's lower switch and soft limit (-3 deg) lie below that (with both at 0
+# its homed pose was outside its soft limits, and its first move was stopped there: found carrying the object). Encoders 400 counts per motor turn as ASPOD's. Output friction and
 # inertia (0.2 / 0.1 N m, 2e-3 / 1e-3 kg m^2) and the brakes' rule (`BRAKE_HOLD_FACTOR` x rated: 51 N m) as
 # ASPOD's J1 and J2.
 EXAMPLE_ARM_CHANNELS = (
@@ -375,7 +376,7 @@ EXAMPLE_ARM_CHANNELS = (
                   ENCODER_CPR, home_rad=0.0, limit_lo_rad=-90 * DEG, limit_hi_rad=135 * DEG, start_pos_rad=-0.1),
     ChannelParams(_drive("j2", MOTOR_EXAMPLE_ARM, (), out_coulomb_nm=0.1, out_inertia_kg_m2=1e-3,
                          stop_deg=(-5.0, 175.0)),
-                  ENCODER_CPR, home_rad=0.0, limit_lo_rad=0.0, limit_hi_rad=170 * DEG, start_pos_rad=-2.5 * DEG),
+                  ENCODER_CPR, home_rad=0.0, limit_lo_rad=-4 * DEG, limit_hi_rad=170 * DEG, start_pos_rad=-2.5 * DEG),
     *CHANNEL_PARAMS[2:],                                           # J3, J4, gripper, mount: ASPOD's
 )
 

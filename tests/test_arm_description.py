@@ -65,7 +65,7 @@ def test_the_example_arms_shoulder_and_elbow_are_example_arm_md_s():
     assert (j1.i_limit_a, j2.i_limit_a) == (21.0, 12.0)
     assert (table["j1_i_lim_a"].default, table["j2_i_lim_a"].default) == (21.0, 12.0)
     assert j1.i_limit_a * 1.7 == pytest.approx(35.7) and j2.i_limit_a * 1.7 == pytest.approx(20.4)
-    assert (j1.soft_min_deg, j1.soft_max_deg, j2.soft_min_deg, j2.soft_max_deg) == (-90.0, 135.0, 0.0, 170.0)
+    assert (j1.soft_min_deg, j1.soft_max_deg, j2.soft_min_deg, j2.soft_max_deg) == (-90.0, 135.0, -3.0, 170.0)
 
 
 def test_the_example_arms_links_are_the_planners_rods_and_the_rest_is_aspods():
