@@ -1,6 +1,6 @@
-"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load, sessions (proxy, capture decoding, two links), campaigns (Dask throughput and overhead, lock-step against live), fuzzing (in process, black-box, beside boofuzz; and planted bugs found or missed), time-optimal planning (beside toppra) and the start (the command line, aspod sim, children's memory, numba's cache), in that order.
+"""`python -m bench` (`make bench`): codec, round trip, real-time loop, lock-step speed, tracking, the solar tracker's day, live sessions under load, sessions (proxy, capture decoding, two links), campaigns (Dask throughput and overhead, lock-step against live), fuzzing (in process, black-box, beside boofuzz; and planted bugs found or missed), time-optimal planning (beside toppra), two arms carrying the report's object, and the start (the command line, aspod sim, children's memory, numba's cache), in that order.
 
-    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|handshake|sessions|campaign|fuzz|fuzz-plants|plan|start]
+    python -m bench [--quick] [--only codec|rtt|realtime|lockstep|tracking|tracker|live|handshake|sessions|campaign|fuzz|fuzz-plants|plan|two-arms|start]
 
 These print figures and ratios beside a peer measured in the same run; they are not
 pass/fail tests. The exit status is 0 when every benchmark produced its figures
@@ -20,7 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "instead of 20, shorter tracking moves and no pick-and-place: a smoke run")
     parser.add_argument("--only", choices=("codec", "rtt", "realtime", "lockstep", "tracking", "tracker", "live",
                                                   "handshake", "sessions", "campaign", "fuzz", "fuzz-plants", "plan",
-                                                  "start"),
+                                                  "two-arms", "start"),
                         help="run one benchmark only (fuzz: its speed and then the planted bugs; fuzz-plants: only the "
                              "planted bugs)")
     return parser
@@ -117,6 +117,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             status = 1
         print()
         if bench_arm_moves.main(quick=args.quick).error:
+            status = 1
+        if args.only is None:
+            print()
+    if args.only in (None, "two-arms"):
+        from bench import bench_two_arms
+        if bench_two_arms.main(quick=args.quick).error:
             status = 1
         if args.only is None:
             print()

@@ -30,12 +30,9 @@ def homed(call, events: list, wait_until) -> None:
 @pytest.fixture
 def bench():
     bench = LockstepBench(seed=5, arms=2)
-    second_events: list = []
-    bench.arm2.host.on_event = lambda m, now: second_events.append(m)
-    bench.arm2.events = second_events
     assert bench.connect() and bench.arm2.connect(bench.world.arm2.controller)
     homed(bench.call, bench.events, bench.wait_until)
-    homed(bench.arm2.call, second_events, bench.wait_until)
+    homed(bench.arm2.call, bench.arm2.events, bench.wait_until)
     yield bench
     bench.close()
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 import numpy as np
 
 from firmware_py.arm_config import ASPOD_ARM, SUPPLY_NOMINAL_V, Drive, axis_config
@@ -157,14 +158,16 @@ class PlannedMove:
         return out
 
 
-def knots_within_speed(move: "PlannedMove", speed_limits_rad_s: dict[str, float], fewest: int) -> list[Knot]:
-    """The move's knots, `fewest` of them or more (doubled up to the controller's buffer) until the Hermite curve
-    through them stays within each joint's speed limit as the controller judges it (`HermiteProfile.bounds`): the
-    profile's speed is within its limit at every knot, but a cubic between two knots overshoots it where the
-    acceleration switches (an 11-degree move's 41 knots passed j1's 3 deg/s by 16 %). PlanError if none do."""
+def knots_within_speed(knots_of: Callable[[int], list[Knot]], speed_limits_rad_s: dict[str, float],
+                       fewest: int) -> list[Knot]:
+    """A plan's knots (`knots_of(count)`: a move's, `PlannedMove.knots`, an arm's of two, two_arm_plan.py),
+    `fewest` of them or more (doubled up to the controller's buffer) until the Hermite curve through them stays
+    within each joint's speed limit as the controller judges it (`HermiteProfile.bounds`): the profile's speed is
+    within its limit at every knot, but a cubic between two knots overshoots it where the acceleration switches (an
+    11-degree move's 41 knots passed j1's 3 deg/s by 16 %). PlanError if none do."""
     count = fewest
     while True:
-        knots = move.knots(count)
+        knots = knots_of(count)
         times = [k.t_s for k in knots]
         over = [name for j, name in enumerate(ARM_JOINTS) if HermiteProfile(
             times, [math.radians(k.q_deg[j]) for k in knots],

@@ -71,7 +71,7 @@ def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
     speed = {name: math.radians(defaults[f"{name}_speed_dps"]) for name in start}
     move = plan_move(start, target, GRAVITY_M_S2[arm.gravity], arm.payload_kg, current, speed,
                      ArmPlanSettings(nodes=min(nodes, 20000), knots=arm.knots))
-    knots = knots_within_speed(move, speed, arm.knots)
+    knots = knots_within_speed(move.knots, speed, arm.knots)
     about = {"tool": "aspod plan", "from_deg": dict(arm.start_deg), "to_deg": dict(arm.target_deg),
              "gravity": arm.gravity, "payload_kg": arm.payload_kg, "duration_s": round(move.duration_s, 6),
              "limits": "the controller's default current and speed limits"}

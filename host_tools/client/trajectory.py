@@ -81,7 +81,14 @@ def send_trajectory(client: Caller, knots: Sequence[Knot]) -> list[int]:
     if knots[0].t_s != 0.0 or any(b.t_s <= a.t_s for a, b in zip(knots, knots[1:])):
         raise ValueError("a trajectory's knots start at t = 0 s and their times increase strictly")
     upload_trajectory(client, knots)
-    reply = _ok(client.call(M["TrajRun"](len(knots))), "TrajRun")
+    return run_trajectory(client, len(knots))
+
+
+def run_trajectory(client: Caller, count: int) -> list[int]:
+    """TrajRun of the `count` knots uploaded: j1..j4's and the mount's motion ids; TrajectoryRefused for the
+    controller's no. A controller that follows another's start (two arms) arms them here: they start on its
+    leader's tick (firmware_py/trajectory_sync.py)."""
+    reply = _ok(client.call(M["TrajRun"](count)), "TrajRun")
     return [getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS]
 
 

@@ -34,6 +34,7 @@ import numpy as np
 from firmware_py.controller import Controller, ControllerConfig
 from firmware_py.hal import ControllerHal
 from firmware_py.uart import PacedUart
+from hil_sim.arm_params import ARM_PLANT_PARAMS, ArmPlantParams
 from hil_sim.hal_node import PlantNode
 from hil_sim.plant import Plant, PlantParams
 from protocol.auth import new_nonce
@@ -214,24 +215,24 @@ def describe_bus(interface: str, channel: str, options: Optional[dict[str, Any]]
 # ---- the plant ----
 
 def build_plant(seed: int = 0, params: Optional[PlantParams] = None,
-                settings: PlantSettings = PlantSettings()) -> Plant:
+                settings: PlantSettings = PlantSettings(), arm_params: Optional[ArmPlantParams] = None) -> Plant:
     """The plant, its noise seeded with `seed`; the arm, the tracker, its sun and clouds as `settings` say
-    (its start resolved: `PlantSettings.with_start`)."""
+    (its start resolved: `PlantSettings.with_start`); the arm built as `arm_params` say (None: ASPOD's)."""
     rng = np.random.default_rng(seed)
-    return Plant(params or PlantParams(), rng, gravity=settings.gravity, payload_kg=settings.payload_kg,
-                 start=settings.plant_start(), clouds=settings.clouds)
+    return Plant(params or PlantParams(), rng, arm_params=arm_params or ARM_PLANT_PARAMS, gravity=settings.gravity,
+                 payload_kg=settings.payload_kg, start=settings.plant_start(), clouds=settings.clouds)
 
 
 def build_plant_node(bus: can.BusABC, seed: int = 0, params: Optional[PlantParams] = None,
                      settings: PlantSettings = PlantSettings(), *, period_s: float = PLANT_PERIOD_S,
-                     lockstep: bool = False) -> PlantNode:
+                     lockstep: bool = False, arm_params: Optional[ArmPlantParams] = None) -> PlantNode:
     """The plant on `bus`; add its `step` to a scheduler (`scheduler.add("plant", node.step, period_s=node.period_s)`).
 
     `settings.tracker` puts the solar tracker on the bus too (TRACKER_CMD in, TRACKER_SENSE and
     TRACKER_POS out every 10 ms); without it the plant is the arm, mount and gripper alone.
     `lockstep` says so in PLANT_SYNC (the plant's clock does the waiting: `protocol.lockstep`).
     """
-    plant = build_plant(seed, params, settings)
+    plant = build_plant(seed, params, settings, arm_params)
     return PlantNode(bus, plant, period_s, tracker=settings.tracker, lockstep=lockstep)
 
 

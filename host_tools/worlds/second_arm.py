@@ -5,7 +5,8 @@ Each arm is what it would be alone: a controller and the plant's side of its mot
 joins them is physical, so it is the plant's: both plant nodes step on one scheduler, tick for tick (their
 PLANT_SYNC ticks are one count), and the plant relays a leading controller's TRAJ_START from one arm's bus to the
 other's, as a sync line between the two controllers would carry it (firmware_py/trajectory_sync.py). The first
-arm's controller leads, the second follows.
+arm's controller leads, the second follows. With `held_object`, the object the two hands hold
+(hil_sim/two_arms.py) is stepped after both plants each tick once taken, and each arm's joints carry its grasp.
 """
 from __future__ import annotations
 
@@ -16,8 +17,11 @@ from typing import Callable, Optional
 from firmware_py.controller import Controller, ControllerConfig
 from firmware_py.trajectory_sync import SyncRole
 from firmware_py.uart import PacedUart, Port
+from hil_sim.arm_params import ArmPlantParams
 from hil_sim.hal_node import PlantNode
+from hil_sim.held_object import ObjectParams
 from hil_sim.plant import PlantParams
+from hil_sim.two_arms import EXAMPLE_BASES_M, TwoArmPlant
 from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from host_tools.worlds.ports import BufferPort, exchange
@@ -27,6 +31,7 @@ from protocol.link import LinkState
 from timebase.scheduler import Scheduler
 
 NAME = "arm2"        # the second controller's tasks on the shared schedulers: "arm2/hal", ...
+OBJECT_PRIORITY = 20     # the object's task runs after both plants' (priority 10) in each tick
 
 
 @dataclass(frozen=True)
@@ -37,6 +42,10 @@ class SecondArm:
     port: Port
     controller_config: Optional[ControllerConfig] = None
     plant_params: Optional[PlantParams] = None
+    arm_params: Optional[ArmPlantParams] = None         # the arm the plant builds (None: ASPOD's)
+    # the object both hands may hold (`SecondArmNodes.take_object`), the two arms' bases in its plane; None: none
+    held_object: Optional[ObjectParams] = None
+    bases_m: tuple[tuple[float, float], tuple[float, float]] = EXAMPLE_BASES_M
 
 
 def leading(config: Optional[ControllerConfig]) -> ControllerConfig:
@@ -52,7 +61,7 @@ class SecondArmNodes:
                  link_scheduler: Scheduler, *, seed: int, baud: int, paced: bool, plant: PlantSettings,
                  direct_values: bool, nonce_source: Callable[[], bytes]) -> None:
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
-        self.plant_node = build_plant_node(self.plant_bus, seed, arm.plant_params, plant)
+        self.plant_node = build_plant_node(self.plant_bus, seed, arm.plant_params, plant, arm_params=arm.arm_params)
         self.plant = self.plant_node.plant
         scheduler.add(f"{NAME}/plant", self.plant_node.step, period_s=self.plant_node.period_s)
         self.uart = PacedUart(arm.port, baud, paced)
@@ -62,6 +71,26 @@ class SecondArmNodes:
         self.controller.attach(scheduler, link_scheduler)
         relay_trajectory_starts(first_plant, self.plant_node)
         relay_trajectory_starts(self.plant_node, first_plant)
+        # the object the two hands hold: stepped after both plants each tick, once taken (`take_object`)
+        self.pair: Optional[TwoArmPlant] = None
+        self.holding = False
+        if arm.held_object is not None:
+            self.pair = TwoArmPlant((first_plant.plant.arm, self.plant.arm), arm.bases_m, arm.held_object)
+            self._dt_s = self.plant_node.period_s
+            scheduler.add("object", self._object_step, period_s=self._dt_s, priority=OBJECT_PRIORITY)
+
+    def take_object(self) -> None:
+        """The object between the two hands, held from now on (`TwoArmPlant.grasp`: GraspRefused, nothing changed,
+        unless the hands are the grasps' distance apart); each arm's joints carry their grasp's force."""
+        if self.pair is None:
+            raise ValueError("this world has no object (SecondArm.held_object)")
+        self.pair.grasp()
+        self.holding = True
+
+    def _object_step(self, now: float) -> float:
+        if self.holding:
+            self.pair.step(self._dt_s)
+        return now              # (a periodic task: anything but None keeps it)
 
     def close(self) -> None:
         self.plant_bus.shutdown()
@@ -83,6 +112,8 @@ class SecondHost:
     def __init__(self, host: HostLink, port: BufferPort, link_scheduler: Scheduler,
                  wait_until: Callable[..., bool], step_s: float) -> None:
         self.host, self.port, self.step_s = host, port, step_s
+        self.events: list = []                 # every event the second controller sent, in order
+        host.on_event = lambda msg, now: self.events.append(msg)
         self._clock = link_scheduler.clock
         self._wait_until = wait_until
         link_scheduler.add(f"{NAME}/host", self._step)

@@ -27,6 +27,8 @@ from host_tools.worlds import plant_actions
 from host_tools.worlds.can_log import HalBusLog
 from host_tools.worlds.fast_loop import FastLoop
 from host_tools.worlds.ports import BufferPort, RecordedPort
+from hil_sim.arm_params import ArmPlantParams
+from hil_sim.held_object import ObjectParams
 from hil_sim.plant import PlantParams
 from protocol.auth import new_nonce
 from protocol.host_link import HostLink
@@ -69,11 +71,11 @@ class World:
                  plant_params: Optional[PlantParams] = None, deterministic: bool = False,
                  plant: PlantSettings = PlantSettings(), link_clock: Optional[Clock] = None,
                  direct_values: bool = True, link_time: Optional[LinkTime] = None, fast_loop: bool = True,
-                 second_arm: Optional[SecondArm] = None) -> None:
+                 second_arm: Optional[SecondArm] = None, arm_params: Optional[ArmPlantParams] = None) -> None:
         self.clock = clock
         self.hal_log: Optional[HalBusLog] = None
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
-        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, plant)
+        self.plant_node = build_plant_node(self.plant_bus, seed, plant_params, plant, arm_params=arm_params)
         self.plant = self.plant_node.plant
         # deterministic: on a simulated clock a task takes no time; nothing to measure
         self.scheduler = Scheduler(clock, stopwatch=None if deterministic else RealClock.precise_now)
@@ -159,7 +161,7 @@ class LockstepBench:
                  sleeping_line: bool = True, clock: Optional[SimClock] = None,
                  direct_values: bool = True, impairment: Optional[Impairment] = None,
                  link_time: Optional[LinkTime] = None, fast_loop: bool = True, arms: int = 1,
-                 second_plant_params: Optional[PlantParams] = None) -> None:
+                 arm_params: Optional[ArmPlantParams] = None, held_object: Optional[ObjectParams] = None) -> None:
         if arms not in (1, 2):
             raise ValueError(f"a bench has 1 or 2 arms, not {arms}")
         self.clock = clock if clock is not None else SimClock()
@@ -168,8 +170,9 @@ class LockstepBench:
         self.world = World(self.clock, self.port, psk, seed=seed, baud=baud, paced=paced,
                            controller_config=controller_config, deterministic=True, plant_params=plant_params,
                            plant=plant, direct_values=direct_values, link_time=link_time, fast_loop=fast_loop,
-                           second_arm=None if port2 is None else SecondArm(port2, controller_config,
-                                                                           second_plant_params or plant_params))
+                           arm_params=arm_params,
+                           second_arm=None if port2 is None else SecondArm(port2, controller_config, plant_params,
+                                                                           arm_params, held_object))
         self.link_clock = self.world.link_scheduler.clock    # the host's time: the world's, unless `link_time`
         self.events: list = []
         self.telemetry: list = []
