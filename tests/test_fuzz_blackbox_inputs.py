@@ -247,3 +247,36 @@ def test_a_parameter_that_cannot_be_set_back_yet_is_owed_and_set_back_after_a_la
     assert params.restore(session, blackbox.Case([]), [])
     assert params.owed == set() and params.put_back == 1
     assert bench.controller.params["j1_speed_dps"] == pytest.approx(found, rel=1e-6)
+
+
+def test_an_authentic_frame_of_ours_never_takes_a_number_the_hosts_own_command_claims():
+    """The host's Ping is lost on the line and its number stays unanswered; a case's authentic frame drawn as a
+    repeat of the last number the host sent took that very number: the controller ran our GetStatus under it and
+    took the host's Ping, sent again, for a repeat, answering it with a Status ("Status in answer to MoveBy", found
+    in a 150 s run: the fuzzer's own making, not the target's). Our frame now takes a number answered already."""
+    from types import SimpleNamespace
+    from host_tools.worlds.world import LockstepBench
+    from protocol.messages import MESSAGES as M, SCHEMA
+    from protocol.schema import MsgClass
+    lose = [False]
+
+    def line(data: bytes) -> bytes:
+        if lose[0]:
+            lose[0] = False
+            return b""
+        return data
+    bench = LockstepBench(seed=4, to_controller=line)
+    try:
+        assert bench.connect() and bench.call(M["Ping"](1)).ok       # one command answered: a number to repeat
+        lose[0] = True
+        ping = bench.host.submit(M["Ping"](2), bench.link_clock.now())
+        bench.run_for(0.005)                                          # sent, and lost
+        assert not ping.done and bench.host._commands.in_flight_seqs()
+        step = {"msg": "GetStatus", "cls": int(MsgClass.COMMAND), "seq": "duplicate", "offset": 0, "any_seq": 0,
+                "payload": "", "mac": "good", "version": 1, "flags": 0x10, "length_delta": 0}
+        session = SimpleNamespace(host=bench.host, accepted_counter=-1, sent=[])
+        bench.port.deliver(blackbox.Case._frame(step, session, RandomDraw(random.Random(1))))
+        assert bench.wait_until(lambda: ping.done, 5.0)
+        assert ping.ok and ping.reply.spec is SCHEMA["Pong"] and ping.reply.token == 2
+    finally:
+        bench.close()

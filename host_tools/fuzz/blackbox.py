@@ -52,7 +52,7 @@ from protocol.framing import MAX_ENCODED, MAX_PAYLOAD
 from protocol.link import LinkConfig, LinkState
 from protocol.host_link import HostLink
 from protocol.messages import SCHEMA, started_motions
-from protocol.reliable import Outcome
+from protocol.reliable import Outcome, ReliableSender, seq_delta
 from protocol.schema import MsgClass
 from protocol.states import ControllerState, Fault
 from timebase import RealClock
@@ -501,12 +501,27 @@ class Case:
             #                       the host's sender has not used yet would run, and take that number from it
         seq = {"duplicate": (base - step["offset"]) & 0xFFFF,
                "gap": (sender.next_seq + 1 + step["offset"]) & 0xFFFF}.get(how, step["any_seq"])
+        if step["mac"] == "good":
+            seq = _unclaimed(seq, sender, step["offset"])
         recipe = FrameRecipe(spec, step["cls"], seq, bytes.fromhex(step["payload"]), step["mac"], step["version"],
                              step["flags"], step["length_delta"])
         wire = build(recipe, host.session, _Peer(session.accepted_counter), host._handshake.tx, host._ack_value(),
                      draw)
         session.sent = (session.sent + [wire])[-SENT_KEPT:]
         return wire
+
+
+def _unclaimed(seq: int, sender: ReliableSender, offset: int) -> int:
+    """`seq` for an authentic frame of ours, unless the host's own frames claim it: one the host sent and has no answer
+    to yet, the next it will send, or, in a class taken in any order (urgent), any after. The target would run ours
+    under that number and take the host's own for a repeat of it, answering with our command's reply: a finding of
+    the fuzzer's own making ("Status in answer to MoveBy", a 150 s run). Such a number becomes one answered already,
+    `offset` before the oldest the host still waits on."""
+    flying = sender.in_flight_seqs()
+    ahead = seq_delta(seq, sender.next_seq)
+    if seq in flying or ahead == 0 or (ahead > 0 and not sender.in_order):
+        return ((flying[0] if flying else sender.next_seq) - 1 - offset) & 0xFFFF
+    return seq
 
 
 def _whole(lo: int, hi: int) -> Callable[[object], Optional[str]]:
