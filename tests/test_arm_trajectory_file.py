@@ -46,7 +46,8 @@ def _good(tmp_path) -> dict:
 
 @pytest.mark.parametrize("change, said", [
     (lambda d: d.update(format="other"), "not a trajectory file"),
-    (lambda d: d.update(version=2), "version 2"),
+    (lambda d: d.update(version=3), "version 3"),
+    (lambda d: d.update(version=2), "`arms` must be a list of 2 arms"),
     (lambda d: d["knots"][1].update(t=0.0), "times increase strictly"),
     (lambda d: d["knots"][2]["q"].pop(), "knot 2: a knot has 5 positions"),
     (lambda d: d["knots"][1]["qd"].__setitem__(0, "fast"), "knot 1: its values must be numbers"),
@@ -70,8 +71,11 @@ def test_not_json_and_options_out_of_place_are_refused(tmp_path, capsys):
     assert main(["plan", "--arm-to", "j7=5"]) == 2
     assert main(["plan", "--arm-to", f"j1={math.nan}"]) == 2
     assert main(["plan", "--knots", "5"]) == 2
+    assert main(["plan", "--payload-kg", "1"]) == 2
     err = capsys.readouterr().err
-    assert "not a joint of the trajectory" in err and "-360..360" in err and "only with --arm-to" in err
+    assert "not a joint of the trajectory" in err and "-360..360" in err
+    assert "--knots: only with --output (the two arms' trajectory file) or --arm-to" in err
+    assert "--payload-kg: only with --arm-to" in err
 
 
 def test_teleop_traj_words_load_run_and_clear_a_planned_file(tmp_path, capsys):

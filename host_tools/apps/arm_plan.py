@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Callable
 import numpy as np
 
-from firmware_py.arm_config import ASPOD_ARM, SUPPLY_NOMINAL_V, Drive, axis_config
+from firmware_py.arm_config import ASPOD_ARM, SUPPLY_NOMINAL_V, ArmDescription, Drive, axis_config
 from firmware_py.hermite import HermiteProfile
 from firmware_py.trajectory import TRAJECTORY_KNOTS
 from host_tools.client.trajectory import Knot
@@ -179,11 +179,11 @@ def knots_within_speed(knots_of: Callable[[int], list[Knot]], speed_limits_rad_s
         count = min(2 * count, TRAJECTORY_KNOTS)
 
 
-def homed_pose_rad() -> dict[str, float]:
-    """Where each joint of the trajectory holds after `home all` with the controller's default configuration: its
-    home angle, backed off its switch (firmware_py/homing.py)."""
-    config = {p.name: p.default for p in ASPOD_ARM.parameter_table()}
-    axes = {d.name: axis_config(d, config, 0.001) for d in ASPOD_ARM.drives}
+def homed_pose_rad(arm: ArmDescription = ASPOD_ARM) -> dict[str, float]:
+    """Where each joint of the trajectory holds after `home all` with the controller of `arm` in its default
+    configuration: its home angle, backed off its switch (firmware_py/homing.py)."""
+    config = {p.name: p.default for p in arm.parameter_table()}
+    axes = {d.name: axis_config(d, config, 0.001) for d in arm.drives}
     return {n: axes[n].home_pos_rad - axes[n].home_dir * axes[n].home_backoff_rad for n in ARM_JOINTS}
 
 

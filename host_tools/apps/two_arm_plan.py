@@ -7,6 +7,11 @@ is built (hil_sim/arm_params.py `EXAMPLE_ARM_PLANT`: both angles as the planner 
 mount hold where they are (`held_deg`). Knots are evenly spaced in time on the exact profile (s'' constant
 between its nodes), as `PlannedMove.knots` places a move's. `start_together` uploads both and starts them on one
 plant tick: the second arm's controller armed first, then the first's, which leads (firmware_py/trajectory_sync.py).
+
+`executable_plan` makes the plan they can follow (the minimum-time plan within a share of the torque limits, run
+slower), and `controller_knots` each arm's knots for its controller, refused (PlanError) if the curve through them
+would pass a joint's soft limit or speed limit: what `aspod plan --output FILE` writes (host_tools/client/
+trajectory.py's two-arm file).
 """
 from __future__ import annotations
 
@@ -16,10 +21,16 @@ from typing import Sequence
 
 import numpy as np
 
-from host_tools.client.trajectory import Caller, Knot, run_trajectory, upload_trajectory
+from firmware_py.arm_config import ArmDescription, highest_speed_dps
+from firmware_py.hermite import HermiteProfile
+from firmware_py.trajectory import TRAJECTORY_KNOTS
+from host_tools.apps.arm_plan import ARM_JOINTS, homed_pose_rad, knots_within_speed
+from host_tools.client.trajectory import Caller, Knot, point_message, run_trajectory, upload_trajectory
+from host_tools.plan.errors import PlanError
 from host_tools.plan.phase import Problem
 from host_tools.plan.profile import Profile
-from protocol.messages import TRAJECTORY_JOINTS
+from host_tools.plan.reach import plan_reach_checked
+from protocol.messages import SCHEMA, TRAJECTORY_JOINTS
 
 ARMS = 2
 SHOULDER, ELBOW = 0, 1           # their places among the trajectory's joints (j1, j2)
@@ -71,6 +82,83 @@ def slowed(profile: Profile, factor: float) -> Profile:
         raise ValueError(f"a plan is slowed by a factor of 1 or more, not {factor!r}")
     return dataclasses.replace(profile, t=profile.t * factor, sd=profile.sd / factor,
                                sdd=profile.sdd / factor ** 2)
+
+
+def executable_plan(problem: Problem, torque_share: float, slower: float, gridpoints: int) -> tuple[Problem, Profile]:
+    """The minimum-time plan within `torque_share` of the problem's limits (each joint's range shrunk about its
+    middle: -30..30 N m to -24..24 at 0.8; the rest is the loops' to follow it with), run `slower` times slower (the
+    loops lag the fastest accelerations: docs/planning.md), and the problem so limited. Planned by reachability,
+    order 1, on `gridpoints` points: every limit kept between them too, and s'' constant between them, as
+    `profile_at` takes it."""
+    if not (math.isfinite(torque_share) and 0.05 <= torque_share <= 1.0):
+        raise PlanError("bounds", f"a plan uses a share of the torque limits between 0.05 and 1, not {torque_share!r}")
+    lo, hi = problem.limits.lo, problem.limits.hi
+    middle, half = (hi + lo) / 2, torque_share * (hi - lo) / 2
+    limits = dataclasses.replace(problem.limits, lower=tuple(map(float, middle - half)),
+                                 upper=tuple(map(float, middle + half)))
+    limited = dataclasses.replace(problem, limits=limits)
+    plan, _, _ = plan_reach_checked(limited, gridpoints)
+    return limited, slowed(plan.profile, slower)
+
+
+def speed_limits_dps(description: ArmDescription) -> dict[str, tuple[float, str]]:
+    """Each joint's fastest trajectory speed [deg/s] for a controller of `description`, and what sets it: its speed
+    cap (the most its `<joint>_speed_dps` may be), or the TrajPoint's declared range of a knot's velocity."""
+    fields = {f.name: f for f in SCHEMA["TrajPoint"].fields}
+    limits = {}
+    for name in ARM_JOINTS:
+        knot_dps, cap_dps = fields[f"{name}_vel"].range[1], highest_speed_dps(description.drive(name))
+        limits[name] = ((knot_dps, "the TrajPoint's range of a knot's velocity") if knot_dps <= cap_dps else
+                        (cap_dps, f"its speed cap, the most {name}_speed_dps may be"))
+    return limits
+
+
+def curve_bounds_deg(knots: Sequence[Knot], joint: int) -> tuple[float, float, float]:
+    """The lowest and highest angle [deg] and the highest speed [deg/s] of joint `joint` (its place among j1..j4 and
+    the mount) on the curve through `knots`, as the controller judges a trajectory (`HermiteProfile.bounds`)."""
+    lowest, highest, top = HermiteProfile([k.t_s for k in knots], [math.radians(k.q_deg[joint]) for k in knots],
+                                          [math.radians(k.qd_deg_s[joint]) for k in knots]).bounds()
+    return math.degrees(lowest), math.degrees(highest), math.degrees(top)
+
+
+def controller_knots(problem: Problem, profile: Profile, fewest: int, description: ArmDescription
+                     ) -> tuple[list[Knot], list[Knot]]:
+    """Each arm's knots along `profile` for its controller (both arms' `description`): its shoulder and elbow as the
+    plan moves them, the other joints where `home all` leaves them; `fewest` knots or more, until the curve through
+    them stays within each joint's speed limit (`knots_within_speed`). PlanError naming the arm, the joint and the
+    limit if the curve would pass its soft limit or its speed limit (`speed_limits_dps`) anywhere, as TrajRun would
+    refuse it, or a knot the TrajPoint cannot carry."""
+    held = [math.degrees(q) for q in homed_pose_rad(description).values()]
+    limits = speed_limits_dps(description)
+    speeds = {name: math.radians(dps) for name, (dps, _) in limits.items()}
+    arms = []
+    for arm in range(ARMS):
+        def knots_of(count: int, arm: int = arm) -> list[Knot]:
+            return arm_knots(problem, profile, count, arm, held)
+        try:
+            knots = knots_within_speed(knots_of, speeds, fewest)
+        except PlanError:
+            knots = knots_of(TRAJECTORY_KNOTS)        # the most the controller takes: what it passes is said below
+        for j, name in enumerate(ARM_JOINTS):
+            drive = description.drive(name)
+            lowest, highest, top = curve_bounds_deg(knots, j)
+            speed_dps, why = limits[name]
+            for passed, detail in (
+                    (lowest < drive.soft_min_deg, f"reaches {lowest:.2f} deg, below its soft limit "
+                                                  f"{drive.soft_min_deg:g} deg ({name}_min_deg)"),
+                    (highest > drive.soft_max_deg, f"reaches {highest:.2f} deg, above its soft limit "
+                                                   f"{drive.soft_max_deg:g} deg ({name}_max_deg)"),
+                    (top > speed_dps, f"reaches {top:.1f} deg/s, above {speed_dps:g} deg/s ({why}): the plan must "
+                                      "be slower")):
+                if passed:
+                    raise PlanError("bounds", f"arm {arm + 1} ({description.name} arm) {name} {detail}")
+        for index, knot in enumerate(knots):
+            try:
+                point_message(index, knot)             # its time too: at most the TrajPoint's 3600 s
+            except ValueError as exc:
+                raise PlanError("bounds", f"arm {arm + 1}: {exc}") from None
+        arms.append(knots)
+    return arms[0], arms[1]
 
 
 def start_together(leader: Caller, follower: Caller, knots: tuple[Sequence[Knot], Sequence[Knot]]

@@ -7,6 +7,7 @@
     aspod plan --method reach --squeeze free     minimum time by reachability, the squeeze force free
     aspod plan --method reach --order 2          ... s'' linear between grid points placed where time is lost
     aspod plan --arm-to j1=20 --output move.json ASPOD's own arm: a trajectory file for teleop's `traj load`
+    aspod plan --links rod --output two.json     the two arms' plan: both arms' knots, `traj load two.json arm 1|2`
 
 Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a grid too coarse: the reason says).
 """
@@ -23,7 +24,7 @@ from typing import Any, Optional
 import numpy as np
 
 from host_tools.cli.options import bounded, squeeze_force, weights_list
-from host_tools.cli.settings import ArmMoveSettings, PlanSettings
+from host_tools.cli.settings import ArmMoveSettings, PlanSettings, TwoArmFileSettings
 from host_tools.exit_codes import EXIT_OK
 from host_tools.plan.energy import DpGrid, Pricing, costs_of, motors_of, plan_cost_optimal, potential_rise
 from host_tools.plan.example import REPORTED, beside_report, report_problem
@@ -76,7 +77,7 @@ def run_arm_plan(arm: ArmMoveSettings, nodes: int, as_json: bool) -> int:
              "gravity": arm.gravity, "payload_kg": arm.payload_kg, "duration_s": round(move.duration_s, 6),
              "limits": "the controller's default current and speed limits"}
     if arm.output is not None:
-        arm.output.write_text(trajectory_json(knots, about))
+        arm.output.write_text(trajectory_json([knots], about))
     if as_json:
         print(json.dumps({**about, "moving": list(move.names), "knots": len(knots),
                           "output": None if arm.output is None else str(arm.output)}, indent=2))
@@ -93,9 +94,13 @@ def run_plan(settings: PlanSettings) -> int:
     (numpy's RuntimeWarnings on the way are kept from the user: the result is checked instead)."""
     if settings.arm is not None:
         return run_arm_plan(settings.arm, settings.nodes, settings.as_json)
+    problem = report_problem(settings.gravity, settings.links) if settings.problem is None else load_problem(
+        settings.problem)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
-        result, fastest = _plan(settings)
+        # the file's knots first: a plan they refuse is refused before anything is printed or written
+        two_arms = None if settings.two_arm_file is None else _two_arm_file(problem, settings)
+        result, fastest = _plan(problem, settings)
     for w in caught:
         if not issubclass(w.category, RuntimeWarning):      # anything else is said as it would have been
             warnings.showwarning(w.message, w.category, w.filename, w.lineno)
@@ -108,7 +113,35 @@ def run_plan(settings: PlanSettings) -> int:
         from host_tools.plan.plots import draw
         files = draw(settings.plot, fastest, result.get("_cost"), REPORTED if settings.problem is None else ())
         result["figures"] = [str(f) for f in files]
+    if two_arms is not None:
+        settings.two_arm_file.output.write_text(two_arms[0])
+        result["trajectory_file"] = two_arms[1]
     return _print(settings, result)
+
+
+def _two_arm_file(problem, settings: PlanSettings) -> tuple[str, dict]:
+    """The two arms' trajectory file (its text, and what it holds): the minimum-time plan within a share of the torque
+    limits, run slower, as each example arm's knots (host_tools/apps/two_arm_plan.py); PlanError naming the arm,
+    the joint and the limit (soft limit, speed) the curve through them would pass."""
+    from firmware_py.arm_config import EXAMPLE_ARM
+    from host_tools.apps.two_arm_plan import SHOULDER, ELBOW, controller_knots, curve_bounds_deg, executable_plan
+    from host_tools.client.trajectory import trajectory_json
+    wanted: TwoArmFileSettings = settings.two_arm_file
+    limited, profile = executable_plan(problem, wanted.torque_share, wanted.slower, settings.nodes + 1)
+    arms = controller_knots(limited, profile, wanted.knots, EXAMPLE_ARM)
+    about = {"tool": "aspod plan", "arms": f"two {EXAMPLE_ARM.name} arms (firmware_py/arm_config.py EXAMPLE_ARM), "
+                                           "arm 1's controller leading (docs/two_arms.md)",
+             "problem": "the report's example" if settings.problem is None else str(settings.problem),
+             "links": problem.system.arms[0].links, "gravity_m_s2": problem.system.gravity,
+             "plan": f"minimum time by reachability within {wanted.torque_share:g} of the torque limits, run "
+                     f"{wanted.slower:g}x slower",
+             "torque_share": wanted.torque_share, "slower": wanted.slower, "duration_s": round(profile.duration, 6),
+             "start_deg": [[round(k[0].q_deg[j], 4) for j in (SHOULDER, ELBOW)] for k in arms],
+             "top_speed_dps": [[math.ceil(curve_bounds_deg(k, j)[2] * 10) / 10 for j in (SHOULDER, ELBOW)]
+                               for k in arms]}     # rounded up: a speed parameter set to it lets the curve run
+    shown = {"output": str(wanted.output), "knots": [len(k) for k in arms],
+             **{key: about[key] for key in ("plan", "duration_s", "start_deg", "top_speed_dps")}}
+    return trajectory_json(arms, about), shown
 
 
 def _warn_of_excess(to: dict) -> None:
@@ -125,10 +158,9 @@ def _warn_of_excess(to: dict) -> None:
         log.warning("aspod plan: this plan passes a limit by %.1f %% %s; %s", 100 * excess, how, hint)
 
 
-def _plan(settings: PlanSettings) -> tuple[dict, Optional[TimeOptimal]]:
+def _plan(problem, settings: PlanSettings) -> tuple[dict, Optional[TimeOptimal]]:
     """The result (its "_cost": the DP plan, for the figures), and the phase plane's plan (None by reachability)."""
     example = settings.problem is None
-    problem = report_problem(settings.gravity, settings.links) if example else load_problem(settings.problem)
     pricing = Pricing.of(problem, settings.weights, settings.regen)
     if settings.method == "reach":
         reach, peak = _reach_result(problem, settings, pricing)
@@ -253,6 +285,14 @@ def _text(result: dict) -> str:
         lines.append(f"  {name:16} " + "  ".join(f"{k} {v:.4g}" for k, v in costs.items()))
     for f in result.get("figures", []):
         lines.append(f"  figure: {f}")
+    if "trajectory_file" in result:
+        tf = result["trajectory_file"]
+        lines.append(f"trajectory file {tf['output']}: {tf['plan']}: {tf['duration_s']:.3f} s")
+        for arm, (count, (j1, j2), (v1, v2)) in enumerate(zip(tf["knots"], tf["start_deg"], tf["top_speed_dps"]), 1):
+            lines.append(f"  arm {arm}: {count} knots from j1 {j1:.2f}, j2 {j2:.2f} deg, at most {v1:g} and {v2:g} "
+                         f"deg/s (`traj load {tf['output']} arm {arm}`)")
+        lines.append("  each arm's controller runs its knots from their start, at rest, with j1_speed_dps and "
+                     "j2_speed_dps at least those speeds")
     return "\n".join(lines)
 
 
@@ -267,6 +307,7 @@ EXAMPLES = [
     "aspod plan --method reach --nodes 99 --squeeze free --objective time",
     "aspod plan --method reach --order 2 --nodes 99 --objective time",
     "aspod plan --arm-to j1=20,j2=-15 --output move.json",
+    "aspod plan --links rod --gravity --objective time --output two.json",
 ]
 
 
@@ -313,6 +354,18 @@ def add_options(plan: argparse.ArgumentParser) -> None:
                       help="the example's links: point masses at their far ends (default), or uniform rods")
     plan.add_argument("--json", action="store_true", help="print one JSON object")
     plan.add_argument("--plot", type=Path, default=None, metavar="DIR", help="draw the report's Figs. 11-17 into DIR")
+    plan.add_argument("--output", type=Path, default=None, metavar="FILE.json",
+                      help="write the trajectory file teleop's `traj load` takes: without --arm-to, the two arms' "
+                           "plan, each example arm's knots (`traj load FILE arm 1|2`), refused if a joint would "
+                           "pass its soft limit or speed limit")
+    plan.add_argument("--torque-share", type=bounded(float, 0.05, 1.0), default=None, metavar="F",
+                      help="--output: the file's plan is the minimum-time plan within this share of the torque "
+                           "limits (default 0.8: the rest is the loops' to follow it with)")
+    plan.add_argument("--slower", type=bounded(float, 1.0, 100.0), default=None, metavar="X",
+                      help="--output: ... run X times slower (default 2: the loops lag its fastest accelerations)")
+    plan.add_argument("--knots", type=bounded(int, 2, 256), default=None, metavar="N",
+                      help="knots of the trajectory, at least (default 41; more, up to the controller's 256, where "
+                           "the curve between them would pass a joint's speed limit)")
     arm = plan.add_argument_group("ASPOD's own arm (a trajectory file for teleop's `traj load`)")
     arm.add_argument("--arm-to", action="append", default=[], metavar="J=DEG[,J=DEG]",
                      help="plan a minimum-time move of ASPOD's arm to these angles (j1..j4, mount; repeatable) "
@@ -323,10 +376,6 @@ def add_options(plan: argparse.ArgumentParser) -> None:
     arm.add_argument("--arm-gravity", choices=("earth", "orbit"), default=None, help="(default earth)")
     arm.add_argument("--payload-kg", type=bounded(float, 0.0, 1000.0), default=None, metavar="M",
                      help="mass in the gripper (default 0)")
-    arm.add_argument("--knots", type=bounded(int, 2, 256), default=None, metavar="N",
-                     help="knots of the trajectory, at least (default 41; more, up to the controller's 256, where "
-                          "the curve between them would pass a joint's speed limit)")
-    arm.add_argument("--output", type=Path, default=None, metavar="FILE.json", help="write the trajectory file")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -750,6 +750,17 @@ class ArmMoveSettings:
 
 
 @dataclass(frozen=True)
+class TwoArmFileSettings:
+    """`aspod plan --output FILE` (without --arm-to): the two-arm plan as each example arm's knots in one trajectory
+    file (host_tools/apps/two_arm_plan.py): the minimum-time plan within `torque_share` of the torque limits, run
+    `slower` times slower (as bench/bench_two_arms.py runs it), at least `knots` knots per arm."""
+    output: Output
+    torque_share: float = 0.8
+    slower: float = 2.0
+    knots: int = 41
+
+
+@dataclass(frozen=True)
 class PlanSettings:
     """`aspod plan`: which problem (a file, or the report's example with its model options) and how to plan it."""
     problem: Optional[Path]
@@ -770,6 +781,7 @@ class PlanSettings:
     arm: Optional[ArmMoveSettings] = None    # --arm-to: ASPOD's own arm instead of the report's two
     weights: Optional[tuple[float, ...]] = None   # each joint's weight in the minimum-cost plan (None: the file's)
     regen: bool = False                      # electrical: energy given back returns to the supply
+    two_arm_file: Optional[TwoArmFileSettings] = None    # --output without --arm-to: the two arms' knots
 
 
 def plan_settings(args: argparse.Namespace) -> PlanSettings:
@@ -789,19 +801,36 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--order is the reachability planner's: give --method reach")
     if args.order == 2 and args.squeeze is not None:
         raise ValueError("--order 2 plans with the load shared, without the squeeze: give --order 1 for --squeeze")
-    arm = arm_move_settings(args)
+    outputs = claims(args)
+    arm = arm_move_settings(args, outputs)
+    two_arm_file = None if arm is not None else two_arm_file_settings(args, outputs)
     plot_needs_its_extra(args)
-    claims(args).folder(args.plot, "--plot")
+    outputs.folder(args.plot, "--plot")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
-                        args.method, args.squeeze, args.order, arm, args.weights, args.regen)
+                        args.method, args.squeeze, args.order, arm, args.weights, args.regen, two_arm_file)
 
 
-def arm_move_settings(args: argparse.Namespace) -> Optional[ArmMoveSettings]:
+def two_arm_file_settings(args: argparse.Namespace, outputs: Claims) -> Optional[TwoArmFileSettings]:
+    """--output without --arm-to, and what goes with it; None without it (ValueError for --knots, --torque-share or
+    --slower without it, or an output that may not be written)."""
+    given = [name for name, value in (("--knots", args.knots), ("--torque-share", args.torque_share),
+                                      ("--slower", args.slower)) if value is not None]
+    if args.output is None:
+        if given:
+            raise ValueError(f"{given[0]}: only with --output (the two arms' trajectory file) or --arm-to (ASPOD's "
+                             "own arm's)")
+        return None
+    from host_tools.client.trajectory import TRAJECTORY_FILE
+    given_values = {name: value for name, value in (("torque_share", args.torque_share), ("slower", args.slower),
+                                                    ("knots", args.knots)) if value is not None}
+    return TwoArmFileSettings(outputs.file(args.output, "--output", TRAJECTORY_FILE), **given_values)
+
+
+def arm_move_settings(args: argparse.Namespace, outputs: Claims) -> Optional[ArmMoveSettings]:
     """--arm-to and what goes with it; None without it (ValueError for an arm option without --arm-to, a joint that
     is not one of the trajectory's, or a report-example option beside it)."""
-    arm_options = {"--arm-from": args.arm_from, "--arm-gravity": args.arm_gravity, "--output": args.output,
-                   "--payload-kg": args.payload_kg, "--knots": args.knots}
+    arm_options = {"--arm-from": args.arm_from, "--arm-gravity": args.arm_gravity, "--payload-kg": args.payload_kg}
     if not args.arm_to:
         given = [name for name, value in arm_options.items() if value is not None]
         if given:
@@ -810,6 +839,9 @@ def arm_move_settings(args: argparse.Namespace) -> Optional[ArmMoveSettings]:
     if args.problem is not None or args.gravity or args.plot is not None or args.method != "phase":
         raise ValueError("--arm-to plans ASPOD's own arm (the phase-plane planner): without --problem, --gravity, "
                          "--plot or --method")
+    if args.torque_share is not None or args.slower is not None:
+        raise ValueError("--torque-share and --slower shape the two arms' plan; --arm-to plans ASPOD's own arm within "
+                         "its controller's limits")
     from host_tools.apps.arm_plan import ARM_JOINTS, homed_pose_rad
     start = {name: math.degrees(q) for name, q in homed_pose_rad().items()}
     for option, texts, into in (("--arm-from", args.arm_from or [], start), ("--arm-to", args.arm_to, None)):
@@ -825,4 +857,4 @@ def arm_move_settings(args: argparse.Namespace) -> Optional[ArmMoveSettings]:
     from host_tools.client.trajectory import TRAJECTORY_FILE
     return ArmMoveSettings(tuple(start.items()), tuple(target.items()), args.arm_gravity or "earth",
                            0.0 if args.payload_kg is None else args.payload_kg, args.knots or 41,
-                           claims(args).file(args.output, "--output", TRAJECTORY_FILE))
+                           outputs.file(args.output, "--output", TRAJECTORY_FILE))

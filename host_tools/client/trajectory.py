@@ -7,10 +7,12 @@ bad trajectory is refused before anything is sent; what the controller refuses r
 with its reason, the command and, for a knot, its index. The motions end with one MotionDone per joint,
 carrying the ids returned.
 
-A trajectory file (`aspod plan --arm-to ... --output FILE`, teleop's `traj load FILE`) is JSON: `format`
-"aspod-trajectory", `version` 1, `joints` (j1..j4, mount), `units`, what made it (`about`), and `knots`, each
-`{"t": s, "q": [deg...], "qd": [deg/s...]}`. `load_trajectory` reads it bounded and checks it as
-`send_trajectory` would, saying what is wrong and where.
+A trajectory file (`aspod plan ... --output FILE`, teleop's `traj load FILE`) is JSON: `format`
+"aspod-trajectory", `version`, `joints` (j1..j4, mount), `units`, what made it (`about`), and the knots, each
+`{"t": s, "q": [deg...], "qd": [deg/s...]}`: version 1 (one arm, `aspod plan --arm-to`) has them in `knots`; version 2
+(two arms, the two-arm plan) in `arms`, `[{"knots": [...]}, {"knots": [...]}]`, arm 1's first, and an older aspod
+refuses it by its version. `load_trajectory(path, arm)` reads one arm's, bounded, and checks them (and the other
+arm's) as `send_trajectory` would, saying what is wrong and where.
 """
 from __future__ import annotations
 
@@ -111,40 +113,71 @@ def _ok(handle: CommandHandle, command: str, index: int | None = None) -> Messag
 
 
 FILE_FORMAT = "aspod-trajectory"
-FILE_VERSION = 1
+ONE_ARM_VERSION = 1                   # `knots`
+TWO_ARM_VERSION = 2                   # `arms`: each arm's `knots`
+FILE_ARMS = 2                         # arms in a version-2 file
 TRAJECTORY_FILE = Kind("a trajectory file of aspod plan's (it begins `{\"format\": \"aspod-trajectory\"`)",
                        begins(b'{"format": "aspod-trajectory"'))
 FILE_LIMIT = 1 * files.MIB            # a full buffer of knots is tens of KiB
 
 
-def trajectory_json(knots: Sequence[Knot], about: dict[str, Any]) -> str:
-    """The file's text: its kind first (an existing file is known as one by how it begins), then the knots."""
+def trajectory_json(arms: Sequence[Sequence[Knot]], about: dict[str, Any]) -> str:
+    """The file's text for one arm's knots (version 1) or two arms' (version 2): its kind first (an existing file is
+    known as one by how it begins), then the knots, a line each."""
+    if len(arms) not in (1, FILE_ARMS):
+        raise ValueError(f"a trajectory file holds 1 or {FILE_ARMS} arms' knots, not {len(arms)}")
     names = [a.name.lower() for a in TRAJECTORY_JOINTS]
-    head = {"format": FILE_FORMAT, "version": FILE_VERSION, "joints": names,
-            "units": {"t": "s", "q": "deg", "qd": "deg/s"}, "about": about}
-    rows = ",\n".join("    " + json.dumps({"t": k.t_s, "q": list(k.q_deg), "qd": list(k.qd_deg_s)}) for k in knots)
-    return json.dumps(head)[:-1] + ', "knots": [\n' + rows + "\n]}\n"
+    head = {"format": FILE_FORMAT, "version": ONE_ARM_VERSION if len(arms) == 1 else TWO_ARM_VERSION,
+            "joints": names, "units": {"t": "s", "q": "deg", "qd": "deg/s"}, "about": about}
+
+    def rows(knots: Sequence[Knot], indent: str) -> str:
+        return ",\n".join(indent + json.dumps({"t": k.t_s, "q": list(k.q_deg), "qd": list(k.qd_deg_s)})
+                          for k in knots)
+    if len(arms) == 1:
+        return json.dumps(head)[:-1] + ', "knots": [\n' + rows(arms[0], "    ") + "\n]}\n"
+    return (json.dumps(head)[:-1] + ', "arms": [\n'
+            + ",\n".join('  {"knots": [\n' + rows(knots, "    ") + "\n  ]}" for knots in arms) + "\n]}\n")
 
 
-def load_trajectory(path: Path | str) -> list[Knot]:
-    """The knots of a trajectory file; ValueError (files.InputFileError for an unreadable file) saying what is
-    wrong: not one of ours, another version, a knot that is not one (which, and why), times not increasing."""
+def load_trajectory(path: Path | str, arm: int | None = None) -> list[Knot]:
+    """The knots of arm `arm` (1 or 2; None for a one-arm file) in a trajectory file; ValueError
+    (files.InputFileError for an unreadable file) saying what is wrong: not one of ours, another version, a two-arm
+    file without `arm` or an arm it does not have, a knot that is not one (which, and why), times not increasing."""
     data = files.read_bounded(path, FILE_LIMIT)
     try:
         doc = json.loads(data)
     except (UnicodeDecodeError, ValueError) as exc:
         raise ValueError(f"{path}: not a trajectory file: not JSON ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != FILE_FORMAT:
-        raise ValueError(f"{path}: not a trajectory file (its format is not {FILE_FORMAT!r}; aspod plan --arm-to "
-                         "... --output writes one)")
-    if doc.get("version") != FILE_VERSION:
-        raise ValueError(f"{path}: trajectory file version {doc.get('version')!r}; this aspod reads {FILE_VERSION}")
+        raise ValueError(f"{path}: not a trajectory file (its format is not {FILE_FORMAT!r}; aspod plan ... --output "
+                         "writes one)")
+    version = doc.get("version")
+    if version not in (ONE_ARM_VERSION, TWO_ARM_VERSION):
+        raise ValueError(f"{path}: trajectory file version {version!r}; this aspod reads {ONE_ARM_VERSION} (one arm) "
+                         f"and {TWO_ARM_VERSION} (two arms)")
     names = [a.name.lower() for a in TRAJECTORY_JOINTS]
     if doc.get("joints") != names:
         raise ValueError(f"{path}: its joints are {doc.get('joints')!r}; a trajectory moves {names}")
-    rows = doc.get("knots")
+    if version == ONE_ARM_VERSION:
+        if arm not in (None, 1):
+            raise ValueError(f"{path}: a one-arm trajectory file (aspod plan --arm-to): it has no arm {arm}")
+        return _knots(path, doc.get("knots"), "")
+    arms = doc.get("arms")
+    if not isinstance(arms, list) or len(arms) != FILE_ARMS or not all(
+            isinstance(a, dict) and set(a) == {"knots"} for a in arms):
+        raise ValueError(f'{path}: `arms` must be a list of {FILE_ARMS} arms, each {{"knots": [...]}}')
+    each = [_knots(path, a["knots"], f"arm {number}: ") for number, a in enumerate(arms, 1)]
+    if arm is None:
+        raise ValueError(f"{path}: a two-arm trajectory file: say which arm's knots (arm 1 or arm 2)")
+    if arm not in range(1, FILE_ARMS + 1):
+        raise ValueError(f"{path}: a two-arm trajectory file has arms 1 and 2, not arm {arm}")
+    return each[arm - 1]
+
+
+def _knots(path: Path | str, rows: Any, where: str) -> list[Knot]:
+    """One arm's knots from the file's `rows`, checked; `where` names the arm in what is wrong ("arm 2: ")."""
     if not isinstance(rows, list) or not 2 <= len(rows) <= TRAJECTORY_KNOTS:
-        raise ValueError(f"{path}: `knots` must be a list of 2 to {TRAJECTORY_KNOTS} knots")
+        raise ValueError(f"{path}: {where}`knots` must be a list of 2 to {TRAJECTORY_KNOTS} knots")
     knots = []
     for index, row in enumerate(rows):
         try:
@@ -156,8 +189,8 @@ def load_trajectory(path: Path | str) -> list[Knot]:
             knot = Knot(float(row["t"]), tuple(map(float, row["q"])), tuple(map(float, row["qd"])))
             point_message(index, knot)                 # within the message's declared ranges
         except (ValueError, TypeError) as exc:
-            raise ValueError(f"{path}: knot {index}: {exc}") from None
+            raise ValueError(f"{path}: {where}knot {index}: {exc}") from None
         knots.append(knot)
     if knots[0].t_s != 0.0 or any(b.t_s <= a.t_s for a, b in zip(knots, knots[1:])):
-        raise ValueError(f"{path}: a trajectory's knots start at t = 0 s and their times increase strictly")
+        raise ValueError(f"{path}: {where}a trajectory's knots start at t = 0 s and their times increase strictly")
     return knots

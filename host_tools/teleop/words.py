@@ -75,10 +75,11 @@ LOCAL_COMMANDS = {
                "simulator stopped, say) or with URL, on the link at URL (`connect /dev/pts/7`: the key is the "
                "simulator's own, as at the start)",
     "sim": sim_words.summary(),
-    "traj": "traj load FILE|run|clear: load FILE uploads a planned trajectory (a file of `aspod plan --arm-to ... --output FILE`) to the "
-            "controller, replacing the knots it holds; traj run: start it (j1..j4 and the mount, from where they "
-            "stand at rest; `wait` waits for it); traj clear: drop the knots. A script checks the file before "
-            "anything is sent",
+    "traj": "traj load FILE [arm 1|2]|run|clear: load FILE uploads a planned trajectory (a file of `aspod plan "
+            "--arm-to ... --output FILE`) to the controller, replacing the knots it holds; a two-arm file (`aspod "
+            "plan --output FILE`) needs `arm 1` or `arm 2`, the knots of that arm's controller; traj run: start it "
+            "(j1..j4 and the mount, from where they stand at rest; `wait` waits for it); traj clear: drop the knots. "
+            "A script checks the file before anything is sent",
     "clear": "clear: clear the screen (Ctrl-L does too); nothing in a script",
     "quit": "quit: leave",
 }
@@ -394,16 +395,22 @@ def parse_line(text: str, line_no: int) -> Optional[Step]:
 
 
 def _parse_traj(step: Step) -> None:
-    """traj load FILE (the file read and checked now: a script refuses a bad one before sending anything), run,
-    clear."""
+    """traj load FILE [arm N] (the file read and checked now: a script refuses a bad one before sending anything),
+    run, clear."""
     args, line_no = step.args, step.line_no
     action = args[0].lower() if args else ""
-    if action not in TRAJ_ACTIONS or len(args) != (2 if action == "load" else 1):
-        raise TeleopError(f"line {line_no}: traj load FILE | traj run | traj clear")
+    if action not in TRAJ_ACTIONS or len(args) not in ((2, 4) if action == "load" else (1,)):
+        raise TeleopError(f"line {line_no}: traj load FILE [arm 1|2] | traj run | traj clear")
     if action == "load":
         from host_tools.client.trajectory import load_trajectory
+        arm = None
+        if len(args) == 4:
+            if args[2].lower() != "arm" or args[3] not in ("1", "2"):
+                raise TeleopError(f"line {line_no}: traj load FILE arm 1 | traj load FILE arm 2, not "
+                                  f"`{' '.join(args[2:])}`")
+            arm = int(args[3])
         try:
-            step.knots = load_trajectory(args[1])
+            step.knots = load_trajectory(args[1], arm)
         except (ValueError, OSError) as exc:       # files.InputFileError is an OSError: unreadable, too big
             raise TeleopError(f"line {line_no}: traj load: {exc}") from None
 
@@ -661,7 +668,8 @@ def completions(line: str, begin: int, text: str) -> list[str]:
     elif word == "clock":
         options = ["now"] if position == 0 else []
     elif word == "traj":
-        options = list(TRAJ_ACTIONS) if position == 0 else []
+        load = len(before) > 1 and before[1].lower() == "load"
+        options = {0: list(TRAJ_ACTIONS), 2: ["arm"] if load else [], 3: ["1", "2"] if load else []}.get(position, [])
     elif word == "sim":
         options = sim_words.completions(position, before[1:])
     else:
