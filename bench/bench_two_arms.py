@@ -7,13 +7,15 @@ minimum-time plan at `MARGIN` of the example's torque limits, run `SLOWER` times
 two_arm_plan.py `slowed`); each arm's knots from it, both started on one plant tick. Measured against the plan, on
 the simulated clock, in Earth gravity and in orbit: the object's path error, the squeeze (the plan shares the load
 without one: 0 N), each arm's shoulder and elbow against their knots' curves, and the time until every joint has
-settled against the plan's. Not yet measured: the energy against the objective's prediction, and paths other than
+settled against the plan's. `carry` takes each arm's knots from a trajectory file of `aspod plan --output` instead,
+if given one of the same plan. Not yet measured: the energy against the objective's prediction, and paths other than
 the example's (docs/two_arms.md).
 """
 from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 
@@ -25,6 +27,7 @@ from hil_sim.arm_params import EXAMPLE_ARM_PLANT
 from hil_sim.held_object import GraspState, ObjectParams
 from host_tools.apps.two_arm_plan import arm_knots, profile_at, slowed, start_pose_deg, start_together
 from host_tools.client.bench import BenchClient
+from host_tools.client.trajectory import load_trajectory
 from host_tools.plan.bounds import Limits
 from host_tools.plan.example import LIMITS, PATH, report_problem
 from host_tools.plan.phase import Problem
@@ -62,7 +65,7 @@ def _ready(bench: LockstepBench, call, events, controller, plant, start_deg) -> 
     assert bench.wait_until(lambda: _done(events, {int(Axis.GRIPPER): grip.motion_id}), 30.0)
 
 
-def carry(gravity: str) -> dict:
+def carry(gravity: str, trajectory: Optional[Path] = None) -> dict:
     bench = LockstepBench(seed=5, arms=2, controller_config=ControllerConfig(arm=EXAMPLE_ARM),
                           arm_params=EXAMPLE_ARM_PLANT, held_object=ObjectParams(),
                           plant=PlantSettings(gravity=gravity, tracker=False))
@@ -80,7 +83,8 @@ def carry(gravity: str) -> dict:
         limited = Problem(problem.system, problem.path, Limits.symmetric(tuple(MARGIN * u for u in LIMITS)))
         plan = slowed(plan_reach(limited, 200).profile, SLOWER)
         held = [[math.degrees(c.arm.channels[int(a)].pos_sp_rad) for a in TRAJECTORY_JOINTS] for _, _, c, _ in arms]
-        knots = tuple(arm_knots(limited, plan, KNOTS, k, held[k]) for k in range(2))
+        knots = (tuple(arm_knots(limited, plan, KNOTS, k, held[k]) for k in range(2)) if trajectory is None else
+                 tuple(load_trajectory(trajectory, arm) for arm in (1, 2)))
         ids = start_together(BenchClient(bench), bench.arm2, knots)
         start = bench.controller.trajectory_sync.last_start_tick
         curves = [[HermiteProfile([k.t_s for k in arm], [math.radians(k.q_deg[j]) for k in arm],

@@ -9,7 +9,9 @@ import re
 
 import pytest
 
+from bench.bench_two_arms import carry
 from firmware_py.arm_config import EXAMPLE_ARM, ArmDescription
+from hil_sim.held_object import GraspState
 from host_tools.apps.arm_plan import homed_pose_rad
 from host_tools.apps.two_arm_plan import arm_knots, controller_knots, executable_plan, start_pose_deg
 from host_tools.cli.main import main
@@ -17,8 +19,10 @@ from host_tools.client.trajectory import load_trajectory
 from host_tools.plan.errors import PlanError
 from host_tools.plan.example import report_problem
 from host_tools.teleop.words import completions
+from protocol.messages import TRAJECTORY_JOINTS
+from protocol.states import ControllerState, MotionOutcome
 
-PLAN = ["plan", "--links", "rod", "--gravity", "--objective", "time", "--nodes", "200"]
+PLAN = ["plan", "--links", "rod", "--gravity", "--objective", "time", "--nodes", "199"]     # the bench's 200 points
 
 
 @pytest.fixture(scope="module")
@@ -33,17 +37,29 @@ def test_each_arm_of_the_file_is_arm_knots_of_the_executable_plan(two_arm_file):
     0.8 of its torque limits, run 2x slower, as the bench runs it; each arm's knots as `arm_knots` makes them, j3, j4
     and the mount where `home all` leaves the example arm's."""
     problem = report_problem(gravity=True, links="rod")
-    limited, profile = executable_plan(problem, 0.8, 2.0, 201)
+    limited, profile = executable_plan(problem, 0.8, 2.0, 200)
     held = [math.degrees(q) for q in homed_pose_rad(EXAMPLE_ARM).values()]
     doc = json.loads(two_arm_file.read_text())
     assert doc["version"] == 2 and "two example arms" in doc["about"]["arms"]
     assert doc["about"]["duration_s"] == round(profile.duration, 6) == pytest.approx(1.060, abs=1e-3)   # the bench's
     for arm, start in zip((1, 2), start_pose_deg(problem)):
         knots = load_trajectory(two_arm_file, arm)
-        assert len(knots) >= 41
+        assert len(knots) == 60
         assert knots == arm_knots(limited, profile, len(knots), arm - 1, held)
         assert knots[0].q_deg[:2] == pytest.approx(start, abs=1e-9)
         assert all(abs(v) <= 360.0 for k in knots for v in k.qd_deg_s)
+
+
+def test_the_file_carries_the_object_on_two_example_arms(two_arm_file):
+    """bench/bench_two_arms.py's `carry` (the lock-step bench, two example arms, the object between them) with each
+    arm's knots from the file, started on one tick: the bench's goals hold. Measured: the bench's own figures (its
+    knots are the file's), the object within 6.79 mm of its path, the squeeze at most 2.8 N."""
+    got = carry("earth", two_arm_file)
+    assert got["plan_s"] == pytest.approx(json.loads(two_arm_file.read_text())["about"]["duration_s"], abs=1e-6)
+    assert got["path_m"] < 0.01 and got["squeeze_n"] < 0.2 * got["limit_n"], got
+    assert got["states"] == {(GraspState.HELD, GraspState.HELD)}, got
+    assert got["controllers"] == (ControllerState.ENABLED, ControllerState.ENABLED), got
+    assert got["ends"] == 2 * len(TRAJECTORY_JOINTS) and got["outcomes"] == {MotionOutcome.DONE}, got
 
 
 def test_a_plan_past_a_limit_is_refused_naming_it_and_nothing_is_written(tmp_path, capsys):
@@ -65,7 +81,7 @@ def test_a_plan_past_a_soft_limit_is_refused_naming_the_joint_and_its_parameter(
     elbow = dataclasses.replace(EXAMPLE_ARM.drive("j2"), soft_max_deg=140.0)
     narrow = ArmDescription("narrow", (EXAMPLE_ARM.drives[0], elbow, *EXAMPLE_ARM.drives[2:]), EXAMPLE_ARM.masses,
                             EXAMPLE_ARM.gripper)
-    limited, profile = executable_plan(report_problem(gravity=True, links="rod"), 0.8, 2.0, 201)
+    limited, profile = executable_plan(report_problem(gravity=True, links="rod"), 0.8, 2.0, 200)
     with pytest.raises(PlanError, match=r"arm 1 \(narrow arm\) j2 reaches 141.88 deg, above its soft limit 140 deg "
                                         r"\(j2_max_deg\)"):
         controller_knots(limited, profile, 41, narrow)

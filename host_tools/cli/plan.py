@@ -364,8 +364,9 @@ def add_options(plan: argparse.ArgumentParser) -> None:
     plan.add_argument("--slower", type=bounded(float, 1.0, 100.0), default=None, metavar="X",
                       help="--output: ... run X times slower (default 2: the loops lag its fastest accelerations)")
     plan.add_argument("--knots", type=bounded(int, 2, 256), default=None, metavar="N",
-                      help="knots of the trajectory, at least (default 41; more, up to the controller's 256, where "
-                           "the curve between them would pass a joint's speed limit)")
+                      help="knots of the trajectory (of each arm's), at least (default 41 with --arm-to, 60 for two "
+                           "arms, as their bench; more, up to the controller's 256, where the curve between them would "
+                           "pass a joint's speed limit)")
     arm = plan.add_argument_group("ASPOD's own arm (a trajectory file for teleop's `traj load`)")
     arm.add_argument("--arm-to", action="append", default=[], metavar="J=DEG[,J=DEG]",
                      help="plan a minimum-time move of ASPOD's arm to these angles (j1..j4, mount; repeatable) "

@@ -753,11 +753,11 @@ class ArmMoveSettings:
 class TwoArmFileSettings:
     """`aspod plan --output FILE` (without --arm-to): the two-arm plan as each example arm's knots in one trajectory
     file (host_tools/apps/two_arm_plan.py): the minimum-time plan within `torque_share` of the torque limits, run
-    `slower` times slower (as bench/bench_two_arms.py runs it), at least `knots` knots per arm."""
+    `slower` times slower, at least `knots` knots per arm: by default as bench/bench_two_arms.py runs it."""
     output: Output
     torque_share: float = 0.8
     slower: float = 2.0
-    knots: int = 41
+    knots: int = 60
 
 
 @dataclass(frozen=True)
