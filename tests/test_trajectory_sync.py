@@ -102,3 +102,41 @@ def test_a_single_arm_world_has_no_coordination_and_sends_no_new_frame():
         assert "TRAJ_START" not in bench.world.plant_node.sent_by_name
     finally:
         bench.close()
+
+
+def armed_follower(bench) -> tuple:
+    """The second controller's trajectory armed: (its controller, its knots, its motion ids by axis)."""
+    second = bench.world.arm2.controller
+    knots = smooth_knots(holding_deg_of(second))
+    upload_trajectory(bench.arm2, knots)
+    reply = bench.arm2.call(M["TrajRun"](len(knots))).reply
+    assert reply.result == Reason.OK and second.trajectory_sync.armed is not None
+    return second, knots, {int(a): getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS}
+
+
+def stopped_at_knot_0(bench, second, knots, ids: dict) -> None:
+    """Every joint the armed trajectory still ran there stopped (MotionDone STOPPED), J1 never off its first knot,
+    and it stays there past the time the armed trajectory was parked at (2 ARMED_S)."""
+    bench.run_for(2 * ARMED_S + 1.0)
+    off_deg = math.degrees(second.arm.channels[J1].pos_sp_rad) - knots[0].q_deg[0]
+    assert abs(off_deg) < 1e-4, f"J1 moved {off_deg:.3f} deg alone"
+    ends = {(e.axis, e.motion_id): MotionOutcome(e.outcome) for e in bench.arm2.events if e.spec.name == "MotionDone"}
+    assert ends.get((J1, ids[J1])) is MotionOutcome.STOPPED, ends
+    assert not second.arm.trajectory_running()
+
+
+def test_a_start_the_follower_cannot_follow_on_every_joint_stops_the_rest(bench):
+    """One joint of the armed trajectory moved on (a Move of J4 in place): the leader's start cannot start them
+    all, and the others must not start alone 2 ARMED_S after arming (where the armed trajectory was parked)."""
+    second, knots, ids = armed_follower(bench)
+    j4 = int(Axis.J4)
+    assert bench.arm2.call(M["Move"](j4, knots[0].q_deg[j4], 1.0)).ok      # J4's motion replaced
+    first = bench.controller
+    leader_knots = smooth_knots(holding_deg_of(first))
+    upload_trajectory(bench, leader_knots)
+    assert bench.call(M["TrajRun"](len(leader_knots))).ok
+    bench.run_for(0.1)
+    assert second.trajectory_sync.armed is None and second.trajectory_sync.starts == 0
+    assert second.trajectory_sync.unmatched == 1
+    stopped_at_knot_0(bench, second, knots, ids)
+
