@@ -3,10 +3,11 @@
 Each arm has its own controller, and both follow the plant's ticks (PLANT_SYNC), the one clock they share. A
 controller set to lead (`SyncRole.LEADER`) starts its trajectory on TrajRun `LEAD_TICKS` ticks ahead and says on
 which tick (TRAJ_START on the HAL bus). A controller set to follow (`SyncRole.FOLLOWER`) takes TrajRun as the arming
-of its trajectory: checked as TrajRun checks it and answered with its motions, each joint holding the first knot
-(a Hermite curve before its start is its start, at rest); it starts on the tick the leader's TRAJ_START names. If
-none comes within `ARMED_S`, or one names a tick already past or another knot count, or a joint of it no longer runs
-it (a Move of that joint meanwhile), its joints stop where they hold (MotionDone STOPPED) and nothing has moved. A host arms the followers first, then runs the leader.
+of its trajectory: checked as TrajRun checks it and answered with its motions, each joint holding the first knot (a
+Hermite curve before its start is its start, at rest); it starts on the tick the leader's TRAJ_START names. If none
+comes within `ARMED_S`, or one names a tick already past, a tick past that wait (more than `LEAD_TICKS` beyond it)
+or another knot count, or a joint of it no longer runs it (a Move of that joint meanwhile), its joints stop where
+they hold (MotionDone STOPPED) and nothing has moved. A host arms the followers first, then runs the leader.
 
 With no role (the default) TrajRun starts at once, as a lone controller's does, and nothing here is built: the bus
 carries no new frame.
@@ -47,8 +48,8 @@ class TrajectorySync:
         self.role, self.hal, self.arm = role, hal, arm
         self.armed: Optional[_Armed] = None
         self.starts = 0              # trajectories started on a coordinated tick (led, or followed)
-        self.unmatched = 0           # TRAJ_STARTs a follower could not follow (none armed, another count, too late,
-                                     # a joint no longer running it)
+        self.unmatched = 0           # TRAJ_STARTs a follower could not follow (none armed, another count, too late or
+                                     # too far ahead, a joint no longer running it)
         self.last_start_tick: Optional[int] = None
         self._layout = hal.codec.layout("TRAJ_START", ("start_tick", "knots"))
         if role is SyncRole.FOLLOWER:
@@ -87,16 +88,21 @@ class TrajectorySync:
     def _on_start(self, values: list, now: float) -> None:
         armed, (tick, knots) = self.armed, values
         start_s = self._time_of(int(tick)) if self.hal.inputs.tick_s is not None else now - 1.0
-        if (armed is None or knots != armed.knots or start_s < now
+        if (armed is None or knots != armed.knots or start_s < now or start_s > self._latest_start_s(armed)
                 or not self.arm.retime_trajectory(armed.started, start_s)):
-            # another trajectory's start, too late to start together, or a joint of it moved on (a Move of one
-            # joint): none of it starts, not the rest alone where it was parked (2 ARMED_S on)
+            # another trajectory's start, too late to start together, later than the wait allows, or a joint of it
+            # moved on (a Move of one joint): none of it starts, not the rest alone where it was parked
             self.unmatched += 1
             self._disarm(now)
             return
         self.starts += 1
         self.last_start_tick = int(tick)
         self.armed = None
+
+    def _latest_start_s(self, armed: _Armed) -> float:
+        """The latest start a follower takes: a leader's TRAJ_START heard by the end of the wait names a tick at most
+        `LEAD_TICKS` later; one further off would keep the joints armed past `ARMED_S` (a third node's, say)."""
+        return armed.deadline_s + LEAD_TICKS * self.hal.inputs.tick_period_s
 
     def _disarm(self, now: float) -> None:
         if self.armed is not None:

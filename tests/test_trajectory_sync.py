@@ -140,3 +140,16 @@ def test_a_start_the_follower_cannot_follow_on_every_joint_stops_the_rest(bench)
     assert second.trajectory_sync.unmatched == 1
     stopped_at_knot_0(bench, second, knots, ids)
 
+
+
+def test_a_start_named_past_the_followers_wait_is_not_followed(bench):
+    """A TRAJ_START (here from a third node on the follower's bus) naming a tick beyond the armed wait: the follower
+    does not park its trajectory that long (ARMED_S's stop undone); it stops where it holds."""
+    second, knots, ids = armed_follower(bench)
+    plant = bench.world.arm2.plant_node
+    far = (second.hal.inputs.tick + round(3 * ARMED_S / 0.001)) % (1 << 32)
+    plant.send_frame(plant.codec.layout("TRAJ_START"), [far, len(knots)])
+    bench.run_for(0.01)
+    assert second.trajectory_sync.armed is None and second.trajectory_sync.starts == 0
+    assert second.trajectory_sync.unmatched == 1
+    stopped_at_knot_0(bench, second, knots, ids)
