@@ -9,7 +9,9 @@ import math
 import pytest
 
 from firmware_py.trajectory_sync import ARMED_S, LEAD_TICKS, SyncRole
-from host_tools.client.trajectory import upload_trajectory
+from host_tools.apps.two_arm_plan import start_together
+from host_tools.client.bench import BenchClient
+from host_tools.client.trajectory import TrajectoryRefused, upload_trajectory
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
@@ -153,3 +155,20 @@ def test_a_start_named_past_the_followers_wait_is_not_followed(bench):
     assert second.trajectory_sync.armed is None and second.trajectory_sync.starts == 0
     assert second.trajectory_sync.unmatched == 1
     stopped_at_knot_0(bench, second, knots, ids)
+
+
+def test_a_leader_that_refuses_leaves_no_follower_armed(bench):
+    """start_together: the leader's TrajRun refused (knots that start 5 deg off where it holds), nothing started;
+    the follower's armed trajectory is stopped with it, so both may be started again at once (an armed follower's
+    joints are busy and its buffer locked for ARMED_S)."""
+    first, second = bench.controller, bench.world.arm2.controller
+    off = [q + 5.0 for q in holding_deg_of(first)]
+    with pytest.raises(TrajectoryRefused) as refused:
+        start_together(BenchClient(bench), bench.arm2, (smooth_knots(off), smooth_knots(holding_deg_of(second))))
+    assert refused.value.reason is Reason.TRAJ_ENDPOINTS and refused.value.command == "TrajRun"
+    bench.run_for(0.05)
+    assert not second.arm.trajectory_running()
+    start_together(BenchClient(bench), bench.arm2, (smooth_knots(holding_deg_of(first)),
+                                                   smooth_knots(holding_deg_of(second))))
+    bench.run_for(0.1)
+    assert first.trajectory_sync.starts == 1 == second.trajectory_sync.starts

@@ -25,12 +25,13 @@ from firmware_py.arm_config import ArmDescription, highest_speed_dps
 from firmware_py.hermite import HermiteProfile
 from firmware_py.trajectory import TRAJECTORY_KNOTS
 from host_tools.apps.arm_plan import ARM_JOINTS, homed_pose_rad, knots_within_speed
-from host_tools.client.trajectory import Caller, Knot, point_message, run_trajectory, upload_trajectory
+from host_tools.client.trajectory import (Caller, Knot, TrajectoryRefused, point_message, run_trajectory,
+                                         upload_trajectory)
 from host_tools.plan.errors import PlanError
 from host_tools.plan.phase import Problem
 from host_tools.plan.profile import Profile
 from host_tools.plan.reach import plan_reach_checked
-from protocol.messages import SCHEMA, TRAJECTORY_JOINTS
+from protocol.messages import MESSAGES as M, SCHEMA, TRAJECTORY_JOINTS
 
 ARMS = 2
 SHOULDER, ELBOW = 0, 1           # their places among the trajectory's joints (j1, j2)
@@ -165,8 +166,15 @@ def start_together(leader: Caller, follower: Caller, knots: tuple[Sequence[Knot]
                    ) -> tuple[list[int], list[int]]:
     """Upload each arm's knots to its controller (`leader`: the first arm's), arm the follower's, start the
     leader's: both start on the tick the leader names. Each arm's motion ids (j1..j4 and the mount); ValueError
-    or TrajectoryRefused (nothing started) as `send_trajectory`."""
+    or TrajectoryRefused (nothing started) as `send_trajectory`: the leader's refusal stops the follower's armed
+    trajectory (Stop: all its motion), which would otherwise keep its joints busy and its buffer locked for 10 s
+    (firmware_py/trajectory_sync.py ARMED_S)."""
     upload_trajectory(leader, knots[0])
     upload_trajectory(follower, knots[1])
     followed = run_trajectory(follower, len(knots[1]))
-    return run_trajectory(leader, len(knots[0])), followed
+    try:
+        return run_trajectory(leader, len(knots[0])), followed
+    except TrajectoryRefused as refused:
+        if refused.answered:        # the leader started nothing (a lost reply: it may have, and the follower with it)
+            follower.call(M["Stop"]())
+        raise

@@ -55,12 +55,14 @@ class Knot:
 
 
 class TrajectoryRefused(Exception):
-    """The controller refused a trajectory command: `reason` its code, `command` which, `index` the knot (or None)."""
+    """The controller refused a trajectory command: `reason` its code, `command` which, `index` the knot (or None);
+    `answered`: the controller's own reply said so (False: the link failed, and the command may have run)."""
 
-    def __init__(self, reason: Reason, command: str, detail: str, index: int | None = None) -> None:
+    def __init__(self, reason: Reason, command: str, detail: str, index: int | None = None,
+                 answered: bool = True) -> None:
         where = f"{command} {index}" if index is not None else command
         super().__init__(f"{where}: {detail}")
-        self.reason, self.command, self.index = reason, command, index
+        self.reason, self.command, self.index, self.answered = reason, command, index, answered
 
 
 def point_message(index: int, knot: Knot) -> Message:
@@ -108,7 +110,7 @@ def _ok(handle: CommandHandle, command: str, index: int | None = None) -> Messag
         detail, reply = handle.describe(), handle.reply
         if reply is not None and getattr(reply, "limit", ""):
             detail += f" (limit {reply.limit} = {reply.limit_value:g}, asked {reply.asked:g})"
-        raise TrajectoryRefused(Reason(handle.reason), command, detail, index)
+        raise TrajectoryRefused(Reason(handle.reason), command, detail, index, answered=reply is not None)
     return handle.reply
 
 
