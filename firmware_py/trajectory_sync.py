@@ -15,6 +15,7 @@ carries no new frame.
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -60,7 +61,11 @@ class TrajectorySync:
         if self.hal.inputs.tick_s is None:
             return None, MotionStart(Reason.NOT_ALLOWED_IN_STATE, "no plant tick seen yet: nothing to start on")
         if self.role is SyncRole.LEADER:
-            tick = (self.hal.inputs.tick + LEAD_TICKS) % TICK_MOD
+            # counted on from the last PLANT_SYNC heard by the ticks gone since (frames lost, a late loop): a tick
+            # already past would start the leader part-way along its trajectory, and its follower not at all
+            inputs = self.hal.inputs
+            gone = max(0, math.floor((now - inputs.tick_s) / inputs.tick_period_s))
+            tick = (inputs.tick + gone + LEAD_TICKS) % TICK_MOD
             axis, start = self.arm.run_trajectory(profiles, self._time_of(tick))
             if start.reason is Reason.OK:
                 self.hal.send_frame(self._layout, [tick, knots])

@@ -103,26 +103,26 @@ def test_a_simulated_world_never_judges_lateness():
     assert bench.controller.arm.judge_lateness
 
 
-class LoseFeedback(BusView):
-    """The controller's end of the bus, losing every MOTOR_FB once `lost` is set (a broken bus, say)."""
+class LoseFrames(BusView):
+    """The controller's end of the bus, losing every frame `name` (MOTOR_FB) once `lost` is set (a broken bus,
+    say)."""
 
-    MOTOR_FB = HalCodec().frame_id("MOTOR_FB")
-
-    def __init__(self, bus) -> None:
+    def __init__(self, bus, name: str = "MOTOR_FB") -> None:
         super().__init__(bus)
         self.lost = False
+        self.frame_id = HalCodec().frame_id(name)
 
     def recv(self, timeout=None):
         while True:
             msg = self.bus.recv(timeout)
-            if msg is None or not (self.lost and msg.arbitration_id == self.MOTOR_FB):
+            if msg is None or not (self.lost and msg.arbitration_id == self.frame_id):
                 return msg
 
 
 def test_stale_encoder_counts_fault_by_their_own_parameter_and_say_how_old():
     bench = LockstepBench(plant=PlantSettings(tracker=False))
     hal = bench.controller.hal
-    hal.bus = LoseFeedback(hal.bus)
+    hal.bus = LoseFrames(hal.bus)
     assert bench.connect() and bench.call(M["Enable"]()).ok
     assert bench.call(M["ParamSet"]("encoder_stale_s", 0.02)).ok
     hal.bus.lost = True
@@ -152,7 +152,7 @@ def test_ticks_the_loop_missed_widen_the_glitch_check_instead_of_faulting():
 def test_stale_currents_fault_by_current_stale_s_when_it_is_the_tighter_limit():
     bench = LockstepBench(plant=PlantSettings(tracker=False))
     hal = bench.controller.hal
-    hal.bus = LoseFeedback(hal.bus)
+    hal.bus = LoseFrames(hal.bus)
     assert bench.connect() and bench.call(M["Enable"]()).ok
     assert bench.call(M["ParamSet"]("encoder_stale_s", 0.5)).ok and bench.call(M["ParamSet"]("current_stale_s", 0.03)).ok
     hal.bus.lost = True

@@ -16,6 +16,7 @@ from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, MotionOutcome
+from tests.test_realtime_faults import LoseFrames
 from tests.test_trajectory import smooth_knots
 
 J1 = int(Axis.J1)
@@ -172,3 +173,31 @@ def test_a_leader_that_refuses_leaves_no_follower_armed(bench):
                                                    smooth_knots(holding_deg_of(second))))
     bench.run_for(0.1)
     assert first.trajectory_sync.starts == 1 == second.trajectory_sync.starts
+
+
+def test_a_leader_whose_last_plant_tick_is_old_still_starts_with_its_follower(bench):
+    """The leader's PLANT_SYNCs lost for 50 ms (its ANALOG_IN still fresh): its TrajRun names a tick counted on from
+    the last one it heard by the time since, not one already past (it would start 40 ms into its trajectory, and
+    the follower, seeing a tick gone, would stop: the leader alone moving)."""
+    first, second = bench.controller, bench.world.arm2.controller
+    knots_1, knots_2 = smooth_knots(holding_deg_of(first)), smooth_knots(holding_deg_of(second))
+    upload_trajectory(bench, knots_1)
+    upload_trajectory(bench.arm2, knots_2)
+    assert bench.arm2.call(M["TrajRun"](len(knots_2))).ok
+    bench.run_for(0.01)
+    held_2 = second.arm.channels[J1].pos_sp_rad
+    lossy = first.hal.bus = LoseFrames(first.hal.bus, "PLANT_SYNC")
+    lossy.lost = True
+    bench.run_for(0.05)
+    assert first.hal.inputs.tick + 40 < second.hal.inputs.tick            # the leader's last tick is old
+    assert bench.call(M["TrajRun"](len(knots_1))).ok
+    lossy.lost = False
+    held_1 = first.arm.channels[J1].pos_sp_rad           # its first knot, until the tick
+    left = {}
+    for _ in range(100):
+        bench.run_for(0.001)
+        for name, controller, held in (("first", first, held_1), ("second", second, held_2)):
+            if name not in left and moved(controller.arm.channels[J1], held):
+                left[name] = second.hal.inputs.tick
+    assert len(left) == 2 and left["first"] == left["second"], left
+    assert second.trajectory_sync.starts == 1 and second.trajectory_sync.unmatched == 0
