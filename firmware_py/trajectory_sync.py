@@ -7,7 +7,8 @@ of its trajectory: checked as TrajRun checks it and answered with its motions, e
 Hermite curve before its start is its start, at rest); it starts on the tick the leader's TRAJ_START names. If none
 comes within `ARMED_S`, or one names a tick already past, a tick past that wait (more than `LEAD_TICKS` beyond it)
 or another knot count, or a joint of it no longer runs it (a Move of that joint meanwhile), its joints stop where
-they hold (MotionDone STOPPED) and nothing has moved. A host arms the followers first, then runs the leader.
+they hold (MotionDone STOPPED) and nothing has moved; so do a leader's when its bus refuses its TRAJ_START. A host
+arms the followers first, then runs the leader.
 
 With no role (the default) TrajRun starts at once, as a lone controller's does, and nothing here is built: the bus
 carries no new frame.
@@ -67,10 +68,15 @@ class TrajectorySync:
             gone = max(0, math.floor((now - inputs.tick_s) / inputs.tick_period_s))
             tick = (inputs.tick + gone + LEAD_TICKS) % TICK_MOD
             axis, start = self.arm.run_trajectory(profiles, self._time_of(tick))
-            if start.reason is Reason.OK:
-                self.hal.send_frame(self._layout, [tick, knots])
-                self.starts += 1
-                self.last_start_tick = tick
+            if start.reason is not Reason.OK:
+                return axis, start
+            if not self.hal.send_frame(self._layout, [tick, knots]):
+                # the bus refused it (counted in `bus_errors`): no follower hears the start, so none is made here
+                # either; its joints stop where they hold, as a follower's do when no start comes
+                self.arm.stop_trajectory(start.started, now)
+                return axis, start
+            self.starts += 1
+            self.last_start_tick = tick
             return axis, start
         axis, start = self.arm.run_trajectory(profiles, now + 2 * ARMED_S)       # held at its start meanwhile
         if start.reason is Reason.OK:

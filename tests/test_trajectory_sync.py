@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+import can
 import pytest
 
 from firmware_py.trajectory_sync import ARMED_S, LEAD_TICKS, SyncRole
@@ -13,6 +14,7 @@ from host_tools.apps.two_arm_plan import start_together
 from host_tools.client.bench import BenchClient
 from host_tools.client.trajectory import TrajectoryRefused, upload_trajectory
 from host_tools.worlds.world import LockstepBench
+from protocol.hal import BusView, HalCodec
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, MotionOutcome
@@ -201,3 +203,29 @@ def test_a_leader_whose_last_plant_tick_is_old_still_starts_with_its_follower(be
                 left[name] = second.hal.inputs.tick
     assert len(left) == 2 and left["first"] == left["second"], left
     assert second.trajectory_sync.starts == 1 and second.trajectory_sync.unmatched == 0
+
+
+class RefusingStarts(BusView):
+    """A bus that refuses to send TRAJ_START (a bus error: python-can raises CanOperationError)."""
+
+    def send(self, msg, timeout=None):
+        if msg.arbitration_id == HalCodec().frame_id("TRAJ_START"):
+            raise can.CanOperationError("bus off")
+        self.bus.send(msg, timeout)
+
+
+def test_a_leader_whose_start_cannot_be_sent_does_not_start_alone(bench):
+    """The leader's TRAJ_START refused by its bus: its follower cannot hear the start, so the leader's own trajectory
+    stops where it holds (MotionDone STOPPED, nothing moved), as the follower's does when no start comes."""
+    first = bench.controller
+    knots = smooth_knots(holding_deg_of(first))
+    upload_trajectory(bench, knots)
+    first.hal.bus = RefusingStarts(first.hal.bus)
+    reply = bench.call(M["TrajRun"](len(knots))).reply
+    ids = {int(a): getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS}
+    bench.run_for(0.5)
+    off_deg = math.degrees(first.arm.channels[J1].pos_sp_rad) - knots[0].q_deg[0]
+    assert abs(off_deg) < 1e-4, f"J1 moved {off_deg:.3f} deg alone"
+    assert first.hal.bus_errors == 1 and first.trajectory_sync.starts == 0
+    ends = {(e.axis, e.motion_id): MotionOutcome(e.outcome) for e in bench.events if e.spec.name == "MotionDone"}
+    assert all(ends.get((a, i)) is MotionOutcome.STOPPED for a, i in ids.items()), ends
