@@ -14,7 +14,8 @@ from host_tools.apps.two_arm_plan import start_together
 from host_tools.client.bench import BenchClient
 from host_tools.client.trajectory import TrajectoryRefused, upload_trajectory
 from host_tools.worlds.world import LockstepBench
-from protocol.hal import BusView, HalCodec
+from host_tools.worlds.local_bus import LocalBus
+from protocol.hal import BusView, HalCodec, HalEndpoint
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
 from protocol.states import Axis, ControllerState, MotionOutcome
@@ -229,3 +230,29 @@ def test_a_leader_whose_start_cannot_be_sent_does_not_start_alone(bench):
     assert first.hal.bus_errors == 1 and first.trajectory_sync.starts == 0
     ends = {(e.axis, e.motion_id): MotionOutcome(e.outcome) for e in bench.events if e.spec.name == "MotionDone"}
     assert all(ends.get((a, i)) is MotionOutcome.STOPPED for a, i in ids.items()), ends
+
+
+def test_the_plant_relays_the_leaders_starts_alone():
+    """TRAJ_START goes from the leader's bus to the follower's, not back: relayed both ways, on buses that give each
+    node its own frames back (udp_multicast, across processes), every relayed start came back to be relayed again,
+    one start circling for ever (one a tick on each bus), and a later start's armed follower stopped by the old one
+    (a tick past)."""
+    bench = LockstepBench(seed=5, arms=2)
+    heard = []
+    try:
+        for bus in (bench.world.controller_bus, bench.world.arm2.controller_bus):      # a node on each arm's bus
+            node, got = HalEndpoint(LocalBus(bus.local_channel, carries_values=bus.carries_values)), []
+            node.on_frame("TRAJ_START", lambda values, now, got=got: got.append(values))
+            heard.append((node, got))
+        (on_first, got_first), (on_second, got_second) = heard
+        layout = HalCodec().layout("TRAJ_START")
+        on_first.send_frame(layout, [6, 20])
+        on_second.send_frame(layout, [5, 20])
+        bench.run_for(0.01)
+        on_first.poll(bench.clock.now())
+        on_second.poll(bench.clock.now())
+        assert got_second == [[6, 20]] and got_first == []
+    finally:
+        for node, _ in heard:
+            node.bus.shutdown()
+        bench.close()

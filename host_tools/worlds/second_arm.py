@@ -3,7 +3,7 @@ its own HAL bus and plant node, on the world's schedulers.
 
 Each arm is what it would be alone: a controller and the plant's side of its motors on a bus of their own. What
 joins them is physical, so it is the plant's: both plant nodes step on one scheduler, tick for tick (their
-PLANT_SYNC ticks are one count), and the plant relays a leading controller's TRAJ_START from one arm's bus to the
+PLANT_SYNC ticks are one count), and the plant relays the leading controller's TRAJ_START from its arm's bus to the
 other's, as a sync line between the two controllers would carry it (firmware_py/trajectory_sync.py). The first
 arm's controller leads, the second follows. With `held_object`, the object the two hands hold
 (hil_sim/two_arms.py) is stepped after both plants each tick once taken, and each arm's joints carry its grasp.
@@ -69,8 +69,7 @@ class SecondArmNodes:
                                      trajectory_sync=SyncRole.FOLLOWER)
         self.controller = build_controller(psk, self.uart, self.controller_bus, config, nonce_source=nonce_source)
         self.controller.attach(scheduler, link_scheduler)
-        relay_trajectory_starts(first_plant, self.plant_node)
-        relay_trajectory_starts(self.plant_node, first_plant)
+        relay_trajectory_starts(first_plant, self.plant_node)      # from the leader's bus to the follower's
         # the object the two hands hold: stepped after both plants each tick, once taken (`take_object`)
         self.pair: Optional[TwoArmPlant] = None
         self.holding = False
@@ -99,7 +98,9 @@ class SecondArmNodes:
 
 
 def relay_trajectory_starts(source: PlantNode, to: PlantNode) -> None:
-    """Every TRAJ_START `source`'s bus carries goes on `to`'s bus too (the sync line between two controllers)."""
+    """Every TRAJ_START `source`'s bus carries goes on `to`'s bus too (the sync line between two controllers): one
+    way, from the leader's bus. Both ways, on buses that give a node its own frames back (udp_multicast), each
+    relayed start would come back to be relayed again, for ever."""
     layout = to.codec.layout("TRAJ_START")
     source.on_frame("TRAJ_START", lambda values, now: to.send_frame(layout, values))
 
