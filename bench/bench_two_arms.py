@@ -4,7 +4,7 @@ Two example arms (hil_sim EXAMPLE_ARM_PLANT, firmware EXAMPLE_ARM), each with it
 lock-step bench (`LockstepBench(arms=2)`), the object between their grasps (hil_sim/two_arms.py). Each arm is
 enabled, homed, brought to the plan's start and closes its jaws; the object is taken. The plan is the planner's
 minimum-time plan at `MARGIN` of the example's torque limits, run `SLOWER` times slower (host_tools/apps/
-two_arm_plan.py `slowed`); each arm's knots from it, both started on one plant tick. Measured against the plan, on
+two_arm_plan.py `executable_plan`); each arm's knots from it, both started on one plant tick. Measured against the plan, on
 the simulated clock, in Earth gravity and in orbit: the object's path error, the squeeze (the plan shares the load
 without one: 0 N), each arm's shoulder and elbow against their knots' curves, and the time until every joint has
 settled against the plan's. `carry` takes each arm's knots from a trajectory file of `aspod plan --output` instead,
@@ -25,13 +25,10 @@ from firmware_py.controller import ControllerConfig
 from firmware_py.hermite import HermiteProfile
 from hil_sim.arm_params import EXAMPLE_ARM_PLANT
 from hil_sim.held_object import GraspState, ObjectParams
-from host_tools.apps.two_arm_plan import arm_knots, profile_at, slowed, start_pose_deg, start_together
+from host_tools.apps.two_arm_plan import arm_knots, executable_plan, profile_at, start_pose_deg, start_together
 from host_tools.client.bench import BenchClient
 from host_tools.client.trajectory import load_trajectory
-from host_tools.plan.bounds import Limits
-from host_tools.plan.example import LIMITS, PATH, report_problem
-from host_tools.plan.phase import Problem
-from host_tools.plan.reach import plan_reach
+from host_tools.plan.example import PATH, report_problem
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
@@ -80,8 +77,7 @@ def carry(gravity: str, trajectory: Optional[Path] = None) -> dict:
         arm2.take_object()
         bench.run_for(0.5)
         assert arm2.pair.object.states == (GraspState.HELD, GraspState.HELD)
-        limited = Problem(problem.system, problem.path, Limits.symmetric(tuple(MARGIN * u for u in LIMITS)))
-        plan = slowed(plan_reach(limited, 200).profile, SLOWER)
+        limited, plan = executable_plan(problem, MARGIN, SLOWER, 200)       # as `aspod plan --output` makes it
         held = [[math.degrees(c.arm.channels[int(a)].pos_sp_rad) for a in TRAJECTORY_JOINTS] for _, _, c, _ in arms]
         knots = (tuple(arm_knots(limited, plan, KNOTS, k, held[k]) for k in range(2)) if trajectory is None else
                  tuple(load_trajectory(trajectory, arm) for arm in (1, 2)))
