@@ -95,7 +95,8 @@ class World:
             self.arm2 = SecondArmNodes(second_arm, psk, self.plant_node, self.scheduler, self.link_scheduler,
                                        seed=seed + 1, baud=baud, paced=paced, plant=plant,
                                        direct_values=direct_values,
-                                       nonce_source=seeded_nonces(seed + 1) if deterministic else new_nonce)
+                                       # (seed + 1 and + 2: the bench's hosts'; each end its own nonces)
+                                       nonce_source=seeded_nonces(seed + 3) if deterministic else new_nonce)
         # the three 1 kHz tasks many ticks a call between events (host_tools/worlds/fast_loop.py): deterministic and
         # compiled only, one arm
         self.fast_loop: Optional[FastLoop] = None
