@@ -8,6 +8,7 @@
     aspod plan --method reach --order 2          ... s'' linear between grid points placed where time is lost
     aspod plan --arm-to j1=20 --output move.json ASPOD's own arm: a trajectory file for teleop's `traj load`
     aspod plan --links rod --output two.json     the two arms' plan: both arms' knots, `traj load two.json arm 1|2`
+    aspod plan --links rod --execute L1,L2       ... carried out on two controllers (aspod sim --arms 2)
 
 Exit status: 0 planned, 2 a problem refused (out of reach, limits too weak, a grid too coarse: the reason says).
 """
@@ -18,14 +19,15 @@ import json
 import logging
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
 from host_tools.cli.options import bounded, squeeze_force, weights_list
-from host_tools.cli.settings import ArmMoveSettings, PlanSettings, TwoArmFileSettings
-from host_tools.exit_codes import EXIT_OK
+from host_tools.cli.settings import ArmMoveSettings, PlanSettings, TwoArmSettings
+from host_tools.exit_codes import EXIT_FAILED, EXIT_OK
 from host_tools.plan.energy import DpGrid, Pricing, costs_of, motors_of, plan_cost_optimal, potential_rise
 from host_tools.plan.example import REPORTED, beside_report, report_problem
 from host_tools.plan.problem_file import load_problem
@@ -98,8 +100,8 @@ def run_plan(settings: PlanSettings) -> int:
         settings.problem)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
-        # the file's knots first: a plan they refuse is refused before anything is printed or written
-        two_arms = None if settings.two_arm_file is None else _two_arm_file(problem, settings)
+        # the arms' knots first: a plan they refuse is refused before anything is printed, written or moved
+        two_arms = None if settings.two_arms is None else _two_arm_knots(problem, settings)
         result, fastest = _plan(problem, settings)
     for w in caught:
         if not issubclass(w.category, RuntimeWarning):      # anything else is said as it would have been
@@ -113,20 +115,38 @@ def run_plan(settings: PlanSettings) -> int:
         from host_tools.plan.plots import draw
         files = draw(settings.plot, fastest, result.get("_cost"), REPORTED if settings.problem is None else ())
         result["figures"] = [str(f) for f in files]
-    if two_arms is not None:
-        settings.two_arm_file.output.write_text(two_arms[0])
-        result["trajectory_file"] = two_arms[1]
+    if two_arms is not None and settings.two_arms.output is not None:
+        from host_tools.client.trajectory import trajectory_json
+        settings.two_arms.output.write_text(trajectory_json(two_arms.knots, two_arms.about))
+        result["trajectory_file"] = {"output": str(settings.two_arms.output), **two_arms.shown}
+    if two_arms is not None and settings.two_arms.execute:
+        from host_tools.apps.two_arm_execute import execute
+        from host_tools.cli.main import host_key
+        wanted = settings.two_arms
+        keys = (host_key(wanted.key_file, wanted.execute[0]), host_key(wanted.key_file, wanted.execute[1]))
+        result["executed"] = execute(two_arms.limited, two_arms.profile, two_arms.knots, wanted, keys,
+                                     lambda text: log.info(f"aspod plan: {text}"))
     return _print(settings, result)
 
 
-def _two_arm_file(problem, settings: PlanSettings) -> tuple[str, dict]:
-    """The two arms' trajectory file (its text, and what it holds): the minimum-time plan within a share of the torque
-    limits, run slower, as each example arm's knots (host_tools/apps/two_arm_plan.py); PlanError naming the arm,
-    the joint and the limit (soft limit, speed) the curve through them would pass."""
+@dataclass(frozen=True)
+class TwoArmKnots:
+    """The two arms' plan as their controllers take it: the problem within the torque share, the slowed profile,
+    each arm's knots, and what a trajectory file says of them (`about`) and the output shows (`shown`)."""
+    limited: Any
+    profile: Any
+    knots: tuple[list, list]
+    about: dict
+    shown: dict
+
+
+def _two_arm_knots(problem, settings: PlanSettings) -> TwoArmKnots:
+    """The minimum-time plan within a share of the torque limits, run slower, as each example arm's knots
+    (host_tools/apps/two_arm_plan.py); PlanError naming the arm, the joint and the limit (soft limit, speed) the
+    curve through them would pass."""
     from firmware_py.arm_config import EXAMPLE_ARM
     from host_tools.apps.two_arm_plan import SHOULDER, ELBOW, controller_knots, curve_bounds_deg, executable_plan
-    from host_tools.client.trajectory import trajectory_json
-    wanted: TwoArmFileSettings = settings.two_arm_file
+    wanted: TwoArmSettings = settings.two_arms
     limited, profile = executable_plan(problem, wanted.torque_share, wanted.slower, settings.nodes + 1)
     arms = controller_knots(limited, profile, wanted.knots, EXAMPLE_ARM)
     about = {"tool": "aspod plan", "arms": f"two {EXAMPLE_ARM.name} arms (firmware_py/arm_config.py EXAMPLE_ARM), "
@@ -139,9 +159,9 @@ def _two_arm_file(problem, settings: PlanSettings) -> tuple[str, dict]:
              "start_deg": [[round(k[0].q_deg[j], 4) for j in (SHOULDER, ELBOW)] for k in arms],
              "top_speed_dps": [[math.ceil(curve_bounds_deg(k, j)[2] * 10) / 10 for j in (SHOULDER, ELBOW)]
                                for k in arms]}     # rounded up: a speed parameter set to it lets the curve run
-    shown = {"output": str(wanted.output), "knots": [len(k) for k in arms],
+    shown = {"knots": [len(k) for k in arms],
              **{key: about[key] for key in ("plan", "duration_s", "start_deg", "top_speed_dps")}}
-    return trajectory_json(arms, about), shown
+    return TwoArmKnots(limited, profile, arms, about, shown)
 
 
 def _warn_of_excess(to: dict) -> None:
@@ -293,6 +313,18 @@ def _text(result: dict) -> str:
                          f"deg/s (`traj load {tf['output']} arm {arm}`)")
         lines.append("  each arm's controller runs its knots from their start, at rest, with j1_speed_dps and "
                      "j2_speed_dps at least those speeds")
+    if "executed" in result:
+        ex = result["executed"]
+        lines.append(f"executed on {', '.join(ex['links'])}: plan {ex['plan_s']:.3f} s, every joint's motion ended "
+                     f"at {ex['ended_s']:.3f} s")
+        for arm, (err, ends) in enumerate(zip(ex["tracking_deg"], ex["outcomes"]), 1):
+            lines.append(f"  arm {arm}: shoulder and elbow within {err:.2f} deg of their knots' curve (telemetry); "
+                         + ", ".join(f"{axis} {outcome}" for axis, outcome in ends.items()))
+        ob = ex["object"]
+        lines.append("  the object: no control endpoint beside the links, not seen" if ob is None else
+                     f"  the object (the simulator's truth, {ob['readings']} readings): within "
+                     f"{ob['path_error_mm']:.2f} mm of its path, squeeze at most {ob['squeeze_n']:.2f} N, grasps "
+                     f"{', '.join(ob['grasps'])}")
     return "\n".join(lines)
 
 
@@ -308,6 +340,7 @@ EXAMPLES = [
     "aspod plan --method reach --order 2 --nodes 99 --objective time",
     "aspod plan --arm-to j1=20,j2=-15 --output move.json",
     "aspod plan --links rod --gravity --objective time --output two.json",
+    "aspod plan --links rod --gravity --objective time --execute LINK,LINK2 --set-speeds",
 ]
 
 
@@ -367,6 +400,17 @@ def add_options(plan: argparse.ArgumentParser) -> None:
                       help="knots of the trajectory (of each arm's), at least (default 41 with --arm-to, 60 for two "
                            "arms, as their bench; more, up to the controller's 256, where the curve between them would "
                            "pass a joint's speed limit)")
+    plan.add_argument("--execute", default=None, metavar="LINK,LINK2",
+                      help="carry the plan out on two example arms' controllers, arm 1's (it leads) first, e.g. "
+                           "aspod sim --arms 2's ASPOD-LINK and ASPOD-LINK2: checked against each controller's "
+                           "limits (soft limits, speed, current, supply, gravity) before anything moves, then each arm "
+                           "homed, at the start, jaws closed on the object, both started on one tick and measured "
+                           "(docs/two_arms.md)")
+    plan.add_argument("--key-file", type=Path, default=None,
+                      help="--execute: the links' key file (default: each simulator's own, found from its link)")
+    plan.add_argument("--set-speeds", action="store_true",
+                      help="--execute: raise a joint's speed parameter under the plan's need to it (said), within its "
+                           "range, instead of refusing the plan")
     arm = plan.add_argument_group("ASPOD's own arm (a trajectory file for teleop's `traj load`)")
     arm.add_argument("--arm-to", action="append", default=[], metavar="J=DEG[,J=DEG]",
                      help="plan a minimum-time move of ASPOD's arm to these angles (j1..j4, mount; repeatable) "
@@ -380,5 +424,10 @@ def add_options(plan: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from host_tools.apps.two_arm_execute import ExecuteError
     from host_tools.cli import settings
-    return run_plan(settings.plan_settings(args))
+    try:
+        return run_plan(settings.plan_settings(args))
+    except ExecuteError as exc:
+        log.error(f"aspod plan: --execute: {exc}")
+        return EXIT_FAILED

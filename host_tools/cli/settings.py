@@ -190,6 +190,16 @@ class SimSettings:
     control: bool = False                # serve the endpoint (aspod sim: unless --no-control; with --hal: info) ...
     control_path: Optional[Path] = None  # ... on this socket (None: the per-user default; worlds/runtime_folder.py)
     foxglove: Optional[int] = None       # serve the telemetry over Foxglove's WebSocket on this port (0: any free one)
+    arms: int = 1                        # 2: the report's two example arms and their object (docs/two_arms.md)
+
+    def __post_init__(self) -> None:
+        if self.arms not in (1, 2):
+            raise ValueError(f"--arms is 1 or 2, not {self.arms}")
+        if self.arms == 2:
+            for given, name in ((self.hal, "--hal"), (self.port.device, "--port"), (self.port.links, "--link")):
+                if given:
+                    raise ValueError(f"--arms 2 with {name} is not built: two arms run in one process, each "
+                                     "controller on a pty or a TCP port of its own (--pty, --tcp)")
 
 
 @dataclass(frozen=True)
@@ -310,7 +320,8 @@ def sim_settings(args: argparse.Namespace) -> SimSettings:
                        hal_options=tuple(hal_options.items()), record=capture_output(outputs, args.record),
                        can_log=can_log_output(outputs, args.can_log, args.can_rotate_mb), can_ids=can_log_ids(args),
                        can_rotate_bytes=can_rotate_bytes(args.can_rotate_mb),
-                       control=not args.no_control, control_path=args.control, foxglove=foxglove)
+                       control=not args.no_control, control_path=args.control, foxglove=foxglove,
+                       arms=args.arms)
 
 
 def firmware_settings(args: argparse.Namespace) -> FirmwareSettings:
@@ -750,14 +761,20 @@ class ArmMoveSettings:
 
 
 @dataclass(frozen=True)
-class TwoArmFileSettings:
-    """`aspod plan --output FILE` (without --arm-to): the two-arm plan as each example arm's knots in one trajectory
-    file (host_tools/apps/two_arm_plan.py): the minimum-time plan within `torque_share` of the torque limits, run
-    `slower` times slower, at least `knots` knots per arm: by default as bench/bench_two_arms.py runs it."""
-    output: Output
+class TwoArmSettings:
+    """`aspod plan` without --arm-to, given --output FILE or --execute LINK,LINK: the two-arm plan as each example
+    arm's knots (host_tools/apps/two_arm_plan.py), the minimum-time plan within `torque_share` of the torque limits,
+    run `slower` times slower, at least `knots` knots per arm (by default as bench/bench_two_arms.py runs it); written
+    to `output`, carried out on the controllers at `execute` (arm 1's, the leader's, first: host_tools/apps/
+    two_arm_execute.py) with `key_file` (None: each simulator's own), raising their speed parameters to the plan's
+    with `set_speeds`."""
+    output: Optional[Output] = None
     torque_share: float = 0.8
     slower: float = 2.0
     knots: int = 60
+    execute: tuple[str, ...] = ()
+    key_file: Optional[Path] = None
+    set_speeds: bool = False
 
 
 @dataclass(frozen=True)
@@ -781,7 +798,7 @@ class PlanSettings:
     arm: Optional[ArmMoveSettings] = None    # --arm-to: ASPOD's own arm instead of the report's two
     weights: Optional[tuple[float, ...]] = None   # each joint's weight in the minimum-cost plan (None: the file's)
     regen: bool = False                      # electrical: energy given back returns to the supply
-    two_arm_file: Optional[TwoArmFileSettings] = None    # --output without --arm-to: the two arms' knots
+    two_arms: Optional[TwoArmSettings] = None    # --output or --execute without --arm-to: the two arms' knots
 
 
 def plan_settings(args: argparse.Namespace) -> PlanSettings:
@@ -803,28 +820,44 @@ def plan_settings(args: argparse.Namespace) -> PlanSettings:
         raise ValueError("--order 2 plans with the load shared, without the squeeze: give --order 1 for --squeeze")
     outputs = claims(args)
     arm = arm_move_settings(args, outputs)
-    two_arm_file = None if arm is not None else two_arm_file_settings(args, outputs)
+    two_arms = None if arm is not None else two_arm_settings(args, outputs)
     plot_needs_its_extra(args)
     outputs.folder(args.plot, "--plot")
     return PlanSettings(args.problem, args.gravity, args.links, args.objective, args.integrator, args.nodes,
                         args.dp_intervals, args.dp_speeds, args.dp_speed_step, args.max_time, args.json, args.plot,
-                        args.method, args.squeeze, args.order, arm, args.weights, args.regen, two_arm_file)
+                        args.method, args.squeeze, args.order, arm, args.weights, args.regen, two_arms)
 
 
-def two_arm_file_settings(args: argparse.Namespace, outputs: Claims) -> Optional[TwoArmFileSettings]:
-    """--output without --arm-to, and what goes with it; None without it (ValueError for --knots, --torque-share or
-    --slower without it, or an output that may not be written)."""
+def two_arm_settings(args: argparse.Namespace, outputs: Claims) -> Optional[TwoArmSettings]:
+    """--output or --execute without --arm-to, and what goes with them; None without either (ValueError for --knots,
+    --torque-share, --slower, --key-file or --set-speeds without them, or an output that may not be written)."""
     given = [name for name, value in (("--knots", args.knots), ("--torque-share", args.torque_share),
                                       ("--slower", args.slower)) if value is not None]
-    if args.output is None:
+    execute_only = [name for name, value in (("--key-file", args.key_file), ("--set-speeds", args.set_speeds))
+                    if value]
+    if args.execute is None and execute_only:
+        raise ValueError(f"{execute_only[0]}: only with --execute")
+    if args.output is None and args.execute is None:
         if given:
-            raise ValueError(f"{given[0]}: only with --output (the two arms' trajectory file) or --arm-to (ASPOD's "
-                             "own arm's)")
+            raise ValueError(f"{given[0]}: only with --output (the two arms' trajectory file), --execute or --arm-to "
+                             "(ASPOD's own arm's)")
         return None
-    from host_tools.client.trajectory import TRAJECTORY_FILE
-    given_values = {name: value for name, value in (("torque_share", args.torque_share), ("slower", args.slower),
-                                                    ("knots", args.knots)) if value is not None}
-    return TwoArmFileSettings(outputs.file(args.output, "--output", TRAJECTORY_FILE), **given_values)
+    values = {name: value for name, value in (("torque_share", args.torque_share), ("slower", args.slower),
+                                              ("knots", args.knots)) if value is not None}
+    output = None
+    if args.output is not None:
+        from host_tools.client.trajectory import TRAJECTORY_FILE
+        output = outputs.file(args.output, "--output", TRAJECTORY_FILE)
+    execute: tuple[str, ...] = ()
+    if args.execute is not None:
+        execute = tuple(url.strip() for url in args.execute.split(","))
+        if len(execute) != 2 or not all(execute) or execute[0] == execute[1]:
+            raise ValueError(f"--execute {args.execute}: give the two arms' links, arm 1's (it leads) first: "
+                             "LINK,LINK2 as aspod sim --arms 2 says them (its ASPOD-LINK and ASPOD-LINK2 lines)")
+        if args.problem is None and args.links != "rod":
+            raise ValueError("--execute: the example arms' links are 1 m, 1 kg rods; plan them with --links rod")
+    return TwoArmSettings(output=output, execute=execute, key_file=args.key_file, set_speeds=args.set_speeds,
+                          **values)
 
 
 def arm_move_settings(args: argparse.Namespace, outputs: Claims) -> Optional[ArmMoveSettings]:
@@ -839,9 +872,9 @@ def arm_move_settings(args: argparse.Namespace, outputs: Claims) -> Optional[Arm
     if args.problem is not None or args.gravity or args.plot is not None or args.method != "phase":
         raise ValueError("--arm-to plans ASPOD's own arm (the phase-plane planner): without --problem, --gravity, "
                          "--plot or --method")
-    if args.torque_share is not None or args.slower is not None:
-        raise ValueError("--torque-share and --slower shape the two arms' plan; --arm-to plans ASPOD's own arm within "
-                         "its controller's limits")
+    if args.torque_share is not None or args.slower is not None or args.execute is not None:
+        raise ValueError("--torque-share, --slower and --execute are the two arms' plan's; --arm-to plans ASPOD's own "
+                         "arm within its controller's limits, for teleop's `traj load`")
     from host_tools.apps.arm_plan import ARM_JOINTS, homed_pose_rad
     start = {name: math.degrees(q) for name, q in homed_pose_rad().items()}
     for option, texts, into in (("--arm-from", args.arm_from or [], start), ("--arm-to", args.arm_to, None)):

@@ -28,20 +28,22 @@ docs/separate_processes.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import signal
 from pathlib import Path
 from typing import Optional
 
+from firmware_py.arm_config import EXAMPLE_ARM
 from firmware_py.controller import ControllerConfig
 
 from timebase import PacedClock, RealClock
 
 from host_tools.cli.options import (above_zero, bounded, add_arm_args, add_controller_args, add_seed_arg, add_speed_arg,
                                       add_tracker_args, can_interface)
-from host_tools.cli.firmware import (apply_command_line, controller_config, controller_key, log_states, open_port,
-                                     run_sim_over_hal, runtime_folder, serve_endpoint)
+from host_tools.cli.firmware import (apply_command_line, check_params_file, controller_config, controller_key,
+                                     log_states, open_port, run_sim_over_hal, runtime_folder, serve_endpoint)
 from host_tools.cli.plant import resolve_sun, sun_line
 from host_tools.cli.settings import SimSettings
 from host_tools.sessions.capture import CaptureWriter, SessionInfo
@@ -49,6 +51,7 @@ from host_tools.sessions.foxglove import DEFAULT_PORT as FOXGLOVE_PORT
 from host_tools.worlds.control_server import ControlServer
 from host_tools.worlds.runtime_folder import RuntimeFolder
 from host_tools.worlds.plant_control import PlantControl
+from host_tools.worlds.second_arm import SecondArm
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import World
 
@@ -91,32 +94,76 @@ def _run_sim(settings: SimSettings, params_path: Path, config: ControllerConfig,
     port = open_port(settings.port, "aspod sim")
     wall = RealClock()
     baud, paced = settings.port.baud, settings.port.paced
-    world = World(PacedClock(wall, settings.speed), port, psk, seed=settings.seed, baud=baud, paced=paced,
-                  controller_config=config, plant=plant, link_clock=wall)
+    second = None
+    try:
+        if settings.arms == 2:
+            config, second = two_arms(settings, config, params_path)
+        world = World(PacedClock(wall, settings.speed), port, psk, seed=settings.seed, baud=baud, paced=paced,
+                      controller_config=config, plant=plant, link_clock=wall, second_arm=second,
+                      arm_params=None if second is None else second.arm_params)
+    except BaseException:
+        port.close()
+        if second is not None:
+            second.port.close()
+        raise
     params = world.controller.params
-    apply_command_line(world.controller, settings.controller, "aspod sim")
-    log_states(world.controller, "aspod sim")
+    controllers = [world.controller] + ([world.arm2.controller] if world.arm2 is not None else [])
+    for number, controller in enumerate(controllers, 1):
+        prog = "aspod sim" if len(controllers) == 1 else f"aspod sim (arm {number})"
+        apply_command_line(controller, settings.controller, prog)
+        log_states(controller, prog)
     control = None
     try:
+        link2 = None if second is None else second.port.url
         control_path = settings.control_path or (folder.control_path() if folder is not None else None)
         if settings.control and control_path is not None:
-            control = serve_control(control_path, plant, world, port.url, key_path)
+            control = serve_control(control_path, plant, world, port.url, key_path, link2)
         record_outputs(settings, plant, world)
         print(f"ASPOD-LINK {port.url}", flush=True)
         print(f"ASPOD-KEY {key_path}", flush=True)
+        if link2 is not None:
+            print(f"ASPOD-LINK2 {link2}", flush=True)
         if control is not None:
             print(f"ASPOD-CONTROL {control.path}", flush=True)
         if settings.foxglove is not None:
             print(f"ASPOD-FOXGLOVE {serve_foxglove(settings.foxglove, world)}", flush=True)
         log.info(f"aspod sim: controller up at {baud} baud{'' if paced else ' (unpaced)'}, "
-                 f"link timeout {params['link_timeout_s']} s, parameters in {params_path}; Ctrl-C stops")
-        log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
+                 f"link timeout {params['link_timeout_s']} s, parameters in {world.controller.config.params_path}; Ctrl-C stops")
+        if second is not None:
+            world.arm2.on_object_event = lambda text: log.info(f"aspod sim: {text}")
+            log.info(f"aspod sim: two {EXAMPLE_ARM.name} arms {second.bases_m[1][0] - second.bases_m[0][0]:g} m "
+                     f"apart, arm 1's controller at {port.url} leading, arm 2's at {link2} (parameters in "
+                     f"{world.arm2.controller.config.params_path}); the object waits at x {second.waits_at_m[0]:g}, "
+                     f"z {second.waits_at_m[1]:g} m for both hands to close on it (docs/two_arms.md)")
+        else:
+            log.info(sun_line("aspod sim", plant, world.plant.tracker, from_now=from_now))
         world.run(lambda: bool(stopping))
     finally:
         if control is not None:
             control.close()
         world.close()
     return 0
+
+
+def two_arms(settings: SimSettings, config: ControllerConfig, params_path: Path) -> tuple[ControllerConfig, SecondArm]:
+    """`--arms 2`: the report's coordinated system as its example plans it (docs/two_arms.md), two example arms
+    with the example's object waiting at its path's start; the first arm's controller settings and the second
+    arm. Each controller keeps its parameters in a file of its own beside `params_path` (a one-arm simulator's set is
+    ASPOD's arm's: its gains would not suit an example arm), and the second's id is the first's, plus one."""
+    from hil_sim.arm_params import EXAMPLE_ARM_PLANT
+    from hil_sim.held_object import ObjectParams
+    from host_tools.plan.example import PATH
+    paths = [params_path.with_name(f"{params_path.stem}-arm{k}{params_path.suffix}") for k in (1, 2)]
+    for path in paths:
+        check_params_file(path)
+    first = dataclasses.replace(config, arm=EXAMPLE_ARM, params_path=paths[0])
+    ident = config.controller_id
+    second_id = None if ident is None else ident[:-1] + bytes([(ident[-1] + 1) % 256])
+    port2 = open_port(dataclasses.replace(settings.port, tcp=None if settings.port.tcp is None else
+                                          (0 if settings.port.tcp == 0 else settings.port.tcp + 1)), "aspod sim")
+    second = SecondArm(port2, dataclasses.replace(first, params_path=paths[1], controller_id=second_id),
+                       arm_params=EXAMPLE_ARM_PLANT, held_object=ObjectParams(), waits_at_m=PATH[0])
+    return first, second
 
 
 def record_outputs(settings: SimSettings, plant: PlantSettings, world: World) -> None:
@@ -152,11 +199,16 @@ def serve_foxglove(port: int, world: World) -> str:
     return url
 
 
-def serve_control(path: Path, plant: PlantSettings, world: World, link_url: str, key_path: Path) -> ControlServer:
-    """The plant's control endpoint at `path`, served by a task on the link's (wall-clock) scheduler."""
+def serve_control(path: Path, plant: PlantSettings, world: World, link_url: str, key_path: Path,
+                  link2: Optional[str] = None) -> ControlServer:
+    """The plant's control endpoint at `path`, served by a task on the link's (wall-clock) scheduler; with two arms
+    it names the second arm's link too (`link2`), and its `state` carries the object."""
     about = {"link": link_url, "pid": os.getpid(), "key": str(key_path)}
+    if link2 is not None:
+        about["link2"] = link2
     control = PlantControl(world.plant, world.clock, tracker=plant.tracker, about=about,
-                           log=lambda text: log.info(f"aspod sim: {text}"))
+                           log=lambda text: log.info(f"aspod sim: {text}"),
+                           held_object=None if world.arm2 is None else world.arm2.object_state)
     return serve_endpoint(path, control, world.link_scheduler, "aspod sim")
 
 
@@ -167,6 +219,7 @@ EXAMPLES = [
     "aspod sim --tcp 0 --sun-start 2026-03-20T06:50-07:00 --clouds '12:00+300s@0.9'",
     "aspod sim --hal udp_multicast --pty",
     "aspod sim --pty --foxglove",
+    "aspod sim --arms 2 --tcp 0 --no-tracker",
 ]
 
 
@@ -184,6 +237,11 @@ def add_options(sim: argparse.ArgumentParser) -> None:
     add_speed_arg(sim, "the world (one process; with --hal, the plant process, in lock-step with the controller) "
                        "runs")
     add_arm_args(sim)
+    sim.add_argument("--arms", type=int, choices=(1, 2), default=1,
+                     help="2: the report's coordinated system, two example arms 2 m apart (1 m rod links), each "
+                          "with its own controller and link (an ASPOD-LINK2 line names the second's; with --tcp "
+                          "PORT it is PORT + 1), the example's object waiting at its path's start for both hands; "
+                          "aspod plan --links rod --execute LINK,LINK2 carries it (docs/two_arms.md)")
     add_tracker_args(sim)
     sim.add_argument("--record", type=Path, metavar="FILE.pcapng",
                      help="capture every frame on the controller's line, both ways, stamped with the world's time "

@@ -43,6 +43,7 @@ STEP_WALL_PER_S = 4.0          # ... and a step's, this much wall time more per 
 FIND_TIMEOUT_S = 1.0           # `find_simulator`: a socket that does not answer `info` in this is not the one
 MAX_REPLY = 1 << 20
 MAX_SCANNED = 64               # sockets looked at by `find_simulator`
+LINK_KEYS = ("link", "link2")     # what `info` names: the link, and a two-arm simulator's second arm's
 
 
 class ControlUnavailable(OSError):
@@ -166,7 +167,7 @@ def find_simulator(url: str, environ: Optional[Mapping[str, str]] = None) -> Opt
     wanted = link_endpoints(url)
     for path in _sockets(environ):
         found = _asked(path)
-        if found is not None and wanted & link_endpoints(str(found.info.get("link", ""))):
+        if found is not None and any(wanted & link_endpoints(str(found.info.get(key, ""))) for key in LINK_KEYS):
             return found
     return None
 

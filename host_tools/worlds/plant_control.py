@@ -88,8 +88,8 @@ OPS: dict[str, Op] = {op.name: op for op in (
             hi=GRIPPER_STROKE_M, nullable=True, unit="m"),)),
     Op("clouds", "a cloud bank over the solar tracker (the `clouds` fault: the direct beam drops by 95 %)",
        (Arg("on", "switch", "on or off"),)),
-    Op("state", "the plant's true state: joints, gripper, payload, gravity, faults, the tracker beside its sun; "
-                "simulated time, and whether it is held"),
+    Op("state", "the plant's true state: joints, gripper, payload, gravity, faults, the tracker beside its sun, "
+                "the object two arms hold (aspod sim --arms 2); simulated time, and whether it is held"),
     Op("time", "simulated time, and whether it is held"),
     Op("pause", "hold simulated time: the plant and the controller's loops stand still, its link stays up"),
     Op("resume", "pace simulated time again from where it stands"),
@@ -232,7 +232,8 @@ class PlantControl:
 
     def __init__(self, plant: Plant, clock: Clock, *, tracker: bool = True, about: Optional[dict] = None,
                  log: Callable[[str], None] = lambda text: None,
-                 on_change: Callable[[dict], None] = lambda request: None) -> None:
+                 on_change: Callable[[dict], None] = lambda request: None,
+                 held_object: Optional[Callable[[], Optional[dict]]] = None) -> None:
         self.plant = plant
         self.clock = clock
         self.pacer = clock if isinstance(clock, PacedClock) else None
@@ -240,6 +241,7 @@ class PlantControl:
         self.about = dict(about or {})
         self.log = log
         self.on_change = on_change
+        self.held_object = held_object      # a two-arm world's object, as JSON values (SecondArmNodes.object_state)
 
     def request(self, request: Any) -> dict:
         """`handle`, for a caller that cannot wait for a reply to come (the lock-step world, where none does)."""
@@ -326,7 +328,10 @@ class PlantControl:
         return self._fault("clouds", None) if on else self._clear("clouds", None)
 
     def _state(self) -> dict:
-        return {**self._time(), "said": "the plant's true state", "state": plant_state(self.plant, self.tracker)}
+        state = plant_state(self.plant, self.tracker)
+        if self.held_object is not None:
+            state["object"] = self.held_object()
+        return {**self._time(), "said": "the plant's true state", "state": state}
 
     # ---- time ----
     def _time(self) -> dict:

@@ -11,6 +11,7 @@ arm's controller leads, the second follows. With `held_object`, the object the t
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Callable, Optional
 
@@ -19,7 +20,7 @@ from firmware_py.trajectory_sync import SyncRole
 from firmware_py.uart import PacedUart, Port
 from hil_sim.arm_params import ArmPlantParams
 from hil_sim.hal_node import PlantNode
-from hil_sim.held_object import ObjectParams
+from hil_sim.held_object import GraspRefused, ObjectParams
 from hil_sim.plant import PlantParams
 from hil_sim.two_arms import EXAMPLE_BASES_M, TwoArmPlant
 from host_tools.worlds.local_bus import open_local_pair
@@ -28,10 +29,12 @@ from host_tools.worlds.ports import BufferPort, exchange
 from host_tools.worlds.settings import PlantSettings
 from protocol.host_link import HostLink
 from protocol.link import LinkState
+from protocol.states import GraspState
 from timebase.scheduler import Scheduler
 
 NAME = "arm2"        # the second controller's tasks on the shared schedulers: "arm2/hal", ...
 OBJECT_PRIORITY = 20     # the object's task runs after both plants' (priority 10) in each tick
+JAW_GAP_M = 0.02         # the part of the object the jaws close on (its thickness at the grasps)
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,10 @@ class SecondArm:
     # the object both hands may hold (`SecondArmNodes.take_object`), the two arms' bases in its plane; None: none
     held_object: Optional[ObjectParams] = None
     bases_m: tuple[tuple[float, float], tuple[float, float]] = EXAMPLE_BASES_M
+    # where the object waits for the hands (its centre, m, level, on a stand the arms do not feel): each hand that
+    # comes within `held_object.grasp_tolerance_m` of its grasp has the object between its jaws, and once both jaws
+    # close on it the two hands hold it (`aspod sim --arms 2`); None: held only by `SecondArmNodes.take_object`
+    waits_at_m: Optional[tuple[float, float]] = None
 
 
 def leading(config: Optional[ControllerConfig]) -> ControllerConfig:
@@ -61,7 +68,9 @@ class SecondArmNodes:
                  link_scheduler: Scheduler, *, seed: int, baud: int, paced: bool, plant: PlantSettings,
                  direct_values: bool, nonce_source: Callable[[], bytes]) -> None:
         self.plant_bus, self.controller_bus = open_local_pair(carries_values=direct_values)
-        self.plant_node = build_plant_node(self.plant_bus, seed, arm.plant_params, plant, arm_params=arm.arm_params)
+        # the solar tracker is the first arm's station's: the second arm's plant carries none
+        self.plant_node = build_plant_node(self.plant_bus, seed, arm.plant_params,
+                                           dataclasses.replace(plant, tracker=False), arm_params=arm.arm_params)
         self.plant = self.plant_node.plant
         scheduler.add(f"{NAME}/plant", self.plant_node.step, period_s=self.plant_node.period_s)
         self.uart = PacedUart(arm.port, baud, paced)
@@ -73,6 +82,8 @@ class SecondArmNodes:
         # the object the two hands hold: stepped after both plants each tick, once taken (`take_object`)
         self.pair: Optional[TwoArmPlant] = None
         self.holding = False
+        self.waits_at_m = arm.waits_at_m
+        self.on_object_event: Callable[[str], None] = lambda text: None     # each grasp's change, said
         if arm.held_object is not None:
             self.pair = TwoArmPlant((first_plant.plant.arm, self.plant.arm), arm.bases_m, arm.held_object)
             self._dt_s = self.plant_node.period_s
@@ -85,11 +96,55 @@ class SecondArmNodes:
             raise ValueError("this world has no object (SecondArm.held_object)")
         self.pair.grasp()
         self.holding = True
+        self.on_object_event(f"the object: {self.pair.object.last_event.reason}")
 
     def _object_step(self, now: float) -> float:
         if self.holding:
+            obj = self.pair.object
+            seen = obj.event_count
             self.pair.step(self._dt_s)
+            if obj.event_count != seen and obj.last_event is not None:
+                self.on_object_event(f"the object: {obj.last_event.reason}")
+            if self.waits_at_m is not None and all(state is GraspState.DROPPED for state in obj.states):
+                self.holding = False             # a new one waits on the stand for the hands
+                self.on_object_event(f"the object dropped; another waits at x {self.waits_at_m[0]:g}, "
+                                     f"z {self.waits_at_m[1]:g} m")
+        elif self.waits_at_m is not None:
+            self._offer(self.waits_at_m)
         return now              # (a periodic task: anything but None keeps it)
+
+    def _offer(self, centre_m: tuple[float, float]) -> None:
+        """The object waiting at `centre_m`: between the jaws of each hand at its grasp (jaws open wide enough),
+        out of them when the hand leaves without having closed on it; taken once both jaws press on it."""
+        params = self.pair.object.params
+        hands, _ = self.pair.hands()
+        for arm, (hx, hz), (gx, gz) in zip(self.pair.arms, hands, params.grasps_m):
+            at_grasp = math.hypot(hx - centre_m[0] - gx, hz - centre_m[1] - gz) <= params.grasp_tolerance_m
+            if at_grasp and arm.object_width_m is None and arm.gripper_opening_m >= JAW_GAP_M:
+                arm.set_object(JAW_GAP_M)
+            elif not at_grasp and arm.object_width_m is not None and arm.grip_force_n == 0.0:
+                arm.set_object(None)
+        if all(arm.grip_force_n > params.open_jaw_n for arm in self.pair.arms):
+            try:
+                self.take_object()
+            except GraspRefused:
+                pass                # the hands closed at grasps too far apart: it waits on its stand
+
+    def object_state(self) -> Optional[dict]:
+        """The object, as JSON values (the control endpoint's `state`): its pose, velocity, squeeze and each
+        grasp's state and force; None without an object."""
+        if self.pair is None:
+            return None
+        obj = self.pair.object
+        if not self.holding:
+            return {"held": False, "waits_at_m": None if self.waits_at_m is None else list(self.waits_at_m)}
+        held = any(state in (GraspState.HELD, GraspState.SLIPPING) for state in obj.states)
+        x, z, theta = obj.pose
+        vx, vz, w = obj.velocity
+        return {"held": held, "x_m": x, "z_m": z, "angle_deg": math.degrees(theta), "vx_m_s": vx, "vz_m_s": vz,
+                "w_deg_s": math.degrees(w), "squeeze_n": obj.squeeze_n,
+                "grasps": [{"state": state.name, "force_n": force, "limit_n": limit}
+                           for state, force, limit in zip(obj.states, obj.carried_n, obj.limits_n)]}
 
     def close(self) -> None:
         self.plant_bus.shutdown()
