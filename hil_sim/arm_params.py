@@ -331,6 +331,13 @@ class ArmPlantParams:
         if not self.max_substep_s > 0:
             raise ValueError("max_substep_s must be > 0")
 
+    def jaw_force_n(self, hold_duty: float, supply_v: float) -> float:
+        """The force the jaws press an object with, holding at `hold_duty` (the controller's `grip_hold_duty`)
+        from a `supply_v` supply: the gripper's drive stalled on the object, its torque through the lead screw
+        (`ArmPlant.grip_force_n` once the jaws have closed; friction neglected). The grip's limit is friction
+        times this (hil_sim/held_object.py)."""
+        return self.channels[GRIPPER].drive.stall_torque_nm(hold_duty * supply_v) / self.gripper.lead_m_per_rad
+
 
 ARM_PLANT_PARAMS = ArmPlantParams()
 

@@ -34,7 +34,7 @@ from firmware_py.tracker.box import ADC_COUNTS, quantize_dial
 from hil_sim.arm import (ArmPlant, LoadModel, gripper_position_m, joint_inertias_kg_m2, mount_static_moment_nm,
                          static_torques_nm)
 from hil_sim.arm_params import (AL_6061_DENSITY_LB_IN3, ARM_PLANT_PARAMS, BRAKE_HOLD_FACTOR, EXAMPLE_ARM_PLANT,
-                                GRIPPER, J1, J2, J3, MOUNT, REPORT_TEST_LOAD_KG, ArmPlantParams,
+                                J1, J2, J3, MOUNT, REPORT_TEST_LOAD_KG, ArmPlantParams,
                                 square_tube_weight_lb)
 from hil_sim.held_object import ObjectParams
 from hil_sim.plant import Plant, PlantParams
@@ -723,8 +723,7 @@ def object_rows(params: ObjectParams = ObjectParams()) -> list[Row]:
     (kx, kz), (cx, cz) = p.stiffness_n_m, p.damping_n_s_m
     hold_duty = {spec.name: spec.default for spec in arm_config.ASPOD_ARM.parameter_table()}["grip_hold_duty"]
     supply_v = PlantParams().supply_nominal_v
-    jaws_n = (ARM_PLANT_PARAMS.channels[GRIPPER].drive.stall_torque_nm(hold_duty * supply_v)
-              / ARM_PLANT_PARAMS.gripper.lead_m_per_rad)
+    jaws_n = ARM_PLANT_PARAMS.jaw_force_n(hold_duty, supply_v)
     limit_n = p.friction * jaws_n
     period = p.stiffest_period_s()
     report_object = (0.25, 0.25, 0.1)

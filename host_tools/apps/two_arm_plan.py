@@ -10,8 +10,8 @@ plant tick: the second arm's controller armed first, then the first's, which lea
 
 `executable_plan` makes the plan they can follow (the minimum-time plan within a share of the torque limits, run
 slower), and `controller_knots` each arm's knots for its controller, refused (PlanError) if the curve through them
-would pass a joint's soft limit or speed limit: what `aspod plan --output FILE` writes (host_tools/client/
-trajectory.py's two-arm file).
+would pass a joint's soft limit or speed limit, or a hand's force the grip's limit (`within_grip`): what `aspod plan
+--output FILE` writes (host_tools/client/trajectory.py's two-arm file).
 """
 from __future__ import annotations
 
@@ -24,6 +24,9 @@ import numpy as np
 from firmware_py.arm_config import ArmDescription, highest_speed_dps
 from firmware_py.hermite import HermiteProfile
 from firmware_py.trajectory import TRAJECTORY_KNOTS
+from hil_sim.arm_params import EXAMPLE_ARM_PLANT, ArmPlantParams
+from hil_sim.held_object import ObjectParams
+from hil_sim.plant import PlantParams
 from host_tools.apps.arm_plan import ARM_JOINTS, homed_pose_rad, knots_within_speed
 from host_tools.client.trajectory import (Caller, Knot, TrajectoryRefused, point_message, run_trajectory,
                                          upload_trajectory)
@@ -102,6 +105,49 @@ def executable_plan(problem: Problem, torque_share: float, slower: float, gridpo
     return limited, slowed(plan.profile, slower)
 
 
+GRIP_SAMPLES = 8         # the hands' forces are judged at this many times on each of the plan's intervals, its ends too
+
+
+def hand_forces_n(problem: Problem, profile: Profile, per_interval: int = GRIP_SAMPLES
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The times (K,) and the force [N] across each hand's grasp there (K, 2) along `profile`: the object's mass
+    times its acceleration less gravity, shared between the hands as the plan shares it (`TwoArms.grasp_forces`:
+    no squeeze). Judged at `per_interval` times on each interval of constant s'', its two ends with its own s''
+    (where s'' jumps the force does too)."""
+    tau = np.linspace(0.0, 1.0, per_interval)[None, :] * np.diff(profile.t)[:, None]      # (intervals, k)
+    sdd = np.repeat(profile.sdd[:, None], per_interval, axis=1)
+    sd = profile.sd[:-1, None] + sdd * tau
+    s = np.clip(profile.s[:-1, None] + profile.sd[:-1, None] * tau + sdd * tau * tau / 2.0, profile.s[0], profile.s[-1])
+    points = problem.path(s.ravel())
+    w_dd = points.w_s * sdd.ravel()[:, None] + points.w_ss * (sd.ravel() ** 2)[:, None]
+    grasp = problem.system.grasp_forces(w_dd)
+    forces = np.stack([np.hypot(grasp[:, 0], grasp[:, 1]), np.hypot(grasp[:, 2], grasp[:, 3])], axis=1)
+    return (profile.t[:-1, None] + tau).ravel(), forces
+
+
+def grip_limit_n(description: ArmDescription, held: ObjectParams = ObjectParams(),
+                 plant: ArmPlantParams = EXAMPLE_ARM_PLANT) -> tuple[float, str]:
+    """The grip's limit [N] of an arm of `description` holding `held` (the plant's object: its friction) and what
+    sets it: friction times the jaws' force, the plant's gripper holding at the controller's default
+    `grip_hold_duty` from the nominal supply (`ArmPlantParams.jaw_force_n`; hil_sim/held_object.py)."""
+    duty = next(spec.default for spec in description.parameter_table() if spec.name == "grip_hold_duty")
+    supply_v = PlantParams().supply_nominal_v
+    jaws_n = plant.jaw_force_n(duty, supply_v)
+    return held.friction * jaws_n, (f"friction {held.friction:g} x the jaws' {jaws_n:.1f} N at grip_hold_duty "
+                                    f"{duty:g} and {supply_v:g} V")
+
+
+def within_grip(problem: Problem, profile: Profile, limit_n: float, why: str) -> None:
+    """PlanError naming the arm, the force and when, if a hand's force (`hand_forces_n`) would pass the grip's
+    limit `limit_n` (`why`: what sets it) anywhere along `profile`: the object would slip in that hand."""
+    times, forces = hand_forces_n(problem, profile)
+    k, arm = np.unravel_index(int(np.argmax(forces)), forces.shape)
+    if forces[k, arm] > limit_n:
+        raise PlanError("bounds", f"arm {arm + 1}'s grasp carries {forces[k, arm]:.1f} N at t = {times[k]:.3f} s, "
+                                  f"above the grip's limit {limit_n:.1f} N ({why}): the object would slip; the plan "
+                                  "must be gentler or the object lighter")
+
+
 def speed_limits_dps(description: ArmDescription) -> dict[str, tuple[float, str]]:
     """Each joint's fastest trajectory speed [deg/s] for a controller of `description`, and what sets it: its speed
     cap (the most its `<joint>_speed_dps` may be), or the TrajPoint's declared range of a knot's velocity."""
@@ -122,13 +168,15 @@ def curve_bounds_deg(knots: Sequence[Knot], joint: int) -> tuple[float, float, f
     return math.degrees(lowest), math.degrees(highest), math.degrees(top)
 
 
-def controller_knots(problem: Problem, profile: Profile, fewest: int, description: ArmDescription
-                     ) -> tuple[list[Knot], list[Knot]]:
+def controller_knots(problem: Problem, profile: Profile, fewest: int, description: ArmDescription,
+                     held_object: ObjectParams = ObjectParams()) -> tuple[list[Knot], list[Knot]]:
     """Each arm's knots along `profile` for its controller (both arms' `description`): its shoulder and elbow as the
     plan moves them, the other joints where `home all` leaves them; `fewest` knots or more, until the curve through
-    them stays within each joint's speed limit (`knots_within_speed`). PlanError naming the arm, the joint and the
-    limit if the curve would pass its soft limit or its speed limit (`speed_limits_dps`) anywhere, as TrajRun would
-    refuse it, or a knot the TrajPoint cannot carry."""
+    them stays within each joint's speed limit (`knots_within_speed`). PlanError naming the arm and the force if a
+    hand would carry more than the grip holds (`within_grip`, `held_object`'s friction: the plant's object), or
+    naming the arm, the joint and the limit if the curve would pass its soft limit or its speed limit
+    (`speed_limits_dps`) anywhere, as TrajRun would refuse it, or a knot the TrajPoint cannot carry."""
+    within_grip(problem, profile, *grip_limit_n(description, held_object))
     held = [math.degrees(q) for q in homed_pose_rad(description).values()]
     limits = speed_limits_dps(description)
     speeds = {name: math.radians(dps) for name, (dps, _) in limits.items()}

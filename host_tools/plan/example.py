@@ -16,6 +16,7 @@ What the report does not say, and what is chosen here (docs/planning.md says why
 """
 from __future__ import annotations
 
+from hil_sim.held_object import ObjectParams
 from host_tools.plan.bounds import Limits
 from host_tools.plan.model import GRAVITY, Held, two_arms
 from host_tools.plan.paths import PolynomialPath
@@ -32,9 +33,12 @@ DP_INTERVALS, DP_SPEEDS, DP_SPEED_STEP = 100, 201, 0.005
 
 
 def report_problem(gravity: bool = False, links: str = "point") -> Problem:
-    """The example as planned here; `gravity` and `links` change the model (the defaults match the report)."""
+    """The example as planned here; `gravity` and `links` change the model (the defaults match the report). Its
+    object is the plant's (`ObjectParams`: the report's 0.25 kg, 0.25 m x 0.1 m, held at its ends), one declaration
+    for the plan, its grip check (host_tools/apps/two_arm_plan.py) and the object the plant's two arms carry."""
+    held = ObjectParams()
     system = two_arms(separation=2.0, lengths=(1.0, 1.0), masses=(1.0, 1.0), elbows=(1, 1), links=links,
-                      held=Held(mass=0.25, size=(0.25, 0.1), grasps=((-0.125, 0.0), (0.125, 0.0))),
+                      held=Held(mass=held.mass_kg, size=held.size_m, grasps=held.grasps_m),
                       gravity=GRAVITY if gravity else 0.0)
     return Problem(system, PolynomialPath.line(*PATH), Limits.symmetric(LIMITS))
 

@@ -195,17 +195,23 @@ class TwoArms:
         """Joint torques (N, 4) of the closed chain moving as (q, qd, qdd), the load shared as above. The object's
         acceleration is arm 1's hand's (its orientation is fixed)."""
         gravity = self.gravity if gravity is None else gravity
-        share, _ = self._share()
-        arm1, arm2 = self.arms
+        arm1 = self.arms[0]
         w_dd = np.einsum("nij,nj->ni", arm1.jacobian(q[:, :2]), qdd[:, :2]) + arm1.hand_bias(q[:, :2], qd[:, :2])
-        force = self.held.mass * (w_dd + np.array([0.0, gravity]))
-        grasp = np.concatenate([force, np.zeros((len(q), 1))], axis=1) @ share.T       # (N, 4): F1x F1y F2x F2y
+        grasp = self.grasp_forces(w_dd, gravity)
         u = []
         for k, arm in enumerate(self.arms):
             sl = slice(2 * k, 2 * k + 2)
             own = arm.torques(q[:, sl], qd[:, sl], qdd[:, sl], gravity)
             u.append(own + np.einsum("nji,nj->ni", arm.jacobian(q[:, sl]), grasp[:, sl]))
         return np.concatenate(u, axis=1)
+
+    def grasp_forces(self, w_dd: np.ndarray, gravity=None) -> np.ndarray:
+        """(N, 4): F1x F1y F2x F2y, the force each hand puts on the object accelerating at `w_dd` ((N, 2), m/s^2)
+        against gravity: m (w'' + g), shared as above (no squeeze)."""
+        gravity = self.gravity if gravity is None else gravity
+        share, _ = self._share()
+        force = self.held.mass * (w_dd + np.array([0.0, gravity]))
+        return np.concatenate([force, np.zeros((len(w_dd), 1))], axis=1) @ share.T
 
     def squeeze_direction(self, q: np.ndarray) -> np.ndarray:
         """(N, 4): the joint torques per newton of squeeze (the free grasp force, positive pressing inwards)."""

@@ -1,0 +1,70 @@
+"""The grip's limit (issue 39): a two-arm plan whose hands would carry more than friction x the jaws' force is
+refused before anything moves (host_tools/apps/two_arm_plan.py `within_grip`), and a grasp that slips or drops in the
+plant is a fault of the controller holding it (GRIP_SLIP, from the wrist's GRASP_FORCE frame)."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from firmware_py.arm_config import EXAMPLE_ARM
+from hil_sim.arm_params import ARM_PLANT_PARAMS
+from hil_sim.held_object import ObjectParams
+from host_tools.apps.two_arm_plan import controller_knots, executable_plan, grip_limit_n, hand_forces_n
+from host_tools.cli.main import main
+from host_tools.plan.errors import PlanError
+from host_tools.plan.example import report_problem
+
+PLAN = ["plan", "--links", "rod", "--gravity", "--objective", "time", "--nodes", "199"]     # the bench's 200 points
+
+
+def test_the_grips_limit_is_friction_times_the_plants_jaws():
+    """0.5 x 117.8 N at the example arm's grip_hold_duty 0.3 from 28 V (docs/fidelity.md G7, G8)."""
+    limit, why = grip_limit_n(EXAMPLE_ARM)
+    assert limit == pytest.approx(58.9, abs=0.05)
+    assert why == "friction 0.5 x the jaws' 117.8 N at grip_hold_duty 0.3 and 28 V"
+    assert grip_limit_n(EXAMPLE_ARM, ObjectParams(friction=0.25))[0] == pytest.approx(limit / 2)
+    assert ARM_PLANT_PARAMS.jaw_force_n(0.3, 28.0) == pytest.approx(117.8, abs=0.05)
+
+
+def test_the_hands_share_the_objects_weight_and_its_acceleration():
+    """Each hand carries half of m (w'' + g): along the example's executable plan (1.06 s in Earth gravity) 1.22 to
+    1.41 N about the weight's half (1.226 N), the two hands alike; 3.73 N at most at the plan's full pace (0.53 s)."""
+    problem = report_problem(gravity=True, links="rod")
+    limited, profile = executable_plan(problem, 0.8, 2.0, 200)
+    times, forces = hand_forces_n(limited, profile)
+    assert times[0] == 0.0 and times[-1] == pytest.approx(profile.duration)
+    assert forces[:, 0] == pytest.approx(forces[:, 1])
+    assert forces.min() == pytest.approx(1.2240, abs=1e-3) and forces.max() == pytest.approx(1.4127, abs=1e-3)
+    fast, full = executable_plan(problem, 0.8, 1.0, 200)
+    assert hand_forces_n(fast, full)[1].max() == pytest.approx(3.733, abs=1e-3)
+
+
+def test_a_plan_the_grip_cannot_hold_is_refused_naming_the_arm_and_the_force():
+    """A weak grip (friction 0.03: 3.5 N) holds the example run 2x slower (1.41 N) but not at the plan's own pace
+    (3.73 N), either hand (they share it equally)."""
+    problem = report_problem(gravity=True, links="rod")
+    weak = ObjectParams(friction=0.03)
+    limited, profile = executable_plan(problem, 0.8, 2.0, 200)
+    assert len(controller_knots(limited, profile, 41, EXAMPLE_ARM, weak)[0]) >= 41
+    fast, full = executable_plan(problem, 0.8, 1.0, 200)
+    with pytest.raises(PlanError, match=r"arm [12]'s grasp carries 3\.7 N at t = 0\.\d+ s, above the grip's limit 3\.5 N "
+                                        r"\(friction 0\.03 x the jaws' 117\.8 N at grip_hold_duty 0\.3 and 28 V\): "
+                                        r"the object would slip"):
+        controller_knots(fast, full, 41, EXAMPLE_ARM, weak)
+
+
+def test_aspod_plan_refuses_a_heavy_object_before_writing_anything(tmp_path, capsys):
+    """A 20 kg object on arms strong enough to plan it (300 N m): each hand carries 98 N at rest, 123.7 N at most
+    along the plan, above the grip's 58.9 N. `aspod plan --output` refuses, naming the arm and the force, and writes
+    nothing."""
+    problem = tmp_path / "heavy.json"
+    problem.write_text(json.dumps({"path": {"kind": "line", "start": [0.688, 0.331], "end": [1.716, 0.504]},
+                                   "arms": {"links": "rod"}, "object": {"mass": 20.0}, "gravity": 9.81,
+                                   "limits": {"symmetric": [300, 300, 300, 300]}}))
+    out = tmp_path / "two.json"
+    assert main(["plan", "--problem", str(problem), "--objective", "time", "--nodes", "199", "--output",
+                 str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "arm 1's grasp carries 123.7 N at t = 0.470 s" in err and "above the grip's limit 58.9 N" in err, err
+    assert not out.exists()
