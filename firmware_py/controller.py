@@ -58,6 +58,7 @@ from firmware_py.arm import ArmController, Measured
 from firmware_py.arm_commands import ArmCommands
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
+from firmware_py.grasp_watch import GraspWatch
 from firmware_py.handlers import CommandOwner, handles, handler_table
 from kernels import compiled_by_default
 from firmware_py.param_commands import ParamCommands
@@ -228,6 +229,8 @@ class Controller(CommandOwner):
         # a coordinated start with another arm's controller (trajectory_sync.py); None: TrajRun starts at once
         self.trajectory_sync = (TrajectorySync(self.config.trajectory_sync, hal, self.arm)
                                 if self.config.trajectory_sync is not None else None)
+        # the wrist's GRASP_FORCE while the plant holds an object: a slip or a drop is GRIP_SLIP (grasp_watch.py)
+        self.grasp = GraspWatch(hal, lambda reading, now: self._trip(Fault.GRIP_SLIP, now))
         self.arm_commands = ArmCommands(self.arm, lambda: self.supervisor.state, self.trajectory_sync)
         self.param_commands = ParamCommands(self.params, self.arm.in_motion_by)
         self.tracker_commands = TrackerCommands(self.tracker, self._wake_tracker)

@@ -24,6 +24,9 @@ FAULT_REASON: dict[Fault, Reason] = {
     Fault.OVER_TEMPERATURE: Reason.OVER_TEMPERATURE,
     Fault.SCHEDULER_OVERRUN: Reason.HOST_OVERLOADED,
     Fault.UNCOMMANDED_MOTION: Reason.UNCOMMANDED_MOTION,
+    # no reason of its own: a new Reason would change the link's schema (every capture's hash). FAULT_LATCHED's remedy
+    # sends the operator to the fault bits, where GRIP_SLIP names the slip (docs/two_arms.md)
+    Fault.GRIP_SLIP: Reason.FAULT_LATCHED,
 }
 
 SAFE_STATES = (ControllerState.FAULT, ControllerState.ESTOP)

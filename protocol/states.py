@@ -33,6 +33,7 @@ class Fault(enum.IntFlag):
     OPEN_CIRCUIT = 1 << 11
     GRIPPER = 1 << 12
     UNCOMMANDED_MOTION = 1 << 13
+    GRIP_SLIP = 1 << 14
 
 
 FAULT_DOCS: dict[Fault, tuple[str, str]] = {
@@ -71,6 +72,11 @@ FAULT_DOCS: dict[Fault, tuple[str, str]] = {
                                "node on the HAL bus, a driver or relay that does not obey, a brake that does not "
                                "hold)",
                                "find what drives it, then `reset` once the joints are still"),
+    Fault.GRIP_SLIP: ("the object two arms carry slipped in this arm's grasp or dropped from it: the force across the "
+                      "grasp passed the grip's limit, friction x the jaws' force (the wrist's GRASP_FORCE frame), or "
+                      "the jaws opened; the other arm pushed or pulled too hard, or this one moved alone",
+                      "move the arms so that the hands are the grasps' distance apart (or take the object again), "
+                      "then `reset`"),
 }
 
 assert set(FAULT_DOCS) == {f for f in Fault if f != Fault.NONE}

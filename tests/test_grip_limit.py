@@ -7,13 +7,21 @@ import json
 
 import pytest
 
+from bench.bench_two_arms import _ready
 from firmware_py.arm_config import EXAMPLE_ARM
-from hil_sim.arm_params import ARM_PLANT_PARAMS
+from firmware_py.controller import ControllerConfig
+from hil_sim.arm_params import ARM_PLANT_PARAMS, EXAMPLE_ARM_PLANT
 from hil_sim.held_object import ObjectParams
-from host_tools.apps.two_arm_plan import controller_knots, executable_plan, grip_limit_n, hand_forces_n
+from host_tools.apps.two_arm_plan import (controller_knots, executable_plan, grip_limit_n, hand_forces_n,
+                                         start_pose_deg)
 from host_tools.cli.main import main
 from host_tools.plan.errors import PlanError
 from host_tools.plan.example import report_problem
+from host_tools.worlds.settings import PlantSettings
+from host_tools.worlds.world import LockstepBench
+from protocol.messages import MESSAGES as M
+from protocol.reasons import Reason
+from protocol.states import Axis, ControllerState, Fault, GraspState
 
 PLAN = ["plan", "--links", "rod", "--gravity", "--objective", "time", "--nodes", "199"]     # the bench's 200 points
 
@@ -68,3 +76,51 @@ def test_aspod_plan_refuses_a_heavy_object_before_writing_anything(tmp_path, cap
     err = capsys.readouterr().err
     assert "arm 1's grasp carries 123.7 N at t = 0.470 s" in err and "above the grip's limit 58.9 N" in err, err
     assert not out.exists()
+
+
+def holding(params: ObjectParams = ObjectParams()) -> LockstepBench:
+    """Two example arms on the lock-step bench at the example plan's start, their jaws closed on the object, holding
+    it (as bench/bench_two_arms.py readies them)."""
+    bench = LockstepBench(seed=5, arms=2, controller_config=ControllerConfig(arm=EXAMPLE_ARM),
+                          arm_params=EXAMPLE_ARM_PLANT, held_object=params,
+                          plant=PlantSettings(gravity="earth", tracker=False))
+    arm2 = bench.world.arm2
+    assert bench.connect() and bench.arm2.connect(arm2.controller)
+    arms = ((bench.call, bench.events, bench.controller, bench.world.plant),
+            (bench.arm2.call, bench.arm2.events, arm2.controller, arm2.plant))
+    for (call, events, controller, plant), start in zip(arms, start_pose_deg(report_problem(gravity=True,
+                                                                                            links="rod"))):
+        _ready(bench, call, events, controller, plant, start)
+    return bench
+
+
+def test_a_jog_past_the_grips_limit_faults_the_arm_whose_grasp_slips():
+    """Both example arms hold the object; arm 2's grip is weak (grip_hold_duty 0.05: its jaws 19 N, the grip's limit
+    9.7 N). Jogging arm 2's shoulder at 5 deg/s pulls on the object until, about 0.7 s on, arm 2's grasp slides off the
+    object's end: its controller hears it (GRASP_FORCE DROPPED) and faults, GRIP_SLIP alone, StateChanged's reason
+    FAULT_LATCHED (no reason of its own: the link's schema stays as it was). Arm 1's grasp held: its controller
+    stays ENABLED. Before the object is taken no GRASP_FORCE is on either bus; then one every 10 ms on each."""
+    bench = holding()
+    try:
+        world, arm2 = bench.world, bench.world.arm2
+        assert "GRASP_FORCE" not in world.plant_node.sent_by_name | arm2.plant_node.sent_by_name
+        arm2.take_object()
+        bench.run_for(0.5)
+        assert arm2.wrists.sent == [50, 50]
+        assert bench.controller.grasp.reading.state is GraspState.HELD
+        assert bench.arm2.call(M["ParamSet"]("grip_hold_duty", 0.05)).reply.result == Reason.OK
+        bench.run_for(0.2)
+        assert arm2.controller.grasp.reading.limit_n == pytest.approx(9.7, abs=0.1)
+        assert bench.arm2.call(M["Jog"](int(Axis.J1), 5.0)).reply.result == Reason.OK
+        assert bench.wait_until(lambda: any(e.spec.name == "StateChanged" and e.state == ControllerState.FAULT
+                                            for e in bench.arm2.events), 5.0)
+        fault = next(e for e in bench.arm2.events if e.spec.name == "StateChanged" and e.state == ControllerState.FAULT)
+        assert (Fault(fault.faults), Reason(fault.reason)) == (Fault.GRIP_SLIP, Reason.FAULT_LATCHED)
+        event = arm2.pair.object.last_event
+        assert (event.grasp, event.state) == (1, GraspState.DROPPED) and event.force_n > event.limit_n, event
+        lost = arm2.controller.grasp.lost
+        assert lost.state is GraspState.DROPPED and lost.limit_n == pytest.approx(event.limit_n, abs=0.01)
+        assert arm2.pair.object.states[0] is GraspState.HELD
+        assert bench.controller.supervisor.state is ControllerState.ENABLED and bench.controller.grasp.losses == 0
+    finally:
+        bench.close()

@@ -5,8 +5,9 @@ Each arm is what it would be alone: a controller and the plant's side of its mot
 joins them is physical, so it is the plant's: both plant nodes step on one scheduler, tick for tick (their
 PLANT_SYNC ticks are one count), and the plant relays the leading controller's TRAJ_START from its arm's bus to the
 other's, as a sync line between the two controllers would carry it (firmware_py/trajectory_sync.py). The first
-arm's controller leads, the second follows. With `held_object`, the object the two hands hold
-(hil_sim/two_arms.py) is stepped after both plants each tick once taken, and each arm's joints carry its grasp.
+arm's controller leads, the second follows. With `held_object`, the object the two hands hold (hil_sim/two_arms.py) is stepped after both plants each tick once taken, each arm's
+joints carry its grasp, and each arm's wrist sensor tells its controller its grasp (GRASP_FORCE,
+hil_sim/wrist_sensor.py).
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from hil_sim.hal_node import PlantNode
 from hil_sim.held_object import GraspRefused, ObjectParams
 from hil_sim.plant import PlantParams
 from hil_sim.two_arms import EXAMPLE_BASES_M, TwoArmPlant
+from hil_sim.wrist_sensor import WristSensors
 from host_tools.worlds.local_bus import open_local_pair
 from host_tools.worlds.nodes import build_controller, build_plant_node
 from host_tools.worlds.ports import BufferPort, exchange
@@ -86,6 +88,7 @@ class SecondArmNodes:
         self.on_object_event: Callable[[str], None] = lambda text: None     # each grasp's change, said
         if arm.held_object is not None:
             self.pair = TwoArmPlant((first_plant.plant.arm, self.plant.arm), arm.bases_m, arm.held_object)
+            self.wrists = WristSensors(self.pair, (first_plant, self.plant_node))
             self._dt_s = self.plant_node.period_s
             scheduler.add("object", self._object_step, period_s=self._dt_s, priority=OBJECT_PRIORITY)
 
@@ -103,6 +106,7 @@ class SecondArmNodes:
             obj = self.pair.object
             seen = obj.event_count
             self.pair.step(self._dt_s)
+            self.wrists.step()
             if obj.event_count != seen and obj.last_event is not None:
                 self.on_object_event(f"the object: {obj.last_event.reason}")
             if self.waits_at_m is not None and all(state is GraspState.DROPPED for state in obj.states):
