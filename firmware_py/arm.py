@@ -302,8 +302,12 @@ class ArmController:
 
     def trajectory_running(self) -> bool:
         """Whether a joint still runs the motion the last trajectory started on it."""
+        return self.still_running(self._trajectory)
+
+    def still_running(self, started: dict[int, int]) -> bool:
+        """Whether a joint still runs its motion of `started` (channel -> motion id)."""
         return any(self.channels[k].motion_id == motion_id and self.channels[k].outcome is MotionOutcome.RUNNING
-                   for k, motion_id in self._trajectory.items())
+                   for k, motion_id in started.items())
 
     def _started(self, index: int, channel, refusal: Refusal, detail: str) -> MotionStart:
         """The MotionStart of one channel's command: its new motion, or the refusal with the limit it broke."""

@@ -84,7 +84,10 @@ class ArmCommands(CommandOwner):
 
     @handles("Stop")
     def _stop(self, msg: Message, now: float) -> Message:
-        """Every axis decelerates at its limit and holds; accepted in any state."""
+        """Every axis decelerates at its limit and holds; accepted in any state. A coordinated trajectory stops on
+        the other arm too (`TrajectorySync.stop`)."""
+        if self.sync is not None:
+            self.sync.stop(now)
         self.arm.stop_all(now)
         return M["Result"](int(Reason.OK))
 

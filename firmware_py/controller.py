@@ -213,7 +213,14 @@ class Controller(CommandOwner):
         self._outputs_period_s = hal.codec.cycle_time_s("CTRL_OUTPUTS") or 0.01
         self._outputs_sent = False
         self._outputs_due_s = 0.0
+        # a coordinated start with another arm's controller (trajectory_sync.py); None: TrajRun starts at once
+        self.trajectory_sync = (TrajectorySync(self.config.trajectory_sync, hal, self.arm)
+                                if self.config.trajectory_sync is not None else None)
         self.supervisor.add_safe_hook("outputs off, brakes on", self._outputs_safe)
+        if self.trajectory_sync is not None:
+            # before the arm's hook: it judges whether the coordinated trajectory still runs
+            self.supervisor.add_safe_hook("the other arm's coordinated trajectory stops too",
+                                          lambda: self.trajectory_sync.stop(self._now()))
         self.supervisor.add_safe_hook("arm: every motor off, brakes on", self.arm.safe)
         self.supervisor.add_safe_hook("tracker: relays open, brakes on, speed switches to brake", self.tracker.safe)
         self.supervisor.add_fault_check(Fault.HAL_STALE, lambda: (self.hal.is_stale(self._now(), self.params["hal_stale_s"])
@@ -226,9 +233,6 @@ class Controller(CommandOwner):
         self.foreign = ForeignCommands()
         self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
         self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
-        # a coordinated start with another arm's controller (trajectory_sync.py); None: TrajRun starts at once
-        self.trajectory_sync = (TrajectorySync(self.config.trajectory_sync, hal, self.arm)
-                                if self.config.trajectory_sync is not None else None)
         # the wrist's GRASP_FORCE while the plant holds an object: a slip or a drop is GRIP_SLIP (grasp_watch.py)
         self.grasp = GraspWatch(hal, lambda reading, now: self._trip(Fault.GRIP_SLIP, now))
         self.arm_commands = ArmCommands(self.arm, lambda: self.supervisor.state, self.trajectory_sync)

@@ -10,6 +10,14 @@ or another knot count, or a joint of it no longer runs it (a Move of that joint 
 they hold (MotionDone STOPPED) and nothing has moved; so do a leader's when its bus refuses its TRAJ_START. A host
 arms the followers first, then runs the leader.
 
+Stopped together. While a coordinated trajectory is armed or runs, a Stop of either controller, its safe state
+(EStop, a fault, Disable, the session's close) or a follower's start it cannot follow ends it on both arms: the
+controller says so in a TRAJ_STOP (`stop`), which the plant relays to the other arm's bus, and the other controller
+stops its own coordinated trajectory as a Stop does (MotionDone STOPPED; a follower stopped within the leader's lead
+never starts), sending none back. A controller takes only a relayed TRAJ_STOP (`relayed` 1), the plant relays only one
+a controller sent (`relayed` 0): no stop circles, and a bus that gives a controller its own stop back does not stop a
+later trajectory of its own.
+
 With no role (the default) TrajRun starts at once, as a lone controller's does, and nothing here is built: the bus
 carries no new frame.
 """
@@ -53,7 +61,11 @@ class TrajectorySync:
         self.unmatched = 0           # TRAJ_STARTs a follower could not follow (none armed, another count, too late or
                                      # too far ahead, a joint no longer running it)
         self.last_start_tick: Optional[int] = None
+        self.coordinated: dict[int, int] = {}   # channel -> motion id of the coordinated trajectory armed or running
+        self.stops_sent = 0          # TRAJ_STOPs sent: this arm's coordinated trajectory stopped, so the other's
+        self.stopped_by_peer = 0     # coordinated trajectories stopped by the other arm's relayed TRAJ_STOP
         self._layout = hal.codec.layout("TRAJ_START", ("start_tick", "knots"))
+        self._stop_layout = hal.on_frame("TRAJ_STOP", self._on_stop, ("relayed",))
         if role is SyncRole.FOLLOWER:
             hal.on_frame("TRAJ_START", self._on_start, ("start_tick", "knots"))
 
@@ -77,11 +89,32 @@ class TrajectorySync:
                 return axis, start
             self.starts += 1
             self.last_start_tick = tick
+            self.coordinated = dict(start.started)
             return axis, start
         axis, start = self.arm.run_trajectory(profiles, now + 2 * ARMED_S)       # held at its start meanwhile
         if start.reason is Reason.OK:
             self.armed = _Armed(knots, dict(start.started), now + ARMED_S)
+            self.coordinated = dict(start.started)
         return axis, start
+
+    def stop(self, now: float) -> None:
+        """This arm's coordinated trajectory, if one is armed or runs, is being stopped (Stop, the safe state): the
+        other arm's stops too (TRAJ_STOP). Called before the arm's own stop, while its joints still run it."""
+        if self.arm.still_running(self.coordinated):
+            if self.hal.send_frame(self._stop_layout, [0]):
+                self.stops_sent += 1
+        self.coordinated = {}
+        self.armed = None
+
+    def _on_stop(self, values: list, now: float) -> None:
+        """The other arm's coordinated trajectory stopped (relayed by the plant): this arm's stops as a Stop stops it."""
+        if not values[0]:
+            return                   # not relayed: this controller's own, given back by its bus
+        if self.arm.still_running(self.coordinated):
+            self.arm.stop_trajectory(self.coordinated, now)
+            self.stopped_by_peer += 1
+        self.coordinated = {}
+        self.armed = None
 
     def check(self, now: float) -> None:
         """A follower's armed trajectory that waited `ARMED_S` in vain stops."""
@@ -116,6 +149,8 @@ class TrajectorySync:
         return armed.deadline_s + LEAD_TICKS * self.hal.inputs.tick_period_s
 
     def _disarm(self, now: float) -> None:
+        """The armed trajectory stops where it holds, and the leader's, if it started one this arm cannot follow."""
         if self.armed is not None:
-            self.arm.stop_trajectory(self.armed.started, now)
-            self.armed = None
+            started = self.armed.started
+            self.stop(now)
+            self.arm.stop_trajectory(started, now)

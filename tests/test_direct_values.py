@@ -134,7 +134,7 @@ def test_the_direct_carrier_hands_every_handler_what_packed_frames_give_it(monke
     frames, frame_counters, frame_result, packed = session(False, monkeypatch)
     assert packed_in_direct == []                                   # the direct world packed not one frame
     # the other, every kind one arm sends (the two-arm frames but)
-    assert set(packed) == LAYOUTS.keys() - {"CTRL_SYNC", "TRAJ_START", "GRASP_FORCE"}
+    assert set(packed) == LAYOUTS.keys() - {"CTRL_SYNC", "TRAJ_START", "TRAJ_STOP", "GRASP_FORCE"}
     assert len(direct) == len(frames) > 10_000
     for k, (a, b) in enumerate(zip(direct, frames)):
         assert a == b, f"handler call {k} differs: direct {a} against packed {b}"

@@ -93,13 +93,13 @@ def mean_supply(samples) -> float:
 # --- codec -----------------------------------------------------------------------------------
 
 def test_dbc_declares_the_bus():
-    assert CODEC.names == ("PLANT_SYNC", "CTRL_SYNC", "TRAJ_START", "CTRL_OUTPUTS", "TRACKER_CMD",
+    assert CODEC.names == ("PLANT_SYNC", "CTRL_SYNC", "TRAJ_START", "TRAJ_STOP", "CTRL_OUTPUTS", "TRACKER_CMD",
                            "MOTOR_CMD", "DIGITAL_IN", "MOTOR_FB", "ANALOG_IN", "TRACKER_SENSE", "TRACKER_POS",
                            "GRASP_FORCE")
     assert (SYNC_ID, CODEC.frame_id("CTRL_SYNC"), OUTPUTS_ID, ANALOG_ID) == (0x010, 0x011, 0x020, 0x280)
     senders = {m.name: m.senders for m in CODEC.database.messages}
     assert senders == {"PLANT_SYNC": ["PLANT"], "CTRL_SYNC": ["CONTROLLER"], "TRAJ_START": ["CONTROLLER"],
-                       "GRASP_FORCE": ["PLANT"], "CTRL_OUTPUTS": ["CONTROLLER"],
+                       "TRAJ_STOP": ["CONTROLLER"], "GRASP_FORCE": ["PLANT"], "CTRL_OUTPUTS": ["CONTROLLER"],
                        "MOTOR_CMD": ["CONTROLLER"],
                        "DIGITAL_IN": ["PLANT"], "MOTOR_FB": ["PLANT"], "ANALOG_IN": ["PLANT"],
                        "TRACKER_CMD": ["CONTROLLER"], "TRACKER_SENSE": ["PLANT"], "TRACKER_POS": ["PLANT"]}
@@ -174,7 +174,7 @@ def test_analog_in_round_trip_within_resolution(supply_v, temp_c):
 
 
 def test_encode_rejects_what_the_dbc_does_not_declare():
-    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_SYNC, TRAJ_START, CTRL_OUTPUTS, TRACKER_CMD, MOTOR_CMD"):
+    with pytest.raises(HalEncodeError, match="declared: PLANT_SYNC, CTRL_SYNC, TRAJ_START, TRAJ_STOP, CTRL_OUTPUTS, TRACKER_CMD"):
         CODEC.encode("MOTOR_CMD_0", duty=0.5)
     with pytest.raises(HalEncodeError, match="controller_temp_c"):
         CODEC.encode("ANALOG_IN", supply_v=28.0)

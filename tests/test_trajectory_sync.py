@@ -18,7 +18,7 @@ from host_tools.worlds.local_bus import LocalBus
 from protocol.hal import BusView, HalCodec, HalEndpoint
 from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
-from protocol.states import Axis, ControllerState, MotionOutcome
+from protocol.states import Axis, ControllerState, Fault, MotionOutcome
 from tests.test_realtime_faults import LoseFrames
 from tests.test_trajectory import smooth_knots
 
@@ -232,18 +232,24 @@ def test_a_leader_whose_start_cannot_be_sent_does_not_start_alone(bench):
     assert all(ends.get((a, i)) is MotionOutcome.STOPPED for a, i in ids.items()), ends
 
 
+def listening_on_both_buses(bench, frame: str) -> list:
+    """A node on each arm's bus (the first arm's, then the second's), each with the values of every `frame` it hears."""
+    heard = []
+    for bus in (bench.world.controller_bus, bench.world.arm2.controller_bus):
+        node, got = HalEndpoint(LocalBus(bus.local_channel, carries_values=bus.carries_values)), []
+        node.on_frame(frame, lambda values, now, got=got: got.append(values))
+        heard.append((node, got))
+    return heard
+
+
 def test_the_plant_relays_the_leaders_starts_alone():
     """TRAJ_START goes from the leader's bus to the follower's, not back: relayed both ways, on buses that give each
     node its own frames back (udp_multicast, across processes), every relayed start came back to be relayed again,
     one start circling for ever (one a tick on each bus), and a later start's armed follower stopped by the old one
     (a tick past)."""
     bench = LockstepBench(seed=5, arms=2)
-    heard = []
+    heard = listening_on_both_buses(bench, "TRAJ_START")
     try:
-        for bus in (bench.world.controller_bus, bench.world.arm2.controller_bus):      # a node on each arm's bus
-            node, got = HalEndpoint(LocalBus(bus.local_channel, carries_values=bus.carries_values)), []
-            node.on_frame("TRAJ_START", lambda values, now, got=got: got.append(values))
-            heard.append((node, got))
         (on_first, got_first), (on_second, got_second) = heard
         layout = HalCodec().layout("TRAJ_START")
         on_first.send_frame(layout, [6, 20])
@@ -252,6 +258,115 @@ def test_the_plant_relays_the_leaders_starts_alone():
         on_first.poll(bench.clock.now())
         on_second.poll(bench.clock.now())
         assert got_second == [[6, 20]] and got_first == []
+    finally:
+        for node, _ in heard:
+            node.bus.shutdown()
+        bench.close()
+
+
+def started_together(bench) -> tuple[dict, dict]:
+    """Both arms' trajectories (8 s each) started on one tick: each arm's trajectory motions by axis."""
+    first, second = bench.controller, bench.world.arm2.controller
+    knots = (smooth_knots(holding_deg_of(first)), smooth_knots(holding_deg_of(second)))
+    ids = start_together(BenchClient(bench), bench.arm2, knots)
+    return tuple({int(a): i for a, i in zip(TRAJECTORY_JOINTS, motions)} for motions in ids)
+
+
+def ends(events: list, ids: dict) -> dict:
+    """How each of the motions `ids` (axis -> motion id) ended, by axis (MotionDone), so far."""
+    return {e.axis: MotionOutcome(e.outcome) for e in events
+            if e.spec.name == "MotionDone" and ids.get(e.axis) == e.motion_id}
+
+
+def ticks_until(bench, predicate, limit: int) -> int:
+    """Plant ticks run, one at a time, until `predicate()` holds (at most `limit`)."""
+    for ticks in range(limit + 1):
+        if predicate():
+            return ticks
+        bench.run_for(0.001)
+    raise AssertionError(f"not within {limit} ticks")
+
+
+def test_a_leader_stopped_mid_trajectory_stops_its_follower_within_two_ticks(bench):
+    """Stop to the leader 2 s into the coordinated trajectory: its TRAJ_STOP, relayed by the plant, stops the follower's
+    trajectory within 2 plant ticks of the leader's stop, as a Stop would (MotionDone STOPPED on every joint), and both
+    joints come to rest short of where the trajectory was going. The follower sends no stop back."""
+    first, second = bench.controller, bench.world.arm2.controller
+    ids_1, ids_2 = started_together(bench)
+    bench.run_for(2.0)
+    assert first.arm.trajectory_running() and second.arm.trajectory_running()
+    bench.host.submit(M["Stop"](), bench.link_clock.now())
+    ticks_until(bench, lambda: first.trajectory_sync.stops_sent == 1, 100)
+    assert ticks_until(bench, lambda: second.trajectory_sync.stopped_by_peer == 1, 5) <= 2
+    assert bench.wait_until(lambda: len(ends(bench.arm2.events, ids_2)) == len(ids_2) == len(ends(bench.events, ids_1)),
+                            10.0)
+    assert set(ends(bench.events, ids_1).values()) == set(ends(bench.arm2.events, ids_2).values()) \
+        == {MotionOutcome.STOPPED}
+    assert second.trajectory_sync.stops_sent == 0 and first.trajectory_sync.stopped_by_peer == 0
+    assert first.supervisor.state is second.supervisor.state is ControllerState.ENABLED
+
+
+def test_a_follower_that_faults_mid_trajectory_stops_the_leader(bench):
+    """An encoder glitch on the follower's shoulder (a plant fault) 2 s into the trajectory: the follower faults
+    (ENCODER) and its safe state's TRAJ_STOP stops the leader's trajectory (MotionDone STOPPED), which would otherwise
+    drag the object alone; the leader stays ENABLED."""
+    first, second = bench.controller, bench.world.arm2.controller
+    ids_1, _ = started_together(bench)
+    bench.run_for(2.0)
+    bench.world.arm2.plant.inject("encoder_glitch", "j1")
+    ticks_until(bench, lambda: second.supervisor.state is ControllerState.FAULT, 100)
+    assert second.supervisor.faults & Fault.ENCODER and second.trajectory_sync.stops_sent == 1
+    assert ticks_until(bench, lambda: first.trajectory_sync.stopped_by_peer == 1, 5) <= 2
+    assert bench.wait_until(lambda: len(ends(bench.events, ids_1)) == len(ids_1), 10.0)
+    assert set(ends(bench.events, ids_1).values()) == {MotionOutcome.STOPPED}
+    assert first.supervisor.state is ControllerState.ENABLED and not first.arm.trajectory_running()
+
+
+def test_a_leader_stopped_inside_its_lead_leaves_the_follower_where_it_was(bench):
+    """Stop (an urgent request, ahead of any queued command) to the leader as soon as its TrajRun has run: it comes
+    within the 10-tick lead, before the tick its TRAJ_START named. The follower, started for that tick, is stopped
+    before it: no joint of either arm leaves its first knot, and every motion of both ends STOPPED."""
+    first, second = bench.controller, bench.world.arm2.controller
+    knots_1, knots_2 = smooth_knots(holding_deg_of(first)), smooth_knots(holding_deg_of(second))
+    upload_trajectory(bench, knots_1)
+    upload_trajectory(bench.arm2, knots_2)
+    reply = bench.arm2.call(M["TrajRun"](len(knots_2))).reply
+    ids_2 = {int(a): getattr(reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS}
+    bench.run_for(0.01)
+    run = bench.host.submit(M["TrajRun"](len(knots_1)), bench.link_clock.now())
+    ticks_until(bench, lambda: first.trajectory_sync.starts == 1, 1000)
+    tick = first.trajectory_sync.last_start_tick
+    held = (first.arm.channels[J1].pos_sp_rad, second.arm.channels[J1].pos_sp_rad)      # each one's first knot
+    bench.host.submit(M["Stop"](), bench.link_clock.now())
+    ticks_until(bench, lambda: first.trajectory_sync.stops_sent == 1, LEAD_TICKS)
+    assert first.hal.inputs.tick < tick                     # inside the lead
+    ticks_until(bench, lambda: second.trajectory_sync.stopped_by_peer == 1, 2)
+    assert second.trajectory_sync.starts == 1 and second.hal.inputs.tick < tick     # the follower's start was set
+    bench.run_for(1.0)
+    assert run.done and run.reply.result == Reason.OK
+    for controller, knot_0 in zip((first, second), held):        # within a rounding of the stop's profile
+        assert abs(math.degrees(controller.arm.channels[J1].pos_sp_rad - knot_0)) < 1e-4
+    ids_1 = {int(a): getattr(run.reply, f"{a.name.lower()}_motion_id") for a in TRAJECTORY_JOINTS}
+    assert set(ends(bench.events, ids_1).values()) == set(ends(bench.arm2.events, ids_2).values()) \
+        == {MotionOutcome.STOPPED}
+
+
+def test_the_plant_relays_trajectory_stops_both_ways_and_never_back():
+    """A controller's TRAJ_STOP (relayed 0) on either arm's bus reaches the other's marked relayed (1); a relayed one is
+    not relayed again (on a bus that gives each node its own frames back, it would circle for ever)."""
+    bench = LockstepBench(seed=5, arms=2)
+    heard = listening_on_both_buses(bench, "TRAJ_STOP")
+    try:
+        (on_first, got_first), (on_second, got_second) = heard
+        layout = HalCodec().layout("TRAJ_STOP")
+        on_first.send_frame(layout, [0])
+        on_second.send_frame(layout, [1])          # as if relayed already: goes no further
+        bench.run_for(0.01)
+        on_second.send_frame(layout, [0])
+        bench.run_for(0.01)
+        on_first.poll(bench.clock.now())
+        on_second.poll(bench.clock.now())
+        assert got_second == [[1]] and got_first == [[1]]
     finally:
         for node, _ in heard:
             node.bus.shutdown()

@@ -4,8 +4,9 @@ its own HAL bus and plant node, on the world's schedulers.
 Each arm is what it would be alone: a controller and the plant's side of its motors on a bus of their own. What
 joins them is physical, so it is the plant's: both plant nodes step on one scheduler, tick for tick (their
 PLANT_SYNC ticks are one count), and the plant relays the leading controller's TRAJ_START from its arm's bus to the
-other's, as a sync line between the two controllers would carry it (firmware_py/trajectory_sync.py). The first
-arm's controller leads, the second follows. With `held_object`, the object the two hands hold (hil_sim/two_arms.py) is stepped after both plants each tick once taken, each arm's
+other's, as a sync line between the two controllers would carry it (firmware_py/trajectory_sync.py), and either
+controller's TRAJ_STOP to the other's bus. The first arm's controller leads, the second follows. With `held_object`,
+the object the two hands hold (hil_sim/two_arms.py) is stepped after both plants each tick once taken, each arm's
 joints carry its grasp, and each arm's wrist sensor tells its controller its grasp (GRASP_FORCE,
 hil_sim/wrist_sensor.py).
 """
@@ -81,6 +82,7 @@ class SecondArmNodes:
         self.controller = build_controller(psk, self.uart, self.controller_bus, config, nonce_source=nonce_source)
         self.controller.attach(scheduler, link_scheduler)
         relay_trajectory_starts(first_plant, self.plant_node)      # from the leader's bus to the follower's
+        relay_trajectory_stops(first_plant, self.plant_node)       # both ways
         # the object the two hands hold: stepped after both plants each tick, once taken (`take_object`)
         self.pair: Optional[TwoArmPlant] = None
         self.holding = False
@@ -162,6 +164,15 @@ def relay_trajectory_starts(source: PlantNode, to: PlantNode) -> None:
     relayed start would come back to be relayed again, for ever."""
     layout = to.codec.layout("TRAJ_START")
     source.on_frame("TRAJ_START", lambda values, now: to.send_frame(layout, values))
+
+
+def relay_trajectory_stops(one: PlantNode, other: PlantNode) -> None:
+    """A TRAJ_STOP a controller sends (`relayed` 0) on either arm's bus goes on the other's, marked relayed (1); a
+    relayed one is never relayed again, so on buses that give a node its own frames back none circles."""
+    for source, to in ((one, other), (other, one)):
+        layout = to.codec.layout("TRAJ_STOP", ("relayed",))
+        source.on_frame("TRAJ_STOP", lambda values, now, to=to, layout=layout: values[0] or to.send_frame(layout, [1]),
+                        ("relayed",))
 
 
 class SecondHost:
