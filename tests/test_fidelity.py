@@ -40,6 +40,7 @@ from hil_sim.held_object import ObjectParams
 from hil_sim.plant import Plant, PlantParams
 from hil_sim.tracker import TRACKER_PARAMS, TrackerPlant
 from host_tools.apps.tracker_day import DayHal, DaySettings, run_day
+from protocol.hal import HalCodec
 from protocol.reasons import Reason
 from protocol.states import Switch, SwitchPosition
 from protocol.units import (G_EARTH_M_S2, IN_TO_M, LB_TO_KG, LBF_FT_TO_NM, LBF_IN_TO_NM, OZ_IN_TO_NM,
@@ -725,6 +726,7 @@ def object_rows(params: ObjectParams = ObjectParams()) -> list[Row]:
     supply_v = PlantParams().supply_nominal_v
     jaws_n = ARM_PLANT_PARAMS.jaw_force_n(hold_duty, supply_v)
     limit_n = p.friction * jaws_n
+    codec = HalCodec()
     period = p.stiffest_period_s()
     report_object = (0.25, 0.25, 0.1)
     return [
@@ -761,6 +763,12 @@ def object_rows(params: ObjectParams = ObjectParams()) -> list[Row]:
             f"1 ms, the plant's; the fastest mode is the object turning on its grasps, {period * 1000:.1f} ms "
             f"(omega = {2 * math.pi / period:.0f} rad/s, omega dt = {2 * math.pi * 0.001 / period:.2f}, stable below 2)",
             "[EMU] velocity Verlet, the dampers implicit"),
+        Row("G11", "what a controller knows of its grasp", "not in the report: no wrist sensor",
+            f"a wrist force sensor per arm (`GRASP_FORCE`): the force across its grasp, the grip's limit, the squeeze "
+            f"and the grasp's state, every {codec.cycle_time_s('GRASP_FORCE') * 1000:.0f} ms and at once on a change "
+            f"of state, {codec.limits('GRASP_FORCE', 'force_n')[1]:g} N full scale in 0.01 N; ideal: the plant's own "
+            "values, no noise, offset or filter, read 1 ms on (with the next tick's frames); a slip or a drop is GRIP_SLIP",
+            "[EMU] assumed: a real sensor's noise and bandwidth are not modelled"),
     ]
 
 
