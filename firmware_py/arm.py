@@ -300,6 +300,13 @@ class ArmController:
             if self.channels[k].motion_id == motion_id:
                 self.channels[k].stop(now)
 
+    def slow_trajectory(self, started: dict[int, int], from_s: float, stop_s: float, now: float) -> None:
+        """The joints that still run the trajectory `started` (channel -> motion id) slow to rest along their curves
+        from `from_s` over `stop_s` (`Axis.slow_to_rest`: a coordinated trajectory's stop)."""
+        for k, motion_id in started.items():
+            if self.channels[k].motion_id == motion_id:
+                self.channels[k].slow_to_rest(from_s, stop_s, now)
+
     def trajectory_running(self) -> bool:
         """Whether a joint still runs the motion the last trajectory started on it."""
         return self.still_running(self._trajectory)

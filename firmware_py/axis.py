@@ -46,7 +46,7 @@ from typing import Callable, Optional
 from firmware_py import joints_tick as jt
 from firmware_py import profiles
 from firmware_py.estimator import EstimatorConfig, SteadyStateEstimator
-from firmware_py.hermite import HermiteProfile
+from firmware_py.hermite import HermiteProfile, SlowedProfile
 from firmware_py.homing import Homing
 from firmware_py.profiles import DEFAULT_JOINT_ACC_RAD_S2, REPORT_JOINT_SPEED_RAD_S, Profile
 from protocol.states import AxisMode, MotionOutcome
@@ -452,9 +452,27 @@ class Axis:
         is its first knot, at rest)."""
         self._profile_t0 = start_s
 
+    def slow_to_rest(self, from_s: float, stop_s: float, now: float) -> None:
+        """A trajectory being followed slows to rest along its curve, its clock slowing from `from_s` (controller
+        time) over `stop_s` (`SlowedProfile`), then holds; MotionDone STOPPED, as `stop`. Not started by `from_s`
+        (a coordinated start's tick not come): it stops where it holds, as `stop` stops it."""
+        if not (self.in_motion and isinstance(self._profile, HermiteProfile)):
+            self.stop(now)
+            return
+        if from_s <= self._profile_t0:
+            self.stop(now)
+            return
+        profile = SlowedProfile(self._profile, from_s - self._profile_t0, stop_s)
+        self._profile, self._profile_t0 = profile, from_s
+        self.target_rad = profile.end_pos_rad
+        self.mode = AxisMode.MOVING
+        self._stopping_for = MotionOutcome.STOPPED
+        self._settle_since = None
+
     def stop(self, now: float, outcome: MotionOutcome = MotionOutcome.STOPPED) -> None:
-        """Decelerate at the acceleration limit, then hold (accepted in any state)."""
-        if not self.in_motion:
+        """Decelerate at the acceleration limit, then hold (accepted in any state). A trajectory already slowing to
+        rest along its curve (`slow_to_rest`) keeps that stop."""
+        if not self.in_motion or isinstance(self._profile, SlowedProfile):
             return
         p, v, _ = self._setpoint(now)
         profile = profiles.stop(p, v, self.config.acc_limit_rad_s2)

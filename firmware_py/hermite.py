@@ -72,6 +72,36 @@ class HermiteProfile:
         return lo, hi, top_speed
 
 
+class SlowedProfile:
+    """A trajectory's curve (`profile`) slowed to rest along itself: from its time `from_s` (at this profile's 0) its
+    clock runs slower at a constant rate, tau(t) = from_s + t - t^2 / (2 stop_s), until it stands still at
+    from_s + stop_s / 2 after `stop_s`. Two arms whose trajectories are slowed alike from the same time stay on their
+    plan's path together (the path is the plan's, only its timing changes), where each joint stopping at its own
+    acceleration limit would not. Past the curve's end it holds there, at rest."""
+
+    constant_acceleration = False
+    __slots__ = ("profile", "from_s", "duration_s", "end_pos_rad", "end_vel_rad_s")
+
+    def __init__(self, profile: HermiteProfile, from_s: float, stop_s: float) -> None:
+        if not (math.isfinite(from_s) and stop_s > 0.0):
+            raise ValueError(f"a slowed profile starts at a finite time and stops in more than 0 s, got {from_s!r}, "
+                             f"{stop_s!r}")
+        self.profile, self.from_s, self.duration_s = profile, float(from_s), float(stop_s)
+        self.end_pos_rad = profile.sample(self.from_s + self.duration_s / 2.0)[0]
+        self.end_vel_rad_s = 0.0
+
+    def sample(self, t_s: float) -> tuple[float, float, float]:
+        """(pos_rad, vel_rad_s, acc_rad_s2) at `t_s` seconds after the slowing began: the curve at tau(t), its
+        velocity times tau' and its acceleration times tau'^2 plus its velocity times tau''."""
+        stop_s = self.duration_s
+        t = 0.0 if t_s < 0.0 else stop_s if t_s > stop_s else t_s
+        rate = 1.0 - t / stop_s
+        p, v, a = self.profile.sample(self.from_s + t - t * t / (2.0 * stop_s))
+        if t_s >= stop_s:
+            return p, 0.0, 0.0
+        return p, v * rate, a * rate * rate - v / stop_s
+
+
 def hermite_sample(times_s, coefficients, knots: int, t_s: float, end_pos_rad: float, end_vel_rad_s: float,
                    start_pos_rad: float, start_vel_rad_s: float, start_acc_rad_s2: float) -> tuple[float, float, float]:
     """A Hermite curve's (pos_rad, vel_rad_s, acc_rad_s2) at `t_s`, the one implementation (`HermiteProfile.sample`,

@@ -12,9 +12,10 @@ arms the followers first, then runs the leader.
 
 Stopped together. While a coordinated trajectory is armed or runs, a Stop of either controller, its safe state
 (EStop, a fault, Disable, the session's close) or a follower's start it cannot follow ends it on both arms: the
-controller says so in a TRAJ_STOP (`stop`), which the plant relays to the other arm's bus, and the other controller
-stops its own coordinated trajectory as a Stop does (MotionDone STOPPED; a follower stopped within the leader's lead
-never starts), sending none back. A controller takes only a relayed TRAJ_STOP (`relayed` 1), the plant relays only one
+controller says so in a TRAJ_STOP (`stop`), which the plant relays to the other arm's bus, and both slow their
+coordinated trajectories to rest along their curves from the tick it names (`SlowedProfile`: the hands stay on the
+plan's path together; MotionDone STOPPED; a follower stopped within the leader's lead never starts), the other
+sending none back. A controller takes only a relayed TRAJ_STOP (`relayed` 1), the plant relays only one
 a controller sent (`relayed` 0): no stop circles, and a bus that gives a controller its own stop back does not stop a
 later trajectory of its own.
 
@@ -35,6 +36,7 @@ from protocol.reasons import Reason
 
 LEAD_TICKS = 10          # the leader starts this many plant ticks after its TrajRun: its TRAJ_START's margin
 ARMED_S = 10.0           # a follower's armed trajectory waits this long for the leader's start, then stops
+STOP_S = 0.5             # a coordinated trajectory stopped slows to rest along its curve over this long (its clock)
 TICK_MOD = 1 << 32       # PLANT_SYNC's tick wraps at 2**32
 
 
@@ -65,7 +67,7 @@ class TrajectorySync:
         self.stops_sent = 0          # TRAJ_STOPs sent: this arm's coordinated trajectory stopped, so the other's
         self.stopped_by_peer = 0     # coordinated trajectories stopped by the other arm's relayed TRAJ_STOP
         self._layout = hal.codec.layout("TRAJ_START", ("start_tick", "knots"))
-        self._stop_layout = hal.on_frame("TRAJ_STOP", self._on_stop, ("relayed",))
+        self._stop_layout = hal.on_frame("TRAJ_STOP", self._on_stop, ("stop_tick", "relayed"))
         if role is SyncRole.FOLLOWER:
             hal.on_frame("TRAJ_START", self._on_start, ("start_tick", "knots"))
 
@@ -76,9 +78,7 @@ class TrajectorySync:
         if self.role is SyncRole.LEADER:
             # counted on from the last PLANT_SYNC heard by the ticks gone since (frames lost, a late loop): a tick
             # already past would start the leader part-way along its trajectory, and its follower not at all
-            inputs = self.hal.inputs
-            gone = max(0, math.floor((now - inputs.tick_s) / inputs.tick_period_s))
-            tick = (inputs.tick + gone + LEAD_TICKS) % TICK_MOD
+            tick = (self._tick_now(now) + LEAD_TICKS) % TICK_MOD
             axis, start = self.arm.run_trajectory(profiles, self._time_of(tick))
             if start.reason is not Reason.OK:
                 return axis, start
@@ -98,23 +98,38 @@ class TrajectorySync:
         return axis, start
 
     def stop(self, now: float) -> None:
-        """This arm's coordinated trajectory, if one is armed or runs, is being stopped (Stop, the safe state): the
-        other arm's stops too (TRAJ_STOP). Called before the arm's own stop, while its joints still run it."""
+        """This arm's coordinated trajectory, if one is armed or runs, is being stopped (Stop, the safe state): it
+        slows to rest along its curve from this tick (a Stop's other joints then stop as they do; the safe state cuts
+        them all), and the other arm's from the same tick (TRAJ_STOP). Called before the arm's own stop, while its
+        joints still run it."""
         if self.arm.still_running(self.coordinated):
-            if self.hal.send_frame(self._stop_layout, [0]):
+            tick = self._tick_now(now)
+            if self.hal.send_frame(self._stop_layout, [tick, 0]):
                 self.stops_sent += 1
+            self.arm.slow_trajectory(self.coordinated, self._time_of(tick), STOP_S, now)
         self.coordinated = {}
         self.armed = None
 
     def _on_stop(self, values: list, now: float) -> None:
-        """The other arm's coordinated trajectory stopped (relayed by the plant): this arm's stops as a Stop stops it."""
-        if not values[0]:
+        """The other arm's coordinated trajectory stopped (relayed by the plant): this arm's slows to rest along its
+        curve from the tick the other's did (`stop_tick`: at most a few ticks back, a jump of (ticks)^2 / (2 STOP_S)
+        of its clock), MotionDone STOPPED as a Stop's."""
+        tick, relayed = values
+        if not relayed:
             return                   # not relayed: this controller's own, given back by its bus
         if self.arm.still_running(self.coordinated):
-            self.arm.stop_trajectory(self.coordinated, now)
+            from_s = self._time_of(int(tick)) if self.hal.inputs.tick_s is not None else now
+            self.arm.slow_trajectory(self.coordinated, min(from_s, now), STOP_S, now)
             self.stopped_by_peer += 1
         self.coordinated = {}
         self.armed = None
+
+    def _tick_now(self, now: float) -> int:
+        """The plant tick of `now`: the last PLANT_SYNC's, counted on by the ticks gone since (as a leader's start)."""
+        inputs = self.hal.inputs
+        if inputs.tick_s is None:
+            return inputs.tick
+        return (inputs.tick + max(0, math.floor((now - inputs.tick_s) / inputs.tick_period_s))) % TICK_MOD
 
     def check(self, now: float) -> None:
         """A follower's armed trajectory that waited `ARMED_S` in vain stops."""

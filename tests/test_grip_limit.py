@@ -4,6 +4,7 @@ plant is a fault of the controller holding it (GRIP_SLIP, from the wrist's GRASP
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 
@@ -12,16 +13,17 @@ from firmware_py.arm_config import EXAMPLE_ARM
 from firmware_py.controller import ControllerConfig
 from hil_sim.arm_params import ARM_PLANT_PARAMS, EXAMPLE_ARM_PLANT
 from hil_sim.held_object import ObjectParams
-from host_tools.apps.two_arm_plan import (controller_knots, executable_plan, grip_limit_n, hand_forces_n,
-                                         start_pose_deg)
+from host_tools.apps.two_arm_plan import (arm_knots, controller_knots, executable_plan, grip_limit_n, hand_forces_n,
+                                         start_pose_deg, start_together)
+from host_tools.client.bench import BenchClient
 from host_tools.cli.main import main
 from host_tools.plan.errors import PlanError
 from host_tools.plan.example import report_problem
 from host_tools.worlds.settings import PlantSettings
 from host_tools.worlds.world import LockstepBench
-from protocol.messages import MESSAGES as M
+from protocol.messages import MESSAGES as M, TRAJECTORY_JOINTS
 from protocol.reasons import Reason
-from protocol.states import Axis, ControllerState, Fault, GraspState
+from protocol.states import Axis, ControllerState, Fault, GraspState, MotionOutcome
 
 PLAN = ["plan", "--links", "rod", "--gravity", "--objective", "time", "--nodes", "199"]     # the bench's 200 points
 
@@ -122,5 +124,41 @@ def test_a_jog_past_the_grips_limit_faults_the_arm_whose_grasp_slips():
         assert lost.state is GraspState.DROPPED and lost.limit_n == pytest.approx(event.limit_n, abs=0.01)
         assert arm2.pair.object.states[0] is GraspState.HELD
         assert bench.controller.supervisor.state is ControllerState.ENABLED and bench.controller.grasp.losses == 0
+    finally:
+        bench.close()
+
+
+def test_a_stop_mid_carry_brings_both_arms_to_rest_along_the_path_the_object_held():
+    """The example carried (Earth, its executable plan, 60 knots an arm, started together); 0.5 s in, arm 2's shoulder
+    at 130 deg/s, Stop to arm 1. Both trajectories slow to rest along their curves from one plant tick (TRAJ_STOP),
+    so the hands stay on the plan's path together: both grasps hold all the way, at most 4.2 N across either (the
+    plan's 1.4 N, the grip's 57 N), both controllers ENABLED, every joint's motion STOPPED. (Each joint stopping at its
+    own acceleration limit, as a lone Stop stops it, the hands parted: 48 N, FOLLOWING_ERROR on both, the object
+    dropped.)"""
+    bench = holding()
+    try:
+        arm2 = bench.world.arm2
+        arm2.take_object()
+        bench.run_for(0.5)
+        limited, plan = executable_plan(report_problem(gravity=True, links="rod"), 0.8, 2.0, 200)
+        controllers = (bench.controller, arm2.controller)
+        held = [[math.degrees(c.arm.channels[int(a)].pos_sp_rad) for a in TRAJECTORY_JOINTS] for c in controllers]
+        ids = start_together(BenchClient(bench), bench.arm2,
+                             tuple(arm_knots(limited, plan, 60, k, held[k]) for k in range(2)))
+        bench.run_for(0.5)
+        assert abs(math.degrees(arm2.controller.arm.channels[0].vel_rad_s)) > 100.0
+        bench.host.submit(M["Stop"](), bench.link_clock.now())
+        worst, states = 0.0, set()
+        for _ in range(1500):
+            bench.run_for(0.001)
+            worst, states = max(worst, *arm2.pair.object.carried_n), states | {arm2.pair.object.states}
+        assert states == {(GraspState.HELD, GraspState.HELD)} and worst < 5.0, (states, worst)
+        assert [c.supervisor.state for c in controllers] == [ControllerState.ENABLED] * 2
+        assert arm2.controller.trajectory_sync.stopped_by_peer == 1
+        for events, motions in zip((bench.events, bench.arm2.events), ids):
+            wanted = {(int(a), i) for a, i in zip(TRAJECTORY_JOINTS, motions)}
+            outcomes = {MotionOutcome(e.outcome) for e in events
+                        if e.spec.name == "MotionDone" and (e.axis, e.motion_id) in wanted}
+            assert outcomes == {MotionOutcome.STOPPED}, outcomes
     finally:
         bench.close()

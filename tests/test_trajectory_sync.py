@@ -289,8 +289,8 @@ def ticks_until(bench, predicate, limit: int) -> int:
 
 def test_a_leader_stopped_mid_trajectory_stops_its_follower_within_two_ticks(bench):
     """Stop to the leader 2 s into the coordinated trajectory: its TRAJ_STOP, relayed by the plant, stops the follower's
-    trajectory within 2 plant ticks of the leader's stop, as a Stop would (MotionDone STOPPED on every joint), and both
-    joints come to rest short of where the trajectory was going. The follower sends no stop back."""
+    trajectory within 2 plant ticks of the leader's stop: both slow to rest along their curves (MotionDone STOPPED on
+    every joint of both). The follower sends no stop back."""
     first, second = bench.controller, bench.world.arm2.controller
     ids_1, ids_2 = started_together(bench)
     bench.run_for(2.0)
@@ -359,14 +359,14 @@ def test_the_plant_relays_trajectory_stops_both_ways_and_never_back():
     try:
         (on_first, got_first), (on_second, got_second) = heard
         layout = HalCodec().layout("TRAJ_STOP")
-        on_first.send_frame(layout, [0])
-        on_second.send_frame(layout, [1])          # as if relayed already: goes no further
+        on_first.send_frame(layout, [7, 0])        # stop_tick, relayed
+        on_second.send_frame(layout, [8, 1])       # as if relayed already: goes no further
         bench.run_for(0.01)
-        on_second.send_frame(layout, [0])
+        on_second.send_frame(layout, [9, 0])
         bench.run_for(0.01)
         on_first.poll(bench.clock.now())
         on_second.poll(bench.clock.now())
-        assert got_second == [[1]] and got_first == [[1]]
+        assert got_second == [[7, 1]] and got_first == [[9, 1]]
     finally:
         for node, _ in heard:
             node.bus.shutdown()

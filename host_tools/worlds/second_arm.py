@@ -170,9 +170,9 @@ def relay_trajectory_stops(one: PlantNode, other: PlantNode) -> None:
     """A TRAJ_STOP a controller sends (`relayed` 0) on either arm's bus goes on the other's, marked relayed (1); a
     relayed one is never relayed again, so on buses that give a node its own frames back none circles."""
     for source, to in ((one, other), (other, one)):
-        layout = to.codec.layout("TRAJ_STOP", ("relayed",))
-        source.on_frame("TRAJ_STOP", lambda values, now, to=to, layout=layout: values[0] or to.send_frame(layout, [1]),
-                        ("relayed",))
+        layout = to.codec.layout("TRAJ_STOP", ("stop_tick", "relayed"))
+        source.on_frame("TRAJ_STOP", lambda values, now, to=to, layout=layout: values[1] or to.send_frame(
+            layout, [values[0], 1]), ("stop_tick", "relayed"))
 
 
 class SecondHost:
