@@ -46,8 +46,8 @@ from protocol.link import LinkConfig
 from protocol.messages import MESSAGES as M
 from protocol.reasons import Reason
 from protocol.schema import Message
-from protocol.states import (ARM_CHANNELS, TRACKER_AXES, Axis, ControllerState, Fault, FaultCause, TimingIssue,
-                             TimingMode)
+from protocol.states import (ARM_CHANNELS, TRACKER_AXES, Axis, ControllerState, Fault, FaultCause, GraspState,
+                             TimingIssue, TimingMode)
 from protocol.states import MotionOutcome as Outcome
 from timebase import TimingReport
 from timebase.scheduler import Scheduler
@@ -58,7 +58,7 @@ from firmware_py.arm import ArmController, Measured
 from firmware_py.arm_commands import ArmCommands
 from firmware_py.comms import CommsTask
 from firmware_py.hal import ControllerHal
-from firmware_py.grasp_watch import GraspWatch
+from firmware_py.grasp_watch import GraspReading, GraspWatch
 from firmware_py.handlers import CommandOwner, handles, handler_table
 from kernels import compiled_by_default
 from firmware_py.param_commands import ParamCommands
@@ -234,7 +234,7 @@ class Controller(CommandOwner):
         self.uncommanded: Optional[Uncommanded] = None      # what last tripped UNCOMMANDED_MOTION (the sim logs it)
         self.supervisor.add_fault_check(Fault.UNCOMMANDED_MOTION, self.standstill.still_moving)
         # the wrist's GRASP_FORCE while the plant holds an object: a slip or a drop is GRIP_SLIP (grasp_watch.py)
-        self.grasp = GraspWatch(hal, lambda reading, now: self._trip(Fault.GRIP_SLIP, now))
+        self.grasp = GraspWatch(hal, self._grasp_lost)
         self.arm_commands = ArmCommands(self.arm, lambda: self.supervisor.state, self.trajectory_sync)
         self.param_commands = ParamCommands(self.params, self.arm.in_motion_by)
         self.tracker_commands = TrackerCommands(self.tracker, self._wake_tracker)
@@ -298,6 +298,14 @@ class Controller(CommandOwner):
 
     def _arm_fault(self, fault: Fault, reason: Reason, now: float, measured: Optional[Measured]) -> None:
         self._trip(fault, now, reason, measured)
+
+    def _grasp_lost(self, reading: GraspReading, now: float) -> None:
+        """GRIP_SLIP for a slip, or a drop the controller did not let happen: not one with its outputs off (a
+        closed session, the safe state: the jaws let go) nor one after a Grip OPEN (the jaws no longer gripping)."""
+        if self.supervisor.state is not ControllerState.ENABLED:
+            return
+        if reading.state is GraspState.SLIPPING or self.arm.gripper.gripped:
+            self._trip(Fault.GRIP_SLIP, now)
 
     def _trip(self, fault: Fault, now: float, reason: Optional[Reason] = None,
               measured: Optional[Measured] = None) -> None:
