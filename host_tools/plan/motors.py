@@ -12,6 +12,8 @@ none is planned with ASPOD's own arm's shoulder and elbow drives, J1 for each sh
 the plant models them (hil_sim/arm_params.py: the report's 400 oz-in PM DC gear-head motor class and its 16:1 and
 6:1 sprocket trains; the motor's resistance and torque constant are the emulator's ASSUMED values), each arm's
 drives drawing what the plant's do while enabled (hil_sim/plant.py: 0.75 A at 28 V, 21 W), and says so.
+`example_arm_drives` gives the motors of the plant's example arms instead (a 50:1 gear-head motor at each joint),
+which execute the example's plans: the objective's prediction of what they draw (bench/bench_two_arms.py).
 """
 from __future__ import annotations
 
@@ -58,19 +60,37 @@ class Motors:
                 "copper_w_per_nm2": [round(float(c), 9) for c in self.copper()]}
 
 
-def aspod_drives() -> Motors:
-    """ASPOD's J1 drive at each arm's shoulder and its J2 drive at each elbow, as the plant models them."""
-    from hil_sim import arm_params as p
+def plant_drives(params, whose: str, where: str) -> Motors:
+    """Each arm's shoulder and elbow as the plant models the J1 and J2 drives of `params` (a hil_sim
+    `ArmPlantParams`), at both arms, each arm's drives drawing what the plant's do while enabled; `whose` and `where`
+    say whose drives they are and where they come from."""
+    from hil_sim.arm_params import J1, J2
     from hil_sim.plant import PlantParams
     drives = []
-    for motor, stages in ((p.MOTOR_400_OZ_IN, p.J1_SPROCKETS), (p.MOTOR_400_OZ_IN, p.J2_SPROCKETS)):
-        chain = (motor.gearhead, *stages)
-        drives.append((motor.r_ohm, motor.kt_nm_a, math.prod(s.ratio for s in chain),
+    for channel in (J1, J2):
+        drive = params.channels[channel].drive
+        chain = (drive.motor.gearhead, *drive.stages)
+        drives.append((drive.motor.r_ohm, drive.motor.kt_nm_a, math.prod(s.ratio for s in chain),
                        math.prod(s.efficiency for s in chain)))
     shoulder, elbow = drives
     joints = (shoulder, elbow, shoulder, elbow)
     plant = PlantParams()
     arm_w = plant.enabled_current_a * plant.supply_nominal_v
     return Motors(*(tuple(j[k] for j in joints) for k in range(4)), drive_w=2 * arm_w,
-                  source=f"ASPOD's J1 drive at each shoulder, its J2 drive at each elbow, each arm's drives "
-                         f"{arm_w:g} W while enabled (hil_sim; the report gives none for its example's arms)")
+                  source=f"{whose}, each arm's drives {arm_w:g} W while enabled ({where})")
+
+
+def aspod_drives() -> Motors:
+    """ASPOD's J1 drive at each arm's shoulder and its J2 drive at each elbow, as the plant models them."""
+    from hil_sim.arm_params import ARM_PLANT_PARAMS
+    return plant_drives(ARM_PLANT_PARAMS, "ASPOD's J1 drive at each shoulder, its J2 drive at each elbow",
+                        "hil_sim; the report gives none for its example's arms")
+
+
+def example_arm_drives() -> Motors:
+    """The example arm's shoulder and elbow drives at both arms, as the plant models them (hil_sim/arm_params.py
+    `EXAMPLE_ARM_PLANT`: a 50:1 gear-head motor at each joint): the motors of the arms that execute the example's
+    plans (bench/bench_two_arms.py), for the objective's prediction of what they draw."""
+    from hil_sim.arm_params import EXAMPLE_ARM_PLANT
+    return plant_drives(EXAMPLE_ARM_PLANT, "the example arm's J1 drive at each shoulder, its J2 drive at each elbow",
+                        "hil_sim EXAMPLE_ARM_PLANT; the report gives none")
