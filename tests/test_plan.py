@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from host_tools.plan.bounds import Limits
-from host_tools.plan.energy import DpGrid, Pricing, costs_of, plan_cost_optimal
+from host_tools.plan.energy import DpGrid, Pricing, costs_of, plan_cost_optimal, profile_costs
 from host_tools.plan.errors import PlanError
 from host_tools.plan.example import REPORTED, report_problem
 from host_tools.cli.main import main
@@ -131,6 +131,21 @@ def test_the_electrical_energy_chooses_a_profile_in_earth_and_in_orbit_and_the_r
         co = json.loads(said.stdout)["cost_optimal"]
         assert co["chooses"] is False and "cannot choose" in co["why"]
         assert f"{3.759 if gravity else 0.0:.3f}" in co["why"] and "potential energy" in co["why"]
+
+
+def test_a_plans_costs_are_priced_again_from_its_profile_as_the_dp_priced_them():
+    """`profile_costs` (the objective's prediction for a plan executed: bench/bench_two_arms.py) gives a
+    cost-optimal plan's profile the costs the DP gave it, with regeneration and without, and the drives' share
+    of the electrical energy; and the example along another straight line is that line's problem."""
+    problem = report_problem(gravity=True, links="rod")
+    for regen in (False, True):
+        pricing = Pricing.of(problem, regen=regen)
+        plan = plan_cost_optimal(problem, "electrical", DpGrid(40, 61, 0.05), pricing=pricing)
+        again = profile_costs(problem, plan.profile, pricing)
+        assert again == {**plan.costs, "drives": pytest.approx(pricing.drive_w * plan.profile.duration, rel=1e-12)}
+        assert again["electrical"] > again["drives"] > 0
+    up = report_problem(gravity=True, links="rod", path=((1.0, 0.3), (1.0, 0.9)))
+    assert up.path(np.array([0.0, 1.0])).w == pytest.approx(np.array([[1.0, 0.3], [1.0, 0.9]]), abs=1e-15)
 
 
 def test_weights_and_regeneration_price_the_plan_and_bad_ones_are_refused(tmp_path):

@@ -101,6 +101,15 @@ def costs_of(terms: Terms, sd: np.ndarray, pricing: Pricing) -> dict:
     return {**out, "time": float(dt.sum())}
 
 
+def profile_costs(problem: Problem, profile: Profile, pricing: Optional[Pricing] = None) -> dict:
+    """Each objective's value for a profile planned by any of the planners (s'' constant between its nodes), as
+    `costs_of` counts them, and "drives", the drives' own draw over its time (part of "electrical"): what the
+    objective predicts a plan as executed costs (`pricing`: default `Pricing.of(problem)`)."""
+    w = Pricing.of(problem) if pricing is None else pricing
+    costs = costs_of(problem.terms(profile.s), np.asarray(profile.sd, float), w)
+    return {**costs, "drives": w.drive_w * costs["time"]}
+
+
 def potential_rise(problem: Problem, nodes: int = 2000) -> float:
     """The change of the arms' and the object's potential energy from the path's start to its end (J): what the
     report's index equals for every rest-to-rest profile (the gravity torques' work along the path)."""

@@ -32,15 +32,16 @@ REPORTED = (("zero-inertia", 4, 0.2634, 5.956), ("tangent", None, 0.8, 6.968), (
 DP_INTERVALS, DP_SPEEDS, DP_SPEED_STEP = 100, 201, 0.005
 
 
-def report_problem(gravity: bool = False, links: str = "point") -> Problem:
-    """The example as planned here; `gravity` and `links` change the model (the defaults match the report). Its
-    object is the plant's (`ObjectParams`: the report's 0.25 kg, 0.25 m x 0.1 m, held at its ends), one declaration
-    for the plan, its grip check (host_tools/apps/two_arm_plan.py) and the object the plant's two arms carry."""
+def report_problem(gravity: bool = False, links: str = "point", path=PATH) -> Problem:
+    """The example as planned here; `gravity` and `links` change the model (the defaults match the report), `path`
+    the object's straight line ((x0, z0), (x1, z1), m: the example's, `PATH`, unless given). Its object is the
+    plant's (`ObjectParams`: the report's 0.25 kg, 0.25 m x 0.1 m, held at its ends), one declaration for the plan,
+    its grip check (host_tools/apps/two_arm_plan.py) and the object the plant's two arms carry."""
     held = ObjectParams()
     system = two_arms(separation=2.0, lengths=(1.0, 1.0), masses=(1.0, 1.0), elbows=(1, 1), links=links,
                       held=Held(mass=held.mass_kg, size=held.size_m, grasps=held.grasps_m),
                       gravity=GRAVITY if gravity else 0.0)
-    return Problem(system, PolynomialPath.line(*PATH), Limits.symmetric(LIMITS))
+    return Problem(system, PolynomialPath.line(*path), Limits.symmetric(LIMITS))
 
 
 def beside_report(points) -> list[dict]:
