@@ -27,8 +27,8 @@ from firmware_py.arm_config import EXAMPLE_ARM
 from firmware_py.controller import ControllerConfig
 from hil_sim.arm_params import EXAMPLE_ARM_PLANT, J1, J2
 from hil_sim.held_object import GraspState, ObjectParams
-from host_tools.apps.two_arm_figure import CarryTrace, write_carry_figure
-from host_tools.apps.two_arm_plan import arm_knots, executable_plan, profile_at, start_pose_deg, start_together
+from host_tools.apps.two_arm_figure import carry_trace, write_carry_figure
+from host_tools.apps.two_arm_plan import arm_knots, executable_plan, start_pose_deg, start_together
 from host_tools.client.bench import BenchClient
 from host_tools.client.trajectory import load_trajectory
 from host_tools.outputs import PNG, unclaimed
@@ -120,14 +120,6 @@ class PlantMeter:
                 "drives": self.drives_j, "others": sum(self.signed_j[2:])}
 
 
-def planned_trace(problem: Problem, plan: Profile, times: np.ndarray, objects: np.ndarray, squeezes: np.ndarray,
-                  joints: np.ndarray) -> CarryTrace:
-    """The trace of a carry: what was recorded at `times`, and where the plan had the object and the joints then."""
-    s = profile_at(plan, times)[0]
-    return CarryTrace(times, objects, problem.path(s).w, squeezes, joints,
-                      problem.system.joint_path(problem.path, s).q, plan.duration)
-
-
 def energy(problem: Problem, plan: Profile, during: Sequence[dict], total: Sequence[dict]) -> dict:
     """The energy both arms drew over the plan's time (`during`: each arm's `PlantMeter.snapshot` at the plan's end)
     and to the loop's end (`total`), beside the electrical objective's prediction for the plan as executed (the
@@ -195,7 +187,7 @@ def carry(gravity: str, trajectory: Optional[Path] = None, path=PATH) -> dict:
                     if e.spec.name == "MotionDone" and (e.axis, e.motion_id) in motions]
         bench.wait_until(lambda: len(ends()) == 2 * len(TRAJECTORY_JOINTS), 5.0)
         settled_s = (bench.controller.hal.inputs.tick - start) * TICK_S
-        trace = planned_trace(limited, plan, np.array(times), np.array(objects), np.array(squeezes), np.array(joints))
+        trace = carry_trace(limited, plan, times, objects, squeezes, joints)
         return {"trace": trace, "path_m": float(trace.path_error_m.max()),
                 "squeeze_n": float(np.abs(trace.squeeze_n).max()),
                 "tracking_deg": tuple(float(np.degrees(np.abs(trace.tracking_error_rad[:, 2 * k:2 * k + 2]).max()))

@@ -12,7 +12,9 @@ import pytest
 from bench.bench_two_arms import PATHS, TICK_S, carry
 from hil_sim.arm_params import EXAMPLE_ARM_PLANT, J1, J2
 from hil_sim.held_object import GraspState
-from host_tools.apps.two_arm_figure import CarryTrace, write_carry_figure
+from host_tools.apps.two_arm_figure import CarryTrace, carry_trace, write_carry_figure
+from host_tools.apps.two_arm_plan import executable_plan, start_pose_deg
+from host_tools.plan.example import report_problem
 from host_tools.outputs import PNG, Claims
 from host_tools.plan.motors import example_arm_drives
 from kernels.extras import MissingExtra
@@ -90,6 +92,24 @@ def test_the_objectives_prediction_takes_the_plants_motors():
     drives = [EXAMPLE_ARM_PLANT.channels[j].drive for j in (J1, J2)] * 2
     expected = [d.motor.r_ohm / d.kt_out_nm_a ** 2 for d in drives]
     assert example_arm_drives().copper() == pytest.approx(expected, rel=1e-12)
+
+
+def test_a_carrys_trace_sets_the_plan_beside_what_was_measured():
+    """`carry_trace` takes the plan's object and joints at the measured times: from the path's start, along it, to
+    its end, where it stands after the plan's end, the joints the arms' start pose first; a carry 5 mm above its
+    plan is 5 mm off it, one with a joint 1 degree behind is that much off."""
+    problem, plan = executable_plan(report_problem(gravity=True, links="rod", path=dict(PATHS)["lift"]), 0.8, 2.0, 50)
+    times = np.linspace(0.0, plan.duration + 0.5, 300)[1:]
+    first = carry_trace(problem, plan, times, np.zeros((299, 2)), np.zeros(299), np.zeros((299, 4)))
+    planned = first.object_planned_m
+    assert planned[:, 0] == pytest.approx(np.full(299, 1.0)) and np.all(np.diff(planned[:, 1]) >= 0)
+    assert planned[0] == pytest.approx([1.0, 0.3], abs=1e-4) and planned[-1] == pytest.approx([1.0, 0.9])
+    assert np.degrees(first.joints_planned_rad[0]) == pytest.approx(np.ravel(start_pose_deg(problem)), abs=0.05)
+    behind = first.joints_planned_rad - np.radians([1.0, 0.0, 0.0, 0.0])
+    off = carry_trace(problem, plan, times, planned + [0.0, 0.005], np.zeros(299), behind)
+    assert off.path_error_m == pytest.approx(np.full(299, 0.005), abs=1e-12)
+    assert np.degrees(off.tracking_error_rad) == pytest.approx(np.tile([-1.0, 0.0, 0.0, 0.0], (299, 1)), abs=1e-9)
+    assert off.plan_s == plan.duration
 
 
 def _trace(n: int = 400) -> CarryTrace:

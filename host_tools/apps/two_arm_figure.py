@@ -2,8 +2,9 @@
 
 `CarryTrace` is what a carry recorded, sample by sample on the simulated clock from the trajectories' start: the
 object's centre as executed and as planned, the squeeze, and each arm's shoulder and elbow as executed and as
-planned. Whoever ran the carry fills it (bench/bench_two_arms.py `carry`: every plant tick from the plant's state);
-`write_carry_figure` draws it, and knows nothing of benches, links or plants.
+planned. Whoever ran the carry measures it (bench/bench_two_arms.py `carry`: every plant tick from the plant's
+state) and `carry_trace` adds where the plan had each; `write_carry_figure` draws it, and knows nothing of benches,
+links or plants.
 
 Drawn with matplotlib, the `plot` extra: imported only when a figure is written, and without it `MissingExtra`
 (kernels/extras.py) says which extra to install, before anything is written. The PNG is written whole or not at
@@ -19,7 +20,10 @@ from typing import Union
 
 import numpy as np
 
+from host_tools.apps.two_arm_plan import profile_at
 from host_tools.outputs import PNG, Output, unclaimed
+from host_tools.plan.phase import Problem
+from host_tools.plan.profile import Profile
 from kernels.extras import require
 
 JOINTS = ("arm 1 shoulder", "arm 1 elbow", "arm 2 shoulder", "arm 2 elbow")
@@ -79,6 +83,16 @@ class CarryTrace:
         return self.joints_rad - self.joints_planned_rad
 
 
+def carry_trace(problem: Problem, plan: Profile, times_s, object_m, squeeze_n, joints_rad) -> CarryTrace:
+    """The trace of a carry of `plan` (the profile the arms' knots came from, `problem` the one it was planned
+    for): what was measured at `times_s` (from the trajectories' start), and where the plan had the object and each
+    arm's shoulder and elbow then (at rest at its end after it)."""
+    times = np.asarray(times_s, dtype=float)
+    s = profile_at(plan, times)[0]
+    return CarryTrace(times, np.asarray(object_m, dtype=float), problem.path(s).w, np.asarray(squeeze_n, dtype=float),
+                      np.asarray(joints_rad, dtype=float), problem.system.joint_path(problem.path, s).q, plan.duration)
+
+
 def write_carry_figure(trace: CarryTrace, output: Union[Output, Path, str], title: str = "") -> None:
     """Draw `trace` as one PNG at `output` (an `Output` a command claimed, or a path no command line named): the
     object's x and z, its distance from its planned point, each arm's joints, their errors and the squeeze, all
@@ -130,4 +144,4 @@ def write_carry_figure(trace: CarryTrace, output: Union[Output, Path, str], titl
         plt.close(fig)
 
 
-__all__ = ["CarryTrace", "JOINTS", "write_carry_figure"]
+__all__ = ["CarryTrace", "JOINTS", "carry_trace", "write_carry_figure"]
