@@ -203,6 +203,10 @@ def test_two_arm_sim_refuses_then_carries_the_object_twice_in_earth_gravity(tmp_
 def test_two_arm_sim_carries_the_object_in_orbit(tmp_path):
     sim = TwoArmSim(tmp_path, "--gravity", "orbit")
     try:
-        _carried(sim.plan("--set-speeds"))
+        done = sim.plan("--set-speeds", "--plot", str(tmp_path / "figures"))
+        _carried(done)
+        figure = tmp_path / "figures" / "two_arm_carry.png"      # plan against execution, from the endpoint
+        assert str(figure) in json.loads(done.stdout)["figures"]
+        assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 20_000
     finally:
         sim.stop()

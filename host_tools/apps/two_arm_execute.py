@@ -26,6 +26,7 @@ import numpy as np
 from firmware_py.arm_config import ArmDescription, highest_speed_dps
 from firmware_py.hermite import HermiteProfile
 from host_tools.apps.arm_plan import ARM_JOINTS
+from host_tools.apps.two_arm_figure import CarryTrace, carry_trace
 from host_tools.apps.two_arm_plan import ELBOW, SHOULDER, curve_bounds_deg, start_together
 from host_tools.client.live import HostClient
 from host_tools.client.trajectory import Knot
@@ -39,6 +40,7 @@ SILENCE_S = 5.0               # wall time without telemetry from a controller: i
 READY_TIMEOUT_S = 120.0       # controller seconds for homing, a move to the start, a grip
 RUN_SPARE_S = 10.0            # ... and for the trajectory, past the plan's duration
 WATCH_PERIOD_S = 0.01         # how often the object is read from the control endpoint (wall time)
+AFTER_S = 0.5                 # the figure goes on this long past the plan's end
 GRAVITY_TOLERANCE = 0.05      # m/s^2: the controller's gravity parameter against the plan's
 MOVE_DPS = 30.0               # the moves to the plan's start, at most (within each joint's speed parameter)
 PLANNED_JOINTS = (SHOULDER, ELBOW)
@@ -215,6 +217,7 @@ class Executed:
     squeeze_n: Optional[float]
     grasps: Optional[list[str]]
     object_readings: int = 0
+    trace: Optional[CarryTrace] = None     # plan against execution, from the control endpoint's readings
 
 
 class TwoArmRun:
@@ -297,7 +300,7 @@ class TwoArmRun:
                       "move the shoulder and elbow to the start")
         self._motions([[M["Grip"](int(GripAction.CLOSE))]] * 2, "close the jaws on the object")
 
-    def run(self, problem: Problem, plan_s: float, control=None) -> Executed:
+    def run(self, problem: Problem, profile: Profile, control=None) -> Executed:
         """Both trajectories started on one tick and watched to their end; the object read from `control` (the
         simulator's endpoint) meanwhile, if given."""
         objects: list = []
@@ -306,6 +309,7 @@ class TwoArmRun:
         if control is not None:
             reader = threading.Thread(target=_read_object, args=(control, objects, stop), daemon=True)
             reader.start()
+        plan_s = profile.duration
         for watch in self.watches:
             watch.recording = True
         try:
@@ -326,12 +330,19 @@ class TwoArmRun:
         outcomes = tuple({Axis(a).name.lower(): MotionOutcome(e.outcome).name for a, e in done.items()}
                          for done in ended)
         ended_s = max((int(e.uptime_ms) - fits[arm][1]) / 1000.0 for arm in range(2) for e in ended[arm].values())
-        held = [state for state in objects if state and state.get("held")]
+        held = [state for _, state in objects if state and state.get("held")]
+        start_s = fits[0][1] / 1000.0          # the controllers' uptime counts the world's time from its start
+        during = [(t - start_s, state) for t, state in objects if state and "x_m" in state
+                  and 0.0 <= t - start_s <= plan_s + AFTER_S]
+        trace = None if not during else carry_trace(
+            problem, profile, [t for t, _ in during], [(s["x_m"], s["z_m"]) for _, s in during],
+            [s["squeeze_n"] for _, s in during],
+            [[math.radians(a) for arm in s["shoulder_elbow_deg"] for a in arm] for _, s in during])
         return Executed(tracking_deg=(fits[0][0], fits[1][0]), outcomes=outcomes, plan_s=plan_s, ended_s=ended_s,
                         path_error_m=path_error_m(problem, [(s["x_m"], s["z_m"]) for s in held]) if held else None,
                         squeeze_n=max((abs(s["squeeze_n"]) for s in held), default=None),
                         grasps=sorted({g["state"] for s in held for g in s["grasps"]}) if held else None,
-                        object_readings=len(held))
+                        object_readings=len(held), trace=trace)
 
 
 def _read_object(control, objects: list, stop: threading.Event) -> None:
@@ -342,14 +353,15 @@ def _read_object(control, objects: list, stop: threading.Event) -> None:
         except Exception:            # the endpoint went away: the run goes on without the object's truth
             return
         if reply.get("ok"):
-            objects.append(reply["state"].get("object"))
+            objects.append((reply["time_s"], reply["state"].get("object")))
 
 
 def execute(problem: Problem, profile: Profile, knots: tuple[Sequence[Knot], Sequence[Knot]], settings,
-            keys: tuple[bytes, bytes], log=lambda text: None) -> dict:
+            keys: tuple[bytes, bytes], log=lambda text: None) -> tuple[dict, Optional[CarryTrace]]:
     """`aspod plan --execute`: connect to both controllers (`settings.execute`, arm 1's first, with `keys`), check the plan against what each allows (PlanError naming every limit it would pass,
     before anything moves; with `settings.set_speeds`, a speed parameter under the plan's is raised to it, within
-    its range, and said), make both arms ready, carry the object, and say what was measured (JSON values)."""
+    its range, and said), make both arms ready, carry the object, and say what was measured (JSON values), with the
+    trace of plan against execution when the simulator's endpoint gave the object (None without)."""
     from firmware_py.arm_config import EXAMPLE_ARM
     from host_tools.client.control import open_control
     torques = planned_torques(problem, profile)
@@ -388,7 +400,7 @@ def execute(problem: Problem, profile: Profile, knots: tuple[Sequence[Knot], Seq
                 raise ExecuteError("both jaws closed at the plan's start, but the object is not between them (the "
                                    "simulator's control endpoint says so): its hands are not at its grasps")
         log(f"both arms at the plan's start, the object held; running the plan ({profile.duration:.3f} s)")
-        done = run.run(problem, profile.duration, control)
+        done = run.run(problem, profile, control)
     finally:
         for client in clients:
             client.close()
@@ -398,4 +410,4 @@ def execute(problem: Problem, profile: Profile, knots: tuple[Sequence[Knot], Seq
             "tracking_deg": [round(x, 3) for x in done.tracking_deg], "outcomes": list(done.outcomes),
             "object": None if done.path_error_m is None else {
                 "path_error_mm": round(done.path_error_m * 1e3, 3), "squeeze_n": round(done.squeeze_n, 3),
-                "grasps": done.grasps, "readings": done.object_readings}}
+                "grasps": done.grasps, "readings": done.object_readings}}, done.trace

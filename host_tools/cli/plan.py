@@ -37,6 +37,7 @@ from host_tools.plan.timeopt import TimeOptimal, plan_time_optimal
 
 log = logging.getLogger("aspod")
 EXCESS_WARNED = 0.01      # a time-optimal plan past a limit by more than this share of it is said on stderr
+CARRY_FIGURE = "two_arm_carry.png"    # --execute --plot DIR: plan against execution, beside Figs. 11-17
 SPAN_MARGIN = 1.2         # the DP's speeds span this times the minimum-time plan's highest s' (by default)
 
 
@@ -124,8 +125,14 @@ def run_plan(settings: PlanSettings) -> int:
         from host_tools.cli.main import host_key
         wanted = settings.two_arms
         keys = (host_key(wanted.key_file, wanted.execute[0]), host_key(wanted.key_file, wanted.execute[1]))
-        result["executed"] = execute(two_arms.limited, two_arms.profile, two_arms.knots, wanted, keys,
-                                     lambda text: log.info(f"aspod plan: {text}"))
+        result["executed"], trace = execute(two_arms.limited, two_arms.profile, two_arms.knots, wanted, keys,
+                                            lambda text: log.info(f"aspod plan: {text}"))
+        if settings.plot is not None and trace is not None:
+            from host_tools.apps.two_arm_figure import write_carry_figure
+            figure = settings.plot / CARRY_FIGURE
+            settings.plot.mkdir(parents=True, exist_ok=True)
+            write_carry_figure(trace, figure, "aspod plan --execute: plan (dashed) against execution")
+            result.setdefault("figures", []).append(str(figure))
     return _print(settings, result)
 
 
@@ -386,7 +393,9 @@ def add_options(plan: argparse.ArgumentParser) -> None:
     plan.add_argument("--links", choices=("point", "rod"), default="point",
                       help="the example's links: point masses at their far ends (default), or uniform rods")
     plan.add_argument("--json", action="store_true", help="print one JSON object")
-    plan.add_argument("--plot", type=Path, default=None, metavar="DIR", help="draw the report's Figs. 11-17 into DIR")
+    plan.add_argument("--plot", type=Path, default=None, metavar="DIR",
+                      help="draw the report's Figs. 11-17 into DIR; with --execute also the carry, plan against "
+                           "execution (two_arm_carry.png, from the simulator's control endpoint)")
     plan.add_argument("--output", type=Path, default=None, metavar="FILE.json",
                       help="write the trajectory file teleop's `traj load` takes: without --arm-to, the two arms' "
                            "plan, each example arm's knots (`traj load FILE arm 1|2`), refused if a joint would "

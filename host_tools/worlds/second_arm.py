@@ -137,8 +137,8 @@ class SecondArmNodes:
                 pass                # the hands closed at grasps too far apart: it waits on its stand
 
     def object_state(self) -> Optional[dict]:
-        """The object, as JSON values (the control endpoint's `state`): its pose, velocity, squeeze and each
-        grasp's state and force; None without an object."""
+        """The object, as JSON values (the control endpoint's `state`): its pose, velocity, squeeze, each grasp's
+        state and force, and the two arms' shoulders and elbows holding it; None without an object."""
         if self.pair is None:
             return None
         obj = self.pair.object
@@ -149,6 +149,7 @@ class SecondArmNodes:
         vx, vz, w = obj.velocity
         return {"held": held, "x_m": x, "z_m": z, "angle_deg": math.degrees(theta), "vx_m_s": vx, "vz_m_s": vz,
                 "w_deg_s": math.degrees(w), "squeeze_n": obj.squeeze_n,
+                "shoulder_elbow_deg": [[math.degrees(float(arm.pos_rad[j])) for j in (0, 1)] for arm in self.pair.arms],
                 "grasps": [{"state": state.name, "force_n": force, "limit_n": limit}
                            for state, force, limit in zip(obj.states, obj.carried_n, obj.limits_n)]}
 
