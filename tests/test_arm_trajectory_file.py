@@ -74,7 +74,7 @@ def test_not_json_and_options_out_of_place_are_refused(tmp_path, capsys):
     assert main(["plan", "--payload-kg", "1"]) == 2
     err = capsys.readouterr().err
     assert "not a joint of the trajectory" in err and "-360..360" in err
-    assert "--knots: only with --output (the two arms' trajectory file) or --arm-to" in err
+    assert "--knots: only with --output (the two arms' trajectory file), --execute or --arm-to" in err
     assert "--payload-kg: only with --arm-to" in err
 
 

@@ -22,7 +22,7 @@ from firmware_py.arm_config import EXAMPLE_ARM
 from host_tools.apps.arm_plan import ARM_JOINTS
 from host_tools.apps.two_arm_execute import ArmLimits, check_arm, path_error_m, planned_torques, tracking_error_deg
 from host_tools.apps.two_arm_plan import controller_knots, executable_plan
-from host_tools.client.control import ControlClient
+from host_tools.client.control import ControlClient, find_control, simulator_key_file
 from host_tools.worlds.child import Child, run
 from host_tools.plan.example import PATH, report_problem
 
@@ -183,6 +183,10 @@ def _carried(done) -> dict:
 def test_two_arm_sim_refuses_then_carries_the_object_twice_in_earth_gravity(tmp_path):
     sim = TwoArmSim(tmp_path)
     try:
+        link1, link2 = sim.links.split(",")
+        # a host on either link finds the key; only the first arm's link has the endpoint, which acts on its plant
+        assert simulator_key_file(link1, sim.env) == simulator_key_file(link2, sim.env) is not None
+        assert find_control(link1, sim.env) == sim.control and find_control(link2, sim.env) is None
         before = sim.state()
         refused = sim.plan("--gravity")          # the example arm's speed parameters are ASPOD's 3 deg/s
         assert refused.returncode == 2, refused.stderr.decode()

@@ -43,7 +43,7 @@ STEP_WALL_PER_S = 4.0          # ... and a step's, this much wall time more per 
 FIND_TIMEOUT_S = 1.0           # `find_simulator`: a socket that does not answer `info` in this is not the one
 MAX_REPLY = 1 << 20
 MAX_SCANNED = 64               # sockets looked at by `find_simulator`
-LINK_KEYS = ("link", "link2")     # what `info` names: the link, and a two-arm simulator's second arm's
+LINK_KEYS = ("link", "link2")     # what `info` names: the link, and a two-arm simulator's second arm's (its key)
 
 
 class ControlUnavailable(OSError):
@@ -162,12 +162,14 @@ def running_simulators(environ: Optional[Mapping[str, str]] = None) -> list[Foun
     return [found for found in map(_asked, _sockets(environ)) if found is not None]
 
 
-def find_simulator(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Found]:
-    """The endpoint of this user's live simulator that serves the link `url`, or None."""
+def find_simulator(url: str, environ: Optional[Mapping[str, str]] = None,
+                   keys: tuple[str, ...] = LINK_KEYS) -> Optional[Found]:
+    """The endpoint of this user's live simulator that serves the link `url` (one its `info` names under `keys`:
+    by default the first arm's link or a second arm's), or None."""
     wanted = link_endpoints(url)
     for path in _sockets(environ):
         found = _asked(path)
-        if found is not None and any(wanted & link_endpoints(str(found.info.get(key, ""))) for key in LINK_KEYS):
+        if found is not None and any(wanted & link_endpoints(str(found.info.get(key, ""))) for key in keys):
             return found
     return None
 
@@ -196,8 +198,9 @@ def _asked(path: Path) -> Optional[Found]:
 
 def find_control(url: str, environ: Optional[Mapping[str, str]] = None) -> Optional[Path]:
     """The control socket of this user's live `aspod sim` that serves the link `url` and reaches its plant, or
-    None."""
-    found = find_simulator(url, environ)
+    None. Not for a second arm's link (`aspod sim --arms 2`): the endpoint's faults, actions and `state` are the
+    first arm's plant's, and a host on the second arm's link would act on the wrong arm."""
+    found = find_simulator(url, environ, keys=("link",))
     return found.path if found is not None and found.info.get("plant") is True else None
 
 
