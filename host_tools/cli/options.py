@@ -212,6 +212,10 @@ def add_bench_world_args(parser: argparse.ArgumentParser) -> None:
                         help="set a controller parameter before the run (repeatable)")
     parser.add_argument("--var", action="append", default=[], metavar="NAME=VALUE",
                         help="the script's ${NAME} is VALUE (repeatable)")
+    parser.add_argument("--arms", type=int, choices=(1, 2), default=1,
+                        help="2: the report's two example arms, each with its own controller, the example's object "
+                             "waiting between them, as aspod sim --arms 2 (the script drives arm 1; the pytest "
+                             "plugin's aspod_target.arm2 the other; --param sets both)")
 
 
 def add_tracker_args(parser: argparse.ArgumentParser) -> None:

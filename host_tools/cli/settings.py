@@ -581,10 +581,16 @@ def bench_world(args: argparse.Namespace, plant: PlantSettings) -> "WorldSetting
     from firmware_py.controller import ControllerConfig, check_param, parameter_table
     from host_tools.worlds.bench_world import TimedFault, WorldSettings
     params = pairs(args.param, "--param")
-    config = ControllerConfig()
+    arms = getattr(args, "arms", 1)
+    if arms == 2:
+        from firmware_py.arm_config import EXAMPLE_ARM
+        config = ControllerConfig(arm=EXAMPLE_ARM)
+    else:
+        config = ControllerConfig()
     check_params(params, parameter_table(config), "the controller",
                  lambda store, name, value: check_param(store, config, name, value))
-    return WorldSettings(args.seed, plant, tuple(TimedFault.parse(f) for f in args.fault), args.impairment, params)
+    return WorldSettings(args.seed, plant, tuple(TimedFault.parse(f) for f in args.fault), args.impairment, params,
+                         arms)
 
 
 @dataclass(frozen=True)

@@ -47,19 +47,26 @@ class BenchClock(Clock):
 
 
 class BenchClient:
-    """What teleop's `Session` needs of a client, on a `LockstepBench` (which it does not own)."""
+    """What teleop's `Session` needs of a client, on a `LockstepBench` (which it does not own): its first arm's
+    host, or with `arm` 2 its second arm's (`LockstepBench(arms=2)`), which has no `sim` words (the plant's control
+    acts on the first arm's plant, as a two-arm simulator's endpoint does)."""
 
-    def __init__(self, bench: LockstepBench) -> None:
+    def __init__(self, bench: LockstepBench, arm: int = 1) -> None:
+        if arm not in (1, 2) or (arm == 2 and bench.arm2 is None):
+            raise ValueError(f"arm {arm!r}: this bench has {'two arms, 1 or 2' if bench.arm2 else 'one arm, 1'}")
         self.bench = bench
+        self.arm = arm
         self.clock = BenchClock(bench)
-        self.link = bench.host
-        self.control = bench.control      # `sim ...`: the plant, as a live simulator's control endpoint has it
+        host = bench.host if arm == 1 else bench.arm2.host
+        self.link = host
+        self.control = bench.control if arm == 1 else None   # `sim ...`: the plant, as a simulator's endpoint has it
         self.io_error: Optional[str] = None
         self.telemetry_listeners: list[Callable[[Message, float], None]] = []
         self.event_listeners: list[Callable[[Message, float], None]] = []
         self.events: list[Message] = []
-        host = bench.host
-        on_telemetry, on_event = host.on_telemetry, host.on_event     # the bench's own lists keep filling
+        # the bench's own lists keep filling
+        on_telemetry = host.on_telemetry or (lambda msg, now: None)
+        on_event = host.on_event or (lambda msg, now: None)
 
         def telemetry(msg: Message, now: float) -> None:
             on_telemetry(msg, now)
@@ -78,11 +85,13 @@ class BenchClient:
         return self.bench.world.plant.tracker.start_utc.timestamp() + self.bench.clock.now()
 
     def connect(self, timeout_s: float = 10.0) -> None:
-        if not self.bench.connect(timeout_s):
+        bench = self.bench
+        up = bench.connect(timeout_s) if self.arm == 1 else bench.arm2.connect(bench.world.arm2.controller, timeout_s)
+        if not up:
             raise LinkError(Reason.LINK_SUSPENDED, f"no session with the bench's controller in {timeout_s:g} s")
 
     def call(self, msg: Message, timeout_s: float = 30.0) -> CommandHandle:
-        return self.bench.call(msg, timeout_s)
+        return self.bench.call(msg, timeout_s) if self.arm == 1 else self.bench.arm2.call(msg, timeout_s)
 
     def wait_for(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Run until `predicate()` holds or `timeout_s` of simulated time pass, looking at it every millisecond: the
@@ -92,4 +101,4 @@ class BenchClient:
 
     def close(self, why: CloseWhy = CloseWhy.DONE) -> None:
         """Close the session cleanly, on the simulated clock (the bench itself is its owner's to close)."""
-        self.bench.close_session(why)
+        self.bench.close_session(why, host=self.link)

@@ -58,7 +58,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 # `--aspod-<its name>`: one grammar, one parser, one set of checks for both.
 WORLD_OPTIONS = (("gravity", "earth|orbit", "gravity"), ("payload-kg", "M", "payload at the gripper, kg"),
                  ("sun-start", "ISO", "sun's start (default: a fixed date, as aspod bench)"),
-                 ("clouds", "SPEC", "clouds over the tracker"), ("impairment", "SPEC", "link impairment (radio, ...)"))
+                 ("clouds", "SPEC", "clouds over the tracker"), ("impairment", "SPEC", "link impairment (radio, ...)"),
+                 ("arms", "1|2", "arms: 2, the report's two example arms and their object (aspod_target.arm2)"))
 WORLD_LISTS = (("fault", "NAME[:CH]@T", "a plant fault at simulated time T (repeatable): jam:j2@3.5"),
                ("param", "NAME=VALUE", "a controller parameter set before the test (repeatable)"),
                ("var", "NAME=VALUE", "a bench variable: aspod_target.variables[NAME], a script's ${NAME} (repeatable)"))

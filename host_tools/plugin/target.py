@@ -209,6 +209,13 @@ class LockstepTarget(Target):
         client = BenchClient(self.bench)
         super().__init__(client, "lockstep", dict(variables or {}))
         client.connect()
+        # `--aspod-arms 2`: the second arm's controller, on its own link: a target of its own, without the plant's
+        # control (the first arm's target has it, the object included in `true_state`)
+        self.arm2: Optional[Target] = None
+        if world.arms == 2:
+            second = BenchClient(self.bench, arm=2)
+            self.arm2 = Target(second, "lockstep arm 2", dict(variables or {}))
+            second.connect()
 
     def close_record(self) -> dict:
         record = {"sim_time_s": self.now(), "seed": self.world.seed,
@@ -220,6 +227,8 @@ class LockstepTarget(Target):
         return self.client.wall_time
 
     def close(self) -> None:
+        if self.arm2 is not None:
+            self.arm2.close()
         self.bench.close()
 
 

@@ -479,7 +479,8 @@ MAX_DIRECTIVE_CHARS = 4 * files.KIB   # the longest real directive is under 200 
 # and bench-world options; host_tools/cli/main.py), each with whether it takes a value. Nothing else: a script is
 # input, and must not choose where the tool writes (--record, --log-file) or how it reports.
 WORLD_OPTIONS = {"--seed": True, "--gravity": True, "--payload-kg": True, "--sun-start": True, "--clouds": True,
-                 "--no-tracker": False, "--fault": True, "--impairment": True, "--param": True, "--var": True}
+                 "--no-tracker": False, "--fault": True, "--impairment": True, "--param": True, "--var": True,
+                 "--arms": True}
 
 
 def script_directive(lines: list[str]) -> tuple[str, ...]:

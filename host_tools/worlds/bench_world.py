@@ -69,7 +69,8 @@ class WorldSettings:
     plant: PlantSettings = PlantSettings()
     faults: tuple[TimedFault, ...] = ()
     impairment: Optional[str] = None                 # an `Impairment.parse` spec: "radio", "ber=1e-5,drop=0.01"
-    params: tuple[tuple[str, float], ...] = ()       # controller parameters set before the run
+    params: tuple[tuple[str, float], ...] = ()       # controller parameters set before the run (each arm's)
+    arms: int = 1                                    # 2: the report's two example arms and their object
 
     def __post_init__(self) -> None:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
@@ -78,6 +79,8 @@ class WorldSettings:
         object.__setattr__(self, "params", tuple((str(k), float(v)) for k, v in self.params))
         if self.impairment is not None:
             Impairment.parse(self.impairment)        # ValueError now rather than when the world is built
+        if self.arms not in (1, 2):
+            raise ValueError(f"arms is 1 or 2, not {self.arms!r}")
 
     def to_bench_argv(self) -> list[str]:
         """These settings as `aspod bench` takes them."""
@@ -88,6 +91,8 @@ class WorldSettings:
             argv += ["--impairment", self.impairment]
         for name, value in self.params:
             argv += ["--param", f"{name}={value!r}"]
+        if self.arms != 1:
+            argv += ["--arms", str(self.arms)]
         return argv
 
     def to_pytest_argv(self) -> list[str]:
@@ -107,13 +112,15 @@ class WorldSettings:
 
 
 def apply_params(bench: LockstepBench, params) -> None:
-    """Set controller parameters by name before a run (in passes, as a parameter file is loaded); ValueError
-    naming the first one refused (then some of the others may be set: build the bench again)."""
-    store = bench.controller.params
-    refused = store.set_all(params)
-    if refused:
-        raise ValueError(f"parameter {next(iter(refused.values()))}")
-    bench.controller.telemetry_hz = int(store["telemetry_hz"])
+    """Set controller parameters by name before a run (in passes, as a parameter file is loaded), each arm's
+    controller's; ValueError naming the first one refused (then some of the others may be set: build the bench
+    again)."""
+    controllers = [bench.controller] + ([bench.world.arm2.controller] if bench.world.arm2 is not None else [])
+    for controller in controllers:
+        refused = controller.params.set_all(params)
+        if refused:
+            raise ValueError(f"parameter {next(iter(refused.values()))}")
+        controller.telemetry_hz = int(controller.params["telemetry_hz"])
 
 
 def schedule_faults(bench: LockstepBench, faults: tuple[TimedFault, ...]) -> None:
@@ -136,6 +143,8 @@ def build_bench(world: WorldSettings, **bench_options) -> LockstepBench:
     """A `LockstepBench` as `world` says (its faults scheduled); `bench_options` go to `LockstepBench`.
     ValueError if a parameter is refused."""
     impairment = None if world.impairment is None else Impairment.parse(world.impairment)
+    if world.arms == 2:
+        bench_options = {**two_arm_options(), **bench_options}
     bench = LockstepBench(seed=world.seed, plant=world.plant, impairment=impairment, **bench_options)
     try:
         apply_params(bench, world.params)
@@ -144,3 +153,15 @@ def build_bench(world: WorldSettings, **bench_options) -> LockstepBench:
         raise
     schedule_faults(bench, world.faults)
     return bench
+
+
+def two_arm_options() -> dict:
+    """A lock-step world's two arms as `aspod sim --arms 2` has them (docs/two_arms.md): two example arms, the
+    example's object waiting on its stand at its path's start until both jaws close on it."""
+    from firmware_py.arm_config import EXAMPLE_ARM
+    from firmware_py.controller import ControllerConfig
+    from hil_sim.arm_params import EXAMPLE_ARM_PLANT
+    from hil_sim.held_object import ObjectParams
+    from host_tools.plan.example import PATH
+    return dict(arms=2, controller_config=ControllerConfig(arm=EXAMPLE_ARM), arm_params=EXAMPLE_ARM_PLANT,
+                held_object=ObjectParams(), object_waits_at_m=PATH[0])

@@ -162,7 +162,8 @@ class LockstepBench:
                  sleeping_line: bool = True, clock: Optional[SimClock] = None,
                  direct_values: bool = True, impairment: Optional[Impairment] = None,
                  link_time: Optional[LinkTime] = None, fast_loop: bool = True, arms: int = 1,
-                 arm_params: Optional[ArmPlantParams] = None, held_object: Optional[ObjectParams] = None) -> None:
+                 arm_params: Optional[ArmPlantParams] = None, held_object: Optional[ObjectParams] = None,
+                 object_waits_at_m: Optional[tuple[float, float]] = None) -> None:
         if arms not in (1, 2):
             raise ValueError(f"a bench has 1 or 2 arms, not {arms}")
         self.clock = clock if clock is not None else SimClock()
@@ -173,7 +174,8 @@ class LockstepBench:
                            plant=plant, direct_values=direct_values, link_time=link_time, fast_loop=fast_loop,
                            arm_params=arm_params,
                            second_arm=None if port2 is None else SecondArm(port2, controller_config, plant_params,
-                                                                           arm_params, held_object))
+                                                                           arm_params, held_object,
+                                                                           waits_at_m=object_waits_at_m))
         self.link_clock = self.world.link_scheduler.clock    # the host's time: the world's, unless `link_time`
         self.events: list = []
         self.telemetry: list = []
@@ -186,7 +188,8 @@ class LockstepBench:
         self._capture: Optional[CaptureWriter] = None
         # `sim ...` lines and a bench's faults, as the live simulator's control endpoint takes them
         self.control = PlantControl(self.world.plant, self.clock, tracker=plant.tracker, about={"world": "lockstep"},
-                                    on_change=self._note_control)
+                                    on_change=self._note_control,
+                                    held_object=None if self.world.arm2 is None else self.world.arm2.object_state)
         self.step_s = step_s
         self._host_alive = True
         self._host_running = False
@@ -362,13 +365,16 @@ class LockstepBench:
         self.wait_until(lambda: handle.done, timeout_s, between_loops=True)
         return handle
 
-    def close_session(self, why: CloseWhy = CloseWhy.DONE, timeout_s: float = 5.0) -> bool:
-        """End the host's session cleanly (`HostLink.close`) and run until it is closed: True once CLOSED."""
-        if self.host.state is not LinkState.UP:
-            return self.host.state is LinkState.CLOSED
-        self.host.close(self.clock.now(), why)
-        self.wait_until(lambda: self.host.state is not LinkState.CLOSING, timeout_s, between_loops=True)
-        return self.host.state is LinkState.CLOSED
+    def close_session(self, why: CloseWhy = CloseWhy.DONE, timeout_s: float = 5.0, host: Optional[HostLink] = None
+                      ) -> bool:
+        """End the host's session cleanly (`HostLink.close`; `host`: another of this world's hosts, the second
+        arm's) and run until it is closed: True once CLOSED."""
+        host = self.host if host is None else host
+        if host.state is not LinkState.UP:
+            return host.state is LinkState.CLOSED
+        host.close(self.clock.now(), why)
+        self.wait_until(lambda: host.state is not LinkState.CLOSING, timeout_s, between_loops=True)
+        return host.state is LinkState.CLOSED
 
     def close(self) -> None:
         self.world.close()
